@@ -1,0 +1,1 @@
+"""holodata's command line (installed as ``holodata.cli``): flags in, library calls out."""

@@ -1,0 +1,71 @@
+"""The ``holodata`` click group.
+
+Each command lives in its own module under ``cli/`` and is listed in ``COMMAND_MODULES``;
+heavy imports happen inside command bodies so ``holodata --help`` stays fast.
+Errors: :class:`holodata.errors.HolodataError` (and any other exception) becomes one line on
+stderr and exit code 1; ``--debug`` shows the traceback instead. Usage errors exit 2.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+import click
+
+# module name under holodata.cli -> attribute holding the click command(s)
+COMMAND_MODULES: list[str] = [
+    "info",
+]
+
+
+class HolodataGroup(click.Group):
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
+            raise
+        except KeyboardInterrupt:
+            click.echo("interrupted", err=True)
+            sys.exit(130)
+        except Exception as err:  # noqa: BLE001 - the CLI's single error boundary
+            if ctx.obj and ctx.obj.get("debug"):
+                raise
+            click.echo(f"error: {one_line(err)}", err=True)
+            sys.exit(1)
+
+
+def one_line(err: BaseException) -> str:
+    from holodata.errors import HolodataError
+
+    msg = " ".join(str(err).split()) or err.__class__.__name__
+    if not isinstance(err, HolodataError):
+        msg = f"{err.__class__.__name__}: {msg} (run with --debug for a traceback)"
+    return msg
+
+
+@click.group(cls=HolodataGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("--debug", is_flag=True, help="Show full tracebacks on errors.")
+@click.version_option(package_name="holodata")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """holodata: multi-bounce radar ground truth datasets.
+
+    Synthesise or ingest recordings, build the scene mesh, ray-trace per-beam multi-bounce
+    ground truth into sharded Zarr datasets, validate them, train and evaluate models.
+    """
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+
+
+for _name in COMMAND_MODULES:
+    _mod = importlib.import_module(f"holodata.cli.{_name}")
+    for _cmd in getattr(_mod, "COMMANDS"):
+        cli.add_command(_cmd)
+
+
+def main() -> None:
+    cli(obj={})
+
+
+if __name__ == "__main__":
+    main()

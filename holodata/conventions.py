@@ -1,0 +1,163 @@
+"""The one place for holodata's conventions (DESIGN.md §2).
+
+Units: metres, radians, int64 nanoseconds. Frames: REP-103 (x forward, y left, z up).
+Poses are ``T_world_sensor`` 4x4 float64. Nothing here imports the rest of holodata.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from enum import IntEnum
+
+import numpy as np
+
+FORMAT_VERSION = "1.0"
+
+DEFAULT_H = 64
+DEFAULT_W = 512
+DEFAULT_ELEV_DEG = (45.0, -45.0)  # (max, min): row 0 looks up
+DEFAULT_RANGE_BINS = 256
+DEFAULT_RANGE_RESOLUTION_M = 0.0375
+DEFAULT_MAX_RANGE_M = 9.6
+DEFAULT_MAX_BOUNCES = 3
+LOS_TOLERANCE_M = 0.02
+
+# Paper radar (HoloRadar appendix / PanoRadar): rotation radius and rate.
+RADAR_ROTATION_RADIUS_M = 0.105
+RADAR_ROTATION_HZ = 2.0
+
+
+class Label(IntEnum):
+    """Per-beam, per-bounce ground-truth label (uint8)."""
+
+    NONE = 0
+    LOS_STRUCTURE = 1
+    NLOS_STRUCTURE = 2
+    LOS_HUMAN = 3
+    NLOS_HUMAN = 4
+
+
+LABEL_NAMES = {int(v): v.name.lower() for v in Label}
+
+
+@dataclass(frozen=True)
+class Grid:
+    """Radar / GT beam grid: ``(H, W)``; row 0 at ``elev_max_deg``, last row at ``elev_min_deg``.
+
+    Column ``j`` has azimuth ``-2*pi*j/W`` (column 0 looks along +x, clockwise from above).
+    """
+
+    H: int = DEFAULT_H
+    W: int = DEFAULT_W
+    elev_max_deg: float = DEFAULT_ELEV_DEG[0]
+    elev_min_deg: float = DEFAULT_ELEV_DEG[1]
+
+    def __post_init__(self) -> None:
+        if self.H < 2 or self.W < 1:
+            raise ValueError(f"grid must have H >= 2 and W >= 1, got {self.H}x{self.W}")
+        if not self.elev_max_deg > self.elev_min_deg:
+            raise ValueError(
+                f"elevation max ({self.elev_max_deg}) must exceed min ({self.elev_min_deg})"
+            )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.H, self.W)
+
+    def elevations(self) -> np.ndarray:
+        """(H,) float64 radians, row 0 = max elevation, both ends included."""
+        hi, lo = np.deg2rad(self.elev_max_deg), np.deg2rad(self.elev_min_deg)
+        return hi - np.arange(self.H) * (hi - lo) / (self.H - 1)
+
+    def azimuths(self) -> np.ndarray:
+        """(W,) float64 radians, ``phi_j = -2*pi*j/W``."""
+        return -2.0 * np.pi * np.arange(self.W) / self.W
+
+    def directions(self) -> np.ndarray:
+        """(H, W, 3) float64 unit beam directions in the sensor frame."""
+        th = self.elevations()[:, None]
+        ph = self.azimuths()[None, :]
+        return np.stack(
+            np.broadcast_arrays(np.cos(th) * np.cos(ph), np.cos(th) * np.sin(ph), np.sin(th)),
+            axis=-1,
+        )
+
+    def to_attrs(self) -> dict:
+        return {"H": self.H, "W": self.W, "elev_deg": [self.elev_max_deg, self.elev_min_deg]}
+
+    @classmethod
+    def from_attrs(cls, attrs: dict) -> "Grid":
+        return cls(int(attrs["H"]), int(attrs["W"]), float(attrs["elev_deg"][0]), float(attrs["elev_deg"][1]))
+
+    @classmethod
+    def parse(cls, grid: str = f"{DEFAULT_H}x{DEFAULT_W}", elevation_fov: str | None = None) -> "Grid":
+        """Parse CLI strings ``"64x512"`` and ``"-45,45"`` (degrees, min,max in any order)."""
+        try:
+            h, w = (int(v) for v in grid.lower().split("x"))
+        except ValueError:
+            raise ValueError(f"grid must look like 64x512, got {grid!r}") from None
+        if elevation_fov is None:
+            return cls(h, w)
+        try:
+            a, b = (float(v) for v in elevation_fov.split(","))
+        except ValueError:
+            raise ValueError(f"elevation FOV must look like -45,45, got {elevation_fov!r}") from None
+        return cls(h, w, max(a, b), min(a, b))
+
+
+@dataclass(frozen=True)
+class RangeBins:
+    """Radar range axis: bin ``k`` centre ``(k + 0.5) * dr`` metres."""
+
+    n: int = DEFAULT_RANGE_BINS
+    dr: float = DEFAULT_RANGE_RESOLUTION_M
+
+    @property
+    def max_range(self) -> float:
+        return self.n * self.dr
+
+    def centres(self) -> np.ndarray:
+        """(n,) float64 metres."""
+        return (np.arange(self.n) + 0.5) * self.dr
+
+    def index(self, r: np.ndarray) -> np.ndarray:
+        """Bin index of range ``r`` (metres); values outside [0, max_range) give -1."""
+        k = np.floor(np.asarray(r) / self.dr).astype(np.int64)
+        return np.where((k >= 0) & (k < self.n), k, -1)
+
+    def to_attrs(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_attrs(cls, attrs: dict) -> "RangeBins":
+        return cls(int(attrs["n"]), float(attrs["dr"]))
+
+
+def seconds_to_ns(t) -> np.ndarray:
+    """Seconds (float) to int64 nanoseconds, rounded to the nearest ns."""
+    return np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
+
+
+def ns_to_seconds(t_ns) -> np.ndarray:
+    return np.asarray(t_ns, dtype=np.int64) / 1e9
+
+
+def is_rigid(T: np.ndarray, atol: float = 1e-6) -> np.ndarray:
+    """For (..., 4, 4) transforms: True where the rotation is orthonormal (det +1) and the last
+    row is (0, 0, 0, 1)."""
+    T = np.asarray(T, dtype=np.float64)
+    R = T[..., :3, :3]
+    eye = np.eye(3)
+    ortho = np.all(np.abs(R @ np.swapaxes(R, -1, -2) - eye) < atol, axis=(-1, -2))
+    det = np.abs(np.linalg.det(R) - 1.0) < atol
+    last = np.all(np.abs(T[..., 3, :] - np.array([0.0, 0.0, 0.0, 1.0])) < atol, axis=-1)
+    return ortho & det & last & np.all(np.isfinite(T), axis=(-1, -2))
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to (N, 3) points."""
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def transform_directions(T: np.ndarray, dirs: np.ndarray) -> np.ndarray:
+    """Rotate (..., 3) direction vectors by the rotation part of a 4x4 transform."""
+    return dirs @ T[:3, :3].T

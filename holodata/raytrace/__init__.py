@@ -1,0 +1,1 @@
+"""raytrace stage (in progress)."""

@@ -1,0 +1,1 @@
+"""JSON Schemas shipped with holodata (dataset root/scene attributes, metrics.json)."""

@@ -1,0 +1,22 @@
+#!/usr/bin/env bash
+# Set up holodata on a fresh Debian machine: system library for open3d, a virtual environment
+# in .venv with holodata, its training extra (torch==2.13.0, CPU wheel) and test tools.
+# Idempotent: rerunning only installs what is missing.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 >/dev/null
+fi
+
+PY=${PYTHON:-python3}
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+stamp=.venv/.holodata-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    .venv/bin/python -m pip install -q --upgrade pip
+    .venv/bin/python -m pip install -q -e ".[train,dev]"
+    touch "$stamp"
+fi
+echo "holodata is set up in .venv (activate with: source .venv/bin/activate)" >&2
