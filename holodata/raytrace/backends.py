@@ -1,0 +1,108 @@
+"""Ray-casting backends behind one registry: first-hit casts against one static triangle mesh.
+
+A backend is built once per mesh (``make_backend(name, vertices, faces)``) and answers
+``cast(origins, directions) -> (t, face)``: ``t`` (N,) float32 hit distance along the unit
+direction (inf = no hit), ``face`` (N,) int64 triangle index (-1 = no hit). Normals, exact
+distances and bounces are computed by :mod:`holodata.raytrace.trace` from the face index, so
+every backend yields the same geometry.
+"""
+from __future__ import annotations
+
+import os
+from typing import Callable
+
+import numpy as np
+
+BACKENDS: dict[str, Callable] = {}
+DEFAULT_BACKEND = "open3d"
+
+
+def register_backend(name: str):
+    def deco(cls):
+        BACKENDS[name] = cls
+        return cls
+
+    return deco
+
+
+def available_backends() -> list[str]:
+    """Names of the registered backends whose library imports."""
+    out = []
+    for name, cls in BACKENDS.items():
+        try:
+            cls.check()
+            out.append(name)
+        except ImportError:
+            pass
+    return out
+
+
+def make_backend(name: str, vertices: np.ndarray, faces: np.ndarray, nthreads: int = 0):
+    if name not in BACKENDS:
+        raise ValueError(f"unknown ray-tracing backend {name!r} (choose from {', '.join(BACKENDS)})")
+    return BACKENDS[name](vertices, faces, nthreads=nthreads)
+
+
+def _default_threads(nthreads: int) -> int:
+    return nthreads if nthreads > 0 else (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0)
+
+
+@register_backend("open3d")
+class Open3DBackend:
+    """open3d ``t.geometry.RaycastingScene`` (Embree 3/4 underneath)."""
+
+    name = "open3d"
+
+    @staticmethod
+    def check() -> None:
+        import open3d  # noqa: F401
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, nthreads: int = 0):
+        import open3d as o3d
+
+        self._o3d = o3d
+        self.nthreads = _default_threads(nthreads)
+        self.scene = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)
+        self.scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+        )
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        rays = np.empty((len(origins), 6), dtype=np.float32)
+        rays[:, :3] = origins
+        rays[:, 3:] = directions
+        ans = self.scene.cast_rays(self._o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
+        t = ans["t_hit"].numpy()
+        prim = ans["primitive_ids"].numpy().astype(np.int64)
+        face = np.where(np.isfinite(t), prim, -1)
+        return t, face
+
+
+@register_backend("embreex")
+class EmbreexBackend:
+    """embreex ``EmbreeScene`` (Embree 2 via Cython)."""
+
+    name = "embreex"
+
+    @staticmethod
+    def check() -> None:
+        import embreex.rtcore_scene  # noqa: F401
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, nthreads: int = 0):
+        from embreex import mesh_construction, rtcore_scene
+
+        self.scene = rtcore_scene.EmbreeScene()
+        self._mesh = mesh_construction.TriangleMesh(
+            self.scene, np.ascontiguousarray(vertices, dtype=np.float32), np.ascontiguousarray(faces, dtype=np.int32)
+        )
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ans = self.scene.run(
+            np.ascontiguousarray(origins, dtype=np.float32),
+            np.ascontiguousarray(directions, dtype=np.float32),
+            output=1,
+        )
+        face = ans["primID"].astype(np.int64)
+        t = np.where(face >= 0, ans["tfar"], np.inf).astype(np.float32)
+        return t, np.where(face >= 0, face, -1)
