@@ -157,7 +157,7 @@ def test_grazing_plane_no_self_hits(backend):
     d = np.stack([np.cos(eps) * np.cos(az), np.cos(eps) * np.sin(az), -np.sin(eps)], 1)
     o = np.tile([[3.0, -2.0, h]], (len(d), 1))
     res = trace(v, f, o, d, max_bounces=3, max_range=1000.0, backend=backend)
-    np.testing.assert_allclose(res["range"][:, 0], h / np.sin(eps), rtol=1e-7)
+    np.testing.assert_allclose(res["range"][:, 0], h / np.sin(eps), rtol=4e-7)  # float32 output
     np.testing.assert_allclose(res["normal"][:, 0], np.tile([0, 0, 1.0], (len(d), 1)), atol=1e-7)
     assert np.all(np.isnan(res["range"][:, 1:])) and np.all(res["face"][:, 1:] == -1)
     # from below the normal is flipped to face the ray

@@ -1,8 +1,9 @@
 """Ray-casting backends behind one registry: first-hit casts against one static triangle mesh.
 
 A backend is built once per mesh (``make_backend(name, vertices, faces)``) and answers
-``cast(origins, directions) -> (t, face)``: ``t`` (N,) float32 hit distance along the unit
-direction (inf = no hit), ``face`` (N,) int64 triangle index (-1 = no hit). Normals, exact
+``cast6(rays) -> (t, face)`` for ``rays`` (N,6) float32 ``[ox oy oz dx dy dz]`` (unit directions):
+``t`` (N,) float32 hit distance (inf = no hit), ``face`` (N,) integer triangle index (undefined
+where ``t`` is inf); ``cast(origins, directions)`` is the same with ``face`` int64, -1 = no hit. Normals, exact
 distances and bounces are computed by :mod:`holodata.raytrace.trace` from the face index, so
 every backend yields the same geometry.
 """
@@ -68,15 +69,13 @@ class Open3DBackend:
             o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
         )
 
+    def cast6(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ans = self.scene.cast_rays(self._o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, dtype=np.float32)),
+                                   nthreads=self.nthreads)
+        return ans["t_hit"].numpy(), ans["primitive_ids"].numpy()
+
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        rays = np.empty((len(origins), 6), dtype=np.float32)
-        rays[:, :3] = origins
-        rays[:, 3:] = directions
-        ans = self.scene.cast_rays(self._o3d.core.Tensor.from_numpy(rays), nthreads=self.nthreads)
-        t = ans["t_hit"].numpy()
-        prim = ans["primitive_ids"].numpy().astype(np.int64)
-        face = np.where(np.isfinite(t), prim, -1)
-        return t, face
+        return _cast_via6(self, origins, directions)
 
 
 @register_backend("embreex")
@@ -97,12 +96,22 @@ class EmbreexBackend:
             self.scene, np.ascontiguousarray(vertices, dtype=np.float32), np.ascontiguousarray(faces, dtype=np.int32)
         )
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def cast6(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         ans = self.scene.run(
-            np.ascontiguousarray(origins, dtype=np.float32),
-            np.ascontiguousarray(directions, dtype=np.float32),
+            np.ascontiguousarray(rays[:, :3], dtype=np.float32),
+            np.ascontiguousarray(rays[:, 3:], dtype=np.float32),
             output=1,
         )
-        face = ans["primID"].astype(np.int64)
-        t = np.where(face >= 0, ans["tfar"], np.inf).astype(np.float32)
-        return t, np.where(face >= 0, face, -1)
+        face = ans["primID"]
+        return np.where(face >= 0, ans["tfar"], np.float32(np.inf)).astype(np.float32), face
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return _cast_via6(self, origins, directions)
+
+
+def _cast_via6(backend, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    rays = np.empty((len(origins), 6), dtype=np.float32)
+    rays[:, :3] = origins
+    rays[:, 3:] = directions
+    t, face = backend.cast6(rays)
+    return t, np.where(np.isfinite(t), face.astype(np.int64), -1)

@@ -58,7 +58,8 @@ class TraceResult:
 
 
 class _Geometry:
-    """One mesh with its backend, float64 vertices and unit face normals."""
+    """One mesh with its backend, float64 vertices, unit face normals (float64 (F,3) and float32
+    (3,F)) and plane offsets ``c = n·v0`` (float32 (F,))."""
 
     def __init__(self, vertices, faces, backend: str, nthreads: int):
         self.vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -67,6 +68,8 @@ class _Geometry:
             raise ValueError("face index out of range")
         self.normals = face_normals(self.vertices, self.faces)
         self.v0 = self.vertices[self.faces[:, 0]] if len(self.faces) else np.zeros((0, 3))
+        self.n32 = np.ascontiguousarray(self.normals.T, dtype=np.float32)
+        self.c32 = np.einsum("ij,ij->i", self.normals, self.v0).astype(np.float32)
         self.backend = make_backend(backend, self.vertices, self.faces, nthreads) if len(self.faces) else None
 
 
@@ -75,7 +78,7 @@ class RayScene:
     ``face_class`` (F,) uint8 per-face semantic class (else geometric classes are derived);
     ``class_names`` {id: name} for ``face_class``. ``class_names`` / ``human_class`` attributes give
     the table used in ``TraceResult.semantic``. Set ``cast_log = []`` to record every backend cast
-    as ``(which, origins float32, directions float32)`` (benchmarks)."""
+    as ``(which, rays (n,6) float32)`` with which = "static" | "dynamic" (benchmarks)."""
 
     def __init__(self, vertices, faces, backend: str = DEFAULT_BACKEND, face_class=None,
                  class_names: dict | None = None, nthreads: int = 0):
@@ -106,18 +109,26 @@ class RayScene:
         g = _Geometry(hv, hf, self.backend_name, self.nthreads)
         return g if g.backend is not None else None
 
-    def _raw(self, geom: _Geometry, which: str, o: np.ndarray, d: np.ndarray):
-        o32 = o.astype(np.float32)
-        d32 = d.astype(np.float32)
+    def _cast6(self, rays: np.ndarray, dyn: _Geometry | None):
+        """Nearest hit of static + dynamic for rays (n,6) float32: t float32 (inf none), face
+        (integer, undefined where no hit), is_dyn bool (n,) or None without a dynamic mesh, t_static."""
         if self.cast_log is not None:
-            self.cast_log.append((which, o32, d32))
-        return geom.backend.cast(o32, d32)
+            self.cast_log.append(("static", rays.copy()))
+        ts, fs = self.static.backend.cast6(rays)
+        if dyn is None:
+            return ts, fs, None
+        if self.cast_log is not None:
+            self.cast_log.append(("dynamic", rays.copy()))
+        td, fd = dyn.backend.cast6(rays)
+        isd = td < ts
+        return np.minimum(ts, td), np.where(isd, fd.astype(np.int64), fs.astype(np.int64)), isd
 
     def _first_hit(self, o: np.ndarray, d: np.ndarray, dyn: _Geometry | None, offset: float):
-        """Nearest hit from ``o`` (float64 (n,3)) along unit ``d`` skipping the first ``offset`` m.
+        """Nearest hit from ``o`` (float64 (n,3)) along unit ``d`` skipping the first ``offset`` m;
+        hits still on the plane of ``o`` (float32 noise) are recast from just past them.
 
-        Returns t (n,) float64 measured from ``o`` (inf none), face (n,) int64, is_dyn (n,) bool,
-        normal (n,3) float64 (unoriented)."""
+        Returns t (n,) float64 measured from ``o`` (inf none), face (n,) int64 (-1 none), is_dyn (n,)
+        bool, normal (n,3) float64 (unoriented)."""
         n = len(o)
         t = np.full(n, np.inf)
         face = np.full(n, -1, dtype=np.int64)
@@ -125,22 +136,18 @@ class RayScene:
         normal = np.zeros((n, 3))
         todo = np.arange(n)
         start = np.full(n, float(offset))
-        for attempt in range(_MAX_RECASTS + 1):
+        for _ in range(_MAX_RECASTS + 1):
             if len(todo) == 0:
                 break
             oo, dd, ss = o[todo], d[todo], start[todo]
-            oc = oo + ss[:, None] * dd if offset > 0 else oo
-            ts, fs = self._raw(self.static, "static", oc, dd)
-            tt = ts.astype(np.float64)
-            ff = fs
-            dy = np.zeros(len(todo), dtype=bool)
-            if dyn is not None:
-                td, fd = self._raw(dyn, "dynamic", oc, dd)
-                dy = td < ts
-                tt = np.where(dy, td, tt)
-                ff = np.where(dy, fd, ff)
-            hit = ff >= 0
-            tt = tt + ss
+            rays = np.empty((len(todo), 6), dtype=np.float32)
+            rays[:, :3] = oo + ss[:, None] * dd
+            rays[:, 3:] = dd
+            tc, ff, dy = self._cast6(rays, dyn)
+            dy = np.zeros(len(todo), bool) if dy is None else dy
+            hit = np.isfinite(tc)
+            ff = np.where(hit, ff.astype(np.int64), -1)
+            tt = tc.astype(np.float64) + ss
             nn = np.zeros((len(todo), 3))
             v0 = np.zeros((len(todo), 3))
             hs = hit & ~dy
@@ -165,9 +172,7 @@ class RayScene:
             face[sel] = ff[keep]
             is_dyn[sel] = dy[keep] & hit[keep]
             normal[sel] = nn[keep]
-            # recast spurious self-hits from just past the reported (cast) hit
-            tcast = (ts if dyn is None else np.minimum(ts, td)).astype(np.float64)
-            start[todo[spurious]] = ss[spurious] + np.maximum(tcast[spurious], 0) + offset
+            start[todo[spurious]] = ss[spurious] + np.maximum(tc[spurious], 0) + offset
             todo = todo[spurious]
         return t, face, is_dyn, normal
 
@@ -185,66 +190,138 @@ class RayScene:
     def trace(self, origins, directions, max_bounces: int = DEFAULT_MAX_BOUNCES,
               max_range: float = DEFAULT_MAX_RANGE_M, dynamic=None, labels: bool = True) -> TraceResult:
         """Trace ``origins`` (N,3) m along ``directions`` (N,3) with up to ``max_bounces`` specular
-        bounces; returns a :class:`TraceResult`. ``dynamic`` = (vertices, faces) considered at every
-        bounce and in the LOS checks. ``labels=False`` skips the LOS casts (labels then assume LOS)."""
-        O = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
-        d = _unit(np.asarray(directions, dtype=np.float64).reshape(-1, 3))
-        if len(O) != len(d):
-            raise ValueError(f"{len(O)} origins for {len(d)} directions")
-        N, B = len(O), int(max_bounces)
+        bounces; returns a :class:`TraceResult` (arrays are (N,B,...) views of bounce-major storage:
+        ``res.range.T`` is a contiguous (B,N) array). ``dynamic`` = (vertices, faces) considered at
+        every bounce and in the LOS checks. ``labels=False`` skips the LOS casts (all LOS).
+
+        Works in float32 structure-of-arrays (3,n) form: hit distances are refined against the hit
+        triangle's plane, so rounding stays ~1e-6 m over the 10 m scale."""
+        O = np.ascontiguousarray(np.asarray(origins, dtype=np.float32).reshape(-1, 3).T)
+        d = np.ascontiguousarray(np.asarray(directions, dtype=np.float32).reshape(-1, 3).T)
+        if O.shape != d.shape:
+            raise ValueError(f"{O.shape[1]} origins for {d.shape[1]} directions")
+        N, B = O.shape[1], int(max_bounces)
+        d = d / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         dyn = self._dynamic(dynamic)
-        rng = np.full((N, B), np.nan, dtype=np.float32)
-        normal = np.full((N, B, 3), np.nan, dtype=np.float32)
-        point = np.full((N, B, 3), np.nan, dtype=np.float32)
-        face = np.full((N, B), -1, dtype=np.int64)
-        hdyn = np.zeros((N, B), dtype=bool)
-        pts64 = [None] * B
-        idx = np.arange(N)
-        o = O
-        acc = np.zeros(N)
+        st = self.static
+        rng = np.full((B, N), np.nan, dtype=np.float32)
+        point = np.full((B, N, 3), np.nan, dtype=np.float32)
+        normal = np.full((B, N, 3), np.nan, dtype=np.float32)
+        face = np.full((B, N), -1, dtype=np.int64)
+        hdyn = np.zeros((B, N), dtype=bool)
+        visited: list = [None] * B
+        # state rows: 0-2 origin, 3-5 direction, 6-8 normal, 9 t, 10 n.d, 11 accumulated distance
+        S = np.empty((12, N), dtype=np.float32)
+        S[0:3], S[3:6], S[11] = O, d, 0.0
+        idx = None  # None = all rays, in order
+        rays = self._workspace(N)
+        off = np.float32(SELF_HIT_OFFSET_M)
         for b in range(B):
-            if len(idx) == 0:
+            n = S.shape[1]
+            if n == 0:
                 break
-            t, f, isd, n = self._first_hit(o, d, dyn, 0.0 if b == 0 else SELF_HIT_OFFSET_M)
-            total = acc + t
-            ok = (f >= 0) & (total <= max_range)
-            idx, o, d, t, f, isd, n, acc = idx[ok], o[ok], d[ok], t[ok], f[ok], isd[ok], n[ok], total[ok]
-            p = o + t[:, None] * d
-            s = np.einsum("ij,ij->i", n, d)
-            n = np.where(s[:, None] > 0, -n, n)
-            rng[idx, b] = acc
-            point[idx, b] = p
-            normal[idx, b] = n
-            face[idx, b] = f
-            hdyn[idx, b] = isd
-            pts64[b] = (idx, p)
-            d = _unit(d + 2.0 * np.abs(s)[:, None] * n)  # d - 2(d.n)n with n facing the ray: d.n = -|s|
-            o = p
+            o, d, nx = S[0:3], S[3:6], S[6:9]
+            R = rays[:n]
+            R[:, :3] = (o + off * d).T if b else o.T
+            R[:, 3:] = d.T
+            t, f, isd = self._cast6(R, dyn)
+            hit = np.isfinite(t)
+            fz = np.where(hit, f, 0)
+            st.n32.take(fz, axis=1, out=nx)
+            c = st.c32[fz]
+            if isd is not None:
+                k = np.flatnonzero(isd)
+                if len(k):
+                    nx[:, k] = dyn.n32[:, f[k]]
+                    c[k] = dyn.c32[f[k]]
+            nd = S[10]
+            np.multiply(nx[0], d[0], out=nd)
+            nd += nx[1] * d[1]
+            nd += nx[2] * d[2]
+            no = nx[0] * o[0] + nx[1] * o[1] + nx[2] * o[2]
+            if b:
+                t = t + off
+            with np.errstate(invalid="ignore", divide="ignore"):
+                tref = (c - no) / nd
+                t = np.where(np.abs(tref - t) < 1e-3, tref, t)
+            if b:
+                spur = np.flatnonzero(hit & (t < 0.5 * off))
+                if len(spur):  # rare: grazing float32 self-hits; recast those exactly
+                    ts, fs, ds, ns = self._first_hit(o[:, spur].T.astype(np.float64), d[:, spur].T.astype(np.float64), dyn, float(off))
+                    t[spur], f[spur], nx[:, spur] = ts, np.maximum(fs, 0), ns.T
+                    hit[spur] = fs >= 0
+                    nd[spur] = np.einsum("ij,ji->i", ns, d[:, spur])
+                    if isd is None and ds.any():
+                        isd = np.zeros(n, bool)
+                    if isd is not None:
+                        isd[spur] = ds
+            S[9] = t
+            S[11] += t
+            ok = hit & (S[11] <= max_range)
+            if not ok.all():
+                keep = np.flatnonzero(ok)
+                idx = keep if idx is None else idx[keep]
+                S = S.take(keep, axis=1)
+                f = f[keep]
+                isd = None if isd is None else isd[keep]
+            o, d, nx, t, nd = S[0:3], S[3:6], S[6:9], S[9], S[10]
+            sel = slice(None) if idx is None else idx
+            p = o + t * d
+            nx *= np.where(nd > 0, np.float32(-1), np.float32(1))
+            rng[b, sel] = S[11]
+            point[b, sel] = p.T
+            normal[b, sel] = nx.T
+            face[b, sel] = f
+            if isd is not None:
+                hdyn[b, sel] = isd
+            visited[b] = (sel, p)
+            d += (2 * np.abs(nd)) * nx  # d - 2(d.n)n with n facing the ray (d.n = -|nd|)
+            d /= np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            o[...] = p
         hit = face >= 0
-        los = np.ones((N, B), dtype=bool)
+        los = np.ones((B, N), dtype=bool)
         if labels and B > 1:
-            parts = [(b, pts64[b]) for b in range(1, B) if pts64[b] is not None and len(pts64[b][0])]
+            parts = [(b, visited[b]) for b in range(1, B) if visited[b] is not None]
+            parts = [(b, np.arange(N) if isinstance(s, slice) else s, p) for b, (s, p) in parts]
+            parts = [q for q in parts if len(q[1])]
             if parts:
-                ii = np.concatenate([p[1][0] for p in parts])
-                bb = np.concatenate([np.full(len(p[1][0]), p[0]) for p in parts])
-                P = np.concatenate([p[1][1] for p in parts])
-                los[ii, bb] = self._visible(O[ii], P, dyn)
-        semantic = np.zeros((N, B), dtype=np.uint8)
-        st = hit & ~hdyn
-        semantic[st] = self.face_semantic[face[st]]
+                ii = np.concatenate([q[1] for q in parts])
+                P = np.concatenate([q[2] for q in parts], axis=1)
+                vis = self._visible32(O[:, ii], P, dyn)
+                pos = 0
+                for b, i, _ in parts:
+                    los[b, i] = vis[pos:pos + len(i)]
+                    pos += len(i)
+        semantic = np.zeros((B, N), dtype=np.uint8)
+        sm = hit & ~hdyn
+        semantic[sm] = self.face_semantic[face[sm]]
         semantic[hit & hdyn] = self.human_class
         label = combine_label(hit, hdyn, los)
-        return TraceResult(rng, normal, point, face, hdyn, label, semantic)
+        return TraceResult(rng.T, normal.transpose(1, 0, 2), point.transpose(1, 0, 2), face.T, hdyn.T,
+                           label.T, semantic.T)
+
+    def _workspace(self, n: int) -> np.ndarray:
+        """Reused (n,6) float32 ray buffer (fresh large allocations cost page faults every call)."""
+        buf = getattr(self, "_ws", None)
+        if buf is None or len(buf) < n:
+            buf = self._ws = np.empty((n, 6), dtype=np.float32)
+        return buf[:n]
+
+    def _visible32(self, O: np.ndarray, P: np.ndarray, dyn) -> np.ndarray:
+        """(n,) bool for (3,n) float32 origins and points: P visible from O (LOS_TOLERANCE_M)."""
+        v = P - O
+        L = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+        near = L <= LOS_TOLERANCE_M
+        v /= np.where(near, np.float32(1), L)
+        rays = self._workspace(len(L))
+        rays[:, :3] = O.T
+        rays[:, 3:] = v.T
+        t, _, _ = self._cast6(rays, dyn)
+        return near | (t >= L - LOS_TOLERANCE_M)
 
     def _visible(self, O: np.ndarray, P: np.ndarray, dyn) -> np.ndarray:
-        """(n,) bool: P visible from O along the straight segment (LOS_TOLERANCE_M tolerance)."""
-        v = P - O
-        L = np.linalg.norm(v, axis=1)
-        near = L <= LOS_TOLERANCE_M
-        dirs = v / np.where(near, 1.0, L)[:, None]
-        dirs[near] = (1.0, 0.0, 0.0)
-        t, _, _, _ = self._first_hit(O, dirs, dyn, 0.0)
-        return near | (t >= L - LOS_TOLERANCE_M)
+        """(n,) bool for (n,3) origins and points: P visible from O along the straight segment."""
+        return self._visible32(np.asarray(O, np.float32).T, np.asarray(P, np.float32).T, self._dynamic(dyn))
 
 
 def _unit(d: np.ndarray) -> np.ndarray:
