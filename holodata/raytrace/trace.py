@@ -100,6 +100,10 @@ class RayScene:
         self.cast_log: list | None = None
 
     # ------------------------------------------------------------------ casting
+    def prepare_dynamic(self, vertices, faces):
+        """Build a dynamic mesh once for reuse across calls (pass the result as ``dynamic=``)."""
+        return self._dynamic((vertices, faces))
+
     def _dynamic(self, dynamic) -> _Geometry | None:
         if dynamic is None:
             return None

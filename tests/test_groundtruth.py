@@ -1,0 +1,190 @@
+"""raytrace-gt stage: beam origins, human sources, standalone CLI end to end, resume, bad input."""
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.spatial.transform import Rotation
+
+import holodata.dataset as hds
+from holodata.cli.main import cli
+from holodata.conventions import Grid, Label
+from holodata.errors import InputError
+from holodata.groundtruth import (
+    GTConfig,
+    HumanDir,
+    OriginModel,
+    beam_rays,
+    column_times,
+    points_to_mesh,
+    raytrace_standalone,
+)
+from holodata.meshio import Mesh, write_ply
+from holodata.raytrace import RayScene
+from holodata.trajectory import Trajectory, write_tum
+
+from test_raytrace import HUMAN, box, l_corridor
+
+HAVE_DATASET = hasattr(hds, "create_dataset") and hasattr(hds, "open_dataset")
+needs_dataset = pytest.mark.skipif(not HAVE_DATASET, reason="holodata.dataset API not available yet")
+
+
+def pose(x, y, yaw=0.0):
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
+    T[:2, 3] = x, y
+    return T
+
+
+def test_beam_rays_centre_and_rotation_circle():
+    g = Grid(4, 8)
+    T = pose(1.0, 2.0, np.pi / 2)
+    o, d = beam_rays(g, T)
+    np.testing.assert_allclose(o, np.tile([1.0, 2.0, 0.0], (32, 1)))
+    # yaw 90 deg: column 0 (radar +x) looks along world +y
+    np.testing.assert_allclose(d.reshape(4, 8, 3)[:, 0, :2] / np.cos(g.elevations())[:, None], [[0, 1]] * 4, atol=1e-12)
+    o, d = beam_rays(g, T, OriginModel(rotation_radius=0.105))
+    o = o.reshape(4, 8, 3)
+    r = o - [1.0, 2.0, 0.0]
+    np.testing.assert_allclose(np.linalg.norm(r, axis=-1), 0.105)
+    # the origin sits on the circle in the column's own azimuth (outward along the beam's plan direction)
+    horiz = d.reshape(4, 8, 3)[..., :2]
+    horiz = horiz / np.linalg.norm(horiz, axis=-1, keepdims=True)
+    np.testing.assert_allclose(r[..., :2] / 0.105, horiz, atol=1e-12)
+
+
+def test_column_time_uses_slerp_poses():
+    g = Grid(2, 4)
+    traj = Trajectory(np.array([0, 500_000_000]), np.stack([pose(0, 0, 0.0), pose(1.0, 0, np.pi / 2)]))
+    om = OriginModel(column_time=True, rotation_hz=2.0)
+    ts = column_times(0, g, om)
+    assert ts.tolist() == [0, 125_000_000, 250_000_000, 375_000_000]  # one rotation = 0.5 s
+    cols = traj.interpolate(ts)
+    o, d = beam_rays(g, traj.poses[0], om, cols)
+    o = o.reshape(2, 4, 3)
+    np.testing.assert_allclose(o[0, :, 0], [0, 0.25, 0.5, 0.75])  # linear translation
+    # column 2 at t=0.25 s: yaw 45 deg; its azimuth is -pi in the radar frame -> world heading -135 deg
+    d2 = d.reshape(2, 4, 3)[0, 2]
+    assert np.arctan2(d2[1], d2[0]) == pytest.approx(-3 * np.pi / 4)
+
+
+def test_points_to_mesh_is_hit_by_rays():
+    pts = np.random.default_rng(0).normal([3.0, 0, 0], 0.2, size=(500, 3))
+    v, f = points_to_mesh(pts)
+    assert len(f) % 8 == 0 and len(f) <= 8 * 500
+    sc = RayScene(*box([-10, -10, -10], [10, 10, 10]))
+    hit = sc.cast(np.zeros((1, 3)), np.array([[1.0, 0, 0]]), dynamic=(v, f))
+    assert hit.hit_dynamic[0] and 2.0 < hit.t[0] < 3.0
+
+
+@pytest.fixture
+def inputs(tmp_path):
+    v, f = l_corridor()
+    write_ply(tmp_path / "scene.ply", Mesh(v, f))
+    T = 10
+    poses = np.stack([pose(x, 1.0) for x in np.linspace(5.0, 7.5, T)])
+    write_tum(tmp_path / "radar.tum", Trajectory(np.arange(T) * 500_000_000 + 10**9, poses))
+    hdir = tmp_path / "humans"
+    hdir.mkdir()
+    for k in range(T):  # the human steps along corridor B, 5 cm per frame
+        write_ply(hdir / f"{k:06d}.ply", Mesh(HUMAN[0] + [0, 0.05 * k, 0], HUMAN[1]))
+    return tmp_path
+
+
+def test_human_dir_missing_frame_names_file(inputs):
+    os.remove(inputs / "humans" / "000004.ply")
+    with pytest.raises(InputError, match="000004.ply: human mesh for frame 4 is missing"):
+        HumanDir(inputs / "humans", 10)
+
+
+@pytest.mark.parametrize("case", ["empty_mesh", "bad_tum", "missing_human", "unreadable_mesh"])
+def test_bad_input_exits_1_and_creates_nothing(inputs, case):
+    args = ["raytrace-gt", "--mesh", str(inputs / "scene.ply"), "--poses", str(inputs / "radar.tum"),
+            "--human-dir", str(inputs / "humans"), "--out", str(inputs / "out.zarr"), "--quiet"]
+    expect = {"empty_mesh": "scene.ply: mesh has no triangles", "bad_tum": "radar.tum:3:",
+              "missing_human": "000007.ply: human mesh for frame 7 is missing", "unreadable_mesh": "scene.ply: malformed"}[case]
+    if case == "empty_mesh":
+        write_ply(inputs / "scene.ply", Mesh(np.zeros((3, 3)), np.zeros((0, 3), int)))
+    elif case == "bad_tum":
+        lines = (inputs / "radar.tum").read_text().splitlines()
+        lines[2] = "1.5 0 0 zero 0 0 0 1"
+        (inputs / "radar.tum").write_text("\n".join(lines) + "\n")
+    elif case == "missing_human":
+        os.remove(inputs / "humans" / "000007.ply")
+    else:
+        (inputs / "scene.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 9\n"
+                                           b"property float x\nproperty float y\nproperty float z\nend_header\n\x00")
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 1, r.output
+    assert expect in r.output and len(r.output.strip().splitlines()) == 1
+    assert not (inputs / "out.zarr").exists()
+
+
+def test_usage_errors_exit_2(inputs):
+    r = CliRunner().invoke(cli, ["raytrace-gt", "--mesh", str(inputs / "scene.ply"), "--out", "x.zarr"])
+    assert r.exit_code == 2
+    r = CliRunner().invoke(cli, ["raytrace-gt"])
+    assert r.exit_code == 2
+    r = CliRunner().invoke(cli, ["raytrace-gt", "--help"])
+    assert r.exit_code == 0 and "holodata raytrace-gt --mesh" in r.output
+
+
+@needs_dataset
+def test_standalone_end_to_end_matches_direct_trace_and_resumes(inputs):
+    out = inputs / "out.zarr"
+    args = ["raytrace-gt", "--mesh", str(inputs / "scene.ply"), "--poses", str(inputs / "radar.tum"),
+            "--human-dir", str(inputs / "humans"), "--out", str(out), "--scene-id", "c1", "--grid", "8x32",
+            "--shard-frames", "4", "--quiet", "--json"]
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0, r.output
+    summary = json.loads(r.output)
+    assert summary["scenes"][0]["shards_written"] == 3 and summary["scenes"][0]["frames"] == 10
+    ds = hds.open_dataset(str(out))
+    s = ds.scene("c1")
+    rng = np.asarray(s["gt/range"][...])
+    lab = np.asarray(s["gt/label"][...])
+    assert rng.shape == (10, 3, 8, 32) and lab.dtype == np.uint8
+    assert np.asarray(s["gt/normal"][...]).shape == (10, 3, 8, 32, 3)
+    assert np.asarray(s["time/timestamp_ns"][...]).tolist() == list(np.arange(10) * 500_000_000 + 10**9)
+    assert s.attrs["gt"]["max_bounces"] == 3 and s.attrs["gt"]["origin_model"]["type"] == "rotation_centre"
+    # frame 9 independently: same poses, same human, same grid
+    g = Grid(8, 32)
+    o, d = beam_rays(g, pose(7.5, 1.0))
+    ref = RayScene(*l_corridor()).trace(o, d, dynamic=(HUMAN[0] + [0, 0.45, 0], HUMAN[1]))
+    np.testing.assert_array_equal(rng[9], ref.range.T.reshape(3, 8, 32))
+    np.testing.assert_array_equal(lab[9], ref.label.T.reshape(3, 8, 32))
+    assert set(np.unique(lab)) >= {Label.LOS_STRUCTURE, Label.NLOS_STRUCTURE}
+    hc = np.asarray(s["gt/human_center"][...])
+    np.testing.assert_allclose(hc[9, 0], (HUMAN[0] + [0, 0.45, 0]).mean(0), atol=1e-5)
+    # rerun: everything done, nothing rewritten
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0 and json.loads(r.output)["scenes"][0]["shards_skipped"] == 3
+
+
+@needs_dataset
+def test_interrupted_run_resumes_only_missing_shards(inputs, monkeypatch):
+    import holodata.groundtruth as gtm
+
+    out = str(inputs / "out.zarr")
+    cfg = GTConfig(grid=Grid(4, 16), shard_frames=3)
+    calls = []
+    real = gtm.trace_frame
+
+    def boom(scene, cfg_, traj, k, *a, **kw):
+        calls.append(k)
+        if k == 7:
+            raise KeyboardInterrupt
+        return real(scene, cfg_, traj, k, *a, **kw)
+
+    monkeypatch.setattr(gtm, "trace_frame", boom)
+    with pytest.raises(KeyboardInterrupt):
+        raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg)
+    calls.clear()
+    summary = raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg)
+    assert calls == [6, 7, 8, 9]  # shards 0 and 1 (frames 0-5) were already written
+    assert summary["scenes"][0]["shards_skipped"] == 2
+    rng = np.asarray(hds.open_dataset(out).scene("scene")["gt/range"][...])
+    assert np.isfinite(rng[:, 0]).any(axis=(1, 2)).all()
