@@ -16,6 +16,7 @@ import click
 COMMAND_MODULES: list[str] = [
     "info",
     "raytrace",
+    "synth",
 ]
 
 

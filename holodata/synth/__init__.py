@@ -1,1 +1,109 @@
-"""synth stage (in progress)."""
+"""Synthetic corner recordings: procedural world + walking human + robot + sensor models, written as
+a real ROS recording (rosbag2/MCAP by default) with a hidden ``truth/`` folder.
+
+Recording layout under ``out_dir``::
+
+    recording/recording.mcap + recording/metadata.yaml   (format "mcap", rosbag2 with MCAP storage)
+    recording/recording.db3  + recording/metadata.yaml   (format "rosbag2", sqlite3 storage)
+    recording.bag                                         (format "rosbag1")
+    truth/...                                             (see holodata.synth.truth)
+
+Topics (``TOPICS``): radar heatmaps ``/radar/heatmap`` (holodata_msgs/msg/RadarHeatmap, frame
+``radar``, header stamp = mid-cycle in the radar's clock), Ouster-like scans ``/ouster/points``
+(frame ``os_sensor``, stamp = scan start) + ``/ouster/metadata`` (JSON), ZED-like depth
+``/zed2i/zed_node/depth/depth_registered`` (32FC1) + ``.../camera_info`` + cloud
+``/zed2i/zed_node/point_cloud/cloud_registered``, odometry ``/tf`` (odom→base_link, drifting) and
+``/odom``, extrinsics ``/tf_static`` (map→odom, base_link→radar, base_link→os_sensor,
+map→zed2i_camera_link→optical frames). Bag (log) time = header stamp + a per-sensor latency;
+messages are written in log-time order.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..conventions import Grid, RangeBins
+from ..errors import InputError
+
+TOPICS = {
+    "/radar/heatmap": "holodata_msgs/msg/RadarHeatmap",
+    "/ouster/points": "sensor_msgs/msg/PointCloud2",
+    "/ouster/metadata": "std_msgs/msg/String",
+    "/zed2i/zed_node/depth/depth_registered": "sensor_msgs/msg/Image",
+    "/zed2i/zed_node/depth/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/zed2i/zed_node/point_cloud/cloud_registered": "sensor_msgs/msg/PointCloud2",
+    "/tf": "tf2_msgs/msg/TFMessage",
+    "/tf_static": "tf2_msgs/msg/TFMessage",
+    "/odom": "nav_msgs/msg/Odometry",
+}
+
+EPOCH_S = 1_735_689_600  # 2025-01-01T00:00:00Z; recordings start at EPOCH + seed hours
+
+
+@dataclass
+class SynthResult:
+    """Paths and counts of one synthetic recording.
+
+    ``recording``: the rosbag2 directory or the ROS 1 ``.bag``; ``storage_file``: the file holding the
+    messages (``.mcap``/``.db3``/``.bag``); ``truth_dir`` and its main files; ``topics`` {topic: type};
+    ``counts`` {topic: messages}; ``stats``: LiDAR returns on the human (must be 0), median LOS→NLOS
+    drop (dB), etc.
+    """
+
+    out_dir: Path
+    recording: Path
+    storage_file: Path
+    format: str
+    truth_dir: Path
+    scene_json: Path
+    mesh: Path
+    trajectory_radar: Path
+    trajectory_base: Path
+    human_dir: Path | None
+    n_frames: int
+    corner: str
+    width_m: float
+    seed: int
+    human: bool
+    topics: dict = field(default_factory=dict)
+    counts: dict = field(default_factory=dict)
+    stats: dict = field(default_factory=dict)
+
+    def summary(self) -> dict:
+        return {k: (str(v) if isinstance(v, Path) else v) for k, v in self.__dict__.items()}
+
+
+def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: int = 20, format: str = "mcap",
+               seed: int = 0, human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
+               lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
+               radar_encoding: str = "float16", quiet: bool = False) -> SynthResult:
+    """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
+
+    ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
+    ``frames`` radar rotations (2 Hz); ``format`` mcap|rosbag2|rosbag1; ``grid``/``range_bins`` the
+    radar heatmap axes (DESIGN §2); ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols).
+    Same arguments → byte-identical files.
+    """
+    from .scenario import build_scenario, write_recording
+
+    from .recording import FORMATS, recording_path
+
+    if format not in FORMATS:
+        raise InputError(f"unknown recording format {format!r} (choose from {', '.join(FORMATS)})")
+    if frames < 1:
+        raise InputError(f"frames must be >= 1, got {frames}")
+    out_dir = Path(out_dir)
+    rec = recording_path(out_dir, format)
+    if rec.exists() or (out_dir / "truth").exists():
+        raise InputError(f"{out_dir}: already holds a recording or truth/ folder; choose an empty --out")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
+                        grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
+                        camera_shape=camera_shape, radar_encoding=radar_encoding)
+    return write_recording(sc, out_dir, format, quiet=quiet)
+
+
+__all__ = ["synthesize", "SynthResult", "TOPICS"]

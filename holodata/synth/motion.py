@@ -1,0 +1,106 @@
+"""Robot motion: a true trajectory approaching the corner and drifting odometry.
+
+The robot starts at rest, accelerates (≤ 0.4 m/s²) to a cruise speed in 0.3–0.5 m/s, slows down
+and stops before the corner; a slow lateral weave and yaw wobble make it less ideal. Poses are
+``T_world_base`` (base_link on the floor, REP-103). Odometry integrates the true body-frame
+increments with a scale error, a yaw-rate bias and random walk, starting at identity in ``odom``.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..trajectory import Trajectory
+
+
+def pose_xy_yaw(x, y, yaw, z=0.0) -> np.ndarray:
+    """(N,4,4) planar poses from arrays x, y, yaw (rad)."""
+    x, y, yaw = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float), np.asarray(yaw, float))
+    T = np.zeros(x.shape + (4, 4))
+    c, s = np.cos(yaw), np.sin(yaw)
+    T[..., 0, 0], T[..., 0, 1], T[..., 1, 0], T[..., 1, 1] = c, -s, s, c
+    T[..., 2, 2] = 1.0
+    T[..., 0, 3], T[..., 1, 3], T[..., 2, 3] = x, y, z
+    T[..., 3, 3] = 1.0
+    return T
+
+
+def speed_profile(t: np.ndarray, distance: float, v_max: float, accel: float, t_start: float) -> np.ndarray:
+    """Arc length s(t) (m) of a trapezoidal speed profile starting at rest at ``t_start`` that
+    covers ``distance`` and then stays stopped."""
+    # shrink the cruise speed if the distance is too short to reach it
+    v = min(v_max, np.sqrt(accel * distance))
+    t_acc = v / accel
+    d_acc = 0.5 * accel * t_acc ** 2
+    t_cru = max(0.0, (distance - 2 * d_acc) / v)
+    tt = np.clip(np.asarray(t, float) - t_start, 0.0, None)
+    s = np.where(tt < t_acc, 0.5 * accel * tt ** 2, 0.0)
+    m = (tt >= t_acc) & (tt < t_acc + t_cru)
+    s = np.where(m, d_acc + v * (tt - t_acc), s)
+    td = tt - t_acc - t_cru
+    m = (td >= 0) & (td < t_acc)
+    s = np.where(m, d_acc + v * t_cru + v * td - 0.5 * accel * td ** 2, s)
+    s = np.where(td >= t_acc, distance, s)
+    return s
+
+
+def robot_trajectory(start_xy, stop_xy, duration_s: float, t0_ns: int, rng: np.random.Generator,
+                     rate_hz: float = 200.0) -> tuple[Trajectory, dict]:
+    """True base_link trajectory over ``duration_s`` seconds from ``t0_ns``; returns it and its
+    parameters (cruise speed, distance, ...)."""
+    start, stop = np.asarray(start_xy, float), np.asarray(stop_xy, float)
+    v_max = float(rng.uniform(0.3, 0.5))
+    accel = float(rng.uniform(0.25, 0.4))
+    t_start = float(rng.uniform(0.2, 0.8))
+    total = float(np.linalg.norm(stop - start))
+    # do not plan farther than can be driven in the time available
+    usable = max(0.5, duration_s - t_start - 0.5)
+    reach = v_max * usable - v_max ** 2 / accel if usable > 2 * v_max / accel else 0.25 * accel * usable ** 2
+    distance = float(min(total, max(0.2, reach)))
+    d = (stop - start) / max(total, 1e-9)
+    n = int(np.ceil(duration_s * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+    s = speed_profile(t, distance, v_max, accel, t_start)
+    # end the path at the stop point: start farther back if the robot cannot cover it all
+    begin = stop - d * distance
+    weave_amp = float(rng.uniform(0.0, 0.05))
+    weave_f = float(rng.uniform(0.05, 0.15))
+    lat = weave_amp * np.sin(2 * np.pi * weave_f * s / max(v_max, 1e-3)) * np.minimum(1.0, s / 0.3)
+    nrm = np.array([-d[1], d[0]])
+    xy = begin + s[:, None] * d + lat[:, None] * nrm
+    heading = np.arctan2(d[1], d[0])
+    dl = np.gradient(lat, t)
+    ds = np.gradient(s, t)
+    yaw = heading + np.arctan2(dl, np.maximum(ds, 0.05)) * (ds > 0.02)
+    yaw = yaw + np.deg2rad(float(rng.uniform(-3, 3)))  # mounting / steering offset
+    poses = pose_xy_yaw(xy[:, 0], xy[:, 1], yaw)
+    t_ns = t0_ns + np.round(t * 1e9).astype(np.int64)
+    info = {"cruise_speed_mps": v_max, "accel_mps2": accel, "start_delay_s": t_start, "distance_m": distance,
+            "start_xy": np.round(begin, 4).tolist(), "stop_xy": np.round(stop, 4).tolist()}
+    return Trajectory(t_ns, poses), info
+
+
+def odometry(truth: Trajectory, rng: np.random.Generator, rate_hz: float = 30.0,
+             scale_error: float | None = None, yaw_bias_dps: float | None = None) -> tuple[Trajectory, dict]:
+    """Drifting wheel-odometry poses ``T_odom_base`` at ``rate_hz`` (identity at the first sample)."""
+    t0, t1 = int(truth.timestamp_ns[0]), int(truth.timestamp_ns[-1])
+    step = int(round(1e9 / rate_hz))
+    t_ns = np.arange(t0, t1 + 1, step, dtype=np.int64)
+    P = truth.interpolate(t_ns)
+    scale = 1.0 + (float(rng.uniform(-0.03, 0.03)) if scale_error is None else scale_error)
+    bias = np.deg2rad(float(rng.uniform(-0.8, 0.8)) if yaw_bias_dps is None else yaw_bias_dps)
+    dt = step / 1e9
+    out = np.zeros_like(P)
+    out[0] = np.eye(4)
+    for k in range(1, len(P)):
+        D = np.linalg.inv(P[k - 1]) @ P[k]
+        dyaw = np.arctan2(D[1, 0], D[0, 0])
+        moving = np.linalg.norm(D[:2, 3]) > 1e-5
+        noise_t = rng.normal(0.0, 0.002 * np.sqrt(dt)) if moving else 0.0
+        noise_y = rng.normal(0.0, np.deg2rad(0.2) * np.sqrt(dt)) if moving else 0.0
+        dyaw_n = dyaw + (bias * dt if moving else 0.0) + noise_y
+        D2 = np.eye(4)
+        D2[:3, :3] = Rotation.from_euler("z", dyaw_n).as_matrix()
+        D2[:2, 3] = D[:2, 3] * scale + noise_t
+        out[k] = out[k - 1] @ D2
+    return Trajectory(t_ns, out), {"rate_hz": rate_hz, "scale": scale, "yaw_bias_dps": float(np.rad2deg(bias))}

@@ -1,0 +1,419 @@
+"""One synthetic recording end to end: world, robot, human, sensor rig, clocks, message schedule.
+
+Time: ``t0`` = EPOCH + seed hours. Radar cycle k covers [t0 + 0.3 s + k/2 s, + 0.5 s) (true time);
+LiDAR scans every 0.1 s from t0 + 0.05 s; camera frames every 1/rate from t0 + 0.1 s; odometry
+(/tf, /odom) at 30 Hz. Each sensor's header stamps carry its own clock offset; the bag's log time
+adds a per-sensor latency. Random streams are seeded per (seed, stream, index), so any message can
+be generated independently and the output does not depend on generation order.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..conventions import Grid, RangeBins
+from ..errors import InputError
+from ..progress import track
+from . import truth as truthio
+from .camera import T_LINK_OPTICAL, CameraConfig, CameraModel, look_at
+from .human import HumanWalk, footprint_points
+from .lidar import LidarConfig, LidarModel, beam_angles, ouster_metadata
+from .motion import odometry, pose_xy_yaw, robot_trajectory
+from .radar import RadarConfig, RadarModel, encode_heatmap
+from .worlds import CLASS_ID, MATERIAL_ID, World, hidden_from, make_world
+
+RADAR_START_S = 0.3
+LIDAR_START_S = 0.05
+CAMERA_START_S = 0.1
+ODOM_HZ = 30.0
+STREAMS = {"radar": 1, "lidar": 2, "camera": 3, "scenario": 4, "odometry": 5}
+
+FRAME_MAP, FRAME_ODOM, FRAME_BASE = "map", "odom", "base_link"
+FRAME_RADAR = "radar"
+FRAME_CAM_LINK = "zed2i_camera_link"
+
+
+def _rng(seed: int, stream: str, index: int = 0) -> np.random.Generator:
+    return np.random.default_rng([int(seed) & 0xFFFFFFFF, STREAMS[stream], int(index)])
+
+
+def _trans(x, y, z, yaw_deg=0.0) -> np.ndarray:
+    T = pose_xy_yaw(x, y, np.deg2rad(yaw_deg), z)
+    return np.asarray(T, float)
+
+
+@dataclass
+class Scenario:
+    seed: int
+    world: World
+    frames: int
+    t0_ns: int
+    duration_s: float
+    truth: object            # Trajectory T_world_base (true time)
+    truth_info: dict
+    odom: object             # Trajectory T_odom_base
+    odom_info: dict
+    T_map_odom: np.ndarray
+    walk: HumanWalk | None
+    T_base_radar: np.ndarray
+    T_base_lidar: np.ndarray
+    T_world_cam_link: np.ndarray
+    radar_cfg: RadarConfig
+    lidar_cfg: LidarConfig
+    camera_cfg: CameraConfig
+    lidar_alt: np.ndarray
+    lidar_az: np.ndarray
+    clock_offset_ns: dict
+    latency_ns: dict
+
+    def t_s(self, t_ns) -> float:
+        """Seconds since the start of the recording (true time)."""
+        return (np.asarray(t_ns, np.int64) - self.t0_ns) / 1e9
+
+    def human_mesh(self, t_ns: int):
+        return None if self.walk is None else self.walk.mesh_at(float(self.t_s(t_ns)))
+
+    def radar_cycle(self, k: int) -> tuple[int, int]:
+        period = int(round(1e9 / self.radar_cfg.rotation_hz))
+        start = self.t0_ns + int(round(RADAR_START_S * 1e9)) + k * period
+        return start, start + period
+
+
+def build_scenario(corner: str = "L", width: float | None = None, frames: int = 20, seed: int = 0,
+                   human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
+                   lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16") -> Scenario:
+    """Everything about one recording except the sensor data itself."""
+    try:
+        world = make_world(corner, width, seed)
+    except ValueError as err:
+        raise InputError(str(err)) from None
+    rng = _rng(seed, "scenario")
+    radar_cfg = RadarConfig(grid=grid or Grid(), range_bins=range_bins or RangeBins(), encoding=radar_encoding)
+    period_s = 1.0 / radar_cfg.rotation_hz
+    duration = RADAR_START_S + frames * period_s + 0.3
+    t0 = (EPOCH_S_DEFAULT + (int(seed) % 100_000) * 3600) * 1_000_000_000
+    truth, tinfo = robot_trajectory(world.robot_start, world.robot_stop, duration, t0, rng)
+    odom, oinfo = odometry(truth, _rng(seed, "odometry"), rate_hz=ODOM_HZ)
+    T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
+
+    T_base_radar = _trans(float(rng.uniform(0.05, 0.12)), float(rng.uniform(-0.02, 0.02)), float(rng.uniform(0.38, 0.5)),
+                          float(rng.uniform(-1.0, 1.0)))
+    T_base_lidar = _trans(float(rng.uniform(-0.08, 0.0)), 0.0, float(rng.uniform(0.7, 0.85)), float(rng.uniform(-1.0, 1.0)))
+    rows, cols = lidar_shape
+    lidar_cfg = LidarConfig(rows=int(rows), cols=int(cols))
+    alt, az = beam_angles(lidar_cfg, rng)
+    cam_cfg = CameraConfig()
+    if tuple(camera_shape) != (cam_cfg.height, cam_cfg.width):
+        cam_cfg = cam_cfg.scaled(int(camera_shape[1]), int(camera_shape[0]))
+
+    # where the robot's sensors look from (plan view), for keeping the human out of sight
+    ts = np.linspace(truth.timestamp_ns[0], truth.timestamp_ns[-1], 60).astype(np.int64)
+    P = truth.interpolate(ts)
+    viewers = np.concatenate([(P @ T)[:, :2, 3] for T in (T_base_radar, T_base_lidar)])
+    viewers = np.concatenate([viewers + np.array(o) for o in ((0, 0), (0.15, 0), (0, 0.15), (0, -0.15), (0.15, 0.15), (0.15, -0.15))])
+
+    origin, u, L, bw = world.hidden_axis
+    nrm = np.array([-u[1], u[0]])
+    height = float(rng.uniform(1.5, 1.95))
+    speed = 0.0 if rng.random() < 0.25 else float(rng.uniform(0.5, 1.2))
+    lat = float(rng.uniform(-1, 1)) * max(0.0, bw / 2 - 0.45)
+    s_grid = np.arange(0.5, L - 1.0, 0.1)
+    ok = [bool(hidden_from(world.floor_polygon, viewers, footprint_points(origin + u * s + nrm * lat, 0.45)).all())
+          for s in s_grid]
+    if not any(ok):
+        raise InputError(f"corner {corner} seed {seed}: no place on the hidden side is out of the robot's sight")
+    s_min = float(s_grid[int(np.argmax(ok))])
+    s_a = s_min + float(rng.uniform(0.0, 0.5))
+    s_b = min(s_a + float(rng.uniform(1.0, 2.5)), L - 1.0)
+    a, b = origin + u * s_a + nrm * lat, origin + u * s_b + nrm * lat
+    seg = np.concatenate([footprint_points(a + (b - a) * f, 0.45) for f in np.linspace(0, 1, 11)])
+    if not hidden_from(world.floor_polygon, viewers, seg).all():
+        raise InputError(f"corner {corner} seed {seed}: the human's walk would be visible from the robot")
+    walk = HumanWalk(a, b, speed, height, float(rng.uniform(0, 1))) if human else None
+    if not human:
+        rng.uniform(0, 1)
+
+    # camera: in the hidden branch beyond the walk, looking back at it
+    s_cam = min(s_b + float(rng.uniform(1.8, 2.8)), L - 0.25)
+    eye = np.r_[origin + u * s_cam + nrm * float(rng.uniform(-0.3, 0.3)) * bw, float(rng.uniform(1.0, 1.5))]
+    target = np.r_[(a + b) / 2, 0.9]
+    T_world_cam_link = look_at(eye, target)
+
+    clock = {"radar": int(rng.integers(-3_000_000, 3_000_001)), "lidar": int(rng.integers(-2_000_000, 2_000_001)),
+             "camera": int(rng.integers(-8_000_000, 8_000_001)), "odometry": 0}
+    latency = {"radar": int(rng.integers(30_000_000, 45_000_001)), "lidar": int(rng.integers(2_000_000, 6_000_001)),
+               "camera": int(rng.integers(20_000_000, 40_000_001)), "odometry": 1_000_000}
+    tinfo["robot_height_m"] = 0.0
+    return Scenario(seed, world, frames, t0, duration, truth, tinfo, odom, oinfo, T_map_odom, walk,
+                    T_base_radar, T_base_lidar, T_world_cam_link, radar_cfg, lidar_cfg, cam_cfg, alt, az, clock, latency)
+
+
+EPOCH_S_DEFAULT = 1_735_689_600
+
+
+# ---------------------------------------------------------------------------------- sensors
+class Sensors:
+    """Ray scene + sensor models for a scenario (built once)."""
+
+    def __init__(self, sc: Scenario):
+        from ..raytrace import RayScene
+
+        w = sc.world
+        self.sc = sc
+        self.scene = RayScene(w.vertices, w.faces, face_class=w.face_class, class_names=w.class_names)
+        self.radar = RadarModel(sc.radar_cfg, w.materials, w.face_material, MATERIAL_ID["human"])
+        self.lidar = LidarModel(sc.lidar_cfg, sc.lidar_alt, sc.lidar_az, w.face_material, w.face_class, w.materials,
+                                MATERIAL_ID["human"], CLASS_ID["ceiling"])
+        self.camera = CameraModel(sc.camera_cfg, sc.T_world_cam_link @ T_LINK_OPTICAL)
+
+    def radar_frame(self, k: int) -> tuple[np.ndarray, dict]:
+        """(n_range, H, W) float32 heatmap of cycle k and per-frame stats."""
+        sc, cfg = self.sc, self.sc.radar_cfg
+        g = cfg.grid
+        start, end = sc.radar_cycle(k)
+        t_cols = start + np.round((np.arange(g.W) + 0.5) / g.W * (end - start)).astype(np.int64)
+        T_cols = sc.truth.interpolate(t_cols) @ sc.T_base_radar             # (W,4,4)
+        D = np.einsum("wij,hwj->hwi", T_cols[:, :3, :3], g.directions()).reshape(-1, 3)
+        O = np.broadcast_to(T_cols[None, :, :3, 3], (g.H, g.W, 3)).reshape(-1, 3)
+        human = sc.human_mesh((start + end) // 2)
+        tr = self.trace(O, D, human, cfg.max_bounces, cfg.range_bins.max_range)
+        paths = self.radar.paths(tr, O, D)
+        hm = self.radar.cube(paths, _rng(sc.seed, "radar", k))
+        return hm, path_stats(paths)
+
+    def trace(self, O, D, human, max_bounces: int, max_range: float):
+        """Multi-bounce trace through the static world plus this frame's human. The human is merged
+        into a per-frame scene (a few hundred triangles: the BVH build is negligible), so one cast
+        per bounce serves both; ``hit_dynamic``/``face`` are then rewritten to the dynamic-mesh
+        convention of :class:`holodata.raytrace.TraceResult`."""
+        from ..raytrace import RayScene
+
+        if human is None:
+            return self.scene.trace(O, D, max_bounces=max_bounces, max_range=max_range, labels=False)
+        w = self.sc.world
+        hv, hf = human
+        nf = len(w.faces)
+        merged = RayScene(np.concatenate([w.vertices, hv]), np.concatenate([w.faces, hf + len(w.vertices)]))
+        tr = merged.trace(O, D, max_bounces=max_bounces, max_range=max_range, labels=False)
+        tr.hit_dynamic = tr.face >= nf
+        tr.face = np.where(tr.hit_dynamic, tr.face - nf, tr.face)
+        return tr
+
+    def lidar_scan(self, i: int, start_ns: int):
+        sc = self.sc
+        t_cols = start_ns + self.lidar.column_times_ns()
+        T_cols = sc.truth.interpolate(t_cols) @ sc.T_base_lidar
+        mid = start_ns + int(5e8 / sc.lidar_cfg.rate_hz)
+        return self.lidar.scan(self.scene, T_cols, sc.human_mesh(mid), _rng(sc.seed, "lidar", i))
+
+    def camera_frame(self, i: int, t_ns: int):
+        return self.camera.frame(self.scene, self.sc.human_mesh(t_ns), _rng(self.sc.seed, "camera", i))
+
+
+def path_stats(paths: dict) -> dict:
+    """LOS structure vs NLOS human power from per-path amplitudes (dB drop, NaN if no NLOS human)."""
+    p = np.abs(paths["amp"]) ** 2
+    los = (paths["bounce"] == 1) & ~paths["human"]
+    nlos_h = (paths["bounce"] >= 2) & paths["human"]
+    nlos = paths["bounce"] >= 2
+    out = {"n_paths": int(len(p)), "nlos_human_paths": int(nlos_h.sum())}
+    out["los_nlos_drop_db"] = float(10 * np.log10(p[los].mean() / p[nlos].mean())) if los.any() and nlos.any() else float("nan")
+    out["los_nlos_human_drop_db"] = (float(10 * np.log10(p[los].mean() / p[nlos_h].mean()))
+                                     if los.any() and nlos_h.any() else float("nan"))
+    return out
+
+
+# ---------------------------------------------------------------------------------- writing
+def _schedule(sc: Scenario) -> list[tuple[int, int, str, int, int]]:
+    """(log_ns, priority, kind, index, sensor_time_ns) events, sorted."""
+    ev = []
+    end_ns = sc.radar_cycle(sc.frames - 1)[1]
+    ev.append((sc.t0_ns, 0, "static", 0, sc.t0_ns))
+    ev.append((sc.t0_ns + 1_000_000, 1, "metadata", 0, sc.t0_ns))
+    for k in range(sc.frames):
+        s, e = sc.radar_cycle(k)
+        ev.append((e + sc.latency_ns["radar"], 5, "radar", k, s))
+    step = int(round(1e9 / sc.lidar_cfg.rate_hz))
+    t, i = sc.t0_ns + int(LIDAR_START_S * 1e9), 0
+    while t + step <= end_ns:
+        ev.append((t + step + sc.latency_ns["lidar"], 4, "lidar", i, t))
+        t, i = t + step, i + 1
+    step = int(round(1e9 / sc.camera_cfg.rate_hz))
+    t, i = sc.t0_ns + int(CAMERA_START_S * 1e9), 0
+    while t <= end_ns:
+        ev.append((t + sc.latency_ns["camera"], 3, "camera", i, t))
+        t, i = t + step, i + 1
+    for i, t in enumerate(sc.odom.timestamp_ns):
+        if t > end_ns:
+            break
+        ev.append((int(t) + sc.latency_ns["odometry"], 2, "odom", i, int(t)))
+    ev.sort()
+    return ev
+
+
+def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
+    from . import TOPICS, SynthResult
+    from .recording import BagWriter, recording_path
+
+    out_dir = Path(out_dir)
+    sensors = Sensors(sc)
+    truth_dir = out_dir / "truth"
+    truth_dir.mkdir(parents=True, exist_ok=False)
+    human_dir = truth_dir / "human" if sc.walk is not None else None
+    if human_dir is not None:
+        human_dir.mkdir()
+    rec = recording_path(out_dir, fmt)
+    counts = {t: 0 for t in TOPICS}
+    frame_rows, radar_tum, lidar_tum = [], [], []
+    lidar_human_hits, camera_human_pixels = 0, 0
+    events = _schedule(sc)
+    cam_cfg, rcfg = sc.camera_cfg, sc.radar_cfg
+    T_world_cam_opt = sc.T_world_cam_link @ T_LINK_OPTICAL
+    with BagWriter(rec, fmt) as bw:
+        for topic, typ in TOPICS.items():
+            bw.add(topic, typ, latched=topic in ("/tf_static", "/ouster/metadata"))
+
+        def put(topic, t_ns, msg):
+            bw.write(topic, t_ns, msg)
+            counts[topic] += 1
+
+        for log_ns, _, kind, idx, t_ns in track(events, len(events), "synth", quiet):
+            if kind == "static":
+                tfs = [bw.transform("/tf_static", t_ns, FRAME_MAP, FRAME_ODOM, sc.T_map_odom),
+                       bw.transform("/tf_static", t_ns, FRAME_BASE, FRAME_RADAR, sc.T_base_radar),
+                       bw.transform("/tf_static", t_ns, FRAME_BASE, sc.lidar_cfg.frame_id, sc.T_base_lidar),
+                       bw.transform("/tf_static", t_ns, FRAME_MAP, FRAME_CAM_LINK, sc.T_world_cam_link),
+                       bw.transform("/tf_static", t_ns, FRAME_CAM_LINK, cam_cfg.cloud_frame_id, np.eye(4)),
+                       bw.transform("/tf_static", t_ns, FRAME_CAM_LINK, cam_cfg.frame_id, T_LINK_OPTICAL)]
+                put("/tf_static", log_ns, bw.tf_message(tfs))
+            elif kind == "metadata":
+                md = ouster_metadata(sc.lidar_cfg, sc.lidar_alt, sc.lidar_az, f"SYN{sc.seed:09d}")
+                put("/ouster/metadata", log_ns, bw.string(json.dumps(md, sort_keys=True)))
+            elif kind == "odom":
+                T = sc.odom.poses[idx]
+                put("/tf", log_ns, bw.tf_message([bw.transform("/tf", t_ns, FRAME_ODOM, FRAME_BASE, T)]))
+                put("/odom", log_ns, _odometry_msg(bw, sc, idx, t_ns))
+            elif kind == "radar":
+                s, e = sc.radar_cycle(idx)
+                hm, st = sensors.radar_frame(idx)
+                off = sc.clock_offset_ns["radar"]
+                stamp = (s + e) // 2 + off
+                msg = bw.radar_heatmap("/radar/heatmap", stamp, FRAME_RADAR, encode_heatmap(hm, rcfg.encoding),
+                                       hm.shape, rcfg, s + off, e + off)
+                put("/radar/heatmap", log_ns, msg)
+                mid = (s + e) // 2
+                radar_tum.append((stamp, sc.truth.interpolate(np.array([mid]))[0] @ sc.T_base_radar))
+                hc = sc.walk.center_at(float(sc.t_s(mid))) if sc.walk is not None else np.full(3, np.nan)
+                if human_dir is not None:
+                    hv, hf = sc.human_mesh(mid)
+                    truthio.write_mesh(human_dir / f"{idx:06d}.ply", hv, hf, np.full(len(hf), CLASS_ID["human"], np.uint8),
+                                       {CLASS_ID["human"]: "human"})
+                frame_rows.append({"frame": idx, "stamp_ns": stamp, "cycle_start_ns": s + off, "cycle_end_ns": e + off,
+                                   "true_mid_ns": mid, "human_x": hc[0], "human_y": hc[1], "human_z": hc[2],
+                                   "los_nlos_drop_db": st["los_nlos_drop_db"],
+                                   "los_nlos_human_drop_db": st["los_nlos_human_drop_db"]})
+            elif kind == "lidar":
+                pts, st = sensors.lidar_scan(idx, t_ns)
+                lidar_human_hits += st["human_hits"]
+                stamp = t_ns + sc.clock_offset_ns["lidar"]
+                put("/ouster/points", log_ns, bw.point_cloud("/ouster/points", stamp, sc.lidar_cfg.frame_id, pts))
+                lidar_tum.append((stamp, sc.truth.interpolate(np.array([t_ns]))[0] @ sc.T_base_lidar))
+            elif kind == "camera":
+                depth, st = sensors.camera_frame(idx, t_ns)
+                camera_human_pixels += st["human_pixels"]
+                stamp = t_ns + sc.clock_offset_ns["camera"]
+                put("/zed2i/zed_node/depth/depth_registered", log_ns,
+                    bw.image_32fc1("/zed2i/zed_node/depth/depth_registered", stamp, cam_cfg.frame_id, depth))
+                put("/zed2i/zed_node/depth/camera_info", log_ns,
+                    bw.camera_info("/zed2i/zed_node/depth/camera_info", stamp, cam_cfg.frame_id, cam_cfg))
+                cloud = sensors.camera.cloud(depth)
+                xyz = np.zeros(cloud.shape[:2], np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
+                                                          "offsets": [0, 4, 8], "itemsize": 12}))
+                xyz["x"], xyz["y"], xyz["z"] = cloud[..., 0], cloud[..., 1], cloud[..., 2]
+                put("/zed2i/zed_node/point_cloud/cloud_registered", log_ns,
+                    bw.point_cloud("/zed2i/zed_node/point_cloud/cloud_registered", stamp, cam_cfg.cloud_frame_id, xyz))
+        storage = bw.storage_file
+
+    # ------------------------------------------------------------------ truth/
+    w = sc.world
+    mesh_path = truth_dir / "mesh.ply"
+    truthio.write_mesh(mesh_path, w.vertices, w.faces, w.face_class, w.class_names)
+    np.save(truth_dir / "mesh_face_material.npy", w.face_material)
+    tb = np.arange(sc.truth.timestamp_ns[0], sc.truth.timestamp_ns[-1] + 1, 10_000_000, dtype=np.int64)
+    truthio.write_trajectory(truth_dir / "trajectory_base.tum", tb, sc.truth.interpolate(tb))
+    truthio.write_trajectory(truth_dir / "trajectory_radar.tum", [r[0] for r in radar_tum], np.stack([r[1] for r in radar_tum]))
+    if lidar_tum:
+        truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", [r[0] for r in lidar_tum], np.stack([r[1] for r in lidar_tum]))
+    truthio.write_trajectory(truth_dir / "odometry.tum", sc.odom.timestamp_ns, sc.odom.poses)
+    truthio.write_frames_csv(truth_dir / "radar_frames.csv", frame_rows)
+    truthio.write_json(truth_dir / "extrinsics.json", {
+        "T_base_radar": sc.T_base_radar, "T_base_lidar": sc.T_base_lidar,
+        "T_world_camera_link": sc.T_world_cam_link, "T_world_camera_optical": T_world_cam_opt,
+        "T_camera_link_optical": T_LINK_OPTICAL, "T_map_odom": sc.T_map_odom,
+        "frames": {"world": FRAME_MAP, "odom": FRAME_ODOM, "base": FRAME_BASE, "radar": FRAME_RADAR,
+                   "lidar": sc.lidar_cfg.frame_id, "camera_link": FRAME_CAM_LINK,
+                   "camera_optical": cam_cfg.frame_id, "camera_cloud": cam_cfg.cloud_frame_id},
+    })
+    drops = np.array([r["los_nlos_human_drop_db"] for r in frame_rows], float)
+    drops_all = np.array([r["los_nlos_drop_db"] for r in frame_rows], float)
+    stats = {
+        "lidar_human_hits": lidar_human_hits,
+        "camera_human_pixels": camera_human_pixels,
+        "los_nlos_drop_db": float(np.nanmedian(drops_all)) if np.isfinite(drops_all).any() else None,
+        "los_nlos_human_drop_db": float(np.nanmedian(drops)) if np.isfinite(drops).any() else None,
+    }
+    d = stats["los_nlos_human_drop_db"]
+    stats["attenuation_band"] = None if d is None else ("low" if d < 10 else "medium" if d <= 20 else "high")
+    scene = w.describe()
+    scene.update({
+        "holodata_synth_version": 1,
+        "seed": sc.seed, "frames": sc.frames, "format": fmt, "t0_ns": sc.t0_ns, "duration_s": sc.duration_s,
+        "human": None if sc.walk is None else {"height_m": sc.walk.height, "speed_mps": sc.walk.speed,
+                                               "a": sc.walk.a, "b": sc.walk.b, "phase0": sc.walk.phase0},
+        "robot": sc.truth_info, "odometry": sc.odom_info,
+        "radar": rcfg.describe(), "lidar": sc.lidar_cfg.describe(), "camera": cam_cfg.describe(),
+        "lidar_beam_altitude_deg": sc.lidar_alt, "lidar_beam_azimuth_deg": sc.lidar_az,
+        "clock_offset_ns": sc.clock_offset_ns, "latency_ns": sc.latency_ns,
+        "topics": TOPICS, "counts": counts, "stats": stats,
+        "recording": str(rec.relative_to(out_dir)), "storage_file": str(Path(storage).relative_to(out_dir)),
+        "conventions": {
+            "radar_stamp": "header.stamp = mid-cycle in the radar clock; cycle_start_ns/cycle_end_ns likewise",
+            "radar_elevation_units": "radians (elevation_max/elevation_min in the message)",
+            "trajectory_radar": "line k = radar frame k, stamped with its header stamp; true pose at mid-cycle",
+            "human_dir": "truth/human/<frame:06d>.ply = world-frame human mesh at radar frame's mid-cycle",
+            "radar_beam_origin": "rotation centre, moving with the robot during the cycle (per-column pose)",
+        },
+    })
+    scene_path = truth_dir / "scene.json"
+    truthio.write_json(scene_path, scene)
+    return SynthResult(out_dir=out_dir, recording=rec, storage_file=Path(storage), format=fmt, truth_dir=truth_dir,
+                       scene_json=scene_path, mesh=mesh_path, trajectory_radar=truth_dir / "trajectory_radar.tum",
+                       trajectory_base=truth_dir / "trajectory_base.tum", human_dir=human_dir, n_frames=sc.frames,
+                       corner=w.corner, width_m=w.width, seed=sc.seed, human=sc.walk is not None,
+                       topics=dict(TOPICS), counts=counts, stats=stats)
+
+
+def _odometry_msg(bw, sc: Scenario, i: int, t_ns: int):
+    T = bw.types
+    P = sc.odom.poses[i]
+    j0, j1 = max(0, i - 1), min(len(sc.odom) - 1, i + 1)
+    dt = max(1e-9, (sc.odom.timestamp_ns[j1] - sc.odom.timestamp_ns[j0]) / 1e9)
+    D = np.linalg.inv(sc.odom.poses[j0]) @ sc.odom.poses[j1]
+    v = D[:3, 3] / dt
+    wz = np.arctan2(D[1, 0], D[0, 0]) / dt
+    from scipy.spatial.transform import Rotation
+
+    q = Rotation.from_matrix(P[:3, :3]).as_quat()
+    V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+    pose = T["geometry_msgs/msg/PoseWithCovariance"](
+        pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(P[0, 3]), y=float(P[1, 3]), z=float(P[2, 3])),
+                                         orientation=Q(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))),
+        covariance=np.diag([0.01, 0.01, 1e-6, 1e-6, 1e-6, 0.02]).ravel())
+    twist = T["geometry_msgs/msg/TwistWithCovariance"](
+        twist=T["geometry_msgs/msg/Twist"](linear=V3(x=float(v[0]), y=float(v[1]), z=0.0), angular=V3(x=0.0, y=0.0, z=float(wz))),
+        covariance=np.diag([0.005, 0.005, 1e-6, 1e-6, 1e-6, 0.01]).ravel())
+    return T["nav_msgs/msg/Odometry"](header=bw.header("/odom", t_ns, FRAME_ODOM), child_frame_id=FRAME_BASE,
+                                      pose=pose, twist=twist)
