@@ -95,10 +95,6 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
     period_s = 1.0 / radar_cfg.rotation_hz
     duration = RADAR_START_S + frames * period_s + 0.3
     t0 = (EPOCH_S_DEFAULT + (int(seed) % 100_000) * 3600) * 1_000_000_000
-    truth, tinfo = robot_trajectory(world.robot_start, world.robot_stop, duration, t0, rng)
-    odom, oinfo = odometry(truth, _rng(seed, "odometry"), rate_hz=ODOM_HZ)
-    T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
-
     T_base_radar = _trans(float(rng.uniform(0.05, 0.12)), float(rng.uniform(-0.02, 0.02)), float(rng.uniform(0.38, 0.5)),
                           float(rng.uniform(-1.0, 1.0)))
     T_base_lidar = _trans(float(rng.uniform(-0.08, 0.0)), 0.0, float(rng.uniform(0.7, 0.85)), float(rng.uniform(-1.0, 1.0)))
@@ -108,26 +104,37 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
     cam_cfg = CameraConfig()
     if tuple(camera_shape) != (cam_cfg.height, cam_cfg.width):
         cam_cfg = cam_cfg.scaled(int(camera_shape[1]), int(camera_shape[0]))
-
-    # where the robot's sensors look from (plan view), for keeping the human out of sight
-    ts = np.linspace(truth.timestamp_ns[0], truth.timestamp_ns[-1], 60).astype(np.int64)
-    P = truth.interpolate(ts)
-    viewers = np.concatenate([(P @ T)[:, :2, 3] for T in (T_base_radar, T_base_lidar)])
-    viewers = np.concatenate([viewers + np.array(o) for o in ((0, 0), (0.15, 0), (0, 0.15), (0, -0.15), (0.15, 0.15), (0.15, -0.15))])
-
     origin, u, L, bw = world.hidden_axis
     nrm = np.array([-u[1], u[0]])
     height = float(rng.uniform(1.5, 1.95))
     speed = 0.0 if rng.random() < 0.25 else float(rng.uniform(0.5, 1.2))
     lat = float(rng.uniform(-1, 1)) * max(0.0, bw / 2 - 0.45)
-    s_grid = np.arange(0.5, L - 1.0, 0.1)
-    ok = [bool(hidden_from(world.floor_polygon, viewers, footprint_points(origin + u * s + nrm * lat, 0.45)).all())
-          for s in s_grid]
-    if not any(ok):
+    walk_len = float(rng.uniform(1.0, 2.5))
+    s_jit = float(rng.uniform(0.0, 0.5))
+    traj_seed = int(rng.integers(2**31))
+
+    # the robot stops early enough that some stretch of the hidden branch stays out of its sight
+    # (wide corridors need a longer distance to the corner)
+    for attempt in range(16):
+        stop = world.robot_stop - np.array([0.5 * attempt, 0.0])
+        start = world.robot_start if world.robot_start[0] < stop[0] - 1.0 else stop - np.array([1.0, 0.0])
+        truth, tinfo = robot_trajectory(start, stop, duration, t0, np.random.default_rng(traj_seed))
+        ts = np.linspace(truth.timestamp_ns[0], truth.timestamp_ns[-1], 60).astype(np.int64)
+        P = truth.interpolate(ts)
+        viewers = np.concatenate([(P @ T)[:, :2, 3] for T in (T_base_radar, T_base_lidar)])
+        viewers = np.concatenate([viewers + np.array(o) for o in
+                                  ((0, 0), (0.15, 0), (0, 0.15), (0, -0.15), (0.15, 0.15), (0.15, -0.15))])
+        s_grid = np.arange(0.5, L - 1.0 - walk_len, 0.1)
+        ok = [bool(hidden_from(world.floor_polygon, viewers, footprint_points(origin + u * s + nrm * lat, 0.45)).all())
+              for s in s_grid]
+        if any(ok):
+            break
+    else:
         raise InputError(f"corner {corner} seed {seed}: no place on the hidden side is out of the robot's sight")
-    s_min = float(s_grid[int(np.argmax(ok))])
-    s_a = s_min + float(rng.uniform(0.0, 0.5))
-    s_b = min(s_a + float(rng.uniform(1.0, 2.5)), L - 1.0)
+    odom, oinfo = odometry(truth, _rng(seed, "odometry"), rate_hz=ODOM_HZ)
+    T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
+    s_a = float(s_grid[int(np.argmax(ok))]) + s_jit
+    s_b = min(s_a + walk_len, L - 1.0)
     a, b = origin + u * s_a + nrm * lat, origin + u * s_b + nrm * lat
     seg = np.concatenate([footprint_points(a + (b - a) * f, 0.45) for f in np.linspace(0, 1, 11)])
     if not hidden_from(world.floor_polygon, viewers, seg).all():

@@ -1,4 +1,4 @@
-"""Procedural indoor corners (T, L, cross, oblique 45°) as closed triangle meshes with materials.
+"""Procedural indoor corners (T, L, cross, oblique: branch at 45° to the approach corridor) as closed triangle meshes with materials.
 
 World frame (REP-103): the robot's *approach corridor* runs along +x with its axis on y = 0
 and its walls at y = ±width/2; the junction starts at x = 0. The *hidden branch* (where the
@@ -217,10 +217,12 @@ def _outline(corner: str, w: float, w2: float, la: float, lh: float, lc: float):
                 (w2, hw), (w2, hw + lh), (0, hw + lh), (0, hw), (-la, hw)]
         axis = (np.array([w2 / 2, hw]), np.array([0.0, 1.0]), lh, w2)
     elif corner == "oblique":
-        u = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4)])
+        # the hidden branch leaves the junction at 45° to the approach corridor (a 135° turn back
+        # to the left): the corridors' axes meet at an acute 45° angle, the junction is a wedge
+        u = np.array([-np.cos(np.pi / 4), np.sin(np.pi / 4)])
         nrm = np.array([u[1], -u[0]])  # right-hand normal of the branch direction
         P = np.array([0.0, hw])
-        # outer branch wall P + w2*nrm + s*u meets the approach corridor's outer wall y = -hw
+        # the branch's outer wall P + w2*nrm + s*u meets the approach corridor's outer wall y = -hw
         s = (-hw - (P[1] + w2 * nrm[1])) / u[1]
         X = P + w2 * nrm + s * u
         poly = [(-la, -hw), tuple(X), tuple(P + w2 * nrm + lh * u), tuple(P + lh * u), tuple(P), (-la, hw)]
