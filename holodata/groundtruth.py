@@ -23,11 +23,10 @@ that, the registered human cloud ``camera/points`` turned into small octahedra (
 from __future__ import annotations
 
 import hashlib
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
-
 import numpy as np
 
 from .conventions import (
@@ -177,7 +176,12 @@ class HumanDir(HumanSource):
 class HumanDataset(HumanSource):
     """Ragged ``human/vertices`` + ``human/faces`` of a dataset scene, else ``camera/points`` splats."""
 
-    def __init__(self, scene):
+    def __init__(self, url: str, scene_id: str, scene=None):
+        self.url, self.scene_id = url, scene_id
+        if scene is None:
+            from .dataset import open_dataset
+
+            scene = open_dataset(url).scene(scene_id)
         self.scene = scene
         names = set(scene.arrays())
         if {"human/vertices", "human/faces"} <= names:
@@ -187,7 +191,14 @@ class HumanDataset(HumanSource):
         else:
             self.kind = "none"
 
+    def __getstate__(self):  # worker processes reopen the dataset read-only
+        return {**self.__dict__, "scene": None}
+
     def __call__(self, k: int):
+        if self.scene is None and self.kind != "none":
+            from .dataset import open_dataset
+
+            self.scene = open_dataset(self.url).scene(self.scene_id)
         if self.kind == "dataset:human/vertices+faces":
             v = np.asarray(self.scene.ragged("human/vertices", k), dtype=np.float64)
             f = np.asarray(self.scene.ragged("human/faces", k), dtype=np.int64)
@@ -259,41 +270,153 @@ def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource) -> dict:
     }
 
 
-def write_scene_gt(sc, scene, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
-                   quiet: bool = True, label: str = "raytrace-gt", on_frame: Callable | None = None) -> dict:
+class FrameTracer:
+    """Traces frames of one scene; built in this process or once per worker process.
+    ``mesh`` = (vertices, faces, face_class | None, class_names | None)."""
+
+    def __init__(self, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource):
+        self.scene = _make_scene(*mesh, cfg)
+        self.cfg, self.traj, self.human = cfg, traj, human
+        self._last = (None, None)
+
+    def __call__(self, f: int) -> dict:
+        h = self.human(f)
+        if h is None:
+            return trace_frame(self.scene, self.cfg, self.traj, f, None)
+        if h is not self._last[0]:  # build the human BVH once per distinct mesh
+            self._last = (h, self.scene.prepare_dynamic(*h))
+        return trace_frame(self.scene, self.cfg, self.traj, f, self._last[1], human_vertices=h[0])
+
+
+_WORKER: dict = {}
+
+
+def _slot_views(buf, specs: dict) -> dict:
+    """Numpy views of one frame's gt arrays laid out back to back in ``buf``."""
+    out, off = {}, 0
+    for name, spec in specs.items():
+        shape, dt = tuple(spec["per_frame_shape"]), np.dtype(spec["dtype"])
+        n = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
+        out[name] = np.ndarray(shape, dtype=dt, buffer=buf, offset=off)
+        off += (n + 63) // 64 * 64
+    return out
+
+
+def _slot_bytes(specs: dict) -> int:
+    return sum((int(np.prod(s["per_frame_shape"], dtype=np.int64)) * np.dtype(s["dtype"]).itemsize + 63) // 64 * 64
+               for s in specs.values())
+
+
+def _worker_init(mesh, cfg, traj, human, shm_name, n_slots) -> None:
+    from multiprocessing import shared_memory
+
+    specs = gt_array_specs(cfg.grid, cfg.max_bounces)
+    shm = shared_memory.SharedMemory(name=shm_name)
+    size = _slot_bytes(specs)
+    _WORKER.update(tracer=FrameTracer(mesh, cfg, traj, human), shm=shm,
+                   slots=[_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)])
+
+
+def _worker_frame(f: int, slot: int) -> int:
+    """Trace frame ``f`` into shared-memory slot ``slot`` (results do not travel through pipes)."""
+    out = _WORKER["tracer"](f)
+    for name, view in _WORKER["slots"][slot].items():
+        view[...] = out[name]
+    return slot
+
+
+def auto_workers(n_frames: int) -> int:
+    """Worker processes for ``n_frames``: one per core (max 4) for long runs, else in-process."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return 1 if n_frames < 64 or cpus < 2 else min(cpus, 4)
+
+
+def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
+                   quiet: bool = True, label: str = "raytrace-gt", workers: int = 1) -> dict:
     """Trace every frame of ``traj`` and write gt/* shard by shard into dataset scene ``sc``
-    (skipping shards already written). Returns a summary dict."""
+    (skipping shards already written; a shard's arrays are written only once all its frames are
+    traced). ``workers`` > 1 traces in that many spawned processes (the static scene is built once
+    per worker); writing stays in this process, with a bounded number of frames in flight, so
+    memory does not grow with the frame count. Returns a summary dict."""
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
     arrays = {name: sc.frame_array(name, **spec) for name, spec in specs.items()}
     sc.set_attrs({"gt": attrs})
     first = arrays["gt/range"]
-    written = skipped = 0
-    last_h = last_g = None
-    t0 = time.perf_counter()
-    for k in track(range(first.n_shards), total=first.n_shards, description=label, quiet=quiet):
+    all_frames = range(len(traj))
+    plan = []  # (shard, names to write, frames)
+    for k in range(first.n_shards):
         todo = [name for name, a in arrays.items() if not a.is_done(k)]
-        if not todo:
-            skipped += 1
-            continue
-        frames = range(len(traj))[first.frames(k)]
+        if todo:
+            plan.append((k, todo, all_frames[first.frames(k)]))
+    skipped = first.n_shards - len(plan)
+    n_traced = sum(len(p[2]) for p in plan)
+    workers = auto_workers(n_traced) if workers <= 0 else workers
+    t0 = time.perf_counter()
+    if workers == 1 or n_traced == 0:
+        tracer = FrameTracer(mesh, cfg, traj, human) if n_traced else None
+        results = (tracer(f) for _, _, frames in plan for f in frames)
+        _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards)
+    else:
+        import multiprocessing as mp
+
+        from multiprocessing import shared_memory
+
+        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+        wcfg = GTConfig(**{**cfg.__dict__, "nthreads": cfg.nthreads or max(1, cpus // workers)})
+        n_slots = 2 * workers + 2
+        size = _slot_bytes(specs)
+        shm = shared_memory.SharedMemory(create=True, size=size * n_slots)
+        try:
+            slots = [_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)]
+            with mp.get_context("spawn").Pool(workers, _worker_init, (mesh, wcfg, traj, human, shm.name, n_slots)) as pool:
+                frames = [f for _, _, fr in plan for f in fr]
+                _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label, first.n_shards)
+            del slots
+        finally:
+            shm.close()
+            shm.unlink()
+    dt = time.perf_counter() - t0
+    return {"frames": len(traj), "shards": first.n_shards, "shards_written": len(plan), "shards_skipped": skipped,
+            "frames_traced": n_traced, "workers": workers, "seconds": round(dt, 3),
+            "frames_per_s": round(n_traced / dt, 3) if n_traced and dt > 0 else None}
+
+
+def _bounded_imap(pool, frames: list, slots: list):
+    """Ordered per-frame results (views into shared-memory ``slots``, valid until the next item)
+    with at most ``len(slots)`` frames in flight."""
+    from collections import deque
+
+    pending: deque = deque()
+    free = list(range(len(slots)))
+    it = iter(frames)
+
+    def submit():
+        f = next(it, None)
+        if f is not None:
+            slot = free.pop()
+            pending.append(pool.apply_async(_worker_frame, (f, slot)))
+        return f is not None
+
+    while free and submit():
+        pass
+    while pending:
+        slot = pending.popleft().get()
+        yield slots[slot]
+        free.append(slot)
+        submit()
+
+
+def _write_plan(plan, results, arrays, specs, quiet, label, n_shards) -> None:
+    results = iter(results)
+    for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet):
         bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]), dtype=specs[name]["dtype"])
                 for name in todo}
-        for i, f in enumerate(frames):
-            h = human(f)
-            if h is not None and h is not last_h:  # prepare the human BVH once per distinct mesh
-                last_h, last_g = h, scene.prepare_dynamic(*h)
-            out = trace_frame(scene, cfg, traj, f, None if h is None else last_g, human_vertices=None if h is None else h[0])
+        for i in range(len(frames)):
+            out = next(results)
             for name in todo:
                 bufs[name][i] = out[name]
-            if on_frame is not None:
-                on_frame(f)
         for name in todo:
             arrays[name].write_shard(k, bufs[name])
-        written += 1
-    dt = time.perf_counter() - t0
-    n_traced = sum(len(range(len(traj))[first.frames(k)]) for k in range(first.n_shards)) if written else 0
-    return {"frames": len(traj), "shards": first.n_shards, "shards_written": written, "shards_skipped": skipped,
-            "seconds": round(dt, 3), "frames_per_s": round(n_traced / dt, 3) if written and dt > 0 else None}
 
 
 def _make_scene(vertices, faces, face_class, class_names, cfg: GTConfig):
@@ -308,7 +431,7 @@ def _make_scene(vertices, faces, face_class, class_names, cfg: GTConfig):
 
 def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *, human: str | Path | None = None,
                         human_dir: str | Path | None = None, scene_id: str = "scene", cfg: GTConfig | None = None,
-                        quiet: bool = True) -> dict:
+                        quiet: bool = True, workers: int = 0) -> dict:
     """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a DESIGN §3 dataset
     (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards."""
     cfg = cfg or GTConfig()
@@ -325,7 +448,8 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
         hsrc = HumanFile(human)
     elif human_dir is not None:
         hsrc = HumanDir(human_dir, len(traj))
-    scene = _make_scene(mesh.vertices, mesh.faces, mesh.face_class, mesh.class_names, cfg)
+    mesh_args = (mesh.vertices, mesh.faces, mesh.face_class, mesh.class_names)
+    scene = _make_scene(*mesh_args, cfg)
     # inputs are valid: only now create (or reopen) the output
     from .dataset import create_dataset
 
@@ -341,7 +465,8 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     sc.write_array("mesh/faces", mesh.faces.astype(np.int32), dims=["face", "corner"], units="1")
     if mesh.face_class is not None:
         sc.write_array("mesh/face_class", mesh.face_class, dims=["face"], units="1")
-    summary = write_scene_gt(sc, scene, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet)
+    summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet,
+                             workers=workers)
     return {"out": str(out), "scenes": [{"scene": scene_id, **summary}]}
 
 
@@ -358,7 +483,7 @@ def _write_frame_meta(sc, traj: Trajectory) -> None:
 
 
 def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig | None = None,
-                     quiet: bool = True) -> dict:
+                     quiet: bool = True, workers: int = 0) -> dict:
     """``holodata raytrace-gt DATASET [--scene ID]``: for each scene with mesh/* and pose/T_world_radar,
     trace with the dataset's grid and write gt/* (resumable)."""
     from .dataset import create_dataset, open_dataset
@@ -398,11 +523,12 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
                    origin=cfg.origin, shard_frames=cfg.shard_frames, nthreads=cfg.nthreads)
     out = []
     for sid, s, v, f, fc, traj in plans:
-        scene = _make_scene(v, f, fc, s.attrs.get("class_names"), cfg)
+        mesh_args = (v, f, fc, s.attrs.get("class_names"))
+        scene = _make_scene(*mesh_args, cfg)
         sc = w.scene(sid, n_frames=len(traj))
-        hsrc = HumanDataset(s)
-        summary = write_scene_gt(sc, scene, cfg, traj, hsrc, gt_attrs(scene, cfg, mesh_sha256(v, f), hsrc),
-                                 quiet=quiet, label=f"raytrace-gt {sid}")
+        hsrc = HumanDataset(url, sid, s)
+        summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mesh_sha256(v, f), hsrc),
+                                 quiet=quiet, label=f"raytrace-gt {sid}", workers=workers)
         out.append({"scene": sid, **summary})
     return {"out": str(url), "scenes": out}
 

@@ -1,0 +1,211 @@
+"""Benchmark: `holodata raytrace-gt` (standalone form, writing included) on a T-junction corridor.
+
+Builds a T-junction mesh from subdivided planes (~10 cm triangles, like a SLAM mesh), a walking
+box-and-prism human (one mesh per frame via --human-dir), a radar trajectory through the junction,
+then:
+  1. runs the whole standalone pipeline (read inputs, trace 64x512 beams x 3 bounces + LOS checks,
+     write gt/* shards) and reports frames/s;
+  2. replays, on a sample of frames, exactly the ray batches the tracer cast, through bare open3d
+     ``RaycastingScene.cast_rays`` (static scene built once, human scene per frame) in the same run,
+     and prints the ratio  bare time / pipeline time  per frame (1.0 = no overhead);
+  3. runs the pipeline in subprocesses for 100 and 1000 frames and prints their peak RSS;
+  4. extrapolates to HoloRadar scale (28k frames).
+
+    .venv/bin/python benchmarks/raytrace.py [--frames 200] [--rss-grid 64x512] [--skip-rss]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from holodata.conventions import Grid  # noqa: E402
+from holodata.meshio import Mesh, write_ply  # noqa: E402
+from holodata.trajectory import Trajectory, write_tum  # noqa: E402
+
+
+def plane(p0, u, v, nu, nv):
+    """Rectangle p0 + a u + b v (a, b in [0,1]) as an nu x nv grid of quads (2 nu nv triangles)."""
+    a, b = np.meshgrid(np.linspace(0, 1, nu + 1), np.linspace(0, 1, nv + 1), indexing="ij")
+    verts = np.asarray(p0, float) + a.reshape(-1, 1) * np.asarray(u, float) + b.reshape(-1, 1) * np.asarray(v, float)
+    idx = np.arange(verts.shape[0]).reshape(nu + 1, nv + 1)
+    q0, q1, q2, q3 = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    return verts, np.concatenate([np.stack([q0, q1, q2], 1), np.stack([q0, q2, q3], 1)])
+
+
+def merge(parts):
+    vs, fs, n = [], [], 0
+    for v, f in parts:
+        vs.append(v)
+        fs.append(f + n)
+        n += len(v)
+    return np.concatenate(vs), np.concatenate(fs).astype(np.int32)
+
+
+def t_junction(res=0.1, width=2.0, length=12.0, height=2.6):
+    """Corridor A along x (y in [0,width], x in [-length, length]); corridor B leaves at x in
+    [0,width] towards +y up to y = length. Walls, floor and ceiling as ~res triangles."""
+    w, L, h = width, length, height
+    walls = [((-L, 0), (L, 0)), ((L, 0), (L, w)), ((L, w), (w, w)), ((w, w), (w, L)), ((w, L), (0, L)),
+             ((0, L), (0, w)), ((0, w), (-L, w)), ((-L, w), (-L, 0))]
+    parts = []
+    for (x0, y0), (x1, y1) in walls:
+        ln = np.hypot(x1 - x0, y1 - y0)
+        parts.append(plane([x0, y0, 0], [x1 - x0, y1 - y0, 0], [0, 0, h], max(1, int(ln / res)), max(1, int(h / res))))
+    for z in (0.0, h):  # floor and ceiling: corridor A strip + corridor B strip
+        parts.append(plane([-L, 0, z], [2 * L, 0, 0], [0, w, 0], int(2 * L / res), int(w / res)))
+        parts.append(plane([0, w, z], [w, 0, 0], [0, L - w, 0], int(w / res), int((L - w) / res)))
+    return merge(parts)
+
+
+def human_at(center, phase):
+    """A ~2k-triangle walking human: torso box + 4 swinging limbs + head (subdivided boxes)."""
+    parts = []
+
+    def cuboid(c, s, n=4):
+        c, s = np.asarray(c, float), np.asarray(s, float)
+        out = []
+        for ax in range(3):
+            for sgn in (-1, 1):
+                u, v = [np.eye(3)[k] * s[k] for k in range(3) if k != ax]
+                p0 = c - s / 2 + (sgn > 0) * np.eye(3)[ax] * s[ax]
+                out.append(plane(p0, u, v, n, n))
+        return merge(out)
+
+    sw = 0.25 * np.sin(phase)
+    parts.append(cuboid([0, 0, 1.2], [0.25, 0.4, 0.6], 8))
+    parts.append(cuboid([0, 0, 1.65], [0.2, 0.2, 0.25], 6))
+    for side, s in ((-0.1, sw), (0.1, -sw)):
+        parts.append(cuboid([s, side, 0.45], [0.12, 0.12, 0.9], 8))
+        parts.append(cuboid([-s, side * 2.4, 1.15], [0.08, 0.08, 0.6], 6))
+    v, f = merge(parts)
+    return v + np.asarray(center, float), f
+
+
+def make_inputs(d: Path, frames: int) -> None:
+    v, f = t_junction()
+    write_ply(d / "scene.ply", Mesh(v, f))
+    t = np.arange(frames) * 500_000_000 + 10**9  # 2 Hz rotation cycles
+    x = np.linspace(-9.0, -1.0, frames)  # radar drives along corridor A towards the junction
+    poses = np.tile(np.eye(4), (frames, 1, 1))
+    poses[:, 0, 3], poses[:, 1, 3], poses[:, 2, 3] = x, 1.0, 0.9
+    write_tum(d / "radar.tum", Trajectory(t, poses))
+    hd = d / "humans"
+    hd.mkdir(exist_ok=True)
+    for k in range(frames):  # the human walks up corridor B, around the corner
+        hv, hf = human_at([1.0, 3.0 + 4.0 * k / max(frames - 1, 1), 0.0], k * 0.6)
+        write_ply(hd / f"{k:06d}.ply", Mesh(hv, hf))
+
+
+def run_pipeline(d: Path, grid: str, out: Path, quiet=True) -> dict:
+    from holodata.groundtruth import GTConfig, raytrace_standalone
+
+    cfg = GTConfig(grid=Grid.parse(grid, "-45,45"))
+    return raytrace_standalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg, quiet=quiet)
+
+
+def bare_replay(d: Path, grid: str, sample: list[int]) -> tuple[float, int]:
+    """Seconds per frame of bare open3d cast_rays replaying the tracer's own ray batches."""
+    import open3d as o3d
+
+    from holodata.groundtruth import GTConfig, trace_frame
+    from holodata.meshio import read_mesh
+    from holodata.raytrace import RayScene
+    from holodata.trajectory import read_tum
+
+    m = read_mesh(d / "scene.ply")
+    traj = read_tum(d / "radar.tum")
+    cfg = GTConfig(grid=Grid.parse(grid, "-45,45"))
+    sc = RayScene(m.vertices, m.faces)
+    static = o3d.t.geometry.RaycastingScene()
+    static.add_triangles(o3d.core.Tensor(m.vertices.astype(np.float32)), o3d.core.Tensor(m.faces.astype(np.uint32)))
+    total, n_rays = 0.0, 0
+    for k in sample:
+        h = read_mesh(d / "humans" / f"{k:06d}.ply")
+        sc.cast_log = []
+        trace_frame(sc, cfg, traj, k, (h.vertices, h.faces))
+        log, sc.cast_log = sc.cast_log, None
+        t0 = time.perf_counter()
+        dyn = o3d.t.geometry.RaycastingScene()
+        dyn.add_triangles(o3d.core.Tensor(h.vertices.astype(np.float32)), o3d.core.Tensor(h.faces.astype(np.uint32)))
+        for which, rays in log:
+            ans = (static if which == "static" else dyn).cast_rays(o3d.core.Tensor.from_numpy(rays))
+            ans["t_hit"].numpy()
+        total += time.perf_counter() - t0
+        n_rays += sum(len(r) for _, r in log)
+    return total / len(sample), n_rays // len(sample)
+
+
+def rss_child(frames: int, grid: str) -> None:
+    d = Path(tempfile.mkdtemp(prefix="hd_rss_"))
+    try:
+        make_inputs(d, frames)
+        t0 = time.perf_counter()
+        run_pipeline(d, grid, d / "out.zarr")
+        dt = time.perf_counter() - t0
+        print(json.dumps({"frames": frames, "grid": grid, "seconds": dt,
+                          "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=200)
+    ap.add_argument("--grid", default="64x512")
+    ap.add_argument("--sample", type=int, default=20, help="frames replayed through bare cast_rays")
+    ap.add_argument("--rss-grid", default="64x512", help="grid of the 100/1000-frame RSS runs")
+    ap.add_argument("--skip-rss", action="store_true")
+    ap.add_argument("--rss-child", type=int, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.rss_child:
+        rss_child(a.rss_child, a.rss_grid)
+        return
+    d = Path(tempfile.mkdtemp(prefix="hd_bench_"))
+    try:
+        make_inputs(d, a.frames)
+        v, f = t_junction()
+        print(f"T-junction mesh: {len(f)} triangles; human ~{len(human_at([0, 0, 0], 0)[1])} triangles; "
+              f"grid {a.grid}, 3 bounces, {a.frames} frames, {os.cpu_count()} CPUs")
+        t0 = time.perf_counter()
+        summary = run_pipeline(d, a.grid, d / "out.zarr")
+        dt = time.perf_counter() - t0
+        fps = a.frames / dt
+        sample = list(np.linspace(0, a.frames - 1, min(a.sample, a.frames)).astype(int))
+        bare, n_rays = bare_replay(d, a.grid, sample)
+        ratio = bare / (dt / a.frames)
+        print(f"raytrace-gt (standalone, writing included): {dt:.2f} s, {fps:.2f} frames/s "
+              f"({1e3 * dt / a.frames:.1f} ms/frame); dataset {du(d / 'out.zarr'):.0f} MB")
+        print(f"bare open3d cast_rays, same {n_rays} rays/frame: {1e3 * bare:.1f} ms/frame -> ratio {ratio:.2f} "
+              f"(floor 0.5, aim 0.8)")
+        print(f"extrapolated to 28000 frames: {28000 / fps / 60:.1f} min")
+        if not a.skip_rss:
+            for n in (100, 1000):
+                r = subprocess.run([sys.executable, __file__, "--rss-child", str(n), "--rss-grid", a.rss_grid],
+                                   capture_output=True, text=True, check=True)
+                info = json.loads(r.stdout.strip().splitlines()[-1])
+                print(f"peak RSS {n:5d} frames ({info['grid']}): {info['peak_rss_mb']:.0f} MB "
+                      f"({n / info['seconds']:.2f} frames/s)")
+        print(json.dumps({"frames_per_s": round(fps, 3), "ratio": round(ratio, 3), "summary": summary["scenes"][0]}))
+    finally:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def du(p: Path) -> float:
+    return sum(f.stat().st_size for f in p.rglob("*") if f.is_file()) / 1e6 if p.exists() else 0.0
+
+
+if __name__ == "__main__":
+    main()
