@@ -9,7 +9,7 @@ import click
 @click.command("raytrace-gt")
 @click.argument("dataset", required=False)
 @click.option("--scene", "scenes", multiple=True, help="Scene id to trace (dataset form; repeatable; default: all with a mesh).")
-@click.option("--mesh", type=click.Path(dir_okay=False), help="Standalone: scene mesh without human (.ply/.obj/.stl; a PLY face property 'label' gives semantic classes).")
+@click.option("--mesh", type=click.Path(), help="Standalone: scene mesh without human (.ply/.obj/.stl; a PLY face property 'label' gives semantic classes), or a directory with one mesh per class (floor.ply, wall.ply, ...).")
 @click.option("--poses", type=click.Path(dir_okay=False), help="Standalone: radar trajectory T_world_radar as TUM text; one frame per line.")
 @click.option("--human", type=click.Path(dir_okay=False), help="Standalone: one human mesh (world frame) for all frames.")
 @click.option("--human-dir", type=click.Path(file_okay=False), help="Standalone: one human mesh per frame index, named 000000.ply, 000001.ply, ... (k = 0-based TUM row; .obj/.stl also accepted).")

@@ -453,7 +453,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     # inputs are valid: only now create (or reopen) the output
     from .dataset import create_dataset
 
-    mhash = file_sha256(mesh_path)
+    mhash = file_sha256(mesh_path) if Path(mesh_path).is_file() else mesh_sha256(mesh.vertices, mesh.faces)
     w = create_dataset(out, grid=cfg.grid, range_bins=RangeBins(), created_by="holodata raytrace-gt",
                        provenance={"mesh": str(mesh_path), "mesh_sha256": mhash, "poses": str(poses_path),
                                    "poses_sha256": file_sha256(poses_path)},

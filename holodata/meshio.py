@@ -45,9 +45,13 @@ class Mesh:
 
 
 def read_mesh(path: str | Path) -> Mesh:
-    """Read a PLY, OBJ or STL triangle mesh. Raises InputError (naming the file) if it cannot be
-    read, has no triangles, non-finite vertices or out-of-range face indices."""
+    """Read a PLY, OBJ or STL triangle mesh, or a directory holding one mesh file per class
+    (``floor.ply``, ``wall.obj``, ...: class ids 1.. in file-name order, names from the file stems).
+    Raises InputError (naming the file) if it cannot be read, has no triangles, non-finite vertices
+    or out-of-range face indices."""
     path = Path(path)
+    if path.is_dir():
+        return _read_class_dir(path)
     ext = path.suffix.lower()
     readers = {".ply": _read_ply, ".obj": _read_obj, ".stl": _read_stl}
     if ext not in readers:
@@ -69,6 +73,22 @@ def read_mesh(path: str | Path) -> Mesh:
     if mesh.faces.min() < 0 or mesh.faces.max() >= len(mesh.vertices):
         raise InputError(f"{path}: face index out of range (mesh has {len(mesh.vertices)} vertices)")
     return mesh
+
+
+def _read_class_dir(path: Path) -> Mesh:
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in (".ply", ".obj", ".stl"))
+    if not files:
+        raise InputError(f"{path}: directory holds no .ply/.obj/.stl meshes")
+    if len(files) > 255:
+        raise InputError(f"{path}: more than 255 class meshes")
+    vs, fs, cs, n = [], [], [], 0
+    for k, p in enumerate(files, start=1):
+        m = read_mesh(p)
+        vs.append(m.vertices)
+        fs.append(m.faces + n)
+        cs.append(np.full(len(m.faces), k, np.uint8))
+        n += len(m.vertices)
+    return Mesh(np.concatenate(vs), np.concatenate(fs), np.concatenate(cs), {k: p.stem for k, p in enumerate(files, 1)})
 
 
 def write_ply(path: str | Path, mesh: Mesh, binary: bool = True) -> None:

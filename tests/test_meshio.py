@@ -96,3 +96,18 @@ def test_bad_meshes_name_the_file(tmp_path, name, content, msg):
     with pytest.raises(InputError) as e:
         read_mesh(p)
     assert str(p) in str(e.value) and msg in str(e.value) and "\n" not in str(e.value)
+
+
+def test_directory_of_class_meshes(tmp_path):
+    v, f = tetra()
+    write_ply(tmp_path / "wall.ply", Mesh(v, f))
+    write_ply(tmp_path / "floor.ply", Mesh(v + 10, f[:2]))
+    r = read_mesh(tmp_path)
+    assert r.class_names == {1: "floor", 2: "wall"}
+    assert r.face_class.tolist() == [1, 1, 2, 2, 2, 2]
+    np.testing.assert_array_equal(r.vertices[r.faces[:2]], (v + 10)[f[:2]])
+    np.testing.assert_array_equal(r.vertices[r.faces[2:]], v[f])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError, match="holds no"):
+        read_mesh(empty)
