@@ -195,7 +195,7 @@ class RayScene:
               max_range: float = DEFAULT_MAX_RANGE_M, dynamic=None, labels: bool = True) -> TraceResult:
         """Trace ``origins`` (N,3) m along ``directions`` (N,3) with up to ``max_bounces`` specular
         bounces; returns a :class:`TraceResult` (arrays are (N,B,...) views of bounce-major storage:
-        ``res.range.T`` is a contiguous (B,N) array). ``dynamic`` = (vertices, faces) considered at
+        ``res.range.T`` is a contiguous (B,N) array, ``res.point.transpose(1,2,0)`` a contiguous (B,3,N)). ``dynamic`` = (vertices, faces) considered at
         every bounce and in the LOS checks. ``labels=False`` skips the LOS casts (all LOS).
 
         Works in float32 structure-of-arrays (3,n) form: hit distances are refined against the hit
@@ -209,8 +209,8 @@ class RayScene:
         dyn = self._dynamic(dynamic)
         st = self.static
         rng = np.full((B, N), np.nan, dtype=np.float32)
-        point = np.full((B, N, 3), np.nan, dtype=np.float32)
-        normal = np.full((B, N, 3), np.nan, dtype=np.float32)
+        point = np.full((B, 3, N), np.nan, dtype=np.float32)  # structure of arrays; (N,B,3) views returned
+        normal = np.full((B, 3, N), np.nan, dtype=np.float32)
         face = np.full((B, N), -1, dtype=np.int64)
         hdyn = np.zeros((B, N), dtype=bool)
         visited: list = [None] * B
@@ -273,8 +273,8 @@ class RayScene:
             p = o + t * d
             nx *= np.where(nd > 0, np.float32(-1), np.float32(1))
             rng[b, sel] = S[11]
-            point[b, sel] = p.T
-            normal[b, sel] = nx.T
+            point[b][:, sel] = p
+            normal[b][:, sel] = nx
             face[b, sel] = f
             if isd is not None:
                 hdyn[b, sel] = isd
@@ -301,7 +301,7 @@ class RayScene:
         semantic[sm] = self.face_semantic[face[sm]]
         semantic[hit & hdyn] = self.human_class
         label = combine_label(hit, hdyn, los)
-        return TraceResult(rng.T, normal.transpose(1, 0, 2), point.transpose(1, 0, 2), face.T, hdyn.T,
+        return TraceResult(rng.T, normal.transpose(2, 0, 1), point.transpose(2, 0, 1), face.T, hdyn.T,
                            label.T, semantic.T)
 
     def _workspace(self, n: int) -> np.ndarray:
