@@ -27,7 +27,6 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import scipy.fft as sfft
-from scipy.special import ndtri
 
 from ..conventions import RADAR_ROTATION_HZ, RADAR_ROTATION_RADIUS_M, Grid, RangeBins
 
@@ -82,8 +81,11 @@ class RadarModel:
     """Precomputed kernels + per-frame synthesis. ``materials``: sequence of worlds.Material;
     ``face_material`` (F,) uint8 of the static scene; ``human_material`` index for the dynamic mesh."""
 
-    def __init__(self, config: RadarConfig, materials, face_material: np.ndarray, human_material: int):
+    def __init__(self, config: RadarConfig, materials, face_material: np.ndarray, human_material: int,
+                 noise_seed: int = 0):
         self.cfg = cfg = config
+        self.noise_seed = noise_seed
+        self._buf = self._buf2 = self._bank = None
         g, rb = cfg.grid, cfg.range_bins
         self.H, self.W, self.R = g.H, g.W, rb.n
         self.dirs = g.directions().reshape(-1, 3)                 # (H*W,3) sensor frame
@@ -105,8 +107,6 @@ class RadarModel:
         K = array_factor(dth, cfg.elevation_aperture_m, lam)
         band = np.abs(np.arange(g.H)[:, None] - np.arange(g.H)[None, :]) <= cfg.elevation_taps
         self.el_matrix = (K * band).astype(np.float32)
-        # quantised normal table for fast thermal noise (inverse CDF at 4096 levels)
-        self._noise_table = (ndtri((np.arange(4096) + 0.5) / 4096) * cfg.noise_amplitude / np.sqrt(2)).astype(np.float32)
         taps = np.arange(cfg.range_taps + 1) / 1.0
         lk = np.zeros(self.R)
         if cfg.leakage_amplitude > 0:
@@ -151,10 +151,17 @@ class RadarModel:
 
     # ------------------------------------------------------------------ cube
     def cube(self, paths: dict, rng: np.random.Generator | None) -> np.ndarray:
-        """(n_range, H, W) float32 linear amplitude from per-path amplitudes (+ noise if ``rng``)."""
+        """(n_range, H, W) float32 linear amplitude from per-path amplitudes (+ noise if ``rng``).
+
+        Work buffers are kept between calls (no page faults per frame); the result is a new array.
+        """
         H, W, R = self.H, self.W, self.R
         dr = self.cfg.range_bins.dr
-        cube = np.zeros(R * H * W, np.complex64)
+        if self._buf is None:
+            self._buf = np.zeros(R * H * W, np.complex64)
+            self._buf2 = np.zeros((R, H, 2 * W), np.float32)
+        cube = self._buf
+        cube.fill(0)
         u = paths["range"] / dr - 0.5
         k0 = np.rint(u).astype(np.int64)
         amp = paths["amp"].astype(np.complex64)
@@ -171,15 +178,29 @@ class RadarModel:
         if self.cfg.leakage_amplitude > 0:
             cube += self.leakage[:, None, None]
         if self.cfg.psf:
-            cube = sfft.ifft(sfft.fft(cube, axis=2, workers=2) * self.az_spectrum, axis=2, workers=2,
-                             overwrite_x=True).astype(np.complex64, copy=False)
-            fl = cube.view(np.float32).reshape(R, H, 2 * W)
-            fl = np.matmul(self.el_matrix, fl)
-            cube = fl.view(np.complex64).reshape(R, H, W)
+            X = sfft.fft(cube, axis=2, workers=2, overwrite_x=True)
+            X *= self.az_spectrum
+            X = sfft.ifft(X, axis=2, workers=2, overwrite_x=True)
+            fl = X.view(np.float32).reshape(R, H, 2 * W)
+            np.matmul(self.el_matrix, fl, out=self._buf2)
+            cube = self._buf2.view(np.complex64).reshape(R, H, W)
         if rng is not None and self.cfg.noise_amplitude > 0:
-            q = rng.integers(0, 4096, size=2 * cube.size, dtype=np.uint16)
-            cube += self._noise_table[q].view(np.complex64).reshape(cube.shape)
+            bank = self._noise_bank(cube.size)
+            o = int(rng.integers(cube.size))
+            flat = cube.reshape(-1)
+            flat[: cube.size - o] += bank[o:]
+            flat[cube.size - o:] += bank[:o]
         return np.abs(cube)
+
+    def _noise_bank(self, n: int) -> np.ndarray:
+        """Thermal noise: a bank of n independent circular complex Gaussian samples (drawn once per
+        model from ``noise_seed``), added from a random circular offset each frame. Per-frame
+        statistics are exact; frames see the bank's values at different cells."""
+        if self._bank is None or len(self._bank) != n:
+            g = np.random.default_rng(self.noise_seed)
+            std = np.float32(self.cfg.noise_amplitude / np.sqrt(2))
+            self._bank = (g.standard_normal(2 * n, dtype=np.float32) * std).view(np.complex64)
+        return self._bank
 
 
 def encode_heatmap(hm: np.ndarray, encoding: str) -> bytes:

@@ -171,10 +171,12 @@ class Sensors:
         w = sc.world
         self.sc = sc
         self.scene = RayScene(w.vertices, w.faces, face_class=w.face_class, class_names=w.class_names)
-        self.radar = RadarModel(sc.radar_cfg, w.materials, w.face_material, MATERIAL_ID["human"])
+        self.radar = RadarModel(sc.radar_cfg, w.materials, w.face_material, MATERIAL_ID["human"],
+                                noise_seed=int(_rng(sc.seed, "radar", 1 << 30).integers(2**63)))
         self.lidar = LidarModel(sc.lidar_cfg, sc.lidar_alt, sc.lidar_az, w.face_material, w.face_class, w.materials,
                                 MATERIAL_ID["human"], CLASS_ID["ceiling"])
         self.camera = CameraModel(sc.camera_cfg, sc.T_world_cam_link @ T_LINK_OPTICAL)
+        self.cast_log: list | None = None  # set to [] to record the radar's backend casts (benchmarks)
 
     def radar_frame(self, k: int) -> tuple[np.ndarray, dict]:
         """(n_range, H, W) float32 heatmap of cycle k and per-frame stats."""
@@ -199,11 +201,14 @@ class Sensors:
         from ..raytrace import RayScene
 
         if human is None:
+            self.scene.cast_log = self.cast_log
             return self.scene.trace(O, D, max_bounces=max_bounces, max_range=max_range, labels=False)
         w = self.sc.world
         hv, hf = human
         nf = len(w.faces)
         merged = RayScene(np.concatenate([w.vertices, hv]), np.concatenate([w.faces, hf + len(w.vertices)]))
+        merged.cast_log = self.cast_log
+        self.last_scene = merged
         tr = merged.trace(O, D, max_bounces=max_bounces, max_range=max_range, labels=False)
         tr.hit_dynamic = tr.face >= nf
         tr.face = np.where(tr.hit_dynamic, tr.face - nf, tr.face)
