@@ -19,11 +19,9 @@ messages are written in log-time order.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 
 from ..conventions import Grid, RangeBins
 from ..errors import InputError
@@ -40,7 +38,6 @@ TOPICS = {
     "/odom": "nav_msgs/msg/Odometry",
 }
 
-EPOCH_S = 1_735_689_600  # 2025-01-01T00:00:00Z; recordings start at EPOCH + seed hours
 
 
 @dataclass
@@ -87,9 +84,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     radar heatmap axes (DESIGN §2); ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols).
     Same arguments → byte-identical files.
     """
-    from .scenario import build_scenario, write_recording
-
     from .recording import FORMATS, recording_path
+    from .scenario import build_scenario, write_recording
 
     if format not in FORMATS:
         raise InputError(f"unknown recording format {format!r} (choose from {', '.join(FORMATS)})")

@@ -46,7 +46,7 @@ def beam_angles(cfg: LidarConfig, rng: np.random.Generator) -> tuple[np.ndarray,
     half = cfg.vertical_fov_deg / 2
     alt = np.linspace(half, -half, cfg.rows) + rng.normal(0.0, 0.06, cfg.rows)
     alt = np.sort(alt)[::-1]
-    pattern = np.array([4.23, 1.41, -1.41, -4.23]) * (1024 / max(cfg.cols, 1)) ** 0  # staggered columns
+    pattern = np.array([4.23, 1.41, -1.41, -4.23])  # four staggered firing columns, as in OS-1 metadata
     az = pattern[np.arange(cfg.rows) % 4] + rng.normal(0.0, 0.01, cfg.rows)
     return np.round(alt, 3), np.round(az, 3)
 

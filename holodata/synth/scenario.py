@@ -25,6 +25,7 @@ from .motion import odometry, pose_xy_yaw, robot_trajectory
 from .radar import RadarConfig, RadarModel, encode_heatmap
 from .worlds import CLASS_ID, MATERIAL_ID, World, hidden_from, make_world
 
+EPOCH_S = 1_735_689_600  # 2025-01-01T00:00:00Z
 RADAR_START_S = 0.3
 LIDAR_START_S = 0.05
 CAMERA_START_S = 0.1
@@ -94,7 +95,7 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
     radar_cfg = RadarConfig(grid=grid or Grid(), range_bins=range_bins or RangeBins(), encoding=radar_encoding)
     period_s = 1.0 / radar_cfg.rotation_hz
     duration = RADAR_START_S + frames * period_s + 0.3
-    t0 = (EPOCH_S_DEFAULT + (int(seed) % 100_000) * 3600) * 1_000_000_000
+    t0 = (EPOCH_S + (int(seed) % 100_000) * 3600) * 1_000_000_000
     T_base_radar = _trans(float(rng.uniform(0.05, 0.12)), float(rng.uniform(-0.02, 0.02)), float(rng.uniform(0.38, 0.5)),
                           float(rng.uniform(-1.0, 1.0)))
     T_base_lidar = _trans(float(rng.uniform(-0.08, 0.0)), 0.0, float(rng.uniform(0.7, 0.85)), float(rng.uniform(-1.0, 1.0)))
@@ -153,12 +154,9 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
              "camera": int(rng.integers(-8_000_000, 8_000_001)), "odometry": 0}
     latency = {"radar": int(rng.integers(30_000_000, 45_000_001)), "lidar": int(rng.integers(2_000_000, 6_000_001)),
                "camera": int(rng.integers(20_000_000, 40_000_001)), "odometry": 1_000_000}
-    tinfo["robot_height_m"] = 0.0
     return Scenario(seed, world, frames, t0, duration, truth, tinfo, odom, oinfo, T_map_odom, walk,
                     T_base_radar, T_base_lidar, T_world_cam_link, radar_cfg, lidar_cfg, cam_cfg, alt, az, clock, latency)
 
-
-EPOCH_S_DEFAULT = 1_735_689_600
 
 
 # ---------------------------------------------------------------------------------- sensors
