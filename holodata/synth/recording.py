@@ -30,6 +30,16 @@ def _typestore(ros_version: int):
     return store
 
 
+def _qos(latched: bool):
+    """What ``ros2 bag record`` stores: reliable keep-last; transient-local for latched topics."""
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+
+    inf = QosTime(0x7FFFFFFF, 0xFFFFFFFF)
+    return Qos(QosHistory.KEEP_LAST, 1 if latched else 10, QosReliability.RELIABLE,
+               QosDurability.TRANSIENT_LOCAL if latched else QosDurability.VOLATILE, inf, inf,
+               QosLiveliness.AUTOMATIC, inf, False)
+
+
 def recording_path(out_dir: Path, fmt: str, name: str = "recording") -> Path:
     """Where :class:`BagWriter` puts a recording: a rosbag2 directory (``<name>/``, holding
     ``<name>.mcap`` or ``<name>.db3`` and ``metadata.yaml``) or a ROS 1 ``<name>.bag``."""
@@ -71,7 +81,8 @@ class BagWriter:
         if self.fmt == "rosbag1":
             conn = self.writer.add_connection(topic, msgtype, typestore=self.store, latching=1 if latched else None)
         else:
-            conn = self.writer.add_connection(topic, msgtype, typestore=self.store)
+            conn = self.writer.add_connection(topic, msgtype, typestore=self.store,
+                                              offered_qos_profiles=[_qos(latched)])
         self.conns[topic] = (conn, msgtype)
 
     def write(self, topic: str, t_ns: int, msg) -> None:
