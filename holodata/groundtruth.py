@@ -99,6 +99,16 @@ def beam_rays(grid: Grid, pose: np.ndarray, origin: OriginModel = OriginModel(),
     return np.ascontiguousarray(o), d
 
 
+_GRID_SOA: dict = {}
+
+
+def _grid_soa(grid: Grid) -> np.ndarray:
+    """(3, H*W) float32 radar-frame beam directions (cached per grid)."""
+    if grid not in _GRID_SOA:
+        _GRID_SOA[grid] = np.ascontiguousarray(grid.directions().reshape(-1, 3).T, dtype=np.float32)
+    return _GRID_SOA[grid]
+
+
 def column_times(t_ns: int, grid: Grid, origin: OriginModel) -> np.ndarray:
     """(W,) int64 ns: column j sampled at t + j / (W * rotation_hz)."""
     return t_ns + np.round(np.arange(grid.W) / (grid.W * origin.rotation_hz) * 1e9).astype(np.int64)
@@ -230,8 +240,13 @@ def trace_frame(scene, cfg: GTConfig, traj: Trajectory, k: int, human, human_ver
     grid, B = cfg.grid, cfg.max_bounces
     pose = traj.poses[k]
     col = traj.interpolate(column_times(int(traj.timestamp_ns[k]), grid, cfg.origin)) if cfg.origin.column_time else None
-    o, d = beam_rays(grid, pose, cfg.origin, col)
-    res = scene.trace(o, d, max_bounces=B, max_range=cfg.max_range, dynamic=human)
+    if col is None and cfg.origin.rotation_radius == 0:  # fast path: one origin, rotated grid
+        d = pose[:3, :3].astype(np.float32) @ _grid_soa(grid)
+        res = scene.trace_soa(pose[:3, 3:4].astype(np.float32), d, max_bounces=B, max_range=cfg.max_range,
+                              dynamic=human)
+    else:
+        o, d = beam_rays(grid, pose, cfg.origin, col)
+        res = scene.trace(o, d, max_bounces=B, max_range=cfg.max_range, dynamic=human)
     H, W = grid.H, grid.W
     center = np.full((1, 3), np.nan, dtype=np.float32)
     hv = human_vertices if human_vertices is not None else (human[0] if isinstance(human, tuple) else None)

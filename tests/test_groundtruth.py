@@ -154,7 +154,7 @@ def test_standalone_end_to_end_matches_direct_trace_and_resumes(inputs):
     g = Grid(8, 32)
     o, d = beam_rays(g, pose(7.5, 1.0))
     ref = RayScene(*l_corridor()).trace(o, d, dynamic=(HUMAN[0] + [0, 0.45, 0], HUMAN[1]))
-    np.testing.assert_array_equal(rng[9], ref.range.T.reshape(3, 8, 32))
+    np.testing.assert_allclose(rng[9], ref.range.T.reshape(3, 8, 32), atol=1e-4)  # float32 beam rotation
     np.testing.assert_array_equal(lab[9], ref.label.T.reshape(3, 8, 32))
     assert set(np.unique(lab)) >= {Label.LOS_STRUCTURE, Label.NLOS_STRUCTURE}
     hc = np.asarray(s["gt/human_center"][...])

@@ -202,6 +202,16 @@ class RayScene:
         triangle's plane, so rounding stays ~1e-6 m over the 10 m scale."""
         O = np.ascontiguousarray(np.asarray(origins, dtype=np.float32).reshape(-1, 3).T)
         d = np.ascontiguousarray(np.asarray(directions, dtype=np.float32).reshape(-1, 3).T)
+        return self.trace_soa(O, d, max_bounces, max_range, dynamic, labels)
+
+    def trace_soa(self, O: np.ndarray, d: np.ndarray, max_bounces: int = DEFAULT_MAX_BOUNCES,
+                  max_range: float = DEFAULT_MAX_RANGE_M, dynamic=None, labels: bool = True) -> TraceResult:
+        """:meth:`trace` for structure-of-arrays input: ``O``, ``d`` (3,N) float32 (``O`` may be
+        (3,1) for one common origin)."""
+        O = np.ascontiguousarray(O, dtype=np.float32)
+        d = np.ascontiguousarray(d, dtype=np.float32)
+        if O.shape[1] == 1:
+            O = np.ascontiguousarray(np.broadcast_to(O, d.shape))
         if O.shape != d.shape:
             raise ValueError(f"{O.shape[1]} origins for {d.shape[1]} directions")
         N, B = O.shape[1], int(max_bounces)
