@@ -340,17 +340,29 @@ def _worker_frame(f: int, slot: int) -> int:
     return slot
 
 
-def auto_workers(n_frames: int) -> int:
-    """Worker processes for ``n_frames``: one per core (max 4) for long runs, else in-process."""
+def trace_shard(tracer: FrameTracer, frames, names=GT_ARRAYS) -> dict:
+    """All gt arrays of ``frames`` (one shard): {name: (n_frames,) + per-frame shape} — the unit of
+    work for distributed runs (a task traces one shard, then ``write_shard`` writes it idempotently)."""
+    specs = gt_array_specs(tracer.cfg.grid, tracer.cfg.max_bounces)
+    out = {n: np.empty((len(frames),) + tuple(specs[n]["per_frame_shape"]), dtype=specs[n]["dtype"]) for n in names}
+    for i, f in enumerate(frames):
+        res = tracer(f)
+        for n in names:
+            out[n][i] = res[n]
+    return out
+
+
+def auto_processes(n_frames: int) -> int:
+    """Tracing processes for ``n_frames``: one per core (max 4) for long runs, else in-process."""
     cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     return 1 if n_frames < 64 or cpus < 2 else min(cpus, 4)
 
 
 def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
-                   quiet: bool = True, label: str = "raytrace-gt", workers: int = 1) -> dict:
+                   quiet: bool = True, label: str = "raytrace-gt", processes: int = 1) -> dict:
     """Trace every frame of ``traj`` and write gt/* shard by shard into dataset scene ``sc``
     (skipping shards already written; a shard's arrays are written only once all its frames are
-    traced). ``workers`` > 1 traces in that many spawned processes (the static scene is built once
+    traced). ``processes`` > 1 traces in that many spawned processes (the static scene is built once
     per worker); writing stays in this process, with a bounded number of frames in flight, so
     memory does not grow with the frame count. Returns a summary dict."""
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
@@ -365,7 +377,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             plan.append((k, todo, all_frames[first.frames(k)]))
     skipped = first.n_shards - len(plan)
     n_traced = sum(len(p[2]) for p in plan)
-    workers = auto_workers(n_traced) if workers <= 0 else workers
+    workers = auto_processes(n_traced) if processes <= 0 else processes
     t0 = time.perf_counter()
     if workers == 1 or n_traced == 0:
         tracer = FrameTracer(mesh, cfg, traj, human) if n_traced else None
@@ -392,7 +404,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             shm.unlink()
     dt = time.perf_counter() - t0
     return {"frames": len(traj), "shards": first.n_shards, "shards_written": len(plan), "shards_skipped": skipped,
-            "frames_traced": n_traced, "workers": workers, "seconds": round(dt, 3),
+            "frames_traced": n_traced, "processes": workers, "seconds": round(dt, 3),
             "frames_per_s": round(n_traced / dt, 3) if n_traced and dt > 0 else None}
 
 
@@ -446,7 +458,7 @@ def _make_scene(vertices, faces, face_class, class_names, cfg: GTConfig):
 
 def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *, human: str | Path | None = None,
                         human_dir: str | Path | None = None, scene_id: str = "scene", cfg: GTConfig | None = None,
-                        quiet: bool = True, workers: int = 0) -> dict:
+                        quiet: bool = True, processes: int = 0) -> dict:
     """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a DESIGN §3 dataset
     (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards."""
     cfg = cfg or GTConfig()
@@ -481,7 +493,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     if mesh.face_class is not None:
         sc.write_array("mesh/face_class", mesh.face_class, dims=["face"], units="1")
     summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet,
-                             workers=workers)
+                             processes=processes)
     return {"out": str(out), "scenes": [{"scene": scene_id, **summary}]}
 
 
@@ -498,7 +510,7 @@ def _write_frame_meta(sc, traj: Trajectory) -> None:
 
 
 def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig | None = None,
-                     quiet: bool = True, workers: int = 0) -> dict:
+                     quiet: bool = True, processes: int = 0) -> dict:
     """``holodata raytrace-gt DATASET [--scene ID]``: for each scene with mesh/* and pose/T_world_radar,
     trace with the dataset's grid and write gt/* (resumable)."""
     from .dataset import create_dataset, open_dataset
@@ -543,11 +555,11 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         sc = w.scene(sid, n_frames=len(traj))
         hsrc = HumanDataset(url, sid, s)
         summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mesh_sha256(v, f), hsrc),
-                                 quiet=quiet, label=f"raytrace-gt {sid}", workers=workers)
+                                 quiet=quiet, label=f"raytrace-gt {sid}", processes=processes)
         out.append({"scene": sid, **summary})
     return {"out": str(url), "scenes": out}
 
 
 __all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "points_to_mesh", "trace_frame",
-           "write_scene_gt", "raytrace_standalone", "raytrace_dataset", "HumanSource", "HumanDir", "HumanFile",
+           "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "raytrace_standalone", "raytrace_dataset", "HumanSource", "HumanDir", "HumanFile",
            "HumanDataset", "GT_ARRAYS"]
