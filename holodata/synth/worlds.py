@@ -8,7 +8,7 @@ ceiling at z = height, so plan-view (2-D) occlusion is exact for the walls.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -273,6 +273,12 @@ def make_world(corner: str = "L", width: float | None = None, seed: int = 0, fea
     floor_mat = FLOOR_MATERIALS[rng.integers(len(FLOOR_MATERIALS))]
     ceil_mat = CEILING_MATERIALS[rng.integers(len(CEILING_MATERIALS))]
 
+    # per-building variation of the RF properties (paint, moisture, construction): the LOS→NLOS
+    # power drop then spans the paper's attenuation bands (< 10, 10–20, > 20 dB)
+    loss_scale = float(rng.uniform(0.15, 1.6))
+    materials = tuple(replace(m, rf_loss_db=round(m.rf_loss_db * loss_scale * float(rng.uniform(0.85, 1.15)), 3),
+                              rf_reflectivity=round(min(1.0, m.rf_reflectivity * float(rng.uniform(0.8, 1.2))), 3))
+                      for m in MATERIALS)
     poly, axis = _outline(corner, width, w2, la, lh, lc)
     n_edges = len(poly)
     edge_mat = [wall_mat] * n_edges
@@ -360,7 +366,7 @@ def make_world(corner: str = "L", width: float | None = None, seed: int = 0, fea
             if "center" in ft:
                 ft["center"][1] = -ft["center"][1]
     return World(corner, width, w2, height, int(seed), mirrored, V, F.astype(np.int32), M, C, poly,
-                 robot_start, robot_stop, (origin, direction, float(length), float(bw)), feats)
+                 robot_start, robot_stop, (origin, direction, float(length), float(bw)), feats, materials)
 
 
 # ------------------------------------------------------------------ plan-view occlusion
