@@ -29,9 +29,11 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--lidar", default="64x1024", show_default=True, help="LiDAR beams x columns.")
 @click.option("--camera", default="376x672", show_default=True, help="Depth camera rows x columns.")
 @click.option("--no-human", is_flag=True, help="Record the corner without a human.")
+@click.option("--stereo-images", is_flag=True, help="Also record the rectified left/right mono8 pair (for OpenCV stereo).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera, no_human, quiet, as_json) -> None:
+def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera, no_human, stereo_images, quiet,
+          as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
@@ -47,7 +49,7 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera
         raise click.BadParameter(str(err), param_hint="--grid") from None
     res = synthesize(out, corner=corner, width=width, frames=frames, format=fmt, seed=seed, human=not no_human,
                      grid=g, range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
-                     camera_shape=_shape(camera, "--camera"), quiet=quiet)
+                     camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, quiet=quiet)
     if as_json:
         import json
 

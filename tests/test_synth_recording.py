@@ -144,9 +144,17 @@ def test_cli(tmp_path):
     assert r.exit_code == 0 and "Example: holodata synth" in r.output
     r = CliRunner().invoke(cli, ["synth", "--out", str(tmp_path / "c"), "--frames", "1", "--grid", "8x16",
                                  "--range-bins", "32", "--lidar", "4x32", "--camera", "6x8", "--corner", "cross",
-                                 "--format", "rosbag1", "--quiet", "--json"])
+                                 "--format", "rosbag1", "--quiet", "--json", "--stereo-images"])
     assert r.exit_code == 0, r.output
     assert (tmp_path / "c" / "recording.bag").exists()
+    from holodata.synth import STEREO_TOPICS
+
+    with AnyReader([tmp_path / "c" / "recording.bag"]) as rd:
+        types = {c.topic: c.msgtype for c in rd.connections}
+        assert types == dict(TOPICS, **STEREO_TOPICS)
+        conns = [c for c in rd.connections if c.topic == "/zed2i/zed_node/right/camera_info"]
+        info = [rd.deserialize(raw, c.msgtype) for c, _, raw in rd.messages(connections=conns)][0]
+        assert info.P[3] == pytest.approx(-info.P[0] * 0.12)  # ROS 1 CameraInfo: upper-case P
     r = CliRunner().invoke(cli, ["synth", "--out", str(tmp_path / "d"), "--grid", "oops"])
     assert r.exit_code == 2
 

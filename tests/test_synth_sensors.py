@@ -88,3 +88,26 @@ def test_camera_depth_noise_grows_with_z_squared():
     d, _ = cam.frame(scene, None, np.random.default_rng(0))
     pts = cam.cloud(d)
     assert np.allclose(pts[..., 0], d, equal_nan=True)
+
+
+def test_stereo_pair_is_rectified_with_the_depth_cameras_disparity():
+    """Right image at (u - fx·b/z) shows what the left image shows at u (rows aligned)."""
+    sc = build_scenario("L", seed=2, frames=2, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(94, 168),
+                        stereo_images=True)
+    s = Sensors(sc)
+    left, right = s.stereo_pair(0, sc.t0_ns)
+    cfg, cam = sc.camera_cfg, s.camera
+    d = cam.rays.reshape(-1, 3)
+    n = np.linalg.norm(d, axis=1)
+    dw = (d / n[:, None]) @ cam.T[:3, :3].T
+    hit = s.scene.cast(np.broadcast_to(cam.T[:3, 3], dw.shape), dw, dynamic=sc.human_mesh(sc.t0_ns))
+    z = (hit.t / n).reshape(cfg.height, cfg.width)
+    disp = cfg.fx * cfg.baseline_m / z
+    v, u = np.mgrid[0:cfg.height, 0:cfg.width]
+    ur = np.rint(u - disp).astype(int)
+    ok = np.isfinite(z) & (ur >= 0) & (ur < cfg.width)
+    a = left[ok].astype(float)
+    shifted = np.corrcoef(a, right[v[ok], ur[ok]].astype(float))[0, 1]
+    unshifted = np.corrcoef(a, right[ok].astype(float))[0, 1]
+    assert shifted > 0.9 and shifted > unshifted + 0.05
+    assert left.dtype == np.uint8 and left.std() > 5  # textured, not flat

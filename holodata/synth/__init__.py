@@ -37,6 +37,13 @@ TOPICS = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/odom": "nav_msgs/msg/Odometry",
 }
+# with ``stereo_images=True``: the rectified pair behind the depth camera (mono8, textured scene)
+STEREO_TOPICS = {
+    "/zed2i/zed_node/left/image_rect_gray": "sensor_msgs/msg/Image",
+    "/zed2i/zed_node/left/camera_info": "sensor_msgs/msg/CameraInfo",
+    "/zed2i/zed_node/right/image_rect_gray": "sensor_msgs/msg/Image",
+    "/zed2i/zed_node/right/camera_info": "sensor_msgs/msg/CameraInfo",
+}
 
 
 
@@ -76,12 +83,13 @@ class SynthResult:
 def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: int = 20, format: str = "mcap",
                seed: int = 0, human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
                lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
-               radar_encoding: str = "float16", quiet: bool = False) -> SynthResult:
+               radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False) -> SynthResult:
     """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
     ``frames`` radar rotations (2 Hz); ``format`` mcap|rosbag2|rosbag1; ``grid``/``range_bins`` the
-    radar heatmap axes (DESIGN §2); ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols).
+    radar heatmap axes (DESIGN §2); ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols);
+    ``stereo_images`` adds the rectified left/right mono8 pair (``STEREO_TOPICS``) for OpenCV stereo.
     Same arguments → byte-identical files.
     """
     from .recording import FORMATS, recording_path
@@ -98,8 +106,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     out_dir.mkdir(parents=True, exist_ok=True)
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
-                        camera_shape=camera_shape, radar_encoding=radar_encoding)
+                        camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images)
     return write_recording(sc, out_dir, format, quiet=quiet)
 
 
-__all__ = ["synthesize", "SynthResult", "TOPICS"]
+__all__ = ["synthesize", "SynthResult", "TOPICS", "STEREO_TOPICS"]

@@ -87,3 +87,59 @@ def look_at(eye, target, up=(0.0, 0.0, 1.0)) -> np.ndarray:
     T = np.eye(4)
     T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
     return T
+
+
+def value_noise(p: np.ndarray, scale: float, salt: int = 0) -> np.ndarray:
+    """Smooth 3-D value noise in [0, 1] at points ``p`` (N,3) m with lattice spacing ``scale`` m
+    (world-anchored, so both cameras of a stereo pair see the same texture)."""
+    q = p / scale
+    i = np.floor(q).astype(np.int64)
+    f = q - i
+    f = f * f * (3 - 2 * f)
+    out = np.zeros(len(p))
+    for dx in (0, 1):
+        for dy in (0, 1):
+            for dz in (0, 1):
+                h = ((i[:, 0] + dx) * 73856093) ^ ((i[:, 1] + dy) * 19349663) ^ ((i[:, 2] + dz) * 83492791) ^ (salt * 2654435761)
+                h = (h ^ (h >> 13)) * 1274126177
+                v = ((h ^ (h >> 16)) & 0xFFFF) / 65535.0
+                w = (f[:, 0] if dx else 1 - f[:, 0]) * (f[:, 1] if dy else 1 - f[:, 1]) * (f[:, 2] if dz else 1 - f[:, 2])
+                out += w * v
+    return out
+
+
+class StereoModel:
+    """Rectified left/right mono8 images of a textured scene: the left camera is the depth camera's
+    optical frame, the right one sits ``baseline_m`` along its +x; both share the intrinsics, so a
+    block matcher (OpenCV StereoSGBM) recovers depth = fx·baseline / disparity."""
+
+    def __init__(self, cfg: CameraConfig, T_world_optical: np.ndarray, albedo: np.ndarray, face_material: np.ndarray,
+                 human_albedo: float):
+        self.cfg = cfg
+        self.T_left = T_world_optical
+        self.T_right = T_world_optical.copy()
+        self.T_right[:3, 3] += T_world_optical[:3, 0] * cfg.baseline_m
+        self.rays = CameraModel(cfg, T_world_optical).rays.reshape(-1, 3)
+        self.albedo = np.asarray(albedo, float)
+        self.face_material = np.asarray(face_material, np.int64)
+        self.human_albedo = float(human_albedo)
+
+    def render(self, scene, human, T: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """(h, w) uint8 image from the camera at T_world_optical ``T``."""
+        cfg = self.cfg
+        d = self.rays / np.linalg.norm(self.rays, axis=1, keepdims=True)
+        dw = d @ T[:3, :3].T
+        hit = scene.cast(np.broadcast_to(T[:3, 3], dw.shape), dw, dynamic=human)
+        t = hit.t.astype(np.float64)
+        ok = np.isfinite(t)
+        p = T[:3, 3] + np.where(ok, t, 0.0)[:, None] * dw
+        fz = np.where(ok & ~hit.hit_dynamic, hit.face, 0)
+        alb = np.where(hit.hit_dynamic, self.human_albedo, self.albedo[self.face_material[fz]])
+        tex = 0.45 * value_noise(p, 0.04, 1) + 0.35 * value_noise(p, 0.15, 2) + 0.2 * value_noise(p, 0.6, 3)
+        shade = np.abs(np.einsum("ij,ij->i", hit.normal.astype(np.float64), dw))  # head-light
+        light = 40.0 + 200.0 * alb * (0.3 + 0.7 * tex) * (0.4 + 0.6 * shade) / np.maximum(1.0, 0.25 * t)
+        img = np.where(ok, light, 10.0) + rng.normal(0.0, 1.5, len(t))
+        return np.clip(np.rint(img), 0, 255).astype(np.uint8).reshape(cfg.height, cfg.width)
+
+    def pair(self, scene, human, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+        return self.render(scene, human, self.T_left, rng), self.render(scene, human, self.T_right, rng)

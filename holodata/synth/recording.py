@@ -135,11 +135,19 @@ class BagWriter:
             header=self.header(topic, stamp_ns, frame_id), height=int(d.shape[0]), width=int(d.shape[1]),
             encoding="32FC1", is_bigendian=0, step=int(4 * d.shape[1]), data=np.frombuffer(d.tobytes(), np.uint8))
 
-    def camera_info(self, topic: str, stamp_ns: int, frame_id: str, cfg):
+    def image_mono8(self, topic: str, stamp_ns: int, frame_id: str, img: np.ndarray):
+        im = np.ascontiguousarray(img, dtype=np.uint8)
+        return self.types["sensor_msgs/msg/Image"](
+            header=self.header(topic, stamp_ns, frame_id), height=int(im.shape[0]), width=int(im.shape[1]),
+            encoding="mono8", is_bigendian=0, step=int(im.shape[1]), data=im.reshape(-1))
+
+    def camera_info(self, topic: str, stamp_ns: int, frame_id: str, cfg, tx: float = 0.0):
+        """Pinhole CameraInfo; ``tx`` = -fx·baseline for the right camera of a rectified pair."""
         T = self.types
         K = cfg.K()
         P = np.zeros((3, 4))
         P[:3, :3] = K
+        P[0, 3] = tx
         roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         kw = dict(header=self.header(topic, stamp_ns, frame_id), height=cfg.height, width=cfg.width,
                   distortion_model="plumb_bob", binning_x=0, binning_y=0, roi=roi)

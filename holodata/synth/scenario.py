@@ -18,7 +18,7 @@ from ..conventions import Grid, RangeBins
 from ..errors import InputError
 from ..progress import track
 from . import truth as truthio
-from .camera import T_LINK_OPTICAL, CameraConfig, CameraModel, look_at
+from .camera import T_LINK_OPTICAL, CameraConfig, CameraModel, StereoModel, look_at
 from .human import HumanWalk, footprint_points
 from .lidar import LidarConfig, LidarModel, beam_angles, ouster_metadata
 from .motion import odometry, pose_xy_yaw, robot_trajectory
@@ -30,11 +30,12 @@ RADAR_START_S = 0.3
 LIDAR_START_S = 0.05
 CAMERA_START_S = 0.1
 ODOM_HZ = 30.0
-STREAMS = {"radar": 1, "lidar": 2, "camera": 3, "scenario": 4, "odometry": 5}
+STREAMS = {"radar": 1, "lidar": 2, "camera": 3, "scenario": 4, "odometry": 5, "stereo": 6}
 
 FRAME_MAP, FRAME_ODOM, FRAME_BASE = "map", "odom", "base_link"
 FRAME_RADAR = "radar"
 FRAME_CAM_LINK = "zed2i_camera_link"
+FRAME_RIGHT_OPT = "zed2i_right_camera_optical_frame"
 
 
 def _rng(seed: int, stream: str, index: int = 0) -> np.random.Generator:
@@ -69,6 +70,7 @@ class Scenario:
     lidar_az: np.ndarray
     clock_offset_ns: dict
     latency_ns: dict
+    stereo: bool = False
 
     def t_s(self, t_ns) -> float:
         """Seconds since the start of the recording (true time)."""
@@ -85,7 +87,8 @@ class Scenario:
 
 def build_scenario(corner: str = "L", width: float | None = None, frames: int = 20, seed: int = 0,
                    human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
-                   lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16") -> Scenario:
+                   lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16",
+                   stereo_images: bool = False) -> Scenario:
     """Everything about one recording except the sensor data itself."""
     try:
         world = make_world(corner, width, seed)
@@ -155,7 +158,8 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
     latency = {"radar": int(rng.integers(30_000_000, 45_000_001)), "lidar": int(rng.integers(2_000_000, 6_000_001)),
                "camera": int(rng.integers(20_000_000, 40_000_001)), "odometry": 1_000_000}
     return Scenario(seed, world, frames, t0, duration, truth, tinfo, odom, oinfo, T_map_odom, walk,
-                    T_base_radar, T_base_lidar, T_world_cam_link, radar_cfg, lidar_cfg, cam_cfg, alt, az, clock, latency)
+                    T_base_radar, T_base_lidar, T_world_cam_link, radar_cfg, lidar_cfg, cam_cfg, alt, az, clock, latency,
+                    bool(stereo_images))
 
 
 
@@ -175,6 +179,9 @@ class Sensors:
                                 MATERIAL_ID["human"], CLASS_ID["ceiling"])
         self.camera = CameraModel(sc.camera_cfg, sc.T_world_cam_link @ T_LINK_OPTICAL)
         self.cast_log: list | None = None  # set to [] to record the radar's backend casts (benchmarks)
+        self.stereo = StereoModel(sc.camera_cfg, sc.T_world_cam_link @ T_LINK_OPTICAL,
+                                  [m.lidar_reflectivity for m in w.materials], w.face_material,
+                                  w.materials[MATERIAL_ID["human"]].lidar_reflectivity) if sc.stereo else None
 
     def radar_frame(self, k: int) -> tuple[np.ndarray, dict]:
         """(n_range, H, W) float32 heatmap of cycle k and per-frame stats."""
@@ -222,6 +229,9 @@ class Sensors:
     def camera_frame(self, i: int, t_ns: int):
         return self.camera.frame(self.scene, self.sc.human_mesh(t_ns), _rng(self.sc.seed, "camera", i))
 
+    def stereo_pair(self, i: int, t_ns: int):
+        return self.stereo.pair(self.scene, self.sc.human_mesh(t_ns), _rng(self.sc.seed, "stereo", i))
+
 
 def path_stats(paths: dict) -> dict:
     """LOS structure vs NLOS human power from per-path amplitudes (dB drop, NaN if no NLOS human)."""
@@ -265,7 +275,7 @@ def _schedule(sc: Scenario) -> list[tuple[int, int, str, int, int]]:
 
 
 def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
-    from . import TOPICS, SynthResult
+    from . import STEREO_TOPICS, TOPICS, SynthResult
     from .recording import BagWriter, recording_path
 
     out_dir = Path(out_dir)
@@ -276,14 +286,15 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
     if human_dir is not None:
         human_dir.mkdir()
     rec = recording_path(out_dir, fmt)
-    counts = {t: 0 for t in TOPICS}
+    topics = dict(TOPICS, **(STEREO_TOPICS if sc.stereo else {}))
+    counts = {t: 0 for t in topics}
     frame_rows, radar_tum, lidar_tum = [], [], []
     lidar_human_hits, camera_human_pixels = 0, 0
     events = _schedule(sc)
     cam_cfg, rcfg = sc.camera_cfg, sc.radar_cfg
     T_world_cam_opt = sc.T_world_cam_link @ T_LINK_OPTICAL
     with BagWriter(rec, fmt) as bw:
-        for topic, typ in TOPICS.items():
+        for topic, typ in topics.items():
             bw.add(topic, typ, latched=topic in ("/tf_static", "/ouster/metadata"))
 
         def put(topic, t_ns, msg):
@@ -298,6 +309,9 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
                        bw.transform("/tf_static", t_ns, FRAME_MAP, FRAME_CAM_LINK, sc.T_world_cam_link),
                        bw.transform("/tf_static", t_ns, FRAME_CAM_LINK, cam_cfg.cloud_frame_id, np.eye(4)),
                        bw.transform("/tf_static", t_ns, FRAME_CAM_LINK, cam_cfg.frame_id, T_LINK_OPTICAL)]
+                if sc.stereo:
+                    T_right = _trans(0.0, -cam_cfg.baseline_m, 0.0) @ T_LINK_OPTICAL
+                    tfs.append(bw.transform("/tf_static", t_ns, FRAME_CAM_LINK, FRAME_RIGHT_OPT, T_right))
                 put("/tf_static", log_ns, bw.tf_message(tfs))
             elif kind == "metadata":
                 md = ouster_metadata(sc.lidar_cfg, sc.lidar_alt, sc.lidar_az, f"SYN{sc.seed:09d}")
@@ -345,6 +359,14 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
                 xyz["x"], xyz["y"], xyz["z"] = cloud[..., 0], cloud[..., 1], cloud[..., 2]
                 put("/zed2i/zed_node/point_cloud/cloud_registered", log_ns,
                     bw.point_cloud("/zed2i/zed_node/point_cloud/cloud_registered", stamp, cam_cfg.cloud_frame_id, xyz))
+                if sc.stereo:
+                    left, right = sensors.stereo_pair(idx, t_ns)
+                    for side, img, frame, tx in (("left", left, cam_cfg.frame_id, 0.0),
+                                                 ("right", right, FRAME_RIGHT_OPT, -cam_cfg.fx * cam_cfg.baseline_m)):
+                        put(f"/zed2i/zed_node/{side}/image_rect_gray", log_ns,
+                            bw.image_mono8(f"/zed2i/zed_node/{side}/image_rect_gray", stamp, frame, img))
+                        put(f"/zed2i/zed_node/{side}/camera_info", log_ns,
+                            bw.camera_info(f"/zed2i/zed_node/{side}/camera_info", stamp, frame, cam_cfg, tx))
         storage = bw.storage_file
 
     # ------------------------------------------------------------------ truth/
@@ -387,7 +409,7 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
         "radar": rcfg.describe(), "lidar": sc.lidar_cfg.describe(), "camera": cam_cfg.describe(),
         "lidar_beam_altitude_deg": sc.lidar_alt, "lidar_beam_azimuth_deg": sc.lidar_az,
         "clock_offset_ns": sc.clock_offset_ns, "latency_ns": sc.latency_ns,
-        "topics": TOPICS, "counts": counts, "stats": stats,
+        "topics": topics, "counts": counts, "stats": stats,
         "recording": str(rec.relative_to(out_dir)), "storage_file": str(Path(storage).relative_to(out_dir)),
         "conventions": {
             "radar_stamp": "header.stamp = mid-cycle in the radar clock; cycle_start_ns/cycle_end_ns likewise",
@@ -403,7 +425,7 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
                        scene_json=scene_path, mesh=mesh_path, trajectory_radar=truth_dir / "trajectory_radar.tum",
                        trajectory_base=truth_dir / "trajectory_base.tum", human_dir=human_dir, n_frames=sc.frames,
                        corner=w.corner, width_m=w.width, seed=sc.seed, human=sc.walk is not None,
-                       topics=dict(TOPICS), counts=counts, stats=stats)
+                       topics=topics, counts=counts, stats=stats)
 
 
 def _odometry_msg(bw, sc: Scenario, i: int, t_ns: int):
