@@ -12,8 +12,9 @@ Beam origin models (recorded in scene attrs ``gt.origin_model``):
   * default: every beam starts at the rotation centre (the pose's translation);
   * ``rotation_radius`` r > 0: column j starts on the rotation circle at ``r (cos phi_j, sin phi_j, 0)``
     in the radar frame (the antenna looks outward along its azimuth);
-  * ``column_time``: the frame timestamp is the start of the rotation; column j is sampled at
-    ``t + j / (W * rotation_hz)`` with the pose interpolated (SLERP) from the trajectory.
+  * ``column_time``: the frame timestamp is the middle of the rotation (the heatmap stamp); column j
+    is sampled at its centre ``t + ((j + 0.5) / W - 0.5) / rotation_hz`` with the pose interpolated
+    (SLERP) from the trajectory.
 
 Human sources: none; one mesh for all frames (``--human``); a directory with one mesh per frame
 *index* ``{k:06d}.ply`` (``.obj``/``.stl`` also accepted; k = 0-based row of the TUM file);
@@ -61,7 +62,7 @@ class OriginModel:
         kind = "rotation_circle" if self.rotation_radius > 0 else "rotation_centre"
         return {"type": kind, "rotation_radius_m": float(self.rotation_radius),
                 "column_time": bool(self.column_time), "rotation_hz": float(self.rotation_hz),
-                "column_phase": "phi_j = -2*pi*j/W, column j at t + j/(W*rotation_hz)" if self.column_time else None}
+                "column_times": "t + ((j + 0.5)/W - 0.5)/rotation_hz (t = middle of the rotation)" if self.column_time else None}
 
 
 @dataclass
@@ -110,8 +111,10 @@ def _grid_soa(grid: Grid) -> np.ndarray:
 
 
 def column_times(t_ns: int, grid: Grid, origin: OriginModel) -> np.ndarray:
-    """(W,) int64 ns: column j sampled at t + j / (W * rotation_hz)."""
-    return t_ns + np.round(np.arange(grid.W) / (grid.W * origin.rotation_hz) * 1e9).astype(np.int64)
+    """(W,) int64 ns: the frame timestamp is the middle of the rotation (as the heatmap stamp);
+    column j is sampled at its centre, ``t + ((j + 0.5) / W - 0.5) / rotation_hz``."""
+    frac = (np.arange(grid.W) + 0.5) / grid.W - 0.5
+    return t_ns + np.round(frac / origin.rotation_hz * 1e9).astype(np.int64)
 
 
 # ---------------------------------------------------------------------------- humans

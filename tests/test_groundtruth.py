@@ -60,15 +60,16 @@ def test_column_time_uses_slerp_poses():
     g = Grid(2, 4)
     traj = Trajectory(np.array([0, 500_000_000]), np.stack([pose(0, 0, 0.0), pose(1.0, 0, np.pi / 2)]))
     om = OriginModel(column_time=True, rotation_hz=2.0)
-    ts = column_times(0, g, om)
-    assert ts.tolist() == [0, 125_000_000, 250_000_000, 375_000_000]  # one rotation = 0.5 s
+    # frame stamped at the middle of its 0.5 s rotation (t = 0.25 s); column centres at 1/8, 3/8, ...
+    ts = column_times(250_000_000, g, om)
+    assert ts.tolist() == [62_500_000, 187_500_000, 312_500_000, 437_500_000]
     cols = traj.interpolate(ts)
     o, d = beam_rays(g, traj.poses[0], om, cols)
     o = o.reshape(2, 4, 3)
-    np.testing.assert_allclose(o[0, :, 0], [0, 0.25, 0.5, 0.75])  # linear translation
-    # column 2 at t=0.25 s: yaw 45 deg; its azimuth is -pi in the radar frame -> world heading -135 deg
+    np.testing.assert_allclose(o[0, :, 0], [0.125, 0.375, 0.625, 0.875])  # linear translation
+    # column 2 at t=0.3125 s: yaw 56.25 deg; its azimuth is -pi in the radar frame
     d2 = d.reshape(2, 4, 3)[0, 2]
-    assert np.arctan2(d2[1], d2[0]) == pytest.approx(-3 * np.pi / 4)
+    assert np.arctan2(d2[1], d2[0]) == pytest.approx(np.deg2rad(56.25) - np.pi)
 
 
 def test_points_to_mesh_is_hit_by_rays():
