@@ -1,0 +1,122 @@
+"""Stage two without learning: multi-return range images → real 3-D points (paper §4.4).
+
+Range image ``R_b`` (accumulated travel distance) along beam direction ``d_1`` gives the mirrored
+point ``p'_b = R_b d_1``. Un-mirroring walks the bounce chain (paper eq. 2–3):
+``d_b = d_{b−1} − 2(d_{b−1}·n_{b−1}) n_{b−1}``, ``p_b = p_{b−1} + (R_b − R_{b−1}) d_b``.
+Unknown normals come from the range image itself (eq. 4: the closed-form normal of a spherical
+range image) and are un-mirrored through the previous bounces' normals (eq. 5, applied for every
+earlier mirror: ``n_b = L_{b−1}···L_1 n'_b`` with ``L_k = I − 2 n_k n_kᵀ``; the paper writes the
+single-mirror case). Everything is in the sensor frame with the beam origin at 0.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from holodata.conventions import Grid
+
+
+def _reflect(v: np.ndarray, n: np.ndarray) -> np.ndarray:
+    return v - 2.0 * np.sum(v * n, axis=-1, keepdims=True) * n
+
+
+def _tangent(R: np.ndarray, P: np.ndarray, axis: int, periodic: bool) -> np.ndarray:
+    """Tangent (…,H,W,3) of the point image P along grid ``axis`` (-2 rows, -1 columns): of the
+    forward and backward neighbour differences, the one with the smaller range jump (so a depth
+    edge does not bend the normals on either side of it)."""
+    pax = axis - 1  # P has the trailing xyz axis
+    if periodic:
+        fwd_r, bwd_r = np.roll(R, -1, axis=axis) - R, R - np.roll(R, 1, axis=axis)
+        fwd_p, bwd_p = np.roll(P, -1, axis=pax) - P, P - np.roll(P, 1, axis=pax)
+    else:
+        fwd_r, bwd_r = np.full_like(R, np.nan), np.full_like(R, np.nan)
+        fwd_p, bwd_p = np.full_like(P, np.nan), np.full_like(P, np.nan)
+        a, b = [slice(None)] * R.ndim, [slice(None)] * R.ndim
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        dr, dp = np.diff(R, axis=axis), np.diff(P, axis=pax)
+        fwd_r[tuple(a)], bwd_r[tuple(b)] = dr, dr
+        fwd_p[tuple(a) + (slice(None),)], bwd_p[tuple(b) + (slice(None),)] = dp, dp
+    pick_f = np.isfinite(fwd_r) & (~np.isfinite(bwd_r) | (np.abs(fwd_r) <= np.abs(bwd_r)))
+    return np.where(pick_f[..., None], fwd_p, bwd_p)
+
+
+def normals_from_range(R, grid: Grid) -> np.ndarray:
+    """Surface normals (…,H,W,3), sensor frame, unit, facing the sensor, of range image(s) R (…,H,W) m.
+
+    Paper eq. 4 gives the normal of ``p = R(θ,φ) d(θ,φ)`` as ``R_{θ,φ} b`` with
+    ``b ∝ [1, (∂R/∂φ)/(R cosθ), (∂R/∂θ)/R]`` in the local frame [d, e_φ, e_θ] — i.e. the cross
+    product of the tangents ``∂p/∂φ × ∂p/∂θ``. We evaluate that cross product with finite
+    differences of neighbouring points (exact on planes, unlike finite differences of R inserted
+    into eq. 4, which carry an O(Δ) error). NaN where R or both neighbours along an axis are missing.
+    """
+    R = np.asarray(R, dtype=np.float64)
+    d = grid.directions()
+    P = R[..., None] * d
+    t_th = _tangent(R, P, axis=-2, periodic=False)
+    t_ph = _tangent(R, P, axis=-1, periodic=True)
+    n = np.cross(t_ph, t_th)
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    flip = np.sum(n * d, axis=-1, keepdims=True) > 0
+    return np.where(flip, -n, n)  # face the incoming ray
+
+
+def unmirror(ranges, directions, normals=None, grid: Grid | None = None) -> dict:
+    """Un-mirror multi-return range images into real points.
+
+    ranges: (B,H,W) metres, accumulated travel distance, NaN = none. directions: (H,W,3) unit
+    beam directions d_1 (sensor frame). normals: (B,H,W,3) true surface normals, or None to
+    estimate them from ``ranges`` (then ``grid`` is required). Returns dict point (B,H,W,3)
+    (NaN where R_b or any earlier bounce is missing), normal (B,H,W,3), direction (B,H,W,3) (the
+    ray direction arriving at bounce b).
+    """
+    R = np.asarray(ranges, dtype=np.float64)
+    d1 = np.asarray(directions, dtype=np.float64)
+    B = R.shape[0]
+    if normals is None:
+        if grid is None:
+            raise ValueError("unmirror needs grid to estimate normals")
+        mirrored = normals_from_range(R, grid)
+    else:
+        normals = np.asarray(normals, dtype=np.float64)
+        normals = normals / np.linalg.norm(normals, axis=-1, keepdims=True)
+    pts = np.full(R.shape + (3,), np.nan)
+    nrm = np.full(R.shape + (3,), np.nan)
+    dirs = np.full(R.shape + (3,), np.nan)
+    p_prev = np.zeros(d1.shape)
+    d = d1.copy()
+    R_prev = np.zeros(R.shape[1:])
+    for b in range(B):
+        if b > 0:
+            d = _reflect(d, nrm[b - 1])
+        p = p_prev + (R[b] - R_prev)[..., None] * d
+        if normals is None:
+            n = mirrored[b]
+            for k in range(b):  # eq. 5 through every earlier mirror, first mirror first
+                n = _reflect(n, nrm[k])
+        else:
+            n = normals[b]
+        pts[b], nrm[b], dirs[b] = p, n, d
+        p_prev, R_prev = p, R[b]
+    bad = np.isnan(pts).any(-1)
+    pts[bad] = np.nan
+    return {"point": pts, "normal": nrm, "direction": dirs}
+
+
+def los_mask(points, first_range, grid: Grid, tolerance: float = 0.15) -> np.ndarray:
+    """(B,H,W) bool: True where point b of a beam is visible from the origin in the first-bounce
+    range image ``first_range`` (H,W): its own pixel's R_1 is missing or ≥ |p| − tolerance.
+    Bounce-1 points are LOS by definition. Missing points are False."""
+    P = np.asarray(points, dtype=np.float64)
+    R1 = np.asarray(first_range, dtype=np.float64)
+    r = np.linalg.norm(P, axis=-1)
+    th = np.arcsin(np.clip(P[..., 2] / np.where(r > 0, r, 1), -1, 1))
+    ph = np.arctan2(P[..., 1], P[..., 0])
+    hi, lo = np.deg2rad(grid.elev_max_deg), np.deg2rad(grid.elev_min_deg)
+    row = np.rint((hi - th) / (hi - lo) * (grid.H - 1))
+    col = np.rint(-ph / (2 * np.pi) * grid.W) % grid.W
+    ok = np.isfinite(r)
+    row = np.clip(np.where(ok, row, 0), 0, grid.H - 1).astype(int)
+    col = np.where(ok, col, 0).astype(int)
+    r1 = R1[row, col]
+    vis = ok & (~np.isfinite(r1) | (r1 >= r - tolerance))
+    vis[0] = ok[0]
+    return vis
