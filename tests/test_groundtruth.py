@@ -189,3 +189,40 @@ def test_interrupted_run_resumes_only_missing_shards(inputs, monkeypatch):
     assert summary["scenes"][0]["shards_skipped"] == 2
     rng = np.asarray(hds.open_dataset(out).scene("scene")["gt/range"][...])
     assert np.isfinite(rng[:, 0]).any(axis=(1, 2)).all()
+
+
+@needs_dataset
+def test_dataset_form_reads_mesh_poses_and_human(tmp_path):
+    from holodata.conventions import RangeBins
+
+    url = str(tmp_path / "ds.zarr")
+    g = Grid(8, 32)
+    T = 5
+    v, f = l_corridor()
+    w = hds.create_dataset(url, grid=g, range_bins=RangeBins(), created_by="test", provenance={}, shard_frames=4)
+    sc = w.scene("c1", n_frames=T, attrs={"corner_type": "L", "width_m": 2.0})
+    ta = sc.frame_array("time/timestamp_ns", per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0)
+    pa = sc.frame_array("pose/T_world_radar", per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"],
+                        units="m", fill_value=float("nan"))
+    poses = np.stack([pose(7.0, 0.5) for _ in range(T)])
+    for k in range(ta.n_shards):
+        ta.write_shard(k, (np.arange(T) * 500_000_000)[ta.frames(k)])
+        pa.write_shard(k, poses[pa.frames(k)])
+    sc.write_array("mesh/vertices", v.astype(np.float32), dims=["vertex", "xyz"], units="m")
+    sc.write_array("mesh/faces", f.astype(np.int32), dims=["face", "corner"], units="1")
+    hv = sc.ragged_array("human/vertices", width=3, dtype="float32", units="m")
+    hf = sc.ragged_array("human/faces", width=3, dtype="int32", units="1")
+    for k in range(hv.n_shards if hasattr(hv, "n_shards") else 2):
+        frames = range(T)[ta.frames(k)]
+        hv.write_shard(k, [HUMAN[0].astype(np.float32) if i % 2 == 0 else np.zeros((0, 3), np.float32) for i in frames])
+        hf.write_shard(k, [HUMAN[1].astype(np.int32) if i % 2 == 0 else np.zeros((0, 3), np.int32) for i in frames])
+    r = CliRunner().invoke(cli, ["raytrace-gt", url, "--scene", "c1", "--quiet", "--json"])
+    assert r.exit_code == 0, r.output
+    s = hds.open_dataset(url).scene("c1")
+    lab = np.asarray(s["gt/label"][...])
+    assert lab.shape == (T, 3, 8, 32)
+    hc = np.asarray(s["gt/human_center"][...])
+    assert np.isfinite(hc[0]).all() and np.isnan(hc[1]).all()
+    # the human around the corner is seen only by reflection in even frames (label 4)
+    assert (lab[0] == Label.NLOS_HUMAN).any() and not (lab[1] >= Label.LOS_HUMAN).any()
+    assert s.attrs["gt"]["human"]["kind"] == "dataset:human/vertices+faces"
