@@ -1,0 +1,211 @@
+"""Torch datasets over radar heatmaps and multi-return ground truth.
+
+Samples are dicts: ``heatmap`` (N_r', H', W') float32 normalised to [−1, 1], ``range`` (3, H', W')
+float32 metres (NaN = none), ``label`` (3, H', W') uint8, ``scene`` (str), ``frame`` (int).
+The normalisation is a recorded transform (:class:`HeatmapNorm`): stored heatmaps stay linear
+amplitude; the parameters travel in the checkpoint.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import asdict, dataclass
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from holodata.errors import DatasetError
+
+
+@dataclass
+class HeatmapNorm:
+    """``x = 2·(log10(a + eps) − lo)/(hi − lo) − 1``, clipped to [−1, 1]; a: linear amplitude."""
+
+    eps: float = 1e-3
+    lo: float = -3.0
+    hi: float = 0.0
+
+    def __call__(self, a: np.ndarray) -> np.ndarray:
+        x = np.log10(np.maximum(np.asarray(a, dtype=np.float32), 0) + np.float32(self.eps))
+        x = (2.0 / (self.hi - self.lo)) * (x - self.lo) - 1.0
+        return np.clip(x, -1.0, 1.0).astype(np.float32, copy=False)
+
+    @classmethod
+    def fit(cls, samples: np.ndarray, eps: float = 1e-3, q: tuple[float, float] = (1.0, 99.9)) -> "HeatmapNorm":
+        """Bounds from percentiles of log10(a + eps) over ``samples`` (any shape)."""
+        la = np.log10(np.maximum(np.asarray(samples, np.float64), 0) + eps).ravel()
+        lo, hi = np.percentile(la, q)
+        if not hi > lo:
+            hi = lo + 1.0
+        return cls(eps=float(eps), lo=float(lo), hi=float(hi))
+
+    def to_dict(self) -> dict:
+        return {"kind": "log10_minmax", **asdict(self)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "HeatmapNorm":
+        return cls(eps=float(d["eps"]), lo=float(d["lo"]), hi=float(d["hi"]))
+
+
+@dataclass
+class SampleTransform:
+    """Optional reductions applied to every sample: ``downsample`` strides (H, W) by this factor
+    (GT is strided too, never averaged across NaN); ``range_pool`` max-pools range bins by this
+    factor; ``crop_w`` takes an azimuth window of this width (random offset, wrapping) when
+    ``random_crop`` else the first columns."""
+
+    downsample: int = 1
+    range_pool: int = 1
+    crop_w: int | None = None
+    random_crop: bool = False
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def apply_transform(hm: np.ndarray, rng: np.ndarray, lab: np.ndarray, t: SampleTransform,
+                    gen: np.random.Generator | None = None):
+    if t.range_pool > 1:
+        n = hm.shape[0] // t.range_pool * t.range_pool
+        hm = hm[:n].reshape(n // t.range_pool, t.range_pool, *hm.shape[1:]).max(1)
+    if t.downsample > 1:
+        f = t.downsample
+        hm, rng, lab = hm[:, ::f, ::f], rng[:, ::f, ::f], lab[:, ::f, ::f]
+    if t.crop_w is not None and t.crop_w < hm.shape[-1]:
+        W = hm.shape[-1]
+        j0 = int(gen.integers(W)) if (t.random_crop and gen is not None) else 0
+        cols = (j0 + np.arange(t.crop_w)) % W
+        hm, rng, lab = hm[..., cols], rng[..., cols], lab[..., cols]
+    return hm, rng, lab
+
+
+def split_scenes(scenes: list[str], splits: dict | None, split: str, test_fraction: float = 0.25) -> list[str]:
+    """Scene ids of ``split``: the dataset's recorded splits when present, else a deterministic
+    split BY SCENE (sorted ids, the last ``test_fraction`` — at least one when there are ≥ 2 — go to
+    test). Frames of one scene never land on both sides."""
+    if splits and split in splits and splits[split]:
+        missing = [s for s in splits[split] if s not in scenes]
+        if missing:
+            raise DatasetError(f"split {split!r} names unknown scene(s): {', '.join(missing)}")
+        return list(splits[split])
+    if split not in ("train", "test", "all"):
+        raise DatasetError(f"dataset has no split {split!r}")
+    ids = sorted(scenes)
+    if split == "all" or len(ids) < 2:
+        return ids
+    n_test = max(1, int(round(len(ids) * test_fraction)))
+    return ids[-n_test:] if split == "test" else ids[:-n_test]
+
+
+class ArrayFrames(Dataset):
+    """In-memory frames: heatmap (T,N_r,H,W) linear amplitude, range (T,3,H,W), label (T,3,H,W)."""
+
+    def __init__(self, heatmap, gt_range, gt_label=None, norm: HeatmapNorm | None = None,
+                 transform: SampleTransform | None = None, scene: str = "memory"):
+        self.hm = np.asarray(heatmap)
+        self.rng = np.asarray(gt_range, dtype=np.float32)
+        self.lab = np.zeros(self.rng.shape, np.uint8) if gt_label is None else np.asarray(gt_label, np.uint8)
+        self.norm = norm or HeatmapNorm.fit(self.hm[: min(len(self.hm), 8)])
+        self.transform = transform or SampleTransform()
+        self.scene = scene
+        self._gen = np.random.default_rng(0)
+
+    def __len__(self) -> int:
+        return len(self.hm)
+
+    def __getitem__(self, i: int) -> dict:
+        hm, rng, lab = apply_transform(self.hm[i], self.rng[i], self.lab[i], self.transform, self._gen)
+        return _sample(self.norm(hm), rng, lab, self.scene, i)
+
+
+def _sample(hm, rng, lab, scene, frame) -> dict:
+    return {"heatmap": torch.from_numpy(np.ascontiguousarray(hm, dtype=np.float32)),
+            "range": torch.from_numpy(np.ascontiguousarray(rng, dtype=np.float32)),
+            "label": torch.from_numpy(np.ascontiguousarray(lab, dtype=np.uint8)),
+            "scene": scene, "frame": int(frame)}
+
+
+class HeatmapDataset(Dataset):
+    """Frames of a holodata dataset's ``split`` (by scene). ``ds``: an opened dataset or its URL.
+
+    Safe with multi-process DataLoader workers: the Zarr store is (re)opened lazily in each
+    process (handles are dropped when pickled). ``norm`` defaults to one fitted on a few training
+    frames; pass the checkpoint's norm at evaluation time.
+    """
+
+    def __init__(self, ds, split: str = "train", norm: HeatmapNorm | None = None,
+                 transform: SampleTransform | None = None, scenes: list[str] | None = None,
+                 frames_per_scene: int | None = None, with_label: bool = True):
+        from holodata.dataset import open_dataset
+
+        if isinstance(ds, (str, os.PathLike)):
+            self.url = str(ds)
+            ds = open_dataset(self.url)
+        else:
+            self.url = getattr(ds, "url", None)
+            if self.url is not None:
+                self.url = str(self.url)
+        self._ds, self._pid = ds, os.getpid()
+        self.split = split
+        self.scenes = list(scenes) if scenes is not None else split_scenes(list(ds.scenes), getattr(ds, "splits", None), split)
+        self.index: list[tuple[str, int]] = []
+        for sid in self.scenes:
+            sc = ds.scene(sid)
+            names = set(sc.arrays())
+            for need in ("radar/heatmap", "gt/range"):
+                if need not in names:
+                    raise DatasetError(f"scene {sid}: no {need} array (run raytrace-gt / ingest a radar topic first)")
+            n = int(sc["gt/range"].shape[0])
+            if frames_per_scene is not None:
+                n = min(n, frames_per_scene)
+            self.index += [(sid, k) for k in range(n)]
+        if not self.index:
+            raise DatasetError(f"split {split!r} of {self.url or 'dataset'} has no frames")
+        self.with_label = with_label
+        self.transform = transform or SampleTransform()
+        self.norm = norm or self._fit_norm()
+        self.grid = ds.grid
+        self.range_bins = ds.range_bins
+        self._gen = np.random.default_rng(os.getpid())
+
+    def _dataset(self):
+        if self._ds is None or self._pid != os.getpid():
+            from holodata.dataset import open_dataset
+
+            if self.url is None:
+                raise DatasetError("HeatmapDataset was built from an in-memory dataset without a URL")
+            self._ds, self._pid = open_dataset(self.url), os.getpid()
+            self._gen = np.random.default_rng(os.getpid())
+        return self._ds
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        if self.url is not None:
+            state["_ds"] = None
+        return state
+
+    def _fit_norm(self) -> HeatmapNorm:
+        picks = self.index[:: max(len(self.index) // 4, 1)][:4]
+        hm = [np.asarray(self._dataset().scene(s)["radar/heatmap"][k]) for s, k in picks]
+        return HeatmapNorm.fit(np.stack(hm))
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def read(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Raw (heatmap linear, range, label) of item i, before transform and normalisation."""
+        sid, k = self.index[i]
+        sc = self._dataset().scene(sid)
+        hm = np.asarray(sc["radar/heatmap"][k])
+        rng = np.asarray(sc["gt/range"][k], dtype=np.float32)
+        if self.with_label and "gt/label" in set(sc.arrays()):
+            lab = np.asarray(sc["gt/label"][k], dtype=np.uint8)
+        else:
+            lab = np.zeros(rng.shape, np.uint8)
+        return hm, rng, lab
+
+    def __getitem__(self, i: int) -> dict:
+        hm, rng, lab = self.read(i)
+        hm, rng, lab = apply_transform(hm, rng, lab, self.transform, self._gen)
+        sid, k = self.index[i]
+        return _sample(self.norm(hm), rng, lab, sid, k)

@@ -1,0 +1,111 @@
+"""Multi-return range-image UNet (paper §4.3): range bins as input channels, 2-D convolutions over
+(elevation, azimuth), one shared encoder, one decoder per bounce, skip connections.
+
+Each bounce decoder ends in three per-beam maps: range (metres, ``max_range·sigmoid``), a "return
+exists" logit and a human-vs-structure logit (the per-beam human/structure head).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+
+@dataclass
+class ModelConfig:
+    """in_channels: range bins; depth: encoder levels (paper: 7), each after the first halves H and
+    W (while both stay ≥ 2); base_channels doubles per level up to max_channels; blocks: residual
+    blocks per encoder level (paper: 4; decoders use half, at least 1)."""
+
+    in_channels: int = 256
+    bounces: int = 3
+    depth: int = 7
+    base_channels: int = 32
+    max_channels: int = 256
+    blocks: int = 2
+    max_range: float = 9.6
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _norm(c: int) -> nn.Module:
+    return nn.GroupNorm(min(8, c), c)
+
+
+class ResBlock(nn.Module):
+    def __init__(self, c_in: int, c_out: int):
+        super().__init__()
+        self.conv1 = nn.Conv2d(c_in, c_out, 3, padding=1, bias=False)
+        self.n1 = _norm(c_out)
+        self.conv2 = nn.Conv2d(c_out, c_out, 3, padding=1, bias=False)
+        self.n2 = _norm(c_out)
+        self.skip = nn.Identity() if c_in == c_out else nn.Conv2d(c_in, c_out, 1, bias=False)
+
+    def forward(self, x):
+        y = F.silu(self.n1(self.conv1(x)))
+        y = self.n2(self.conv2(y))
+        return F.silu(y + self.skip(x))
+
+
+def _stack(c_in: int, c_out: int, n: int) -> nn.Sequential:
+    return nn.Sequential(*[ResBlock(c_in if i == 0 else c_out, c_out) for i in range(max(n, 1))])
+
+
+class Decoder(nn.Module):
+    def __init__(self, chans: list[int], blocks: int, n_out: int = 3):
+        super().__init__()
+        self.ups = nn.ModuleList()
+        for i in range(len(chans) - 1, 0, -1):
+            self.ups.append(_stack(chans[i] + chans[i - 1], chans[i - 1], blocks))
+        self.head = nn.Conv2d(chans[0], n_out, 1)
+
+    def forward(self, feats: list[torch.Tensor]) -> torch.Tensor:
+        x = feats[-1]
+        for k, block in enumerate(self.ups):
+            skip = feats[-2 - k]
+            x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            x = block(torch.cat([x, skip], 1))
+        return self.head(x)
+
+
+class MultiReturnUNet(nn.Module):
+    """(B, N_r, H, W) normalised heatmap → dict range (B,3,H,W) metres, valid_logit (B,3,H,W),
+    human_logit (B,3,H,W)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg
+        chans = [min(cfg.base_channels * 2**i, cfg.max_channels) for i in range(cfg.depth)]
+        self.chans = chans
+        self.stem = nn.Sequential(nn.Conv2d(cfg.in_channels, chans[0], 3, padding=1), _norm(chans[0]), nn.SiLU())
+        self.enc = nn.ModuleList(
+            [_stack(chans[0], chans[0], cfg.blocks)]
+            + [_stack(chans[i - 1], chans[i], cfg.blocks) for i in range(1, cfg.depth)]
+        )
+        self.decoders = nn.ModuleList([Decoder(chans, max(cfg.blocks // 2, 1)) for _ in range(cfg.bounces)])
+        for dec in self.decoders:  # start near mid-range with "return" likely
+            nn.init.zeros_(dec.head.weight)
+            nn.init.zeros_(dec.head.bias)
+
+    def forward(self, x: torch.Tensor) -> dict:
+        feats = []
+        h = self.stem(x)
+        for i, block in enumerate(self.enc):
+            if i > 0 and min(h.shape[-2:]) >= 2:
+                h = F.avg_pool2d(h, 2, ceil_mode=True)
+            h = block(h)
+            feats.append(h)
+        outs = torch.stack([dec(feats) for dec in self.decoders], 1)  # (B, bounces, 3, H, W)
+        rng = self.cfg.max_range * torch.sigmoid(outs[:, :, 0])
+        return {"range": rng, "valid_logit": outs[:, :, 1], "human_logit": outs[:, :, 2]}
+
+    @torch.no_grad()
+    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5) -> dict:
+        """Inference: range with NaN where P(return) < threshold; human probability."""
+        out = self.forward(x)
+        valid = torch.sigmoid(out["valid_logit"]) >= valid_threshold
+        rng = torch.where(valid, out["range"], torch.full_like(out["range"], float("nan")))
+        return {"range": rng, "human_prob": torch.sigmoid(out["human_logit"]), "valid": valid}

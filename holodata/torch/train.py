@@ -1,0 +1,264 @@
+"""Training loop: config dataclass (file + flags), seeds, atomic checkpoints, resume after
+interruption, progress bar, CPU by default / CUDA on request, per-epoch metrics log (JSON lines).
+
+Run directory layout: ``checkpoint.pt`` (latest epoch; everything needed to resume or evaluate),
+``config.json`` (the effective TrainConfig), ``metrics.jsonl`` (one JSON object per epoch).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from holodata.errors import InputError
+from holodata.progress import track
+
+from .data import HeatmapNorm, SampleTransform
+from .losses import LossWeights, multi_return_loss
+from .model import ModelConfig, MultiReturnUNet
+
+CHECKPOINT = "checkpoint.pt"
+METRICS_LOG = "metrics.jsonl"
+
+
+@dataclass
+class TrainConfig:
+    """Training settings. Model: depth (UNet levels; paper 7), base_channels, max_channels, blocks.
+    Data: downsample (H,W stride), range_pool (range-bin max-pool), crop_w (random azimuth
+    window), frames_per_scene (cap). Optimiser: AdamW lr / weight_decay, cosine decay to
+    lr·lr_floor over ``epochs``. Loss weights: w_range, w_gradient, w_valid, w_human."""
+
+    epochs: int = 20
+    batch_size: int = 4
+    lr: float = 2e-3
+    lr_floor: float = 0.05
+    weight_decay: float = 1e-4
+    seed: int = 0
+    device: str = "cpu"
+    num_workers: int = 0
+    depth: int = 7
+    base_channels: int = 16
+    max_channels: int = 128
+    blocks: int = 2
+    downsample: int = 1
+    range_pool: int = 1
+    crop_w: int | None = None
+    frames_per_scene: int | None = None
+    w_range: float = 1.0
+    w_gradient: float = 0.5
+    w_valid: float = 0.2
+    w_human: float = 0.2
+
+    @classmethod
+    def from_file(cls, path, **overrides) -> "TrainConfig":
+        """Read a YAML or JSON mapping of TrainConfig fields; ``overrides`` (non-None) win."""
+        import yaml
+
+        p = Path(path)
+        try:
+            data = yaml.safe_load(p.read_text()) or {}
+        except (OSError, yaml.YAMLError) as err:
+            raise InputError(f"{p}: cannot read training config ({' '.join(str(err).split())})") from None
+        if not isinstance(data, dict):
+            raise InputError(f"{p}: training config must be a mapping of field: value")
+        return cls.from_dict({**data, **{k: v for k, v in overrides.items() if v is not None}}, source=str(p))
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "config") -> "TrainConfig":
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise InputError(f"{source}: unknown training option(s): {', '.join(unknown)}")
+        return cls(**data)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def loss_weights(self) -> LossWeights:
+        return LossWeights(self.w_range, self.w_gradient, self.w_valid, self.w_human)
+
+    def sample_transform(self, train: bool = True) -> SampleTransform:
+        return SampleTransform(self.downsample, self.range_pool, self.crop_w, random_crop=train)
+
+
+@dataclass
+class RunResult:
+    """Outcome of :func:`train` / :func:`fit`: run directory, checkpoint path, epochs completed
+    in total, the epoch this call resumed from (0 = fresh), per-epoch history (dicts)."""
+
+    out_dir: Path
+    checkpoint: Path
+    epochs: int
+    resumed_from: int
+    history: list = field(default_factory=list)
+
+    @property
+    def final_loss(self) -> float:
+        return float(self.history[-1]["loss"]) if self.history else float("nan")
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def resolve_device(device: str) -> torch.device:
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise InputError("--device cuda requested but torch sees no CUDA device (this torch build: "
+                         f"{torch.__version__})")
+    return torch.device(device)
+
+
+def _collate(batch: list[dict]) -> dict:
+    return {"heatmap": torch.stack([b["heatmap"] for b in batch]),
+            "range": torch.stack([b["range"] for b in batch]),
+            "label": torch.stack([b["label"] for b in batch]),
+            "scene": [b["scene"] for b in batch], "frame": [b["frame"] for b in batch]}
+
+
+def _atomic_save(obj, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path) -> dict:
+    """Load a checkpoint file, or ``RUN/checkpoint.pt`` when given a run directory."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / CHECKPOINT
+    if not p.exists():
+        raise InputError(f"{p}: no such checkpoint")
+    try:
+        return torch.load(p, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001 - corrupt/truncated file
+        raise InputError(f"{p}: not a holodata checkpoint ({err.__class__.__name__})") from None
+
+
+def model_from_checkpoint(ck: dict, device: str = "cpu") -> MultiReturnUNet:
+    model = MultiReturnUNet(ModelConfig(**ck["model_config"]))
+    model.load_state_dict(ck["model_state"])
+    return model.to(device).eval()
+
+
+def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels: int,
+        max_range: float = 9.6, meta: dict | None = None, quiet: bool = False, resume: bool = True) -> RunResult:
+    """Train on a torch Dataset of sample dicts (see holodata.torch.data) into ``out_dir``.
+
+    Resumes from ``out_dir/checkpoint.pt`` when present (same model config required): epochs
+    continue from the last completed one up to ``config.epochs``. Each epoch shuffles with a
+    generator seeded by (seed, epoch), so a resumed run sees the same batches as an
+    uninterrupted one.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    device = resolve_device(config.device)
+    mcfg = ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
+                       max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range))
+    seed_everything(config.seed)
+    model = MultiReturnUNet(mcfg).to(device)
+    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    start, history = 0, []
+    ck_path = out / CHECKPOINT
+    if resume and ck_path.exists():
+        ck = load_checkpoint(ck_path)
+        if ck["model_config"] != mcfg.to_dict():
+            raise InputError(f"{ck_path}: checkpoint model config {ck['model_config']} differs from the "
+                             f"requested {mcfg.to_dict()}; use a new --out directory")
+        model.load_state_dict(ck["model_state"])
+        opt.load_state_dict(ck["optimizer_state"])
+        start, history = int(ck["epoch"]), list(ck["history"])
+        norm = HeatmapNorm.from_dict(ck["norm"])
+        torch.set_rng_state(ck["torch_rng"])
+    (out / "config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
+    _truncate_log(out / METRICS_LOG, start)
+    weights = config.loss_weights()
+    if start >= config.epochs:
+        return RunResult(out, ck_path, start, start, history)
+    for epoch in range(start, config.epochs):
+        lr = config.lr * (config.lr_floor + (1 - config.lr_floor) * 0.5 * (1 + math.cos(math.pi * epoch / config.epochs)))
+        for g in opt.param_groups:
+            g["lr"] = lr
+        gen = torch.Generator().manual_seed(config.seed * 100003 + epoch)
+        loader = DataLoader(train_set, batch_size=config.batch_size, shuffle=True, generator=gen,
+                            num_workers=config.num_workers, collate_fn=_collate, drop_last=False,
+                            persistent_workers=False)
+        model.train()
+        sums: dict = {}
+        n_seen, t0 = 0, time.perf_counter()
+        for batch in track(loader, total=len(loader), description=f"epoch {epoch + 1}/{config.epochs}", quiet=quiet):
+            x = batch["heatmap"].to(device, non_blocking=True)
+            y = batch["range"].to(device, non_blocking=True)
+            lab = batch["label"].to(device, non_blocking=True)
+            loss, parts = multi_return_loss(model(x), y, lab, weights)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
+            opt.step()
+            bs = x.shape[0]
+            n_seen += bs
+            sums["loss"] = sums.get("loss", 0.0) + float(loss.detach()) * bs
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0.0) + v * bs
+        dt = time.perf_counter() - t0
+        row = {"epoch": epoch + 1, **{k: v / max(n_seen, 1) for k, v in sums.items()}, "lr": lr,
+               "samples": n_seen, "seconds": round(dt, 3), "samples_per_s": n_seen / dt if dt > 0 else None}
+        history.append(row)
+        _atomic_save({
+            "format": "holodata-checkpoint-1", "epoch": epoch + 1, "model_config": mcfg.to_dict(),
+            "model_state": model.state_dict(), "optimizer_state": opt.state_dict(),
+            "train_config": config.to_dict(), "norm": norm.to_dict(),
+            "transform": config.sample_transform(train=False).to_dict(), "history": history,
+            "torch_rng": torch.get_rng_state(), "meta": meta or {},
+        }, ck_path)
+        with open(out / METRICS_LOG, "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+    return RunResult(out, ck_path, config.epochs, start, history)
+
+
+def _truncate_log(path: Path, epochs_done: int) -> None:
+    """Keep only log lines of epochs already in the checkpoint (an interrupted epoch may have
+    logged without checkpointing)."""
+    if not path.exists():
+        return
+    keep = []
+    for line in path.read_text().splitlines():
+        try:
+            if json.loads(line)["epoch"] <= epochs_done:
+                keep.append(line)
+        except (ValueError, KeyError, TypeError):
+            pass
+    path.write_text("".join(k + "\n" for k in keep))
+
+
+def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet: bool = False) -> RunResult:
+    """Train the multi-return model on the ``train`` split of the dataset at ``dataset_url`` into
+    ``out_dir`` (resuming when ``out_dir/checkpoint.pt`` exists). Returns a :class:`RunResult`."""
+    from holodata.dataset import open_dataset
+
+    from .data import HeatmapDataset
+
+    cfg = config if isinstance(config, TrainConfig) else TrainConfig.from_dict(config or {})
+    ds = open_dataset(str(dataset_url))
+    norm = None
+    ck_path = Path(out_dir) / CHECKPOINT
+    if ck_path.exists():
+        norm = HeatmapNorm.from_dict(load_checkpoint(ck_path)["norm"])
+    train_set = HeatmapDataset(ds if getattr(ds, "url", None) else str(dataset_url), split="train", norm=norm,
+                               transform=cfg.sample_transform(train=True), frames_per_scene=cfg.frames_per_scene)
+    if train_set.url is None:
+        train_set.url = str(dataset_url)
+    n_in = int(ds.range_bins.n) // max(cfg.range_pool, 1)
+    meta = {"dataset": str(dataset_url), "train_scenes": train_set.scenes, "grid": ds.grid.to_attrs(),
+            "range_bins": ds.range_bins.to_attrs()}
+    return fit(train_set, out_dir, cfg, train_set.norm, in_channels=n_in,
+               max_range=float(ds.range_bins.max_range), meta=meta, quiet=quiet)
