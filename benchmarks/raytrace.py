@@ -6,7 +6,8 @@ then:
   1. runs the whole standalone pipeline (read inputs, trace 64x512 beams x 3 bounces + LOS checks,
      write gt/* shards) and reports frames/s;
   2. replays, on a sample of frames, exactly the ray batches the tracer cast, through bare open3d
-     ``RaycastingScene.cast_rays`` (static scene built once, human scene per frame) in the same run,
+     ``RaycastingScene.cast_rays`` / ``test_occlusions`` (the LOS checks) (static scene built once,
+     human scene per frame) in the same run,
      and prints the ratio  bare time / pipeline time  per frame (1.0 = no overhead);
   3. runs the pipeline in subprocesses for 100 and 1000 frames and prints their peak RSS;
   4. extrapolates to HoloRadar scale (28k frames).
@@ -141,8 +142,11 @@ def bare_replay(d: Path, grid: str, sample: list[int]) -> tuple[float, int]:
         dyn = o3d.t.geometry.RaycastingScene()
         dyn.add_triangles(o3d.core.Tensor(h.vertices.astype(np.float32)), o3d.core.Tensor(h.faces.astype(np.uint32)))
         for which, rays in log:
-            ans = (static if which == "static" else dyn).cast_rays(o3d.core.Tensor.from_numpy(rays))
-            ans["t_hit"].numpy()
+            target = static if which.startswith("static") else dyn
+            if which.endswith(":occluded"):
+                target.test_occlusions(o3d.core.Tensor.from_numpy(rays), tnear=0.0, tfar=1.0).numpy()
+            else:
+                target.cast_rays(o3d.core.Tensor.from_numpy(rays))["t_hit"].numpy()
         total += time.perf_counter() - t0
         n_rays += sum(len(r) for _, r in log)
     return total / len(sample), n_rays // len(sample)

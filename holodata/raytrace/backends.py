@@ -3,7 +3,9 @@
 A backend is built once per mesh (``make_backend(name, vertices, faces)``) and answers
 ``cast6(rays) -> (t, face)`` for ``rays`` (N,6) float32 ``[ox oy oz dx dy dz]`` (unit directions):
 ``t`` (N,) float32 hit distance (inf = no hit), ``face`` (N,) integer triangle index (undefined
-where ``t`` is inf); ``cast(origins, directions)`` is the same with ``face`` int64, -1 = no hit. Normals, exact
+where ``t`` is inf); ``cast(origins, directions)`` is the same with ``face`` int64, -1 = no hit;
+``occluded6(rays)`` (N,) bool: any hit with ray parameter in (0, 1), i.e. along a segment whose
+length is the (unnormalised) direction's length (shadow-ray / line-of-sight queries). Normals, exact
 distances and bounces are computed by :mod:`holodata.raytrace.trace` from the face index, so
 every backend yields the same geometry.
 """
@@ -74,6 +76,12 @@ class Open3DBackend:
                                    nthreads=self.nthreads)
         return ans["t_hit"].numpy(), ans["primitive_ids"].numpy()
 
+    def occluded6(self, rays: np.ndarray) -> np.ndarray:
+        """(N,) bool: anything hit with ray parameter in (0, 1) (directions carry the segment length)."""
+        ans = self.scene.test_occlusions(self._o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, dtype=np.float32)),
+                                         tnear=0.0, tfar=1.0, nthreads=self.nthreads)
+        return ans.numpy().astype(bool)
+
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return _cast_via6(self, origins, directions)
 
@@ -104,6 +112,15 @@ class EmbreexBackend:
         )
         face = ans["primID"]
         return np.where(face >= 0, ans["tfar"], np.float32(np.inf)).astype(np.float32), face
+
+    def occluded6(self, rays: np.ndarray) -> np.ndarray:
+        ans = self.scene.run(
+            np.ascontiguousarray(rays[:, :3], dtype=np.float32),
+            np.ascontiguousarray(rays[:, 3:], dtype=np.float32),
+            dists=np.ones(len(rays), dtype=np.float32),
+            query="OCCLUDED",
+        )
+        return np.asarray(ans) >= 0
 
     def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return _cast_via6(self, origins, directions)

@@ -78,7 +78,8 @@ class RayScene:
     ``face_class`` (F,) uint8 per-face semantic class (else geometric classes are derived);
     ``class_names`` {id: name} for ``face_class``. ``class_names`` / ``human_class`` attributes give
     the table used in ``TraceResult.semantic``. Set ``cast_log = []`` to record every backend cast
-    as ``(which, rays (n,6) float32)`` with which = "static" | "dynamic" (benchmarks)."""
+    as ``(which, rays (n,6) float32)`` with which = "static" | "dynamic" (``cast_rays``) or
+    "static:occluded" | "dynamic:occluded" (``test_occlusions`` with tfar = 1) (benchmarks)."""
 
     def __init__(self, vertices, faces, backend: str = DEFAULT_BACKEND, face_class=None,
                  class_names: dict | None = None, nthreads: int = 0):
@@ -322,16 +323,24 @@ class RayScene:
         return buf[:n]
 
     def _visible32(self, O: np.ndarray, P: np.ndarray, dyn) -> np.ndarray:
-        """(n,) bool for (3,n) float32 origins and points: P visible from O (LOS_TOLERANCE_M)."""
+        """(n,) bool for (3,n) float32 origins and points: P visible from O, i.e. nothing (scene or
+        dynamic mesh) on the segment closer than LOS_TOLERANCE_M before P. One any-hit (occlusion)
+        query per mesh, the direction scaled to the segment length minus the tolerance."""
         v = P - O
         L = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
         near = L <= LOS_TOLERANCE_M
-        v /= np.where(near, np.float32(1), L)
+        v *= np.where(near, np.float32(0), (L - np.float32(LOS_TOLERANCE_M)) / np.where(near, np.float32(1), L))
         rays = self._workspace(len(L))
         rays[:, :3] = O.T
         rays[:, 3:] = v.T
-        t, _, _ = self._cast6(rays, dyn)
-        return near | (t >= L - LOS_TOLERANCE_M)
+        if self.cast_log is not None:
+            self.cast_log.append(("static:occluded", rays.copy()))
+        blocked = self.static.backend.occluded6(rays)
+        if dyn is not None:
+            if self.cast_log is not None:
+                self.cast_log.append(("dynamic:occluded", rays.copy()))
+            blocked |= dyn.backend.occluded6(rays)
+        return near | ~blocked
 
     def _visible(self, O: np.ndarray, P: np.ndarray, dyn) -> np.ndarray:
         """(n,) bool for (n,3) origins and points: P visible from O along the straight segment."""
