@@ -382,10 +382,11 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     n_traced = sum(len(p[2]) for p in plan)
     workers = auto_processes(n_traced) if processes <= 0 else processes
     t0 = time.perf_counter()
+    clock: dict = {}
     if workers == 1 or n_traced == 0:
         tracer = FrameTracer(mesh, cfg, traj, human) if n_traced else None
         results = (tracer(f) for _, _, frames in plan for f in frames)
-        _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards)
+        _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock)
     else:
         import multiprocessing as mp
 
@@ -400,7 +401,8 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             slots = [_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)]
             with mp.get_context("spawn").Pool(workers, _worker_init, (mesh, wcfg, traj, human, shm.name, n_slots)) as pool:
                 frames = [f for _, _, fr in plan for f in fr]
-                _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label, first.n_shards)
+                _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label, first.n_shards,
+                            clock)
             del slots
         finally:
             shm.close()
@@ -408,7 +410,8 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     dt = time.perf_counter() - t0
     return {"frames": len(traj), "shards": first.n_shards, "shards_written": len(plan), "shards_skipped": skipped,
             "frames_traced": n_traced, "processes": workers, "seconds": round(dt, 3),
-            "frames_per_s": round(n_traced / dt, 3) if n_traced and dt > 0 else None}
+            "frames_per_s": round(n_traced / dt, 3) if n_traced and dt > 0 else None,
+            "first_frame_s": round(clock["first"] - t0, 3) if "first" in clock else None}
 
 
 def _bounded_imap(pool, frames: list, slots: list):
@@ -436,13 +439,15 @@ def _bounded_imap(pool, frames: list, slots: list):
         submit()
 
 
-def _write_plan(plan, results, arrays, specs, quiet, label, n_shards) -> None:
+def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dict | None = None) -> None:
     results = iter(results)
     for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet):
         bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]), dtype=specs[name]["dtype"])
                 for name in todo}
         for i in range(len(frames)):
             out = next(results)
+            if clock is not None and "first" not in clock:
+                clock["first"] = time.perf_counter()
             for name in todo:
                 bufs[name][i] = out[name]
         for name in todo:
