@@ -17,6 +17,8 @@ COMMAND_MODULES: list[str] = [
     "info",
     "raytrace",
     "synth",
+    "train",
+    "evaluate",
 ]
 
 

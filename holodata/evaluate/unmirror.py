@@ -39,6 +39,7 @@ def _tangent(R: np.ndarray, P: np.ndarray, axis: int, periodic: bool) -> np.ndar
     return np.where(pick_f[..., None], fwd_p, bwd_p)
 
 
+@np.errstate(invalid="ignore", divide="ignore")
 def normals_from_range(R, grid: Grid) -> np.ndarray:
     """Surface normals (…,H,W,3), sensor frame, unit, facing the sensor, of range image(s) R (…,H,W) m.
 
@@ -59,6 +60,7 @@ def normals_from_range(R, grid: Grid) -> np.ndarray:
     return np.where(flip, -n, n)  # face the incoming ray
 
 
+@np.errstate(invalid="ignore", divide="ignore")
 def unmirror(ranges, directions, normals=None, grid: Grid | None = None) -> dict:
     """Un-mirror multi-return range images into real points.
 

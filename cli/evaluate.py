@@ -1,0 +1,50 @@
+"""``holodata evaluate``: model + baseline metrics, metrics.json and report.html."""
+from __future__ import annotations
+
+import click
+
+
+@click.command()
+@click.argument("dataset")
+@click.option("--checkpoint", required=True, type=click.Path(exists=True), help="RUN directory or RUN/checkpoint.pt.")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Report directory (metrics.json, report.html, PNGs).")
+@click.option("--split", default="test", show_default=True, help="Dataset split to evaluate.")
+@click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
+@click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Evaluate only the first N frames of the split.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--json", "as_json", is_flag=True, help="Print metrics.json on stdout.")
+def evaluate(dataset, checkpoint, out, split, device, max_frames, quiet, as_json):
+    """Evaluate a trained checkpoint and the strongest-peaks baseline on DATASET's split.
+
+    Example: holodata evaluate demo/dataset.zarr --checkpoint runs/unet --out runs/unet/report
+    """
+    from holodata.evaluate import evaluate as run_evaluate
+
+    doc = run_evaluate(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet)
+    if as_json:
+        import json
+
+        click.echo(json.dumps(doc, indent=2))
+        return
+    click.echo(format_tables(doc))
+    click.echo(f"report: {out}/report.html")
+
+
+def format_tables(doc: dict) -> str:
+    def f(v, scale=1.0, nd=1):
+        return "   –  " if v is None else f"{v * scale:6.{nd}f}"
+
+    lines = [f"{doc['split']}: {doc['n_frames']} frames, scenes {', '.join(doc['scenes'])}",
+             "range error (cm)   b1 mean/med/p90          b2 mean/med/p90          b3 mean/med/p90"]
+    for m, r in doc["methods"].items():
+        cells = "   ".join(" ".join(f(r["range"][f"bounce_{b}"][k]) for k in ("mean_cm", "median_cm", "p90_cm")) for b in (1, 2, 3))
+        lines.append(f"  {m:<9} {cells}")
+    lines.append("point clouds       LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F %")
+    for m, r in doc["methods"].items():
+        p = r["points"]
+        lines.append(f"  {m:<9} " + " ".join(f(p["los"][k], 100) for k in ("cd", "mhd", "f_score")) + "   "
+                     + " ".join(f(p["nlos"][k], 100) for k in ("cd", "mhd", "f_score")) + "   " + f(r["human"]["f_score"], 100))
+    return "\n".join(lines)
+
+
+COMMANDS = [evaluate]

@@ -1,0 +1,255 @@
+"""``holodata evaluate``: run a trained checkpoint and the non-learned baseline over a split,
+score both with the paper's metrics (holodata.metrics), write metrics.json (validated against
+schemas/metrics.schema.json), PNG figures and report.html.
+
+Point clouds live in the radar (sensor) frame with the beam origin at 0: predicted range images
+are un-mirrored with normals estimated from the predicted images (paper eq. 2–5, no learning);
+ground-truth clouds are the GT ranges un-mirrored with the GT normals (the traced points). GT
+LOS/NLOS comes from ``gt/label``; a predicted point is LOS when the predicted first-bounce image
+shows free space up to it (:func:`holodata.evaluate.unmirror.los_mask`). Human centroids are
+clusters of human-labelled points, the same procedure for prediction and GT.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from holodata import metrics as M
+from holodata.conventions import Grid, RangeBins
+from holodata.progress import track
+
+from .baseline import strongest_peaks
+from .unmirror import los_mask, unmirror
+
+METHODS = ("model", "baseline")
+ERR_SAMPLE = 200_000  # errors kept per bounce for the CDF figure
+
+
+def reduced_grid(grid: Grid, f: int) -> Grid:
+    """The beam grid after striding rows and columns by ``f`` (rows 0, f, 2f, …)."""
+    if f <= 1:
+        return grid
+    H2 = (grid.H + f - 1) // f
+    step = (grid.elev_max_deg - grid.elev_min_deg) / (grid.H - 1)
+    W2 = (grid.W + f - 1) // f
+    return Grid(H2, W2, grid.elev_max_deg, grid.elev_max_deg - (H2 - 1) * f * step)
+
+
+@dataclass
+class _Acc:
+    """Running sums of one method."""
+
+    errors: list = field(default_factory=lambda: [[], [], []])
+    n_fin: list = field(default_factory=lambda: [0, 0, 0])
+    cloud: dict = field(default_factory=lambda: {"los": [], "nlos": []})
+    curve: dict = field(default_factory=lambda: {"los": [], "nlos": []})
+    pred_centres: list = field(default_factory=list)
+    per_scene: dict = field(default_factory=dict)
+
+
+def _clouds(points, los):
+    ok = np.isfinite(points).all(-1)
+    return {"los": points[ok & los], "nlos": points[ok & ~los]}
+
+
+def _human_points(points, human):
+    ok = np.isfinite(points).all(-1) & human
+    return points[ok]
+
+
+def score_frame(acc: _Acc, scene: str, pred_range, pred_human, gt_range, gt_clouds, grid: Grid,
+                tau: float, taus, max_range: float) -> dict:
+    """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``."""
+    row = acc.per_scene.setdefault(scene, {"errors": [[], [], []], "cloud": {"los": [], "nlos": []}})
+    for b in range(3):
+        e = M.range_errors(pred_range[b], gt_range[b])
+        acc.errors[b].append(e)
+        row["errors"][b].append(e)
+        acc.n_fin[b] += int(np.isfinite(pred_range[b][np.isfinite(gt_range[b])]).sum())
+    P = unmirror(pred_range, grid.directions(), grid=grid)["point"]
+    los = los_mask(P, pred_range[0], grid)
+    pc = _clouds(P, los)
+    for part in ("los", "nlos"):
+        d_pg, d_gp = M.nn_distances(pc[part], gt_clouds[part])
+        m = M._cloud_summary(d_pg, d_gp, tau)
+        acc.cloud[part].append(m)
+        row["cloud"][part].append(m)
+        acc.curve[part].append(M.prf_curve_from_distances(d_pg, d_gp, taus))
+    hum = np.zeros(P.shape[:-1], bool) if pred_human is None else (pred_human >= 0.5)
+    acc.pred_centres.append(M.human_centroids(_human_points(P, hum)))
+    return pc
+
+
+def _mean_curve(curves: list) -> dict:
+    if not curves:
+        return {"tau": [], "precision": [], "recall": [], "f_score": []}
+    out = {"tau": curves[0]["tau"]}
+    for k in ("precision", "recall", "f_score"):
+        out[k] = [float(v) for v in np.mean([c[k] for c in curves], axis=0)]
+    return out
+
+
+def summarise(acc: _Acc, gt_centres: list, scene_info: dict, max_range: float) -> dict:
+    rng = {}
+    for b in range(3):
+        e = np.concatenate(acc.errors[b]) if acc.errors[b] else np.zeros(0)
+        rng[f"bounce_{b + 1}"] = M.range_metrics_from_errors(e, max_range, n_pred_finite=acc.n_fin[b])
+    per_scene = []
+    for sid, r in acc.per_scene.items():
+        nl = M.mean_cloud_metrics(r["cloud"]["nlos"])
+        lo = M.mean_cloud_metrics(r["cloud"]["los"])
+        per_scene.append({
+            "scene": sid, "n_frames": nl["n_frames"], "bands": scene_info[sid]["bands"],
+            "attenuation_db": scene_info[sid]["attenuation_db"],
+            "range_mean_cm": [M.range_metrics_from_errors(np.concatenate(r["errors"][b]), max_range)["mean_cm"] for b in range(3)],
+            "cd": nl["cd"], "mhd": nl["mhd"], "f_score": nl["f_score"],
+            "los_cd": lo["cd"], "los_f_score": lo["f_score"],
+        })
+    return {
+        "range": rng,
+        "points": {p: M.mean_cloud_metrics(acc.cloud[p]) for p in ("los", "nlos")},
+        "prf_curve": {p: _mean_curve(acc.curve[p]) for p in ("los", "nlos")},
+        "human": M.human_detection_metrics(acc.pred_centres, gt_centres),
+        "breakdown": M.breakdown(per_scene, keys=("cd", "mhd", "f_score")),
+        "per_scene": per_scene,
+    }
+
+
+def jsonable(x):
+    """NaN/inf → None, numpy → Python, recursively."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        return float(x) if math.isfinite(x) else None
+    if isinstance(x, Path):
+        return str(x)
+    return x
+
+
+def load_schema() -> dict:
+    from importlib.resources import files
+
+    return json.loads(files("holodata.schemas").joinpath("metrics.schema.json").read_text())
+
+
+def validate_metrics(doc: dict) -> None:
+    import jsonschema
+
+    jsonschema.validate(doc, load_schema())
+
+
+def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: str = "cpu",
+             batch_size: int = 4, tau: float = M.DEFAULT_TAU_M, taus=M.DEFAULT_TAUS_M,
+             max_frames: int | None = None, quiet: bool = False, report: bool = True) -> dict:
+    """Evaluate ``checkpoint`` (file or run directory) and the strongest-peaks baseline on the
+    ``split`` scenes of the dataset at ``dataset_url``; write ``out_dir``/metrics.json (+ figures
+    and report.html when ``report``). Returns the metrics document (the same dict as the JSON)."""
+    import torch
+
+    from holodata.dataset import open_dataset
+    from holodata.torch.data import HeatmapDataset, HeatmapNorm, SampleTransform, apply_transform
+    from holodata.torch.train import load_checkpoint, model_from_checkpoint, resolve_device
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ck = load_checkpoint(checkpoint)
+    dev = resolve_device(device)
+    model = model_from_checkpoint(ck, device=str(dev))
+    norm = HeatmapNorm.from_dict(ck["norm"])
+    tf = ck.get("transform") or {}
+    f = int(tf.get("downsample", 1))
+    pool = int(tf.get("range_pool", 1))
+    model_tf = SampleTransform(downsample=f, range_pool=pool)
+    base_tf = SampleTransform(downsample=f, range_pool=1)
+    ds = open_dataset(str(dataset_url))
+    data = HeatmapDataset(str(dataset_url), split=split, norm=norm, transform=model_tf)
+    grid = reduced_grid(ds.grid, f)
+    rb: RangeBins = ds.range_bins
+    max_range = float(rb.max_range)
+    index = data.index[:max_frames] if max_frames else data.index
+    accs = {m: _Acc() for m in METHODS}
+    gt_centres, scene_info = [], {}
+    example = None
+    ex_pick = len(index) // 2
+
+    for i0 in track(range(0, len(index), batch_size), total=math.ceil(len(index) / batch_size),
+                    description=f"evaluate {split}", quiet=quiet):
+        items = list(range(i0, min(i0 + batch_size, len(index))))
+        raws = [data.read(i) for i in items]
+        x = np.stack([norm(apply_transform(hm, r, lab, model_tf)[0]) for hm, r, lab in raws])
+        with torch.no_grad():
+            pred = model.predict(torch.from_numpy(x).to(dev))
+        p_rng = pred["range"].float().cpu().numpy()
+        p_hum = pred["human_prob"].float().cpu().numpy()
+        for j, i in enumerate(items):
+            sid, k = index[i]
+            hm, g_rng, g_lab = apply_transform(*raws[j], base_tf)
+            sc = ds.scene(sid)
+            if sid not in scene_info:
+                scene_info[sid] = _scene_info(sc, data, i, rb)
+            g_nrm = _gt_normals(sc, k, f)
+            G = unmirror(g_rng, grid.directions(), normals=g_nrm, grid=grid)["point"]
+            g_los = (g_lab == 1) | (g_lab == 3)
+            gc = _clouds(G, g_los)
+            gt_centres.append(M.human_centroids(_human_points(G, (g_lab == 3) | (g_lab == 4))))
+            b_rng = strongest_peaks(hm, rb, k=3)
+            pcm = score_frame(accs["model"], sid, p_rng[j], p_hum[j], g_rng, gc, grid, tau, taus, max_range)
+            pcb = score_frame(accs["baseline"], sid, b_rng, None, g_rng, gc, grid, tau, taus, max_range)
+            if i == ex_pick:
+                example = {"scene": sid, "frame": k, "gt": g_rng, "model": p_rng[j], "baseline": b_rng,
+                           "clouds": {"gt": gc, "model": pcm, "baseline": pcb}}
+
+    methods = {m: summarise(accs[m], gt_centres, scene_info, max_range) for m in METHODS}
+    doc = {
+        "format": "holodata-metrics-1",
+        "dataset": str(dataset_url), "split": split, "checkpoint": str(checkpoint),
+        "n_frames": len(index), "scenes": sorted(scene_info),
+        "settings": {"tau_m": tau, "taus_m": list(taus), "human_match_m": M.HUMAN_MATCH_M,
+                     "max_range_m": max_range, "cd_convention": "sum", "downsample": f,
+                     "grid": grid.to_attrs(), "range_bins": rb.to_attrs(), "norm": norm.to_dict(),
+                     "baseline": "three strongest range peaks per beam (>= 6 dB over the beam median)",
+                     "train_epochs": int(ck.get("epoch", 0))},
+        "methods": methods,
+        "figures": [],
+    }
+    doc = jsonable(doc)
+    if report:
+        from .report import write_report
+
+        errs = {m: [_sample(np.concatenate(accs[m].errors[b]) if accs[m].errors[b] else np.zeros(0)) for b in range(3)]
+                for m in METHODS}
+        run_dir = Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent
+        doc["figures"] = write_report(out, doc, example, errs, run_dir / "metrics.jsonl")
+    validate_metrics(doc)
+    (out / "metrics.json").write_text(json.dumps(doc, indent=2) + "\n")
+    return doc
+
+
+def _sample(e: np.ndarray) -> np.ndarray:
+    if e.size <= ERR_SAMPLE:
+        return e
+    return np.random.default_rng(0).choice(e, ERR_SAMPLE, replace=False)
+
+
+def _gt_normals(sc, k: int, f: int):
+    if "gt/normal" not in set(sc.arrays()):
+        return None
+    n = np.asarray(sc["gt/normal"][k], dtype=np.float64)
+    return n[:, ::f, ::f] if f > 1 else n
+
+
+def _scene_info(sc, data, i: int, rb: RangeBins) -> dict:
+    attrs = dict(sc.attrs)
+    att = M.scene_attenuation_db(attrs)
+    if att is None:
+        hm, g_rng, g_lab = data.read(i)
+        att = M.estimate_attenuation_db(hm[None], g_rng[None], g_lab[None], rb.dr)
+    return {"bands": M.scene_bands(attrs, att), "attenuation_db": att}
