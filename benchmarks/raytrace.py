@@ -110,10 +110,10 @@ def make_inputs(d: Path, frames: int) -> None:
         write_ply(hd / f"{k:06d}.ply", Mesh(hv, hf))
 
 
-def run_pipeline(d: Path, grid: str, out: Path, quiet=True) -> dict:
+def run_pipeline(d: Path, grid: str, out: Path, quiet=True, codec=None) -> dict:
     from holodata.groundtruth import GTConfig, raytrace_standalone
 
-    cfg = GTConfig(grid=Grid.parse(grid, "-45,45"))
+    cfg = GTConfig(grid=Grid.parse(grid, "-45,45"), codec=codec)
     return raytrace_standalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg, quiet=quiet)
 
 
@@ -173,6 +173,7 @@ def main() -> None:
     ap.add_argument("--sample", type=int, default=20, help="frames replayed through bare cast_rays")
     ap.add_argument("--rss-grid", default="64x512", help="grid of the 100/1000-frame RSS runs")
     ap.add_argument("--skip-rss", action="store_true")
+    ap.add_argument("--codec", choices=["zstd", "lz4"], help="gt codec (default: the dataset's)")
     ap.add_argument("--rss-child", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.rss_child:
@@ -183,9 +184,9 @@ def main() -> None:
         make_inputs(d, a.frames)
         v, f = t_junction()
         print(f"T-junction mesh: {len(f)} triangles; human ~{len(human_at([0, 0, 0], 0)[1])} triangles; "
-              f"grid {a.grid}, 3 bounces, {a.frames} frames, {os.cpu_count()} CPUs")
+              f"grid {a.grid}, 3 bounces, {a.frames} frames, codec {a.codec or 'dataset default'}, {os.cpu_count()} CPUs")
         t0 = time.perf_counter()
-        summary = run_pipeline(d, a.grid, d / "out.zarr")
+        summary = run_pipeline(d, a.grid, d / "out.zarr", codec=a.codec)
         dt = time.perf_counter() - t0
         fps = a.frames / dt
         sample = list(np.linspace(0, a.frames - 1, min(a.sample, a.frames)).astype(int))

@@ -23,13 +23,14 @@ import click
 @click.option("--rotation-radius", default=0.0, show_default=True, type=click.FloatRange(min=0), help="Beam origin on the rotation circle of this radius (m) per column; 0 = rotation centre. The paper's radar: 0.105.")
 @click.option("--column-time", is_flag=True, help="Each column at its own time within the rotation (pose SLERP between trajectory samples).")
 @click.option("--rotation-hz", default=2.0, show_default=True, type=click.FloatRange(min=0, min_open=True), help="Rotation rate for --column-time.")
+@click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None, help="Blosc codec of the gt arrays (default: the dataset's, zstd; lz4 encodes ~2x faster, ~30% larger).")
 @click.option("--shard-frames", default=32, show_default=True, type=click.IntRange(1), help="Frames per shard (new datasets).")
 @click.option("--threads", default=0, show_default=True, type=click.IntRange(0), help="Ray-casting threads per process (0 = cores / processes).")
 @click.option("--processes", default=0, show_default=True, type=click.IntRange(0), help="Local tracing processes (0 = one per core, max 4, for >= 64 frames; 1 = in-process).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
-                max_range, backend, rotation_radius, column_time, rotation_hz, shard_frames, threads, processes, quiet, as_json):
+                max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, quiet, as_json):
     """Ray-trace multi-bounce ground truth (gt/range, gt/normal, gt/point, gt/label, gt/semantic,
     gt/human_center) for every frame, shard by shard (an interrupted run resumes).
 
@@ -62,7 +63,7 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
         raise click.BadParameter(str(err), param_hint="--grid/--elevation-fov") from None
     cfg = GTConfig(grid=g, max_bounces=max_bounces, max_range=max_range, backend=backend,
                    origin=OriginModel(rotation_radius, column_time, rotation_hz), shard_frames=shard_frames,
-                   nthreads=threads)
+                   nthreads=threads, codec=codec)
     if standalone:
         summary = raytrace_standalone(mesh, poses, out, human=human, human_dir=human_dir, scene_id=scene_id,
                                       cfg=cfg, quiet=quiet, processes=processes)

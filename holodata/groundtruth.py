@@ -74,6 +74,7 @@ class GTConfig:
     origin: OriginModel = field(default_factory=OriginModel)
     shard_frames: int = 32
     nthreads: int = 0
+    codec: str | None = None  # Blosc codec of the gt arrays (None = the dataset's default)
 
 
 # ---------------------------------------------------------------------------- beams
@@ -284,7 +285,7 @@ def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource) -> dict:
         "origin_model": cfg.origin.to_attrs(), "mesh_sha256": mesh_hash, "human": human.describe(),
         "los_tolerance_m": LOS_TOLERANCE_M, "class_source": scene.class_source,
         "class_table": {str(k): v for k, v in scene.class_names.items()}, "human_class": int(scene.human_class),
-        "grid": cfg.grid.to_attrs(), "normal_dtype": "float16",
+        "grid": cfg.grid.to_attrs(), "normal_dtype": "float16", "codec": cfg.codec or "dataset default",
     }
 
 
@@ -369,7 +370,8 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     per worker); writing stays in this process, with a bounded number of frames in flight, so
     memory does not grow with the frame count. Returns a summary dict."""
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
-    arrays = {name: sc.frame_array(name, **spec) for name, spec in specs.items()}
+    extra = {"codec": cfg.codec} if cfg.codec else {}
+    arrays = {name: sc.frame_array(name, **spec, **extra) for name, spec in specs.items()}
     sc.set_attrs({"gt": attrs})
     first = arrays["gt/range"]
     all_frames = range(len(traj))
@@ -554,8 +556,7 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         raise InputError(f"{url}: no scene has mesh/* and pose/T_world_radar (run slam first)")
     w = create_dataset(url, grid=grid, range_bins=ds.range_bins, created_by="holodata raytrace-gt",
                        shard_frames=cfg.shard_frames)
-    cfg = GTConfig(grid=grid, max_bounces=cfg.max_bounces, max_range=cfg.max_range, backend=cfg.backend,
-                   origin=cfg.origin, shard_frames=cfg.shard_frames, nthreads=cfg.nthreads)
+    cfg = GTConfig(**{**cfg.__dict__, "grid": grid})
     out = []
     for sid, s, v, f, fc, traj in plans:
         mesh_args = (v, f, fc, s.attrs.get("class_names"))
