@@ -1,1 +1,37 @@
-"""dataset stage (in progress)."""
+"""Dataset format v1 (DESIGN §3): sharded Zarr v3, one frame per chunk, whole-shard atomic writes
+with a sha256 commit record per shard, resume, ragged arrays, lazy reader, validate, info.
+
+Layout: ``<root>/zarr.json`` (attrs ``holodata``: format_version, created_by, grid, range_bins,
+splits, provenance, shard_frames) / ``scenes/<id>/`` (attrs: n_frames, corner_type, ...) /
+``<array>`` with ``attrs`` dims, units, holodata {kind: frame|array|ragged, ...}. Frame arrays keep
+``manifest/<k>.json`` commit records next to their ``c/`` shard objects (see :mod:`.writer`).
+Ragged arrays are groups with ``values`` (N, width) and ``offsets`` (T+1,) int64.
+"""
+from __future__ import annotations
+
+from .reader import Dataset, Ragged, Scene, open_dataset
+from .writer import (DEFAULT_SHARD_FRAMES, DatasetWriter, FrameArrayWriter, RaggedWriter, SceneWriter,
+                     create_dataset)
+
+
+def dataset_info(path_or_url) -> dict:
+    from .info import dataset_info as _f
+
+    return _f(path_or_url)
+
+
+def format_info(summary: dict) -> str:
+    from .info import format_info as _f
+
+    return _f(summary)
+
+
+def validate_dataset(path_or_url, **kwargs) -> dict:
+    from .validate import validate_dataset as _f
+
+    return _f(path_or_url, **kwargs)
+
+
+__all__ = ["create_dataset", "open_dataset", "Dataset", "Scene", "Ragged", "DatasetWriter", "SceneWriter",
+           "FrameArrayWriter", "RaggedWriter", "DEFAULT_SHARD_FRAMES", "dataset_info", "format_info",
+           "validate_dataset"]

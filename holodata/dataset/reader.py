@@ -1,0 +1,225 @@
+"""Read-only, lazy access to a holodata dataset (local path or fsspec URL)."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from ..conventions import FORMAT_VERSION, Grid, RangeBins
+from ..errors import DatasetError
+from . import shards as sh
+from .store import Store
+
+SUPPORTED_MAJOR = int(FORMAT_VERSION.split(".")[0])
+
+
+def _version(v) -> tuple[int, int]:
+    try:
+        major, minor = (int(x) for x in str(v).split(".")[:2])
+        return major, minor
+    except ValueError:
+        raise DatasetError(f"unreadable format_version {v!r}") from None
+
+
+def check_root(url: str, root: dict) -> dict:
+    """The ``holodata`` root attributes of a parsed root ``zarr.json``, or a one-line DatasetError."""
+    if root.get("zarr_format") != 3 or root.get("node_type") != "group":
+        raise DatasetError(f"{url}: not a holodata dataset (root zarr.json is not a Zarr v3 group)")
+    meta = root.get("attributes", {}).get("holodata")
+    if not isinstance(meta, dict) or "format_version" not in meta:
+        raise DatasetError(f"{url}: a Zarr group but not a holodata dataset (no 'holodata' root attribute)")
+    try:
+        major, _ = _version(meta["format_version"])
+    except DatasetError as err:
+        raise DatasetError(f"{url}: {err}") from None
+    if major < SUPPORTED_MAJOR:
+        raise DatasetError(f"{url}: format_version {meta['format_version']} is too old for this holodata "
+                           f"(reads {SUPPORTED_MAJOR}.x); re-create the dataset with this holodata "
+                           f"(re-run ingest / raytrace-gt)")
+    if major > SUPPORTED_MAJOR:
+        raise DatasetError(f"{url}: format_version {meta['format_version']} is too new for this holodata "
+                           f"(reads {SUPPORTED_MAJOR}.x); upgrade holodata (pip install -U holodata)")
+    for k in ("grid", "range_bins"):
+        if not isinstance(meta.get(k), dict):
+            raise DatasetError(f"{url}: holodata root attribute lacks {k!r}")
+    return meta
+
+
+def _read_json(store: Store, key: str) -> dict | None:
+    b = store.get(key)
+    if b is None:
+        return None
+    try:
+        return json.loads(b)
+    except ValueError:
+        raise DatasetError(f"{store.url}: {key} is not valid JSON") from None
+
+
+def list_nodes(store: Store, path: str) -> dict[str, tuple[str, dict]]:
+    """Arrays and ragged groups under group ``path``: {relative name: (kind, zarr.json dict)} with
+    kind 'frame' | 'array' | 'ragged' | 'zarr' (a plain zarr array written by something else)."""
+    out: dict[str, tuple[str, dict]] = {}
+
+    def walk(rel: str) -> None:
+        base = f"{path}/{rel}" if rel else path
+        for name in store.list(base):
+            if name in ("c", sh.MANIFEST_DIR) or name.startswith("."):
+                continue
+            meta = _read_json(store, f"{base}/{name}/zarr.json")
+            if meta is None:
+                continue
+            r = f"{rel}/{name}" if rel else name
+            kind = meta.get("attributes", {}).get("holodata", {}).get("kind")
+            if meta.get("node_type") == "array":
+                out[r] = (kind if kind in ("frame", "array") else "zarr", meta)
+            elif kind == "ragged":
+                out[r] = ("ragged", meta)
+            else:
+                walk(r)
+
+    walk("")
+    return out
+
+
+def open_dataset(path_or_url) -> "Dataset":
+    """Open a dataset read-only and lazily. Bad paths raise a one-line :class:`DatasetError`."""
+    return Dataset(path_or_url)
+
+
+class Dataset:
+    """``attrs``, ``grid``, ``range_bins``, ``scenes`` (ids), ``splits``, ``scene(id)``."""
+
+    def __init__(self, path_or_url):
+        self.url = str(path_or_url)
+        self.store = store = Store(path_or_url)
+        try:
+            if store.local:
+                if not store.root.exists():
+                    raise DatasetError(f"{self.url}: no such dataset (path does not exist)")
+                if not store.root.is_dir():
+                    raise DatasetError(f"{self.url}: is a file, not a dataset folder")
+            elif not store.exists(""):
+                raise DatasetError(f"{self.url}: no such dataset (URL does not exist)")
+            root = _read_json(store, "zarr.json")
+        except PermissionError:
+            raise DatasetError(f"{self.url}: permission denied") from None
+        if root is None:
+            if not store.is_dir():
+                raise DatasetError(f"{self.url}: is a file, not a dataset folder")
+            raise DatasetError(f"{self.url}: not a holodata dataset (no zarr.json)")
+        self.meta = check_root(self.url, root)
+        self.attrs = root.get("attributes", {})
+        self.format_version = self.meta["format_version"]
+        self.grid = Grid.from_attrs(self.meta["grid"])
+        self.range_bins = RangeBins.from_attrs(self.meta["range_bins"])
+        self.splits = {k: list(v) for k, v in (self.meta.get("splits") or {}).items()}
+        self.provenance = self.meta.get("provenance") or {}
+        self._zgroup = None
+
+    @property
+    def zgroup(self):
+        if self._zgroup is None:
+            import zarr
+
+            self._zgroup = zarr.open_group(self.store.zarr_store(read_only=True), mode="r")
+        return self._zgroup
+
+    @property
+    def scenes(self) -> list[str]:
+        return [n for n in self.store.list("scenes") if self.store.is_file(f"scenes/{n}/zarr.json")]
+
+    def scene(self, scene_id: str) -> "Scene":
+        meta = _read_json(self.store, f"scenes/{scene_id}/zarr.json") if scene_id and "/" not in scene_id else None
+        if meta is None:
+            raise DatasetError(f"{self.url}: no scene {scene_id!r} (have: {', '.join(self.scenes) or 'none'})")
+        return Scene(self, scene_id, meta)
+
+    def __repr__(self) -> str:
+        return f"<holodata Dataset {self.url} v{self.format_version} scenes={self.scenes}>"
+
+
+class Scene:
+    """One scene: ``attrs``, ``n_frames``, ``arrays()``, ``s[name]`` (lazy zarr array, or a
+    :class:`Ragged` for ragged arrays), ``ragged(name, frame)``."""
+
+    def __init__(self, ds: Dataset, scene_id: str, meta: dict):
+        self.ds, self.id = ds, scene_id
+        self.path = f"scenes/{scene_id}"
+        self.attrs = meta.get("attributes", {})
+        self.n_frames = int(self.attrs.get("n_frames", 0))
+        self._nodes = None
+        self._ragged: dict[str, Ragged] = {}
+
+    def nodes(self) -> dict[str, tuple[str, dict]]:
+        if self._nodes is None:
+            self._nodes = list_nodes(self.ds.store, self.path)
+        return self._nodes
+
+    def arrays(self) -> list[str]:
+        """Names of the scene's arrays ('gt/range', 'lidar/points', ...), sorted."""
+        return sorted(self.nodes())
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.nodes()
+
+    def __getitem__(self, name: str):
+        nodes = self.nodes()
+        if name not in nodes:
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r} has no array {name!r}")
+        if nodes[name][0] == "ragged":
+            return self._get_ragged(name)
+        return self.ds.zgroup[f"{self.path}/{name}"]
+
+    def _get_ragged(self, name: str) -> "Ragged":
+        if name not in self._ragged:
+            self._ragged[name] = Ragged(self, name)
+        return self._ragged[name]
+
+    def ragged(self, name: str, frame: int) -> np.ndarray:
+        """Frame ``frame`` of ragged array ``name``: (Ni, width)."""
+        if name not in self.nodes() or self.nodes()[name][0] != "ragged":
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r} has no ragged array {name!r}")
+        return self._get_ragged(name)[frame]
+
+    def is_done(self, name: str, k: int) -> bool:
+        """Shard ``k`` of frame/ragged array ``name`` is committed."""
+        return self.ds.store.exists(sh.manifest_key(f"{self.path}/{name}", k))
+
+    def __repr__(self) -> str:
+        return f"<holodata Scene {self.id} frames={self.n_frames} arrays={self.arrays()}>"
+
+
+class Ragged:
+    """Ragged array: ``values`` (N, width) and ``offsets`` (T+1,) lazy zarr arrays; ``r[i]`` is
+    frame i's (Ni, width) rows (frames of uncommitted shards raise DatasetError)."""
+
+    def __init__(self, scene: Scene, name: str):
+        self.scene, self.name = scene, name
+        path = f"{scene.path}/{name}"
+        g = scene.ds.zgroup
+        self.values = g[f"{path}/values"]
+        self.offsets = g[f"{path}/offsets"]
+        hd = scene.nodes()[name][1].get("attributes", {}).get("holodata", {})
+        self.width = int(hd.get("width", self.values.shape[1]))
+        self.shard_frames = int(hd.get("shard_frames", 1))
+        self._off = None
+        self._done: set[int] = set()
+
+    def __len__(self) -> int:
+        return self.scene.n_frames
+
+    def __getitem__(self, frame: int) -> np.ndarray:
+        T = self.scene.n_frames
+        if not -T <= frame < T:
+            raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r}: frame {frame} out of range 0..{T - 1}")
+        frame %= T
+        k = frame // self.shard_frames
+        if k not in self._done:
+            if not self.scene.is_done(self.name, k):
+                raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r} frame {frame}: shard {k} not written")
+            self._done.add(k)
+            self._off = None
+        if self._off is None:
+            self._off = np.asarray(self.offsets[...])
+        a, b = int(self._off[frame]), int(self._off[frame + 1])
+        return np.asarray(self.values[a:b])

@@ -1,0 +1,448 @@
+"""Dataset writer: whole shards, written atomically, with a sha256 commit record per shard; resume.
+
+Commit protocol of a frame array shard ``k`` (DESIGN §3):
+1. encode the whole shard in memory (:func:`shards.encode_shard`), put it under ``c/k/0/...`` in
+   one atomic step (temp file + rename locally; one PUT on object stores);
+2. put ``<array>/manifest/<k>.json`` = {shard, frames, sha256, nbytes, shape, dtype}.
+A shard is *done* iff its manifest record exists; a killed writer leaves at most an uncommitted
+shard object, which the rerun rewrites. Done shards are never rewritten. Per-shard records (not
+one attribute rewritten per shard) keep concurrent shard writers (Dask workers) from losing each
+other's records; once every shard of an array is done, the records are also folded into the
+array's ``attrs["holodata"]["shards"]`` (one atomic ``zarr.json`` rewrite, idempotent).
+
+Ragged arrays (``lidar/points``, ``camera/points``, ``human/vertices`` ...): a group holding
+``values`` (N, width) and ``offsets`` (T+1,) int64, frame ``i`` = ``values[offsets[i]:offsets[i+1]]``;
+``offsets[0] = 0`` and ``offsets[T] = N``. Shards (same frame grouping) are appended in order:
+resize + write the new rows, rewrite ``offsets`` (one chunk), then the manifest record
+{rows: [r0, r1], sha256 of the rows' bytes + their offsets}. Readers trust only committed shards.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+
+from ..conventions import FORMAT_VERSION, Grid, RangeBins
+from ..errors import DatasetError
+from . import shards as sh
+from .store import Store
+
+DEFAULT_SHARD_FRAMES = 32
+RAGGED_CHUNK_BYTES = 1 << 20
+SMALL_CHUNK_BYTES = 8 << 20
+
+
+def _json(store: Store, key: str) -> dict | None:
+    b = store.get(key)
+    return None if b is None else json.loads(b)
+
+
+def create_dataset(url, grid: Grid | None = None, range_bins: RangeBins | None = None,
+                   created_by: str = "holodata", provenance: dict | None = None,
+                   shard_frames: int = DEFAULT_SHARD_FRAMES, codec: str = "zstd", clevel: int | None = None
+                   ) -> "DatasetWriter":
+    """Create a dataset at ``url`` (local path or fsspec URL), or reopen it for resuming.
+
+    Reopening needs the same grid and range bins (else :class:`DatasetError`); ``shard_frames`` and
+    ``codec`` apply to arrays created from now on (existing arrays keep theirs)."""
+    return DatasetWriter(url, grid or Grid(), range_bins or RangeBins(), created_by, provenance or {},
+                         shard_frames, codec, clevel)
+
+
+class DatasetWriter:
+    def __init__(self, url, grid, range_bins, created_by, provenance, shard_frames, codec, clevel):
+        import zarr
+
+        if shard_frames < 1:
+            raise DatasetError(f"{url}: shard_frames must be >= 1, got {shard_frames}")
+        self.store = Store(url)
+        self.url = str(url)
+        self.grid, self.range_bins = grid, range_bins
+        self.shard_frames, self.codec, self.clevel = int(shard_frames), codec, clevel
+        sh.compressor(codec, clevel)  # fail early on a bad codec
+        if self.store.local and self.store.root.is_file():
+            raise DatasetError(f"{self.url}: is a file, not a dataset folder")
+        root = _json(self.store, "zarr.json")
+        self.zstore = self.store.zarr_store(read_only=False)
+        if root is None:
+            if self.store.is_dir() and self.store.list(""):
+                raise DatasetError(f"{self.url}: folder exists, is not empty and is not a holodata dataset")
+            meta = {"format_version": FORMAT_VERSION, "created_by": created_by, "grid": grid.to_attrs(),
+                    "range_bins": range_bins.to_attrs(), "splits": {"train": [], "test": []},
+                    "provenance": provenance, "shard_frames": self.shard_frames}
+            g = zarr.open_group(self.zstore, mode="w", attributes={"holodata": meta})
+            g.require_group("scenes")
+        else:
+            from .reader import check_root
+
+            meta = check_root(self.url, root)
+            have_g, have_rb = Grid.from_attrs(meta["grid"]), RangeBins.from_attrs(meta["range_bins"])
+            if have_g != grid:
+                raise DatasetError(f"{self.url}: dataset grid is {have_g.to_attrs()}, writer asked for {grid.to_attrs()}")
+            if have_rb != range_bins:
+                raise DatasetError(f"{self.url}: dataset range bins are {have_rb.to_attrs()}, writer asked for "
+                                   f"{range_bins.to_attrs()}")
+            g = zarr.open_group(self.zstore, mode="r+")
+            if "scenes" not in g:
+                g.require_group("scenes")
+            if provenance and meta.get("provenance") != provenance:
+                hist = dict(meta.get("provenance") or {})
+                runs = hist.setdefault("later_runs", [])
+                if {"created_by": created_by, **provenance} not in runs:
+                    runs.append({"created_by": created_by, **provenance})
+                    self._set_root({"provenance": hist})
+
+    # -- root attributes --------------------------------------------------------------------------
+    def _root_group(self):
+        import zarr
+
+        return zarr.open_group(self.zstore, mode="r+")
+
+    def _set_root(self, updates: dict) -> None:
+        g = self._root_group()
+        meta = dict(g.attrs["holodata"])
+        meta.update(updates)
+        g.attrs.update({"holodata": meta})  # one zarr.json rewrite (atomic put)
+
+    @property
+    def attrs(self) -> dict:
+        return dict(self._root_group().attrs)
+
+    def set_splits(self, **splits: list[str]) -> None:
+        """``set_splits(train=[...], test=[...])``; every name must be an existing scene."""
+        have = set(self.scene_ids())
+        for split, names in splits.items():
+            missing = [n for n in names if n not in have]
+            if missing:
+                raise DatasetError(f"{self.url}: split {split!r} names unknown scene(s) {', '.join(missing)}")
+        cur = dict(self._root_group().attrs["holodata"].get("splits") or {})
+        cur.update({k: list(v) for k, v in splits.items()})
+        self._set_root({"splits": cur})
+
+    def set_provenance(self, provenance: dict) -> None:
+        self._set_root({"provenance": provenance})
+
+    def scene_ids(self) -> list[str]:
+        return [n for n in self.store.list("scenes") if self.store.is_file(f"scenes/{n}/zarr.json")]
+
+    def scene(self, scene_id: str, n_frames: int | None = None, attrs: dict | None = None) -> "SceneWriter":
+        """Create scene ``scene_id`` with ``n_frames`` frames, or reopen it (same ``n_frames``)."""
+        import zarr
+
+        if not scene_id or "/" in scene_id or scene_id.startswith("."):
+            raise DatasetError(f"{self.url}: bad scene id {scene_id!r} (no '/', not empty)")
+        path = f"scenes/{scene_id}"
+        cur = _json(self.store, f"{path}/zarr.json")
+        if cur is None:
+            if n_frames is None or n_frames < 0:
+                raise DatasetError(f"{self.url}: new scene {scene_id!r} needs n_frames >= 0")
+            a = {"n_frames": int(n_frames), **(attrs or {})}
+            _check_scene_attrs(self.url, scene_id, a)
+            zarr.open_group(self.zstore, path=path, mode="w", attributes=a)
+        else:
+            have = cur.get("attributes", {}).get("n_frames")
+            if n_frames is not None and have != n_frames:
+                raise DatasetError(f"{self.url}: scene {scene_id!r} has {have} frames, writer asked for {n_frames}")
+        sc = SceneWriter(self, scene_id)
+        if cur is not None and attrs:
+            sc.set_attrs(attrs)
+        return sc
+
+    def open(self):
+        from .reader import open_dataset
+
+        return open_dataset(self.url)
+
+
+def _check_scene_attrs(url: str, scene_id: str, attrs: dict) -> None:
+    from .schemas import schema_errors
+
+    errs = schema_errors("scene", attrs)
+    if errs:
+        raise DatasetError(f"{url}: scene {scene_id!r} attributes: {errs[0]}")
+
+
+class SceneWriter:
+    def __init__(self, ds: DatasetWriter, scene_id: str):
+        self.ds, self.id = ds, scene_id
+        self.path = f"scenes/{scene_id}"
+        self.n_frames = int(_json(ds.store, f"{self.path}/zarr.json")["attributes"]["n_frames"])
+
+    def _group(self):
+        import zarr
+
+        return zarr.open_group(self.ds.zstore, path=self.path, mode="r+")
+
+    @property
+    def attrs(self) -> dict:
+        return dict(self._group().attrs)
+
+    def set_attrs(self, attrs: dict) -> None:
+        """Merge ``attrs`` into the scene attributes (checked against schemas/scene.schema.json)."""
+        g = self._group()
+        new = {**g.attrs, **attrs}
+        if new.get("n_frames") != self.n_frames:
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r}: n_frames cannot change")
+        _check_scene_attrs(self.ds.url, self.id, new)
+        g.attrs.update(attrs)
+
+    def _parents(self, name: str) -> None:
+        import zarr
+
+        parts = name.split("/")[:-1]
+        for i in range(1, len(parts) + 1):
+            p = f"{self.path}/{'/'.join(parts[:i])}"
+            if not self.ds.store.is_file(f"{p}/zarr.json"):
+                zarr.open_group(self.ds.zstore, path=p, mode="a")
+
+    def _check_name(self, name: str) -> None:
+        if not name or name.startswith("/") or name.endswith("/") or any(p in ("", ".", "..", "c", sh.MANIFEST_DIR)
+                                                                         for p in name.split("/")):
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r}: bad array name {name!r}")
+
+    def frame_array(self, name: str, per_frame_shape=(), dtype="float32", dims=None, units="1",
+                    fill_value=None, shard_frames: int | None = None, codec: str | None = None,
+                    attrs: dict | None = None) -> "FrameArrayWriter":
+        """Create (or reopen, same shape/dtype) a frame array (T,) + per_frame_shape: one frame per
+        chunk, ``shard_frames`` frames per shard."""
+        import zarr
+
+        self._check_name(name)
+        path = f"{self.path}/{name}"
+        per_frame_shape = tuple(int(s) for s in per_frame_shape)
+        shape = (self.n_frames,) + per_frame_shape
+        dtype = np.dtype(dtype)
+        cur = _json(self.ds.store, f"{path}/zarr.json")
+        if cur is not None:
+            if tuple(cur.get("shape", ())) != shape or np.dtype(cur.get("data_type")) != dtype:
+                raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r} exists as "
+                                   f"{tuple(cur.get('shape', ()))} {cur.get('data_type')}, asked for {shape} {dtype}")
+            return FrameArrayWriter(self, name, cur)
+        dims = list(dims) if dims is not None else ["frame"] + [f"dim_{i}" for i in range(1, len(shape))]
+        if len(dims) != len(shape):
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r}: {len(dims)} dims for a "
+                               f"{len(shape)}-d array")
+        S = int(shard_frames or self.ds.shard_frames)
+        if fill_value is None:
+            fill_value = float("nan") if dtype.kind == "f" else 0
+        self._parents(name)
+        zarr.create_array(self.ds.zstore, name=path, shape=shape, dtype=dtype, chunks=(1,) + per_frame_shape,
+                          shards=(S,) + per_frame_shape, fill_value=fill_value,
+                          compressors=sh.compressor(codec or self.ds.codec, self.ds.clevel if codec is None else None),
+                          attributes={"dims": dims, "units": units, **(attrs or {}),
+                                      "holodata": {"kind": "frame", "shard_frames": S,
+                                                   "n_shards": math.ceil(self.n_frames / S)}},
+                          overwrite=True)
+        return FrameArrayWriter(self, name, _json(self.ds.store, f"{path}/zarr.json"))
+
+    def write_array(self, name: str, data, dims, units: str = "1", attrs: dict | None = None) -> None:
+        """Write a small non-frame array (mesh, calibration) whole; replaces an existing one. Its
+        sha256 (of the C-order bytes) goes into attrs after the data, so validate sees a torn write."""
+        import zarr
+
+        self._check_name(name)
+        data = np.ascontiguousarray(data)
+        if len(dims) != data.ndim:
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r}: {len(dims)} dims for a "
+                               f"{data.ndim}-d array")
+        path = f"{self.path}/{name}"
+        row = max(1, int(np.prod(data.shape[1:], dtype=np.int64)) * data.dtype.itemsize)
+        chunks = (max(1, min(len(data) if data.ndim else 1, SMALL_CHUNK_BYTES // row)),) + data.shape[1:] \
+            if data.ndim else ()
+        self._parents(name)
+        base = {"dims": list(dims), "units": units, **(attrs or {})}
+        a = zarr.create_array(self.ds.zstore, name=path, shape=data.shape, dtype=data.dtype,
+                              chunks=chunks if data.ndim and data.size else None,
+                              compressors=sh.compressor(self.ds.codec, self.ds.clevel), attributes=base,
+                              fill_value=0, overwrite=True)
+        if data.size:
+            a[...] = data
+        a.attrs.update({"holodata": {"kind": "array", "sha256": sh.sha256(data.tobytes()),
+                                     "shape": list(data.shape), "dtype": str(data.dtype)}})
+
+    def ragged_array(self, name: str, width: int, dtype="float32", units: str = "1", dims=None,
+                     shard_frames: int | None = None) -> "RaggedWriter":
+        """Create (or reopen) ragged array ``name``: values (N, width) + offsets (T+1,) int64."""
+        import zarr
+
+        self._check_name(name)
+        path = f"{self.path}/{name}"
+        dtype = np.dtype(dtype)
+        cur = _json(self.ds.store, f"{path}/zarr.json")
+        if cur is not None:
+            hd = cur.get("attributes", {}).get("holodata", {})
+            vm = _json(self.ds.store, f"{path}/values/zarr.json") or {}
+            if hd.get("kind") != "ragged" or hd.get("width") != width or np.dtype(vm.get("data_type")) != dtype:
+                raise DatasetError(f"{self.ds.url}: scene {self.id!r} {name!r} exists with another layout "
+                                   f"(asked for ragged width {width} {dtype})")
+            return RaggedWriter(self, name, cur)
+        S = int(shard_frames or self.ds.shard_frames)
+        dims = list(dims) if dims is not None else ["point", "xyz" if width == 3 else "component"]
+        self._parents(name)
+        hd = {"kind": "ragged", "width": int(width), "shard_frames": S, "n_shards": math.ceil(self.n_frames / S),
+              "n_frames": self.n_frames}
+        zarr.open_group(self.ds.zstore, path=path, mode="w",
+                        attributes={"dims": dims, "units": units, "holodata": hd})
+        rows = max(1, RAGGED_CHUNK_BYTES // (dtype.itemsize * max(1, width)))
+        comp = sh.compressor(self.ds.codec, self.ds.clevel)
+        zarr.create_array(self.ds.zstore, name=f"{path}/values", shape=(0, width), dtype=dtype, chunks=(rows, width),
+                          compressors=comp, fill_value=0, attributes={"dims": dims, "units": units})
+        zarr.create_array(self.ds.zstore, name=f"{path}/offsets", shape=(self.n_frames + 1,), dtype="int64",
+                          chunks=(self.n_frames + 1,), compressors=comp, fill_value=0,
+                          attributes={"dims": ["frame_edge"], "units": "1"})
+        return RaggedWriter(self, name, _json(self.ds.store, f"{path}/zarr.json"))
+
+    def arrays(self) -> list[str]:
+        from .reader import list_nodes
+
+        return sorted(list_nodes(self.ds.store, self.path))
+
+
+class _Sharded:
+    """Shard bookkeeping shared by frame and ragged arrays."""
+
+    def _init_shards(self, sc: SceneWriter, name: str, S: int):
+        self.scene, self.name = sc, name
+        self.store = sc.ds.store
+        self.path = f"{sc.path}/{name}"
+        self.n_frames = sc.n_frames
+        self.shard_frames = S
+        self.n_shards = math.ceil(self.n_frames / S)
+        self._done = {int(n[:-5]) for n in self.store.list(f"{self.path}/{sh.MANIFEST_DIR}")
+                      if n.endswith(".json") and n[:-5].isdigit()}
+
+    def frames(self, k: int) -> slice:
+        """Frame indices of shard ``k``."""
+        if not 0 <= k < self.n_shards:
+            raise DatasetError(f"scene {self.scene.id!r} array {self.name!r}: shard {k} out of range 0..{self.n_shards - 1}")
+        return slice(k * self.shard_frames, min((k + 1) * self.shard_frames, self.n_frames))
+
+    def is_done(self, k: int) -> bool:
+        if k in self._done:
+            return True
+        if self.store.exists(sh.manifest_key(self.path, k)):
+            self._done.add(k)
+            return True
+        return False
+
+    @property
+    def complete(self) -> bool:
+        return all(self.is_done(k) for k in range(self.n_shards))
+
+    def record(self, k: int) -> dict | None:
+        return _json(self.store, sh.manifest_key(self.path, k))
+
+    def _consolidate(self) -> None:
+        """All shards done: fold the manifest records into attrs (idempotent)."""
+        import zarr
+
+        if not self.complete:
+            return
+        recs = [self.record(k) for k in range(self.n_shards)]
+        node = zarr.open(self.scene.ds.zstore, path=self.path, mode="r+")
+        hd = dict(node.attrs.get("holodata", {}))
+        hd["shards"] = [{"sha256": r["sha256"], "nbytes": r.get("nbytes"), **({"rows": r["rows"]} if "rows" in r else {})}
+                        for r in recs]
+        node.attrs.update({"holodata": hd})
+
+
+class FrameArrayWriter(_Sharded):
+    def __init__(self, sc: SceneWriter, name: str, meta: dict):
+        self.meta = meta
+        self.shape = tuple(meta["shape"])
+        self.dtype = np.dtype(meta["data_type"])
+        self._init_shards(sc, name, int(meta["attributes"]["holodata"]["shard_frames"]))
+
+    def write_shard(self, k: int, data) -> bool:
+        """Write shard ``k`` whole: ``data`` (len(frames(k)),) + per-frame shape. Atomic; a done
+        shard is left untouched (returns False)."""
+        sl = self.frames(k)
+        if self.is_done(k):
+            return False
+        data = np.asarray(data)
+        want = (sl.stop - sl.start,) + self.shape[1:]
+        if data.shape != want:
+            raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: data shape {data.shape}, "
+                               f"expected {want}")
+        if data.dtype != self.dtype:
+            if not np.can_cast(data.dtype, self.dtype, casting="same_kind"):
+                raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: dtype {data.dtype} "
+                                   f"cannot be stored as {self.dtype}")
+            data = data.astype(self.dtype)
+        blob = sh.encode_shard(self.meta, data)
+        self.store.put(sh.shard_key(self.path, k, len(self.shape)), blob)
+        rec = sh.manifest_record(k, sl, blob, self.shape, self.dtype)
+        self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
+        self._done.add(k)
+        if len(self._done) == self.n_shards:
+            self._consolidate()
+        return True
+
+
+def ragged_digest(values: np.ndarray, offsets: np.ndarray) -> str:
+    """sha256 of a ragged shard: its rows' C-order bytes then its offsets (int64, len frames+1)."""
+    import hashlib
+
+    h = hashlib.sha256(np.ascontiguousarray(values).tobytes())
+    h.update(np.ascontiguousarray(offsets, dtype="<i8").tobytes())
+    return h.hexdigest()
+
+
+class RaggedWriter(_Sharded):
+    def __init__(self, sc: SceneWriter, name: str, meta: dict):
+        hd = meta["attributes"]["holodata"]
+        self.width = int(hd["width"])
+        vm = _json(sc.ds.store, f"{sc.path}/{name}/values/zarr.json")
+        self.dtype = np.dtype(vm["data_type"])
+        self._init_shards(sc, name, int(hd["shard_frames"]))
+
+    def write_shard(self, k: int, per_frame: list) -> bool:
+        """Append shard ``k``: a list of (Ni, width) arrays, one per frame of ``frames(k)``; shards
+        go in order (0, 1, ...). A done shard is left untouched (returns False)."""
+        import zarr
+
+        sl = self.frames(k)
+        if self.is_done(k):
+            return False
+        if k > 0 and not self.is_done(k - 1):
+            raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r}: write shard {k - 1} before shard {k}")
+        if len(per_frame) != sl.stop - sl.start:
+            raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r} shard {k}: {len(per_frame)} frames, "
+                               f"expected {sl.stop - sl.start}")
+        parts = []
+        for i, a in enumerate(per_frame):
+            a = np.asarray(a)
+            if a.ndim != 2 or a.shape[1] != self.width:
+                if a.size == 0:
+                    a = a.reshape(0, self.width)
+                else:
+                    raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r} frame {sl.start + i}: shape "
+                                       f"{a.shape}, expected (N, {self.width})")
+            if a.dtype != self.dtype and not np.can_cast(a.dtype, self.dtype, casting="same_kind"):
+                raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r} frame {sl.start + i}: dtype "
+                                   f"{a.dtype} cannot be stored as {self.dtype}")
+            parts.append(a.astype(self.dtype, copy=False))
+        lens = np.array([len(a) for a in parts], dtype=np.int64)
+        r0 = int(self.record(k - 1)["rows"][1]) if k > 0 else 0
+        r1 = r0 + int(lens.sum())
+        vals = np.concatenate(parts, axis=0) if parts else np.zeros((0, self.width), self.dtype)
+        zs = self.scene.ds.zstore
+        va = zarr.open_array(zs, path=f"{self.path}/values", mode="r+")
+        if va.shape[0] != r1:
+            va.resize((r1, self.width))
+        if r1 > r0:
+            va[r0:r1] = vals
+        oa = zarr.open_array(zs, path=f"{self.path}/offsets", mode="r+")
+        off = oa[...]
+        seg = r0 + np.concatenate([[0], np.cumsum(lens)])
+        off[sl.start:sl.stop + 1] = seg
+        off[sl.stop + 1:] = 0
+        oa[...] = off  # one chunk: one atomic put
+        rec = {"shard": k, "frames": [sl.start, sl.stop], "rows": [r0, r1], "sha256": ragged_digest(vals, seg),
+               "nbytes": int(vals.nbytes), "shape": [r1, self.width], "dtype": str(self.dtype)}
+        self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
+        self._done.add(k)
+        if len(self._done) == self.n_shards:
+            self._consolidate()
+        return True
