@@ -62,16 +62,18 @@ def _human_points(points, human):
 
 
 def score_frame(acc: _Acc, scene: str, pred_range, pred_human, gt_range, gt_clouds, grid: Grid,
-                tau: float, taus, max_range: float) -> dict:
-    """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``."""
+                tau: float, taus, max_range: float, normals=None, los=None) -> dict:
+    """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``.
+    ``normals`` (3,H,W,3) / ``los`` (3,H,W) bool override the estimated ones (oracle runs)."""
     row = acc.per_scene.setdefault(scene, {"errors": [[], [], []], "cloud": {"los": [], "nlos": []}})
     for b in range(3):
         e = M.range_errors(pred_range[b], gt_range[b])
         acc.errors[b].append(e)
         row["errors"][b].append(e)
         acc.n_fin[b] += int(np.isfinite(pred_range[b][np.isfinite(gt_range[b])]).sum())
-    P = unmirror(pred_range, grid.directions(), grid=grid)["point"]
-    los = los_mask(P, pred_range[0], grid)
+    P = unmirror(pred_range, grid.directions(), normals=normals, grid=grid)["point"]
+    if los is None:
+        los = los_mask(P, pred_range[0], grid)
     pc = _clouds(P, los)
     for part in ("los", "nlos"):
         d_pg, d_gp = M.nn_distances(pc[part], gt_clouds[part])
@@ -148,10 +150,15 @@ def validate_metrics(doc: dict) -> None:
 
 def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: str = "cpu",
              batch_size: int = 4, tau: float = M.DEFAULT_TAU_M, taus=M.DEFAULT_TAUS_M,
-             max_frames: int | None = None, quiet: bool = False, report: bool = True) -> dict:
+             max_frames: int | None = None, quiet: bool = False, report: bool = True,
+             oracle: bool = False) -> dict:
     """Evaluate ``checkpoint`` (file or run directory) and the strongest-peaks baseline on the
     ``split`` scenes of the dataset at ``dataset_url``; write ``out_dir``/metrics.json (+ figures
-    and report.html when ``report``). Returns the metrics document (the same dict as the JSON)."""
+    and report.html when ``report``). Returns the metrics document (the same dict as the JSON).
+
+    ``oracle=True`` scores the ground truth itself (ranges, normals, labels) as the "model"
+    (``checkpoint`` may then be None): a check of the metric plumbing, which must give perfect
+    scores."""
     import torch
 
     from holodata.dataset import open_dataset
@@ -160,9 +167,13 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    ck = load_checkpoint(checkpoint)
     dev = resolve_device(device)
-    model = model_from_checkpoint(ck, device=str(dev))
+    if oracle:
+        ck = {"norm": HeatmapNorm().to_dict(), "transform": {}, "epoch": 0}
+        model = None
+    else:
+        ck = load_checkpoint(checkpoint)
+        model = model_from_checkpoint(ck, device=str(dev))
     norm = HeatmapNorm.from_dict(ck["norm"])
     tf = ck.get("transform") or {}
     f = int(tf.get("downsample", 1))
@@ -184,11 +195,12 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                     description=f"evaluate {split}", quiet=quiet):
         items = list(range(i0, min(i0 + batch_size, len(index))))
         raws = [data.read(i) for i in items]
-        x = np.stack([norm(apply_transform(hm, r, lab, model_tf)[0]) for hm, r, lab in raws])
-        with torch.no_grad():
-            pred = model.predict(torch.from_numpy(x).to(dev))
-        p_rng = pred["range"].float().cpu().numpy()
-        p_hum = pred["human_prob"].float().cpu().numpy()
+        if model is not None:
+            x = np.stack([norm(apply_transform(hm, r, lab, model_tf)[0]) for hm, r, lab in raws])
+            with torch.no_grad():
+                pred = model.predict(torch.from_numpy(x).to(dev))
+            p_rng = pred["range"].float().cpu().numpy()
+            p_hum = pred["human_prob"].float().cpu().numpy()
         for j, i in enumerate(items):
             sid, k = index[i]
             hm, g_rng, g_lab = apply_transform(*raws[j], base_tf)
@@ -201,16 +213,22 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
             gc = _clouds(G, g_los)
             gt_centres.append(M.human_centroids(_human_points(G, (g_lab == 3) | (g_lab == 4))))
             b_rng = strongest_peaks(hm, rb, k=3)
-            pcm = score_frame(accs["model"], sid, p_rng[j], p_hum[j], g_rng, gc, grid, tau, taus, max_range)
+            if model is None:  # oracle: the ground truth is the prediction
+                p_j, h_j = g_rng, ((g_lab == 3) | (g_lab == 4)).astype(np.float32)
+                pcm = score_frame(accs["model"], sid, g_rng, h_j, g_rng, gc, grid, tau, taus, max_range,
+                                  normals=g_nrm, los=g_los)
+            else:
+                p_j = p_rng[j]
+                pcm = score_frame(accs["model"], sid, p_j, p_hum[j], g_rng, gc, grid, tau, taus, max_range)
             pcb = score_frame(accs["baseline"], sid, b_rng, None, g_rng, gc, grid, tau, taus, max_range)
             if i == ex_pick:
-                example = {"scene": sid, "frame": k, "gt": g_rng, "model": p_rng[j], "baseline": b_rng,
+                example = {"scene": sid, "frame": k, "gt": g_rng, "model": p_j, "baseline": b_rng,
                            "clouds": {"gt": gc, "model": pcm, "baseline": pcb}}
 
     methods = {m: summarise(accs[m], gt_centres, scene_info, max_range) for m in METHODS}
     doc = {
         "format": "holodata-metrics-1",
-        "dataset": str(dataset_url), "split": split, "checkpoint": str(checkpoint),
+        "dataset": str(dataset_url), "split": split, "checkpoint": "oracle" if oracle else str(checkpoint),
         "n_frames": len(index), "scenes": sorted(scene_info),
         "settings": {"tau_m": tau, "taus_m": list(taus), "human_match_m": M.HUMAN_MATCH_M,
                      "max_range_m": max_range, "cd_convention": "sum", "downsample": f,
@@ -226,8 +244,11 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
 
         errs = {m: [_sample(np.concatenate(accs[m].errors[b]) if accs[m].errors[b] else np.zeros(0)) for b in range(3)]
                 for m in METHODS}
-        run_dir = Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent
-        doc["figures"] = write_report(out, doc, example, errs, run_dir / "metrics.jsonl")
+        log = None
+        if not oracle:
+            run_dir = Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent
+            log = run_dir / "metrics.jsonl"
+        doc["figures"] = write_report(out, doc, example, errs, log)
     validate_metrics(doc)
     (out / "metrics.json").write_text(json.dumps(doc, indent=2) + "\n")
     return doc
