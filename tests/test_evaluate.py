@@ -101,3 +101,16 @@ def test_schema_and_reduced_grid():
     assert (g.H, g.W) == (8, 32)
     np.testing.assert_allclose(g.elevations(), E.GRID.elevations()[::2])
     np.testing.assert_allclose(g.azimuths(), E.GRID.azimuths()[::2])
+
+
+def test_report_loads_in_headless_chromium(dataset, tmp_path):
+    from holodata.evaluate.report import check_in_browser, find_chromium, screenshot
+
+    if find_chromium() is None:
+        pytest.skip("headless Chromium not installed (Debian package `chromium`)")
+    out = tmp_path / "rep"
+    evaluate(dataset, None, out, oracle=True, quiet=True)
+    res = check_in_browser(out / "report.html")
+    assert res["images_ok"] and res["console_errors"] == []
+    png = screenshot(out / "report.html", out / "report.png")
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

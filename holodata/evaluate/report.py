@@ -207,6 +207,53 @@ def write_report(out: Path, doc: dict, example: dict | None, errs: dict, train_l
     ]
     for name, cap in figs:
         body.append(f"<figure><img src=\"{name}\" alt=\"{html.escape(cap)}\"><figcaption>{html.escape(cap)}</figcaption></figure>")
-    body.append("<p>Machine-readable numbers: <a href=\"metrics.json\">metrics.json</a>.</p></body></html>")
+    body.append("<p>Machine-readable numbers: <a href=\"metrics.json\">metrics.json</a>.</p>")
+    # marks the page once every figure decoded: <body data-images-ok="yes|no"> (checked headless)
+    body.append("<script>window.addEventListener('load',function(){var bad=0;for(var i=0;i<document.images.length;i++)"
+                "{var im=document.images[i];if(!im.complete||im.naturalWidth===0)bad++;}"
+                "document.body.setAttribute('data-images-ok',bad===0?'yes':'no');});</script></body></html>")
     (out / "report.html").write_text("\n".join(body) + "\n")
     return [n for n, _ in figs]
+
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "chrome")
+
+
+def find_chromium() -> str | None:
+    import shutil
+
+    for name in CHROMIUM_NAMES:
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def _chromium_cmd(html_path: Path, *extra: str) -> list[str]:
+    from holodata.errors import HolodataError
+
+    exe = find_chromium()
+    if exe is None:
+        raise HolodataError("headless Chromium not found (install Debian's `chromium` package) — needed for --screenshot")
+    return [exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--allow-file-access-from-files",
+            "--virtual-time-budget=5000", *extra, Path(html_path).resolve().as_uri()]
+
+
+def screenshot(html_path: Path, png_path: Path, width: int = 1280, height: int = 3000) -> Path:
+    """Save a PNG of the rendered report with headless Chromium."""
+    import subprocess
+
+    cmd = _chromium_cmd(html_path, f"--screenshot={Path(png_path).resolve()}", f"--window-size={width},{height}")
+    subprocess.run(cmd, check=True, capture_output=True, timeout=120)
+    return Path(png_path)
+
+
+def check_in_browser(html_path: Path) -> dict:
+    """Load the report in headless Chromium: {"images_ok": bool, "console_errors": [lines]}."""
+    import subprocess
+
+    cmd = _chromium_cmd(html_path, "--dump-dom", "--enable-logging=stderr", "--v=0")
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    errs = [ln for ln in r.stderr.splitlines()
+            if "CONSOLE" in ln and ("Uncaught" in ln or "Error" in ln or "Failed to load" in ln)]
+    return {"images_ok": 'data-images-ok="yes"' in r.stdout, "console_errors": errs}

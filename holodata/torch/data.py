@@ -26,9 +26,14 @@ class HeatmapNorm:
     hi: float = 0.0
 
     def __call__(self, a: np.ndarray) -> np.ndarray:
-        x = np.log10(np.maximum(np.asarray(a, dtype=np.float32), 0) + np.float32(self.eps))
-        x = (2.0 / (self.hi - self.lo)) * (x - self.lo) - 1.0
-        return np.clip(x, -1.0, 1.0).astype(np.float32, copy=False)
+        x = np.array(a, dtype=np.float32)  # one copy, then in place
+        np.maximum(x, 0, out=x)
+        x += np.float32(self.eps)
+        np.log10(x, out=x)
+        x -= np.float32(self.lo)
+        x *= np.float32(2.0 / (self.hi - self.lo))
+        x -= np.float32(1.0)
+        return np.clip(x, -1.0, 1.0, out=x)
 
     @classmethod
     def fit(cls, samples: np.ndarray, eps: float = 1e-3, q: tuple[float, float] = (1.0, 99.9)) -> "HeatmapNorm":
