@@ -23,4 +23,31 @@ def info(dataset: str, as_json: bool) -> None:
         click.echo(format_info(summary))
 
 
-COMMANDS = [info]
+@click.command()
+@click.argument("dataset")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+def validate(dataset: str, as_json: bool, quiet: bool) -> None:
+    """Check DATASET (local path or fsspec URL): attributes against the JSON Schemas, arrays and
+    shapes implied by the grid, every shard's checksum and decoding, and the value rules (ranges,
+    bounce order, labels, unit normals, timestamps, rigid poses, ragged offsets, splits).
+
+    Prints one line per problem (scene, array, frame); exit 0 when clean, 1 otherwise.
+
+    Example: holodata validate demo/dataset.zarr --json > report.json
+    """
+    import sys
+
+    from holodata.dataset.validate import format_report, validate_dataset
+
+    report = validate_dataset(dataset, quiet=quiet or as_json)
+    if as_json:
+        import json
+
+        click.echo(json.dumps(report, indent=2))
+    else:
+        click.echo(format_report(report))
+    sys.exit(0 if report["ok"] else 1)
+
+
+COMMANDS = [info, validate]

@@ -1,0 +1,464 @@
+"""``holodata validate``: attributes against the JSON Schemas, array presence/shape/dtype from the
+grid attributes, every shard read once (sha256 against its commit record, decoded, value rules),
+ragged offsets, splits. Streams shard by shard: memory is a few shards, flat in dataset size.
+
+Value rules (DESIGN §2/§3): gt/range finite >= 0 or NaN, R1 < R2 < R3 where finite (and no return
+after a missing one); gt/label in 0..4 and 0 exactly where gt/range is NaN; gt/normal unit length
+(±1e-3; ±2e-3 when stored as float16) where gt/range is finite; time/timestamp_ns int64 strictly
+increasing; pose/* rigid and NaN-free; radar/heatmap finite >= 0 (linear amplitude); ragged offsets
+start at 0, never decrease and end at len(values).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..conventions import Label, is_rigid
+from ..errors import DatasetError
+from . import shards as sh
+from .reader import Dataset, list_nodes, open_dataset
+from .schemas import schema_errors
+from .writer import ragged_digest
+
+MAX_LINES_PER_RULE = 10
+GT_CORE = ("gt/range", "gt/label", "gt/normal", "gt/point")
+RAGGED_KNOWN = {"lidar/points": 3, "camera/points": 3, "human/vertices": 3, "human/faces": 3}
+
+
+@dataclass
+class Problem:
+    scene: str | None
+    array: str | None
+    frame: int | None
+    rule: str
+    message: str
+
+    def line(self) -> str:
+        where = [self.scene if self.scene is not None else "(dataset)"]
+        if self.array:
+            where.append(self.array)
+        if self.frame is not None:
+            where.append(f"frame {self.frame}")
+        return f"{' '.join(where)}: {self.message}"
+
+
+def expected_spec(name: str, T: int, grid, rb) -> tuple[tuple | None, tuple[str, ...] | None]:
+    """(shape pattern with None = any, allowed dtypes) of a DESIGN §3 array; (None, None) if unknown."""
+    H, W = grid.H, grid.W
+    table = {
+        "time/timestamp_ns": ((T,), ("int64",)),
+        "pose/T_world_radar": ((T, 4, 4), ("float64",)),
+        "pose/T_world_lidar": ((T, 4, 4), ("float64",)),
+        "radar/heatmap": ((T, rb.n, H, W), ("float16", "float32")),
+        "lidar/range": ((T, None, None), ("float32",)),
+        "gt/range": ((T, None, H, W), ("float32",)),
+        "gt/normal": ((T, None, H, W, 3), ("float16", "float32")),
+        "gt/point": ((T, None, H, W, 3), ("float32",)),
+        "gt/label": ((T, None, H, W), ("uint8",)),
+        "gt/human_center": ((T, None, 3), ("float32",)),
+        "mesh/vertices": ((None, 3), ("float32", "float64")),
+        "mesh/faces": ((None, 3), ("int32", "int64", "uint32")),
+    }
+    if name in table:
+        return table[name]
+    if name.startswith("pose/T_world_"):
+        return (T, 4, 4), ("float64",)
+    return None, None
+
+
+def _shape_ok(shape, pattern) -> bool:
+    return len(shape) == len(pattern) and all(p is None or p == s for s, p in zip(shape, pattern))
+
+
+class _Report:
+    def __init__(self, url: str):
+        self.url = url
+        self.problems: list[Problem] = []
+        self._count: dict[tuple, int] = {}
+        self.bytes_decoded = 0
+        self.bytes_stored = 0
+        self.shards = 0
+
+    def add(self, scene, array, frame, rule, message) -> None:
+        key = (scene, array, rule)
+        n = self._count.get(key, 0) + 1
+        self._count[key] = n
+        if n <= MAX_LINES_PER_RULE:
+            self.problems.append(Problem(scene, array, None if frame is None else int(frame), rule, message))
+
+    def suppressed(self) -> list[Problem]:
+        return [Problem(s, a, None, r, f"... and {n - MAX_LINES_PER_RULE} more {r} problems")
+                for (s, a, r), n in self._count.items() if n > MAX_LINES_PER_RULE]
+
+
+def validate_dataset(path_or_url, quiet: bool = True) -> dict:
+    """Validate a dataset; returns the report {dataset, ok, problems: [{scene, array, frame, rule,
+    message, line}], ...}. A path that is not a dataset raises :class:`DatasetError`."""
+    t0 = time.perf_counter()
+    ds = open_dataset(path_or_url)
+    rep = _Report(ds.url)
+    for e in schema_errors("dataset", ds.meta):
+        rep.add(None, None, None, "schema", f"root attributes: {e}")
+    scenes = ds.scenes
+    for split, names in (ds.splits or {}).items():
+        for n in names if isinstance(names, list) else []:
+            if n not in scenes:
+                rep.add(None, None, None, "splits", f"split {split!r} names scene {n!r}, which does not exist")
+    plans = []
+    for sid in scenes:
+        plans.append(_scene_plan(ds, sid, rep))
+    total = sum(p[2] for p in plans if p)
+    from ..progress import track
+
+    bar = iter(track(range(total), total=total, description="validate", quiet=quiet))
+    for p in plans:
+        if p:
+            _check_scene(ds, *p[:2], rep, bar)
+    probs = rep.problems + rep.suppressed()
+    return {
+        "dataset": ds.url, "format_version": ds.format_version, "ok": not probs,
+        "n_problems": sum(rep._count.values()),
+        "problems": [{**asdict(p), "line": p.line()} for p in probs],
+        "scenes": scenes, "shards_checked": rep.shards,
+        "bytes_decoded": rep.bytes_decoded, "bytes_stored": rep.bytes_stored,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+
+
+def _scene_plan(ds: Dataset, sid: str, rep: _Report):
+    store = ds.store
+    path = f"scenes/{sid}"
+    meta = sh_json(store, f"{path}/zarr.json")
+    attrs = meta.get("attributes", {})
+    for e in schema_errors("scene", attrs):
+        rep.add(sid, None, None, "schema", f"scene attributes: {e}")
+    T = attrs.get("n_frames")
+    if not isinstance(T, int) or T < 0:
+        return None
+    nodes = list_nodes(store, path)
+    if "time/timestamp_ns" not in nodes:
+        rep.add(sid, "time/timestamp_ns", None, "presence", "missing (every scene needs frame timestamps)")
+    present_gt = [n for n in GT_CORE if n in nodes]
+    if present_gt:
+        for n in GT_CORE:
+            if n not in nodes:
+                rep.add(sid, n, None, "presence", f"missing while {', '.join(present_gt)} exist")
+    B = None
+    for name, (kind, m) in nodes.items():
+        a = m.get("attributes", {})
+        if kind == "ragged":
+            continue
+        shape, dtype = tuple(m.get("shape", ())), str(m.get("data_type"))
+        dims = a.get("dims")
+        if not isinstance(dims, list) or len(dims) != len(shape):
+            rep.add(sid, name, None, "attrs", f"attrs['dims'] missing or not {len(shape)} names")
+        if not isinstance(a.get("units"), str):
+            rep.add(sid, name, None, "attrs", "attrs['units'] missing")
+        pat, dts = expected_spec(name, T, ds.grid, ds.range_bins)
+        if pat is not None:
+            if not _shape_ok(shape, pat):
+                want = "(" + ", ".join("*" if p is None else str(p) for p in pat) + ")"
+                rep.add(sid, name, None, "shape", f"shape {shape}, expected {want} from n_frames and the grid")
+            if dtype not in dts:
+                rep.add(sid, name, None, "dtype", f"dtype {dtype}, expected {' or '.join(dts)}")
+            if name.startswith("gt/") and pat[1] is None and len(shape) > 1 and name != "gt/human_center":
+                if B is None:
+                    B = shape[1]
+                elif shape[1] != B:
+                    rep.add(sid, name, None, "shape", f"{shape[1]} bounces, gt/* has {B}")
+        elif kind == "frame" and (not shape or shape[0] != T):
+            rep.add(sid, name, None, "shape", f"shape {shape}: frame axis is not n_frames={T}")
+        if kind == "frame":
+            cfg = m.get("codecs", [{}])[0]
+            inner = cfg.get("configuration", {}).get("chunk_shape") if cfg.get("name") == "sharding_indexed" else None
+            if not inner or inner[0] != 1:
+                rep.add(sid, name, None, "layout", "not sharded with one frame per chunk")
+    for name, (kind, m) in nodes.items():
+        if kind == "ragged":
+            a = m.get("attributes", {})
+            if "dims" not in a or "units" not in a:
+                rep.add(sid, name, None, "attrs", "attrs['dims'] or attrs['units'] missing")
+    work = sum(_n_shards(m) for kind, m in nodes.values() if kind in ("frame", "ragged"))
+    return sid, nodes, work
+
+
+def sh_json(store, key):
+    import json
+
+    b = store.get(key)
+    try:
+        return json.loads(b) if b is not None else {}
+    except ValueError:
+        return {}
+
+
+def _n_shards(m: dict) -> int:
+    hd = m.get("attributes", {}).get("holodata", {})
+    if "n_shards" in hd:
+        return int(hd["n_shards"])
+    S = m.get("chunk_grid", {}).get("configuration", {}).get("chunk_shape", [1])[0] or 1
+    return -(-int(m.get("shape", [0])[0]) // S)
+
+
+def _check_scene(ds: Dataset, sid: str, nodes: dict, rep: _Report, bar) -> None:
+    T = int(sh_json(ds.store, f"scenes/{sid}/zarr.json")["attributes"]["n_frames"])
+    frame_arrays = {n: m for n, (k, m) in nodes.items() if k == "frame"}
+    # arrays sharing a shard size are walked together, so cross-array rules see each shard once
+    groups: dict[int, list[str]] = {}
+    for n, m in frame_arrays.items():
+        groups.setdefault(int(m["chunk_grid"]["configuration"]["chunk_shape"][0]), []).append(n)
+    state: dict = {}
+    for S, names in groups.items():
+        order = sorted(names, key=lambda n: (n not in ("gt/range",), n))
+        n_shards = -(-T // S)
+        for k in range(n_shards):
+            fr = slice(k * S, min((k + 1) * S, T))
+            decoded = {}
+            for name in order:
+                arr = _read_shard(ds, sid, name, frame_arrays[name], k, fr, rep)
+                next(bar, None)
+                if arr is not None:
+                    decoded[name] = arr
+                    _value_rules(ds, sid, name, arr, fr, decoded, rep, state)
+    for name, (kind, m) in nodes.items():
+        if kind == "array":
+            _check_small(ds, sid, name, m, rep)
+        elif kind == "zarr":
+            _check_foreign(ds, sid, name, rep)
+        elif kind == "ragged":
+            _check_ragged(ds, sid, name, m, T, rep, bar)
+
+
+def _read_shard(ds, sid, name, meta, k, fr, rep) -> np.ndarray | None:
+    path = f"scenes/{sid}/{name}"
+    rec = sh_json(ds.store, sh.manifest_key(path, k)) or None
+    if rec is None:
+        rep.add(sid, name, fr.start, "incomplete", f"shard {k} (frames {fr.start}-{fr.stop - 1}) not written "
+                                                   f"(half-written dataset: rerun the writer to resume)")
+        return None
+    hd = meta.get("attributes", {}).get("holodata", {})
+    cons = hd.get("shards")
+    if isinstance(cons, list) and k < len(cons) and cons[k].get("sha256") != rec.get("sha256"):
+        rep.add(sid, name, fr.start, "checksum", f"shard {k}: attrs checksum differs from its manifest record")
+    if rec.get("dtype") != meta.get("data_type") or tuple(rec.get("shape", ())) != tuple(meta.get("shape", ())):
+        rep.add(sid, name, fr.start, "dtype", f"shard {k}: metadata says {tuple(meta.get('shape', ()))} "
+                                              f"{meta.get('data_type')}, shard was written as "
+                                              f"{tuple(rec.get('shape', ()))} {rec.get('dtype')}")
+        return None
+    blob = ds.store.get(sh.shard_key(path, k, len(meta["shape"])))
+    rep.shards += 1
+    if blob is None:
+        rep.add(sid, name, fr.start, "missing", f"shard {k} (frames {fr.start}-{fr.stop - 1}) is missing")
+        return None
+    rep.bytes_stored += len(blob)
+    if len(blob) != rec.get("nbytes", len(blob)):
+        rep.add(sid, name, fr.start, "checksum", f"shard {k}: {len(blob)} bytes, recorded {rec.get('nbytes')} "
+                                                 f"(truncated?)")
+    elif sh.sha256(blob) != rec.get("sha256"):
+        rep.add(sid, name, fr.start, "checksum", f"shard {k}: sha256 mismatch (corrupted bytes)")
+    try:
+        arr = sh.decode_shard(meta, fr.stop - fr.start, blob)
+    except Exception as err:  # noqa: BLE001 - any decoder failure is a finding
+        rep.add(sid, name, fr.start, "decode", f"shard {k} cannot be decoded ({err.__class__.__name__})")
+        return None
+    rep.bytes_decoded += arr.nbytes
+    return arr
+
+
+def _frames_where(bad: np.ndarray) -> np.ndarray:
+    """Indices (within the shard) of frames with any True in ``bad`` (frame axis first)."""
+    return np.flatnonzero(bad.reshape(bad.shape[0], -1).any(axis=1))
+
+
+def _report_frames(rep, sid, name, fr, bad, rule, msg_fn) -> None:
+    for i in _frames_where(bad):
+        rep.add(sid, name, fr.start + i, rule, msg_fn(i))
+
+
+def _aligned(ds, sid, name, fr, decoded) -> np.ndarray | None:
+    """``name`` over frames ``fr`` (from this shard walk, else read via zarr)."""
+    if name in decoded:
+        return decoded[name]
+    try:
+        return np.asarray(ds.scene(sid)[name][fr])
+    except Exception:  # noqa: BLE001 - its own problems are reported when it is walked
+        return None
+
+
+def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
+    if name == "gt/range":
+        if a.dtype.kind != "f":
+            return
+        fin = np.isfinite(a)
+        bad = ~fin & ~np.isnan(a)
+        bad |= fin & (a < 0)
+        if bad.any():
+            _report_frames(rep, sid, name, fr, bad, "range",
+                           lambda i: f"{int(bad[i].sum())} ranges not finite >= 0 or NaN (min {np.nanmin(a[i]):.3g})")
+        if a.ndim == 4 and a.shape[1] > 1:
+            lo, hi = a[:, :-1], a[:, 1:]
+            with np.errstate(invalid="ignore"):
+                order = fin[:, 1:] & (~fin[:, :-1] | ~(hi > lo))
+            if order.any():
+                _report_frames(rep, sid, name, fr, order, "bounce_order",
+                               lambda i: f"{int(order[i].sum())} beams break R1 < R2 < R3 (a later bounce "
+                                         f"not beyond the previous one, or after a missing one)")
+    elif name == "gt/label":
+        if a.dtype.kind not in "ui":
+            return
+        bad = a > max(Label)
+        if a.dtype.kind == "i":
+            bad |= a < 0
+        if bad.any():
+            _report_frames(rep, sid, name, fr, bad, "label", lambda i: f"{int(bad[i].sum())} labels outside 0..4")
+        rng = _aligned(ds, sid, "gt/range", fr, decoded)
+        if rng is not None and rng.shape == a.shape:
+            mism = (a == 0) != np.isnan(rng)
+            if mism.any():
+                _report_frames(rep, sid, name, fr, mism, "label_range",
+                               lambda i: f"{int(mism[i].sum())} beams where label is 0 but range is not NaN, "
+                                         f"or label is set without a range")
+    elif name == "gt/normal":
+        rng = _aligned(ds, sid, "gt/range", fr, decoded)
+        if a.dtype.kind != "f" or rng is None or rng.shape != a.shape[:-1]:
+            return
+        tol = 1e-3 if a.dtype.itemsize >= 4 else 2e-3
+        n32 = a.astype(np.float32, copy=False)
+        norm2 = np.einsum("...k,...k->...", n32, n32)
+        with np.errstate(invalid="ignore"):
+            bad = np.isfinite(rng) & ~(np.abs(np.sqrt(norm2) - 1.0) <= tol)
+        if bad.any():
+            _report_frames(rep, sid, name, fr, bad, "normal_unit",
+                           lambda i: f"{int(bad[i].sum())} normals not unit length (±{tol:g}) where range is finite")
+    elif name == "time/timestamp_ns":
+        if a.dtype != np.int64:
+            rep.add(sid, name, fr.start, "timestamps", f"dtype {a.dtype}, expected int64")
+            return
+        prev = state.get(("ts", sid))
+        full = a if prev is None else np.concatenate([[prev], a])
+        bad = np.flatnonzero(np.diff(full) <= 0)
+        off = fr.start - (0 if prev is None else 1)
+        for i in bad:
+            rep.add(sid, name, off + i + 1, "timestamps", f"timestamp {full[i + 1]} not after the previous {full[i]}")
+        if len(a):
+            state[("ts", sid)] = a[-1]
+    elif name.startswith("pose/T_world_"):
+        if a.ndim != 3 or a.shape[1:] != (4, 4):
+            return
+        ok = is_rigid(a)
+        for i in np.flatnonzero(~ok):
+            what = "has NaN/inf" if not np.isfinite(a[i]).all() else "is not rigid (rotation not orthonormal or last row not 0 0 0 1)"
+            rep.add(sid, name, fr.start + i, "pose", f"pose {what}")
+    elif name == "radar/heatmap":
+        if a.dtype.kind != "f":
+            return
+        # a single pass: finite and >= 0  <=>  min >= 0 and max < inf (NaN makes min/max NaN)
+        mn = a.reshape(a.shape[0], -1).min(axis=1)
+        mx = a.reshape(a.shape[0], -1).max(axis=1)
+        with np.errstate(invalid="ignore"):
+            badf = ~((mn >= 0) & np.isfinite(mx))
+        for i in np.flatnonzero(badf):
+            rep.add(sid, name, fr.start + i, "heatmap", "heatmap has NaN/inf or negative amplitudes "
+                                                        "(stored as linear amplitude >= 0)")
+
+
+def _check_small(ds, sid, name, meta, rep) -> None:
+    hd = meta.get("attributes", {}).get("holodata", {})
+    try:
+        a = np.asarray(ds.scene(sid)[name][...])
+    except Exception as err:  # noqa: BLE001
+        rep.add(sid, name, None, "decode", f"cannot be decoded ({err.__class__.__name__})")
+        return
+    rep.bytes_decoded += a.nbytes
+    if "sha256" not in hd:
+        rep.add(sid, name, None, "incomplete", "no checksum in attrs (write interrupted?)")
+    elif hd.get("dtype") != str(a.dtype) or tuple(hd.get("shape", ())) != a.shape:
+        rep.add(sid, name, None, "dtype", f"metadata says {a.shape} {a.dtype}, written as "
+                                          f"{tuple(hd.get('shape', ()))} {hd.get('dtype')}")
+    elif sh.sha256(np.ascontiguousarray(a).tobytes()) != hd["sha256"]:
+        rep.add(sid, name, None, "checksum", "sha256 mismatch (corrupted)")
+    if name == "mesh/faces" and a.size and "mesh/vertices" in ds.scene(sid):
+        nv = ds.scene(sid)["mesh/vertices"].shape[0]
+        if a.min() < 0 or a.max() >= nv:
+            rep.add(sid, name, None, "mesh", f"face indices outside 0..{nv - 1}")
+
+
+def _check_foreign(ds, sid, name, rep) -> None:
+    try:
+        z = ds.scene(sid)[name]
+        step = max(1, (z.chunks[0] if z.ndim else 1))
+        n = z.shape[0] if z.ndim else 1
+        for i in range(0, n, step * 8):
+            rep.bytes_decoded += np.asarray(z[i:i + step * 8] if z.ndim else z[...]).nbytes
+    except Exception as err:  # noqa: BLE001
+        rep.add(sid, name, None, "decode", f"cannot be decoded ({err.__class__.__name__})")
+
+
+def _check_ragged(ds, sid, name, meta, T, rep, bar) -> None:
+    path = f"scenes/{sid}/{name}"
+    hd = meta.get("attributes", {}).get("holodata", {})
+    S = int(hd.get("shard_frames", 1))
+    n_shards = -(-T // S)
+    try:
+        g = ds.zgroup
+        values, offsets = g[f"{path}/values"], g[f"{path}/offsets"]
+        off = np.asarray(offsets[...])
+    except Exception as err:  # noqa: BLE001
+        rep.add(sid, name, None, "decode", f"values/offsets unreadable ({err.__class__.__name__})")
+        for _ in range(n_shards):
+            next(bar, None)
+        return
+    width = hd.get("width")
+    if values.ndim != 2 or (width is not None and values.shape[1] != width):
+        rep.add(sid, name, None, "shape", f"values shape {values.shape}, expected (N, {width})")
+    if name in RAGGED_KNOWN and values.ndim == 2 and values.shape[1] != RAGGED_KNOWN[name]:
+        rep.add(sid, name, None, "shape", f"values width {values.shape[1]}, expected {RAGGED_KNOWN[name]}")
+    if off.shape != (T + 1,) or off.dtype != np.int64:
+        rep.add(sid, name, None, "offsets", f"offsets {off.shape} {off.dtype}, expected ({T + 1},) int64")
+        return
+    if off[0] != 0:
+        rep.add(sid, name, 0, "offsets", f"offsets start at {off[0]}, not 0")
+    dec = np.flatnonzero(np.diff(off) < 0)
+    for i in dec:
+        rep.add(sid, name, int(i), "offsets", f"offsets decrease ({off[i]} -> {off[i + 1]})")
+    if off[-1] != values.shape[0]:
+        rep.add(sid, name, None, "offsets", f"offsets end at {off[-1]}, values has {values.shape[0]} rows")
+    for k in range(n_shards):
+        next(bar, None)
+        fr = slice(k * S, min((k + 1) * S, T))
+        rec = sh_json(ds.store, sh.manifest_key(path, k)) or None
+        rep.shards += 1
+        if rec is None:
+            rep.add(sid, name, fr.start, "incomplete", f"shard {k} (frames {fr.start}-{fr.stop - 1}) not written "
+                                                       f"(half-written dataset: rerun the writer to resume)")
+            continue
+        r0, r1 = int(off[fr.start]), int(off[fr.stop])
+        if [r0, r1] != list(rec.get("rows", [])) or len(dec):
+            rep.add(sid, name, fr.start, "offsets", f"shard {k}: offsets give rows {r0}..{r1}, "
+                                                    f"record says {rec.get('rows')}")
+            continue
+        try:
+            v = np.asarray(values[r0:r1])
+        except Exception as err:  # noqa: BLE001
+            rep.add(sid, name, fr.start, "decode", f"shard {k} values cannot be decoded ({err.__class__.__name__})")
+            continue
+        rep.bytes_decoded += v.nbytes
+        if ragged_digest(v, off[fr.start:fr.stop + 1]) != rec.get("sha256"):
+            rep.add(sid, name, fr.start, "checksum", f"shard {k}: sha256 mismatch (corrupted values)")
+        if v.dtype.kind == "f" and not np.isfinite(v).all():
+            rep.add(sid, name, fr.start, "ragged", f"shard {k}: values hold NaN/inf")
+
+
+def format_report(report: dict) -> str:
+    lines = [p["line"] for p in report["problems"]]
+    mb = report["bytes_decoded"] / 1e6
+    status = "ok" if report["ok"] else f"{report['n_problems']} problem(s)"
+    tail = (f"{report['dataset']}: {status} — "
+            f"{len(report['scenes'])} scene(s), {report['shards_checked']} shards, {mb:.1f} MB decoded "
+            f"in {report['seconds']:.2f} s")
+    return "\n".join(lines + [tail])
+
+
+__all__ = ["validate_dataset", "format_report", "Problem", "expected_spec", "schema_errors", "DatasetError"]
