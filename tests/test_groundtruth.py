@@ -160,6 +160,8 @@ def test_standalone_end_to_end_matches_direct_trace_and_resumes(inputs):
     assert set(np.unique(lab)) >= {Label.LOS_STRUCTURE, Label.NLOS_STRUCTURE}
     hc = np.asarray(s["gt/human_center"][...])
     np.testing.assert_allclose(hc[9, 0], (HUMAN[0] + [0, 0.45, 0]).mean(0), atol=1e-5)
+    rep = hds.validate_dataset(str(out))
+    assert rep["ok"], rep["problems"][:3]
     # rerun: everything done, nothing rewritten
     r = CliRunner().invoke(cli, args)
     assert r.exit_code == 0 and json.loads(r.output)["scenes"][0]["shards_skipped"] == 3
@@ -172,18 +174,20 @@ def test_interrupted_run_resumes_only_missing_shards(inputs, monkeypatch):
     out = str(inputs / "out.zarr")
     cfg = GTConfig(grid=Grid(4, 16), shard_frames=3)
     calls = []
+    crash = [True]
     real = gtm.trace_frame
 
     def boom(scene, cfg_, traj, k, *a, **kw):
         calls.append(k)
-        if k == 7:
-            raise KeyboardInterrupt
+        if k == 7 and crash[0]:
+            raise RuntimeError("simulated crash")
         return real(scene, cfg_, traj, k, *a, **kw)
 
     monkeypatch.setattr(gtm, "trace_frame", boom)
-    with pytest.raises(KeyboardInterrupt):
+    with pytest.raises(RuntimeError, match="simulated crash"):
         raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg)
     calls.clear()
+    crash[0] = False
     summary = raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg)
     assert calls == [6, 7, 8, 9]  # shards 0 and 1 (frames 0-5) were already written
     assert summary["scenes"][0]["shards_skipped"] == 2
