@@ -1,0 +1,91 @@
+"""A small, rule-abiding dataset filled with random values (tests, benchmarks, README smoke run).
+
+Not physics: ranges are random but ordered (R1 < R2 < R3, NaN after the first missing bounce),
+labels 1 (bounce 1) / 2 (later) where a range exists, normals random unit vectors, poses rigid.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..conventions import Grid, RangeBins
+from .writer import create_dataset
+
+
+def toy_frames(rng: np.random.Generator, frames: range, grid: Grid, n_bounces: int = 3, n_range: int = 16,
+               heatmap_dtype="float16") -> dict:
+    """gt/*, radar/heatmap, time and pose arrays for ``frames`` (frame axis first)."""
+    n, H, W, B = len(frames), grid.H, grid.W, n_bounces
+    steps = rng.uniform(0.3, 2.0, size=(n, B, H, W)).astype(np.float32)
+    rng_ = np.cumsum(steps, axis=1)
+    n_ret = rng.integers(0, B + 1, size=(n, 1, H, W))
+    rng_[np.arange(B)[None, :, None, None] >= n_ret] = np.nan
+    fin = np.isfinite(rng_)
+    label = np.where(fin, np.where(np.arange(B)[None, :, None, None] == 0, 1, 2), 0).astype(np.uint8)
+    nrm = rng.normal(size=(n, B, H, W, 3)).astype(np.float32)
+    nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
+    nrm[~fin] = np.nan
+    pts = np.where(fin[..., None], rng.uniform(-5, 5, size=(n, B, H, W, 3)), np.nan).astype(np.float32)
+    f = np.asarray(frames)
+    th = 0.05 * f
+    poses = np.zeros((n, 4, 4))
+    poses[:, 0, 0] = poses[:, 1, 1] = np.cos(th)
+    poses[:, 0, 1], poses[:, 1, 0] = -np.sin(th), np.sin(th)
+    poses[:, 2, 2] = poses[:, 3, 3] = 1.0
+    poses[:, 0, 3] = 0.1 * f
+    heat = np.abs(rng.normal(size=(n, n_range, H, W))).astype(heatmap_dtype)
+    return {"gt/range": rng_, "gt/label": label, "gt/normal": nrm.astype(np.float16), "gt/point": pts,
+            "radar/heatmap": heat, "time/timestamp_ns": (10**9 + f * 500_000_000).astype(np.int64),
+            "pose/T_world_radar": poses}
+
+
+def array_specs(grid: Grid, n_range: int, n_bounces: int = 3, heatmap_dtype="float16") -> dict:
+    H, W, B = grid.H, grid.W, n_bounces
+    return {
+        "time/timestamp_ns": dict(per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0),
+        "pose/T_world_radar": dict(per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"], units="m"),
+        "radar/heatmap": dict(per_frame_shape=(n_range, H, W), dtype=heatmap_dtype,
+                              dims=["frame", "range", "elevation", "azimuth"], units="1"),
+        "gt/range": dict(per_frame_shape=(B, H, W), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth"],
+                         units="m"),
+        "gt/label": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"],
+                         units="1"),
+        "gt/normal": dict(per_frame_shape=(B, H, W, 3), dtype="float16",
+                          dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="1"),
+        "gt/point": dict(per_frame_shape=(B, H, W, 3), dtype="float32",
+                         dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="m"),
+    }
+
+
+def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range: int = 16, shard_frames: int = 4,
+                      scenes=("c1",), seed: int = 0, codec: str = "zstd", lidar: bool = True,
+                      arrays: list[str] | None = None) -> str:
+    """Write a valid dataset with ``scenes`` of ``n_frames`` frames each; returns ``url``."""
+    grid = grid or Grid(8, 32)
+    rb = RangeBins(n=n_range, dr=9.6 / n_range)
+    w = create_dataset(url, grid=grid, range_bins=rb, created_by="holodata toy dataset",
+                       provenance={"generator": "holodata.dataset.synthetic", "seed": seed},
+                       shard_frames=shard_frames, codec=codec)
+    rng = np.random.default_rng(seed)
+    specs = array_specs(grid, n_range)
+    names = arrays or list(specs)
+    for i, sid in enumerate(scenes):
+        sc = w.scene(sid, n_frames=n_frames, attrs={"corner_type": ["L", "T", "cross", "oblique"][i % 4],
+                                                    "width_m": 1.0 + i, "frame_sensor": "radar",
+                                                    "source": {"recording": f"{sid}.mcap", "sha256": "0" * 64}})
+        arrs = {n: sc.frame_array(n, **specs[n]) for n in names}
+        first = arrs[names[0]]
+        for k in range(first.n_shards):
+            fr = first.frames(k)
+            data = toy_frames(rng, range(fr.start, fr.stop), grid, n_range=n_range)
+            for n, a in arrs.items():
+                a.write_shard(k, data[n])
+        sc.write_array("mesh/vertices", rng.uniform(-5, 5, (12, 3)).astype(np.float32), dims=["vertex", "xyz"], units="m")
+        sc.write_array("mesh/faces", rng.integers(0, 12, (20, 3)).astype(np.int32), dims=["face", "corner"], units="1")
+        if lidar:
+            rag = sc.ragged_array("lidar/points", width=3, dtype="float32", units="m")
+            for k in range(rag.n_shards):
+                fr = rag.frames(k)
+                rag.write_shard(k, [rng.normal(size=(int(rng.integers(0, 50)), 3)).astype(np.float32)
+                                    for _ in range(fr.start, fr.stop)])
+    w.set_splits(train=list(scenes[:-1]) or list(scenes), test=list(scenes[-1:]))
+    return str(url)
