@@ -47,17 +47,27 @@ def build(url, frames=4, seed=0):
         arrs = {
             "gt/range": sc.frame_array("gt/range", (B, H, W), "float32", ["frame", "bounce", "elevation", "azimuth"], "m", float("nan")),
             "gt/normal": sc.frame_array("gt/normal", (B, H, W, 3), "float32", ["frame", "bounce", "elevation", "azimuth", "xyz"], "1", float("nan")),
+            "gt/point": sc.frame_array("gt/point", (B, H, W, 3), "float32", ["frame", "bounce", "elevation", "azimuth", "xyz"], "m", float("nan")),
             "gt/label": sc.frame_array("gt/label", (B, H, W), "uint8", ["frame", "bounce", "elevation", "azimuth"], "1", 0),
+            "pose/T_world_radar": sc.frame_array("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "1", float("nan")),
             "radar/heatmap": sc.frame_array("radar/heatmap", (BINS.n, H, W), "float32", ["frame", "range", "elevation", "azimuth"], "1", 0.0),
         }
         out = {k: [] for k in arrs}
         for t in range(frames):
             c = np.array([half * 0.5, width * 0.5 * (1 - 2 * (t % 2)), 0.0]) + rng.uniform(-0.2, 0.2, 3)
             hv, hf = box(c - [0.2, 0.2, 1.0], c + [0.2, 0.2, 0.8])
-            res = scene.trace(np.zeros_like(d), d, max_bounces=B, max_range=BINS.max_range, dynamic=(hv, hf))
+            # the radar sits at o with a yaw: GT normals/points are in the world frame (DESIGN §3)
+            yaw, o = 0.3 * t, np.array([0.1 * t, -0.05 * t, 0.0])
+            T = np.eye(4)
+            T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]
+            T[:3, 3] = o
+            out["pose/T_world_radar"].append(T)
+            dw = d @ T[:3, :3].T
+            res = scene.trace(np.broadcast_to(o, dw.shape), dw, max_bounces=B, max_range=BINS.max_range, dynamic=(hv, hf))
             R = res.range.T.reshape(B, H, W).astype(np.float32)
             out["gt/range"].append(R)
             out["gt/normal"].append(res.normal.transpose(1, 0, 2).reshape(B, H, W, 3).astype(np.float32))
+            out["gt/point"].append(res.point.transpose(1, 0, 2).reshape(B, H, W, 3).astype(np.float32))
             out["gt/label"].append(res.label.T.reshape(B, H, W).astype(np.uint8))
             out["radar/heatmap"].append(heatmap_from_gt(R, rng))
         for name, arr in arrs.items():

@@ -28,12 +28,14 @@ def test_ground_truth_as_prediction_scores_perfectly(dataset, tmp_path):
         r = m["range"][f"bounce_{b}"]
         assert r["n"] > 0 and r["mean_cm"] == 0 and r["p90_cm"] == 0 and r["psnr_db"] is None  # inf
         assert r["coverage"] == 1
+    # GT clouds are the traced world points moved into the (yawed, moving) radar frame; the
+    # prediction is GT ranges un-mirrored with GT normals: equal up to float32 rounding
     for part in ("los", "nlos"):
         p = m["points"][part]
-        assert p["cd"] == 0 and p["mhd"] == 0 and p["f_score"] == 1 and p["n_frames"] == 4
+        assert p["cd"] < 1e-4 and p["mhd"] < 1e-4 and p["f_score"] == 1 and p["n_frames"] == 4
         assert all(v == 1 for v in m["prf_curve"][part]["f_score"])
     h = m["human"]
-    assert h["n_gt"] >= 4 and h["f_score"] == 1 and h["loc_mean_cm"] == 0
+    assert h["n_gt"] >= 4 and h["f_score"] == 1 and h["loc_mean_cm"] < 0.01
     # the baseline reads the same frames from heatmaps: first bounce within about a range bin
     assert 0 < doc["methods"]["baseline"]["range"]["bounce_1"]["mean_cm"] < 100 * E.BINS.dr
     assert doc["methods"]["baseline"]["human"]["n_pred"] == 0  # no human head

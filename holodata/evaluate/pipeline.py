@@ -4,7 +4,8 @@ schemas/metrics.schema.json), PNG figures and report.html.
 
 Point clouds live in the radar (sensor) frame with the beam origin at 0: predicted range images
 are un-mirrored with normals estimated from the predicted images (paper eq. 2–5, no learning);
-ground-truth clouds are the GT ranges un-mirrored with the GT normals (the traced points). GT
+ground-truth clouds are the traced points (gt/point moved into the radar frame with
+pose/T_world_radar; without them, the GT ranges un-mirrored with the GT normals). GT
 LOS/NLOS comes from ``gt/label``; a predicted point is LOS when the predicted first-bounce image
 shows free space up to it (:func:`holodata.evaluate.unmirror.los_mask`). Human centroids are
 clusters of human-labelled points, the same procedure for prediction and GT.
@@ -208,7 +209,9 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
             if sid not in scene_info:
                 scene_info[sid] = _scene_info(sc, data, i, rb)
             g_nrm = _gt_normals(sc, k, f)
-            G = unmirror(g_rng, grid.directions(), normals=g_nrm, grid=grid)["point"]
+            G = _gt_points(sc, k, f)
+            if G is None:
+                G = unmirror(g_rng, grid.directions(), normals=g_nrm, grid=grid)["point"]
             g_los = (g_lab == 1) | (g_lab == 3)
             gc = _clouds(G, g_los)
             gt_centres.append(M.human_centroids(_human_points(G, (g_lab == 3) | (g_lab == 4))))
@@ -260,11 +263,32 @@ def _sample(e: np.ndarray) -> np.ndarray:
     return np.random.default_rng(0).choice(e, ERR_SAMPLE, replace=False)
 
 
+def _gt_points(sc, k: int, f: int):
+    """Traced GT points of frame k in the radar frame ((B,H,W,3) from world-frame gt/point and
+    pose/T_world_radar), or None when either is missing."""
+    names = set(sc.arrays())
+    if "gt/point" not in names or "pose/T_world_radar" not in names:
+        return None
+    p = np.asarray(sc["gt/point"][k], dtype=np.float64)
+    if f > 1:
+        p = p[:, ::f, ::f]
+    T = np.asarray(sc["pose/T_world_radar"][k], dtype=np.float64)
+    return (p - T[:3, 3]) @ T[:3, :3]
+
+
 def _gt_normals(sc, k: int, f: int):
-    if "gt/normal" not in set(sc.arrays()):
+    """GT normals of frame k in the radar frame ((B,H,W,3); gt/normal is world frame, rotated by
+    pose/T_world_radar when present), or None."""
+    names = set(sc.arrays())
+    if "gt/normal" not in names:
         return None
     n = np.asarray(sc["gt/normal"][k], dtype=np.float64)
-    return n[:, ::f, ::f] if f > 1 else n
+    if f > 1:
+        n = n[:, ::f, ::f]
+    if "pose/T_world_radar" in names:
+        R = np.asarray(sc["pose/T_world_radar"][k], dtype=np.float64)[:3, :3]
+        n = n @ R  # R^T n for row vectors: world → radar frame
+    return n
 
 
 def _scene_info(sc, data, i: int, rb: RangeBins) -> dict:
