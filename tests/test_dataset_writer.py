@@ -1,0 +1,208 @@
+"""Dataset writer: round trip (local + memory://), layout (chunks, shards, codec, attrs), atomic
+whole-shard commits, resume after SIGKILL with identical checksums, ragged arrays, reopen rules."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from holodata.conventions import Grid, RangeBins
+from holodata.dataset import create_dataset, open_dataset
+from holodata.dataset import shards as sh
+from holodata.dataset.synthetic import toy_frames, write_toy_dataset
+from holodata.errors import DatasetError
+
+G = Grid(8, 32)
+
+
+def _write(url, T=10, S=4):
+    w = create_dataset(url, grid=G, range_bins=RangeBins(), created_by="test", provenance={"x": 1}, shard_frames=S)
+    sc = w.scene("c1", n_frames=T, attrs={"corner_type": "L", "width_m": 2.0})
+    rng = np.random.default_rng(1)
+    data = toy_frames(rng, range(T), G)
+    r = sc.frame_array("gt/range", per_frame_shape=(3, 8, 32), dtype="float32",
+                       dims=["frame", "bounce", "elevation", "azimuth"], units="m", fill_value=float("nan"))
+    t = sc.frame_array("time/timestamp_ns", per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0)
+    for k in range(r.n_shards):
+        assert not r.is_done(k)
+        assert r.write_shard(k, data["gt/range"][r.frames(k)])
+        assert r.is_done(k)
+        t.write_shard(k, data["time/timestamp_ns"][t.frames(k)])
+    pts = [rng.normal(size=(i % 4 * 5, 3)).astype(np.float32) for i in range(T)]
+    rag = sc.ragged_array("lidar/points", width=3, dtype="float32", units="m")
+    for k in range(rag.n_shards):
+        rag.write_shard(k, pts[rag.frames(k)])
+    sc.write_array("mesh/vertices", np.arange(12, dtype=np.float32).reshape(4, 3), dims=["vertex", "xyz"], units="m")
+    w.set_splits(train=["c1"], test=[])
+    return w, data, pts
+
+
+@pytest.mark.parametrize("where", ["local", "memory"])
+def test_round_trip(tmp_path, where):
+    url = str(tmp_path / "rt.zarr") if where == "local" else f"memory://rt-{os.getpid()}/ds.zarr"
+    w, data, pts = _write(url)
+    ds = open_dataset(url)
+    assert ds.grid == G and ds.range_bins == RangeBins() and ds.scenes == ["c1"]
+    assert ds.splits == {"train": ["c1"], "test": []} and ds.attrs["holodata"]["format_version"] == "1.0"
+    assert ds.attrs["holodata"]["provenance"] == {"x": 1}
+    s = ds.scene("c1")
+    assert s.n_frames == 10 and s.attrs["corner_type"] == "L"
+    assert s.arrays() == ["gt/range", "lidar/points", "mesh/vertices", "time/timestamp_ns"]
+    z = s["gt/range"]
+    np.testing.assert_array_equal(z[...], data["gt/range"])  # NaNs compare equal here
+    np.testing.assert_array_equal(z[5], data["gt/range"][5])  # lazy partial read
+    assert z.attrs["dims"] == ["frame", "bounce", "elevation", "azimuth"] and z.attrs["units"] == "m"
+    # one frame per chunk, 4 frames per shard, Blosc zstd + shuffle
+    assert z.shards == (4, 3, 8, 32) and z.chunks == (1, 3, 8, 32)
+    meta = json.loads(ds.store.get("scenes/c1/gt/range/zarr.json"))
+    blosc = meta["codecs"][0]["configuration"]["codecs"][1]
+    assert blosc["name"] == "blosc" and blosc["configuration"]["cname"] == "zstd"
+    assert blosc["configuration"]["shuffle"] == "shuffle"
+    np.testing.assert_array_equal(s["time/timestamp_ns"][...], data["time/timestamp_ns"])
+    for i in range(10):
+        np.testing.assert_array_equal(s.ragged("lidar/points", i), pts[i])
+    rag = s["lidar/points"]
+    off = rag.offsets[...]
+    assert off[0] == 0 and off[-1] == rag.values.shape[0] == sum(len(p) for p in pts)
+    np.testing.assert_array_equal(s["mesh/vertices"][...], np.arange(12).reshape(4, 3))
+    # per-shard records: sha256 of the stored shard object + shape/dtype; folded into attrs when complete
+    for k in range(3):
+        rec = json.loads(ds.store.get(sh.manifest_key("scenes/c1/gt/range", k)))
+        blob = ds.store.get(sh.shard_key("scenes/c1/gt/range", k, 4))
+        assert rec["sha256"] == sh.sha256(blob) and rec["shape"] == [10, 3, 8, 32] and rec["dtype"] == "float32"
+        assert z.attrs["holodata"]["shards"][k]["sha256"] == rec["sha256"]
+    from holodata.dataset.validate import validate_dataset
+
+    rep = validate_dataset(url)  # only gt/range of the gt/* set was written
+    assert {p["rule"] for p in rep["problems"]} == {"presence"}
+    toy = write_toy_dataset(url.replace("ds.zarr", "toy.zarr").replace("rt.zarr", "toy.zarr"), n_frames=5)
+    assert validate_dataset(toy)["ok"]
+
+
+def test_lz4_codec_and_done_shards_never_rewritten(tmp_path):
+    url = str(tmp_path / "a.zarr")
+    w = create_dataset(url, grid=G, shard_frames=2, codec="lz4")
+    sc = w.scene("s", n_frames=3)
+    a = sc.frame_array("gt/label", per_frame_shape=(3, 8, 32), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"])
+    assert a.n_shards == 2 and a.frames(1) == slice(2, 3)
+    assert a.write_shard(0, np.ones((2, 3, 8, 32), np.uint8))
+    key = tmp_path / "a.zarr" / sh.shard_key("scenes/s/gt/label", 0, 4)
+    m0 = key.stat().st_mtime_ns
+    assert a.write_shard(0, np.zeros((2, 3, 8, 32), np.uint8)) is False  # done: untouched
+    assert key.stat().st_mtime_ns == m0
+    with pytest.raises(DatasetError, match="shard 1: data shape"):
+        a.write_shard(1, np.ones((2, 3, 8, 32), np.uint8))
+    with pytest.raises(DatasetError, match="cannot be stored"):
+        a.write_shard(1, np.ones((1, 3, 8, 32), np.float32))
+    a.write_shard(1, np.full((1, 3, 8, 32), 2, np.uint8))
+    z = open_dataset(url).scene("s")["gt/label"]
+    assert z.metadata.codecs[0].codecs[1].cname.value == "lz4"
+    assert z[...].tolist() == np.concatenate([np.ones((2, 3, 8, 32)), np.full((1, 3, 8, 32), 2)]).tolist()
+    # every chunk stored even when equal to the fill value: the shard is never "absent"
+    a2 = sc.frame_array("gt/range", per_frame_shape=(2,), dtype="float32", dims=["frame", "b"], units="m")
+    a2.write_shard(0, np.full((2, 2), np.nan, np.float32))
+    assert (tmp_path / "a.zarr" / sh.shard_key("scenes/s/gt/range", 0, 2)).exists()
+
+
+def test_reopen_rules(tmp_path):
+    url = str(tmp_path / "a.zarr")
+    w = create_dataset(url, grid=G, shard_frames=4)
+    sc = w.scene("s", n_frames=5, attrs={"corner_type": "T"})
+    sc.frame_array("gt/range", per_frame_shape=(3, 8, 32), dtype="float32", dims=["frame", "b", "e", "a"], units="m")
+    with pytest.raises(DatasetError, match="grid"):
+        create_dataset(url, grid=Grid(16, 32))
+    with pytest.raises(DatasetError, match="range bins"):
+        create_dataset(url, grid=G, range_bins=RangeBins(n=128))
+    w2 = create_dataset(url, grid=G, shard_frames=8)  # shard_frames applies to new arrays only
+    with pytest.raises(DatasetError, match="has 5 frames"):
+        w2.scene("s", n_frames=6)
+    sc2 = w2.scene("s", n_frames=5)
+    assert sc2.frame_array("gt/range", per_frame_shape=(3, 8, 32), dtype="float32").shard_frames == 4
+    with pytest.raises(DatasetError, match="exists as"):
+        sc2.frame_array("gt/range", per_frame_shape=(3, 8, 32), dtype="float64")
+    with pytest.raises(DatasetError, match="corner_type"):
+        sc2.set_attrs({"corner_type": "U"})
+    with pytest.raises(DatasetError, match="unknown scene"):
+        w2.set_splits(train=["nope"])
+    with pytest.raises(DatasetError, match="dims"):
+        sc2.frame_array("x/y", per_frame_shape=(2,), dims=["frame"])
+    (tmp_path / "junk").mkdir()
+    (tmp_path / "junk" / "f.txt").write_text("x")
+    with pytest.raises(DatasetError, match="not a holodata dataset"):
+        create_dataset(str(tmp_path / "junk"))
+
+
+def test_ragged_in_order_and_empty_frames(tmp_path):
+    url = str(tmp_path / "a.zarr")
+    sc = create_dataset(url, grid=G, shard_frames=2).scene("s", n_frames=4)
+    rag = sc.ragged_array("camera/points", width=3)
+    with pytest.raises(DatasetError, match="write shard 0 before shard 1"):
+        rag.write_shard(1, [np.zeros((1, 3)), np.zeros((1, 3))])
+    rag.write_shard(0, [np.zeros((0, 3), np.float32), np.ones((2, 3), np.float32)])
+    s = open_dataset(url).scene("s")
+    assert s.ragged("camera/points", 1).shape == (2, 3) and s.ragged("camera/points", 0).shape == (0, 3)
+    with pytest.raises(DatasetError, match="shard 1 not written"):
+        s.ragged("camera/points", 2)
+    rag.write_shard(1, [np.full((3, 3), 2, np.float32), np.zeros((0, 3), np.float32)])
+    s = open_dataset(url).scene("s")
+    assert s["camera/points"].offsets[...].tolist() == [0, 0, 2, 5, 5]
+    np.testing.assert_array_equal(s.ragged("camera/points", 2), np.full((3, 3), 2))
+
+
+WRITER = """
+import sys, time
+from holodata.dataset import store as st
+orig = st.Store.put
+def slow(self, key, data):
+    orig(self, key, data)
+    if "/c/" in key:
+        time.sleep(float(sys.argv[2]))
+st.Store.put = slow
+from holodata.dataset.synthetic import write_toy_dataset
+write_toy_dataset(sys.argv[1], n_frames=24, shard_frames=4, scenes=("c1",), seed=3)
+"""
+
+
+def _records(root: Path) -> dict:
+    return {str(p.relative_to(root)): json.loads(p.read_text())["sha256"] for p in root.rglob("manifest/*.json")}
+
+
+def test_resume_after_sigkill_matches_uninterrupted_run(tmp_path):
+    from holodata.dataset.validate import validate_dataset
+
+    script = tmp_path / "writer.py"
+    script.write_text(WRITER)
+    ref, out = tmp_path / "ref.zarr", tmp_path / "out.zarr"
+    subprocess.run([sys.executable, str(script), str(ref), "0"], check=True, timeout=120)
+    p = subprocess.Popen([sys.executable, str(script), str(out), "0.05"])
+    deadline = time.time() + 60
+    while time.time() < deadline and len(list((out / "scenes/c1/gt/label/manifest").glob("*.json"))) < 2:
+        time.sleep(0.01)
+    os.kill(p.pid, signal.SIGKILL)
+    p.wait()
+    done_before = _records(out)
+    assert 0 < len(done_before) < len(_records(ref))
+    mtimes = {k: (out / k).stat().st_mtime_ns for k in done_before}
+    rep = validate_dataset(str(out))  # half-written: never passes
+    assert not rep["ok"] and any(p_["rule"] == "incomplete" for p_ in rep["problems"])
+    subprocess.run([sys.executable, str(script), str(out), "0"], check=True, timeout=120)
+    assert _records(out) == _records(ref)  # identical shard bytes
+    assert all((out / k).stat().st_mtime_ns == m for k, m in mtimes.items())  # finished shards not rewritten
+    assert validate_dataset(str(out))["ok"]
+    assert not list(out.rglob("*.partial"))
+
+
+def test_toy_dataset_is_valid_and_deterministic(tmp_path):
+    from holodata.dataset.validate import validate_dataset
+
+    a = write_toy_dataset(str(tmp_path / "a.zarr"), n_frames=6, scenes=("x", "y"), seed=5)
+    b = write_toy_dataset(str(tmp_path / "b.zarr"), n_frames=6, scenes=("x", "y"), seed=5)
+    assert validate_dataset(a)["ok"]
+    assert _records(Path(a)) == _records(Path(b))
