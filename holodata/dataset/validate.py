@@ -287,20 +287,44 @@ def _aligned(ds, sid, name, fr, decoded) -> np.ndarray | None:
         return None
 
 
+_EXP_BITS = {2: (np.uint16, 0x7C00), 4: (np.uint32, 0x7F800000), 8: (np.uint64, 0x7FF0000000000000)}
+
+
+def _frames_not_finite_nonneg(a: np.ndarray) -> np.ndarray:
+    """Frame indices where a float array holds NaN, inf or negative values. Fast path: as unsigned
+    bits, a positive finite float is below the exponent mask, so one integer max per frame decides
+    (float16 min/max in numpy is slow); flagged frames are re-checked exactly (-0.0 is fine)."""
+    n = a.shape[0]
+    ut, exp = _EXP_BITS[a.dtype.itemsize]
+    cand = np.flatnonzero(a.view(ut).reshape(n, -1).max(axis=1) >= exp)
+    out = []
+    for i in cand:
+        f = a[i]
+        with np.errstate(invalid="ignore"):
+            if not (np.isfinite(f).all() and (f >= 0).all()):
+                out.append(i)
+    return np.asarray(out, dtype=np.int64)
+
+
 def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
+    n = a.shape[0] if a.ndim else 0
     if name == "gt/range":
         if a.dtype.kind != "f":
             return
-        fin = np.isfinite(a)
-        bad = ~fin & ~np.isnan(a)
-        bad |= fin & (a < 0)
-        if bad.any():
-            _report_frames(rep, sid, name, fr, bad, "range",
-                           lambda i: f"{int(bad[i].sum())} ranges not finite >= 0 or NaN (min {np.nanmin(a[i]):.3g})")
-        if a.ndim == 4 and a.shape[1] > 1:
-            lo, hi = a[:, :-1], a[:, 1:]
+        a2 = a.reshape(n, -1)
+        with np.errstate(invalid="ignore"):
+            badf = (np.fmin.reduce(a2, axis=1) < 0) | (np.fmax.reduce(a2, axis=1) == np.inf)
+        for i in np.flatnonzero(badf):
             with np.errstate(invalid="ignore"):
-                order = fin[:, 1:] & (~fin[:, :-1] | ~(hi > lo))
+                cnt = int(((a[i] < 0) | np.isinf(a[i])).sum())
+            rep.add(sid, name, fr.start + i, "range", f"{cnt} ranges not finite >= 0 or NaN "
+                                                      f"(min {np.nanmin(a[i]):.3g})")
+        nan = np.isnan(a)
+        decoded["gt/range:nan"] = nan
+        if a.ndim == 4 and a.shape[1] > 1:
+            with np.errstate(invalid="ignore"):
+                order = ~(a[:, 1:] > a[:, :-1])
+            order &= ~nan[:, 1:]
             if order.any():
                 _report_frames(rep, sid, name, fr, order, "bounce_order",
                                lambda i: f"{int(order[i].sum())} beams break R1 < R2 < R3 (a later bounce "
@@ -308,27 +332,30 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
     elif name == "gt/label":
         if a.dtype.kind not in "ui":
             return
-        bad = a > max(Label)
+        a2 = a.reshape(n, -1)
+        badf = a2.max(axis=1) > max(Label)
         if a.dtype.kind == "i":
-            bad |= a < 0
-        if bad.any():
-            _report_frames(rep, sid, name, fr, bad, "label", lambda i: f"{int(bad[i].sum())} labels outside 0..4")
-        rng = _aligned(ds, sid, "gt/range", fr, decoded)
-        if rng is not None and rng.shape == a.shape:
-            mism = (a == 0) != np.isnan(rng)
+            badf |= a2.min(axis=1) < 0
+        for i in np.flatnonzero(badf):
+            rep.add(sid, name, fr.start + i, "label",
+                    f"{int(((a[i] > max(Label)) | (a[i] < 0)).sum())} labels outside 0..4")
+        nan = _range_nan(ds, sid, fr, decoded)
+        if nan is not None and nan.shape == a.shape:
+            mism = np.not_equal(a == 0, nan)
             if mism.any():
                 _report_frames(rep, sid, name, fr, mism, "label_range",
                                lambda i: f"{int(mism[i].sum())} beams where label is 0 but range is not NaN, "
                                          f"or label is set without a range")
     elif name == "gt/normal":
-        rng = _aligned(ds, sid, "gt/range", fr, decoded)
-        if a.dtype.kind != "f" or rng is None or rng.shape != a.shape[:-1]:
+        nan = _range_nan(ds, sid, fr, decoded)
+        if a.dtype.kind != "f" or nan is None or nan.shape != a.shape[:-1]:
             return
         tol = 1e-3 if a.dtype.itemsize >= 4 else 2e-3
         n32 = a.astype(np.float32, copy=False)
         norm2 = np.einsum("...k,...k->...", n32, n32)
         with np.errstate(invalid="ignore"):
-            bad = np.isfinite(rng) & ~(np.abs(np.sqrt(norm2) - 1.0) <= tol)
+            bad = ~((norm2 >= (1 - tol) ** 2) & (norm2 <= (1 + tol) ** 2))
+        bad &= ~nan
         if bad.any():
             _report_frames(rep, sid, name, fr, bad, "normal_unit",
                            lambda i: f"{int(bad[i].sum())} normals not unit length (±{tol:g}) where range is finite")
@@ -352,16 +379,18 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
             what = "has NaN/inf" if not np.isfinite(a[i]).all() else "is not rigid (rotation not orthonormal or last row not 0 0 0 1)"
             rep.add(sid, name, fr.start + i, "pose", f"pose {what}")
     elif name == "radar/heatmap":
-        if a.dtype.kind != "f":
+        if a.dtype.kind != "f" or a.dtype.itemsize not in _EXP_BITS:
             return
-        # a single pass: finite and >= 0  <=>  min >= 0 and max < inf (NaN makes min/max NaN)
-        mn = a.reshape(a.shape[0], -1).min(axis=1)
-        mx = a.reshape(a.shape[0], -1).max(axis=1)
-        with np.errstate(invalid="ignore"):
-            badf = ~((mn >= 0) & np.isfinite(mx))
-        for i in np.flatnonzero(badf):
+        for i in _frames_not_finite_nonneg(a):
             rep.add(sid, name, fr.start + i, "heatmap", "heatmap has NaN/inf or negative amplitudes "
                                                         "(stored as linear amplitude >= 0)")
+
+
+def _range_nan(ds, sid, fr, decoded) -> np.ndarray | None:
+    if "gt/range:nan" in decoded:
+        return decoded["gt/range:nan"]
+    rng = _aligned(ds, sid, "gt/range", fr, decoded)
+    return None if rng is None else np.isnan(rng)
 
 
 def _check_small(ds, sid, name, meta, rep) -> None:
