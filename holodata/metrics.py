@@ -211,7 +211,8 @@ def match_centres(pred, gt, max_dist: float = HUMAN_MATCH_M) -> tuple[np.ndarray
 def human_detection_metrics(pred_centroids: Sequence, gt_centres: Sequence, max_dist: float = HUMAN_MATCH_M) -> dict:
     """Detection over frames: ``pred_centroids[t]`` (K_t,3), ``gt_centres[t]`` (L_t,3) metres (NaN
     rows = absent). Returns precision, recall, f_score, loc_mean_cm, loc_median_cm, tp, n_pred, n_gt.
-    No predictions and no GT → precision = recall = f = 1 (nothing to find, nothing claimed)."""
+    No GT centres at all → recall and F are NaN (undefined), precision 0 if anything was claimed
+    else NaN; so a split without humans never reports a perfect detector."""
     if len(pred_centroids) != len(gt_centres):
         raise ValueError("pred_centroids and gt_centres need one entry per frame")
     tp, n_pred, n_gt, dists = 0, 0, 0, []
@@ -223,9 +224,10 @@ def human_detection_metrics(pred_centroids: Sequence, gt_centres: Sequence, max_
         n_gt += len(g)
         dists.append(d)
     d = np.concatenate(dists) if dists else np.zeros(0)
-    prec = tp / n_pred if n_pred else (1.0 if n_gt == 0 else 0.0)
-    rec = tp / n_gt if n_gt else 1.0
-    f = 0.0 if prec + rec == 0 else 2 * prec * rec / (prec + rec)
+    nan = float("nan")
+    prec = tp / n_pred if n_pred else (nan if n_gt == 0 else 0.0)
+    rec = tp / n_gt if n_gt else nan
+    f = nan if not (np.isfinite(prec) and np.isfinite(rec)) else (0.0 if prec + rec == 0 else 2 * prec * rec / (prec + rec))
     return {"precision": float(prec), "recall": float(rec), "f_score": float(f),
             "loc_mean_cm": float(d.mean() * 100) if d.size else float("nan"),
             "loc_median_cm": float(np.median(d) * 100) if d.size else float("nan"),

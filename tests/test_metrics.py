@@ -91,6 +91,10 @@ def test_human_detection_hand_computed():
     assert m["loc_mean_cm"] == pytest.approx(10.0)
     perfect = M.human_detection_metrics(gt, gt)
     assert perfect["f_score"] == 1 and perfect["loc_mean_cm"] == 0
+    nobody = M.human_detection_metrics([np.zeros((0, 3))], [np.full((1, 3), np.nan)])
+    assert np.isnan(nobody["f_score"]) and np.isnan(nobody["recall"]) and np.isnan(nobody["precision"])
+    ghost = M.human_detection_metrics([np.ones((1, 3))], [np.zeros((0, 3))])
+    assert ghost["precision"] == 0 and np.isnan(ghost["f_score"])
 
 
 def test_human_centroids_clusters():
