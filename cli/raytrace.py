@@ -24,7 +24,7 @@ import click
 @click.option("--column-time", is_flag=True, help="Each column at its own time within the rotation (pose SLERP between trajectory samples).")
 @click.option("--rotation-hz", default=2.0, show_default=True, type=click.FloatRange(min=0, min_open=True), help="Rotation rate for --column-time.")
 @click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None, help="Blosc codec of the gt arrays (default: the dataset's, zstd; lz4 encodes ~2x faster, ~30% larger).")
-@click.option("--shard-frames", default=32, show_default=True, type=click.IntRange(1), help="Frames per shard (new datasets).")
+@click.option("--shard-frames", default=None, type=click.IntRange(1), help="Frames per shard of the gt arrays (default: the dataset's; 32 for a new one).")
 @click.option("--threads", default=0, show_default=True, type=click.IntRange(0), help="Ray-casting threads per process (0 = cores / processes).")
 @click.option("--processes", default=0, show_default=True, type=click.IntRange(0), help="Local tracing processes (0 = one per core, max 4, for >= 64 frames; 1 = in-process).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")

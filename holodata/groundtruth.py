@@ -72,7 +72,7 @@ class GTConfig:
     max_range: float = DEFAULT_MAX_RANGE_M
     backend: str = "open3d"
     origin: OriginModel = field(default_factory=OriginModel)
-    shard_frames: int = 32
+    shard_frames: int | None = None  # frames per shard of new arrays (None: the dataset's, 32 when new)
     nthreads: int = 0
     codec: str | None = None  # Blosc codec of the gt arrays (None = the dataset's default)
 
@@ -494,7 +494,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     w = create_dataset(out, grid=cfg.grid, range_bins=RangeBins(), created_by="holodata raytrace-gt",
                        provenance={"mesh": str(mesh_path), "mesh_sha256": mhash, "poses": str(poses_path),
                                    "poses_sha256": file_sha256(poses_path)},
-                       shard_frames=cfg.shard_frames)
+                       shard_frames=cfg.shard_frames or 32)
     T = len(traj)
     sc = w.scene(scene_id, n_frames=T, attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"})
     _write_frame_meta(sc, traj)
@@ -554,8 +554,9 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         plans.append((sid, s, v, f, fc, Trajectory(ts, poses)))
     if not plans:
         raise InputError(f"{url}: no scene has mesh/* and pose/T_world_radar (run slam first)")
-    w = create_dataset(url, grid=grid, range_bins=ds.range_bins, created_by="holodata raytrace-gt",
-                       shard_frames=cfg.shard_frames)
+    meta = getattr(ds, "meta", None) or (ds.attrs or {}).get("holodata", {})
+    sf = cfg.shard_frames or int(meta.get("shard_frames") or 32)
+    w = create_dataset(url, grid=grid, range_bins=ds.range_bins, created_by="holodata raytrace-gt", shard_frames=sf)
     cfg = GTConfig(**{**cfg.__dict__, "grid": grid})
     out = []
     for sid, s, v, f, fc, traj in plans:

@@ -294,3 +294,19 @@ def test_los_tolerance_is_two_centimetres():
         plate = quad([5 - gap, -0.1, -0.1], [5 - gap, 0.1, -0.1], [5 - gap, 0.1, 0.1], [5 - gap, -0.1, 0.1])
         sc = RayScene(*merge(wall, plate))
         assert sc._visible(O, P, None).tolist() == [visible]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_dynamic_mesh_larger_than_static_scene(backend):
+    # face ids of the dynamic mesh exceed the static face count: normals must come from the right mesh
+    v, f = box(LO, HI)
+    hv, hf = box([1.0, -0.3, -0.5], [1.4, 0.3, 0.9])
+    reps = 50  # the same box 50 times (600 faces) -> hits land on faces >= 12
+    dv = np.concatenate([hv] * reps)
+    df = np.concatenate([hf + 8 * i for i in range(reps)])
+    d = np.array([[1.0, 0, 0], [1.0, 0.1, 0.05], [-1.0, 0, 0]])
+    res = RayScene(v, f, backend=backend).trace(np.zeros((3, 3)), unit(d), max_bounces=2, dynamic=(dv, df))
+    assert res.hit_dynamic[:2, 0].all() and not res.hit_dynamic[2, 0]
+    np.testing.assert_allclose(res.range[0], [1.0, 4.0], atol=1e-5)  # human face x=1, back to wall x=-2
+    np.testing.assert_allclose(res.normal[0, 0], [-1, 0, 0], atol=1e-6)
+    assert res.label[0].tolist() == [Label.LOS_HUMAN, Label.LOS_STRUCTURE]

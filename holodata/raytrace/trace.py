@@ -241,7 +241,7 @@ class RayScene:
             R[:, 3:] = d.T
             t, f, isd = self._cast6(R, dyn)
             hit = np.isfinite(t)
-            fz = np.where(hit, f, 0)
+            fz = np.where(hit if isd is None else hit & ~isd, f, 0)  # static face ids only
             st.n32.take(fz, axis=1, out=nx)
             c = st.c32[fz]
             if isd is not None:
