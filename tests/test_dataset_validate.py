@@ -216,3 +216,13 @@ def test_bad_paths_one_line_exit_1(tmp_path, kind):
         assert "Traceback" not in r.output
         lines = r.output.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("error: ") and str(p) in lines[0], r.output
+
+
+def test_large_shards_checked_in_frame_blocks(ds, monkeypatch):
+    import holodata.dataset.validate as v
+
+    monkeypatch.setattr(v, "BLOCK_BYTES", 1)  # every heatmap/point shard takes the frame-block path
+    rewrite_shard(ds, "c2", "radar/heatmap", 1, lambda d: d.__setitem__((2, 3, 0, 0), np.nan))
+    rep = v.validate_dataset(str(ds))
+    assert [(p["array"], p["frame"], p["rule"]) for p in rep["problems"]] == [("radar/heatmap", 6, "heatmap")]
+    assert rep["bytes_decoded"] > 0

@@ -60,6 +60,17 @@ def decode_shard(meta: dict, n: int, blob: bytes) -> np.ndarray:
     return a[...]
 
 
+def decode_shard_blocks(meta: dict, n: int, blob: bytes, block: int):
+    """Like :func:`decode_shard` but yields ``(start, frames[start:start+block])`` so a large shard
+    (e.g. radar heatmaps) is never decoded whole."""
+    from zarr.core.buffer.cpu import Buffer
+
+    ms, a = _scratch(meta, n)
+    ms._store_dict[shard_key("", 0, len(meta["shape"])).lstrip("/")] = Buffer.from_bytes(blob)
+    for i in range(0, n, block):
+        yield i, a[i:i + block]
+
+
 def manifest_record(k: int, frames: slice, blob: bytes, shape: tuple, dtype) -> dict:
     return {"shard": k, "frames": [frames.start, frames.stop], "sha256": sha256(blob), "nbytes": len(blob),
             "shape": list(shape), "dtype": str(np.dtype(dtype))}

@@ -202,26 +202,76 @@ def _n_shards(m: dict) -> int:
     return -(-int(m.get("shape", [0])[0]) // S)
 
 
+BLOCK_BYTES = 64 << 20  # shards decoding to more than this are decoded and checked in frame blocks
+PREFETCH = 2  # shards read + decoded ahead in worker threads (blosc and numpy release the GIL)
+CROSS = ("gt/range", "gt/label", "gt/normal")  # arrays whose rules look at another array's shard
+
+
+class _Deferred:
+    """Problems and counters of one shard, found in a worker thread, replayed in order."""
+
+    def __init__(self):
+        self.calls: list[tuple] = []
+        self.shards = self.bytes_stored = self.bytes_decoded = 0
+
+    def add(self, *args) -> None:
+        self.calls.append(args)
+
+    def replay(self, rep: _Report) -> None:
+        for c in self.calls:
+            rep.add(*c)
+        rep.shards += self.shards
+        rep.bytes_stored += self.bytes_stored
+        rep.bytes_decoded += self.bytes_decoded
+
+
 def _check_scene(ds: Dataset, sid: str, nodes: dict, rep: _Report, bar) -> None:
+    from collections import deque
+    from concurrent.futures import ThreadPoolExecutor
+
     T = int(sh_json(ds.store, f"scenes/{sid}/zarr.json")["attributes"]["n_frames"])
     frame_arrays = {n: m for n, (k, m) in nodes.items() if k == "frame"}
     # arrays sharing a shard size are walked together, so cross-array rules see each shard once
     groups: dict[int, list[str]] = {}
     for n, m in frame_arrays.items():
         groups.setdefault(int(m["chunk_grid"]["configuration"]["chunk_shape"][0]), []).append(n)
-    state: dict = {}
+    tasks = []
     for S, names in groups.items():
         order = sorted(names, key=lambda n: (n not in ("gt/range",), n))
-        n_shards = -(-T // S)
-        for k in range(n_shards):
+        for k in range(-(-T // S)):
             fr = slice(k * S, min((k + 1) * S, T))
-            decoded = {}
-            for name in order:
-                arr = _read_shard(ds, sid, name, frame_arrays[name], k, fr, rep)
-                next(bar, None)
-                if arr is not None:
-                    decoded[name] = arr
-                    _value_rules(ds, sid, name, arr, fr, decoded, rep, state)
+            tasks.extend((S, k, fr, name) for name in order)
+
+    def load(task):
+        S, k, fr, name = task
+        local = _Deferred()
+        return local, _read_shard(ds, sid, name, frame_arrays[name], k, fr, local)
+
+    state: dict = {}
+    decoded: dict = {}
+    cur = None
+    it = iter(tasks)
+    with ThreadPoolExecutor(PREFETCH) as ex:
+        pending: deque = deque()
+
+        def submit() -> None:
+            t = next(it, None)
+            if t is not None:
+                pending.append((t, ex.submit(load, t)))
+
+        for _ in range(PREFETCH):
+            submit()
+        while pending:
+            (S, k, fr, name), fut = pending.popleft()
+            local, arr = fut.result()
+            submit()
+            local.replay(rep)
+            next(bar, None)
+            if (S, k) != cur:
+                decoded, cur = {}, (S, k)
+            if isinstance(arr, np.ndarray):
+                decoded[name] = arr
+                _value_rules(ds, sid, name, arr, fr, decoded, rep, state)
     for name, (kind, m) in nodes.items():
         if kind == "array":
             _check_small(ds, sid, name, m, rep)
@@ -232,6 +282,8 @@ def _check_scene(ds: Dataset, sid: str, nodes: dict, rep: _Report, bar) -> None:
 
 
 def _read_shard(ds, sid, name, meta, k, fr, rep) -> np.ndarray | None:
+    """Read shard k once: record, checksum, decode. Returns the decoded shard, or None when it
+    cannot be used or was checked here in frame blocks (large shards of per-frame-rule arrays)."""
     path = f"scenes/{sid}/{name}"
     rec = sh_json(ds.store, sh.manifest_key(path, k)) or None
     if rec is None:
@@ -258,13 +310,21 @@ def _read_shard(ds, sid, name, meta, k, fr, rep) -> np.ndarray | None:
                                                  f"(truncated?)")
     elif sh.sha256(blob) != rec.get("sha256"):
         rep.add(sid, name, fr.start, "checksum", f"shard {k}: sha256 mismatch (corrupted bytes)")
+    n = fr.stop - fr.start
+    frame_bytes = int(np.prod(meta["shape"][1:], dtype=np.int64)) * np.dtype(meta["data_type"]).itemsize
     try:
-        arr = sh.decode_shard(meta, fr.stop - fr.start, blob)
+        if name in CROSS or name.startswith("time/") or n * frame_bytes <= BLOCK_BYTES:
+            arr = sh.decode_shard(meta, n, blob)
+            rep.bytes_decoded += arr.nbytes
+            return arr
+        block = max(1, BLOCK_BYTES // max(1, frame_bytes))
+        for i, part in sh.decode_shard_blocks(meta, n, blob, block):
+            rep.bytes_decoded += part.nbytes
+            _value_rules(ds, sid, name, part, slice(fr.start + i, fr.start + i + len(part)), {}, rep, {})
+        return None
     except Exception as err:  # noqa: BLE001 - any decoder failure is a finding
         rep.add(sid, name, fr.start, "decode", f"shard {k} cannot be decoded ({err.__class__.__name__})")
         return None
-    rep.bytes_decoded += arr.nbytes
-    return arr
 
 
 def _frames_where(bad: np.ndarray) -> np.ndarray:
