@@ -310,3 +310,18 @@ def test_dynamic_mesh_larger_than_static_scene(backend):
     np.testing.assert_allclose(res.range[0], [1.0, 4.0], atol=1e-5)  # human face x=1, back to wall x=-2
     np.testing.assert_allclose(res.normal[0, 0], [-1, 0, 0], atol=1e-6)
     assert res.label[0].tolist() == [Label.LOS_HUMAN, Label.LOS_STRUCTURE]
+
+
+def test_degenerate_faces_are_ignored_and_indices_kept():
+    v, f = box(LO, HI)
+    # prepend zero-area faces (repeated vertex, collinear points) in front of the real ones
+    v2 = np.concatenate([v, [[0.5, 0, 0], [0.6, 0, 0], [0.7, 0, 0]]])
+    bad = np.array([[8, 8, 9], [8, 9, 10]])
+    f2 = np.concatenate([bad, f])
+    d = random_dirs(200, 11)
+    ref = trace(v, f, np.zeros((200, 3)), d, max_range=100)
+    res = trace(v2, f2, np.zeros((200, 3)), d, max_range=100)
+    np.testing.assert_array_equal(res["face"], np.where(ref["face"] >= 0, ref["face"] + 2, -1))
+    np.testing.assert_allclose(res["range"], ref["range"], atol=1e-6)
+    hit = res["face"] >= 0
+    np.testing.assert_allclose(np.linalg.norm(res["normal"][hit], axis=-1), 1.0, atol=1e-6)

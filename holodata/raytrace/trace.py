@@ -70,7 +70,28 @@ class _Geometry:
         self.v0 = self.vertices[self.faces[:, 0]] if len(self.faces) else np.zeros((0, 3))
         self.n32 = np.ascontiguousarray(self.normals.T, dtype=np.float32)
         self.c32 = np.einsum("ij,ij->i", self.normals, self.v0).astype(np.float32)
-        self.backend = make_backend(backend, self.vertices, self.faces, nthreads) if len(self.faces) else None
+        keep = np.flatnonzero(np.any(self.normals != 0, axis=1))  # zero-area faces are never hit
+        if len(keep) == 0:
+            self.backend = None
+        elif len(keep) == len(self.faces):
+            self.backend = make_backend(backend, self.vertices, self.faces, nthreads)
+        else:
+            self.backend = _FaceMapped(make_backend(backend, self.vertices, self.faces[keep], nthreads), keep)
+
+
+class _FaceMapped:
+    """A backend built on a subset of the faces, reporting the original face indices."""
+
+    def __init__(self, inner, face_ids: np.ndarray):
+        self.inner, self.face_ids = inner, face_ids
+
+    def cast6(self, rays):
+        t, f = self.inner.cast6(rays)
+        hit = np.isfinite(t)
+        return t, np.where(hit, self.face_ids[np.where(hit, f, 0).astype(np.int64)], 0)
+
+    def occluded6(self, rays):
+        return self.inner.occluded6(rays)
 
 
 class RayScene:
