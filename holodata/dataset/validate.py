@@ -170,6 +170,10 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report):
                     rep.add(sid, name, None, "shape", f"{shape[1]} bounces, gt/* has {B}")
         elif kind == "frame" and (not shape or shape[0] != T):
             rep.add(sid, name, None, "shape", f"shape {shape}: frame axis is not n_frames={T}")
+        hd = a.get("holodata", {})
+        if kind == "frame" and "dtype" in hd and (hd["dtype"] != dtype or tuple(hd.get("shape", ())) != shape):
+            rep.add(sid, name, None, "dtype", f"metadata says {shape} {dtype}, attrs record "
+                                              f"{tuple(hd.get('shape', ()))} {hd['dtype']} (metadata changed?)")
         if kind == "frame":
             cfg = m.get("codecs", [{}])[0]
             inner = cfg.get("configuration", {}).get("chunk_shape") if cfg.get("name") == "sharding_indexed" else None

@@ -232,7 +232,8 @@ class SceneWriter:
                           compressors=sh.compressor(codec or self.ds.codec, self.ds.clevel if codec is None else None),
                           attributes={"dims": dims, "units": units, **(attrs or {}),
                                       "holodata": {"kind": "frame", "shard_frames": S,
-                                                   "n_shards": math.ceil(self.n_frames / S)}},
+                                                   "n_shards": math.ceil(self.n_frames / S),
+                                                   "shape": list(shape), "dtype": str(dtype)}},
                           overwrite=True)
         return FrameArrayWriter(self, name, _json(self.ds.store, f"{path}/zarr.json"))
 
