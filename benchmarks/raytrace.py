@@ -180,7 +180,7 @@ def main() -> None:
     ap.add_argument("--sample", type=int, default=20, help="frames replayed through bare cast_rays")
     ap.add_argument("--rss-grid", default="64x512", help="grid of the 100/1000-frame RSS runs")
     ap.add_argument("--skip-rss", action="store_true")
-    ap.add_argument("--codec", choices=["zstd", "lz4"], help="gt codec (default: the dataset's)")
+    ap.add_argument("--codec", choices=["lz4", "zstd"], default="lz4", help="gt codec (raytrace-gt's default: lz4)")
     ap.add_argument("--rss-child", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.rss_child:
@@ -191,7 +191,7 @@ def main() -> None:
         make_inputs(d, a.frames)
         v, f = t_junction()
         print(f"T-junction mesh: {len(f)} triangles; human ~{len(human_at([0, 0, 0], 0)[1])} triangles; "
-              f"grid {a.grid}, 3 bounces, {a.frames} frames, codec {a.codec or 'dataset default'}, {os.cpu_count()} CPUs")
+              f"grid {a.grid}, 3 bounces, {a.frames} frames, codec {a.codec}, {os.cpu_count()} CPUs")
         # bare casts are replayed half before and half after the pipeline run (the machine is shared)
         sample = list(np.linspace(0, a.frames - 1, min(a.sample, a.frames)).astype(int))
         b1, c1, n_rays = bare_replay(d, a.grid, sample[0::2])

@@ -74,7 +74,8 @@ class GTConfig:
     origin: OriginModel = field(default_factory=OriginModel)
     shard_frames: int | None = None  # frames per shard of new arrays (None: the dataset's, 32 when new)
     nthreads: int = 0
-    codec: str | None = None  # Blosc codec of the gt arrays (None = the dataset's default)
+    codec: str | None = "lz4"  # Blosc codec of the gt arrays: lz4 encodes ~2x faster than zstd, ~30% larger
+                               # (raytrace-gt is CPU-bound; None = the dataset's default, zstd)
 
 
 # ---------------------------------------------------------------------------- beams
@@ -285,7 +286,7 @@ def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource) -> dict:
         "origin_model": cfg.origin.to_attrs(), "mesh_sha256": mesh_hash, "human": human.describe(),
         "los_tolerance_m": LOS_TOLERANCE_M, "class_source": scene.class_source,
         "class_table": {str(k): v for k, v in scene.class_names.items()}, "human_class": int(scene.human_class),
-        "grid": cfg.grid.to_attrs(), "normal_dtype": "float16", "codec": cfg.codec or "dataset default",
+        "grid": cfg.grid.to_attrs(), "normal_dtype": "float16", "codec": cfg.codec or "dataset default (zstd)",
     }
 
 
