@@ -157,14 +157,19 @@ def test_ragged_in_order_and_empty_frames(tmp_path):
 
 
 WRITER = """
-import sys, time
+import os, sys, time
+from pathlib import Path
 from holodata.dataset import store as st
-orig = st.Store.put
-def slow(self, key, data):
-    orig(self, key, data)
-    if "/c/" in key:
-        time.sleep(float(sys.argv[2]))
-st.Store.put = slow
+real_replace, n = os.replace, [0]
+def replace(src, dst):
+    # the 7th shard object: its bytes sit in the temp file; announce, then hang before the rename
+    if "/c/" in str(dst):
+        n[0] += 1
+        if n[0] == 7 and len(sys.argv) > 2:
+            Path(sys.argv[2]).write_text(str(dst))
+            time.sleep(60)
+    real_replace(src, dst)
+st.os.replace = replace
 from holodata.dataset.synthetic import write_toy_dataset
 write_toy_dataset(sys.argv[1], n_frames=24, shard_frames=4, scenes=("c1",), seed=3)
 """
@@ -174,29 +179,34 @@ def _records(root: Path) -> dict:
     return {str(p.relative_to(root)): json.loads(p.read_text())["sha256"] for p in root.rglob("manifest/*.json")}
 
 
-def test_resume_after_sigkill_matches_uninterrupted_run(tmp_path):
+def test_resume_after_sigkill_mid_shard_matches_uninterrupted_run(tmp_path):
     from holodata.dataset.validate import validate_dataset
 
     script = tmp_path / "writer.py"
     script.write_text(WRITER)
-    ref, out = tmp_path / "ref.zarr", tmp_path / "out.zarr"
-    subprocess.run([sys.executable, str(script), str(ref), "0"], check=True, timeout=120)
-    p = subprocess.Popen([sys.executable, str(script), str(out), "0.05"])
+    ref, out, marker = tmp_path / "ref.zarr", tmp_path / "out.zarr", tmp_path / "killed_at"
+    subprocess.run([sys.executable, str(script), str(ref)], check=True, timeout=120)
+    p = subprocess.Popen([sys.executable, str(script), str(out), str(marker)])
     deadline = time.time() + 60
-    while time.time() < deadline and len(list((out / "scenes/c1/gt/label/manifest").glob("*.json"))) < 2:
+    while time.time() < deadline and not marker.exists():
         time.sleep(0.01)
     os.kill(p.pid, signal.SIGKILL)
     p.wait()
+    assert p.returncode == -signal.SIGKILL
+    victim = Path(marker.read_text())
+    assert not victim.exists() and list(victim.parent.glob(f".{victim.name}.*.partial"))  # killed mid-put
     done_before = _records(out)
     assert 0 < len(done_before) < len(_records(ref))
     mtimes = {k: (out / k).stat().st_mtime_ns for k in done_before}
     rep = validate_dataset(str(out))  # half-written: never passes
     assert not rep["ok"] and any(p_["rule"] == "incomplete" for p_ in rep["problems"])
-    subprocess.run([sys.executable, str(script), str(out), "0"], check=True, timeout=120)
+    name, k = str(victim.relative_to(out / "scenes/c1")).split("/c/")
+    assert not open_dataset(str(out)).scene("c1").is_done(name, int(k.split("/")[0]))
+    subprocess.run([sys.executable, str(script), str(out)], check=True, timeout=120)
+    assert victim.exists()
     assert _records(out) == _records(ref)  # identical shard bytes
     assert all((out / k).stat().st_mtime_ns == m for k, m in mtimes.items())  # finished shards not rewritten
     assert validate_dataset(str(out))["ok"]
-    assert not list(out.rglob("*.partial"))
 
 
 def test_toy_dataset_is_valid_and_deterministic(tmp_path):
