@@ -16,7 +16,6 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..conventions import Label, is_rigid
-from ..errors import DatasetError
 from . import shards as sh
 from .reader import Dataset, list_nodes, open_dataset
 from .schemas import schema_errors
@@ -554,4 +553,4 @@ def format_report(report: dict) -> str:
     return "\n".join(lines + [tail])
 
 
-__all__ = ["validate_dataset", "format_report", "Problem", "expected_spec", "schema_errors", "DatasetError"]
+__all__ = ["validate_dataset", "format_report", "Problem", "expected_spec", "schema_errors"]
