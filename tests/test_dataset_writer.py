@@ -216,3 +216,34 @@ def test_toy_dataset_is_valid_and_deterministic(tmp_path):
     b = write_toy_dataset(str(tmp_path / "b.zarr"), n_frames=6, scenes=("x", "y"), seed=5)
     assert validate_dataset(a)["ok"]
     assert _records(Path(a)) == _records(Path(b))
+
+
+def test_ragged_resume_after_torn_append(tmp_path):
+    """A writer that died after growing values/offsets but before its commit record: the rerun
+    rewrites that shard from the last committed row; readers and validate never saw it."""
+    import zarr
+
+    from holodata.dataset.validate import validate_dataset
+
+    url = str(tmp_path / "a.zarr")
+    w = create_dataset(url, grid=G, shard_frames=2)
+    sc = w.scene("s", n_frames=4)
+    sc.frame_array("time/timestamp_ns", per_frame_shape=(), dtype="int64", dims=["frame"], units="ns").write_shard(0, [1, 2])
+    sc.frame_array("time/timestamp_ns", per_frame_shape=(), dtype="int64").write_shard(1, [3, 4])
+    rag = sc.ragged_array("lidar/points", width=3)
+    f = [np.full((n, 3), i, np.float32) for i, n in enumerate([3, 1, 2, 5])]
+    rag.write_shard(0, f[:2])
+    vals = zarr.open_array(url + "/scenes/s/lidar/points/values", mode="r+")
+    vals.resize((40, 3))
+    vals[4:40] = -7.0  # torn append: rows written, no commit record
+    rep = validate_dataset(url)
+    assert not rep["ok"] and {p["rule"] for p in rep["problems"]} >= {"incomplete"}
+    sc = create_dataset(url, grid=G).scene("s", n_frames=4)
+    rag = sc.ragged_array("lidar/points", width=3)
+    assert rag.is_done(0) and not rag.is_done(1)
+    rag.write_shard(1, f[2:])
+    s = open_dataset(url).scene("s")
+    for i in range(4):
+        np.testing.assert_array_equal(s.ragged("lidar/points", i), f[i])
+    assert s["lidar/points"].values.shape == (11, 3)
+    assert validate_dataset(url)["ok"]
