@@ -96,6 +96,7 @@ def main() -> None:
     ap.add_argument("--epochs", type=int, default=30)
     ap.add_argument("--scenes", type=int, default=5)
     ap.add_argument("--out", default=None)
+    ap.add_argument("--head", default="softargmax", choices=["softargmax", "regress"])
     a = ap.parse_args()
     grid = Grid.parse(a.grid)
     bins = RangeBins()
@@ -110,12 +111,13 @@ def main() -> None:
     from holodata.torch import TrainConfig, train
 
     depth = min(7, int(np.log2(min(grid.H, grid.W))) + 1)
-    res = train(url, out / "run", TrainConfig(epochs=a.epochs, depth=depth, batch_size=4), quiet=True)
+    run = out / f"run_{a.head}"
+    res = train(url, run, TrainConfig(epochs=a.epochs, depth=depth, batch_size=4, head=a.head), quiet=True)
     t2 = time.perf_counter()
-    doc = evaluate(url, out / "run", out / "report", quiet=True)
+    doc = evaluate(url, run, out / f"report_{a.head}", quiet=True)
     t3 = time.perf_counter()
     print(f"dataset {t1 - t0:.0f} s, train {t2 - t1:.0f} s ({a.epochs} epochs, loss {res.history[0]['loss']:.3f} → "
-          f"{res.final_loss:.3f}), evaluate {t3 - t2:.0f} s; report {out / 'report' / 'report.html'}")
+          f"{res.final_loss:.3f}), evaluate {t3 - t2:.0f} s; report {out / f'report_{a.head}' / 'report.html'}")
     print(format_tables(doc))
 
 

@@ -85,5 +85,9 @@ def test_strongest_peaks_baseline():
     assert 3.0 <= r[1, 0, 0] <= 3.15
     assert r[2, 0, 0] == pytest.approx(5.05, abs=0.05)
     assert np.isnan(r[:, 1, 2]).all()
+    hm[1] = 5.0  # near-field leakage below min_range_m is not a return
+    assert strongest_peaks(hm, rb, min_range_m=0.25)[0, 0, 0] == pytest.approx(1.05, abs=0.05)
+    assert strongest_peaks(hm, rb, min_range_m=0.0)[0, 0, 0] == pytest.approx(0.15, abs=0.05)
+    r = strongest_peaks(hm, rb, k=3)
     batched = strongest_peaks(np.stack([hm, hm]), rb)
     np.testing.assert_array_equal(batched[1], r)

@@ -6,10 +6,12 @@ import numpy as np
 from holodata.conventions import RangeBins
 
 
-def strongest_peaks(heatmap, range_bins: RangeBins, k: int = 3, min_snr_db: float = 6.0) -> np.ndarray:
+def strongest_peaks(heatmap, range_bins: RangeBins, k: int = 3, min_snr_db: float = 6.0,
+                    min_range_m: float = 0.25) -> np.ndarray:
     """(…,N_r,H,W) linear amplitude → (…,k,H,W) ranges (m), ascending per beam, NaN = none.
 
-    Peaks are local maxima along range whose amplitude exceeds the beam's median by ``min_snr_db``;
+    Peaks are local maxima along range whose amplitude exceeds the beam's median by ``min_snr_db``,
+    beyond ``min_range_m`` (the first bins hold the radar's near-field leakage, not a return);
     the ``k`` strongest are kept and refined by a parabola through log amplitudes.
     """
     a = np.asarray(heatmap, dtype=np.float32)
@@ -20,7 +22,9 @@ def strongest_peaks(heatmap, range_bins: RangeBins, k: int = 3, min_snr_db: floa
     left = np.concatenate([pad, la.take(range(n - 1), axis=ax)], axis=ax)
     right = np.concatenate([la.take(range(1, n), axis=ax), pad], axis=ax)
     floor = np.median(la, axis=ax, keepdims=True)
-    peak = (la >= left) & (la > right) & (la > floor + min_snr_db / 20.0)
+    near = (np.arange(n) + 0.5) * range_bins.dr < min_range_m
+    near = near.reshape((n,) + (1,) * (a.ndim - ax - 1))
+    peak = (la >= left) & (la > right) & (la > floor + min_snr_db / 20.0) & ~near
     score = np.where(peak, la, -np.inf)
     top = np.argsort(-score, axis=ax).take(range(min(k, n)), axis=ax)  # (…,k,H,W)
     s = np.take_along_axis(score, top, axis=ax)

@@ -236,7 +236,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
         "settings": {"tau_m": tau, "taus_m": list(taus), "human_match_m": M.HUMAN_MATCH_M,
                      "max_range_m": max_range, "cd_convention": "sum", "downsample": f,
                      "grid": grid.to_attrs(), "range_bins": rb.to_attrs(), "norm": norm.to_dict(),
-                     "baseline": "three strongest range peaks per beam (>= 6 dB over the beam median)",
+                     "baseline": "three strongest range peaks per beam (>= 6 dB over the beam median, beyond 0.25 m)",
                      "train_epochs": int(ck.get("epoch", 0))},
         "methods": methods,
         "figures": [],

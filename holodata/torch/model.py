@@ -1,8 +1,11 @@
 """Multi-return range-image UNet (paper §4.3): range bins as input channels, 2-D convolutions over
 (elevation, azimuth), one shared encoder, one decoder per bounce, skip connections.
 
-Each bounce decoder ends in three per-beam maps: range (metres, ``max_range·sigmoid``), a "return
-exists" logit and a human-vs-structure logit (the per-beam human/structure head).
+Each bounce decoder ends in per-beam maps: the range, a "return exists" logit and a
+human-vs-structure logit (the per-beam human/structure head). ``head="softargmax"`` (default)
+predicts logits over ``range_bins_out`` range bins and returns their soft-argmax (expected bin
+centre, metres) — the range stays tied to the radar's bins and edges stay sharp;
+``head="regress"`` regresses ``max_range·sigmoid(x)`` directly.
 """
 from __future__ import annotations
 
@@ -26,6 +29,8 @@ class ModelConfig:
     max_channels: int = 256
     blocks: int = 2
     max_range: float = 9.6
+    head: str = "softargmax"
+    range_bins_out: int = 0  # soft-argmax bins; 0 = in_channels
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -85,10 +90,16 @@ class MultiReturnUNet(nn.Module):
             [_stack(chans[0], chans[0], cfg.blocks)]
             + [_stack(chans[i - 1], chans[i], cfg.blocks) for i in range(1, cfg.depth)]
         )
-        self.decoders = nn.ModuleList([Decoder(chans, max(cfg.blocks // 2, 1)) for _ in range(cfg.bounces)])
-        for dec in self.decoders:  # start near mid-range with "return" likely
+        if cfg.head not in ("softargmax", "regress"):
+            raise ValueError(f"model head must be 'softargmax' or 'regress', got {cfg.head!r}")
+        self.n_bins = (cfg.range_bins_out or cfg.in_channels) if cfg.head == "softargmax" else 1
+        n_out = self.n_bins + 2
+        self.decoders = nn.ModuleList([Decoder(chans, max(cfg.blocks // 2, 1), n_out) for _ in range(cfg.bounces)])
+        for dec in self.decoders:  # start from a uniform / mid-range guess
             nn.init.zeros_(dec.head.weight)
             nn.init.zeros_(dec.head.bias)
+        centres = (torch.arange(self.n_bins, dtype=torch.float32) + 0.5) * (cfg.max_range / self.n_bins)
+        self.register_buffer("centres", centres.view(1, 1, -1, 1, 1), persistent=False)
 
     def forward(self, x: torch.Tensor) -> dict:
         feats = []
@@ -98,9 +109,12 @@ class MultiReturnUNet(nn.Module):
                 h = F.avg_pool2d(h, 2, ceil_mode=True)
             h = block(h)
             feats.append(h)
-        outs = torch.stack([dec(feats) for dec in self.decoders], 1)  # (B, bounces, 3, H, W)
-        rng = self.cfg.max_range * torch.sigmoid(outs[:, :, 0])
-        return {"range": rng, "valid_logit": outs[:, :, 1], "human_logit": outs[:, :, 2]}
+        outs = torch.stack([dec(feats) for dec in self.decoders], 1)  # (B, bounces, n_bins + 2, H, W)
+        if self.cfg.head == "softargmax":
+            rng = (torch.softmax(outs[:, :, : self.n_bins], dim=2) * self.centres).sum(2)
+        else:
+            rng = self.cfg.max_range * torch.sigmoid(outs[:, :, 0])
+        return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1]}
 
     @torch.no_grad()
     def predict(self, x: torch.Tensor, valid_threshold: float = 0.5) -> dict:

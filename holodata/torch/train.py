@@ -48,6 +48,7 @@ class TrainConfig:
     base_channels: int = 16
     max_channels: int = 128
     blocks: int = 2
+    head: str = "softargmax"
     downsample: int = 1
     range_pool: int = 1
     crop_w: int | None = None
@@ -163,7 +164,8 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
     out.mkdir(parents=True, exist_ok=True)
     device = resolve_device(config.device)
     mcfg = ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
-                       max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range))
+                       max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range),
+                       head=config.head)
     seed_everything(config.seed)
     model = MultiReturnUNet(mcfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
