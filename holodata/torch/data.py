@@ -57,12 +57,14 @@ class SampleTransform:
     """Optional reductions applied to every sample: ``downsample`` strides (H, W) by this factor
     (GT is strided too, never averaged across NaN); ``range_pool`` max-pools range bins by this
     factor; ``crop_w`` takes an azimuth window of this width (random offset, wrapping) when
-    ``random_crop`` else the first columns."""
+    ``random_crop`` else the first columns; ``roll`` shifts columns circularly by a random amount
+    (training augmentation; needs ``gen``)."""
 
     downsample: int = 1
     range_pool: int = 1
     crop_w: int | None = None
     random_crop: bool = False
+    roll: bool = False  # random circular azimuth shift (a rotation of the scene about z)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -81,6 +83,9 @@ def apply_transform(hm: np.ndarray, rng: np.ndarray, lab: np.ndarray, t: SampleT
         j0 = int(gen.integers(W)) if (t.random_crop and gen is not None) else 0
         cols = (j0 + np.arange(t.crop_w)) % W
         hm, rng, lab = hm[..., cols], rng[..., cols], lab[..., cols]
+    elif t.roll and gen is not None:
+        s = int(gen.integers(hm.shape[-1]))
+        hm, rng, lab = (np.roll(a, s, axis=-1) for a in (hm, rng, lab))
     return hm, rng, lab
 
 

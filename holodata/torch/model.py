@@ -4,7 +4,8 @@
 Each bounce decoder ends in per-beam maps: the range, a "return exists" logit and a
 human-vs-structure logit (the per-beam human/structure head). ``head="softargmax"`` (default)
 predicts logits over ``range_bins_out`` range bins and returns their soft-argmax (expected bin
-centre, metres) — the range stays tied to the radar's bins and edges stay sharp;
+centre, metres) — the range stays tied to the radar's bins and edges stay sharp; with
+``input_skip`` the bin logits also get a learned multiple of the input heatmap's own bins;
 ``head="regress"`` regresses ``max_range·sigmoid(x)`` directly.
 """
 from __future__ import annotations
@@ -31,6 +32,7 @@ class ModelConfig:
     max_range: float = 9.6
     head: str = "softargmax"
     range_bins_out: int = 0  # soft-argmax bins; 0 = in_channels
+    input_skip: bool = True  # soft-argmax logits += scale_b · input heatmap (same bins)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -100,6 +102,10 @@ class MultiReturnUNet(nn.Module):
             nn.init.zeros_(dec.head.bias)
         centres = (torch.arange(self.n_bins, dtype=torch.float32) + 0.5) * (cfg.max_range / self.n_bins)
         self.register_buffer("centres", centres.view(1, 1, -1, 1, 1), persistent=False)
+        # range-bin skip: each bounce's bin logits start from the input's own range profile, so the
+        # decoder learns corrections to "where the energy is" rather than re-deriving it
+        self.use_skip = cfg.head == "softargmax" and cfg.input_skip and self.n_bins == cfg.in_channels
+        self.skip_scale = nn.Parameter(torch.full((1, cfg.bounces, 1, 1, 1), 4.0)) if self.use_skip else None
 
     def forward(self, x: torch.Tensor) -> dict:
         feats = []
@@ -111,7 +117,10 @@ class MultiReturnUNet(nn.Module):
             feats.append(h)
         outs = torch.stack([dec(feats) for dec in self.decoders], 1)  # (B, bounces, n_bins + 2, H, W)
         if self.cfg.head == "softargmax":
-            rng = (torch.softmax(outs[:, :, : self.n_bins], dim=2) * self.centres).sum(2)
+            logits = outs[:, :, : self.n_bins]
+            if self.use_skip:
+                logits = logits + self.skip_scale * x.unsqueeze(1)
+            rng = (torch.softmax(logits, dim=2) * self.centres).sum(2)
         else:
             rng = self.cfg.max_range * torch.sigmoid(outs[:, :, 0])
         return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1]}

@@ -49,6 +49,8 @@ class TrainConfig:
     max_channels: int = 128
     blocks: int = 2
     head: str = "softargmax"
+    input_skip: bool = True
+    augment_roll: bool = True
     downsample: int = 1
     range_pool: int = 1
     crop_w: int | None = None
@@ -87,7 +89,8 @@ class TrainConfig:
         return LossWeights(self.w_range, self.w_gradient, self.w_valid, self.w_human)
 
     def sample_transform(self, train: bool = True) -> SampleTransform:
-        return SampleTransform(self.downsample, self.range_pool, self.crop_w, random_crop=train)
+        return SampleTransform(self.downsample, self.range_pool, self.crop_w, random_crop=train,
+                                roll=train and self.augment_roll)
 
 
 @dataclass
@@ -165,7 +168,7 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
     device = resolve_device(config.device)
     mcfg = ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
                        max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range),
-                       head=config.head)
+                       head=config.head, input_skip=config.input_skip)
     seed_everything(config.seed)
     model = MultiReturnUNet(mcfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
