@@ -11,17 +11,20 @@ import click
 @click.option("--split", default="test", show_default=True, help="Dataset split to evaluate.")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Evaluate only the first N frames of the split.")
+@click.option("--estimator", type=click.Choice(["mean", "median", "mode"]), default="mean", show_default=True,
+              help="Point estimate of each beam's range-bin distribution (soft-argmax models).")
 @click.option("--screenshot", is_flag=True, help="Also save REPORT/report.png (headless Chromium).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print metrics.json on stdout.")
-def evaluate(dataset, checkpoint, out, split, device, max_frames, screenshot, quiet, as_json):
+def evaluate(dataset, checkpoint, out, split, device, max_frames, estimator, screenshot, quiet, as_json):
     """Evaluate a trained checkpoint and the strongest-peaks baseline on DATASET's split.
 
     Example: holodata evaluate demo/dataset.zarr --checkpoint runs/unet --out runs/unet/report
     """
     from holodata.evaluate import evaluate as run_evaluate
 
-    doc = run_evaluate(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet)
+    doc = run_evaluate(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet,
+                       estimator=estimator)
     if screenshot:
         from pathlib import Path
 

@@ -28,6 +28,24 @@ def test_model_shapes(depth, H, W):
     assert torch.isnan(pred["range"]).all()
 
 
+def test_predict_estimators_on_known_distribution():
+    n = 10
+    m = MultiReturnUNet(ModelConfig(in_channels=n, depth=1, base_channels=4, max_channels=4, blocks=1, max_range=10.0))
+    # bins of 1 m (centres 0.5..9.5); probability 0.4 in bin 0 and 0.6 in bin 9 on every beam
+    p = torch.full((n,), 1e-12)
+    p[0], p[-1] = 0.4, 0.6
+    logits = torch.log(p).view(1, 1, n, 1, 1).expand(1, 3, n, 2, 2)
+    m.forward = lambda x: {"range": (torch.softmax(logits, 2) * m.centres).sum(2), "bin_logits": logits,
+                           "valid_logit": torch.ones(1, 3, 2, 2), "human_logit": torch.zeros(1, 3, 2, 2)}
+    x = torch.zeros(1, n, 2, 2)
+    assert float(m.predict(x, estimator="mean")["range"][0, 0, 0, 0]) == pytest.approx(0.4 * 0.5 + 0.6 * 9.5, abs=1e-4)
+    assert float(m.predict(x, estimator="mode")["range"][0, 0, 0, 0]) == pytest.approx(9.5, abs=1e-4)
+    # the cdf reaches 0.5 inside the last bin: 9 + (0.5 - 0.4) / 0.6
+    assert float(m.predict(x, estimator="median")["range"][0, 0, 0, 0]) == pytest.approx(9 + 0.1 / 0.6, abs=1e-4)
+    with pytest.raises(ValueError):
+        m.predict(x, estimator="nope")
+
+
 def test_losses_mask_nan():
     gt = torch.tensor([[1.0, float("nan"), 3.0]])
     pred = torch.tensor([[1.5, 100.0, 2.0]])

@@ -152,14 +152,15 @@ def validate_metrics(doc: dict) -> None:
 def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: str = "cpu",
              batch_size: int = 4, tau: float = M.DEFAULT_TAU_M, taus=M.DEFAULT_TAUS_M,
              max_frames: int | None = None, quiet: bool = False, report: bool = True,
-             oracle: bool = False) -> dict:
+             oracle: bool = False, estimator: str = "mean") -> dict:
     """Evaluate ``checkpoint`` (file or run directory) and the strongest-peaks baseline on the
     ``split`` scenes of the dataset at ``dataset_url``; write ``out_dir``/metrics.json (+ figures
     and report.html when ``report``). Returns the metrics document (the same dict as the JSON).
 
     ``oracle=True`` scores the ground truth itself (ranges, normals, labels) as the "model"
     (``checkpoint`` may then be None): a check of the metric plumbing, which must give perfect
-    scores."""
+    scores. ``estimator``: the model's point estimate per beam ("mean", "median", "mode"; see
+    :meth:`holodata.torch.model.MultiReturnUNet.predict`)."""
     import torch
 
     from holodata.dataset import open_dataset
@@ -199,7 +200,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
         if model is not None:
             x = np.stack([norm(apply_transform(hm, r, lab, model_tf)[0]) for hm, r, lab in raws])
             with torch.no_grad():
-                pred = model.predict(torch.from_numpy(x).to(dev))
+                pred = model.predict(torch.from_numpy(x).to(dev), estimator=estimator)
             p_rng = pred["range"].float().cpu().numpy()
             p_hum = pred["human_prob"].float().cpu().numpy()
         for j, i in enumerate(items):
@@ -237,7 +238,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                      "max_range_m": max_range, "cd_convention": "sum", "downsample": f,
                      "grid": grid.to_attrs(), "range_bins": rb.to_attrs(), "norm": norm.to_dict(),
                      "baseline": "three strongest range peaks per beam (>= 6 dB over the beam median, beyond 0.25 m)",
-                     "train_epochs": int(ck.get("epoch", 0))},
+                     "train_epochs": int(ck.get("epoch", 0)), "estimator": estimator},
         "methods": methods,
         "figures": [],
     }

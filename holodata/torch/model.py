@@ -121,14 +121,36 @@ class MultiReturnUNet(nn.Module):
             if self.use_skip:
                 logits = logits + self.skip_scale * x.unsqueeze(1)
             rng = (torch.softmax(logits, dim=2) * self.centres).sum(2)
-        else:
-            rng = self.cfg.max_range * torch.sigmoid(outs[:, :, 0])
+            return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1], "bin_logits": logits}
+        rng = self.cfg.max_range * torch.sigmoid(outs[:, :, 0])
         return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1]}
 
     @torch.no_grad()
-    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5) -> dict:
-        """Inference: range with NaN where P(return) < threshold; human probability."""
+    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str = "mean") -> dict:
+        """Inference: range with NaN where P(return) < threshold; human probability.
+
+        With the soft-argmax head, ``estimator`` picks the point estimate of each beam's range-bin
+        distribution: "mean" (default; the training-time soft-argmax), "median" (minimises the
+        expected absolute error) or "mode" (soft-argmax within ±3 bins of the most likely bin:
+        sharpest where the model is confident, but a wrong peak where it is not)."""
         out = self.forward(x)
+        rng = out["range"]
+        if "bin_logits" in out and estimator == "median":
+            p = torch.softmax(out["bin_logits"], dim=2)
+            cdf = torch.cumsum(p, dim=2)
+            k = (cdf < 0.5).sum(2, keepdim=True).clamp(max=p.shape[2] - 1)  # first bin with cdf >= 0.5
+            c_hi = torch.gather(cdf, 2, k)
+            p_k = torch.gather(p, 2, k).clamp_min(1e-12)
+            frac = ((0.5 - (c_hi - p_k)) / p_k).clamp(0, 1)  # linear within the bin
+            dr = self.cfg.max_range / p.shape[2]
+            rng = ((k.float() + frac) * dr).squeeze(2)
+        elif "bin_logits" in out and estimator == "mode":
+            lg = out["bin_logits"]
+            idx = torch.arange(lg.shape[2], device=lg.device).view(1, 1, -1, 1, 1)
+            lg = lg.masked_fill((idx - lg.argmax(2, keepdim=True)).abs() > 3, float("-inf"))
+            rng = (torch.softmax(lg, dim=2) * self.centres).sum(2)
+        elif estimator not in ("median", "mean", "mode"):
+            raise ValueError(f"estimator must be 'mean', 'median' or 'mode', got {estimator!r}")
         valid = torch.sigmoid(out["valid_logit"]) >= valid_threshold
-        rng = torch.where(valid, out["range"], torch.full_like(out["range"], float("nan")))
+        rng = torch.where(valid, rng, torch.full_like(rng, float("nan")))
         return {"range": rng, "human_prob": torch.sigmoid(out["human_logit"]), "valid": valid}
