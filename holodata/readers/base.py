@@ -1,0 +1,300 @@
+"""What every recording reader provides: :class:`Recording`, :class:`TopicInfo`, :class:`RawMessage`,
+and the typestore that decodes ROS messages (:class:`MessageDecoder`).
+
+Readers only parse containers (rosbags, mcap, ouster-sdk do the work); they yield
+:class:`RawMessage` records (topic, type, log time, undecoded bytes) so that callers filter first
+and decode later. Decoding goes through one rosbags typestore per recording, built from
+
+1. the definitions embedded in the file (ROS 1 connection headers, rosbag2 ``message_definitions``,
+   MCAP schemas),
+2. ``.msg`` files from ``msg_dir`` (for bags recorded without definitions, e.g. rosbag2 < Iron
+   with custom types),
+3. rosbags' ROS 2 Humble / ROS 1 Noetic store plus holodata's own ``RadarHeatmap``.
+
+Type hashes (rosbag2 ``type_description_hash``, ROS 1 md5sum) are not checked: real bags carry
+placeholder or stale hashes and the definitions above are what decoding needs.
+"""
+from __future__ import annotations
+
+import struct
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ..errors import RecordingError
+
+
+class DecodeError(RecordingError):
+    """A message that cannot be decoded (unknown type, corrupt or truncated payload)."""
+
+
+@dataclass
+class TopicInfo:
+    """One topic as ``ros2 bag info`` shows it. ``rate_hz`` from the first and last log times;
+    ``frame_id`` from the first message's header (None if the type has none or it was not read)."""
+
+    name: str
+    msgtype: str
+    count: int
+    rate_hz: float | None = None
+    frame_id: str | None = None
+    encoding: str = "cdr"          # cdr | ros1 | other serialisation (listed, not decoded)
+    decodable: bool = True
+    note: str = ""
+    first_ns: int | None = None
+    last_ns: int | None = None
+
+    def to_dict(self) -> dict:
+        return {"name": self.name, "type": self.msgtype, "count": self.count, "rate_hz": self.rate_hz,
+                "frame_id": self.frame_id, "encoding": self.encoding, "decodable": self.decodable,
+                **({"note": self.note} if self.note else {})}
+
+
+@dataclass(slots=True)
+class RawMessage:
+    """An undecoded message: ``data`` is the serialised payload (CDR, ROS 1, or whatever
+    ``encoding`` says); ``log_ns`` the recorder's receive time (int64 ns). ``obj`` carries an
+    already-decoded object for containers that have no separate wire format (Ouster pcap scans)."""
+
+    topic: str
+    msgtype: str
+    log_ns: int
+    data: bytes | memoryview | None
+    encoding: str = "cdr"
+    obj: object = None
+
+
+def rate_of(count: int, first_ns: int | None, last_ns: int | None) -> float | None:
+    if count < 2 or first_ns is None or last_ns is None or last_ns <= first_ns:
+        return None
+    return (count - 1) / ((last_ns - first_ns) / 1e9)
+
+
+class Recording:
+    """A recording opened by one of the registered readers (see :func:`holodata.readers.open_recording`).
+
+    Attributes: ``path`` (what the user gave), ``kind`` (reader name), ``files`` (the files holding
+    the data, for checksums), ``truncated`` (True when only a readable prefix could be read — the
+    reason is in ``problems``), ``problems`` (one-line warnings met while reading).
+    """
+
+    kind = "recording"
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self.files: list[Path] = []
+        self.truncated = False
+        self.problems: list[str] = []
+        self.decoder: MessageDecoder | None = None
+
+    # -- to implement -----------------------------------------------------------------------------
+    def _topics(self) -> list[TopicInfo]:
+        raise NotImplementedError
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        """Messages of ``topics`` (all if None) in log-time order, undecoded."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        pass
+
+    # -- shared -----------------------------------------------------------------------------------
+    def topics(self, frame_ids: bool = True) -> list[TopicInfo]:
+        """Topics with type, count, rate and (``frame_ids``) the first message's header frame id."""
+        infos = self._topics()
+        if frame_ids and self.decoder is not None:
+            want = {t.name: t for t in infos if t.count > 0 and t.decodable and self.decoder.has_header(t.msgtype)}
+            if want:
+                try:
+                    for raw in self.raw_messages(list(want)):
+                        info = want.pop(raw.topic, None)
+                        if info is not None:
+                            info.frame_id = self.decoder.frame_id(raw)
+                        if not want:
+                            break
+                except RecordingError:
+                    pass
+        return infos
+
+    def topic(self, name: str) -> TopicInfo | None:
+        return next((t for t in self._topics() if t.name == name), None)
+
+    def decode(self, raw: RawMessage):
+        """The decoded message (rosbags message object, or the reader's own object)."""
+        if raw.obj is not None:
+            return raw.obj
+        if self.decoder is None:
+            raise DecodeError(f"{self.path}: topic {raw.topic}: messages of this recording cannot be decoded")
+        return self.decoder.decode(raw)
+
+    def stamp_ns(self, raw: RawMessage) -> int:
+        """Header stamp when the type has a header and it is non-zero, else the log time."""
+        if self.decoder is not None and raw.data is not None:
+            s = self.decoder.header_stamp(raw)
+            if s:
+                return s
+        return raw.log_ns
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[tuple[str, int, object]]:
+        """(topic, log time ns, decoded message), lazily; undecodable messages raise DecodeError."""
+        for raw in self.raw_messages(topics):
+            yield raw.topic, raw.log_ns, self.decode(raw)
+
+    def duration_ns(self) -> tuple[int | None, int | None]:
+        infos = [t for t in self._topics() if t.first_ns is not None]
+        if not infos:
+            return None, None
+        return min(t.first_ns for t in infos), max(t.last_ns for t in infos)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"<{self.__class__.__name__} {self.kind} {self.path}>"
+
+
+# --------------------------------------------------------------------------------------------------
+# typestore
+
+def _msg_dir_types(msg_dir: Path) -> dict:
+    """Types from ``.msg`` files under ``msg_dir``: ``<pkg>/msg/<Name>.msg`` -> ``pkg/msg/Name``
+    (a file directly in a folder named ``pkg`` gives the same)."""
+    from rosbags.typesys import get_types_from_msg
+
+    msg_dir = Path(msg_dir)
+    if not msg_dir.is_dir():
+        raise RecordingError(f"{msg_dir}: --msg-dir is not a folder")
+    typs: dict = {}
+    files = sorted(msg_dir.rglob("*.msg"))
+    if not files:
+        raise RecordingError(f"{msg_dir}: --msg-dir holds no .msg files")
+    for f in files:
+        parent = f.parent
+        pkg = parent.parent.name if parent.name == "msg" else parent.name
+        name = f"{pkg}/msg/{f.stem}"
+        try:
+            typs.update(get_types_from_msg(f.read_text(), name))
+        except Exception as err:  # noqa: BLE001 - rosbags raises several kinds
+            raise RecordingError(f"{f}: not a valid .msg definition ({' '.join(str(err).split())})") from None
+    return typs
+
+
+class MessageDecoder:
+    """Decodes raw messages of one recording with a rosbags typestore (see module docstring).
+
+    ``definitions``: (msgtype, format 'msg'|'idl'|None, text) per connection.
+    """
+
+    def __init__(self, ros_version: int, definitions: Iterable[tuple[str, str | None, str]] = (),
+                 msg_dir: Path | None = None, path: Path | None = None):
+        from rosbags.typesys import Stores, get_types_from_idl, get_types_from_msg, get_typestore
+
+        from ..messages import typestore_for
+
+        self.path = path
+        self.problems: list[str] = []
+        typs: dict = {}
+        seen = set()
+        for msgtype, fmt, text in definitions:
+            if not fmt or not text or (msgtype, text) in seen:
+                continue
+            seen.add((msgtype, text))
+            try:
+                if fmt == "msg":
+                    typs.update(get_types_from_msg(text, msgtype))
+                else:
+                    sep = "=" * 80 + "\n"
+                    if text.startswith(f"{sep}IDL: "):
+                        for part in text.split(sep)[1:]:
+                            typs.update(get_types_from_idl(part.split("\n", 1)[1]))
+                    else:
+                        typs.update(get_types_from_idl(text))
+            except Exception as err:  # noqa: BLE001
+                self.problems.append(f"embedded definition of {msgtype} unreadable "
+                                     f"({' '.join(str(err).split())[:120]}); using defaults")
+        if msg_dir is not None:
+            for k, v in _msg_dir_types(Path(msg_dir)).items():
+                typs.setdefault(k, v)
+        default = typestore_for(ros_version)
+        for k, v in default.fielddefs.items():
+            typs.setdefault(k, v)
+        store = get_typestore(Stores.EMPTY)
+        store.register(typs)
+        self.store = store
+        self.ros_version = ros_version
+        self._header_cache: dict[str, bool] = {}
+
+    def known(self, msgtype: str) -> bool:
+        return msgtype in self.store.fielddefs
+
+    def has_header(self, msgtype: str) -> bool:
+        h = self._header_cache.get(msgtype)
+        if h is None:
+            try:
+                fields = self.store.fielddefs[msgtype][1]
+                h = bool(fields) and fields[0][0] == "header" and fields[0][1][1] == "std_msgs/msg/Header"
+            except (KeyError, IndexError, TypeError):
+                h = False
+            self._header_cache[msgtype] = h
+        return h
+
+    def decode(self, raw: RawMessage):
+        if raw.encoding not in ("cdr", "ros1"):
+            raise DecodeError(f"topic {raw.topic}: message encoding {raw.encoding!r} is not a ROS encoding")
+        if not self.known(raw.msgtype):
+            raise DecodeError(f"topic {raw.topic}: no definition for message type {raw.msgtype} "
+                              f"(pass --msg-dir with its .msg files)")
+        try:
+            if raw.encoding == "ros1":
+                return self.store.deserialize_ros1(raw.data, raw.msgtype)
+            if raw.encoding == "cdr":
+                return self.store.deserialize_cdr(raw.data, raw.msgtype)
+        except Exception as err:  # noqa: BLE001 - rosbags raises SerdeError, struct/index/value errors
+            raise DecodeError(f"topic {raw.topic}: {raw.msgtype} message of {len(raw.data)} bytes does not "
+                              f"decode ({err.__class__.__name__}: {' '.join(str(err).split())[:100]})") from None
+
+    # header fields straight from the bytes (no full decode): ROS 1 = seq u32, sec u32, nsec u32,
+    # frame_id (u32 length + chars); CDR = 4-byte encapsulation, sec i32, nanosec u32, frame_id
+    def _header_at(self, raw: RawMessage):
+        if raw.encoding not in ("cdr", "ros1") or raw.data is None or not self.has_header(raw.msgtype):
+            return None
+        b = raw.data
+        if len(b) < 16:
+            return None
+        if raw.encoding == "ros1":
+            return "<", 4, 12
+        endian = "<" if b[1] == 1 else ">"
+        return endian, 4, 12
+
+    def header_stamp(self, raw: RawMessage) -> int | None:
+        at = self._header_at(raw)
+        if at is None:
+            return None
+        endian, o, _ = at
+        sec, nsec = struct.unpack_from(endian + ("iI" if raw.encoding == "cdr" else "II"), raw.data, o)
+        return sec * 1_000_000_000 + nsec
+
+    def frame_id(self, raw: RawMessage) -> str | None:
+        at = self._header_at(raw)
+        if at is None:
+            return None
+        endian, _, o = at
+        (n,) = struct.unpack_from(endian + "I", raw.data, o)
+        if n > 4096 or o + 4 + n > len(raw.data):
+            return None
+        s = bytes(raw.data[o + 4:o + 4 + n])
+        return s.rstrip(b"\0").decode("utf-8", "replace")
+
+
+@dataclass
+class ReaderSpec:
+    """A registered reader: ``name``, ``detect(path) -> bool`` and ``open(path, msg_dir)``."""
+
+    name: str
+    detect: object
+    open: object
+    description: str = ""
+    extensions: tuple = field(default_factory=tuple)

@@ -1,0 +1,114 @@
+"""``sensor_msgs/Image`` (depth) + ``sensor_msgs/CameraInfo`` -> points.
+
+Depth encodings: ``16UC1`` / ``mono16`` millimetres, ``32FC1`` metres; 0, NaN and inf are "no
+depth". Row padding (``step`` > width x pixel size) and ``is_bigendian`` are honoured. A payload
+shorter than ``step x height`` raises :class:`DecodeError` naming the topic (real bags carry such
+truncated images). Points come out in the camera's optical frame (REP-103 camera convention:
+x right, y down, z forward), unprojected with the pinhole ``K`` of the CameraInfo (distortion is
+ignored: depth images published by stereo/RGB-D drivers are rectified).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .base import DecodeError
+
+# encoding -> (numpy dtype code, channels)
+ENCODINGS = {
+    "mono8": ("u1", 1), "8UC1": ("u1", 1), "mono16": ("u2", 1), "16UC1": ("u2", 1), "16SC1": ("i2", 1),
+    "32FC1": ("f4", 1), "64FC1": ("f8", 1), "32SC1": ("i4", 1),
+    "rgb8": ("u1", 3), "bgr8": ("u1", 3), "8UC3": ("u1", 3), "rgba8": ("u1", 4), "bgra8": ("u1", 4),
+    "8UC4": ("u1", 4), "rgb16": ("u2", 3), "bgr16": ("u2", 3), "rgba16": ("u2", 4), "bgra16": ("u2", 4),
+    "16UC3": ("u2", 3), "32FC3": ("f4", 3), "yuv422": ("u1", 2), "uyvy": ("u1", 2), "yuyv": ("u1", 2),
+}
+# depth encodings -> scale to metres
+DEPTH_SCALE = {"16UC1": 1e-3, "mono16": 1e-3, "32FC1": 1.0, "64FC1": 1.0}
+
+
+def is_depth_encoding(encoding: str) -> bool:
+    return encoding in DEPTH_SCALE
+
+
+def image_array(msg, topic: str = "") -> np.ndarray:
+    """(H, W) or (H, W, C) array of an Image in its own encoding (native byte order)."""
+    where = f"topic {topic}: " if topic else ""
+    enc = str(msg.encoding)
+    if enc not in ENCODINGS:
+        raise DecodeError(f"{where}Image encoding {enc!r} is not supported")
+    code, ch = ENCODINGS[enc]
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    dt = np.dtype((">" if msg.is_bigendian else "<") + code)
+    px = dt.itemsize * ch
+    data = msg.data
+    if not isinstance(data, np.ndarray):
+        data = np.frombuffer(bytes(data), np.uint8)
+    if step < w * px:
+        raise DecodeError(f"{where}Image step {step} < width {w} x {px} B ({enc})")
+    need = step * h
+    if data.size < need:
+        raise DecodeError(f"{where}Image payload is {data.size} bytes, step {step} x height {h} needs {need} "
+                          f"(truncated message)")
+    shape = (h, w) + ((ch,) if ch > 1 else ())
+    strides = (step, px) + ((dt.itemsize,) if ch > 1 else ())
+    return np.ndarray(shape, dt, buffer=data, strides=strides).astype(dt.newbyteorder("="))
+
+
+def depth_image(msg, topic: str = "") -> np.ndarray:
+    """(H, W) float32 metres, NaN = no depth."""
+    enc = str(msg.encoding)
+    if enc not in DEPTH_SCALE:
+        raise DecodeError(f"{'topic ' + topic + ': ' if topic else ''}Image encoding {enc!r} is not a depth "
+                          f"encoding (16UC1/mono16 mm, 32FC1 m)")
+    a = image_array(msg, topic).astype(np.float32)
+    if DEPTH_SCALE[enc] != 1.0:
+        a *= np.float32(DEPTH_SCALE[enc])
+    a[~np.isfinite(a) | (a <= 0)] = np.nan
+    return a
+
+
+@dataclass
+class CameraModel:
+    """Pinhole intrinsics: ``K`` (3, 3) float64 pixels; ``width``/``height`` pixels."""
+
+    K: np.ndarray
+    width: int
+    height: int
+    frame_id: str = ""
+    distortion_model: str = ""
+    D: tuple = ()
+
+    def to_attrs(self) -> dict:
+        return {"K": self.K.tolist(), "width": self.width, "height": self.height, "frame_id": self.frame_id,
+                "distortion_model": self.distortion_model, "D": list(self.D)}
+
+
+def camera_model(msg, topic: str = "") -> CameraModel:
+    """From a CameraInfo (ROS 1 ``K`` or ROS 2 ``k``)."""
+    K = getattr(msg, "k", None)
+    if K is None:
+        K = getattr(msg, "K", None)
+    D = getattr(msg, "d", None)
+    if D is None:
+        D = getattr(msg, "D", ())
+    K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+    if not (K[0, 0] > 0 and K[1, 1] > 0):
+        raise DecodeError(f"{'topic ' + topic + ': ' if topic else ''}CameraInfo has no focal length (K = {K.ravel().tolist()})")
+    return CameraModel(K, int(msg.width), int(msg.height), str(msg.header.frame_id), str(msg.distortion_model),
+                       tuple(float(x) for x in np.asarray(D).ravel()))
+
+
+def depth_to_points(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Unproject a (H, W) metres depth image: (N, 3) float32 optical-frame points of the valid
+    pixels (row-major) and their (N,) flat pixel indices. ``stride`` subsamples rows and columns."""
+    H, W = depth.shape
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    d = depth[::stride, ::stride]
+    v, u = np.nonzero(np.isfinite(d))
+    z = d[v, u].astype(np.float32)
+    u = u * stride
+    v = v * stride
+    x = ((u - cx) / fx).astype(np.float32) * z
+    y = ((v - cy) / fy).astype(np.float32) * z
+    return np.stack([x, y, z], axis=1), (v.astype(np.int64) * W + u)

@@ -1,0 +1,322 @@
+"""MCAP files through the ``mcap`` library: files rosbags does not open (non-``ros2`` profiles,
+``ros1msg`` schemas, non-ROS encodings) and damaged ones (no summary from a crashed recorder, a file
+cut short).
+
+Channels whose message encoding is ``cdr`` (schemas ``ros2msg``/``ros2idl``) or ``ros1``
+(``ros1msg``) are decoded with the recording's rosbags typestore; other encodings (JSON, protobuf,
+the conformance suite's ``a``) are listed by ``topics()`` and yielded undecoded. A file without a
+summary is read linearly; a file that ends early is read up to its last complete record and marked
+``truncated``. Channels whose schema id is 0 or unknown count as ``schema: None`` (undecodable).
+"""
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+from ..errors import RecordingError
+from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
+
+_SCHEMA_FMT = {"ros2msg": "msg", "ros2idl": "idl", "ros1msg": "msg"}
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or err.__class__.__name__
+
+
+def _summary(f):
+    """The file's summary, or None when it has none / cannot be read."""
+    from mcap.reader import SeekingReader
+
+    try:
+        s = SeekingReader(f).get_summary()
+    except Exception:  # noqa: BLE001 - no footer, cut short, ...
+        return None
+    return s
+
+
+def topic_times_mcap(path: Path) -> dict[str, tuple[int, int]]:
+    """{topic: (first, last) log time} from the chunk message indexes (no chunk is decompressed)."""
+    from mcap.records import MessageIndex
+    from mcap.stream_reader import StreamReader
+
+    out: dict[str, list[int]] = {}
+    with open(path, "rb") as f:
+        s = _summary(f)
+        if s is None or not s.chunk_indexes:
+            return {}
+        for ci in s.chunk_indexes:
+            for ch_id, off in ci.message_index_offsets.items():
+                f.seek(off)
+                rec = next(StreamReader(f, skip_magic=True).records)
+                if not isinstance(rec, MessageIndex) or not rec.records:
+                    continue
+                times = [t for t, _ in rec.records]
+                topic = s.channels[ch_id].topic
+                lo, hi = out.setdefault(topic, [min(times), max(times)])
+                out[topic] = [min(lo, min(times)), max(hi, max(times))]
+    return {k: (v[0], v[1]) for k, v in out.items()}
+
+
+class McapRecording(Recording):
+    kind = "mcap"
+
+    def __init__(self, path: Path, files: list[Path] | None = None, msg_dir: Path | None = None):
+        from mcap.exceptions import McapError  # noqa: F401 - fail early if mcap is missing
+
+        super().__init__(path)
+        self.files = [Path(f) for f in (files or [path])]
+        self.channels: dict[tuple[int, int], tuple[str, str, str]] = {}   # (file, channel id) -> topic, type, encoding
+        self.summaries = []
+        self._cut: dict[Path, str] = {}
+        self.profile = ""
+        defs: list[tuple[str, str | None, str]] = []
+        counts: dict[str, int] = {}
+        times: dict[str, list[int]] = {}
+        ros1 = False
+        for i, f in enumerate(self.files):
+            self._check_magic(f)
+            with open(f, "rb") as fh:
+                s = _summary(fh)
+            self.summaries.append(s)
+            if s is not None:
+                for sc in s.schemas.values():
+                    if sc.encoding in _SCHEMA_FMT:
+                        defs.append((self._typename(sc.name), _SCHEMA_FMT[sc.encoding], sc.data.decode("utf-8", "replace")))
+                for ch in s.channels.values():
+                    self._add_channel(i, ch, s.schemas.get(ch.schema_id))
+                    counts.setdefault(ch.topic, 0)
+                if s.statistics is not None and s.statistics.channel_message_counts is not None:
+                    for cid, n in s.statistics.channel_message_counts.items():
+                        if cid in s.channels:
+                            counts[s.channels[cid].topic] = counts.get(s.channels[cid].topic, 0) + n
+                    for t, (lo, hi) in topic_times_mcap(f).items():
+                        a, b = times.setdefault(t, [lo, hi])
+                        times[t] = [min(a, lo), max(b, hi)]
+                    continue
+            # no summary (or no statistics): one linear pass for channels, counts and times
+            if s is None:
+                self.problems.append(f"{f}: no MCAP summary (recorder crashed?); read linearly")
+            for what, a, msg in self._stream(i, f):
+                if what == "schema":
+                    if a.encoding in _SCHEMA_FMT:
+                        defs.append((self._typename(a.name), _SCHEMA_FMT[a.encoding], a.data.decode("utf-8", "replace")))
+                elif what == "channel":
+                    counts.setdefault(a.topic, 0)
+                else:
+                    topic = a[0]
+                    counts[topic] = counts.get(topic, 0) + 1
+                    lo, hi = times.setdefault(topic, [msg.log_time, msg.log_time])
+                    times[topic] = [min(lo, msg.log_time), max(hi, msg.log_time)]
+        ros1 = any(e == "ros1" for _, _, e in self.channels.values())
+        cdr = any(e == "cdr" for _, _, e in self.channels.values())
+        self.decoder = MessageDecoder(1 if ros1 and not cdr else 2, defs, msg_dir, self.path)
+        self.problems += self.decoder.problems
+        by_topic: dict[str, tuple[str, str]] = {}
+        for topic, ty, enc in self.channels.values():
+            by_topic.setdefault(topic, (ty, enc))
+        self._infos = []
+        for name in sorted(by_topic):
+            ty, enc = by_topic[name]
+            lo, hi = times.get(name, (None, None))
+            ok = enc in ("cdr", "ros1") and self.decoder.known(ty)
+            note = "" if ok else (f"message encoding {enc!r} is not a ROS encoding; listed only"
+                                  if enc not in ("cdr", "ros1") else "no message definition (pass --msg-dir)")
+            self._infos.append(TopicInfo(name, ty, counts.get(name, 0), rate_of(counts.get(name, 0), lo, hi), None,
+                                         enc, ok, note, lo, hi))
+        if not self.channels:
+            raise RecordingError(f"{self.path}: MCAP file has no channels")
+
+    def _check_magic(self, f: Path) -> None:
+        with open(f, "rb") as fh:
+            head = fh.read(8)
+        if not head:
+            raise RecordingError(f"{f}: file is empty")
+        if head != b"\x89MCAP0\r\n":
+            raise RecordingError(f"{f}: not an MCAP file (bad magic)")
+
+    @staticmethod
+    def _typename(name: str) -> str:
+        from rosbags.typesys.msg import normalize_msgtype
+
+        return normalize_msgtype(name) if "/" in name else name
+
+    def _add_channel(self, i: int, ch, schema) -> None:
+        ty = self._typename(schema.name) if schema is not None else "(no schema)"
+        enc = ch.message_encoding or ""
+        enc = "cdr" if enc == "cdr" else "ros1" if enc == "ros1" else enc
+        self.channels[(i, ch.id)] = (ch.topic, ty, enc)
+
+    def _stream(self, i: int, f: Path):
+        """Linear read of file ``i``: yields ("schema", Schema, None), ("channel", Channel, None) and
+        ("message", (topic, type, encoding), Message); stops at the first incomplete or damaged record
+        (a chunk cut short gives the complete records it still holds)."""
+        from mcap.records import Channel, Message, Schema
+
+        schemas = {}
+        n = 0
+        for rec in self._records(f):
+            if isinstance(rec, Schema):
+                schemas[rec.id] = rec
+                yield "schema", rec, None
+            elif isinstance(rec, Channel):
+                if (i, rec.id) not in self.channels:
+                    self._add_channel(i, rec, schemas.get(rec.schema_id))
+                yield "channel", rec, None
+            elif isinstance(rec, Message):
+                key = (i, rec.channel_id)
+                if key in self.channels:
+                    n += 1
+                    yield "message", self.channels[key], rec
+        reason = self._cut.pop(f, None)
+        if reason:
+            self.truncated = True
+            msg = f"{f}: file ends early ({reason}) after {n} messages; the readable part is used"
+            if msg not in self.problems:
+                self.problems.append(msg)
+
+    def _records(self, f: Path):
+        """Top-level records framed here (opcode + u64 length, checked against the file size) and
+        parsed by the mcap library; chunks broken up into their records."""
+        import io
+        import struct as st
+
+        from mcap.records import Chunk, Footer
+        from mcap.stream_reader import StreamReader, breakup_chunk
+
+        size = f.stat().st_size
+        with open(f, "rb") as fh:
+            fh.seek(8)
+            reason = None
+            while True:
+                pos = fh.tell()
+                head = fh.read(9)
+                if len(head) < 9:
+                    reason = "no footer" if pos < size or not head else "partial record header"
+                    break
+                op, length = head[0], st.unpack("<Q", head[1:])[0]
+                if pos + 9 + length > size:
+                    body = fh.read()
+                    if op == 0x06:
+                        yield from _salvage_chunk(body)
+                    reason = f"record at byte {pos} needs {length} bytes, {size - pos - 9} left"
+                    break
+                body = fh.read(length)
+                try:
+                    rec = next(StreamReader(io.BytesIO(head + body), skip_magic=True, emit_chunks=True,
+                                            record_size_limit=None).records)
+                except StopIteration:
+                    continue
+                except Exception as err:  # noqa: BLE001
+                    reason = f"unreadable record at byte {pos} ({_one_line(err)[:80]})"
+                    break
+                if isinstance(rec, Chunk):
+                    try:
+                        yield from breakup_chunk(rec)
+                    except Exception as err:  # noqa: BLE001 - corrupt chunk: keep its readable records
+                        yield from _salvage_chunk(body)
+                        reason = f"damaged chunk at byte {pos} ({_one_line(err)[:80]})"
+                        break
+                elif isinstance(rec, Footer):
+                    return
+                else:
+                    yield rec
+        self._cut[f] = reason
+
+    def _topics(self) -> list[TopicInfo]:
+        return [TopicInfo(**vars(t)) for t in self._infos]
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        from mcap.reader import SeekingReader
+
+        want = None if topics is None else set(topics)
+        for i, (f, s) in enumerate(zip(self.files, self.summaries)):
+            if s is not None and s.chunk_indexes:
+                names = [c.topic for c in s.channels.values() if want is None or c.topic in want]
+                if not names:
+                    continue
+                with open(f, "rb") as fh:
+                    try:
+                        for _, ch, msg in SeekingReader(fh).iter_messages(topics=names):
+                            topic, ty, enc = self.channels[(i, ch.id)]
+                            yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
+                    except Exception as err:  # noqa: BLE001
+                        self.truncated = True
+                        self.problems.append(f"{f}: stopped at a damaged chunk ({_one_line(err)[:120]})")
+                continue
+            for what, ch, msg in self._stream(i, f):
+                if what != "message":
+                    continue
+                topic, ty, enc = ch
+                if want is None or topic in want:
+                    yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
+
+
+def _salvage_chunk(body: bytes):
+    """Complete records of a chunk record body that is cut short or damaged (partial decompression)."""
+    import io
+    import struct as st
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, Message, Schema
+
+    try:
+        o = 8 + 8 + 8 + 4
+        (clen,) = st.unpack_from("<I", body, o)
+        comp = body[o + 4:o + 4 + clen].decode()
+        o += 4 + clen + 8
+        data = body[o:]
+        if comp == "zstd":
+            import zstandard
+
+            data = zstandard.ZstdDecompressor().decompressobj().decompress(data)
+        elif comp == "lz4":
+            import lz4.frame
+
+            data = lz4.frame.LZ4FrameDecompressor().decompress(data)
+        elif comp:
+            return
+    except Exception:  # noqa: BLE001 - nothing salvageable
+        return
+    stream = ReadDataStream(io.BytesIO(data))
+    n = len(data)
+    while n - stream.count >= 9:
+        op = stream.read1()
+        length = stream.read8()
+        if n - stream.count < length:
+            return
+        try:
+            if op == 0x04:
+                yield Channel.read(stream)
+            elif op == 0x05:
+                yield Message.read(stream, length)
+            elif op == 0x03:
+                yield Schema.read(stream)
+            else:
+                stream.read(length)
+        except Exception:  # noqa: BLE001
+            return
+
+
+def open_mcap(path: Path, msg_dir: Path | None = None) -> Recording:
+    """A single ``.mcap``: rosbags for ROS 2 files with a summary, the mcap library otherwise."""
+    path = Path(path)
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+        if not head:
+            raise RecordingError(f"{path}: file is empty")
+        if head != b"\x89MCAP0\r\n":
+            raise RecordingError(f"{path}: not an MCAP file (bad magic)")
+        s = _summary(fh)
+    ros2 = s is not None and s.chunk_indexes and s.channels and all(
+        c.message_encoding == "cdr" for c in s.channels.values())
+    if ros2:
+        try:
+            from .rosbag import RosbagsRecording
+            from rosbags.rosbag2 import Reader
+
+            reader = Reader(path)
+            reader.open()
+            return RosbagsRecording(path, reader, 2, "mcap", msg_dir)
+        except Exception:  # noqa: BLE001 - e.g. profile not ros2: the mcap library reads it
+            pass
+    return McapRecording(path, [path], msg_dir)

@@ -1,0 +1,320 @@
+"""ROS bags through rosbags' own readers: ROS 1 ``.bag`` (uncompressed, bz2 or lz4 chunks),
+rosbag2 folders (``metadata.yaml`` + sqlite3 ``.db3`` or ``.mcap`` files, split bags, zstd file or
+message compression) and bare rosbag2 storage files (``.db3``, ``.mcap`` with the ``ros2`` profile).
+
+Damaged files: a ROS 1 bag without a usable index (recorder killed, file cut short) is read by a
+linear scan over its chunks with rosbags' record parser until the first unreadable record; the
+recording is then marked ``truncated`` and holds the readable prefix. rosbag2 storage files that
+rosbags cannot open are handed to the sqlite3 / MCAP fallbacks (:mod:`.sqlite`, :mod:`.mcap_file`),
+which do the same.
+"""
+from __future__ import annotations
+
+import os
+from collections import defaultdict
+from collections.abc import Iterable, Iterator
+from io import BytesIO
+from pathlib import Path
+
+from ..errors import RecordingError
+from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or err.__class__.__name__
+
+
+def _defs(conn) -> tuple[str, str | None, str]:
+    fmt = getattr(conn.msgdef.format, "name", "NONE").lower()
+    return conn.msgtype, (fmt if fmt in ("msg", "idl") else None), conn.msgdef.data
+
+
+class RosbagsRecording(Recording):
+    """A bag opened with rosbags' ``rosbag1.Reader`` (``ros_version`` 1) or ``rosbag2.Reader``."""
+
+    def __init__(self, path: Path, reader, ros_version: int, kind: str, msg_dir: Path | None = None):
+        super().__init__(path)
+        self.reader = reader
+        self.ros_version = ros_version
+        self.kind = kind
+        self.decoder = MessageDecoder(ros_version, [_defs(c) for c in reader.connections], msg_dir, self.path)
+        self.problems += self.decoder.problems
+        self._infos: list[TopicInfo] | None = None
+        if ros_version == 1:
+            self.files = [self.path]
+        elif self.path.is_dir():
+            self.files = [Path(s.path) for s in getattr(reader.storage, "storages", [])] or sorted(
+                p for p in self.path.iterdir() if p.suffix in (".db3", ".mcap", ".zstd"))
+        else:
+            self.files = [self.path]
+
+    def _encoding(self, conn) -> str:
+        if self.ros_version == 1:
+            return "ros1"
+        return getattr(conn.ext, "serialization_format", "cdr") or "cdr"
+
+    def _times(self) -> dict[str, tuple[int, int]]:
+        """First/last log time per topic, from indexes only (no message data read)."""
+        out: dict[str, list[int]] = {}
+        try:
+            if self.ros_version == 1:
+                for c in self.reader.connections:
+                    idx = self.reader.indexes.get(c.id) or []
+                    if idx:
+                        lo, hi = out.setdefault(c.topic, [idx[0].time, idx[-1].time])
+                        out[c.topic] = [min(lo, idx[0].time), max(hi, idx[-1].time)]
+            else:
+                from .mcap_file import topic_times_mcap
+                from .sqlite import topic_times_sqlite
+
+                for f in self.files:
+                    tt = topic_times_sqlite(f) if f.suffix == ".db3" else topic_times_mcap(f) if f.suffix == ".mcap" else {}
+                    for t, (lo, hi) in tt.items():
+                        a, b = out.setdefault(t, [lo, hi])
+                        out[t] = [min(a, lo), max(b, hi)]
+        except Exception:  # noqa: BLE001 - rates are a nicety
+            pass
+        return {k: (v[0], v[1]) for k, v in out.items()}
+
+    def _topics(self) -> list[TopicInfo]:
+        if self._infos is None:
+            counts: dict[str, int] = defaultdict(int)
+            types: dict[str, str] = {}
+            enc: dict[str, str] = {}
+            for c in self.reader.connections:
+                counts[c.topic] += c.msgcount
+                types.setdefault(c.topic, c.msgtype)
+                enc.setdefault(c.topic, self._encoding(c))
+            times = self._times()
+            infos = []
+            for name in sorted(counts):
+                lo, hi = times.get(name, (None, None))
+                e = enc[name]
+                ok = e in ("cdr", "ros1") and self.decoder.known(types[name])
+                note = "" if ok else (f"serialisation {e!r} not decoded" if e not in ("cdr", "ros1")
+                                      else "no message definition (pass --msg-dir)")
+                infos.append(TopicInfo(name, types[name], counts[name], rate_of(counts[name], lo, hi), None, e, ok,
+                                       note, lo, hi))
+            self._infos = infos
+        return [TopicInfo(**vars(t)) for t in self._infos]
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        conns = self.reader.connections
+        if topics is not None:
+            want = set(topics)
+            conns = [c for c in conns if c.topic in want]
+            if not conns:
+                return
+        enc = {c.id: self._encoding(c) for c in conns}
+        try:
+            for c, t, data in self.reader.messages(connections=conns):
+                yield RawMessage(c.topic, c.msgtype, t, data, enc[c.id])
+        except Exception as err:  # noqa: BLE001 - damaged data past the index
+            self.truncated = True
+            msg = f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})"
+            if msg not in self.problems:
+                self.problems.append(msg)
+
+    def close(self) -> None:
+        try:
+            self.reader.close()
+        except Exception:  # noqa: BLE001
+            pass
+
+
+# --------------------------------------------------------------------------------------------------
+# ROS 1 linear scan (no index)
+
+class Ros1ScanRecording(Recording):
+    """A ROS 1 bag read front to back without its index (see module docstring)."""
+
+    kind = "rosbag1"
+
+    def __init__(self, path: Path, reason: str, msg_dir: Path | None = None):
+        super().__init__(path)
+        self.files = [self.path]
+        self.conns: dict[int, tuple[str, str, str]] = {}   # id -> topic, type, definition
+        counts: dict[int, int] = defaultdict(int)
+        first: dict[int, int] = {}
+        last: dict[int, int] = {}
+        n = 0
+        for cid, t, _ in self._scan(count_only=True):
+            counts[cid] += 1
+            first.setdefault(cid, t)
+            last[cid] = max(last.get(cid, t), t)
+            n += 1
+        if not self.conns:
+            raise RecordingError(f"{self.path}: ROS 1 bag has no readable connection records ({reason})")
+        self.problems.insert(0, f"{self.path}: bag index unusable ({reason}); read {n} messages by a linear scan")
+        self.decoder = MessageDecoder(1, [(ty, "msg", d) for _, ty, d in self.conns.values()], msg_dir, self.path)
+        self.problems += self.decoder.problems
+        by_topic: dict[str, list] = {}
+        for cid, (topic, ty, _) in self.conns.items():
+            e = by_topic.setdefault(topic, [ty, 0, None, None])
+            e[1] += counts.get(cid, 0)
+            if cid in first:
+                e[2] = first[cid] if e[2] is None else min(e[2], first[cid])
+                e[3] = last[cid] if e[3] is None else max(e[3], last[cid])
+        self._infos = [TopicInfo(k, v[0], v[1], rate_of(v[1], v[2], v[3]), None, "ros1", self.decoder.known(v[0]),
+                                 "", v[2], v[3]) for k, v in sorted(by_topic.items())]
+
+    def _scan(self, count_only: bool = False):
+        from rosbags.rosbag1.reader import Header, ReaderError, RecordType, decompressors, read_bytes, read_uint32
+        from rosbags.typesys.msg import normalize_msgtype
+
+        def conn_record(header, data):
+            cid = header.get_uint32("conn")
+            if cid not in self.conns:
+                info = Header.read(BytesIO(len(data).to_bytes(4, "little") + data))
+                self.conns[cid] = (header.get_string("topic"), normalize_msgtype(info.get_string("type")),
+                                   info.get_string("message_definition") if "message_definition" in info else "")
+
+        size = os.path.getsize(self.path)
+        with open(self.path, "rb") as f:
+            try:
+                magic = f.readline()
+                if not magic.startswith(b"#ROSBAG V2.0"):
+                    raise RecordingError(f"{self.path}: not a ROS 1 bag v2.0 (bad magic)")
+                Header.read(f, RecordType.BAGHEADER)
+                f.seek(read_uint32(f), os.SEEK_CUR)
+                while f.tell() < size:
+                    header = Header.read(f)
+                    op = header.get_uint8("op")
+                    want = read_uint32(f)
+                    data = f.read(want)
+                    cut = len(data) < want
+                    if op == RecordType.CHUNK:
+                        comp = header.get_string("compression")
+                        if cut:
+                            data = _partial_decompress(comp, data)
+                        else:
+                            data = decompressors[comp](data)
+                        inner = BytesIO(data)
+                        n_inner = len(data)
+                        try:
+                            while inner.tell() < n_inner:
+                                h = Header.read(inner)
+                                d = read_bytes(inner, read_uint32(inner))
+                                o = h.get_uint8("op")
+                                if o == RecordType.CONNECTION:
+                                    conn_record(h, d)
+                                elif o == RecordType.MSGDATA:
+                                    yield h.get_uint32("conn"), h.get_time("time"), (None if count_only else d)
+                        except ReaderError:
+                            if not cut:
+                                raise
+                    elif cut:
+                        pass
+                    elif op == RecordType.CONNECTION:
+                        conn_record(header, data)
+                    elif op == RecordType.MSGDATA:
+                        yield header.get_uint32("conn"), header.get_time("time"), (None if count_only else data)
+                    if cut:
+                        raise ReaderError(f"record of {want} bytes cut short at {len(data) if op != RecordType.CHUNK else 'its end'}")
+            except RecordingError:
+                raise
+            except (ReaderError, KeyError, OSError, ValueError, EOFError) as err:
+                self.truncated = True
+                msg = f"{self.path}: file ends in a damaged or partial record at byte {f.tell()} of {size} " \
+                      f"({_one_line(err)[:100]}); the readable part is used"
+                if msg not in self.problems:
+                    self.problems.append(msg)
+
+    def _topics(self) -> list[TopicInfo]:
+        return [TopicInfo(**vars(t)) for t in self._infos]
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        want = None if topics is None else set(topics)
+        for cid, t, data in self._scan():
+            topic, ty, _ = self.conns[cid]
+            if want is None or topic in want:
+                yield RawMessage(topic, ty, t, data, "ros1")
+
+
+def _partial_decompress(compression: str, data: bytes) -> bytes:
+    """As much of a cut-short chunk as its compression lets us recover."""
+    try:
+        if compression == "none":
+            return data
+        if compression == "bz2":
+            import bz2
+
+            return bz2.BZ2Decompressor().decompress(data)
+        if compression == "lz4":
+            import lz4.frame
+
+            return lz4.frame.LZ4FrameDecompressor().decompress(data)
+    except Exception:  # noqa: BLE001
+        pass
+    return b""
+
+
+# --------------------------------------------------------------------------------------------------
+# openers used by the registry
+
+def open_rosbag1(path: Path, msg_dir: Path | None = None) -> Recording:
+    from rosbags.rosbag1 import Reader
+
+    with open(path, "rb") as f:
+        head = f.read(13)
+    if not head:
+        raise RecordingError(f"{path}: file is empty")
+    if not head.startswith(b"#ROSBAG V"):
+        raise RecordingError(f"{path}: not a ROS 1 bag (no '#ROSBAG V2.0' magic at the start)")
+    if not head.startswith(b"#ROSBAG V2.0"):
+        raise RecordingError(f"{path}: ROS 1 bag version {head[9:12].decode('ascii', 'replace')} is not supported "
+                             f"(only 2.0; convert it with `rosbag fix`)")
+    reader = Reader(path)
+    try:
+        reader.open()
+    except Exception as err:  # noqa: BLE001 - rosbags raises ReaderError, struct/unicode errors
+        return Ros1ScanRecording(path, _one_line(err)[:120], msg_dir)
+    return RosbagsRecording(path, reader, 1, "rosbag1", msg_dir)
+
+
+def open_rosbag2(path: Path, msg_dir: Path | None = None) -> Recording:
+    """rosbag2 folder with metadata.yaml, or a bare ``.db3`` / ROS 2 ``.mcap`` storage file."""
+    from rosbags.rosbag2 import Reader
+
+    path = Path(path)
+    files = _storage_files(path)
+    try:
+        reader = Reader(path)
+        reader.open()
+    except Exception as err:  # noqa: BLE001 - fall back to the storage files themselves
+        reason = _one_line(err)[:160]
+        if not files:
+            raise RecordingError(f"{path}: rosbag2 folder without readable storage files ({reason})") from None
+        suffixes = {f.suffix for f in files}
+        if suffixes == {".db3"}:
+            from .sqlite import SqliteRecording
+
+            rec = SqliteRecording(path, files, msg_dir)
+        elif suffixes == {".mcap"}:
+            from .mcap_file import McapRecording
+
+            rec = McapRecording(path, files, msg_dir)
+        else:
+            raise RecordingError(f"{path}: rosbags cannot open it ({reason})") from None
+        if path.is_dir():
+            rec.problems.insert(0, f"{path}: rosbags cannot open the bag ({reason}); read its storage files directly")
+        return rec
+    kind = "rosbag2-" + ("mcap" if any(f.suffix == ".mcap" for f in files) else "sqlite3")
+    return RosbagsRecording(path, reader, 2, kind, msg_dir)
+
+
+def _storage_files(path: Path) -> list[Path]:
+    if not path.is_dir():
+        return [path]
+    meta = path / "metadata.yaml"
+    if meta.exists():
+        try:
+            import yaml
+
+            info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
+            files = [path / Path(p).name for p in info.get("relative_file_paths", [])]
+            if files and all(f.exists() for f in files):
+                return files
+        except Exception:  # noqa: BLE001 - damaged metadata: look at the folder instead
+            pass
+    return sorted(p for p in path.iterdir() if p.suffix in (".db3", ".mcap"))

@@ -1,0 +1,49 @@
+"""TF buffer: static chains, inverse edges, interpolated dynamic edges, gaps, roots."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from holodata.readers.tf import TransformBuffer, transform_matrix
+
+from _recordings import store_for, tf_msg
+
+
+def _T(xyz, yaw_deg=0.0):
+    M = np.eye(4)
+    M[:3, :3] = Rotation.from_euler("z", yaw_deg, degrees=True).as_matrix()
+    M[:3, 3] = xyz
+    return M
+
+
+def test_static_chain_and_inverse():
+    b = TransformBuffer()
+    A, B = _T([1, 0, 0], 90), _T([0, 2, 0.5], -30)
+    b.add("base_link", "radar", A, static=True)
+    b.add("base_link", "/lidar", B, static=True)     # leading slash (ROS 1) is ignored
+    np.testing.assert_allclose(b.lookup("base_link", "radar"), A)
+    np.testing.assert_allclose(b.lookup("radar", "base_link"), np.linalg.inv(A))
+    np.testing.assert_allclose(b.lookup("lidar", "radar"), np.linalg.inv(B) @ A, atol=1e-12)
+    assert b.lookup("radar", "nowhere") is None
+    assert b.root("radar") == "base_link"
+
+
+def test_dynamic_interpolation_gap_and_message_roundtrip():
+    T = store_for("mcap").types
+    b = TransformBuffer(max_gap_ns=100)
+    t0 = 1_000_000_000
+    msgs = [tf_msg(T, "mcap", [(t0 + k * 1000, "odom", "base_link", _T([k * 1.0, 0, 0], 10 * k))]) for k in range(5)]
+    for m in msgs:
+        assert b.add_message(m) == 1
+    b.add_message(tf_msg(T, "mcap", [(0, "map", "odom", _T([0, 0, 1]))]), static=True)
+    b.add("base_link", "radar", _T([0.1, 0, 0]), static=True)
+    M = b.lookup("map", "radar", t0 + 2500)
+    expect = _T([0, 0, 1]) @ _T([2.5, 0, 0], 25) @ _T([0.1, 0, 0])
+    np.testing.assert_allclose(M, expect, atol=1e-9)
+    assert b.lookup("map", "radar", t0 + 4000 + 101) is None       # beyond the gap
+    assert b.lookup("map", "radar", t0 + 4000 + 99) is not None
+    assert b.lookup("map", "radar", None) is None                  # dynamic edge needs a time
+    assert b.lookup("map", "radar", None, static_only=True) is None
+    assert b.root("radar") == "map"
+    q = msgs[1].transforms[0].transform
+    np.testing.assert_allclose(transform_matrix(q), _T([1, 0, 0], 10), atol=1e-12)
