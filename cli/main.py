@@ -15,6 +15,7 @@ import click
 # module name under holodata.cli -> attribute holding the click command(s)
 COMMAND_MODULES: list[str] = [
     "info",
+    "ingest",
     "raytrace",
     "synth",
     "train",

@@ -1,0 +1,86 @@
+"""``holodata ingest``."""
+from __future__ import annotations
+
+import click
+
+
+@click.command()
+@click.argument("recordings", nargs=-1, required=True)
+@click.option("--out", "out", help="Dataset to create or extend (local path or fsspec URL).")
+@click.option("--list", "list_only", is_flag=True,
+              help="Only print each recording's topics, types, counts, rates and the roles ingest would use.")
+@click.option("--topics", "topics_file", type=click.Path(dir_okay=False),
+              help="YAML file mapping roles to topics (see examples/topics.yaml).")
+@click.option("--scene-id", "scene_ids", multiple=True,
+              help="Scene id, once per recording (default: the recording's file or folder name).")
+@click.option("--msg-dir", type=click.Path(file_okay=False),
+              help="Folder of .msg files for message types the recording does not define.")
+@click.option("--meta", type=click.Path(dir_okay=False),
+              help="Ouster sensor metadata .json for a .pcap (default: same name next to the pcap).")
+@click.option("--tolerance", "tolerance_ms", type=float, default=50.0, show_default=True,
+              help="Max time offset (ms) between a frame and the LiDAR scan / camera frame synced to it.")
+@click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None,
+              help="Compression of the new arrays (default: the dataset's, zstd).")
+@click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, quiet, as_json):
+    """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster
+    .pcap (+ .json) — and write one dataset scene per recording: radar heatmaps, LiDAR scans and
+    camera clouds synced to the radar rotation cycles (LiDAR scans are the frames when there is no
+    radar), timestamps, TF poses and extrinsics. Rerun the same command to resume.
+
+    Exit 0 when every recording was ingested (warnings go to stderr), 1 when one could not be.
+
+    Examples:
+
+      holodata ingest --list drive.bag
+
+      holodata ingest corner_01/ corner_02.mcap --out data.zarr --topics topics.yaml
+    """
+    import json
+    import sys
+
+    from holodata.ingest import format_listing, ingest as run_ingest, list_recording
+
+    if list_only:
+        infos, errors = [], []
+        for r in recordings:
+            try:
+                infos.append(list_recording(r, msg_dir=msg_dir, meta=meta))
+            except Exception as err:  # noqa: BLE001 - one line per recording
+                from holodata.cli.main import one_line
+
+                errors.append(f"{r}: {one_line(err)}" if str(r) not in str(err) else one_line(err))
+        if as_json:
+            click.echo(json.dumps({"recordings": infos, "errors": errors}, indent=2))
+        else:
+            click.echo("\n\n".join(format_listing(i) for i in infos))
+        for e in errors:
+            click.echo(f"error: {e}", err=True)
+        sys.exit(1 if errors else 0)
+    if not out:
+        raise click.UsageError("--out DATASET is required (or use --list)")
+    summary = run_ingest(list(recordings), out, topics=topics_file, scene_ids=list(scene_ids) or None,
+                         msg_dir=msg_dir, tolerance_ms=tolerance_ms, quiet=quiet or as_json, meta=meta, codec=codec)
+    if as_json:
+        click.echo(json.dumps(summary, indent=2, default=str))
+    else:
+        for sc in summary["scenes"]:
+            if sc.get("skipped"):
+                click.echo(f"{sc['scene']}: {sc['skipped']} ({sc['frames']} frames)")
+                continue
+            arrays = ", ".join(sc["arrays"])
+            trunc = " (truncated recording: readable part)" if sc["truncated"] else ""
+            click.echo(f"{sc['scene']}: {sc['frames']} frames ({sc['frame_sensor']}) from {sc['recording']}{trunc}"
+                       f" -> {arrays}")
+        click.echo(f"dataset: {summary['dataset']}")
+    if not quiet:
+        for sc in summary["scenes"]:
+            for w in sc.get("notes", []) + sc.get("warnings", []):
+                click.echo(f"warning: {sc['scene']}: {w}", err=True)
+    for f in summary["failed"]:
+        click.echo(f"error: {f['error']}", err=True)
+    sys.exit(0 if summary["ok"] else 1)
+
+
+COMMANDS = [ingest]

@@ -1,0 +1,1255 @@
+"""``holodata ingest``: recordings -> dataset scenes (DESIGN §3), streaming and resumable.
+
+Per recording (one scene each):
+
+1. **Topic mapping** (:func:`map_topics`): radar = ``*/RadarHeatmap`` messages; LiDAR = a
+   ``PointCloud2`` whose topic/frame does not look like a camera, Ouster pcap scans, or
+   ``ouster_ros/PacketMsg`` packets + the driver's metadata ``String``; camera = a depth ``Image``
+   (16UC1 mm / 32FC1 m) + its ``CameraInfo``, else a camera-looking ``PointCloud2``; TF =
+   ``/tf`` and ``/tf_static``. A YAML file (``--topics``, see ``examples/topics.yaml``) overrides
+   any role (``null`` switches a role off) and the options ``time``, ``world_frame``,
+   ``base_frame``, ``camera_stride``.
+2. **Index pass**: every message of the mapped topics is read undecoded; stamps come from the
+   header bytes (``time: header``, default; 0 stamps fall back to the log time) or the log time
+   (``time: log``). Messages of the sensor that defines the frames are decoded and checked here,
+   so a frame exists only for a message that decodes.
+3. **Sync**: frames are radar rotation cycles (radar header stamp), or LiDAR scans when there is
+   no radar (``frame_sensor`` says which). Each frame takes the LiDAR scan and camera frame
+   nearest in time within ``tolerance`` (default 50 ms); frames with none get an empty cloud and
+   ``<sensor>/timestamp_ns`` = 0. Unmatched and failed messages are counted and reported.
+4. **Write pass**: only the matched messages are decoded; shards are written as soon as all their
+   frames have arrived (memory is a few shards, flat in recording size). Rerunning the same command
+   resumes: finished shards are skipped (their messages are not decoded), a finished scene is
+   skipped entirely.
+
+Arrays: ``time/timestamp_ns``; ``radar/heatmap`` (T, R, H, W) as recorded (float16|float32 linear
+amplitude), ``radar/cycle_ns`` (T, 2) [start, end]; ``lidar/points`` ragged (sensor frame; for
+organised clouds the valid pixels of ``lidar/range`` in row-major order), ``lidar/point_time_ns``
+ragged (per-point time relative to the scan stamp, when the cloud has a time field), ``lidar/range``
+(T, Hl, Wl) float32 m, NaN = no return (organised clouds as published; Ouster scans destaggered),
+``lidar/timestamp_ns``; ``camera/points`` ragged (sensor frame: optical frame for depth images),
+``camera/timestamp_ns``; ``pose/T_world_radar`` when TF connects the radar frame to the world frame
+at every frame time. Scene attributes: ``frame_sensor``, ``source`` {recording, files, sha256,
+reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF), ``sensors`` (topics,
+frames, intrinsics, Ouster metadata), ``ingest`` (mapping, tolerance, counts, drops, warnings).
+
+Truncated recordings (recorder crash, file cut short): the readable prefix is ingested and the
+scene is marked ``source.truncated = true`` with the reason; ``ingest`` warns. Recordings with no
+radar, point cloud, depth or Ouster topic (camera-only, IMU-only, strings, non-ROS MCAP) are
+rejected with a one-line reason.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .conventions import Grid, RangeBins
+from .errors import DatasetError, HolodataError, InputError, RecordingError
+from .readers import open_recording
+from .readers.base import DecodeError, RawMessage, Recording, TopicInfo
+
+RADAR_SUFFIX = "/RadarHeatmap"
+PC2 = "sensor_msgs/msg/PointCloud2"
+IMAGE = "sensor_msgs/msg/Image"
+CAMINFO = "sensor_msgs/msg/CameraInfo"
+STRING = "std_msgs/msg/String"
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+OUSTER_SCAN = "ouster/LidarScan"
+OUSTER_PACKET = "ouster_ros/msg/PacketMsg"
+CAMERA_WORDS = ("camera", "cam", "zed", "realsense", "rgbd", "depth", "stereo", "optical", "kinect", "oak",
+                "d435", "d455", "image")
+ROLES = ("radar", "lidar", "lidar_metadata", "camera", "camera_info", "tf", "tf_static")
+OPTIONS = ("time", "world_frame", "base_frame", "camera_stride")
+DEFAULT_TOLERANCE_MS = 50.0
+SHARD_TARGET_BYTES = 128 << 20
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or err.__class__.__name__
+
+
+# ==================================================================================================
+# topic mapping
+
+@dataclass
+class TopicMap:
+    """Which topic plays which role (None = not used) plus options."""
+
+    radar: str | None = None
+    lidar: str | None = None
+    lidar_metadata: str | None = None
+    camera: str | None = None
+    camera_info: str | None = None
+    tf: list[str] = field(default_factory=list)
+    tf_static: list[str] = field(default_factory=list)
+    time: str = "header"
+    world_frame: str | None = None
+    base_frame: str | None = None
+    camera_stride: int = 1
+
+    def to_dict(self) -> dict:
+        return dict(vars(self))
+
+
+def load_topics_file(path) -> dict:
+    """The YAML mapping of ``--topics`` (see ``examples/topics.yaml``); InputError on bad content."""
+    import yaml
+
+    p = Path(path)
+    try:
+        data = yaml.safe_load(p.read_text())
+    except OSError as err:
+        raise InputError(f"{p}: cannot read topics file ({err.strerror})") from None
+    except yaml.YAMLError as err:
+        raise InputError(f"{p}: not valid YAML ({_one_line(err)[:120]})") from None
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise InputError(f"{p}: topics file must be a mapping of role: topic")
+    bad = [k for k in data if k not in ROLES + OPTIONS]
+    if bad:
+        raise InputError(f"{p}: unknown key(s) {', '.join(map(str, bad))} (roles: {', '.join(ROLES)}; "
+                         f"options: {', '.join(OPTIONS)})")
+    if data.get("time", "header") not in ("header", "log"):
+        raise InputError(f"{p}: time must be 'header' or 'log', got {data.get('time')!r}")
+    for k in ("tf", "tf_static"):
+        if isinstance(data.get(k), str):
+            data[k] = [data[k]]
+    return data
+
+
+def _camera_like(*names: str | None) -> bool:
+    low = " ".join(n.lower() for n in names if n)
+    return any(w in low for w in CAMERA_WORDS)
+
+
+def _looks_static(name: str) -> bool:
+    return "static" in name
+
+
+def map_topics(rec: Recording, override: dict | None = None, topics: list[TopicInfo] | None = None
+               ) -> tuple[TopicMap, list[str]]:
+    """Guess the topic roles of ``rec`` (see module docstring), apply ``override``; returns the map
+    and notes (one line each) about topics that look like sensors but are not used."""
+    infos = topics if topics is not None else rec.topics(frame_ids=True)
+    by = {t.name: t for t in infos}
+    notes: list[str] = []
+    m = TopicMap()
+    usable = [t for t in infos if t.count > 0 and t.decodable]
+    radar = sorted((t for t in usable if t.msgtype.endswith(RADAR_SUFFIX)), key=lambda t: (-t.count, t.name))
+    if radar:
+        m.radar = radar[0].name
+        notes += [f"topic {t.name}: second radar topic, not used" for t in radar[1:]]
+    # LiDAR
+    ouster = [t for t in usable if t.msgtype == OUSTER_SCAN]
+    packets = [t for t in usable if t.msgtype == OUSTER_PACKET and "imu" not in t.name.lower()]
+    clouds = [t for t in usable if t.msgtype == PC2]
+    lidar_clouds = sorted((t for t in clouds if not _camera_like(t.name, t.frame_id)), key=lambda t: (-t.count, t.name))
+    cam_clouds = sorted((t for t in clouds if _camera_like(t.name, t.frame_id)), key=lambda t: (-t.count, t.name))
+    if ouster:
+        m.lidar = ouster[0].name
+    elif lidar_clouds:
+        m.lidar = lidar_clouds[0].name
+        notes += [f"topic {t.name}: another point cloud, not used (name it in --topics to choose)"
+                  for t in lidar_clouds[1:]]
+    elif packets:
+        meta = [t for t in infos if t.msgtype == STRING and "metadata" in t.name.lower() and t.count > 0]
+        if meta:
+            m.lidar, m.lidar_metadata = packets[0].name, meta[0].name
+        else:
+            notes.append(f"topic {packets[0].name}: Ouster packets without a metadata String topic; not used")
+    # camera: a depth image with camera info, else a camera point cloud
+    images = [t for t in usable if t.msgtype == IMAGE]
+    infos_ci = [t for t in usable if t.msgtype == CAMINFO]
+    depth = []
+    for t in images:
+        ok, why = _probe_depth(rec, t.name)
+        if ok:
+            depth.append(t)
+        else:
+            notes.append(why)
+    if depth:
+        depth.sort(key=lambda t: (0 if "depth" in t.name.lower() else 1, -t.count, t.name))
+        m.camera = depth[0].name
+        m.camera_info = _camera_info_for(depth[0], infos_ci)
+        if m.camera_info is None:
+            notes.append(f"topic {m.camera}: depth image without a CameraInfo topic; not used")
+            m.camera = None
+    if m.camera is None and cam_clouds:
+        m.camera = cam_clouds[0].name
+    for t in usable:
+        if t.msgtype in TF_TYPES:
+            (m.tf_static if _looks_static(t.name) else m.tf).append(t.name)
+    if override:
+        _apply_override(m, override, by, rec)
+    return m, notes
+
+
+def _probe_depth(rec: Recording, topic: str) -> tuple[bool, str]:
+    """(is a usable depth image topic, why not) from its first message."""
+    from .readers.images import depth_image, image_array, is_depth_encoding
+
+    try:
+        raw = next(iter(rec.raw_messages([topic])))
+        msg = rec.decode(raw)
+        if not is_depth_encoding(str(msg.encoding)):
+            image_array(msg, topic)  # a truncated payload is reported as such
+            return False, f"topic {topic}: Image {msg.encoding} is not a depth image (16UC1/32FC1); not used"
+        depth_image(msg, topic)
+    except StopIteration:
+        return False, f"topic {topic}: no messages"
+    except HolodataError as err:
+        return False, f"{_one_line(err)}; topic skipped"
+    return True, ""
+
+
+def _camera_info_for(img: TopicInfo, infos: list[TopicInfo]) -> str | None:
+    if not infos:
+        return None
+    ns = img.name.rsplit("/", 1)[0]
+    same_ns = [t for t in infos if t.name.rsplit("/", 1)[0] == ns]
+    same_frame = [t for t in infos if img.frame_id and t.frame_id == img.frame_id]
+    for group in (same_ns, same_frame, infos):
+        if group:
+            return sorted(group, key=lambda t: t.name)[0].name
+    return None
+
+
+def _apply_override(m: TopicMap, ov: dict, by: dict[str, TopicInfo], rec: Recording) -> None:
+    for k, v in ov.items():
+        if k in ("tf", "tf_static"):
+            v = [] if v is None else list(v)
+            for name in v:
+                _check_topic(name, by, rec)
+            setattr(m, k, v)
+        elif k in ROLES:
+            if v is not None:
+                _check_topic(str(v), by, rec)
+            setattr(m, k, None if v is None else str(v))
+        elif k == "camera_stride":
+            if not isinstance(v, int) or v < 1:
+                raise InputError(f"topics file: camera_stride must be an integer >= 1, got {v!r}")
+            m.camera_stride = v
+        else:
+            setattr(m, k, v)
+    if m.lidar and by[m.lidar].msgtype == OUSTER_PACKET and not m.lidar_metadata:
+        raise InputError(f"topics file: lidar {m.lidar} carries Ouster packets; name the metadata String topic "
+                         f"as lidar_metadata")
+    if m.camera and by[m.camera].msgtype == IMAGE and not m.camera_info:
+        raise InputError(f"topics file: camera {m.camera} is an Image; name its CameraInfo topic as camera_info")
+
+
+def _check_topic(name: str, by: dict[str, TopicInfo], rec: Recording) -> None:
+    if name not in by:
+        have = ", ".join(sorted(by)[:12])
+        raise InputError(f"topics file: {name} is not a topic of {rec.path} (have: {have}{' ...' if len(by) > 12 else ''})")
+
+
+# ==================================================================================================
+# streams: one per sensor role; ``feed`` turns raw messages into items (one per scan / frame)
+
+@dataclass
+class Item:
+    index: int           # item number within the stream (stable across passes)
+    stamp: int           # ns
+    payload: object = None
+
+
+class _Stream:
+    role = ""
+
+    def __init__(self, rec: Recording, topic: str, time: str):
+        self.rec, self.topic, self.time = rec, topic, time
+        self.n = 0
+        self.failed: list[str] = []
+
+    @property
+    def topics(self) -> list[str]:
+        return [self.topic]
+
+    def stamp(self, raw: RawMessage) -> int:
+        return raw.log_ns if self.time == "log" else self.rec.stamp_ns(raw)
+
+    def reset(self) -> None:
+        self.n = 0
+
+    def _next(self) -> int:
+        i = self.n
+        self.n += 1
+        return i
+
+    def feed(self, raw: RawMessage, decode: bool, check: bool = False, want=None) -> list[Item]:
+        """Items completed by ``raw``. ``decode``: attach payloads (only for indices in ``want``);
+        ``check``: decode and validate without keeping the payload (index pass of the frame sensor).
+        Undecodable messages still consume their index so both passes agree; they raise DecodeError
+        with the item index in ``err.item``."""
+        i = self._next()
+        st = self.stamp(raw)
+        if not decode and not check:
+            return [Item(i, st)]
+        if decode and want is not None and i not in want:
+            return [Item(i, st)]
+        try:
+            payload = self.convert(raw, keep=decode)
+        except HolodataError as err:
+            err.item = i
+            raise
+        return [Item(i, st, payload if decode else None)]
+
+    def flush(self, decode: bool, want=None) -> list[Item]:
+        return []
+
+    def convert(self, raw: RawMessage, keep: bool):
+        raise NotImplementedError
+
+
+@dataclass
+class RadarFrame:
+    heatmap: np.ndarray      # (R, H, W) float16|float32
+    cycle: tuple[int, int]
+
+
+class RadarStream(_Stream):
+    role = "radar"
+
+    def __init__(self, rec, topic, time):
+        super().__init__(rec, topic, time)
+        self.shape = None
+        self.dtype = None
+        self.first = None     # first decoded message (for grid / attrs)
+
+    def convert(self, raw, keep):
+        msg = self.rec.decode(raw)
+        enc = str(msg.encoding)
+        dt = {"float16": np.dtype("<f2"), "float32": np.dtype("<f4")}.get(enc)
+        if dt is None:
+            raise DecodeError(f"topic {self.topic}: RadarHeatmap encoding {enc!r} is not float16/float32")
+        shape = (int(msg.n_range), int(msg.n_elevation), int(msg.n_azimuth))
+        n = int(np.prod(shape)) * dt.itemsize
+        data = msg.data
+        size = data.size if isinstance(data, np.ndarray) else len(data)
+        if size != n:
+            raise DecodeError(f"topic {self.topic}: RadarHeatmap payload is {size} bytes, {shape} {enc} needs {n}")
+        if self.first is None:
+            self.first = msg
+            self.shape, self.dtype = shape, dt
+        elif shape != self.shape:
+            raise DecodeError(f"topic {self.topic}: RadarHeatmap shape {shape} differs from the first message's "
+                              f"{self.shape}")
+        if not keep:
+            return None
+        buf = data if isinstance(data, np.ndarray) else np.frombuffer(bytes(data), np.uint8)
+        hm = buf.view(dt).reshape(shape)
+        return RadarFrame(hm, (int(msg.cycle_start_ns), int(msg.cycle_end_ns)))
+
+
+@dataclass
+class Scan:
+    """A decoded LiDAR scan or camera frame: points (N,3) float32 sensor frame; optional per-point
+    time (N,) int64 ns; optional grid (Hl, Wl) float32 range (NaN none)."""
+
+    points: np.ndarray
+    time_ns: np.ndarray | None = None
+    grid: np.ndarray | None = None
+    frame_id: str = ""
+
+
+class CloudStream(_Stream):
+    """PointCloud2 (LiDAR or camera)."""
+
+    def __init__(self, rec, topic, time, role):
+        super().__init__(rec, topic, time)
+        self.role = role
+        self.time_field = None
+        self.time_reference = None
+        self.organised = None
+
+    def convert(self, raw, keep):
+        from .readers.pointcloud2 import check_pointcloud2, decode_pointcloud2
+
+        msg = self.rec.decode(raw)
+        if not keep:
+            check_pointcloud2(msg, self.topic)
+            return None
+        c = decode_pointcloud2(msg, self.topic, fields=(), time=self.role == "lidar")
+        if self.time_field is None and c.time_field:
+            self.time_field, self.time_reference = c.time_field, c.time_reference
+        grid = None
+        if c.organised and self.role == "lidar":
+            r = np.linalg.norm(c.xyz, axis=1).astype(np.float32)
+            grid = c.grid(r)
+        return Scan(c.xyz, c.time_ns, grid, c.frame_id)
+
+
+class OusterScanStream(_Stream):
+    """Ouster pcap scans (the recording yields decoded scans)."""
+
+    role = "lidar"
+    time_field = "ouster column timestamps"
+    time_reference = "sensor clock, first valid column"
+
+    def stamp(self, raw):
+        return raw.log_ns
+
+    def convert(self, raw, keep):
+        return _ouster_to_scan(raw.obj) if keep else None
+
+
+def _ouster_to_scan(s) -> Scan:
+    valid = np.isfinite(s.range_m)
+    t = s.pixel_times_ns()[valid].astype(np.int64)
+    return Scan(s.xyz[valid].astype(np.float32), t, s.range_m.astype(np.float32), "os_sensor")
+
+
+class OusterPacketStream(_Stream):
+    """ouster_ros/PacketMsg lidar packets assembled into scans with the SDK."""
+
+    role = "lidar"
+    time_field = "ouster column timestamps"
+    time_reference = "sensor clock, first valid column"
+
+    def __init__(self, rec, topic, time, metadata_text: str):
+        super().__init__(rec, topic, time)
+        self.metadata_text = metadata_text
+        self.asm = None
+        self._decode = False
+
+    def reset(self):
+        super().reset()
+        self.asm = None
+
+    def _assembler(self, decode: bool):
+        from .readers.ouster import PacketAssembler
+
+        if self.asm is None or self._decode != decode:
+            self.asm = PacketAssembler(self.metadata_text, with_xyz=decode)
+            self._decode = decode
+        return self.asm
+
+    def _item(self, scan, decode, want) -> Item:
+        i = self._next()
+        keep = decode and (want is None or i in want)
+        return Item(i, scan.timestamp_ns, _ouster_to_scan(scan) if keep else None)
+
+    def feed(self, raw, decode, check=False, want=None):
+        asm = self._assembler(decode)
+        msg = self.rec.decode(raw)
+        scan = asm.add(msg.buf, raw.log_ns)
+        return [] if scan is None else [self._item(scan, decode, want)]
+
+    def flush(self, decode, want=None):
+        if self.asm is None:
+            return []
+        scan = self.asm.flush()
+        return [] if scan is None else [self._item(scan, decode, want)]
+
+
+class DepthStream(_Stream):
+    """Depth Image + CameraInfo -> points in the optical frame."""
+
+    role = "camera"
+
+    def __init__(self, rec, topic, time, info_topic: str, stride: int = 1):
+        super().__init__(rec, topic, time)
+        self.info_topic = info_topic
+        self.stride = stride
+        self.model = None
+
+    @property
+    def topics(self):
+        return [self.topic, self.info_topic]
+
+    def load_first_info(self) -> None:
+        from .readers.images import camera_model
+
+        for raw in self.rec.raw_messages([self.info_topic]):
+            try:
+                self.model = camera_model(self.rec.decode(raw), self.info_topic)
+                return
+            except HolodataError:
+                continue
+        raise RecordingError(f"{self.rec.path}: camera info topic {self.info_topic} has no usable CameraInfo")
+
+    def feed(self, raw, decode, check=False, want=None):
+        if raw.topic == self.info_topic:
+            if decode:
+                from .readers.images import camera_model
+
+                try:
+                    self.model = camera_model(self.rec.decode(raw), self.info_topic)
+                except HolodataError:
+                    pass
+            return []
+        return super().feed(raw, decode, check, want)
+
+    def convert(self, raw, keep):
+        from .readers.images import depth_image, depth_to_points
+
+        msg = self.rec.decode(raw)
+        d = depth_image(msg, self.topic)
+        if not keep:
+            return None
+        pts, _ = depth_to_points(d, self.model.K, self.stride)
+        return Scan(pts, None, None, str(msg.header.frame_id))
+
+
+# ==================================================================================================
+# planning: mapping, index pass, sync
+
+@dataclass
+class Plan:
+    rec: Recording
+    scene_id: str
+    tmap: TopicMap
+    notes: list[str]
+    frame_sensor: str
+    streams: dict           # role -> stream
+    frame_stamps: np.ndarray  # (T,) int64
+    frame_items: np.ndarray   # (T,) item index of the frame sensor
+    match: dict               # role -> (T,) item index or -1
+    match_stamp: dict         # role -> (T,) stamp or 0
+    counts: dict
+    dropped: dict
+    warnings: list[str]
+    grid: Grid | None = None
+    range_bins: RangeBins | None = None
+    tf: object = None
+    probe: dict = field(default_factory=dict)
+    sha256: list = field(default_factory=list)
+
+
+def _reject_reason(rec: Recording, infos: list[TopicInfo], tmap: TopicMap, notes: list[str]) -> str:
+    with_msgs = [t for t in infos if t.count]
+    summary = ", ".join(f"{t.name} {t.msgtype.split('/')[-1]} x{t.count}" for t in with_msgs[:5])
+    if len(with_msgs) > 5:
+        summary += f", ... ({len(with_msgs)} topics)"
+    types = {t.msgtype for t in with_msgs}
+    if tmap.camera:
+        return (f"{rec.path}: camera-only recording (camera {tmap.camera}, no radar or LiDAR topic); holodata frames "
+                f"are radar rotations or LiDAR scans, so there is nothing to ingest")
+    if any(ty.endswith("/Imu") for ty in types) and not types & {PC2, IMAGE}:
+        return (f"{rec.path}: IMU/odometry-only recording ({summary}); ingest needs a radar, point cloud, depth "
+                f"image or Ouster topic")
+    if with_msgs and all(not t.decodable for t in with_msgs):
+        why = next((t.note for t in with_msgs if t.note), "")
+        return f"{rec.path}: no decodable topic ({why}); nothing to ingest"
+    extra = f"; {notes[0]}" if notes else ""
+    return (f"{rec.path}: no radar, point cloud, depth image or Ouster topic ({summary or 'no messages'}){extra}; "
+            f"nothing to ingest")
+
+
+def _scene_id(path: Path) -> str:
+    p = Path(path)
+    name = p.name if p.is_dir() else p.stem
+    sid = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "scene"
+    return sid
+
+
+def file_sha256(paths: list[Path]) -> list[str]:
+    out = []
+    for p in paths:
+        h = hashlib.sha256()
+        with open(p, "rb") as f:
+            for block in iter(lambda: f.read(4 << 20), b""):
+                h.update(block)
+        out.append(h.hexdigest())
+    return out
+
+
+def _nearest(frame_t: np.ndarray, item_t: np.ndarray, tol_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """For each frame time the index (into item_t, sorted) of the nearest item within tol, else -1;
+    and the offset item - frame (0 where none)."""
+    idx = np.full(len(frame_t), -1, np.int64)
+    off = np.zeros(len(frame_t), np.int64)
+    if len(item_t) == 0 or len(frame_t) == 0:
+        return idx, off
+    j = np.searchsorted(item_t, frame_t)
+    lo = np.clip(j - 1, 0, len(item_t) - 1)
+    hi = np.clip(j, 0, len(item_t) - 1)
+    d_lo = np.abs(item_t[lo] - frame_t)
+    d_hi = np.abs(item_t[hi] - frame_t)
+    best = np.where(d_hi < d_lo, hi, lo)
+    d = np.abs(item_t[best] - frame_t)
+    ok = d <= tol_ns
+    idx[ok] = best[ok]
+    off[ok] = (item_t[best] - frame_t)[ok]
+    return idx, off
+
+
+def plan_recording(path, topics: dict | None = None, scene_id: str | None = None, msg_dir=None,
+                   tolerance_ms: float = DEFAULT_TOLERANCE_MS, meta=None, quiet: bool = True) -> Plan:
+    """Open, map, index and sync one recording (nothing written). RecordingError if unusable."""
+    from .progress import track
+
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta)
+    try:
+        return _plan(rec, topics, scene_id, tolerance_ms, quiet, track)
+    except BaseException:
+        rec.close()
+        raise
+
+
+def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
+    infos = rec.topics(frame_ids=True)
+    tmap, notes = map_topics(rec, topics, infos)
+    by = {t.name: t for t in infos}
+    warnings: list[str] = list(rec.problems)
+    if not tmap.radar and not tmap.lidar:
+        raise RecordingError(_reject_reason(rec, infos, tmap, notes))
+    streams: dict[str, _Stream] = {}
+    if tmap.radar:
+        streams["radar"] = RadarStream(rec, tmap.radar, tmap.time)
+    if tmap.lidar:
+        ty = by[tmap.lidar].msgtype
+        if ty == OUSTER_SCAN:
+            streams["lidar"] = OusterScanStream(rec, tmap.lidar, tmap.time)
+        elif ty == OUSTER_PACKET:
+            text = _first_string(rec, tmap.lidar_metadata)
+            try:
+                from .readers.ouster import load_info
+
+                load_info(text)
+            except HolodataError as err:
+                raise RecordingError(f"{rec.path}: Ouster packets on {tmap.lidar} cannot be decoded: "
+                                     f"{_one_line(err)}") from None
+            streams["lidar"] = OusterPacketStream(rec, tmap.lidar, tmap.time, text)
+        elif ty == PC2:
+            streams["lidar"] = CloudStream(rec, tmap.lidar, tmap.time, "lidar")
+        else:
+            raise InputError(f"topics file: lidar {tmap.lidar} is a {ty}, not PointCloud2 / Ouster")
+    if tmap.camera:
+        ty = by[tmap.camera].msgtype
+        if ty == IMAGE:
+            st = DepthStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride)
+            try:
+                st.load_first_info()
+                streams["camera"] = st
+            except HolodataError as err:
+                warnings.append(f"{_one_line(err)}; camera not used")
+        elif ty == PC2:
+            streams["camera"] = CloudStream(rec, tmap.camera, tmap.time, "camera")
+        else:
+            raise InputError(f"topics file: camera {tmap.camera} is a {ty}, not Image / PointCloud2")
+    frame_sensor = "radar" if "radar" in streams else "lidar"
+    if frame_sensor == "lidar" and "lidar" not in streams:
+        raise RecordingError(_reject_reason(rec, infos, tmap, notes))
+    # TF (small): static + dynamic buffer
+    tf = _read_tf(rec, tmap, warnings)
+
+    # ---- index pass
+    stamps: dict[str, list[tuple[int, int]]] = {r: [] for r in streams}
+    failed: dict[str, dict[int, str]] = {r: {} for r in streams}
+    by_topic = {}
+    for role, st in streams.items():
+        for tp in st.topics:
+            by_topic[tp] = st
+    total = sum(by[t].count for t in by_topic if t in by)
+    index_iter = rec.raw_messages(list(by_topic), with_xyz=False) if rec.kind == "ouster-pcap" \
+        else rec.raw_messages(list(by_topic))
+    for raw in track(index_iter, total, f"index {rec.path.name}", quiet):
+        st = by_topic[raw.topic]
+        try:
+            items = st.feed(raw, decode=False, check=(st.role == frame_sensor))
+        except HolodataError as err:
+            failed[st.role][getattr(err, "item", -1)] = _one_line(err)
+            continue
+        stamps[st.role] += [(it.index, it.stamp) for it in items]
+    for role, st in streams.items():
+        stamps[role] += [(it.index, it.stamp) for it in st.flush(decode=False)]
+
+    counts = {r: len(v) + len(failed[r]) for r, v in stamps.items()}
+    dropped: dict[str, dict] = {r: {} for r in streams}
+    for role, f in failed.items():
+        if f:
+            dropped[role]["undecodable"] = len(f)
+            first = next(iter(f.values()))
+            warnings.append(f"{len(f)} of {counts[role]} {role} messages on {streams[role].topic} do not decode "
+                            f"(first: {first}); skipped")
+    # ---- frames
+    fr = np.array(sorted(stamps[frame_sensor], key=lambda x: (x[1], x[0])), np.int64).reshape(-1, 2)
+    if len(fr) == 0:
+        reason = next(iter(failed[frame_sensor].values()), "no messages")
+        raise RecordingError(f"{rec.path}: no usable {frame_sensor} message on {streams[frame_sensor].topic} "
+                             f"({reason})")
+    keep = np.r_[True, fr[1:, 1] > fr[:-1, 1]]
+    if not keep.all():
+        dropped[frame_sensor]["duplicate_stamp"] = int((~keep).sum())
+        warnings.append(f"{int((~keep).sum())} {frame_sensor} messages repeat an earlier stamp; dropped")
+    fr = fr[keep]
+    frame_items, frame_stamps = fr[:, 0], fr[:, 1]
+    tol = int(round(tolerance_ms * 1e6))
+    match, match_stamp = {}, {}
+    for role in streams:
+        if role == frame_sensor:
+            continue
+        arr = np.array(sorted(stamps[role], key=lambda x: (x[1], x[0])), np.int64).reshape(-1, 2)
+        j, off = _nearest(frame_stamps, arr[:, 1], tol)
+        match[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 0] if len(arr) else -1, -1)
+        match_stamp[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 1] if len(arr) else 0, 0)
+        used = len(set(match[role][match[role] >= 0].tolist()))
+        unmatched_frames = int((j < 0).sum())
+        dropped[role]["not_near_a_frame"] = len(arr) - used
+        if unmatched_frames:
+            dropped[role]["frames_without"] = unmatched_frames
+            warnings.append(f"{unmatched_frames} of {len(frame_stamps)} frames have no {role} message within "
+                            f"{tolerance_ms:g} ms")
+    plan = Plan(rec, scene_id or _scene_id(rec.path), tmap, notes, frame_sensor, streams, frame_stamps, frame_items,
+                match, match_stamp, counts, dropped, warnings, tf=tf)
+    if "radar" in streams:
+        msg = streams["radar"].first
+        R, H, W = streams["radar"].shape
+        emax, emin = math.degrees(float(msg.elevation_max)), math.degrees(float(msg.elevation_min))
+        try:
+            plan.grid = Grid(H, W, round(emax, 5), round(emin, 5))
+            plan.range_bins = RangeBins(R, round(float(msg.range_resolution), 7))
+        except ValueError as err:
+            raise RecordingError(f"{rec.path}: radar topic {tmap.radar} has an unusable grid ({err})") from None
+    plan.probe = _probe(plan)
+    return plan
+
+
+def _first_string(rec: Recording, topic: str | None) -> str:
+    if not topic:
+        raise RecordingError(f"{rec.path}: Ouster packets need the sensor metadata (a String topic)")
+    for raw in rec.raw_messages([topic]):
+        try:
+            return str(rec.decode(raw).data)
+        except HolodataError:
+            continue
+    raise RecordingError(f"{rec.path}: metadata topic {topic} has no readable String message")
+
+
+def _read_tf(rec: Recording, tmap: TopicMap, warnings: list[str]):
+    from .readers.tf import TransformBuffer
+
+    buf = TransformBuffer()
+    topics = list(tmap.tf) + list(tmap.tf_static)
+    if not topics:
+        return buf
+    bad = 0
+    static = set(tmap.tf_static)
+    for raw in rec.raw_messages(topics):
+        try:
+            buf.add_message(rec.decode(raw), static=raw.topic in static)
+        except (HolodataError, AttributeError, ValueError):
+            bad += 1
+    if bad:
+        warnings.append(f"{bad} TF messages do not decode; skipped")
+    return buf
+
+
+def _probe(plan: Plan) -> dict:
+    """Layout of the first decodable LiDAR / camera item (organised grid shape, time field)."""
+    out = {}
+    for role in ("lidar", "camera"):
+        st = plan.streams.get(role)
+        if st is None:
+            continue
+        want = plan.frame_items if role == plan.frame_sensor else plan.match[role][plan.match[role] >= 0]
+        if len(want) == 0:
+            continue
+        target = int(want.min())
+        st.reset()
+        found = None
+        it = plan.rec.raw_messages(st.topics)
+        try:
+            for raw in it:
+                try:
+                    items = st.feed(raw, decode=True, want={target})
+                except HolodataError:
+                    items = []
+                for x in items:
+                    if x.index == target and x.payload is not None:
+                        found = x.payload
+                if found is not None or st.n > target:
+                    break
+            if found is None and st.n <= target:
+                for x in st.flush(decode=True, want={target}):
+                    if x.index == target:
+                        found = x.payload
+        finally:
+            close = getattr(it, "close", None)
+            if close:
+                close()
+        st.reset()
+        if found is not None:
+            out[role] = {"grid": None if found.grid is None else tuple(found.grid.shape),
+                         "time": found.time_ns is not None, "frame_id": found.frame_id}
+    return out
+
+
+# ==================================================================================================
+# writing
+
+class _Out:
+    """Buffers one array's frames and writes each shard once all its frames are in."""
+
+    def __init__(self, writer, ragged: bool, default, expected: set[int]):
+        self.w, self.ragged, self.default = writer, ragged, default
+        self.expected = expected
+        self.buf: dict[int, object] = {}
+        self.k = 0
+        self.written = 0
+
+    def put(self, frame: int, data) -> None:
+        self.buf[frame] = data
+
+    def fail(self, frame: int) -> None:
+        self.expected.discard(frame)
+
+    def flush(self, final: bool = False) -> None:
+        while self.k < self.w.n_shards:
+            sl = self.w.frames(self.k)
+            if self.w.is_done(self.k):
+                for f in range(sl.start, sl.stop):
+                    self.buf.pop(f, None)
+                self.k += 1
+                continue
+            frames = range(sl.start, sl.stop)
+            if not final and any(f in self.expected and f not in self.buf for f in frames):
+                return
+            data = [self.buf.pop(f) if f in self.buf else self.default() for f in frames]
+            if self.ragged:
+                self.w.write_shard(self.k, data)
+            else:
+                self.w.write_shard(self.k, np.stack(data))
+            self.written += 1
+            self.k += 1
+
+
+def _shard_frames(per_frame_bytes: int, default: int) -> int:
+    return int(max(1, min(default, SHARD_TARGET_BYTES // max(1, per_frame_bytes))))
+
+
+def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> dict:
+    """Pass 2: decode the matched messages and write scene ``plan.scene_id`` into writer ``ds``."""
+    from .progress import track
+
+    rec, T = plan.rec, len(plan.frame_stamps)
+    fs = plan.frame_sensor
+    source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "sha256": plan.sha256,
+              "reader": rec.kind, "truncated": bool(rec.truncated),
+              **({"problems": rec.problems[:20]} if rec.problems else {})}
+    existing = ds.scene_ids()
+    if plan.scene_id in existing:
+        cur = ds.scene(plan.scene_id).attrs
+        have = (cur.get("source") or {}).get("sha256") if isinstance(cur.get("source"), dict) else None
+        if have and have != plan.sha256:
+            raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was ingested from another recording "
+                               f"({(cur.get('source') or {}).get('recording')}); choose another --scene-id")
+        if (cur.get("ingest") or {}).get("complete"):
+            return {"scene": plan.scene_id, "frames": T, "skipped": "already ingested"}
+    attrs = {"frame_sensor": fs, "source": source, "sensors": _sensor_attrs(plan),
+             "extrinsics": _extrinsics(plan),
+             "ingest": {"complete": False, "topics": plan.tmap.to_dict()}}
+    sc = ds.scene(plan.scene_id, n_frames=T, attrs=attrs)
+    S = ds.shard_frames
+    outs: dict[str, _Out] = {}
+    arrays = []
+
+    def frame_arr(name, shape, dtype, dims, units, **kw):
+        arrays.append(name)
+        return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, dims=dims, units=units, codec=codec, **kw)
+
+    # small arrays known now
+    ts = frame_arr("time/timestamp_ns", (), "int64", ["frame"], "ns")
+    for k in range(ts.n_shards):
+        ts.write_shard(k, plan.frame_stamps[ts.frames(k)])
+    # per-role expected frames
+    exp: dict[str, dict[int, list[int]]] = {}     # role -> item index -> frames
+    for role in plan.streams:
+        items = plan.frame_items if role == fs else plan.match[role]
+        d: dict[int, list[int]] = {}
+        for f, i in enumerate(items.tolist()):
+            if i >= 0:
+                d.setdefault(i, []).append(f)
+        exp[role] = d
+    if "radar" in plan.streams:
+        rs = plan.streams["radar"]
+        shape = rs.shape
+        fb = int(np.prod(shape)) * rs.dtype.itemsize
+        hm = frame_arr("radar/heatmap", shape, rs.dtype.newbyteorder("="), ["frame", "range", "elevation", "azimuth"],
+                       "1", shard_frames=_shard_frames(fb, S), fill_value=float("nan"),
+                       attrs={"amplitude": "linear", "topic": rs.topic})
+        outs["radar/heatmap"] = _Out(hm, False, lambda: np.full(shape, np.nan, rs.dtype), set(range(T)))
+        cyc = frame_arr("radar/cycle_ns", (2,), "int64", ["frame", "start_end"], "ns")
+        outs["radar/cycle_ns"] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)))
+    for role in ("lidar", "camera"):
+        if role not in plan.streams:
+            continue
+        frames_with = {f for fl in exp[role].values() for f in fl}
+        pts = sc.ragged_array(f"{role}/points", width=3, dtype="float32", units="m")
+        arrays.append(f"{role}/points")
+        outs[f"{role}/points"] = _Out(pts, True, lambda: np.zeros((0, 3), np.float32), set(frames_with))
+        pr = plan.probe.get(role) or {}
+        if role == "lidar" and pr.get("time"):
+            pt = sc.ragged_array("lidar/point_time_ns", width=1, dtype="int64", units="ns", dims=["point", "time"])
+            arrays.append("lidar/point_time_ns")
+            outs["lidar/point_time_ns"] = _Out(pt, True, lambda: np.zeros((0, 1), np.int64), set(frames_with))
+        if role == "lidar" and pr.get("grid"):
+            gshape = tuple(pr["grid"])
+            lr = frame_arr("lidar/range", gshape, "float32", ["frame", "beam", "column"], "m",
+                           shard_frames=_shard_frames(4 * int(np.prod(gshape)), S))
+            outs["lidar/range"] = _Out(lr, False, lambda: np.full(gshape, np.nan, np.float32), set(frames_with))
+    # which items to decode: frames of unfinished shards only (resume)
+    want: dict[str, set[int]] = {}
+    for role, d in exp.items():
+        names = [n for n in outs if n.startswith(role + "/")]
+        w = set()
+        for i, fl in d.items():
+            if any(not outs[n].w.is_done(f // outs[n].w.shard_frames) for n in names for f in fl):
+                w.add(i)
+        want[role] = w
+    stamp_out = [role for role in plan.streams if role != "radar"]
+    decoded = {r: 0 for r in plan.streams}
+    n_points = {r: 0 for r in plan.streams}
+    failed = {r: 0 for r in plan.streams}
+    fail_msg: dict[str, str] = {}
+    grid_bad = 0
+
+    def deliver(role, item):
+        nonlocal grid_bad
+        frames = exp[role].get(item.index)
+        if not frames:
+            return
+        p = item.payload
+        for f in frames:
+            if role == "radar":
+                outs["radar/heatmap"].put(f, p.heatmap)
+                outs["radar/cycle_ns"].put(f, np.asarray(p.cycle, np.int64))
+            else:
+                outs[f"{role}/points"].put(f, p.points)
+                n_points[role] += len(p.points)
+                if f"{role}/point_time_ns" in outs:
+                    t = p.time_ns if p.time_ns is not None else np.zeros(len(p.points), np.int64)
+                    outs[f"{role}/point_time_ns"].put(f, np.asarray(t, np.int64).reshape(-1, 1))
+                if f"{role}/range" in outs:
+                    g = outs[f"{role}/range"]
+                    if p.grid is not None and p.grid.shape == g.w.shape[1:]:
+                        g.put(f, p.grid)
+                    else:
+                        grid_bad += 1
+                        g.fail(f)
+
+    def failed_item(role, idx, err):
+        failed[role] += 1
+        fail_msg.setdefault(role, _one_line(err))
+        for f in exp[role].get(idx, []):
+            for n, o in outs.items():
+                if n.startswith(role + "/"):
+                    o.fail(f)
+
+    by_topic = {tp: st for st in plan.streams.values() for tp in st.topics}
+    for st in plan.streams.values():
+        st.reset()
+    total = sum(t.count for t in rec.topics(frame_ids=False) if t.name in by_topic)
+    for raw in track(rec.raw_messages(list(by_topic)), total, f"ingest {rec.path.name}", quiet):
+        st = by_topic[raw.topic]
+        try:
+            items = st.feed(raw, decode=True, want=want[st.role])
+        except HolodataError as err:
+            failed_item(st.role, getattr(err, "item", -1), err)
+            continue
+        for it in items:
+            if it.payload is not None:
+                decoded[st.role] += 1
+                deliver(st.role, it)
+        for o in outs.values():
+            o.flush()
+    for role, st in plan.streams.items():
+        for it in st.flush(decode=True, want=want[role]):
+            if it.payload is not None:
+                decoded[role] += 1
+                deliver(role, it)
+    for o in outs.values():
+        o.flush(final=True)
+    if failed.get(fs):
+        raise RecordingError(f"{rec.path}: {failed[fs]} {fs} messages decoded in the index pass but not in the "
+                             f"write pass ({fail_msg.get(fs)})")
+    # per-frame stamps of the other sensors: the matched message's stamp, 0 = none (or it failed)
+    for role in stamp_out:
+        if role == fs:
+            vals = plan.frame_stamps
+        else:
+            ok = np.zeros(T, bool)
+            ok[sorted(outs[f"{role}/points"].expected)] = True
+            vals = np.where(ok, plan.match_stamp[role], 0)
+        w = frame_arr(f"{role}/timestamp_ns", (), "int64", ["frame"], "ns")
+        for k in range(w.n_shards):
+            w.write_shard(k, vals[w.frames(k)])
+    warnings = list(plan.warnings)
+    for role, n in failed.items():
+        if n and role != "radar":
+            plan.dropped[role]["failed_in_write_pass"] = n
+            warnings.append(f"{n} {role} messages on {plan.streams[role].topic} did not decode ({fail_msg[role]}); "
+                            f"their frames have no {role} data")
+    for role in ("lidar", "camera"):
+        if decoded.get(role) and not n_points[role]:
+            warnings.append(f"all {decoded[role]} decoded {role} messages on {plan.streams[role].topic} hold no valid "
+                            f"point (non-finite or (0, 0, 0)); {role}/points is empty")
+    if grid_bad:
+        warnings.append(f"{grid_bad} LiDAR scans do not fit the {outs['lidar/range'].w.shape[1:]} grid; "
+                        f"their lidar/range frames are NaN")
+    # poses
+    pose_note = _write_poses(plan, sc, frame_arr)
+    if pose_note:
+        warnings.append(pose_note)
+    sync = {}
+    for role in plan.match:
+        ok = plan.match[role] >= 0
+        off = (plan.match_stamp[role] - plan.frame_stamps)[ok]
+        sync[role] = {"matched_frames": int(ok.sum()),
+                      "offset_ns_median": int(np.median(off)) if len(off) else None,
+                      "offset_ns_max_abs": int(np.abs(off).max()) if len(off) else None}
+    sc.set_attrs({"ingest": {"complete": True, "topics": plan.tmap.to_dict(), "time_source": plan.tmap.time,
+                             "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped, "sync": sync,
+                             "notes": plan.notes[:20], "warnings": warnings[:50]}})
+    return {"scene": plan.scene_id, "recording": str(rec.path), "frames": T, "frame_sensor": fs,
+            "arrays": sorted(set(arrays)), "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped,
+            "sync": sync, "truncated": bool(rec.truncated), "warnings": warnings, "notes": plan.notes}
+
+
+def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
+    tf = plan.tf
+    if "radar" not in plan.streams or tf is None or not tf.frames:
+        return None
+    radar_frame = str(plan.streams["radar"].first.header.frame_id).lstrip("/")
+    world = plan.tmap.world_frame or _world_frame(tf, radar_frame)
+    if world is None:
+        return f"TF does not connect radar frame {radar_frame!r} to a world frame; no pose/T_world_radar"
+    poses = np.empty((len(plan.frame_stamps), 4, 4))
+    for k, t in enumerate(plan.frame_stamps.tolist()):
+        T = tf.lookup(world, radar_frame, t)
+        if T is None:
+            return (f"TF covers only {k} of {len(plan.frame_stamps)} radar frames ({world} -> {radar_frame}); "
+                    f"no pose/T_world_radar")
+        poses[k] = T
+    w = frame_arr("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "m",
+                  attrs={"world_frame": world, "sensor_frame": radar_frame, "source": "tf"})
+    for k in range(w.n_shards):
+        w.write_shard(k, poses[w.frames(k)])
+    return None
+
+
+def _world_frame(tf, frame: str) -> str | None:
+    """``map``/``world``/``odom`` if TF connects it to ``frame``, else the root of ``frame``'s tree."""
+    from .readers.tf import WORLD_FRAMES
+
+    for cand in WORLD_FRAMES:
+        if cand in tf.frames and tf._path(cand, frame, False) is not None:
+            return cand
+    root = tf.root(frame)
+    return None if root == frame else root
+
+
+def _sensor_frame(plan: Plan, role: str) -> str | None:
+    st = plan.streams.get(role)
+    if st is None:
+        return None
+    if role == "radar":
+        return str(st.first.header.frame_id).lstrip("/")
+    pr = plan.probe.get(role) or {}
+    return (pr.get("frame_id") or "").lstrip("/") or None
+
+
+def _extrinsics(plan: Plan) -> dict:
+    tf = plan.tf
+    if tf is None or not tf.frames:
+        return {}
+    from .readers.tf import BASE_FRAMES, find_frame
+
+    base = plan.tmap.base_frame or find_frame(tf.frames, BASE_FRAMES)
+    out = {}
+    if base is None:
+        return out
+    for role in ("radar", "lidar", "camera"):
+        fr = _sensor_frame(plan, role)
+        if not fr:
+            continue
+        T = tf.lookup(base, fr, None, static_only=True)
+        if T is not None:
+            out[role] = T.tolist()
+    return out
+
+
+def _sensor_attrs(plan: Plan) -> dict:
+    out: dict = {}
+    tf = plan.tf
+    for role, st in plan.streams.items():
+        d = {"topic": st.topic, "frame_id": _sensor_frame(plan, role)}
+        if role == "radar":
+            m = st.first
+            d.update({"type": m.__class__.__name__ if not hasattr(m, "__msgtype__") else m.__msgtype__,
+                      "encoding": str(m.encoding), "shape": list(st.shape),
+                      "rotation_radius_m": float(m.rotation_radius), "range_resolution_m": float(m.range_resolution),
+                      "elevation_max_rad": float(m.elevation_max), "elevation_min_rad": float(m.elevation_min)})
+        if isinstance(st, (OusterScanStream, OusterPacketStream)):
+            meta = st.rec.meta if isinstance(st, OusterScanStream) else None
+            if meta is None:
+                from .readers.ouster import load_info, sensor_meta
+
+                info, text = load_info(st.metadata_text)
+                meta = sensor_meta(info, text)
+            d["ouster"] = meta.to_attrs()
+            d["ouster_metadata_json"] = meta.json_text
+            d["range_definition"] = "Ouster RANGE channel (beam origin), destaggered"
+        elif role == "lidar":
+            pr = plan.probe.get("lidar") or {}
+            d["organised_grid"] = list(pr["grid"]) if pr.get("grid") else None
+            d["range_definition"] = "norm of xyz (sensor origin), grid as published"
+            if getattr(st, "time_field", None):
+                d["time_field"] = st.time_field
+                d["time_reference"] = st.time_reference
+        if isinstance(st, DepthStream):
+            d["camera_info_topic"] = st.info_topic
+            d["intrinsics"] = st.model.to_attrs()
+            d["stride"] = st.stride
+            d["points_frame"] = "optical (x right, y down, z forward)"
+        fr = d.get("frame_id")
+        if tf is not None and fr and tf.frames:
+            from .readers.tf import WORLD_FRAMES, find_frame
+
+            world = plan.tmap.world_frame or find_frame(tf.frames, WORLD_FRAMES)
+            if world:
+                T = tf.lookup(world, fr, None, static_only=True)
+                if T is not None:
+                    d[f"T_{world}_sensor"] = T.tolist()
+        out[role] = d
+    return out
+
+
+# ==================================================================================================
+# entry points
+
+def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float = DEFAULT_TOLERANCE_MS,
+           quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None) -> dict:
+    """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
+    each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
+    {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
+    there and the others are still ingested. Raises RecordingError when none could be ingested."""
+    from .dataset import create_dataset
+
+    recordings = [Path(r) for r in recordings]
+    if not recordings:
+        raise InputError("no recording given")
+    if isinstance(topics, (str, Path)):
+        topics = load_topics_file(topics)
+    if scene_ids is not None:
+        scene_ids = list(scene_ids)
+        if len(scene_ids) != len(recordings):
+            raise InputError(f"{len(scene_ids)} --scene-id for {len(recordings)} recordings (give one per recording)")
+    if tolerance_ms <= 0:
+        raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
+    plans: list[Plan] = []
+    failed: list[dict] = []
+    for i, r in enumerate(recordings):
+        try:
+            p = plan_recording(r, topics, scene_ids[i] if scene_ids else None, msg_dir, tolerance_ms, meta, quiet)
+        except (HolodataError, OSError) as err:
+            failed.append({"recording": str(r), "error": _one_line(err)})
+            continue
+        plans.append(p)
+    ids = [p.scene_id for p in plans]
+    for i, p in enumerate(plans):
+        if ids.count(p.scene_id) > 1:  # same name from different folders: suffix with the position
+            p.scene_id = f"{p.scene_id}_{i}"
+    if not plans:
+        raise RecordingError("; ".join(f["error"] for f in failed) if len(failed) == 1 else
+                             f"none of {len(failed)} recordings can be ingested: " +
+                             "; ".join(f["error"] for f in failed))
+    grids = {(p.grid, p.range_bins) for p in plans if p.grid is not None}
+    grid, rb = (None, None)
+    from .dataset import open_dataset
+
+    try:
+        existing = open_dataset(out)
+        grid, rb = existing.grid, existing.range_bins
+    except HolodataError:
+        existing = None
+    if existing is None:
+        if len(grids) > 1:
+            raise RecordingError(f"recordings have different radar grids ({sorted(str(g[0].shape) for g in grids)}); "
+                                 f"ingest them into separate datasets")
+        grid, rb = next(iter(grids)) if grids else (Grid(), RangeBins())
+    scenes = []
+    try:
+        from . import __version__ as version
+    except ImportError:  # pragma: no cover
+        version = "?"
+    kw = {"shard_frames": shard_frames} if shard_frames else {}
+    ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
+                        provenance={"tool": "holodata ingest", "version": version}, **kw)
+    for p in plans:
+        try:
+            if p.grid is not None and (p.grid != grid or p.range_bins != rb):
+                raise RecordingError(f"{p.rec.path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
+                                     f"from the dataset's {grid.to_attrs()} / {rb.to_attrs()}")
+            p.sha256 = file_sha256(p.rec.files)
+            scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))
+        except (HolodataError, OSError) as err:
+            failed.append({"recording": str(p.rec.path), "error": _one_line(err)})
+        finally:
+            p.rec.close()
+    return {"dataset": str(out), "scenes": scenes, "failed": failed, "ok": not failed}
+
+
+def list_recording(path, msg_dir=None, meta=None) -> dict:
+    """What ``ingest --list`` prints: reader, files, duration, topics (name, type, count, rate,
+    frame id) and the role ingest would give each."""
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta)
+    try:
+        infos = rec.topics(frame_ids=True)
+        try:
+            tmap, notes = map_topics(rec, None, infos)
+        except HolodataError as err:
+            tmap, notes = TopicMap(), [_one_line(err)]
+        roles = {}
+        for r in ROLES:
+            v = getattr(tmap, r)
+            for name in ([v] if isinstance(v, str) else v or []):
+                roles[name] = r
+        lo, hi = rec.duration_ns()
+        size = sum(f.stat().st_size for f in rec.files if f.exists())
+        usable = bool(tmap.radar or tmap.lidar)
+        return {"recording": str(rec.path), "reader": rec.kind, "files": [str(f) for f in rec.files], "bytes": size,
+                "start_ns": lo, "end_ns": hi, "duration_s": None if lo is None else (hi - lo) / 1e9,
+                "messages": sum(t.count for t in infos), "truncated": bool(rec.truncated),
+                "problems": list(rec.problems), "notes": notes, "ingestable": usable,
+                "reason": None if usable else _reject_reason(rec, infos, tmap, notes),
+                "topics": [{**t.to_dict(), "role": roles.get(t.name)} for t in infos]}
+    finally:
+        rec.close()
+
+
+def format_listing(info: dict) -> str:
+    """``ros2 bag info``-like text of :func:`list_recording`'s result."""
+    mb = info["bytes"] / 1e6
+    lines = [f"Files:     {', '.join(Path(f).name for f in info['files'])} ({mb:.1f} MB)",
+             f"Reader:    {info['reader']}" + ("  (TRUNCATED: readable part only)" if info["truncated"] else "")]
+    if info["duration_s"] is not None:
+        lines.append(f"Duration:  {info['duration_s']:.3f} s   Start: {info['start_ns']} ns   End: {info['end_ns']} ns")
+    lines.append(f"Messages:  {info['messages']}")
+    lines.append(f"Topics:    {len(info['topics'])}")
+    w = max([len(t["name"]) for t in info["topics"]] + [5])
+    wt = max([len(t["type"]) for t in info["topics"]] + [4])
+    for t in info["topics"]:
+        rate = f"{t['rate_hz']:.2f} Hz" if t["rate_hz"] else "-"
+        extra = []
+        if t.get("frame_id"):
+            extra.append(f"frame {t['frame_id']}")
+        if t.get("role"):
+            extra.append(f"[{t['role']}]")
+        if not t["decodable"]:
+            extra.append(f"({t.get('note') or 'not decodable'})")
+        lines.append(f"  {t['name']:<{w}}  {t['type']:<{wt}}  {t['count']:>7}  {rate:>11}  {' '.join(extra)}".rstrip())
+    for p in info["problems"]:
+        lines.append(f"warning: {p}")
+    for n in info["notes"]:
+        lines.append(f"note: {n}")
+    lines.append("Ingest:    " + ("yes" if info["ingestable"] else f"no — {info['reason']}"))
+    return "\n".join(lines)
