@@ -43,6 +43,7 @@ from __future__ import annotations
 import hashlib
 import math
 import re
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,7 +67,7 @@ CAMERA_WORDS = ("camera", "cam", "zed", "realsense", "rgbd", "depth", "stereo", 
 ROLES = ("radar", "lidar", "lidar_metadata", "camera", "camera_info", "tf", "tf_static")
 OPTIONS = ("time", "world_frame", "base_frame", "camera_stride")
 DEFAULT_TOLERANCE_MS = 50.0
-SHARD_TARGET_BYTES = 128 << 20
+SHARD_TARGET_BYTES = 32 << 20
 
 
 def _one_line(err: BaseException) -> str:
@@ -307,6 +308,21 @@ class _Stream:
     def convert(self, raw: RawMessage, keep: bool):
         raise NotImplementedError
 
+    layout: dict | None = None
+    _layout_tries = 0
+
+    def try_layout(self, raw: RawMessage) -> None:
+        """Learn {grid: (H, W) | None, time: bool, frame_id} from one message (index pass)."""
+        if self.layout is not None or raw.topic != self.topic or self._layout_tries > 20:
+            return
+        self._layout_tries += 1
+        try:
+            p = self.convert(raw, keep=True)
+        except HolodataError:
+            return
+        self.layout = {"grid": None if p.grid is None else tuple(p.grid.shape), "time": p.time_ns is not None,
+                       "frame_id": p.frame_id}
+
 
 @dataclass
 class RadarFrame:
@@ -396,6 +412,10 @@ class OusterScanStream(_Stream):
     def stamp(self, raw):
         return raw.log_ns
 
+    def try_layout(self, raw):
+        if self.layout is None and raw.obj is not None:
+            self.layout = {"grid": tuple(raw.obj.range_m.shape), "time": True, "frame_id": "os_sensor"}
+
     def convert(self, raw, keep):
         return _ouster_to_scan(raw.obj) if keep else None
 
@@ -447,6 +467,11 @@ class OusterPacketStream(_Stream):
             return []
         scan = self.asm.flush()
         return [] if scan is None else [self._item(scan, decode, want)]
+
+    def try_layout(self, raw):
+        if self.layout is None and self.asm is not None:
+            m = self.asm.meta
+            self.layout = {"grid": (m.H, m.W), "time": True, "frame_id": "os_sensor"}
 
 
 class DepthStream(_Stream):
@@ -521,6 +546,8 @@ class Plan:
     tf: object = None
     probe: dict = field(default_factory=dict)
     sha256: list = field(default_factory=list)
+    sha_future: object = None
+    index_seconds: float = 0.0
 
 
 def _reject_reason(rec: Recording, infos: list[TopicInfo], tmap: TopicMap, notes: list[str]) -> str:
@@ -586,12 +613,20 @@ def plan_recording(path, topics: dict | None = None, scene_id: str | None = None
     """Open, map, index and sync one recording (nothing written). RecordingError if unusable."""
     from .progress import track
 
+    from concurrent.futures import ThreadPoolExecutor
+
     rec = open_recording(path, msg_dir=msg_dir, meta=meta)
+    pool = ThreadPoolExecutor(1)   # checksums overlap the index pass (hashlib releases the GIL)
+    sha = pool.submit(file_sha256, rec.files)
+    pool.shutdown(wait=False)
     try:
-        return _plan(rec, topics, scene_id, tolerance_ms, quiet, track)
+        plan = _plan(rec, topics, scene_id, tolerance_ms, quiet, track)
     except BaseException:
+        sha.cancel()
         rec.close()
         raise
+    plan.sha_future = sha
+    return plan
 
 
 def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
@@ -638,27 +673,44 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
     frame_sensor = "radar" if "radar" in streams else "lidar"
     if frame_sensor == "lidar" and "lidar" not in streams:
         raise RecordingError(_reject_reason(rec, infos, tmap, notes))
-    # TF (small): static + dynamic buffer
-    tf = _read_tf(rec, tmap, warnings)
+    # ---- index pass (TF read along: static + dynamic buffer)
+    from .readers.tf import TransformBuffer
 
-    # ---- index pass
+    tf = TransformBuffer()
+    tf_static = set(tmap.tf_static)
+    tf_topics = set(tmap.tf) | tf_static
+    tf_bad = 0
     stamps: dict[str, list[tuple[int, int]]] = {r: [] for r in streams}
     failed: dict[str, dict[int, str]] = {r: {} for r in streams}
     by_topic = {}
     for role, st in streams.items():
         for tp in st.topics:
             by_topic[tp] = st
-    total = sum(by[t].count for t in by_topic if t in by)
-    index_iter = rec.raw_messages(list(by_topic), with_xyz=False) if rec.kind == "ouster-pcap" \
-        else rec.raw_messages(list(by_topic))
+    topics_read = list(by_topic) + sorted(tf_topics - set(by_topic))
+    total = sum(by[t].count for t in topics_read if t in by)
+    index_iter = rec.raw_messages(topics_read, with_xyz=False) if rec.kind == "ouster-pcap" \
+        else rec.raw_messages(topics_read)
+    t_index = time.perf_counter()
     for raw in track(index_iter, total, f"index {rec.path.name}", quiet):
+        if raw.topic in tf_topics:
+            try:
+                tf.add_message(rec.decode(raw), static=raw.topic in tf_static)
+            except (HolodataError, AttributeError, ValueError):
+                tf_bad += 1
+            if raw.topic not in by_topic:
+                continue
         st = by_topic[raw.topic]
         try:
             items = st.feed(raw, decode=False, check=(st.role == frame_sensor))
         except HolodataError as err:
             failed[st.role][getattr(err, "item", -1)] = _one_line(err)
             continue
+        if st.role != "radar" and st.layout is None:
+            st.try_layout(raw)
         stamps[st.role] += [(it.index, it.stamp) for it in items]
+    if tf_bad:
+        warnings.append(f"{tf_bad} TF messages do not decode; skipped")
+    t_index = time.perf_counter() - t_index
     for role, st in streams.items():
         stamps[role] += [(it.index, it.stamp) for it in st.flush(decode=False)]
 
@@ -699,7 +751,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
             warnings.append(f"{unmatched_frames} of {len(frame_stamps)} frames have no {role} message within "
                             f"{tolerance_ms:g} ms")
     plan = Plan(rec, scene_id or _scene_id(rec.path), tmap, notes, frame_sensor, streams, frame_stamps, frame_items,
-                match, match_stamp, counts, dropped, warnings, tf=tf)
+                match, match_stamp, counts, dropped, warnings, tf=tf, index_seconds=t_index)
     if "radar" in streams:
         msg = streams["radar"].first
         R, H, W = streams["radar"].shape
@@ -709,7 +761,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
             plan.range_bins = RangeBins(R, round(float(msg.range_resolution), 7))
         except ValueError as err:
             raise RecordingError(f"{rec.path}: radar topic {tmap.radar} has an unusable grid ({err})") from None
-    plan.probe = _probe(plan)
+    plan.probe = {r: st.layout for r, st in streams.items() if r != "radar" and st.layout is not None}
     return plan
 
 
@@ -724,65 +776,6 @@ def _first_string(rec: Recording, topic: str | None) -> str:
     raise RecordingError(f"{rec.path}: metadata topic {topic} has no readable String message")
 
 
-def _read_tf(rec: Recording, tmap: TopicMap, warnings: list[str]):
-    from .readers.tf import TransformBuffer
-
-    buf = TransformBuffer()
-    topics = list(tmap.tf) + list(tmap.tf_static)
-    if not topics:
-        return buf
-    bad = 0
-    static = set(tmap.tf_static)
-    for raw in rec.raw_messages(topics):
-        try:
-            buf.add_message(rec.decode(raw), static=raw.topic in static)
-        except (HolodataError, AttributeError, ValueError):
-            bad += 1
-    if bad:
-        warnings.append(f"{bad} TF messages do not decode; skipped")
-    return buf
-
-
-def _probe(plan: Plan) -> dict:
-    """Layout of the first decodable LiDAR / camera item (organised grid shape, time field)."""
-    out = {}
-    for role in ("lidar", "camera"):
-        st = plan.streams.get(role)
-        if st is None:
-            continue
-        want = plan.frame_items if role == plan.frame_sensor else plan.match[role][plan.match[role] >= 0]
-        if len(want) == 0:
-            continue
-        target = int(want.min())
-        st.reset()
-        found = None
-        it = plan.rec.raw_messages(st.topics)
-        try:
-            for raw in it:
-                try:
-                    items = st.feed(raw, decode=True, want={target})
-                except HolodataError:
-                    items = []
-                for x in items:
-                    if x.index == target and x.payload is not None:
-                        found = x.payload
-                if found is not None or st.n > target:
-                    break
-            if found is None and st.n <= target:
-                for x in st.flush(decode=True, want={target}):
-                    if x.index == target:
-                        found = x.payload
-        finally:
-            close = getattr(it, "close", None)
-            if close:
-                close()
-        st.reset()
-        if found is not None:
-            out[role] = {"grid": None if found.grid is None else tuple(found.grid.shape),
-                         "time": found.time_ns is not None, "frame_id": found.frame_id}
-    return out
-
-
 # ==================================================================================================
 # writing
 
@@ -793,11 +786,17 @@ class _Out:
         self.w, self.ragged, self.default = writer, ragged, default
         self.expected = expected
         self.buf: dict[int, object] = {}
+        self.done = {k for k in range(writer.n_shards) if writer.is_done(k)}   # resumed: finished shards
         self.k = 0
         self.written = 0
+        self.seconds = 0.0
+
+    def shard_done(self, frame: int) -> bool:
+        return frame // self.w.shard_frames in self.done
 
     def put(self, frame: int, data) -> None:
-        self.buf[frame] = data
+        if not self.shard_done(frame):
+            self.buf[frame] = data
 
     def fail(self, frame: int) -> None:
         self.expected.discard(frame)
@@ -805,19 +804,20 @@ class _Out:
     def flush(self, final: bool = False) -> None:
         while self.k < self.w.n_shards:
             sl = self.w.frames(self.k)
-            if self.w.is_done(self.k):
-                for f in range(sl.start, sl.stop):
-                    self.buf.pop(f, None)
+            if self.k in self.done:
                 self.k += 1
                 continue
             frames = range(sl.start, sl.stop)
             if not final and any(f in self.expected and f not in self.buf for f in frames):
                 return
             data = [self.buf.pop(f) if f in self.buf else self.default() for f in frames]
+            t = time.perf_counter()
             if self.ragged:
                 self.w.write_shard(self.k, data)
             else:
                 self.w.write_shard(self.k, np.stack(data))
+            self.seconds += time.perf_counter() - t
+            self.done.add(self.k)
             self.written += 1
             self.k += 1
 
@@ -902,7 +902,7 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
         names = [n for n in outs if n.startswith(role + "/")]
         w = set()
         for i, fl in d.items():
-            if any(not outs[n].w.is_done(f // outs[n].w.shard_frames) for n in names for f in fl):
+            if any(not outs[n].shard_done(f) for n in names for f in fl):
                 w.add(i)
         want[role] = w
     stamp_out = [role for role in plan.streams if role != "radar"]
@@ -948,19 +948,27 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
     for st in plan.streams.values():
         st.reset()
     total = sum(t.count for t in rec.topics(frame_ids=False) if t.name in by_topic)
+    t_pass = time.perf_counter()
+    t_decode = 0.0
     for raw in track(rec.raw_messages(list(by_topic)), total, f"ingest {rec.path.name}", quiet):
         st = by_topic[raw.topic]
+        t = time.perf_counter()
         try:
             items = st.feed(raw, decode=True, want=want[st.role])
         except HolodataError as err:
             failed_item(st.role, getattr(err, "item", -1), err)
             continue
+        finally:
+            t_decode += time.perf_counter() - t
+        fresh = False
         for it in items:
             if it.payload is not None:
                 decoded[st.role] += 1
                 deliver(st.role, it)
-        for o in outs.values():
-            o.flush()
+                fresh = True
+        if fresh:
+            for o in outs.values():
+                o.flush()
     for role, st in plan.streams.items():
         for it in st.flush(decode=True, want=want[role]):
             if it.payload is not None:
@@ -968,6 +976,8 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
                 deliver(role, it)
     for o in outs.values():
         o.flush(final=True)
+    timings = {"index_pass_s": round(plan.index_seconds, 4), "write_pass_s": round(time.perf_counter() - t_pass, 4),
+               "decode_s": round(t_decode, 4), "store_s": round(sum(o.seconds for o in outs.values()), 4)}
     if failed.get(fs):
         raise RecordingError(f"{rec.path}: {failed[fs]} {fs} messages decoded in the index pass but not in the "
                              f"write pass ({fail_msg.get(fs)})")
@@ -1011,7 +1021,8 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
                              "notes": plan.notes[:20], "warnings": warnings[:50]}})
     return {"scene": plan.scene_id, "recording": str(rec.path), "frames": T, "frame_sensor": fs,
             "arrays": sorted(set(arrays)), "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped,
-            "sync": sync, "truncated": bool(rec.truncated), "warnings": warnings, "notes": plan.notes}
+            "sync": sync, "truncated": bool(rec.truncated), "warnings": warnings, "notes": plan.notes,
+            "timings": timings}
 
 
 def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
@@ -1022,13 +1033,13 @@ def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
     world = plan.tmap.world_frame or _world_frame(tf, radar_frame)
     if world is None:
         return f"TF does not connect radar frame {radar_frame!r} to a world frame; no pose/T_world_radar"
-    poses = np.empty((len(plan.frame_stamps), 4, 4))
-    for k, t in enumerate(plan.frame_stamps.tolist()):
-        T = tf.lookup(world, radar_frame, t)
-        if T is None:
-            return (f"TF covers only {k} of {len(plan.frame_stamps)} radar frames ({world} -> {radar_frame}); "
-                    f"no pose/T_world_radar")
-        poses[k] = T
+    res = tf.lookup_many(world, radar_frame, plan.frame_stamps)
+    if res is None:
+        return f"TF does not connect radar frame {radar_frame!r} to {world!r}; no pose/T_world_radar"
+    poses, ok = res
+    if not ok.all():
+        return (f"TF covers only {int(ok.sum())} of {len(ok)} radar frames ({world} -> {radar_frame}); "
+                f"no pose/T_world_radar")
     w = frame_arr("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "m",
                   attrs={"world_frame": world, "sensor_frame": radar_frame, "source": "tf"})
     for k in range(w.n_shards):
@@ -1189,7 +1200,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
             if p.grid is not None and (p.grid != grid or p.range_bins != rb):
                 raise RecordingError(f"{p.rec.path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
                                      f"from the dataset's {grid.to_attrs()} / {rb.to_attrs()}")
-            p.sha256 = file_sha256(p.rec.files)
+            p.sha256 = p.sha_future.result() if p.sha_future is not None else file_sha256(p.rec.files)
             scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))
         except (HolodataError, OSError) as err:
             failed.append({"recording": str(p.rec.path), "error": _one_line(err)})

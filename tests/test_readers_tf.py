@@ -47,3 +47,22 @@ def test_dynamic_interpolation_gap_and_message_roundtrip():
     assert b.root("radar") == "map"
     q = msgs[1].transforms[0].transform
     np.testing.assert_allclose(transform_matrix(q), _T([1, 0, 0], 10), atol=1e-12)
+
+
+def test_quaternion_matrix_and_lookup_many_agree():
+    from holodata.readers.tf import quat_matrix
+
+    q = np.random.default_rng(0).normal(size=(50, 4))
+    for qq in q:
+        np.testing.assert_allclose(quat_matrix(*qq), Rotation.from_quat(qq / np.linalg.norm(qq)).as_matrix(), atol=1e-12)
+    np.testing.assert_array_equal(quat_matrix(0, 0, 0, 0), np.eye(3))
+    b = TransformBuffer(max_gap_ns=10)
+    for k in range(6):
+        b.add("odom", "base", _T([k, 0.5 * k, 0], 15 * k), t_ns=100 * k)
+    b.add("base", "radar", _T([0.1, 0, 0.3], 5), static=True)
+    t = np.array([0, 50, 333, 500, 509, 511])
+    P, ok = b.lookup_many("odom", "radar", t)
+    np.testing.assert_array_equal(ok, [True, True, True, True, True, False])
+    for k in range(5):
+        np.testing.assert_allclose(P[k], b.lookup("odom", "radar", int(t[k])), atol=1e-12)
+    assert b.lookup_many("odom", "elsewhere", t) is None

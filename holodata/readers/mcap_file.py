@@ -109,7 +109,8 @@ class McapRecording(Recording):
                     times[topic] = [min(lo, msg.log_time), max(hi, msg.log_time)]
         ros1 = any(e == "ros1" for _, _, e in self.channels.values())
         cdr = any(e == "cdr" for _, _, e in self.channels.values())
-        self.decoder = MessageDecoder(1 if ros1 and not cdr else 2, defs, msg_dir, self.path)
+        self.decoder = MessageDecoder(1 if ros1 and not cdr else 2, defs, msg_dir, self.path,
+                                      needed={ty for _, ty, _ in self.channels.values()})
         self.problems += self.decoder.problems
         by_topic: dict[str, tuple[str, str]] = {}
         for topic, ty, enc in self.channels.values():

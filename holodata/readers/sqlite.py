@@ -54,7 +54,8 @@ class SqliteRecording(Recording):
             except sqlite3.Error:
                 pass
             con.close()
-        self.decoder = MessageDecoder(2, defs, msg_dir, self.path)
+        self.decoder = MessageDecoder(2, defs, msg_dir, self.path,
+                                      needed={ty for tb in self.topics_by_id for _, ty, _ in tb.values()})
         self.problems += self.decoder.problems
         self._infos: list[TopicInfo] | None = None
 

@@ -15,17 +15,24 @@ import numpy as np
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 
 
+def quat_matrix(x: float, y: float, z: float, w: float) -> np.ndarray:
+    """3x3 rotation of a quaternion (x, y, z, w), normalised first; zero -> identity."""
+    n = x * x + y * y + z * z + w * w
+    if n == 0.0:
+        return np.eye(3)
+    s = 2.0 / n
+    return np.array([[1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+                     [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
+                     [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)]])
+
+
 def transform_matrix(tf) -> np.ndarray:
     """geometry_msgs/Transform -> 4x4 float64."""
-    from scipy.spatial.transform import Rotation
-
     q = tf.rotation
     t = tf.translation
-    quat = np.array([q.x, q.y, q.z, q.w], dtype=np.float64)
-    n = np.linalg.norm(quat)
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(quat / n if n > 0 else [0, 0, 0, 1]).as_matrix()
-    T[:3, 3] = [t.x, t.y, t.z]
+    T[:3, :3] = quat_matrix(float(q.x), float(q.y), float(q.z), float(q.w))
+    T[:3, 3] = (t.x, t.y, t.z)
     return T
 
 
@@ -142,6 +149,28 @@ class TransformBuffer:
             # walking target -> source: along parent->child multiply by T_parent_child
             T = T @ (E if fwd else np.linalg.inv(E))
         return T
+
+    def lookup_many(self, target: str, source: str, t_ns) -> tuple[np.ndarray, np.ndarray] | None:
+        """``T_target_source`` at each time of ``t_ns`` (N,): (N, 4, 4) poses and an (N,) bool mask
+        of the times every dynamic edge covers (within ``max_gap_ns``); None if not connected."""
+        target, source = _strip(target), _strip(source)
+        t = np.asarray(t_ns, np.int64).reshape(-1)
+        out = np.broadcast_to(np.eye(4), (len(t), 4, 4)).copy()
+        ok = np.ones(len(t), bool)
+        if target == source:
+            return out, ok
+        path = self._path(target, source, False)
+        if path is None:
+            return None
+        for key, fwd in path:
+            if key in self.static:
+                E = np.broadcast_to(self.static[key], (len(t), 4, 4))
+            else:
+                tr = self._trajectory(key)
+                ok &= (t >= tr.timestamp_ns[0] - self.max_gap_ns) & (t <= tr.timestamp_ns[-1] + self.max_gap_ns)
+                E = tr.interpolate(t)
+            out = out @ (E if fwd else np.linalg.inv(E))
+        return out, ok
 
     def root(self, frame: str) -> str:
         """The top of ``frame``'s tree (following child -> parent edges)."""
