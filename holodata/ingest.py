@@ -52,7 +52,7 @@ import numpy as np
 from .conventions import Grid, RangeBins
 from .errors import DatasetError, HolodataError, InputError, RecordingError
 from .readers import open_recording
-from .readers.base import DecodeError, RawMessage, Recording, TopicInfo
+from .readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, DecodeError, RawMessage, Recording, TopicInfo
 
 RADAR_SUFFIX = "/RadarHeatmap"
 PC2 = "sensor_msgs/msg/PointCloud2"
@@ -147,9 +147,10 @@ def map_topics(rec: Recording, override: dict | None = None, topics: list[TopicI
         m.radar = radar[0].name
         notes += [f"topic {t.name}: second radar topic, not used" for t in radar[1:]]
     # LiDAR
-    ouster = [t for t in usable if t.msgtype == OUSTER_SCAN]
+    ouster = [t for t in usable if t.msgtype in (OUSTER_SCAN, RANGE_IMAGE_TYPE)]
+    plain = [t for t in usable if t.msgtype == POINTS_TYPE]
     packets = [t for t in usable if t.msgtype == OUSTER_PACKET and "imu" not in t.name.lower()]
-    clouds = [t for t in usable if t.msgtype == PC2]
+    clouds = [t for t in usable if t.msgtype == PC2] + plain
     lidar_clouds = sorted((t for t in clouds if not _camera_like(t.name, t.frame_id)), key=lambda t: (-t.count, t.name))
     cam_clouds = sorted((t for t in clouds if _camera_like(t.name, t.frame_id)), key=lambda t: (-t.count, t.name))
     if ouster:
@@ -402,28 +403,67 @@ class CloudStream(_Stream):
         return Scan(c.xyz, c.time_ns, grid, c.frame_id)
 
 
-class OusterScanStream(_Stream):
-    """Ouster pcap scans (the recording yields decoded scans)."""
+class GridStream(_Stream):
+    """Organised scans the recording decodes itself: Ouster pcap scans, range images (npy/HDF5)."""
 
     role = "lidar"
-    time_field = "ouster column timestamps"
-    time_reference = "sensor clock, first valid column"
+    time_field = None
+    time_reference = None
 
     def stamp(self, raw):
         return raw.log_ns
 
-    def try_layout(self, raw):
-        if self.layout is None and raw.obj is not None:
-            self.layout = {"grid": tuple(raw.obj.range_m.shape), "time": True, "frame_id": "os_sensor"}
-
     def convert(self, raw, keep):
-        return _ouster_to_scan(raw.obj) if keep else None
+        obj = self.rec.decode(raw)
+        return _grid_to_scan(obj) if keep else None
+
+    def try_layout(self, raw):
+        if self.layout is None and raw.topic == self.topic:
+            obj = self.rec.decode(raw)
+            self.layout = {"grid": tuple(obj.range_m.shape), "time": hasattr(obj, "pixel_times_ns"),
+                           "frame_id": getattr(obj, "frame_id", "") or "os_sensor"}
+
+
+class OusterScanStream(GridStream):
+    """Ouster pcap scans (the recording yields decoded scans)."""
+
+    time_field = "ouster column timestamps"
+    time_reference = "sensor clock, first valid column"
+
+
+def _grid_to_scan(s) -> Scan:
+    valid = np.isfinite(s.range_m)
+    t = s.pixel_times_ns()[valid].astype(np.int64) if hasattr(s, "pixel_times_ns") else None
+    return Scan(np.asarray(s.xyz)[valid].astype(np.float32), t, np.asarray(s.range_m, np.float32),
+                getattr(s, "frame_id", "") or "os_sensor")
 
 
 def _ouster_to_scan(s) -> Scan:
-    valid = np.isfinite(s.range_m)
-    t = s.pixel_times_ns()[valid].astype(np.int64)
-    return Scan(s.xyz[valid].astype(np.float32), t, s.range_m.astype(np.float32), "os_sensor")
+    return _grid_to_scan(s)
+
+
+class PointsStream(_Stream):
+    """Plain point clouds the recording decodes itself (HDF5)."""
+
+    def __init__(self, rec, topic, time, role):
+        super().__init__(rec, topic, time)
+        self.role = role
+        self.time_field = None
+        self.time_reference = None
+
+    def stamp(self, raw):
+        return raw.log_ns
+
+    def convert(self, raw, keep):
+        obj = self.rec.decode(raw)
+        if not keep:
+            return None
+        xyz = np.asarray(obj.xyz, np.float32)
+        good = np.isfinite(xyz).all(1) & xyz.any(1)
+        t = None if obj.time_ns is None else np.asarray(obj.time_ns, np.int64)[good]
+        if t is not None and self.time_field is None:
+            self.time_field, self.time_reference = "point_time_ns", "scan stamp"
+        return Scan(xyz[good], t, None, obj.frame_id)
 
 
 class OusterPacketStream(_Stream):
@@ -643,6 +683,10 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
         ty = by[tmap.lidar].msgtype
         if ty == OUSTER_SCAN:
             streams["lidar"] = OusterScanStream(rec, tmap.lidar, tmap.time)
+        elif ty == RANGE_IMAGE_TYPE:
+            streams["lidar"] = GridStream(rec, tmap.lidar, tmap.time)
+        elif ty == POINTS_TYPE:
+            streams["lidar"] = PointsStream(rec, tmap.lidar, tmap.time, "lidar")
         elif ty == OUSTER_PACKET:
             text = _first_string(rec, tmap.lidar_metadata)
             try:
@@ -668,6 +712,8 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
                 warnings.append(f"{_one_line(err)}; camera not used")
         elif ty == PC2:
             streams["camera"] = CloudStream(rec, tmap.camera, tmap.time, "camera")
+        elif ty == POINTS_TYPE:
+            streams["camera"] = PointsStream(rec, tmap.camera, tmap.time, "camera")
         else:
             raise InputError(f"topics file: camera {tmap.camera} is a {ty}, not Image / PointCloud2")
     frame_sensor = "radar" if "radar" in streams else "lidar"
@@ -833,7 +879,7 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
     rec, T = plan.rec, len(plan.frame_stamps)
     fs = plan.frame_sensor
     source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "sha256": plan.sha256,
-              "reader": rec.kind, "truncated": bool(rec.truncated),
+              "reader": rec.kind, "truncated": bool(rec.truncated), **(getattr(rec, "attrs", None) or {}),
               **({"problems": rec.problems[:20]} if rec.problems else {})}
     existing = ds.scene_ids()
     if plan.scene_id in existing:
@@ -1112,7 +1158,9 @@ def _sensor_attrs(plan: Plan) -> dict:
         elif role == "lidar":
             pr = plan.probe.get("lidar") or {}
             d["organised_grid"] = list(pr["grid"]) if pr.get("grid") else None
-            d["range_definition"] = "norm of xyz (sensor origin), grid as published"
+            if pr.get("grid"):
+                d["range_definition"] = ("norm of xyz (sensor origin), grid as published" if isinstance(st, CloudStream)
+                                         else "range image as stored in the recording (m)")
             if getattr(st, "time_field", None):
                 d["time_field"] = st.time_field
                 d["time_reference"] = st.time_reference

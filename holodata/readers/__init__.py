@@ -74,7 +74,7 @@ def _is_hdf5(p: Path) -> bool:
 
 
 def _is_npy_folder(p: Path) -> bool:
-    return p.is_dir() and any(p.glob("*.npy")) or (p.is_dir() and any(p.glob("*/*.npy")))
+    return p.is_dir() and ((p / "rf_npy").is_dir() or (p / "lidar_npy").is_dir())
 
 
 # -- openers -------------------------------------------------------------------------------------------
@@ -158,7 +158,8 @@ def guess_reader(path) -> str:
         if bags:
             raise RecordingError(f"{p}: folder holds ROS 1 bags ({', '.join(bags[:3])}{' ...' if len(bags) > 3 else ''}); "
                                  f"pass the .bag files themselves")
-        raise RecordingError(f"{p}: folder is not a recording (no metadata.yaml, .db3, .mcap or .npy files)")
+        raise RecordingError(f"{p}: folder is not a recording (no metadata.yaml, .db3 or .mcap files, no rf_npy/ or "
+                             f"lidar_npy/ folder)")
     raise RecordingError(f"{p}: unknown recording format (expected .bag, .mcap, .db3, a rosbag2 folder, "
                          f".pcap + .json, .h5 or a folder of .npy files)")
 

@@ -326,3 +326,66 @@ class ReaderSpec:
     open: object
     description: str = ""
     extensions: tuple = field(default_factory=tuple)
+
+
+# --------------------------------------------------------------------------------------------------
+# message-like objects for containers that are not ROS (HDF5, PanoRadar folders): they carry the
+# fields ingest reads from the ROS messages they stand in for
+
+RADAR_MSG = "holodata_msgs/msg/RadarHeatmap"
+RANGE_IMAGE_TYPE = "holodata/msg/RangeImage"
+POINTS_TYPE = "holodata/msg/PointCloud"
+
+
+class _Stamp:
+    __slots__ = ("sec", "nanosec")
+
+    def __init__(self, t_ns: int):
+        self.sec, self.nanosec = int(t_ns) // 1_000_000_000, int(t_ns) % 1_000_000_000
+
+
+class Header:
+    __slots__ = ("stamp", "frame_id")
+
+    def __init__(self, t_ns: int, frame_id: str):
+        self.stamp, self.frame_id = _Stamp(t_ns), frame_id
+
+
+@dataclass
+class RadarHeatmapMsg:
+    """Stands in for holodata_msgs/msg/RadarHeatmap (same field names and units)."""
+
+    __msgtype__ = RADAR_MSG
+    header: Header
+    cycle_start_ns: int
+    cycle_end_ns: int
+    n_range: int
+    n_elevation: int
+    n_azimuth: int
+    range_resolution: float
+    elevation_max: float      # radians
+    elevation_min: float
+    rotation_radius: float
+    encoding: str             # float16 | float32
+    data: object              # (n_range*n_elevation*n_azimuth*itemsize,) uint8
+
+
+@dataclass
+class RangeImageMsg:
+    """An organised range image: ``range_m`` (H, W) float32 metres (NaN none), ``xyz`` (H, W, 3)
+    float32 in the sensor frame (0 where none)."""
+
+    __msgtype__ = RANGE_IMAGE_TYPE
+    range_m: object
+    xyz: object
+    frame_id: str = ""
+
+
+@dataclass
+class PointsMsg:
+    """A plain point cloud: ``xyz`` (N, 3) float32 sensor frame; ``time_ns`` (N,) int64 or None."""
+
+    __msgtype__ = POINTS_TYPE
+    xyz: object
+    time_ns: object = None
+    frame_id: str = ""
