@@ -421,7 +421,7 @@ class GridStream(_Stream):
         if self.layout is None and raw.topic == self.topic:
             obj = self.rec.decode(raw)
             self.layout = {"grid": tuple(obj.range_m.shape), "time": hasattr(obj, "pixel_times_ns"),
-                           "frame_id": getattr(obj, "frame_id", "") or "os_sensor"}
+                           "frame_id": _frame_name(obj)}
 
 
 class OusterScanStream(GridStream):
@@ -434,8 +434,13 @@ class OusterScanStream(GridStream):
 def _grid_to_scan(s) -> Scan:
     valid = np.isfinite(s.range_m)
     t = s.pixel_times_ns()[valid].astype(np.int64) if hasattr(s, "pixel_times_ns") else None
-    return Scan(np.asarray(s.xyz)[valid].astype(np.float32), t, np.asarray(s.range_m, np.float32),
-                getattr(s, "frame_id", "") or "os_sensor")
+    return Scan(np.asarray(s.xyz)[valid].astype(np.float32), t, np.asarray(s.range_m, np.float32), _frame_name(s))
+
+
+def _frame_name(obj) -> str:
+    """The sensor frame of a decoded scan (Ouster scans carry a frame *counter*: the SDK's sensor frame)."""
+    f = getattr(obj, "frame_id", None)
+    return f if isinstance(f, str) and f else "os_sensor"
 
 
 def _ouster_to_scan(s) -> Scan:
