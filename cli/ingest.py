@@ -17,8 +17,9 @@ import click
               help="Folder of .msg files for message types the recording does not define.")
 @click.option("--meta", type=click.Path(dir_okay=False),
               help="Ouster sensor metadata .json for a .pcap (default: same name next to the pcap).")
-@click.option("--tolerance", "tolerance_ms", type=float, default=50.0, show_default=True,
-              help="Max time offset (ms) between a frame and the LiDAR scan / camera frame synced to it.")
+@click.option("--tolerance", "tolerance_ms", type=float, default=None,
+              help="Max time offset (ms) between a frame and the LiDAR scan / camera frame synced to it "
+                   "(default per sensor: half its median period, at least 50 ms).")
 @click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None,
               help="Compression of the new arrays (default: the dataset's, zstd).")
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")

@@ -15,7 +15,8 @@ Per recording (one scene each):
    so a frame exists only for a message that decodes.
 3. **Sync**: frames are radar rotation cycles (radar header stamp), or LiDAR scans when there is
    no radar (``frame_sensor`` says which). Each frame takes the LiDAR scan and camera frame
-   nearest in time within ``tolerance`` (default 50 ms); frames with none get an empty cloud and
+   nearest in time within a tolerance (``--tolerance MS``; default per sensor: half its median period,
+   at least 50 ms, so a sensor that kept publishing fills every frame); frames with none get an empty cloud and
    ``<sensor>/timestamp_ns`` = 0. Unmatched and failed messages are counted and reported.
 4. **Write pass**: only the matched messages are decoded; shards are written as soon as all their
    frames have arrived (memory is a few shards, flat in recording size). Rerunning the same command
@@ -593,6 +594,7 @@ class Plan:
     sha256: list = field(default_factory=list)
     sha_future: object = None
     index_seconds: float = 0.0
+    tolerance_ns: dict = field(default_factory=dict)
 
 
 def _reject_reason(rec: Recording, infos: list[TopicInfo], tmap: TopicMap, notes: list[str]) -> str:
@@ -633,6 +635,20 @@ def file_sha256(paths: list[Path]) -> list[str]:
     return out
 
 
+def _tolerance_ns(tolerance_ms: float | None, stamps: np.ndarray) -> int:
+    """``tolerance_ms`` if given; else auto: half the sensor's median period, at least 50 ms (every
+    frame then gets the nearest message of a sensor that kept publishing)."""
+    if tolerance_ms is not None:
+        return int(round(tolerance_ms * 1e6))
+    auto = int(round(DEFAULT_TOLERANCE_MS * 1e6))
+    if len(stamps) > 1:
+        d = np.diff(np.sort(stamps))
+        d = d[d > 0]
+        if len(d):
+            auto = max(auto, int(np.median(d)) // 2 + 1)
+    return auto
+
+
 def _nearest(frame_t: np.ndarray, item_t: np.ndarray, tol_ns: int) -> tuple[np.ndarray, np.ndarray]:
     """For each frame time the index (into item_t, sorted) of the nearest item within tol, else -1;
     and the offset item - frame (0 where none)."""
@@ -654,7 +670,7 @@ def _nearest(frame_t: np.ndarray, item_t: np.ndarray, tol_ns: int) -> tuple[np.n
 
 
 def plan_recording(path, topics: dict | None = None, scene_id: str | None = None, msg_dir=None,
-                   tolerance_ms: float = DEFAULT_TOLERANCE_MS, meta=None, quiet: bool = True) -> Plan:
+                   tolerance_ms: float | None = None, meta=None, quiet: bool = True) -> Plan:
     """Open, map, index and sync one recording (nothing written). RecordingError if unusable."""
     from .progress import track
 
@@ -785,12 +801,13 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
         warnings.append(f"{int((~keep).sum())} {frame_sensor} messages repeat an earlier stamp; dropped")
     fr = fr[keep]
     frame_items, frame_stamps = fr[:, 0], fr[:, 1]
-    tol = int(round(tolerance_ms * 1e6))
-    match, match_stamp = {}, {}
+    match, match_stamp, tolerance = {}, {}, {}
     for role in streams:
         if role == frame_sensor:
             continue
         arr = np.array(sorted(stamps[role], key=lambda x: (x[1], x[0])), np.int64).reshape(-1, 2)
+        tol = _tolerance_ns(tolerance_ms, arr[:, 1])
+        tolerance[role] = tol
         j, off = _nearest(frame_stamps, arr[:, 1], tol)
         match[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 0] if len(arr) else -1, -1)
         match_stamp[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 1] if len(arr) else 0, 0)
@@ -800,9 +817,9 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
         if unmatched_frames:
             dropped[role]["frames_without"] = unmatched_frames
             warnings.append(f"{unmatched_frames} of {len(frame_stamps)} frames have no {role} message within "
-                            f"{tolerance_ms:g} ms")
+                            f"{tol / 1e6:g} ms")
     plan = Plan(rec, scene_id or _scene_id(rec.path), tmap, notes, frame_sensor, streams, frame_stamps, frame_items,
-                match, match_stamp, counts, dropped, warnings, tf=tf, index_seconds=t_index)
+                match, match_stamp, counts, dropped, warnings, tf=tf, index_seconds=t_index, tolerance_ns=tolerance)
     if "radar" in streams:
         msg = streams["radar"].first
         R, H, W = streams["radar"].shape
@@ -1064,7 +1081,7 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
     for role in plan.match:
         ok = plan.match[role] >= 0
         off = (plan.match_stamp[role] - plan.frame_stamps)[ok]
-        sync[role] = {"matched_frames": int(ok.sum()),
+        sync[role] = {"matched_frames": int(ok.sum()), "tolerance_ns": int(plan.tolerance_ns.get(role, 0)),
                       "offset_ns_median": int(np.median(off)) if len(off) else None,
                       "offset_ns_max_abs": int(np.abs(off).max()) if len(off) else None}
     sc.set_attrs({"ingest": {"complete": True, "topics": plan.tmap.to_dict(), "time_source": plan.tmap.time,
@@ -1190,7 +1207,7 @@ def _sensor_attrs(plan: Plan) -> dict:
 # ==================================================================================================
 # entry points
 
-def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float = DEFAULT_TOLERANCE_MS,
+def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float | None = None,
            quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None) -> dict:
     """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
     each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
@@ -1207,7 +1224,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         scene_ids = list(scene_ids)
         if len(scene_ids) != len(recordings):
             raise InputError(f"{len(scene_ids)} --scene-id for {len(recordings)} recordings (give one per recording)")
-    if tolerance_ms <= 0:
+    if tolerance_ms is not None and tolerance_ms <= 0:
         raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
     plans: list[Plan] = []
     failed: list[dict] = []

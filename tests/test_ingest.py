@@ -70,7 +70,7 @@ def test_radar_lidar_camera_tf_recording(tmp_path, fmt):
         r = np.sqrt(a["x"].astype(np.float64) ** 2 + a["y"] ** 2 + a["z"] ** 2)
         np.testing.assert_allclose(rg[np.isfinite(rg)], r[r > 0], rtol=1e-6)
         assert np.isnan(rg).sum() == (r == 0).sum()
-        c = _nearest(truth["camera"], t)
+        c = _nearest(truth["camera"], t, 100_000_001)   # auto tolerance: half the 5 Hz camera period
         if c is None:
             assert cts[k] == 0 and len(sc.ragged("camera/points", k)) == 0
             continue
@@ -94,6 +94,8 @@ def test_radar_lidar_camera_tf_recording(tmp_path, fmt):
     ing = sc.attrs["ingest"]
     assert ing["complete"] and ing["counts"]["radar"] == T and ing["sync"]["lidar"]["matched_frames"] == T
     assert ing["dropped"]["lidar"]["not_near_a_frame"] == len(truth["lidar"]) - T
+    assert ing["sync"]["camera"]["tolerance_ns"] == 100_000_001 and ing["sync"]["lidar"]["tolerance_ns"] == 50_000_001
+    assert ing["sync"]["camera"]["matched_frames"] == T
     assert validate_dataset(out)["ok"]
 
 
@@ -134,6 +136,7 @@ def test_lidar_only_and_resume_after_interruption(tmp_path, monkeypatch):
     monkeypatch.setattr(ing_mod._Out, "flush", orig)
     sc = open_dataset(tmp_path / "ds.zarr").scene("lid")
     assert not sc.attrs["ingest"]["complete"]
+    assert not validate_dataset(tmp_path / "ds.zarr")["ok"]      # an interrupted ingest never validates
     s = ingest([rec], tmp_path / "ds.zarr", shard_frames=3)["scenes"][0]
     assert s["frame_sensor"] == "lidar" and s["decoded"]["lidar"] < len(truth["lidar"])  # done shards not decoded
     sc = open_dataset(tmp_path / "ds.zarr").scene("lid")
