@@ -65,7 +65,8 @@ OUSTER_SCAN = "ouster/LidarScan"
 OUSTER_PACKET = "ouster_ros/msg/PacketMsg"
 CAMERA_WORDS = ("camera", "cam", "zed", "realsense", "rgbd", "depth", "stereo", "optical", "kinect", "oak",
                 "d435", "d455", "image")
-ROLES = ("radar", "lidar", "lidar_metadata", "camera", "camera_info", "tf", "tf_static")
+ROLES = ("radar", "lidar", "lidar_metadata", "camera", "camera_info", "camera_right", "camera_info_right", "tf",
+         "tf_static")
 OPTIONS = ("time", "world_frame", "base_frame", "camera_stride")
 DEFAULT_TOLERANCE_MS = 50.0
 SHARD_TARGET_BYTES = 32 << 20
@@ -87,6 +88,8 @@ class TopicMap:
     lidar_metadata: str | None = None
     camera: str | None = None
     camera_info: str | None = None
+    camera_right: str | None = None
+    camera_info_right: str | None = None
     tf: list[str] = field(default_factory=list)
     tf_static: list[str] = field(default_factory=list)
     time: str = "header"
@@ -169,13 +172,13 @@ def map_topics(rec: Recording, override: dict | None = None, topics: list[TopicI
     # camera: a depth image with camera info, else a camera point cloud
     images = [t for t in usable if t.msgtype == IMAGE]
     infos_ci = [t for t in usable if t.msgtype == CAMINFO]
-    depth = []
+    depth, not_depth = [], {}
     for t in images:
         ok, why = _probe_depth(rec, t.name)
         if ok:
             depth.append(t)
         else:
-            notes.append(why)
+            not_depth[t.name] = why
     if depth:
         depth.sort(key=lambda t: (0 if "depth" in t.name.lower() else 1, -t.count, t.name))
         m.camera = depth[0].name
@@ -185,11 +188,25 @@ def map_topics(rec: Recording, override: dict | None = None, topics: list[TopicI
             m.camera = None
     if m.camera is None and cam_clouds:
         m.camera = cam_clouds[0].name
+    if m.camera is None:  # only images: a rectified stereo pair (left/right + CameraInfo) gives depth
+        for t in sorted(images, key=lambda t: t.name):
+            right = t.name.replace("left", "right")
+            if "left" in t.name and right != t.name and right in by and by[right].msgtype == IMAGE \
+                    and "truncated" not in not_depth.get(t.name, "") + not_depth.get(right, ""):
+                li, ri = _camera_info_for(t, infos_ci), _camera_info_for(by[right], infos_ci)
+                if li and ri and li != ri:
+                    m.camera, m.camera_info, m.camera_right, m.camera_info_right = t.name, li, right, ri
+                    not_depth.pop(t.name, None)
+                    not_depth.pop(right, None)
+                    break
+    notes += list(not_depth.values())
     for t in usable:
         if t.msgtype in TF_TYPES:
             (m.tf_static if _looks_static(t.name) else m.tf).append(t.name)
     if override:
         _apply_override(m, override, by, rec)
+    used = {v for r in ROLES for v in ([getattr(m, r)] if isinstance(getattr(m, r), str) else getattr(m, r) or [])}
+    notes = [n for n in notes if not any(f"topic {t}:" in n for t in used)]
     return m, notes
 
 
@@ -245,6 +262,8 @@ def _apply_override(m: TopicMap, ov: dict, by: dict[str, TopicInfo], rec: Record
                          f"as lidar_metadata")
     if m.camera and by[m.camera].msgtype == IMAGE and not m.camera_info:
         raise InputError(f"topics file: camera {m.camera} is an Image; name its CameraInfo topic as camera_info")
+    if m.camera_right and not m.camera_info_right:
+        raise InputError(f"topics file: camera_right {m.camera_right} needs its CameraInfo as camera_info_right")
 
 
 def _check_topic(name: str, by: dict[str, TopicInfo], rec: Recording) -> None:
@@ -569,6 +588,80 @@ class DepthStream(_Stream):
         return Scan(pts, None, None, str(msg.header.frame_id))
 
 
+class StereoStream(DepthStream):
+    """Rectified left/right images (+ their CameraInfo) -> depth by OpenCV SGBM -> points in the left
+    optical frame. Pairs are the left and right images with the same header stamp."""
+
+    def __init__(self, rec, topic, time, info_topic, stride, right_topic, right_info_topic):
+        super().__init__(rec, topic, time, info_topic, stride)
+        self.right_topic, self.right_info_topic = right_topic, right_info_topic
+        self.baseline = None
+        self.pending: dict[int, dict] = {}
+        self.unpaired = 0
+
+    @property
+    def topics(self):
+        return [self.topic, self.right_topic, self.info_topic, self.right_info_topic]
+
+    def reset(self):
+        super().reset()
+        self.pending.clear()
+        self.unpaired = 0
+
+    def load_first_info(self) -> None:
+        from .readers.images import stereo_baseline
+
+        super().load_first_info()
+        for raw in self.rec.raw_messages([self.right_info_topic]):
+            try:
+                self.baseline = stereo_baseline(self.rec.decode(raw))
+                return
+            except (HolodataError, AttributeError, ValueError):
+                continue
+        raise RecordingError(f"{self.rec.path}: right camera info {self.right_info_topic} gives no stereo baseline")
+
+    def feed(self, raw, decode, check=False, want=None):
+        if raw.topic in (self.info_topic, self.right_info_topic):
+            if raw.topic == self.info_topic:
+                return super().feed(raw, decode, check, want)
+            return []
+        st = self.stamp(raw)
+        side = "l" if raw.topic == self.topic else "r"
+        slot = self.pending.setdefault(st, {})
+        slot[side] = raw
+        if len(slot) < 2:
+            if len(self.pending) > 64:   # bounded: drop the oldest unpaired images
+                self.unpaired += 1
+                self.pending.pop(min(self.pending))
+            return []
+        del self.pending[st]
+        i = self._next()
+        if not decode or (want is not None and i not in want):
+            return [Item(i, st)]
+        try:
+            return [Item(i, st, self._pair(slot["l"], slot["r"]))]
+        except HolodataError as err:
+            err.item = i
+            raise
+
+    def _pair(self, left_raw, right_raw) -> Scan:
+        from .readers.images import depth_to_points, gray_image, stereo_depth
+
+        lm = self.rec.decode(left_raw)
+        L = gray_image(lm, self.topic)
+        R = gray_image(self.rec.decode(right_raw), self.right_topic)
+        if L.shape != R.shape:
+            raise DecodeError(f"topics {self.topic}/{self.right_topic}: stereo images differ in size {L.shape} vs {R.shape}")
+        d = stereo_depth(L, R, float(self.model.K[0, 0]), self.baseline)
+        pts, _ = depth_to_points(d, self.model.K, self.stride)
+        return Scan(pts, None, None, str(lm.header.frame_id))
+
+    def try_layout(self, raw):
+        if self.layout is None and raw.topic == self.topic:
+            self.layout = {"grid": None, "time": False, "frame_id": self.rec.decoder.frame_id(raw) if self.rec.decoder
+                           else ""}
+
+
 # ==================================================================================================
 # planning: mapping, index pass, sync
 
@@ -724,7 +817,15 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
             raise InputError(f"topics file: lidar {tmap.lidar} is a {ty}, not PointCloud2 / Ouster")
     if tmap.camera:
         ty = by[tmap.camera].msgtype
-        if ty == IMAGE:
+        if ty == IMAGE and tmap.camera_right:
+            st = StereoStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride, tmap.camera_right,
+                              tmap.camera_info_right)
+            try:
+                st.load_first_info()
+                streams["camera"] = st
+            except HolodataError as err:
+                warnings.append(f"{_one_line(err)}; camera not used")
+        elif ty == IMAGE:
             st = DepthStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride)
             try:
                 st.load_first_info()
@@ -1186,6 +1287,10 @@ def _sensor_attrs(plan: Plan) -> dict:
             if getattr(st, "time_field", None):
                 d["time_field"] = st.time_field
                 d["time_reference"] = st.time_reference
+        if isinstance(st, StereoStream):
+            d["stereo"] = {"right_topic": st.right_topic, "right_camera_info_topic": st.right_info_topic,
+                           "baseline_m": st.baseline, "matcher": "OpenCV StereoSGBM (3-way), block 5",
+                           "depth": "fx * baseline / disparity"}
         if isinstance(st, DepthStream):
             d["camera_info_topic"] = st.info_topic
             d["intrinsics"] = st.model.to_attrs()

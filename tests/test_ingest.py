@@ -304,3 +304,43 @@ def test_list_json_matches_rosbags(tmp_path):
             ref[c.topic] = ref.get(c.topic, 0) + c.msgcount
     assert {t["name"]: t["count"] for t in info["topics"]} == ref
     assert info["reader"] == "rosbag1" and info["duration_s"] == pytest.approx(21.7, abs=0.1)
+
+
+def test_stereo_only_camera_gives_points(tmp_path):
+    pytest.importorskip("cv2")
+    from scipy.ndimage import gaussian_filter
+
+    # LiDAR + a rectified mono8 stereo pair (no depth image): depth comes from OpenCV SGBM
+    w = Writer(tmp_path / "st2", "mcap")
+    for tp, ty in (("/cam/left/image_rect", "sensor_msgs/msg/Image"), ("/cam/right/image_rect", "sensor_msgs/msg/Image"),
+                   ("/cam/left/camera_info", "sensor_msgs/msg/CameraInfo"),
+                   ("/cam/right/camera_info", "sensor_msgs/msg/CameraInfo"), ("/os/points", "sensor_msgs/msg/PointCloud2")):
+        w.add(tp, ty)
+    from _recordings import T0, cloud_msg, lidar_scan
+
+    rng = np.random.default_rng(0)
+    tex = gaussian_filter(rng.uniform(0, 255, (60, 200)), 1.2)
+    fx, B = 50.0, 0.1
+    K = np.array([[fx, 0, 60], [0, fx, 30], [0, 0, 1.0]])
+    for k in range(3):
+        t = T0 + k * 100_000_000
+        L = np.clip(tex[:, 20:140], 0, 255).astype(np.uint8)
+        R = np.clip(tex[:, 28:148], 0, 255).astype(np.uint8)
+        w.write("/cam/left/image_rect", t, image_msg(w.T, "mcap", t, "left_opt", L, "mono8"))
+        w.write("/cam/right/image_rect", t, image_msg(w.T, "mcap", t, "right_opt", R, "mono8"))
+        li = camera_info_msg(w.T, "mcap", t, "left_opt", K, 120, 60)
+        ri = camera_info_msg(w.T, "mcap", t, "right_opt", K, 120, 60)
+        ri.p = np.array([fx, 0, 60, -fx * B, 0, fx, 30, 0, 0, 0, 1, 0], float)
+        w.write("/cam/left/camera_info", t, li)
+        w.write("/cam/right/camera_info", t, ri)
+        w.write("/os/points", t, cloud_msg(w.T, "mcap", t, "os_sensor", lidar_scan(k)))
+    w.close()
+    s = ingest([tmp_path / "st2"], tmp_path / "ds.zarr")
+    assert s["ok"], s
+    sc = open_dataset(tmp_path / "ds.zarr").scene("st2")
+    assert sc.attrs["frame_sensor"] == "lidar" and sc.attrs["sensors"]["camera"]["stereo"]["baseline_m"] == pytest.approx(B)
+    for k in range(3):
+        pts = sc.ragged("camera/points", k)
+        assert len(pts) > 0.5 * 60 * 120
+        np.testing.assert_allclose(np.median(pts[:, 2]), fx * B / 8, rtol=0.02)
+    assert not any("not a depth image" in n for n in s["scenes"][0]["notes"])

@@ -78,3 +78,29 @@ def test_truncated_image_in_real_bag():
         assert len(m.data) == 30 < m.step * m.height
         with pytest.raises(DecodeError, match="/test/sensor_msgs/image.*30 bytes.*921600"):
             image_array(m, "/test/sensor_msgs/image")
+
+
+def test_stereo_depth_recovers_known_disparity():
+    pytest.importorskip("cv2")
+    from scipy.ndimage import gaussian_filter
+
+    from holodata.readers.images import gray_image, stereo_baseline, stereo_depth
+
+    rng = np.random.default_rng(3)
+    tex = gaussian_filter(rng.uniform(0, 255, (80, 220)), 1.2)
+    L = np.clip(tex[:, 20:180], 0, 255).astype(np.uint8)
+    R = np.clip(tex[:, 28:188], 0, 255).astype(np.uint8)        # disparity 8 px everywhere
+    fx, B = 50.0, 0.1
+    d = stereo_depth(L, R, fx, B)
+    core = d[10:-10, 40:-10]
+    assert np.isfinite(core).mean() > 0.9
+    np.testing.assert_allclose(np.nanmedian(core), fx * B / 8, rtol=0.02)
+    T = store_for("mcap").types
+    K = np.array([[fx, 0, 80], [0, fx, 40], [0, 0, 1.0]])
+    info = camera_info_msg(T, "mcap", 0, "r", K, 160, 80)
+    info.p = np.array([fx, 0, 80, -fx * B, 0, fx, 40, 0, 0, 0, 1, 0], float)
+    assert stereo_baseline(info) == pytest.approx(B)
+    rgb = np.repeat(L[..., None], 3, axis=2).reshape(80, 480)
+    msg = image_msg(T, "mcap", 0, "l", rgb, "rgb8")
+    msg.width = 160
+    np.testing.assert_allclose(gray_image(msg).astype(int), L.astype(int), atol=1)

@@ -112,3 +112,52 @@ def depth_to_points(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> tuple[
     x = ((u - cx) / fx).astype(np.float32) * z
     y = ((v - cy) / fy).astype(np.float32) * z
     return np.stack([x, y, z], axis=1), (v.astype(np.int64) * W + u)
+
+
+# --------------------------------------------------------------------------------------------------
+# stereo pairs -> depth (OpenCV semi-global matching), when a recording has no depth image
+
+def gray_image(msg, topic: str = "") -> np.ndarray:
+    """(H, W) uint8 of a mono8 / rgb8 / bgr8 / rgba8 / bgra8 Image."""
+    a = image_array(msg, topic)
+    enc = str(msg.encoding)
+    if a.ndim == 2 and a.dtype == np.uint8:
+        return a
+    if a.ndim == 3 and a.dtype == np.uint8 and enc in ("rgb8", "bgr8", "rgba8", "bgra8", "8UC3", "8UC4"):
+        w = np.array([0.299, 0.587, 0.114]) if enc.startswith("rgb") else np.array([0.114, 0.587, 0.299])
+        return np.clip(a[..., :3].astype(np.float32) @ w.astype(np.float32), 0, 255).astype(np.uint8)
+    raise DecodeError(f"{'topic ' + topic + ': ' if topic else ''}Image encoding {enc!r} cannot be used for stereo "
+                      f"matching (mono8/rgb8/bgr8)")
+
+
+def stereo_baseline(right_info_msg) -> float:
+    """Baseline (m) of a rectified pair from the right CameraInfo projection: P[0,3] = -fx * B."""
+    P = getattr(right_info_msg, "p", None)
+    if P is None:
+        P = getattr(right_info_msg, "P")
+    P = np.asarray(P, np.float64).reshape(3, 4)
+    if not P[0, 0] > 0 or P[0, 3] == 0:
+        raise DecodeError("right CameraInfo has no stereo baseline (P[0,3] = -fx*baseline is 0)")
+    return float(-P[0, 3] / P[0, 0])
+
+
+def stereo_depth(left: np.ndarray, right: np.ndarray, fx: float, baseline_m: float, min_depth_m: float = 0.3,
+                 block: int = 5) -> np.ndarray:
+    """(H, W) float32 metres from a rectified (left, right) uint8 pair with OpenCV StereoSGBM:
+    depth = fx * baseline / disparity; NaN where the matcher finds no disparity."""
+    try:
+        import cv2
+    except ImportError:
+        from ..errors import RecordingError
+
+        raise RecordingError("stereo depth needs OpenCV (pip install opencv-python-headless)") from None
+    max_disp = fx * abs(baseline_m) / min_depth_m
+    n = int(min(256, max(16, 16 * np.ceil(max_disp / 16))))
+    m = cv2.StereoSGBM_create(minDisparity=0, numDisparities=n, blockSize=block, P1=8 * block * block,
+                              P2=32 * block * block, uniquenessRatio=10, speckleWindowSize=50, speckleRange=2,
+                              mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+    disp = m.compute(np.ascontiguousarray(left), np.ascontiguousarray(right)).astype(np.float32) / 16.0
+    depth = np.full(disp.shape, np.nan, np.float32)
+    ok = disp > 0
+    depth[ok] = np.float32(fx * abs(baseline_m)) / disp[ok]
+    return depth
