@@ -922,14 +922,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
     plan = Plan(rec, scene_id or _scene_id(rec.path), tmap, notes, frame_sensor, streams, frame_stamps, frame_items,
                 match, match_stamp, counts, dropped, warnings, tf=tf, index_seconds=t_index, tolerance_ns=tolerance)
     if "radar" in streams:
-        msg = streams["radar"].first
-        R, H, W = streams["radar"].shape
-        emax, emin = math.degrees(float(msg.elevation_max)), math.degrees(float(msg.elevation_min))
-        try:
-            plan.grid = Grid(H, W, round(emax, 5), round(emin, 5))
-            plan.range_bins = RangeBins(R, round(float(msg.range_resolution), 7))
-        except ValueError as err:
-            raise RecordingError(f"{rec.path}: radar topic {tmap.radar} has an unusable grid ({err})") from None
+        plan.grid, plan.range_bins = _grid_of(rec, streams["radar"])
     plan.probe = {r: st.layout for r, st in streams.items() if r != "radar" and st.layout is not None}
     return plan
 
@@ -1331,57 +1324,98 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
             raise InputError(f"{len(scene_ids)} --scene-id for {len(recordings)} recordings (give one per recording)")
     if tolerance_ms is not None and tolerance_ms <= 0:
         raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
-    plans: list[Plan] = []
     failed: list[dict] = []
+    # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes)
+    todo = []
     for i, r in enumerate(recordings):
         try:
-            p = plan_recording(r, topics, scene_ids[i] if scene_ids else None, msg_dir, tolerance_ms, meta, quiet)
+            todo.append((i, r, radar_grid(r, topics, msg_dir, meta)))
         except (HolodataError, OSError) as err:
             failed.append({"recording": str(r), "error": _one_line(err)})
-            continue
-        plans.append(p)
-    ids = [p.scene_id for p in plans]
-    for i, p in enumerate(plans):
-        if ids.count(p.scene_id) > 1:  # same name from different folders: suffix with the position
-            p.scene_id = f"{p.scene_id}_{i}"
-    if not plans:
-        raise RecordingError("; ".join(f["error"] for f in failed) if len(failed) == 1 else
-                             f"none of {len(failed)} recordings can be ingested: " +
-                             "; ".join(f["error"] for f in failed))
-    grids = {(p.grid, p.range_bins) for p in plans if p.grid is not None}
-    grid, rb = (None, None)
-    from .dataset import open_dataset
+    if not todo:
+        raise RecordingError(_failures(failed))
+    ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
+    ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
+    grids = {g for _, _, g in todo if g is not None}
+    from .dataset import create_dataset, open_dataset
 
     try:
         existing = open_dataset(out)
         grid, rb = existing.grid, existing.range_bins
     except HolodataError:
         existing = None
-    if existing is None:
         if len(grids) > 1:
-            raise RecordingError(f"recordings have different radar grids ({sorted(str(g[0].shape) for g in grids)}); "
-                                 f"ingest them into separate datasets")
+            raise RecordingError(f"recordings have different radar grids ({sorted(str(g[0].to_attrs()) for g in grids)}); "
+                                 f"ingest them into separate datasets") from None
         grid, rb = next(iter(grids)) if grids else (Grid(), RangeBins())
-    scenes = []
     try:
         from . import __version__ as version
     except ImportError:  # pragma: no cover
         version = "?"
-    kw = {"shard_frames": shard_frames} if shard_frames else {}
-    ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
-                        provenance={"tool": "holodata ingest", "version": version}, **kw)
-    for p in plans:
+    ds = None
+    scenes = []
+    for (i, r, g), sid in zip(todo, ids):
+        p = None
         try:
-            if p.grid is not None and (p.grid != grid or p.range_bins != rb):
-                raise RecordingError(f"{p.rec.path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
-                                     f"from the dataset's {grid.to_attrs()} / {rb.to_attrs()}")
+            if g is not None and g != (grid, rb):
+                raise RecordingError(f"{r}: radar grid {g[0].to_attrs()} / {g[1].to_attrs()} differs from the "
+                                     f"dataset's {grid.to_attrs()} / {rb.to_attrs()}")
+            p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet)
+            if ds is None:   # created only once something is ingestable: a failed run leaves no empty dataset
+                kw = {"shard_frames": shard_frames} if shard_frames else {}
+                ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
+                                    provenance={"tool": "holodata ingest", "version": version}, **kw)
             p.sha256 = p.sha_future.result() if p.sha_future is not None else file_sha256(p.rec.files)
             scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))
         except (HolodataError, OSError) as err:
-            failed.append({"recording": str(p.rec.path), "error": _one_line(err)})
+            failed.append({"recording": str(r), "error": _one_line(err)})
         finally:
-            p.rec.close()
+            if p is not None:
+                p.rec.close()
+    if not scenes:
+        raise RecordingError(_failures(failed))
     return {"dataset": str(out), "scenes": scenes, "failed": failed, "ok": not failed}
+
+
+def _failures(failed: list[dict]) -> str:
+    if len(failed) == 1:
+        return failed[0]["error"]
+    return f"none of {len(failed)} recordings can be ingested: " + "; ".join(f["error"] for f in failed)
+
+
+def radar_grid(path, topics=None, msg_dir=None, meta=None) -> tuple[Grid, RangeBins] | None:
+    """The radar grid of a recording (from its first decodable radar message), None without radar."""
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta)
+    try:
+        infos = rec.topics(frame_ids=False)
+        if not any(t.msgtype.endswith(RADAR_SUFFIX) and t.count for t in infos) and not (topics or {}).get("radar"):
+            return None
+        tmap, _ = map_topics(rec, topics, rec.topics(frame_ids=True))
+        if not tmap.radar:
+            return None
+        st = RadarStream(rec, tmap.radar, tmap.time)
+        last = None
+        for n, raw in enumerate(rec.raw_messages([tmap.radar])):
+            try:
+                st.convert(raw, keep=False)
+                return _grid_of(rec, st)
+            except HolodataError as err:
+                last = err
+            if n >= 20:
+                break
+        raise RecordingError(f"{rec.path}: no decodable radar message on {tmap.radar} ({_one_line(last) if last else 'none'})")
+    finally:
+        rec.close()
+
+
+def _grid_of(rec, st: RadarStream) -> tuple[Grid, RangeBins]:
+    msg = st.first
+    R, H, W = st.shape
+    emax, emin = math.degrees(float(msg.elevation_max)), math.degrees(float(msg.elevation_min))
+    try:
+        return Grid(H, W, round(emax, 5), round(emin, 5)), RangeBins(R, round(float(msg.range_resolution), 7))
+    except ValueError as err:
+        raise RecordingError(f"{rec.path}: radar topic {st.topic} has an unusable grid ({err})") from None
 
 
 def list_recording(path, msg_dir=None, meta=None) -> dict:

@@ -344,3 +344,21 @@ def test_stereo_only_camera_gives_points(tmp_path):
         assert len(pts) > 0.5 * 60 * 120
         np.testing.assert_allclose(np.median(pts[:, 2]), fx * B / 8, rtol=0.02)
     assert not any("not a depth image" in n for n in s["scenes"][0]["notes"])
+
+
+def test_radar_grid_mismatch_and_same_names(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    write_recording(tmp_path / "a" / "rec", "mcap", n_radar=2, lidar=False, camera=False, tf=False)
+    write_recording(tmp_path / "b" / "rec", "mcap", n_radar=2, lidar=False, camera=False, tf=False)
+    write_recording(tmp_path / "other", "mcap", n_radar=2, lidar=False, camera=False, tf=False, radar_shape=(8, 4, 32))
+    from holodata.errors import RecordingError
+
+    with pytest.raises(RecordingError, match="different radar grids"):
+        ingest([tmp_path / "a" / "rec", tmp_path / "other"], tmp_path / "x.zarr")
+    assert not (tmp_path / "x.zarr").exists()
+    s = ingest([tmp_path / "a" / "rec", tmp_path / "b" / "rec"], tmp_path / "ds.zarr")
+    assert [x["scene"] for x in s["scenes"]] == ["rec_0", "rec_1"]
+    code, _, err = run("ingest", tmp_path / "other", "--out", tmp_path / "ds.zarr")
+    assert code == 1 and "differs from the dataset's" in err
+    assert open_dataset(tmp_path / "ds.zarr").scenes == ["rec_0", "rec_1"]
