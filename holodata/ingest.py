@@ -146,6 +146,9 @@ def map_topics(rec: Recording, override: dict | None = None, topics: list[TopicI
     notes: list[str] = []
     m = TopicMap()
     usable = [t for t in infos if t.count > 0 and t.decodable]
+    for t in infos:
+        if t.count > 0 and not t.decodable:
+            notes.append(f"topic {t.name}: {t.msgtype} x{t.count} skipped ({t.note or 'not decodable'})")
     radar = sorted((t for t in usable if t.msgtype.endswith(RADAR_SUFFIX)), key=lambda t: (-t.count, t.name))
     if radar:
         m.radar = radar[0].name
@@ -702,6 +705,11 @@ def _reject_reason(rec: Recording, infos: list[TopicInfo], tmap: TopicMap, notes
     if any(ty.endswith("/Imu") for ty in types) and not types & {PC2, IMAGE}:
         return (f"{rec.path}: IMU/odometry-only recording ({summary}); ingest needs a radar, point cloud, depth "
                 f"image or Ouster topic")
+    missing = [t for t in with_msgs if not t.decodable and "--msg-dir" in t.note]
+    if missing:
+        names = ", ".join(f"{t.name} ({t.msgtype})" for t in missing[:3])
+        return (f"{rec.path}: no usable sensor topic; {len(missing)} topic(s) have no message definition ({names}"
+                f"{' ...' if len(missing) > 3 else ''}): pass --msg-dir with their .msg files")
     if with_msgs and all(not t.decodable for t in with_msgs):
         why = next((t.note for t in with_msgs if t.note), "")
         return f"{rec.path}: no decodable topic ({why}); nothing to ingest"

@@ -362,3 +362,35 @@ def test_radar_grid_mismatch_and_same_names(tmp_path):
     code, _, err = run("ingest", tmp_path / "other", "--out", tmp_path / "ds.zarr")
     assert code == 1 and "differs from the dataset's" in err
     assert open_dataset(tmp_path / "ds.zarr").scenes == ["rec_0", "rec_1"]
+
+
+def test_custom_types_without_definitions_warn_or_ask_for_msg_dir(tmp_path):
+    import sqlite3
+
+    from rosbags.typesys import get_types_from_msg
+
+    from _recordings import T0, cloud_msg, lidar_scan
+
+    def bag(name, with_lidar):
+        w = Writer(tmp_path / name, "sqlite3")
+        w.store.register(get_types_from_msg("float32[] power\n", "acme_radar/msg/Scan"))
+        w.add("/acme/scan", "acme_radar/msg/Scan")
+        if with_lidar:
+            w.add("/os/points", "sensor_msgs/msg/PointCloud2")
+        for k in range(3):
+            t = T0 + k * 100_000_000
+            w.write("/acme/scan", t, w.store.types["acme_radar/msg/Scan"](power=np.ones(4, np.float32)))
+            if with_lidar:
+                w.write("/os/points", t, cloud_msg(w.T, "sqlite3", t, "os_sensor", lidar_scan(k)))
+        w.close()
+        con = sqlite3.connect(tmp_path / name / f"{name}.db3")
+        con.execute("DELETE FROM message_definitions WHERE topic_type = 'acme_radar/msg/Scan'")
+        con.commit()
+        con.close()
+        return tmp_path / name
+
+    code, out, err = run("ingest", bag("mixed", True), "--out", tmp_path / "a.zarr")
+    assert code == 0, err
+    assert "warning: mixed: topic /acme/scan: acme_radar/msg/Scan x3 skipped (no message definition (pass --msg-dir))" in err
+    code, out, err = run("ingest", bag("only", False), "--out", tmp_path / "b.zarr")
+    assert code == 1 and "pass --msg-dir with their .msg files" in err and "/acme/scan (acme_radar/msg/Scan)" in err
