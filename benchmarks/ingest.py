@@ -12,7 +12,8 @@ recording of N radar frames and one of 4N — then, in the same run:
 - ratio = ingest messages/s / bare messages/s (floor 0.5, aim 0.8), and the peak RSS of the small
   and the 4x recording (should be about equal: memory flat in recording size).
 
-    .venv/bin/python benchmarks/ingest.py [--frames 20] [--format mcap|rosbag1|sqlite3] [--keep DIR]
+    .venv/bin/python benchmarks/ingest.py [--frames 20] [--format mcap|rosbag1|sqlite3]
+        [--compression none|lz4|bz2|zstd] [--keep DIR]
 """
 from __future__ import annotations
 
@@ -36,7 +37,8 @@ TOPICS = ["/radar/heatmap", "/ouster/points", "/camera/depth/image_rect_raw", "/
           "/tf_static"]
 
 
-def write_recording(path: Path, fmt: str, frames: int, radar=(128, 32, 256), lidar=(32, 512), depth=(188, 336)) -> dict:
+def write_recording(path: Path, fmt: str, frames: int, radar=(128, 32, 256), lidar=(32, 512), depth=(188, 336),
+                    compression: str = "none") -> dict:
     from scipy.spatial.transform import Rotation
 
     from holodata.messages import typestore_for
@@ -51,10 +53,14 @@ def write_recording(path: Path, fmt: str, frames: int, radar=(128, 32, 256), lid
         from rosbags.rosbag1 import Writer
 
         w = Writer(path)
+        if compression != "none":
+            w.set_compression({"lz4": Writer.CompressionFormat.LZ4, "bz2": Writer.CompressionFormat.BZ2}[compression])
     else:
-        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 
         w = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3)
+        if compression != "none":
+            w.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
     w.open()
     types = {"/radar/heatmap": "holodata_msgs/msg/RadarHeatmap", "/ouster/points": "sensor_msgs/msg/PointCloud2",
              "/camera/depth/image_rect_raw": "sensor_msgs/msg/Image",
@@ -209,6 +215,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--frames", type=int, default=20, help="radar frames of the small recording (the large has 4x)")
     ap.add_argument("--format", default="mcap", choices=["mcap", "rosbag1", "sqlite3"])
+    ap.add_argument("--compression", default="none", choices=["none", "lz4", "bz2", "zstd"],
+                    help="chunk compression (rosbag1: lz4|bz2) or per-message zstd (rosbag2 mcap/sqlite3)")
     ap.add_argument("--keep", help="write the recordings and datasets here and keep them")
     args = ap.parse_args()
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-bench-ingest-"))
@@ -221,7 +229,9 @@ def main() -> None:
             if rec.exists():
                 shutil.rmtree(rec) if rec.is_dir() else rec.unlink()
             t = time.perf_counter()
-            info = write_recording(rec, args.format, args.frames * mult)
+            if (args.format == "rosbag1") != (args.compression in ("none", "lz4", "bz2")) and args.compression != "none":
+                raise SystemExit("--compression lz4|bz2 go with --format rosbag1, zstd with mcap|sqlite3")
+            info = write_recording(rec, args.format, args.frames * mult, compression=args.compression)
             tw = time.perf_counter() - t
             bare = bare_rosbags(rec, args.format)
             hr = holodata_readers(rec)
@@ -250,7 +260,7 @@ def main() -> None:
                   f"{hr['seconds']:.2f} s (ratio {row['readers_ratio']:.2f})", flush=True)
         r1, r4 = rows
         print(f"peak RSS 4x / 1x: {r4['peak_rss_mb'] / r1['peak_rss_mb']:.2f} (flat memory: about 1)")
-        print(json.dumps({"format": args.format, "rows": rows}))
+        print(json.dumps({"format": args.format, "compression": args.compression, "rows": rows}))
     finally:
         if not args.keep:
             shutil.rmtree(root, ignore_errors=True)
