@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
 import subprocess
 import sys
@@ -231,7 +230,7 @@ def main() -> None:
             t = time.perf_counter()
             if (args.format == "rosbag1") != (args.compression in ("none", "lz4", "bz2")) and args.compression != "none":
                 raise SystemExit("--compression lz4|bz2 go with --format rosbag1, zstd with mcap|sqlite3")
-            info = write_recording(rec, args.format, args.frames * mult, compression=args.compression)
+            write_recording(rec, args.format, args.frames * mult, compression=args.compression)
             tw = time.perf_counter() - t
             bare = bare_rosbags(rec, args.format)
             hr = holodata_readers(rec)

@@ -1319,8 +1319,6 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
     {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
     there and the others are still ingested. Raises RecordingError when none could be ingested."""
-    from .dataset import create_dataset
-
     recordings = [Path(r) for r in recordings]
     if not recordings:
         raise InputError("no recording given")

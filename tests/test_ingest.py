@@ -5,8 +5,6 @@ and truncated recordings through the CLI; resume after an interruption."""
 from __future__ import annotations
 
 import json
-import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -228,9 +226,9 @@ def test_fixture_lidar_recordings_ingest(tmp_path):
     recs = [FIXTURES / "ros1" / "luminar-test.bag", FIXTURES / "mcap" / "rosbag2_2025_09_10-13_03_56_0.mcap",
             FIXTURES / "ros2" / "sqlite3" / "test_bag_sqlite3", FIXTURES / "ros1" / "512x10_raw.bag"]
     pcaps = [FIXTURES / "ouster" / "OS-1-32-G_v2.1.1_1024x10.pcap", FIXTURES / "ouster" / "OS-0-128-U1_v2.3.0_1024x10.pcap"]
-    try:
-        import ouster.sdk  # noqa: F401
-    except ImportError:
+    import importlib.util
+
+    if importlib.util.find_spec("ouster") is None:   # ouster-sdk is optional: skip the Ouster recordings
         recs, pcaps = recs[:3], []
     code, stdout, err = run("ingest", *recs, *pcaps, "--out", out)
     assert code == 0, err

@@ -61,8 +61,6 @@ class McapRecording(Recording):
     kind = "mcap"
 
     def __init__(self, path: Path, files: list[Path] | None = None, msg_dir: Path | None = None):
-        from mcap.exceptions import McapError  # noqa: F401 - fail early if mcap is missing
-
         super().__init__(path)
         self.files = [Path(f) for f in (files or [path])]
         self.channels: dict[tuple[int, int], tuple[str, str, str]] = {}   # (file, channel id) -> topic, type, encoding
