@@ -42,6 +42,7 @@ rejected with a one-line reason.
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import re
 import time
@@ -1005,6 +1006,10 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
     source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "sha256": plan.sha256,
               "reader": rec.kind, "truncated": bool(rec.truncated), **(getattr(rec, "attrs", None) or {}),
               **({"problems": rec.problems[:20]} if rec.problems else {})}
+    # what the frames and their contents depend on: a resumed run must agree
+    fingerprint = hashlib.sha256(json.dumps(
+        {"topics": plan.tmap.to_dict(), "tolerance_ns": plan.tolerance_ns, "frames": plan.frame_stamps.tolist(),
+         "match": {r: v.tolist() for r, v in plan.match.items()}}, sort_keys=True).encode()).hexdigest()
     existing = ds.scene_ids()
     if plan.scene_id in existing:
         cur = ds.scene(plan.scene_id).attrs
@@ -1012,11 +1017,15 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
         if have and have != plan.sha256:
             raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was ingested from another recording "
                                f"({(cur.get('source') or {}).get('recording')}); choose another --scene-id")
+        prev = (cur.get("ingest") or {}).get("fingerprint")
+        if prev and prev != fingerprint:
+            raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was started with other topics/tolerance; rerun with "
+                               f"the same options or choose another --scene-id")
         if (cur.get("ingest") or {}).get("complete"):
             return {"scene": plan.scene_id, "frames": T, "skipped": "already ingested"}
     attrs = {"frame_sensor": fs, "source": source, "sensors": _sensor_attrs(plan),
              "extrinsics": _extrinsics(plan),
-             "ingest": {"complete": False, "topics": plan.tmap.to_dict()}}
+             "ingest": {"complete": False, "topics": plan.tmap.to_dict(), "fingerprint": fingerprint}}
     sc = ds.scene(plan.scene_id, n_frames=T, attrs=attrs)
     S = ds.shard_frames
     outs: dict[str, _Out] = {}
@@ -1186,7 +1195,8 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
         sync[role] = {"matched_frames": int(ok.sum()), "tolerance_ns": int(plan.tolerance_ns.get(role, 0)),
                       "offset_ns_median": int(np.median(off)) if len(off) else None,
                       "offset_ns_max_abs": int(np.abs(off).max()) if len(off) else None}
-    sc.set_attrs({"ingest": {"complete": True, "topics": plan.tmap.to_dict(), "time_source": plan.tmap.time,
+    sc.set_attrs({"ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
+                             "time_source": plan.tmap.time,
                              "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped, "sync": sync,
                              "notes": plan.notes[:20], "warnings": warnings[:50]}})
     return {"scene": plan.scene_id, "recording": str(rec.path), "frames": T, "frame_sensor": fs,

@@ -132,6 +132,8 @@ def test_lidar_only_and_resume_after_interruption(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         ingest([rec], tmp_path / "ds.zarr", shard_frames=3)
     monkeypatch.setattr(ing_mod._Out, "flush", orig)
+    with pytest.raises(Exception, match="started with other topics/tolerance"):
+        ingest([rec], tmp_path / "ds.zarr", shard_frames=3, tolerance_ms=1.0, topics={"camera": None, "tf": None})
     sc = open_dataset(tmp_path / "ds.zarr").scene("lid")
     assert not sc.attrs["ingest"]["complete"]
     assert not validate_dataset(tmp_path / "ds.zarr")["ok"]      # an interrupted ingest never validates
