@@ -26,9 +26,11 @@ import click
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, quiet, as_json):
     """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster
-    .pcap (+ .json) — and write one dataset scene per recording: radar heatmaps, LiDAR scans and
-    camera clouds synced to the radar rotation cycles (LiDAR scans are the frames when there is no
-    radar), timestamps, TF poses and extrinsics. Rerun the same command to resume.
+    .pcap (+ .json), .h5 (holodata layout), PanoRadar rf_npy/lidar_npy folder — and write one
+    dataset scene per recording: radar heatmaps, LiDAR scans and camera clouds synced to the radar
+    rotation cycles (LiDAR scans are the frames when there is no radar), timestamps, TF poses and
+    extrinsics. Rerun the same command to resume. A recording cut short is ingested up to where it
+    breaks and marked truncated.
 
     Exit 0 when every recording was ingested (warnings go to stderr), 1 when one could not be.
 
@@ -47,7 +49,7 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
         infos, errors = [], []
         for r in recordings:
             try:
-                infos.append(list_recording(r, msg_dir=msg_dir, meta=meta))
+                infos.append(list_recording(r, msg_dir=msg_dir, meta=meta, topics=topics_file))
             except Exception as err:  # noqa: BLE001 - one line per recording
                 from holodata.cli.main import one_line
 

@@ -1434,14 +1434,16 @@ def _grid_of(rec, st: RadarStream) -> tuple[Grid, RangeBins]:
         raise RecordingError(f"{rec.path}: radar topic {st.topic} has an unusable grid ({err})") from None
 
 
-def list_recording(path, msg_dir=None, meta=None) -> dict:
+def list_recording(path, msg_dir=None, meta=None, topics=None) -> dict:
     """What ``ingest --list`` prints: reader, files, duration, topics (name, type, count, rate,
-    frame id) and the role ingest would give each."""
+    frame id) and the role ingest would give each (with ``topics``: dict or YAML path overrides)."""
+    if isinstance(topics, (str, Path)):
+        topics = load_topics_file(topics)
     rec = open_recording(path, msg_dir=msg_dir, meta=meta)
     try:
         infos = rec.topics(frame_ids=True)
         try:
-            tmap, notes = map_topics(rec, None, infos)
+            tmap, notes = map_topics(rec, topics, infos)
         except HolodataError as err:
             tmap, notes = TopicMap(), [_one_line(err)]
         roles = {}
