@@ -1341,42 +1341,47 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     if tolerance_ms is not None and tolerance_ms <= 0:
         raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
     failed: list[dict] = []
-    # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes)
-    todo = []
-    for i, r in enumerate(recordings):
-        try:
-            todo.append((i, r, radar_grid(r, topics, msg_dir, meta)))
-        except (HolodataError, OSError) as err:
-            failed.append({"recording": str(r), "error": _one_line(err)})
-    if not todo:
-        raise RecordingError(_failures(failed))
-    ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
-    ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
-    grids = {g for _, _, g in todo if g is not None}
     from .dataset import create_dataset, open_dataset
 
     try:
         existing = open_dataset(out)
         grid, rb = existing.grid, existing.range_bins
     except HolodataError:
-        existing = None
+        existing, grid, rb = None, None, None
+    todo = []
+    if existing is None and len(recordings) > 1:
+        # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes)
+        for i, r in enumerate(recordings):
+            try:
+                todo.append((i, r, radar_grid(r, topics, msg_dir, meta)))
+            except (HolodataError, OSError) as err:
+                failed.append({"recording": str(r), "error": _one_line(err)})
+        if not todo:
+            raise RecordingError(_failures(failed))
+        grids = {g for _, _, g in todo if g is not None}
         if len(grids) > 1:
             raise RecordingError(f"recordings have different radar grids ({sorted(str(g[0].to_attrs()) for g in grids)}); "
-                                 f"ingest them into separate datasets") from None
+                                 f"ingest them into separate datasets")
         grid, rb = next(iter(grids)) if grids else (Grid(), RangeBins())
+    else:
+        todo = [(i, r, None) for i, r in enumerate(recordings)]
+    ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
+    ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
     try:
         from . import __version__ as version
     except ImportError:  # pragma: no cover
         version = "?"
     ds = None
     scenes = []
-    for (i, r, g), sid in zip(todo, ids):
+    for (i, r, _), sid in zip(todo, ids):
         p = None
         try:
-            if g is not None and g != (grid, rb):
-                raise RecordingError(f"{r}: radar grid {g[0].to_attrs()} / {g[1].to_attrs()} differs from the "
-                                     f"dataset's {grid.to_attrs()} / {rb.to_attrs()}")
             p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet)
+            if grid is None:   # single new dataset: the recording's radar grid (or the default)
+                grid, rb = (p.grid, p.range_bins) if p.grid is not None else (Grid(), RangeBins())
+            if p.grid is not None and (p.grid, p.range_bins) != (grid, rb):
+                raise RecordingError(f"{r}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs from "
+                                     f"the dataset's {grid.to_attrs()} / {rb.to_attrs()}")
             if ds is None:   # created only once something is ingestable: a failed run leaves no empty dataset
                 kw = {"shard_frames": shard_frames} if shard_frames else {}
                 ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
