@@ -12,7 +12,7 @@ recording of N radar frames and one of 4N — then, in the same run:
 - ratio = ingest messages/s / bare messages/s (floor 0.5, aim 0.8), and the peak RSS of the small
   and the 4x recording (should be about equal: memory flat in recording size).
 
-    .venv/bin/python benchmarks/ingest.py [--frames 20] [--format mcap|rosbag1|sqlite3]
+    .venv/bin/python benchmarks/ingest.py [--frames 40] [--format mcap|rosbag1|sqlite3]
         [--compression none|lz4|bz2|zstd] [--keep DIR]
 """
 from __future__ import annotations
@@ -212,7 +212,7 @@ def run_ingest(path: Path, out: Path) -> dict:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--frames", type=int, default=20, help="radar frames of the small recording (the large has 4x)")
+    ap.add_argument("--frames", type=int, default=40, help="radar frames of the small recording (the large has 4x)")
     ap.add_argument("--format", default="mcap", choices=["mcap", "rosbag1", "sqlite3"])
     ap.add_argument("--compression", default="none", choices=["none", "lz4", "bz2", "zstd"],
                     help="chunk compression (rosbag1: lz4|bz2) or per-message zstd (rosbag2 mcap/sqlite3)")

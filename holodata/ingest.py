@@ -950,10 +950,56 @@ def _first_string(rec: Recording, topic: str | None) -> str:
 # ==================================================================================================
 # writing
 
+class _Background:
+    """One writer thread for shard writes (compression overlaps reading and decoding); at most
+    ``depth`` shards wait in the queue, so memory stays a few shards. Errors surface on the next
+    submit or on :meth:`join`; :meth:`close` always waits for the write in progress."""
+
+    def __init__(self, depth: int = 1):
+        import threading
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="holodata-ingest-writer")
+        self.slots = threading.Semaphore(depth)
+        self.futures: list = []
+        self.seconds = 0.0
+
+    def _run(self, fn) -> None:
+        t = time.perf_counter()
+        try:
+            fn()
+        finally:
+            self.seconds += time.perf_counter() - t
+            self.slots.release()
+
+    def _raise(self) -> None:
+        pending = []
+        for f in self.futures:
+            if f.done():
+                f.result()
+            else:
+                pending.append(f)
+        self.futures = pending
+
+    def submit(self, fn) -> None:
+        self._raise()
+        self.slots.acquire()
+        self.futures.append(self.pool.submit(self._run, fn))
+
+    def join(self) -> None:
+        for f in self.futures:
+            f.result()
+        self.futures = []
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True)
+
+
 class _Out:
     """Buffers one array's frames and writes each shard once all its frames are in."""
 
-    def __init__(self, writer, ragged: bool, default, expected: set[int]):
+    def __init__(self, writer, ragged: bool, default, expected: set[int], bg: _Background | None = None):
+        self.bg = bg
         self.w, self.ragged, self.default = writer, ragged, default
         self.expected = expected
         self.buf: dict[int, object] = {}
@@ -982,12 +1028,14 @@ class _Out:
             if not final and any(f in self.expected and f not in self.buf for f in frames):
                 return
             data = [self.buf.pop(f) if f in self.buf else self.default() for f in frames]
-            t = time.perf_counter()
-            if self.ragged:
-                self.w.write_shard(self.k, data)
+            k, w = self.k, self.w
+            job = (lambda: w.write_shard(k, data)) if self.ragged else (lambda: w.write_shard(k, np.stack(data)))
+            if self.bg is not None:
+                self.bg.submit(job)
             else:
-                self.w.write_shard(self.k, np.stack(data))
-            self.seconds += time.perf_counter() - t
+                t = time.perf_counter()
+                job()
+                self.seconds += time.perf_counter() - t
             self.done.add(self.k)
             self.written += 1
             self.k += 1
@@ -999,6 +1047,14 @@ def _shard_frames(per_frame_bytes: int, default: int) -> int:
 
 def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> dict:
     """Pass 2: decode the matched messages and write scene ``plan.scene_id`` into writer ``ds``."""
+    bg = _Background()
+    try:
+        return _write_plan(plan, ds, quiet, codec, bg)
+    finally:
+        bg.close()   # also on errors/interrupts: the shard write in progress finishes before we return
+
+
+def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background) -> dict:
     from .progress import track
 
     rec, T = plan.rec, len(plan.frame_stamps)
@@ -1055,26 +1111,26 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
         hm = frame_arr("radar/heatmap", shape, rs.dtype.newbyteorder("="), ["frame", "range", "elevation", "azimuth"],
                        "1", shard_frames=_shard_frames(fb, S), fill_value=float("nan"),
                        attrs={"amplitude": "linear", "topic": rs.topic})
-        outs["radar/heatmap"] = _Out(hm, False, lambda: np.full(shape, np.nan, rs.dtype), set(range(T)))
+        outs["radar/heatmap"] = _Out(hm, False, lambda: np.full(shape, np.nan, rs.dtype), set(range(T)), bg)
         cyc = frame_arr("radar/cycle_ns", (2,), "int64", ["frame", "start_end"], "ns")
-        outs["radar/cycle_ns"] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)))
+        outs["radar/cycle_ns"] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)), bg)
     for role in ("lidar", "camera"):
         if role not in plan.streams:
             continue
         frames_with = {f for fl in exp[role].values() for f in fl}
         pts = sc.ragged_array(f"{role}/points", width=3, dtype="float32", units="m")
         arrays.append(f"{role}/points")
-        outs[f"{role}/points"] = _Out(pts, True, lambda: np.zeros((0, 3), np.float32), set(frames_with))
+        outs[f"{role}/points"] = _Out(pts, True, lambda: np.zeros((0, 3), np.float32), set(frames_with), bg)
         pr = plan.probe.get(role) or {}
         if role == "lidar" and pr.get("time"):
             pt = sc.ragged_array("lidar/point_time_ns", width=1, dtype="int64", units="ns", dims=["point", "time"])
             arrays.append("lidar/point_time_ns")
-            outs["lidar/point_time_ns"] = _Out(pt, True, lambda: np.zeros((0, 1), np.int64), set(frames_with))
+            outs["lidar/point_time_ns"] = _Out(pt, True, lambda: np.zeros((0, 1), np.int64), set(frames_with), bg)
         if role == "lidar" and pr.get("grid"):
             gshape = tuple(pr["grid"])
             lr = frame_arr("lidar/range", gshape, "float32", ["frame", "beam", "column"], "m",
                            shard_frames=_shard_frames(4 * int(np.prod(gshape)), S))
-            outs["lidar/range"] = _Out(lr, False, lambda: np.full(gshape, np.nan, np.float32), set(frames_with))
+            outs["lidar/range"] = _Out(lr, False, lambda: np.full(gshape, np.nan, np.float32), set(frames_with), bg)
     # which items to decode: frames of unfinished shards only (resume)
     want: dict[str, set[int]] = {}
     for role, d in exp.items():
@@ -1155,8 +1211,9 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
                 deliver(role, it)
     for o in outs.values():
         o.flush(final=True)
+    bg.join()
     timings = {"index_pass_s": round(plan.index_seconds, 4), "write_pass_s": round(time.perf_counter() - t_pass, 4),
-               "decode_s": round(t_decode, 4), "store_s": round(sum(o.seconds for o in outs.values()), 4)}
+               "decode_s": round(t_decode, 4), "store_s": round(bg.seconds + sum(o.seconds for o in outs.values()), 4)}
     if failed.get(fs):
         raise RecordingError(f"{rec.path}: {failed[fs]} {fs} messages decoded in the index pass but not in the "
                              f"write pass ({fail_msg.get(fs)})")
