@@ -63,7 +63,7 @@ CAMINFO = "sensor_msgs/msg/CameraInfo"
 STRING = "std_msgs/msg/String"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 OUSTER_SCAN = "ouster/LidarScan"
-OUSTER_PACKET = "ouster_ros/msg/PacketMsg"
+OUSTER_PACKETS = ("ouster_ros/msg/PacketMsg", "ouster_sensor_msgs/msg/PacketMsg")  # ouster-ros < / >= 0.10
 CAMERA_WORDS = ("camera", "cam", "zed", "realsense", "rgbd", "depth", "stereo", "optical", "kinect", "oak",
                 "d435", "d455", "image")
 ROLES = ("radar", "lidar", "lidar_metadata", "camera", "camera_info", "camera_right", "camera_info_right", "tf",
@@ -157,7 +157,7 @@ def map_topics(rec: Recording, override: dict | None = None, topics: list[TopicI
     # LiDAR
     ouster = [t for t in usable if t.msgtype in (OUSTER_SCAN, RANGE_IMAGE_TYPE)]
     plain = [t for t in usable if t.msgtype == POINTS_TYPE]
-    packets = [t for t in usable if t.msgtype == OUSTER_PACKET and "imu" not in t.name.lower()]
+    packets = [t for t in usable if t.msgtype in OUSTER_PACKETS and "imu" not in t.name.lower()]
     clouds = [t for t in usable if t.msgtype == PC2] + plain
     lidar_clouds = sorted((t for t in clouds if not _camera_like(t.name, t.frame_id)), key=lambda t: (-t.count, t.name))
     cam_clouds = sorted((t for t in clouds if _camera_like(t.name, t.frame_id)), key=lambda t: (-t.count, t.name))
@@ -261,7 +261,7 @@ def _apply_override(m: TopicMap, ov: dict, by: dict[str, TopicInfo], rec: Record
             m.camera_stride = v
         else:
             setattr(m, k, v)
-    if m.lidar and by[m.lidar].msgtype == OUSTER_PACKET and not m.lidar_metadata:
+    if m.lidar and by[m.lidar].msgtype in OUSTER_PACKETS and not m.lidar_metadata:
         raise InputError(f"topics file: lidar {m.lidar} carries Ouster packets; name the metadata String topic "
                          f"as lidar_metadata")
     if m.camera and by[m.camera].msgtype == IMAGE and not m.camera_info:
@@ -810,7 +810,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
             streams["lidar"] = GridStream(rec, tmap.lidar, tmap.time)
         elif ty == POINTS_TYPE:
             streams["lidar"] = PointsStream(rec, tmap.lidar, tmap.time, "lidar")
-        elif ty == OUSTER_PACKET:
+        elif ty in OUSTER_PACKETS:
             text = _first_string(rec, tmap.lidar_metadata)
             try:
                 from .readers.ouster import load_info
