@@ -247,3 +247,23 @@ def test_ragged_resume_after_torn_append(tmp_path):
         np.testing.assert_array_equal(s.ragged("lidar/points", i), f[i])
     assert s["lidar/points"].values.shape == (11, 3)
     assert validate_dataset(url)["ok"]
+
+
+@pytest.mark.parametrize("where", ["local", "memory"])
+def test_remove_lets_a_later_stage_rewrite_an_array(tmp_path, where):
+    url = str(tmp_path / "d.zarr") if where == "local" else "memory://remove-test/d.zarr"
+    w = create_dataset(url, grid=G, range_bins=RangeBins(), created_by="test", shard_frames=4)
+    sc = w.scene("c1", n_frames=6)
+    a = sc.frame_array("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "m")
+    for k in range(a.n_shards):
+        a.write_shard(k, np.broadcast_to(np.eye(4), (len(range(6)[a.frames(k)]), 4, 4)))
+    sc.remove("pose/T_world_radar")
+    assert "pose/T_world_radar" not in sc.arrays()
+    b = sc.frame_array("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "m")
+    assert not b.is_done(0)
+    new = np.broadcast_to(np.eye(4), (6, 4, 4)).copy()
+    new[:, 0, 3] = 2.0
+    for k in range(b.n_shards):
+        b.write_shard(k, new[b.frames(k)])
+    got = np.asarray(open_dataset(url).scene("c1")["pose/T_world_radar"][...])
+    assert np.array_equal(got, new)

@@ -94,6 +94,15 @@ class Store:
         except FileNotFoundError:
             pass
 
+    def delete_tree(self, key: str) -> None:
+        """Remove folder ``key`` and everything under it (absent: nothing happens)."""
+        import shutil
+
+        if self.local:
+            shutil.rmtree(self.root / key, ignore_errors=True)
+        elif self.fs.exists(self._p(key)):
+            self.fs.rm(self._p(key), recursive=True)
+
     def list(self, key: str) -> list[str]:
         """Names (not paths) directly under folder ``key``; [] when absent."""
         try:

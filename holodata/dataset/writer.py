@@ -294,6 +294,12 @@ class SceneWriter:
                           attributes={"dims": ["frame_edge"], "units": "1"})
         return RaggedWriter(self, name, _json(self.ds.store, f"{path}/zarr.json"))
 
+    def remove(self, name: str) -> None:
+        """Delete array ``name`` (frame, ragged or whole) so that a later stage can write it anew,
+        e.g. slam replacing the odometry poses that ingest took from TF."""
+        self._check_name(name)
+        self.ds.store.delete_tree(f"{self.path}/{name}")
+
     def arrays(self) -> list[str]:
         from .reader import list_nodes
 
