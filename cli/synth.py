@@ -29,11 +29,13 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--lidar", default="64x1024", show_default=True, help="LiDAR beams x columns.")
 @click.option("--camera", default="376x672", show_default=True, help="Depth camera rows x columns.")
 @click.option("--no-human", is_flag=True, help="Record the corner without a human.")
+@click.option("--visible-walkers", type=click.IntRange(min=0), default=0, show_default=True,
+              help="People walking in the robot's corridor, visible to the LiDAR (truth/lidar_instances.npz).")
 @click.option("--stereo-images", is_flag=True, help="Also record the rectified left/right mono8 pair (for OpenCV stereo).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera, no_human, stereo_images, quiet,
-          as_json) -> None:
+def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera, no_human, visible_walkers,
+          stereo_images, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
@@ -49,7 +51,8 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera
         raise click.BadParameter(str(err), param_hint="--grid") from None
     res = synthesize(out, corner=corner, width=width, frames=frames, format=fmt, seed=seed, human=not no_human,
                      grid=g, range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
-                     camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, quiet=quiet)
+                     camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, quiet=quiet,
+                     visible_walkers=visible_walkers)
     if as_json:
         import json
 

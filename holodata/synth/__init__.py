@@ -83,13 +83,16 @@ class SynthResult:
 def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: int = 20, format: str = "mcap",
                seed: int = 0, human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
                lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
-               radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False) -> SynthResult:
+               radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False,
+               visible_walkers: int = 0) -> SynthResult:
     """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
     ``frames`` radar rotations (2 Hz); ``format`` mcap|rosbag2|rosbag1; ``grid``/``range_bins`` the
     radar heatmap axes (DESIGN §2); ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols);
     ``stereo_images`` adds the rectified left/right mono8 pair (``STEREO_TOPICS``) for OpenCV stereo.
+    ``visible_walkers`` N adds N people walking in the approach corridor, seen by every sensor, with
+    per-scan LiDAR truth instance masks in ``truth/lidar_instances.npz`` (0: none, outputs unchanged).
     Same arguments → byte-identical files.
     """
     from .recording import FORMATS, recording_path
@@ -99,6 +102,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         raise InputError(f"unknown recording format {format!r} (choose from {', '.join(FORMATS)})")
     if frames < 1:
         raise InputError(f"frames must be >= 1, got {frames}")
+    if visible_walkers < 0:
+        raise InputError(f"visible_walkers must be >= 0, got {visible_walkers}")
     out_dir = Path(out_dir)
     rec = recording_path(out_dir, format)
     if rec.exists() or (out_dir / "truth").exists():
@@ -106,7 +111,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     out_dir.mkdir(parents=True, exist_ok=True)
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
-                        camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images)
+                        camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images,
+                        visible_walkers=visible_walkers)
     return write_recording(sc, out_dir, format, quiet=quiet)
 
 

@@ -91,10 +91,13 @@ class LidarModel:
         period = 1e9 / self.cfg.rate_hz
         return np.round(np.arange(self.cfg.cols) * period / self.cfg.cols).astype(np.int64)
 
-    def scan(self, scene, T_cols: np.ndarray, human, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
+    def scan(self, scene, T_cols: np.ndarray, human, rng: np.random.Generator,
+             face_instance: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
         """One scan: ``T_cols`` (W,4,4) T_world_lidar per column; ``human`` (hv, hf) or None.
 
         Returns the (rows, cols) OUSTER_DTYPE array and stats (``human_hits``: returns on the human).
+        With ``face_instance`` (F,) uint16 (instance id per face of ``human``), stats also hold
+        ``instance``: (rows, cols) uint16, the id of the person each *returned* pixel hit, 0 elsewhere.
         """
         cfg = self.cfg
         H, W = cfg.rows, cfg.cols
@@ -131,4 +134,8 @@ class LidarModel:
         out["ambient"] = np.clip(rng.poisson(amb), 0, 65535).astype(np.uint16)
         out["t"] = self.column_times_ns()[None, :].astype(np.uint32)
         out["ring"] = np.arange(H, dtype=np.uint16)[:, None]
-        return out, {"human_hits": int((valid & dyn).sum()), "returns": int(valid.sum())}
+        stats = {"human_hits": int((valid & dyn).sum()), "returns": int(valid.sum())}
+        if face_instance is not None:
+            fi = np.asarray(face_instance, np.uint16)
+            stats["instance"] = np.where(valid & dyn, fi[np.where(valid & dyn, face, 0)], 0).astype(np.uint16)
+        return out, stats

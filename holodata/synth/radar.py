@@ -147,7 +147,8 @@ class RadarModel:
             cum = cum * np.where(ok, self.loss[mat], 0.0)
             d = d + 2.0 * cosi[:, None] * np.nan_to_num(n)
             d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-        return {k: (np.concatenate(v) if v else np.zeros(0)) for k, v in out.items()}
+        empty = {"pix": np.int64, "bounce": np.int64, "range": np.float64, "amp": np.complex128, "human": bool}
+        return {k: (np.concatenate(v) if v else np.zeros(0, empty[k])) for k, v in out.items()}
 
     # ------------------------------------------------------------------ cube
     def cube(self, paths: dict, rng: np.random.Generator | None) -> np.ndarray:

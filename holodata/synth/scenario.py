@@ -9,7 +9,7 @@ be generated independently and the output does not depend on generation order.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +30,7 @@ RADAR_START_S = 0.3
 LIDAR_START_S = 0.05
 CAMERA_START_S = 0.1
 ODOM_HZ = 30.0
-STREAMS = {"radar": 1, "lidar": 2, "camera": 3, "scenario": 4, "odometry": 5, "stereo": 6}
+STREAMS = {"radar": 1, "lidar": 2, "camera": 3, "scenario": 4, "odometry": 5, "stereo": 6, "walkers": 7}
 
 FRAME_MAP, FRAME_ODOM, FRAME_BASE = "map", "odom", "base_link"
 FRAME_RADAR = "radar"
@@ -71,6 +71,7 @@ class Scenario:
     clock_offset_ns: dict
     latency_ns: dict
     stereo: bool = False
+    walkers: list = field(default_factory=list)  # HumanWalk people visible to every sensor (``visible_walkers``)
 
     def t_s(self, t_ns) -> float:
         """Seconds since the start of the recording (true time)."""
@@ -78,6 +79,24 @@ class Scenario:
 
     def human_mesh(self, t_ns: int):
         return None if self.walk is None else self.walk.mesh_at(float(self.t_s(t_ns)))
+
+    def dynamic_mesh(self, t_ns: int):
+        """Everything that moves at ``t_ns``: ``((vertices, faces) | None, face_instance (F,) uint16 | None)``.
+
+        Without visible walkers this is exactly :meth:`human_mesh` (and ``None`` instances). With
+        walkers, the walkers' meshes (instances 1..N, in order) and the hidden human (instance N+1)
+        are merged into one mesh; ``face_instance`` gives each face's instance id."""
+        if not self.walkers:
+            return self.human_mesh(t_ns), None
+        t = float(self.t_s(t_ns))
+        parts = [w.mesh_at(t) for w in self.walkers] + ([self.walk.mesh_at(t)] if self.walk is not None else [])
+        verts, faces, inst, n = [], [], [], 0
+        for i, (v, f) in enumerate(parts):
+            verts.append(v)
+            faces.append(f + n)
+            inst.append(np.full(len(f), i + 1, np.uint16))
+            n += len(v)
+        return (np.concatenate(verts), np.concatenate(faces).astype(np.int32)), np.concatenate(inst)
 
     def radar_cycle(self, k: int) -> tuple[int, int]:
         period = int(round(1e9 / self.radar_cfg.rotation_hz))
@@ -88,8 +107,13 @@ class Scenario:
 def build_scenario(corner: str = "L", width: float | None = None, frames: int = 20, seed: int = 0,
                    human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
                    lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16",
-                   stereo_images: bool = False) -> Scenario:
-    """Everything about one recording except the sensor data itself."""
+                   stereo_images: bool = False, visible_walkers: int = 0) -> Scenario:
+    """Everything about one recording except the sensor data itself.
+
+    ``visible_walkers`` N > 0 adds N people walking back and forth along the approach corridor (the
+    robot's), visible to every sensor, for scoring LiDAR human segmentation against per-scan truth
+    masks (``truth/lidar_instances.npz``). They draw from their own random stream, so N = 0 leaves
+    every output byte-identical to a recording made without the option."""
     try:
         world = make_world(corner, width, seed)
     except ValueError as err:
@@ -157,9 +181,31 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
              "camera": int(rng.integers(-8_000_000, 8_000_001)), "odometry": 0}
     latency = {"radar": int(rng.integers(30_000_000, 45_000_001)), "lidar": int(rng.integers(2_000_000, 6_000_001)),
                "camera": int(rng.integers(20_000_000, 40_000_001)), "odometry": 1_000_000}
+    walkers = _visible_walkers(world, seed, int(visible_walkers), start, stop) if visible_walkers else []
     return Scenario(seed, world, frames, t0, duration, truth, tinfo, odom, oinfo, T_map_odom, walk,
                     T_base_radar, T_base_lidar, T_world_cam_link, radar_cfg, lidar_cfg, cam_cfg, alt, az, clock, latency,
-                    bool(stereo_images))
+                    bool(stereo_images), walkers)
+
+
+def _visible_walkers(world: World, seed: int, n: int, start: np.ndarray, stop: np.ndarray) -> list:
+    """``n`` people walking along the approach corridor (axis y = 0, walls y = ±width/2), off the
+    robot's line: lanes alternate sides at ``|y| = width/2 - 0.4`` m (at least 0.35 m off axis), each
+    walking between a point behind the robot's start and one short of the junction (x = -0.4 m),
+    at 0.7-1.3 m/s with a random phase."""
+    if n < 0:
+        raise InputError(f"visible_walkers must be >= 0, got {n}")
+    rng = _rng(seed, "walkers")
+    half = world.width / 2
+    lane = max(0.35, half - 0.4)
+    x0 = min(float(start[0]), float(stop[0])) - 2.0
+    out = []
+    for i in range(n):
+        side = 1.0 if i % 2 == 0 else -1.0
+        y = side * min(lane, half - 0.3) + float(rng.uniform(-0.05, 0.05))
+        a = np.array([x0 + float(rng.uniform(-0.5, 0.5)), y])
+        b = np.array([-0.4 - float(rng.uniform(0.0, 0.3)), y])
+        out.append(HumanWalk(a, b, float(rng.uniform(0.7, 1.3)), float(rng.uniform(1.55, 1.9)), float(rng.uniform(0, 1))))
+    return out
 
 
 
@@ -192,7 +238,7 @@ class Sensors:
         T_cols = sc.truth.interpolate(t_cols) @ sc.T_base_radar             # (W,4,4)
         D = np.einsum("wij,hwj->hwi", T_cols[:, :3, :3], g.directions()).reshape(-1, 3)
         O = np.broadcast_to(T_cols[None, :, :3, 3], (g.H, g.W, 3)).reshape(-1, 3)
-        human = sc.human_mesh((start + end) // 2)
+        human = sc.dynamic_mesh((start + end) // 2)[0]
         tr = self.trace(O, D, human, cfg.max_bounces, cfg.range_bins.max_range)
         paths = self.radar.paths(tr, O, D)
         hm = self.radar.cube(paths, _rng(sc.seed, "radar", k))
@@ -220,17 +266,23 @@ class Sensors:
         return tr
 
     def lidar_scan(self, i: int, start_ns: int):
+        """(points, stats); with visible walkers ``stats["instance"]`` is the (rows, cols) uint16 truth
+        instance image (0 = no return on a person) and ``human_hits`` counts the hidden human only."""
         sc = self.sc
         t_cols = start_ns + self.lidar.column_times_ns()
         T_cols = sc.truth.interpolate(t_cols) @ sc.T_base_lidar
         mid = start_ns + int(5e8 / sc.lidar_cfg.rate_hz)
-        return self.lidar.scan(self.scene, T_cols, sc.human_mesh(mid), _rng(sc.seed, "lidar", i))
+        dyn, face_inst = sc.dynamic_mesh(mid)
+        pts, st = self.lidar.scan(self.scene, T_cols, dyn, _rng(sc.seed, "lidar", i), face_instance=face_inst)
+        if face_inst is not None:
+            st["human_hits"] = int((st["instance"] == len(sc.walkers) + 1).sum()) if sc.walk is not None else 0
+        return pts, st
 
     def camera_frame(self, i: int, t_ns: int):
-        return self.camera.frame(self.scene, self.sc.human_mesh(t_ns), _rng(self.sc.seed, "camera", i))
+        return self.camera.frame(self.scene, self.sc.dynamic_mesh(t_ns)[0], _rng(self.sc.seed, "camera", i))
 
     def stereo_pair(self, i: int, t_ns: int):
-        return self.stereo.pair(self.scene, self.sc.human_mesh(t_ns), _rng(self.sc.seed, "stereo", i))
+        return self.stereo.pair(self.scene, self.sc.dynamic_mesh(t_ns)[0], _rng(self.sc.seed, "stereo", i))
 
 
 def path_stats(paths: dict) -> dict:
@@ -290,6 +342,7 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
     counts = {t: 0 for t in topics}
     frame_rows, radar_tum, lidar_tum = [], [], []
     lidar_human_hits, camera_human_pixels = 0, 0
+    inst_rows: list[tuple[int, np.ndarray]] = []  # (header stamp, instance image) per scan, with walkers
     events = _schedule(sc)
     cam_cfg, rcfg = sc.camera_cfg, sc.radar_cfg
     T_world_cam_opt = sc.T_world_cam_link @ T_LINK_OPTICAL
@@ -343,6 +396,8 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
                 pts, st = sensors.lidar_scan(idx, t_ns)
                 lidar_human_hits += st["human_hits"]
                 stamp = t_ns + sc.clock_offset_ns["lidar"]
+                if "instance" in st:
+                    inst_rows.append((stamp, st["instance"]))
                 put("/ouster/points", log_ns, bw.point_cloud("/ouster/points", stamp, sc.lidar_cfg.frame_id, pts))
                 lidar_tum.append((stamp, sc.truth.interpolate(np.array([t_ns]))[0] @ sc.T_base_lidar))
             elif kind == "camera":
@@ -381,6 +436,9 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
         truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", [r[0] for r in lidar_tum], np.stack([r[1] for r in lidar_tum]))
     truthio.write_trajectory(truth_dir / "odometry.tum", sc.odom.timestamp_ns, sc.odom.poses)
     truthio.write_frames_csv(truth_dir / "radar_frames.csv", frame_rows)
+    if sc.walkers:
+        truthio.write_lidar_instances(truth_dir / "lidar_instances.npz", inst_rows, len(sc.walkers),
+                                      sc.walk is not None)
     truthio.write_json(truth_dir / "extrinsics.json", {
         "T_base_radar": sc.T_base_radar, "T_base_lidar": sc.T_base_lidar,
         "T_world_camera_link": sc.T_world_cam_link, "T_world_camera_optical": T_world_cam_opt,
@@ -419,6 +477,9 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
             "radar_beam_origin": "rotation centre, moving with the robot during the cycle (per-column pose)",
         },
     })
+    if sc.walkers:
+        scene["visible_walkers"] = [{"a": w.a, "b": w.b, "speed_mps": w.speed, "height_m": w.height,
+                                     "phase0": w.phase0, "instance": i + 1} for i, w in enumerate(sc.walkers)]
     scene_path = truth_dir / "scene.json"
     truthio.write_json(scene_path, scene)
     return SynthResult(out_dir=out_dir, recording=rec, storage_file=Path(storage), format=fmt, truth_dir=truth_dir,

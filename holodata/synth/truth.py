@@ -13,6 +13,12 @@ Layout (all deterministic for a given seed)::
     truth/odometry.tum            the drifting T_odom_base published on /tf (for comparison)
     truth/radar_frames.csv        frame, header stamp, cycle start/end, true mid time, human centre, LOS→NLOS dB
     truth/human/<frame:06d>.ply   world-frame human mesh per radar frame (only with a human)
+    truth/lidar_instances.npz     only with ``visible_walkers``: per-LiDAR-scan truth instance masks on the
+                                  scan's organised (rows, cols) grid, sparse: ``stamp_ns`` (S,) scan header
+                                  stamps (as in trajectory_lidar.tum), ``shape`` [rows, cols], and per
+                                  labelled pixel ``scan`` (M,) int32, ``pixel`` (M,) int32 row-major index,
+                                  ``instance`` (M,) uint16 (walkers 1..N, hidden human N+1; 0 = not a person
+                                  or no return, not stored); ``n_walkers``, ``hidden_human`` scalars.
 """
 from __future__ import annotations
 
@@ -71,3 +77,39 @@ def write_frames_csv(path: Path, rows: list[dict]) -> None:
                 vals.append(str(v))
         lines.append(",".join(vals))
     Path(path).write_text("\n".join(lines) + "\n")
+
+
+def write_lidar_instances(path: Path, rows: list, n_walkers: int, hidden_human: bool) -> None:
+    """Sparse per-scan instance masks (see the module docstring); ``rows`` = [(stamp_ns, (H,W) uint16)]."""
+    shape = rows[0][1].shape if rows else (0, 0)
+    scan, pixel, inst = [], [], []
+    for i, (_, img) in enumerate(rows):
+        flat = np.asarray(img, np.uint16).ravel()
+        nz = np.flatnonzero(flat)
+        scan.append(np.full(len(nz), i, np.int32))
+        pixel.append(nz.astype(np.int32))
+        inst.append(flat[nz])
+    cat = (lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt))
+    with open(path, "wb") as fh:  # a file handle: np.savez_compressed would append ".npz" to odd names
+        np.savez_compressed(fh, stamp_ns=np.array([r[0] for r in rows], np.int64), shape=np.array(shape, np.int64),
+                            scan=cat(scan, np.int32), pixel=cat(pixel, np.int32), instance=cat(inst, np.uint16),
+                            n_walkers=np.int64(n_walkers), hidden_human=np.bool_(hidden_human))
+
+
+def read_lidar_instances(path: Path) -> dict:
+    """``truth/lidar_instances.npz`` → {"stamp_ns" (S,), "masks": callable i -> (H,W) uint16, ...}."""
+    with np.load(path) as z:
+        d = {k: z[k] for k in z.files}
+    H, W = (int(x) for x in d["shape"])
+    order = np.argsort(d["scan"], kind="stable")
+    scan, pixel, inst = d["scan"][order], d["pixel"][order], d["instance"][order]
+    bounds = np.searchsorted(scan, np.arange(len(d["stamp_ns"]) + 1))
+
+    def mask(i: int) -> np.ndarray:
+        m = np.zeros(H * W, np.uint16)
+        a, b = bounds[i], bounds[i + 1]
+        m[pixel[a:b]] = inst[a:b]
+        return m.reshape(H, W)
+
+    d["mask"] = mask
+    return d
