@@ -27,10 +27,12 @@ import click
 @click.option("--shard-frames", default=None, type=click.IntRange(1), help="Frames per shard of the gt arrays (default: the dataset's; 32 for a new one).")
 @click.option("--threads", default=0, show_default=True, type=click.IntRange(0), help="Ray-casting threads per process (0 = cores / processes).")
 @click.option("--processes", default=0, show_default=True, type=click.IntRange(0), help="Local tracing processes (0 = one per core, max 4, for >= 64 frames; 1 = in-process).")
+@click.option("--workers", default=0, show_default=True, type=click.IntRange(0), help="Run one task per shard on a local Dask cluster of N worker processes (0 = no Dask).")
+@click.option("--scheduler", metavar="ADDRESS", help="Run one task per shard on an existing Dask cluster: tcp://host:8786 or a scheduler file. Dataset/inputs must be reachable from the workers (shared folder or s3://; credentials from the workers' environment).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
-                max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, quiet, as_json):
+                max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, workers, scheduler, quiet, as_json):
     """Ray-trace multi-bounce ground truth (gt/range, gt/normal, gt/point, gt/label, gt/semantic,
     gt/human_center) for every frame, shard by shard (an interrupted run resumes).
 
@@ -40,6 +42,8 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
     Standalone:
       holodata raytrace-gt --mesh scene.ply --poses radar.tum --human-dir humans/ --out gt.zarr \\
           --scene-id corner_03 --grid 64x512 --elevation-fov -45,45 --max-bounces 3
+    On a Dask cluster, writing to S3 (AWS_* variables in the workers' environment):
+      holodata raytrace-gt s3://lab-bucket/data.zarr --scheduler tcp://head:8786
     """
     from holodata.conventions import Grid
     from holodata.groundtruth import GTConfig, OriginModel, raytrace_dataset, raytrace_standalone
@@ -64,11 +68,15 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
     cfg = GTConfig(grid=g, max_bounces=max_bounces, max_range=max_range, backend=backend,
                    origin=OriginModel(rotation_radius, column_time, rotation_hz), shard_frames=shard_frames,
                    nthreads=threads, codec=codec)
-    if standalone:
-        summary = raytrace_standalone(mesh, poses, out, human=human, human_dir=human_dir, scene_id=scene_id,
-                                      cfg=cfg, quiet=quiet, processes=processes)
-    else:
-        summary = raytrace_dataset(dataset, list(scenes) or None, cfg=cfg, quiet=quiet, processes=processes)
+    from holodata.distributed import cluster
+
+    with cluster(workers, scheduler) as client:
+        if standalone:
+            summary = raytrace_standalone(mesh, poses, out, human=human, human_dir=human_dir, scene_id=scene_id,
+                                          cfg=cfg, quiet=quiet, processes=processes, client=client)
+        else:
+            summary = raytrace_dataset(dataset, list(scenes) or None, cfg=cfg, quiet=quiet, processes=processes,
+                                       client=client)
     if as_json:
         click.echo(json.dumps(summary))
     elif not quiet:

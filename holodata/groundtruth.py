@@ -366,12 +366,14 @@ def auto_processes(n_frames: int) -> int:
 
 
 def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
-                   quiet: bool = True, label: str = "raytrace-gt", processes: int = 1) -> dict:
+                   quiet: bool = True, label: str = "raytrace-gt", processes: int = 1, client=None) -> dict:
     """Trace every frame of ``traj`` and write gt/* shard by shard into dataset scene ``sc``
     (skipping shards already written; a shard's arrays are written only once all its frames are
     traced). ``processes`` > 1 traces in that many spawned processes (the static scene is built once
     per worker); writing stays in this process, with a bounded number of frames in flight, so
-    memory does not grow with the frame count. Returns a summary dict."""
+    memory does not grow with the frame count. ``client`` (a ``distributed.Client``): one Dask task
+    per shard instead, each worker writing its shards (:mod:`holodata.distributed`). Returns a
+    summary dict."""
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
     extra = {"codec": cfg.codec} if cfg.codec else {}
     arrays = {name: sc.frame_array(name, **spec, **extra) for name, spec in specs.items()}
@@ -388,7 +390,15 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     workers = auto_processes(n_traced) if processes <= 0 else processes
     t0 = time.perf_counter()
     clock: dict = {}
-    if workers == 1 or n_traced == 0:
+    dask_info = None
+    if client is not None:
+        if n_traced:
+            from .distributed import trace_scene_dask
+
+            dask_info = trace_scene_dask(client, sc, mesh, cfg, traj, human, plan, quiet=quiet, label=label)
+        for a in arrays.values():  # fold the workers' manifest records into attrs (idempotent)
+            a._consolidate()
+    elif workers == 1 or n_traced == 0:
         tracer = FrameTracer(mesh, cfg, traj, human) if n_traced else None
         results = (tracer(f) for _, _, frames in plan for f in frames)
         _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock)
@@ -413,8 +423,13 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             shm.close()
             shm.unlink()
     dt = time.perf_counter() - t0
+    extra_info = {}
+    if client is not None:
+        workers = 0
+        extra_info = {"dask_workers": dask_info["workers"] if dask_info else None,
+                      "ray_threads_per_worker": dask_info["ray_threads"] if dask_info else None}
     return {"frames": len(traj), "shards": first.n_shards, "shards_written": len(plan), "shards_skipped": skipped,
-            "frames_traced": n_traced, "processes": workers, "seconds": round(dt, 3),
+            "frames_traced": n_traced, "processes": workers, **extra_info, "seconds": round(dt, 3),
             "frames_per_s": round(n_traced / dt, 3) if n_traced and dt > 0 else None,
             "first_frame_s": round(clock["first"] - t0, 3) if "first" in clock else None}
 
@@ -471,7 +486,7 @@ def _make_scene(vertices, faces, face_class, class_names, cfg: GTConfig):
 
 def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *, human: str | Path | None = None,
                         human_dir: str | Path | None = None, scene_id: str = "scene", cfg: GTConfig | None = None,
-                        quiet: bool = True, processes: int = 0) -> dict:
+                        quiet: bool = True, processes: int = 0, client=None) -> dict:
     """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a DESIGN §3 dataset
     (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards."""
     cfg = cfg or GTConfig()
@@ -506,7 +521,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     if mesh.face_class is not None:
         sc.write_array("mesh/face_class", mesh.face_class, dims=["face"], units="1")
     summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet,
-                             processes=processes)
+                             processes=processes, client=client)
     return {"out": str(out), "scenes": [{"scene": scene_id, **summary}]}
 
 
@@ -523,7 +538,7 @@ def _write_frame_meta(sc, traj: Trajectory) -> None:
 
 
 def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig | None = None,
-                     quiet: bool = True, processes: int = 0) -> dict:
+                     quiet: bool = True, processes: int = 0, client=None) -> dict:
     """``holodata raytrace-gt DATASET [--scene ID]``: for each scene with mesh/* and pose/T_world_radar,
     trace with the dataset's grid and write gt/* (resumable)."""
     from .dataset import create_dataset, open_dataset
@@ -568,7 +583,7 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         sc = w.scene(sid, n_frames=len(traj))
         hsrc = HumanDataset(url, sid, s)
         summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mesh_sha256(v, f), hsrc),
-                                 quiet=quiet, label=f"raytrace-gt {sid}", processes=processes)
+                                 quiet=quiet, label=f"raytrace-gt {sid}", processes=processes, client=client)
         out.append({"scene": sid, **summary})
     return {"out": str(url), "scenes": out}
 

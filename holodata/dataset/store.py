@@ -2,8 +2,18 @@
 
 Local folders: a put writes ``.<name>.<uuid>.partial`` next to the target and renames it over the
 target (``os.replace``: atomic on POSIX), so a reader or a killed writer never leaves a half object
-under the real key. fsspec URLs: one ``pipe_file`` call per object (object stores PUT atomically;
-``memory://`` assigns the whole buffer). Keys are ``/``-separated, relative to the dataset root.
+under the real key. Object stores (``s3://``, ``gs://``, ``az://``, ``memory://`` ...): one
+``pipe_file`` call per object. There is no atomic rename on an object store (a "move" is copy +
+delete), but a PUT is: the object becomes visible whole or not at all (multipart uploads only on
+CompleteMultipartUpload), and S3/GCS/Azure reads after a PUT are strongly consistent. So the
+shard-then-manifest commit protocol of :mod:`.writer` holds there without any rename. Other fsspec
+filesystems (sftp, ftp, smb, hdfs ...) may write in place: there a put goes to a ``.partial``
+sibling first and is then moved over the key. Keys are ``/``-separated, relative to the root.
+
+Several processes (Dask workers, the client) write one dataset concurrently, so the fsspec
+listings cache (which would hide another process's new objects) is bypassed: every
+``exists``/``list`` asks the store. Credentials and endpoints come from the environment / fsspec
+config (``AWS_*`` incl. ``AWS_ENDPOINT_URL``, ``FSSPEC_S3_*``), never from the URL or the CLI.
 """
 from __future__ import annotations
 
@@ -12,6 +22,10 @@ import uuid
 from pathlib import Path
 
 from ..errors import DatasetError
+
+
+# protocols whose single-object PUT is atomic (no in-place partial writes)
+ATOMIC_PUT_PROTOCOLS = {"s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "adl", "oss", "memory", "r2", "b2"}
 
 
 def is_url(path_or_url: str) -> bool:
@@ -39,6 +53,14 @@ class Store:
             except (ImportError, ValueError) as err:
                 raise DatasetError(f"{s}: cannot open URL ({err})") from None
             self.root = self.root.rstrip("/")
+            protos = self.fs.protocol if isinstance(self.fs.protocol, (tuple, list)) else (self.fs.protocol,)
+            self.atomic_put = bool(set(protos) & ATOMIC_PUT_PROTOCOLS)
+
+    def _fresh(self, key: str = "") -> str:
+        """Path of ``key`` with fsspec's listings cache for it dropped (other processes write too)."""
+        p = self._p(key)
+        self.fs.invalidate_cache(p)
+        return p
 
     # -- paths ---------------------------------------------------------------------------------
     def _p(self, key: str):
@@ -67,23 +89,33 @@ class Store:
             finally:
                 if tmp.exists():
                     tmp.unlink()
-        else:
+        elif self.atomic_put:
             self.fs.pipe_file(self._p(key), bytes(data))
+        else:
+            p = self._p(key)
+            d, name = p.rsplit("/", 1) if "/" in p else ("", p)
+            tmp = f"{d}/.{name}.{uuid.uuid4().hex}.partial" if d else f".{name}.{uuid.uuid4().hex}.partial"
+            self.fs.pipe_file(tmp, bytes(data))
+            try:
+                self.fs.mv(tmp, p)
+            finally:
+                if self.fs.exists(tmp):
+                    self.fs.rm_file(tmp)
 
     def exists(self, key: str) -> bool:
         if self.local:
             return (self.root / key).exists()
-        return self.fs.exists(self._p(key))
+        return self.fs.exists(self._fresh(key))
 
     def is_file(self, key: str) -> bool:
         if self.local:
             return (self.root / key).is_file()
-        return self.fs.isfile(self._p(key))
+        return self.fs.isfile(self._fresh(key))
 
     def is_dir(self, key: str = "") -> bool:
         if self.local:
             return (self.root / key).is_dir()
-        return self.fs.isdir(self._p(key))
+        return self.fs.isdir(self._fresh(key))
 
     def delete(self, key: str) -> None:
         try:
@@ -109,14 +141,14 @@ class Store:
             if self.local:
                 d = self.root / key
                 return sorted(p.name for p in d.iterdir()) if d.is_dir() else []
-            return sorted(p.rstrip("/").rsplit("/", 1)[-1] for p in self.fs.ls(self._p(key), detail=False))
+            return sorted(p.rstrip("/").rsplit("/", 1)[-1] for p in self.fs.ls(self._fresh(key), detail=False))
         except (FileNotFoundError, NotADirectoryError):
             return []
 
     def size(self, key: str) -> int:
         if self.local:
             return (self.root / key).stat().st_size
-        return int(self.fs.size(self._p(key)))
+        return int(self.fs.size(self._fresh(key)))
 
     def zarr_store(self, read_only: bool):
         import zarr

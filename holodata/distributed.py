@@ -1,0 +1,232 @@
+"""Scale-out on Dask distributed: per-shard and per-scene tasks, run on a local or existing cluster.
+
+Engine: ``dask.distributed``. ``--workers N`` starts a :class:`distributed.LocalCluster` (N worker
+processes, one task thread each, on 127.0.0.1); ``--scheduler ADDRESS`` connects to an existing
+cluster (``tcp://host:8786``, or the path of a ``--scheduler-file`` JSON as written by
+``dask scheduler`` / dask-jobqueue / dask-kubernetes). Without either flag nothing here is used and
+every stage runs in-process as before.
+
+Tasks (the unit a lost worker loses, and the scheduler reruns elsewhere):
+
+* ``raytrace-gt``: one task per *shard* of a scene (``shard_frames`` consecutive frames); it
+  traces those frames and writes every gt/* array's shard with ``FrameArrayWriter.write_shard``.
+  The static scene (mesh, trajectory, config, human source) is scattered once to every worker and
+  its ray-casting scene built once per worker thread.
+* ``ingest``: one task per recording (a whole scene: ragged arrays are appended in order, so a
+  scene cannot be split).
+* ``synth``: one task per recording.
+
+Idempotence: a shard is written whole in one atomic put and committed by its manifest record
+(:mod:`holodata.dataset.writer`); a task whose shards are already committed does nothing, a task
+killed before the commit leaves at most an uncommitted object that the rerun overwrites with the
+same bytes (tracing and encoding are deterministic). Object stores have no atomic rename, but a
+PUT is atomic (see :mod:`holodata.dataset.store`), so the same holds on ``s3://``. Once all tasks
+are done the client folds the manifest records into the array attributes (idempotent).
+
+Datasets are read and written by the workers themselves through fsspec, so a dataset URL must be
+reachable from every worker (a shared folder or an object store); credentials come from the
+workers' environment (``AWS_ACCESS_KEY_ID``, ``AWS_SECRET_ACCESS_KEY``, ``AWS_ENDPOINT_URL``,
+``FSSPEC_S3_*``), never from the command line. Recordings, meshes and human meshes given as local
+paths must exist at the same path on the workers.
+
+Progress: a bar over completed tasks (``holodata.progress.track`` over ``as_completed``).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+import uuid
+from contextlib import contextmanager
+from pathlib import Path
+
+from .errors import InputError
+
+TASK_RETRIES = 2  # reruns of a task that *raised* (lost workers are rescheduled by Dask itself)
+
+
+def _cpus() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+@contextmanager
+def cluster(workers: int = 0, scheduler: str | None = None):
+    """Yield a ``distributed.Client`` (``workers`` > 0: a new LocalCluster; ``scheduler``: an existing
+    cluster's address or scheduler-file path), or None when neither is given (run in-process).
+
+    The client carries ``holodata_local_workers`` (N for a LocalCluster, 0 for an external one)."""
+    if workers and scheduler:
+        raise InputError("give either --workers or --scheduler, not both")
+    if workers < 0:
+        raise InputError(f"--workers must be >= 0, got {workers}")
+    if not workers and not scheduler:
+        yield None
+        return
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            if Path(scheduler).is_file():
+                client = Client(scheduler_file=scheduler, timeout="30s")
+            else:
+                client = Client(scheduler, timeout="30s")
+        except (OSError, TimeoutError, ValueError) as err:
+            raise InputError(f"{scheduler}: cannot connect to the Dask scheduler ({' '.join(str(err).split())})") from None
+        client.holodata_local_workers = 0
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    lc = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, silence_logs=logging.ERROR)
+    client = Client(lc)
+    client.holodata_local_workers = workers
+    try:
+        yield client
+    finally:
+        client.close()
+        lc.close()
+
+
+def n_workers(client) -> int:
+    return len(client.scheduler_info(n_workers=-1)["workers"]) if client is not None else 0
+
+
+def run_tasks(client, fn, calls: list[tuple], keys: list[str], description: str = "", quiet: bool = True,
+              retries: int = TASK_RETRIES, resources=None) -> list:
+    """Submit ``fn(*args)`` for every ``args`` in ``calls`` (task keys ``keys``), show progress over
+    completions, return the results in submission order. The first task error is re-raised (its
+    original type, e.g. a HolodataError) after cancelling the rest."""
+    from distributed import as_completed
+
+    from .progress import track
+
+    futures = [client.submit(fn, *args, key=key, retries=retries, pure=False) for args, key in zip(calls, keys)]
+    results = {}
+    try:
+        for fut in track(as_completed(futures), total=len(futures), description=description, quiet=quiet):
+            results[fut.key] = fut.result()
+    except BaseException:
+        client.cancel(futures)
+        raise
+    return [results[k] for k in keys]
+
+
+def _key(prefix: str) -> str:
+    return f"{prefix}-{uuid.uuid4().hex[:12]}"
+
+
+# ---------------------------------------------------------------------------------------- raytrace-gt
+_LOCAL = threading.local()  # per worker thread: (token, FrameTracer)
+
+
+def _tracer(token: str, payload: dict):
+    from .groundtruth import FrameTracer
+
+    cur = getattr(_LOCAL, "tracer", None)
+    if cur is None or cur[0] != token:
+        _LOCAL.tracer = None  # drop the previous scene before building the next
+        _LOCAL.tracer = (token, FrameTracer(payload["mesh"], payload["cfg"], payload["traj"], payload["human"]))
+    return _LOCAL.tracer[1]
+
+
+def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: int, stop: int) -> dict:
+    """Worker side: trace frames ``start:stop`` (= shard ``k``) and write shard ``k`` of ``names``."""
+    from .dataset import create_dataset
+    from .groundtruth import gt_array_specs, trace_shard
+
+    t0 = time.perf_counter()
+    tracer = _tracer(token, payload)
+    out = trace_shard(tracer, range(start, stop), names)
+    t1 = time.perf_counter()
+    cfg = payload["cfg"]
+    w = create_dataset(payload["url"], grid=payload["grid"], range_bins=payload["range_bins"])
+    sc = w.scene(payload["scene_id"])
+    specs = gt_array_specs(cfg.grid, cfg.max_bounces)
+    extra = {"codec": cfg.codec} if cfg.codec else {}
+    written = [name for name in names if sc.frame_array(name, **specs[name], **extra).write_shard(k, out[name])]
+    try:
+        from distributed import get_worker
+
+        where = get_worker().address
+    except (ImportError, ValueError):
+        where = "local"
+    return {"shard": k, "frames": stop - start, "written": written, "trace_s": t1 - t0,
+            "write_s": time.perf_counter() - t1, "worker": where}
+
+
+def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quiet: bool = True,
+                     label: str = "raytrace-gt") -> dict:
+    """Run a raytrace-gt ``plan`` [(shard, names, frames)] of dataset scene ``sc`` (a SceneWriter)
+    as one Dask task per shard. Returns {workers, ray_threads, tasks: [...]}."""
+    from dataclasses import replace
+
+    local = getattr(client, "holodata_local_workers", 0)
+    threads = cfg.nthreads or (max(1, _cpus() // local) if local else 0)
+    wcfg = replace(cfg, nthreads=threads)
+    payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": human, "url": sc.ds.url,
+               "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id}
+    token = uuid.uuid4().hex
+    [fut] = client.scatter([payload], broadcast=True, hash=False)
+    calls = [(token, fut, k, list(names), frames.start, frames.stop) for k, names, frames in plan]
+    keys = [f"raytrace-gt-{sc.id}-shard{k}-{token[:8]}" for k, _, _ in plan]
+    try:
+        tasks = run_tasks(client, _gt_shard_task, calls, keys, description=label, quiet=quiet)
+    finally:
+        client.cancel([fut])
+    return {"workers": n_workers(client), "ray_threads": threads, "tasks": tasks}
+
+
+# ---------------------------------------------------------------------------------------- ingest
+def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dict) -> dict:
+    """Worker side: plan and write one recording as scene ``scene_id`` of dataset ``out`` (which
+    exists). Returns {"scene": summary} or {"failed": {recording, error}}."""
+    from . import ingest as ing
+    from .dataset import create_dataset
+    from .errors import HolodataError, RecordingError
+
+    p = None
+    try:
+        p = ing.plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
+                               opts["meta"], True)
+        if p.grid is not None and (p.grid, p.range_bins) != (grid, range_bins):
+            raise RecordingError(f"{path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
+                                 f"from the dataset's {grid.to_attrs()} / {range_bins.to_attrs()}")
+        ds = create_dataset(out, grid=grid, range_bins=range_bins)
+        p.sha256 = p.sha_future.result() if p.sha_future is not None else ing.file_sha256(p.rec.files)
+        return {"scene": ing.write_plan(p, ds, quiet=True, codec=opts["codec"])}
+    except (HolodataError, OSError) as err:
+        return {"failed": {"recording": str(path), "error": ing._one_line(err)}}
+    finally:
+        if p is not None:
+            p.rec.close()
+
+
+def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, opts: dict, quiet: bool = True
+                ) -> tuple[list[dict], list[dict]]:
+    """One Dask task per recording ``todo`` [(index, path, _)] → scenes ``ids`` of the existing
+    dataset ``out``. Returns (scene summaries, failures) in recording order."""
+    token = uuid.uuid4().hex[:8]
+    calls = [(str(r), sid, str(out), grid, range_bins, opts) for (_, r, _), sid in zip(todo, ids)]
+    keys = [f"ingest-{sid}-{token}" for sid in ids]
+    res = run_tasks(client, _ingest_task, calls, keys, description="ingest", quiet=quiet)
+    return [r["scene"] for r in res if "scene" in r], [r["failed"] for r in res if "failed" in r]
+
+
+# ---------------------------------------------------------------------------------------- synth
+def _synth_task(out_dir: str, kwargs: dict) -> dict:
+    from .synth import synthesize
+
+    return synthesize(out_dir, **{**kwargs, "quiet": True}).summary()
+
+
+def synth_dask(client, jobs: list[tuple[str, dict]], quiet: bool = True) -> list[dict]:
+    """One Dask task per recording: ``jobs`` [(out_dir, synthesize kwargs)] → their summaries."""
+    token = uuid.uuid4().hex[:8]
+    keys = [f"synth-{Path(o).name}-{token}" for o, _ in jobs]
+    return run_tasks(client, _synth_task, [(str(o), kw) for o, kw in jobs], keys, description="synth", quiet=quiet)
+
+
+__all__ = ["cluster", "run_tasks", "n_workers", "trace_scene_dask", "ingest_dask", "synth_dask"]
