@@ -22,9 +22,15 @@ import click
                    "(default per sensor: half its median period, at least 50 ms).")
 @click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None,
               help="Compression of the new arrays (default: the dataset's, zstd).")
+@click.option("--workers", default=0, show_default=True, type=click.IntRange(0),
+              help="Ingest one recording per task on a local Dask cluster of N worker processes (0 = no Dask).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Ingest one recording per task on an existing Dask cluster (tcp://host:8786 or a scheduler "
+                   "file); recordings must be readable at the same paths on the workers.")
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
-def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, quiet, as_json):
+def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, workers, scheduler,
+           quiet, as_json):
     """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster
     .pcap (+ .json), .h5 (holodata layout), PanoRadar rf_npy/lidar_npy folder — and write one
     dataset scene per recording: radar heatmaps, LiDAR scans and camera clouds synced to the radar
@@ -63,8 +69,12 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
         sys.exit(1 if errors else 0)
     if not out:
         raise click.UsageError("--out DATASET is required (or use --list)")
-    summary = run_ingest(list(recordings), out, topics=topics_file, scene_ids=list(scene_ids) or None,
-                         msg_dir=msg_dir, tolerance_ms=tolerance_ms, quiet=quiet or as_json, meta=meta, codec=codec)
+    from holodata.distributed import cluster
+
+    with cluster(workers, scheduler) as client:
+        summary = run_ingest(list(recordings), out, topics=topics_file, scene_ids=list(scene_ids) or None,
+                             msg_dir=msg_dir, tolerance_ms=tolerance_ms, quiet=quiet or as_json, meta=meta,
+                             codec=codec, client=client)
     if as_json:
         click.echo(json.dumps(summary, indent=2, default=str))
     else:

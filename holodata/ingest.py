@@ -1381,11 +1381,14 @@ def _sensor_attrs(plan: Plan) -> dict:
 # entry points
 
 def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float | None = None,
-           quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None) -> dict:
+           quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None,
+           client=None) -> dict:
     """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
     each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
     {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
-    there and the others are still ingested. Raises RecordingError when none could be ingested."""
+    there and the others are still ingested. Raises RecordingError when none could be ingested.
+    ``client`` (a ``distributed.Client``): one Dask task per recording (:mod:`holodata.distributed`);
+    the recordings must be readable at the same paths on the workers."""
     recordings = [Path(r) for r in recordings]
     if not recordings:
         raise InputError("no recording given")
@@ -1406,7 +1409,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     except HolodataError:
         existing, grid, rb = None, None, None
     todo = []
-    if existing is None and len(recordings) > 1:
+    if existing is None and (len(recordings) > 1 or client is not None):
         # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes)
         for i, r in enumerate(recordings):
             try:
@@ -1430,6 +1433,16 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         version = "?"
     ds = None
     scenes = []
+    if client is not None:  # the dataset exists before the workers write their scenes into it
+        from .distributed import ingest_dask
+
+        create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
+                       provenance={"tool": "holodata ingest", "version": version},
+                       **({"shard_frames": shard_frames} if shard_frames else {}))
+        opts = {"topics": topics, "msg_dir": msg_dir, "tolerance_ms": tolerance_ms, "meta": meta, "codec": codec}
+        scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
+        failed += more
+        todo = []
     for (i, r, _), sid in zip(todo, ids):
         p = None
         try:
