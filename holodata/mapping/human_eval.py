@@ -1,0 +1,224 @@
+"""Accuracy of human segmentation and camera registration against ``holodata synth`` truth.
+
+* :func:`ap50`: instance-segmentation average precision at IoU 0.5 (pixel masks on the LiDAR grid),
+  all-point interpolated (VOC 2010+ / COCO-style single threshold). Predictions are ranked by
+  score (cluster size); a prediction is a true positive when it overlaps a not-yet-matched truth
+  instance of the same scan with IoU >= 0.5. Truth instances with fewer than ``min_truth_pixels``
+  returns are *ignored* (neither missed nor matched: predictions on them are not counted as false
+  positives), the usual crowd/too-small rule — a person seen by 5 beams at 9 m is not a target.
+* :func:`extrinsic_error`: translation (m) and rotation (deg) between an estimated and the true
+  ``T_world_camera`` (``truth/extrinsics.json`` ``T_world_camera_optical``: the depth cloud frame).
+* :func:`surface_centroid` / :func:`human_centroid_errors`: area-weighted centroid of a closed
+  triangle surface; per-frame distance between the registered human surface's centroid and the true
+  human mesh's (``truth/human/<frame>.ply``), the same operator on both.
+* :func:`write_truth_poses`: puts the true LiDAR poses (``truth/trajectory_lidar.tum``, matched by
+  the scans' header stamps ``lidar/timestamp_ns``) into a dataset as ``pose/T_world_lidar`` (and the
+  true radar poses as ``pose/T_world_radar``) so that segmentation/registration can be developed
+  and scored without SLAM error.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+
+
+# ------------------------------------------------------------------------------ segmentation AP
+def match_scan(pred: np.ndarray, truth: np.ndarray, min_truth_pixels: int = 20, iou: float = 0.5
+               ) -> tuple[list[tuple[float, bool]], int]:
+    """One scan: (list of (score, is_tp) per counted prediction, number of counted truth instances).
+
+    ``pred``/``truth`` (H,W) integer instance images (0 = none). Score = predicted mask size."""
+    pred = np.asarray(pred).ravel().astype(np.int64)
+    truth = np.asarray(truth).ravel().astype(np.int64)
+    pid = np.unique(pred[pred > 0])
+    tid, tsz = np.unique(truth[truth > 0], return_counts=True)
+    counted = {int(t) for t, s in zip(tid, tsz) if s >= min_truth_pixels}
+    ignored = {int(t) for t, s in zip(tid, tsz) if s < min_truth_pixels}
+    psz = {int(p): int((pred == p).sum()) for p in pid}
+    # overlaps
+    both = (pred > 0) & (truth > 0)
+    pairs, inter = np.unique(np.stack([pred[both], truth[both]], 1), axis=0, return_counts=True) \
+        if both.any() else (np.zeros((0, 2), np.int64), np.zeros(0, np.int64))
+    tsize = {int(t): int(s) for t, s in zip(tid, tsz)}
+    ious: dict[int, list[tuple[float, int]]] = {}
+    for (p, t), n in zip(pairs, inter):
+        u = psz[int(p)] + tsize[int(t)] - int(n)
+        ious.setdefault(int(p), []).append((n / u, int(t)))
+    out = []
+    used: set[int] = set()
+    for p in sorted(psz, key=lambda q: -psz[q]):
+        cands = sorted(ious.get(p, []), reverse=True)
+        hit = next((t for v, t in cands if v >= iou and t in counted and t not in used), None)
+        if hit is not None:
+            used.add(hit)
+            out.append((float(psz[p]), True))
+            continue
+        if any(v >= iou and t in ignored for v, t in cands):
+            continue  # on an ignored (too small) truth instance: not counted
+        out.append((float(psz[p]), False))
+    return out, len(counted)
+
+
+def average_precision(results: list[tuple[float, bool]], n_truth: int) -> dict:
+    """All-point interpolated AP from (score, is_tp) over all scans and the number of truth instances."""
+    if n_truth == 0:
+        return {"ap": float("nan"), "precision": float("nan"), "recall": float("nan"), "n_truth": 0,
+                "n_pred": len(results)}
+    if not results:
+        return {"ap": 0.0, "precision": 0.0, "recall": 0.0, "n_truth": n_truth, "n_pred": 0}
+    order = np.argsort([-s for s, _ in results], kind="stable")
+    tp = np.array([results[i][1] for i in order], float)
+    ctp, cfp = np.cumsum(tp), np.cumsum(1 - tp)
+    rec = ctp / n_truth
+    prec = ctp / np.maximum(ctp + cfp, 1e-12)
+    mrec = np.concatenate([[0.0], rec, [1.0]])
+    mpre = np.concatenate([[1.0], prec, [0.0]])
+    mpre = np.maximum.accumulate(mpre[::-1])[::-1]
+    i = np.flatnonzero(mrec[1:] != mrec[:-1])
+    ap = float(np.sum((mrec[i + 1] - mrec[i]) * mpre[i + 1]))
+    return {"ap": ap, "precision": float(prec[-1]), "recall": float(rec[-1]), "n_truth": int(n_truth),
+            "n_pred": len(results)}
+
+
+def ap50(preds, truths, min_truth_pixels: int = 20) -> dict:
+    """AP at IoU 0.5 over scans: ``preds``/``truths`` iterables of (H,W) instance images."""
+    allr, nt = [], 0
+    for p, t in zip(preds, truths):
+        r, n = match_scan(p, t, min_truth_pixels)
+        allr += r
+        nt += n
+    return average_precision(allr, nt)
+
+
+def segmentation_ap50(url: str, scene_id: str, truth_dir: str | Path, min_truth_pixels: int = 20) -> dict:
+    """AP50 of a scene's ``lidar/instance`` against ``truth/lidar_instances.npz`` (scans matched by
+    header stamp ``lidar/timestamp_ns``)."""
+    from ..dataset import open_dataset
+    from ..synth.truth import read_lidar_instances
+
+    path = Path(truth_dir) / "lidar_instances.npz"
+    if not path.is_file():
+        raise InputError(f"{path}: no truth instance masks (synthesise with visible_walkers > 0)")
+    tr = read_lidar_instances(path)
+    sc = open_dataset(url).scene(scene_id)
+    inst = sc["lidar/instance"]
+    stamps = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
+    where = {int(s): i for i, s in enumerate(tr["stamp_ns"])}
+    preds, truths = [], []
+    for k, s in enumerate(stamps):
+        i = where.get(int(s))
+        if i is None:
+            continue
+        preds.append(np.asarray(inst[k]))
+        truths.append(tr["mask"](i))
+    out = ap50(preds, truths, min_truth_pixels)
+    out["scans"] = len(preds)
+    return out
+
+
+# ------------------------------------------------------------------------------ registration
+def rotation_angle_deg(R: np.ndarray) -> float:
+    c = (np.trace(np.asarray(R)[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
+
+
+def extrinsic_error(T_est: np.ndarray, T_true: np.ndarray) -> dict:
+    """{"trans_cm", "rot_deg"} of ``inv(T_true) @ T_est`` (both T_world_camera, 4×4)."""
+    D = np.linalg.inv(np.asarray(T_true, float)) @ np.asarray(T_est, float)
+    return {"trans_cm": float(np.linalg.norm(D[:3, 3]) * 100.0), "rot_deg": rotation_angle_deg(D)}
+
+
+def truth_camera_extrinsic(truth_dir: str | Path) -> np.ndarray:
+    """True T_world_camera of the depth cloud's frame (optical) from ``truth/extrinsics.json``."""
+    p = Path(truth_dir) / "extrinsics.json"
+    try:
+        d = json.loads(p.read_text())
+        return np.asarray(d["T_world_camera_optical"], float)
+    except (OSError, KeyError, ValueError) as err:
+        raise InputError(f"{p}: cannot read T_world_camera_optical ({err})") from None
+
+
+def surface_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted centroid (3,) of a triangle surface (independent of the tessellation)."""
+    v = np.asarray(vertices, float)
+    f = np.asarray(faces, np.int64)
+    if len(f) == 0:
+        return np.full(3, np.nan)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    if area.sum() <= 0:
+        return v[np.unique(f)].mean(0)
+    return ((a + b + c) / 3.0 * area[:, None]).sum(0) / area.sum()
+
+
+def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path) -> dict:
+    """Per-frame distance (cm) between the centroid of ``human/vertices``+``human/faces`` and of
+    ``truth/human/<frame:06d>.ply``: {"per_frame_cm", "mean_cm", "median_cm", "max_cm", "frames",
+    "missing"} (frames without an estimate count as missing, not as errors)."""
+    from ..dataset import open_dataset
+    from ..meshio import read_mesh
+
+    sc = open_dataset(url).scene(scene_id)
+    hd = Path(truth_dir) / "human"
+    errs, missing = [], 0
+    for k in range(sc.n_frames):
+        p = hd / f"{k:06d}.ply"
+        if not p.is_file():
+            continue
+        m = read_mesh(p)
+        v = np.asarray(sc.ragged("human/vertices", k), float)
+        f = np.asarray(sc.ragged("human/faces", k), np.int64)
+        if len(f) == 0:
+            missing += 1
+            errs.append(np.nan)
+            continue
+        errs.append(float(np.linalg.norm(surface_centroid(v, f) - surface_centroid(m.vertices, m.faces)) * 100.0))
+    e = np.asarray(errs, float)
+    ok = e[np.isfinite(e)]
+    return {"per_frame_cm": e.tolist(), "mean_cm": float(ok.mean()) if len(ok) else float("nan"),
+            "median_cm": float(np.median(ok)) if len(ok) else float("nan"),
+            "max_cm": float(ok.max()) if len(ok) else float("nan"), "frames": int(len(ok)), "missing": missing}
+
+
+# ------------------------------------------------------------------------------ truth poses
+def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
+    """Write the true ``pose/T_world_lidar`` (scan poses matched by ``lidar/timestamp_ns``) and
+    ``pose/T_world_radar`` (``truth/trajectory_radar.tum`` line k = frame k) into a scene, replacing
+    existing ones. For development and scoring without SLAM error."""
+    from ..dataset import create_dataset, open_dataset
+    from ..trajectory import read_tum
+
+    truth_dir = Path(truth_dir)
+    ds = open_dataset(url)
+    sc = ds.scene(scene_id)
+    lid = read_tum(truth_dir / "trajectory_lidar.tum")
+    stamps = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
+    where = {int(t): i for i, t in enumerate(lid.timestamp_ns)}
+    P = np.full((sc.n_frames, 4, 4), np.nan)
+    for k, s in enumerate(stamps):
+        i = where.get(int(s))
+        if i is None:  # stamps in the TUM file are rounded to µs or ns: nearest within 1 ms
+            j = int(np.argmin(np.abs(lid.timestamp_ns - s)))
+            i = j if abs(int(lid.timestamp_ns[j]) - int(s)) < 1_000_000 and s != 0 else None
+        if i is not None:
+            P[k] = lid.poses[i]
+    rad = read_tum(truth_dir / "trajectory_radar.tum")
+    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
+    sw = w.scene(scene_id)
+    for name, poses in (("pose/T_world_lidar", P), ("pose/T_world_radar", rad.poses if len(rad) == sc.n_frames else None)):
+        if poses is None:
+            continue
+        if name in sw.arrays():
+            sw.remove(name)
+        a = sw.frame_array(name, (4, 4), "float64", ["frame", "row", "col"], "m",
+                           attrs={"world_frame": "map", "source": "truth"})
+        for s in range(a.n_shards):
+            a.write_shard(s, poses[a.frames(s)])
+
+
+__all__ = ["ap50", "match_scan", "average_precision", "segmentation_ap50", "extrinsic_error", "truth_camera_extrinsic",
+           "surface_centroid", "human_centroid_errors", "write_truth_poses", "rotation_angle_deg"]
