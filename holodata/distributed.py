@@ -43,6 +43,7 @@ from pathlib import Path
 
 from .errors import InputError
 
+CONNECT_TIMEOUT_S = 30  # to an existing scheduler
 TASK_RETRIES = 2  # reruns of a task that *raised* (lost workers are rescheduled by Dask itself)
 
 
@@ -68,9 +69,9 @@ def cluster(workers: int = 0, scheduler: str | None = None):
     if scheduler:
         try:
             if Path(scheduler).is_file():
-                client = Client(scheduler_file=scheduler, timeout="30s")
+                client = Client(scheduler_file=scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
             else:
-                client = Client(scheduler, timeout="30s")
+                client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
         except (OSError, TimeoutError, ValueError) as err:
             raise InputError(f"{scheduler}: cannot connect to the Dask scheduler ({' '.join(str(err).split())})") from None
         client.holodata_local_workers = 0

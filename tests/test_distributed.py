@@ -1,0 +1,235 @@
+"""Scale-out on a real Dask cluster: a `dask scheduler` and two `dask worker` processes on 127.0.0.1.
+
+raytrace-gt and ingest run through them (CLI ``--scheduler``) and must give byte-identical shards
+(manifest sha256 of every shard of every array) to the in-process run; a worker killed (SIGKILL)
+while the job runs must not change the result.
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import holodata.dataset as hds
+from holodata.cli.main import cli
+from holodata.meshio import Mesh, write_ply
+from holodata.trajectory import Trajectory, write_tum
+
+from _recordings import write_recording
+from test_groundtruth import pose
+from test_raytrace import HUMAN, l_corridor
+
+BIN = Path(sys.executable).parent
+START_TIMEOUT_S = 60
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _stop(procs) -> None:
+    """Workers are killed outright (nothing to flush), then the scheduler is asked to stop."""
+    sched, workers = procs[:1], procs[1:]
+    for p in workers:
+        if p.poll() is None:
+            p.kill()
+    for p in sched:
+        if p.poll() is None:
+            p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(timeout=5)
+
+
+@contextmanager
+def dask_cluster(tmp: Path, n_workers: int = 2):
+    """A scheduler and ``n_workers`` single-thread workers (no nanny: a killed worker stays dead).
+    Yields (address, {worker name: Popen})."""
+    port = free_port()
+    addr = f"tcp://127.0.0.1:{port}"
+    dask = [str(BIN / "dask")] if (BIN / "dask").exists() else [sys.executable, "-m", "dask"]
+    env = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
+    logs = []
+    procs = []
+    workers = {}
+    try:
+        log = open(tmp / "scheduler.log", "wb")
+        logs.append(log)
+        procs.append(subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port),
+                                              "--no-dashboard"], stdout=log, stderr=subprocess.STDOUT, env=env))
+        for i in range(n_workers):
+            log = open(tmp / f"worker{i}.log", "wb")
+            logs.append(log)
+            p = subprocess.Popen(dask + ["worker", addr, "--nthreads", "1", "--no-nanny", "--host", "127.0.0.1",
+                                         "--no-dashboard", "--name", f"w{i}", "--local-directory",
+                                         str(tmp / f"w{i}"), "--death-timeout", "60"],
+                                 stdout=log, stderr=subprocess.STDOUT, env=env)
+            procs.append(p)
+            workers[f"w{i}"] = p
+        from distributed import Client
+
+        deadline = time.monotonic() + START_TIMEOUT_S
+        while True:  # the scheduler may not listen yet
+            try:
+                with Client(addr, timeout="5s") as c:
+                    c.wait_for_workers(n_workers, timeout=max(1.0, deadline - time.monotonic()))
+                break
+            except (OSError, TimeoutError):
+                if time.monotonic() > deadline or procs[0].poll() is not None:
+                    raise RuntimeError("dask cluster did not start: " + (tmp / "scheduler.log").read_text()[-2000:])
+                time.sleep(0.5)
+        yield addr, workers
+    finally:
+        _stop(procs)
+        for log in logs:
+            log.close()
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("dask")
+    with dask_cluster(tmp) as c:
+        yield c
+
+
+def manifests(url) -> dict:
+    """{scene/array/shard: sha256} of every committed shard of a dataset (read through the API)."""
+    ds = hds.open_dataset(str(url))
+    out = {}
+    for sid in ds.scenes:
+        st = ds.store
+        for name in ds.scene(sid).arrays():
+            d = f"scenes/{sid}/{name}/manifest"
+            for n in st.list(d):
+                out[f"{sid}/{name}/{n}"] = json.loads(st.get(f"{d}/{n}"))["sha256"]
+    return out
+
+
+def make_inputs(tmp: Path, T: int) -> Path:
+    v, f = l_corridor()
+    write_ply(tmp / "scene.ply", Mesh(v, f))
+    poses = np.stack([pose(x, 1.0, 0.05 * k) for k, x in enumerate(np.linspace(5.0, 7.5, T))])
+    write_tum(tmp / "radar.tum", Trajectory(np.arange(T) * 500_000_000 + 10**9, poses))
+    hdir = tmp / "humans"
+    hdir.mkdir()
+    for k in range(T):
+        write_ply(hdir / f"{k:06d}.ply", Mesh(HUMAN[0] + [0, 0.05 * k, 0], HUMAN[1]))
+    return tmp
+
+
+def gt_args(tmp: Path, out: Path, grid="16x64", shard_frames=2) -> list[str]:
+    return ["raytrace-gt", "--mesh", str(tmp / "scene.ply"), "--poses", str(tmp / "radar.tum"), "--human-dir",
+            str(tmp / "humans"), "--out", str(out), "--grid", grid, "--shard-frames", str(shard_frames),
+            "--processes", "1", "--quiet", "--json"]
+
+
+def test_raytrace_gt_on_cluster_matches_in_process(cluster, tmp_path):
+    addr, _ = cluster
+    make_inputs(tmp_path, 10)
+    r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "ref.zarr"))
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "dask.zarr") + ["--scheduler", addr])
+    assert r.exit_code == 0, r.output
+    s = json.loads(r.output)["scenes"][0]
+    assert s["dask_workers"] == 2 and s["shards_written"] == 5
+    ref, got = manifests(tmp_path / "ref.zarr"), manifests(tmp_path / "dask.zarr")
+    assert len([k for k in ref if "/gt/" in k]) == 6 * 5  # 6 gt arrays x 5 shards
+    assert got == ref
+    rep = hds.validate_dataset(str(tmp_path / "dask.zarr"))
+    assert rep["ok"], rep["problems"][:3]
+    # the workers' manifest records were folded into the array attributes
+    meta = json.loads((tmp_path / "dask.zarr" / "scenes/scene/gt/range/zarr.json").read_text())
+    assert [s["sha256"] for s in meta["attributes"]["holodata"]["shards"]] == \
+        [ref[f"scene/gt/range/{k}.json"] for k in range(5)]
+    # rerun through the cluster: everything committed, nothing traced
+    r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "dask.zarr") + ["--scheduler", addr])
+    assert r.exit_code == 0 and json.loads(r.output)["scenes"][0]["shards_skipped"] == 5
+
+
+def test_ingest_on_cluster_matches_in_process(cluster, tmp_path):
+    addr, _ = cluster
+    write_recording(tmp_path / "a", "mcap", n_radar=5)
+    write_recording(tmp_path / "b.bag", "rosbag1", n_radar=6)
+    recs = [str(tmp_path / "a"), str(tmp_path / "b.bag")]
+    r = CliRunner().invoke(cli, ["ingest", *recs, "--out", str(tmp_path / "ref.zarr"), "--quiet", "--json"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["ingest", *recs, "--out", str(tmp_path / "dask.zarr"), "--scheduler", addr,
+                                 "--quiet", "--json"])
+    assert r.exit_code == 0, r.output
+    assert [s["scene"] for s in json.loads(r.output)["scenes"]] == ["a", "b"]
+    ref, got = manifests(tmp_path / "ref.zarr"), manifests(tmp_path / "dask.zarr")
+    assert any(k.startswith("a/radar/heatmap/") for k in ref) and any(k.startswith("b/lidar/points/") for k in ref)
+    assert got == ref
+    assert hds.validate_dataset(str(tmp_path / "dask.zarr"))["ok"]
+    # a recording that fails is reported and the other still ingested (exit 1)
+    (tmp_path / "bad.bag").write_bytes(b"not a bag")
+    r = CliRunner().invoke(cli, ["ingest", str(tmp_path / "bad.bag"), recs[0], "--out", str(tmp_path / "c.zarr"),
+                                 "--scheduler", addr, "--quiet"])
+    assert r.exit_code == 1
+    assert hds.open_dataset(str(tmp_path / "c.zarr")).scenes == ["a"]
+
+
+def test_bad_scheduler_address_is_one_line_error(tmp_path, monkeypatch):
+    import holodata.distributed as hd
+
+    monkeypatch.setattr(hd, "CONNECT_TIMEOUT_S", 2)
+    make_inputs(tmp_path, 2)
+    r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "o.zarr")[:-2] + ["--scheduler", f"tcp://127.0.0.1:{free_port()}"])
+    assert r.exit_code == 1 and "cannot connect to the Dask scheduler" in r.output
+    r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "o.zarr") + ["--workers", "2", "--scheduler", "x:1"])
+    assert r.exit_code == 1 and "either --workers or --scheduler" in r.output
+
+
+def test_worker_killed_mid_job_still_completes_identically(tmp_path):
+    T, S = 32, 2
+    make_inputs(tmp_path, T)
+    args = gt_args(tmp_path, tmp_path / "ref.zarr", grid="24x96", shard_frames=S)
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0, r.output
+    out = tmp_path / "dask.zarr"
+    man = out / "scenes" / "scene" / "gt" / "label" / "manifest"  # gt/label: the last array a task writes
+    with dask_cluster(tmp_path, 2) as (addr, workers):
+        from distributed import Client
+
+        job = subprocess.Popen([str(BIN / "holodata"), *gt_args(tmp_path, out, grid="24x96", shard_frames=S),
+                                "--scheduler", addr], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        try:
+            with Client(addr, timeout="10s") as c:
+                deadline = time.monotonic() + 60
+                victim = None
+                while victim is None:  # after the first task completed: a worker that is busy now
+                    assert job.poll() is None, job.communicate()
+                    assert time.monotonic() < deadline, "no task completed in 60 s"
+                    if man.is_dir() and any(man.iterdir()):
+                        info = c.scheduler_info(n_workers=-1)["workers"]
+                        busy = [info[a]["name"] for a, ts in c.processing().items() if ts and a in info]
+                        victim = busy[0] if busy else None
+                    time.sleep(0.05)
+                done_at_kill = len(list(man.iterdir()))
+                workers[victim].send_signal(signal.SIGKILL)
+                workers[victim].wait(timeout=10)
+            stdout, stderr = job.communicate(timeout=120)
+        finally:
+            if job.poll() is None:
+                job.kill()
+                job.wait()
+    assert done_at_kill < T // S, "the job finished before the worker was killed"
+    assert job.returncode == 0, stderr.decode()[-2000:]
+    assert json.loads(stdout)["scenes"][0]["shards_written"] == T // S
+    assert manifests(out) == manifests(tmp_path / "ref.zarr")
+    assert hds.validate_dataset(str(out))["ok"]
