@@ -6,9 +6,10 @@ that observed it; moving things (people) occupy any one voxel only in a few scan
 A point is background when any voxel of its 3×3×3 neighbourhood is (1-voxel tolerance), which
 absorbs range noise and small pose errors at voxel borders.
 
-"Observed" is approximated by the scans whose returns come within ``observe_radius`` (m) of the
-voxel — cheap and adequate for corners where every scan sees most of the scene; with
-``min_fraction=0`` every voxel with at least ``min_hits`` returns counts.
+With the sensor origins of the scans, "observed" is decided by free-space reasoning (a scan that
+sees *through* a voxel observed it empty); without them, by the scans whose returns come within
+``observe_radius`` (m) of the voxel. With ``min_fraction=0`` every voxel with at least
+``min_hits`` returns counts.
 
 Used by :mod:`holodata.mapping.mesh` (remove dynamic points before meshing) and by the human
 segmentation (foreground = returns outside the background).
@@ -58,39 +59,56 @@ class VoxelBackground:
 
     @classmethod
     def build(cls, points_world: list[np.ndarray], voxel: float = 0.15, min_fraction: float = 0.25,
-              min_hits: int = 2, observe_radius: float | None = None) -> "VoxelBackground":
+              min_hits: int = 2, origins: list | np.ndarray | None = None, observe_radius: float | None = None,
+              angle_res_deg: float = 0.5, max_scans: int = 80) -> "VoxelBackground":
         """Background from world-frame scans ``points_world`` (list of (Ni,3), m).
 
-        A voxel is static when it is occupied in ``>= min_hits`` scans and in ``>= min_fraction`` of
-        the scans that observed its neighbourhood (a scan with a return within ``observe_radius``,
-        default 3 voxels). Scans with fewer than 2 scans in total: every occupied voxel is static.
+        With ``origins`` (the sensor position (3,) of each scan, world frame) — free-space test: each
+        voxel (at the centroid of its returns) is looked up in a spherical min-range image (``angle_res_deg``
+        bins) of up to ``max_scans`` scans; a scan *sees it occupied* when its range there is within a
+        margin (2 voxels, or 3 % of the range) of the voxel's distance and *sees through it* (free)
+        when the range is longer. Static = occupied in ``>= min_hits`` scans and
+        occupied/(occupied + free) ``>= min_fraction`` (voxels never seen through are static).
+        People who walk through a voxel are seen through it in the other scans and drop out.
+
+        Without ``origins`` — occupancy count: static = occupied in ``>= min_hits`` scans and in
+        ``>= min_fraction`` of the scans with returns within ``observe_radius`` (default 3 voxels).
         """
         if voxel <= 0 or not np.isfinite(voxel):
             raise InputError(f"background voxel must be > 0 m, got {voxel}")
         if not 0.0 <= min_fraction <= 1.0:
             raise InputError(f"background min_fraction must be in [0, 1], got {min_fraction}")
-        per_scan = []
-        for i, p in enumerate(points_world):
+        if origins is not None and len(origins) != len(points_world):
+            raise InputError(f"background: {len(origins)} origins for {len(points_world)} scans")
+        pts, per_scan = [], []
+        for p in points_world:
             p = np.asarray(p, np.float64).reshape(-1, 3)
             p = p[np.isfinite(p).all(1)]
+            pts.append(p)
             per_scan.append(np.unique(_keys(voxel_index(p, voxel))))
         n = len(per_scan)
         if n == 0 or sum(len(k) for k in per_scan) == 0:
             empty = np.zeros(0, np.int64)
             return cls(float(voxel), empty, empty, empty, n)
-        allk = np.concatenate(per_scan)
-        keys, occ = np.unique(allk, return_counts=True)
+        keys, occ = np.unique(np.concatenate(per_scan), return_counts=True)
         need_hits = min(int(min_hits), n)
-        if n >= 2 and min_fraction > 0:
+        if origins is not None and n >= 2 and min_fraction > 0:
+            allp = np.concatenate(pts)
+            inv = np.searchsorted(keys, _keys(voxel_index(allp, voxel)))
+            cnt = np.bincount(inv, minlength=len(keys)).astype(np.float64)
+            cen = np.stack([np.bincount(inv, allp[:, j], len(keys)) for j in range(3)], 1) / np.maximum(cnt, 1)[:, None]
+            seen_occ, seen_free = _free_space(pts, np.asarray(origins, np.float64).reshape(-1, 3), cen, voxel,
+                                              angle_res_deg, max_scans)
+            tot = seen_occ + seen_free
+            frac = np.where(tot > 0, seen_occ / np.maximum(tot, 1), 1.0)
+            static = (occ >= need_hits) & (frac >= min_fraction)
+        elif n >= 2 and min_fraction > 0:
             r = max(1, int(np.ceil((observe_radius if observe_radius is not None else 3 * voxel) / voxel)))
-            # coarse "observed" grid: a scan observes every coarse cell it has a return in (plus neighbours)
             coarse_obs = np.zeros(len(keys), np.int64)
-            cidx = _unkeys(keys) // (r + 1)
-            ckeys = _keys(cidx)
+            ckeys = _keys(_unkeys(keys) // (r + 1))
             for k in per_scan:
-                c = np.unique(_keys(_unkeys(k) // (r + 1)))
-                grown = np.unique((_keys(_unkeys(c)[:, None, :].repeat(27, 1).reshape(-1, 3)
-                                         + np.tile(_OFFS, (len(c), 1)))))
+                c = _unkeys(np.unique(_keys(_unkeys(k) // (r + 1))))
+                grown = np.unique(_keys((c[:, None, :] + _OFFS[None, :, :]).reshape(-1, 3)))
                 coarse_obs += np.isin(ckeys, grown)
             frac = occ / np.maximum(coarse_obs, 1)
             static = (occ >= need_hits) & (frac >= min_fraction)
@@ -119,6 +137,41 @@ class VoxelBackground:
 
     def __len__(self) -> int:
         return len(self.keys)
+
+
+def _free_space(pts: list, origins: np.ndarray, centers: np.ndarray, voxel: float, res_deg: float,
+                max_scans: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per voxel centre: in how many of (up to ``max_scans``) scans it was seen occupied / seen through."""
+    from scipy.ndimage import minimum_filter
+
+    res = np.deg2rad(res_deg)
+    nel, naz = int(np.ceil(np.pi / res)) + 1, int(np.ceil(2 * np.pi / res)) + 1
+    occ = np.zeros(len(centers))
+    free = np.zeros(len(centers))
+    idx = np.unique(np.linspace(0, len(pts) - 1, min(len(pts), max_scans)).round().astype(int))
+
+    def bins(d):
+        r = np.linalg.norm(d, axis=1)
+        el = np.arcsin(np.clip(d[:, 2] / np.maximum(r, 1e-9), -1, 1))
+        az = np.arctan2(d[:, 1], d[:, 0])
+        return r, ((el + np.pi / 2) / res).astype(np.int64), ((az + np.pi) / res).astype(np.int64)
+
+    for s in idx:
+        p, o = pts[s], origins[s]
+        if not len(p):
+            continue
+        r, i, j = bins(p - o)
+        img = np.full(nel * naz, np.inf)
+        np.minimum.at(img, i * naz + j, r)
+        img2 = img.reshape(nel, naz)
+        hole = ~np.isfinite(img2)
+        img2[hole] = minimum_filter(img2, size=3, mode="wrap")[hole]  # fill gaps between rings/columns
+        rv, iv, jv = bins(centers - o)
+        rr = img[iv * naz + jv]
+        margin = np.maximum(2 * voxel, 0.03 * rv)
+        occ += np.abs(rr - rv) <= margin
+        free += np.isfinite(rr) & (rr > rv + margin)
+    return occ, free
 
 
 def _dilate(keys: np.ndarray) -> np.ndarray:

@@ -1,0 +1,225 @@
+"""Static mesh of the scene from registered LiDAR scans, moving points removed.
+
+1. :class:`PointAccumulator`: world-frame points of every scan with the dynamic ones removed
+   (:class:`~holodata.mapping.background.VoxelBackground`), merged into a voxel-averaged cloud
+   (``MeshConfig.voxel``; averaging many returns per voxel beats the LiDAR range noise down),
+   incrementally, so memory stays flat in the number of scans. Each voxel also keeps the mean
+   direction towards the sensors that saw it (normal orientation).
+2. Normals by open3d (hybrid radius search), oriented towards the sensors.
+3. Surface reconstruction with open3d, one of (``MeshConfig.method``):
+
+   - ``poisson`` (default): screened Poisson, octree depth from the scene extent so the finest
+     cell is about ``voxel``; low-density vertices (``density_quantile``) and every vertex
+     farther than ``trim_distance`` from the cloud are removed (Poisson closes open corridors
+     with invented surface; the distance trim takes it away).
+   - ``bpa``: ball pivoting with radii ``(2, 4)·voxel``.
+   - ``tsdf``: the scans rendered into 6 virtual pinhole depth images per scan (cube map) and
+     fused by open3d's ScalableTSDFVolume (``voxel`` voxels, truncation 4·voxel).
+
+   Measured on ``holodata synth`` corners (``benchmarks/slam.py --mesh-methods``): see the README
+   / closing note; Poisson with trimming is the default because it averages the range noise
+   into smooth planes and closes the gaps between LiDAR rings.
+4. Optional quadric decimation to ``max_faces``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .background import _keys, voxel_index
+
+METHODS = ("poisson", "bpa", "tsdf")
+
+
+@dataclass(frozen=True)
+class MeshConfig:
+    """Static-mesh settings (metres). See the module doc."""
+
+    method: str = "poisson"
+    voxel: float = 0.03
+    normal_radius: float = 0.12
+    poisson_depth: int | None = None
+    density_quantile: float = 0.02
+    trim_distance: float = 0.06
+    max_faces: int = 400_000
+    tsdf_image: int = 128
+
+    def __post_init__(self):
+        if self.method not in METHODS:
+            raise InputError(f"unknown mesh method {self.method!r} (choose from {', '.join(METHODS)})")
+        if not 0.005 <= self.voxel <= 0.5:
+            raise InputError(f"mesh voxel must be in [0.005, 0.5] m, got {self.voxel}")
+
+    def to_attrs(self) -> dict:
+        return asdict(self)
+
+
+class PointAccumulator:
+    """Voxel-averaged world cloud: ``add(points_world, sensor_origin)`` per scan, then ``cloud()``."""
+
+    def __init__(self, voxel: float):
+        self.voxel = float(voxel)
+        self.keys = np.zeros(0, np.int64)
+        self.sums = np.zeros((0, 3))
+        self.view = np.zeros((0, 3))
+        self.counts = np.zeros(0, np.int64)
+        self._pend: list = []
+        self._pend_n = 0
+
+    def add(self, points: np.ndarray, origin: np.ndarray) -> None:
+        p = np.asarray(points, np.float64).reshape(-1, 3)
+        if not len(p):
+            return
+        d = np.asarray(origin, np.float64)[None, :] - p
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+        self._pend.append((p, d))
+        self._pend_n += len(p)
+        if self._pend_n > 2_000_000:
+            self._flush()
+
+    def _flush(self) -> None:
+        if not self._pend:
+            return
+        p = np.concatenate([a for a, _ in self._pend])
+        d = np.concatenate([b for _, b in self._pend])
+        self._pend, self._pend_n = [], 0
+        k = np.concatenate([self.keys, _keys(voxel_index(p, self.voxel))])
+        s = np.concatenate([self.sums, p])
+        v = np.concatenate([self.view, d])
+        c = np.concatenate([self.counts, np.ones(len(p), np.int64)])
+        uk, inv = np.unique(k, return_inverse=True)
+        self.keys = uk
+        self.sums = np.stack([np.bincount(inv, s[:, j], len(uk)) for j in range(3)], 1)
+        self.view = np.stack([np.bincount(inv, v[:, j], len(uk)) for j in range(3)], 1)
+        self.counts = np.bincount(inv, c.astype(np.float64), len(uk)).astype(np.int64)
+
+    def cloud(self, min_count: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(points (M,3) voxel means, unit view directions (M,3) towards the sensors, counts (M,))."""
+        self._flush()
+        m = self.counts >= min_count
+        pts = self.sums[m] / self.counts[m, None]
+        v = self.view[m]
+        v /= np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-9)
+        return pts, v, self.counts[m]
+
+
+def oriented_cloud(points: np.ndarray, view: np.ndarray, radius: float):
+    """open3d cloud with normals from a hybrid radius search, flipped to face ``view``."""
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points)))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=float(radius), max_nn=30))
+    n = np.asarray(pc.normals)
+    flip = np.einsum("ij,ij->i", n, view) < 0
+    n[flip] *= -1
+    pc.normals = o3d.utility.Vector3dVector(n)
+    return pc
+
+
+def _clean(mesh):
+    mesh.remove_degenerate_triangles()
+    mesh.remove_duplicated_triangles()
+    mesh.remove_duplicated_vertices()
+    mesh.remove_unreferenced_vertices()
+    return mesh
+
+
+def poisson_mesh(pc, cfg: MeshConfig):
+    import open3d as o3d
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(pc.points)
+    extent = float(np.max(pts.max(0) - pts.min(0)))
+    depth = cfg.poisson_depth or int(np.clip(np.ceil(np.log2(extent * 1.1 / cfg.voxel)), 6, 11))
+    mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc, depth=depth, scale=1.1,
+                                                                           linear_fit=False)
+    dens = np.asarray(dens)
+    v = np.asarray(mesh.vertices)
+    dist, _ = cKDTree(pts).query(v, k=1, distance_upper_bound=cfg.trim_distance * 2)
+    bad = (dens < np.quantile(dens, cfg.density_quantile)) | (dist > cfg.trim_distance)
+    mesh.remove_vertices_by_mask(bad)
+    return _clean(mesh), {"poisson_depth": depth}
+
+
+def bpa_mesh(pc, cfg: MeshConfig):
+    import open3d as o3d
+
+    radii = o3d.utility.DoubleVector([cfg.voxel * 2, cfg.voxel * 4])
+    mesh = o3d.geometry.TriangleMesh.create_from_point_cloud_ball_pivoting(pc, radii)
+    return _clean(mesh), {"radii": list(radii)}
+
+
+def _cube_faces() -> list[np.ndarray]:
+    """Rotations camera→sensor of 6 pinhole cameras (optical: z forward, x right, y down)."""
+    fwd = [np.array(v, float) for v in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))]
+    out = []
+    for z in fwd:
+        up = np.array([0, 0, 1.0]) if abs(z[2]) < 0.5 else np.array([1.0, 0, 0])
+        x = np.cross(-up, z)
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        out.append(np.stack([x, y, z], 1))
+    return out
+
+
+def tsdf_mesh(scans_world: list[tuple[np.ndarray, np.ndarray]], cfg: MeshConfig):
+    """TSDF fusion: each (sensor-frame points, T_world_sensor) rendered into 6 cube-map depth images."""
+    import open3d as o3d
+
+    n = int(cfg.tsdf_image)
+    f = n / 2.0  # 90° field of view
+    intr = o3d.camera.PinholeCameraIntrinsic(n, n, f, f, (n - 1) / 2, (n - 1) / 2)
+    vol = o3d.pipelines.integration.ScalableTSDFVolume(voxel_length=cfg.voxel, sdf_trunc=4 * cfg.voxel,
+                                                       color_type=o3d.pipelines.integration.TSDFVolumeColorType.NoColor)
+    faces = _cube_faces()
+    color = o3d.geometry.Image(np.zeros((n, n, 3), np.uint8))
+    for pts, T in scans_world:
+        for Rc in faces:
+            pc = pts @ Rc  # sensor → camera
+            z = pc[:, 2]
+            ok = z > 0.05
+            u = np.round(f * pc[ok, 0] / z[ok] + (n - 1) / 2).astype(int)
+            v = np.round(f * pc[ok, 1] / z[ok] + (n - 1) / 2).astype(int)
+            inb = (u >= 0) & (u < n) & (v >= 0) & (v < n)
+            depth = np.full((n, n), np.inf, np.float32)
+            np.minimum.at(depth, (v[inb], u[inb]), z[ok][inb].astype(np.float32))
+            depth[~np.isfinite(depth)] = 0
+            Tc = np.eye(4)
+            Tc[:3, :3] = Rc
+            ext = np.linalg.inv(T @ Tc)  # world → camera
+            rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
+                color, o3d.geometry.Image(depth), depth_scale=1.0, depth_trunc=1e3, convert_rgb_to_intensity=False)
+            vol.integrate(rgbd, intr, ext)
+    return _clean(vol.extract_triangle_mesh()), {"image": n}
+
+
+def build_mesh(points: np.ndarray, view: np.ndarray, cfg: MeshConfig = MeshConfig(),
+               scans_world: list | None = None) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Surface from the voxel-averaged static cloud ``points`` (M,3) with view directions ``view``.
+    Returns vertices (V,3) float32, faces (F,3) int32 and an info dict (method, counts, seconds).
+    ``tsdf`` needs ``scans_world`` [(sensor-frame points, T_world_sensor), ...]."""
+    t0 = time.perf_counter()
+    if len(points) < 10:
+        raise InputError(f"too few static points for a mesh ({len(points)})")
+    pc = oriented_cloud(points, view, cfg.normal_radius)
+    if cfg.method == "poisson":
+        mesh, info = poisson_mesh(pc, cfg)
+    elif cfg.method == "bpa":
+        mesh, info = bpa_mesh(pc, cfg)
+    else:
+        if scans_world is None:
+            raise InputError("mesh method tsdf needs the scans")
+        mesh, info = tsdf_mesh(scans_world, cfg)
+    if cfg.max_faces and len(mesh.triangles) > cfg.max_faces:
+        mesh = _clean(mesh.simplify_quadric_decimation(int(cfg.max_faces)))
+    v = np.asarray(mesh.vertices, np.float32)
+    f = np.asarray(mesh.triangles, np.int32)
+    info.update({"method": cfg.method, "vertices": int(len(v)), "faces": int(len(f)), "points": int(len(points)),
+                 "seconds": round(time.perf_counter() - t0, 3)})
+    return v, f, info
+
+
+__all__ = ["MeshConfig", "PointAccumulator", "build_mesh", "oriented_cloud", "METHODS"]

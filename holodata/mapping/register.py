@@ -1,0 +1,574 @@
+"""``holodata register``: the depth camera's one-time extrinsic in the map, and per-frame human
+points and closed human surfaces in the map frame.
+
+Inputs (a dataset scene): ``camera/points`` (ragged, camera frame; for depth images the optical
+frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lidar/points`` +
+``pose/T_world_lidar`` (the map), ``camera/timestamp_ns`` and ``time/timestamp_ns``.
+
+1. **Static camera cloud.** The camera does not move during a recording, so the per-pixel median
+   depth over all frames (pixels recovered from the intrinsics) is a denoised picture of the static
+   scene: a person covering a pixel in fewer than half of the frames does not reach the median.
+2. **Map.** Every scan in the world frame, minus the LiDAR foreground (returns outside the 15 cm
+   voxel background, :mod:`.background`), voxel-thinned (``map_voxel``) with normals.
+3. **Extrinsic** ``T_world_camera`` by point-to-plane ICP (open3d, Tukey robust loss) of the static
+   camera cloud onto the map from an informed initial guess: ``--init`` or the TF pose of the camera
+   in the map (``sensors.camera.T_map_sensor``), coarse-to-fine correspondence distances. The
+   camera usually sees much that the LiDAR never did (the hidden branch), so only the *overlap*
+   counts: camera points within ``overlap_m`` of the map under the current estimate. Accepted when
+   the overlap is large enough (``min_overlap_points``), its inlier fraction within ``inlier_m``
+   (``fitness``) >= ``min_fitness`` and the inlier RMSE <= ``max_rmse_m``. Otherwise **FPFH + RANSAC**
+   (open3d feature matching on both clouds) followed by the same ICP, accepted only when it passes
+   the same check; if neither passes, register fails with the numbers (no silent bad extrinsic).
+4. **Human points per frame.** Camera points in front of the static median depth by more than
+   ``max(fg_min_m, fg_sigma · σ_z)`` (σ_z the stereo depth noise estimated per pixel from the
+   frames' spread), not within ``map_explain_m`` of the map, clustered (voxel connectivity,
+   ``cluster_m``); the largest person-like cluster (vertical extent >= ``min_height_m``, plan extent
+   <= ``max_width_m``) is the human, in the map frame.
+5. **Closed surface per radar frame.** The camera sees the front of the person only. Each human
+   point is extruded away from the camera along its viewing ray over ``thickness_m`` (a body's
+   depth), the swept volume voxelised (``surface_voxel``) and its boundary faces emitted: a closed,
+   watertight, outward-oriented triangle surface by construction (every face separates an occupied
+   from an empty voxel) that follows concavities (between legs and arms) unlike a convex hull and,
+   unlike Poisson/alpha shapes, needs no parameters that can leave holes. The camera frame of
+   radar frame k is ``camera/timestamp_ns[k]`` away from ``time/timestamp_ns[k]`` (up to half a
+   camera period): the surface is shifted by the human's velocity (centroid track, central
+   differences) times that offset.
+
+Outputs (scene): ``human/vertices`` + ``human/faces`` ragged per frame (world frame, float32 /
+int32; what ``holodata raytrace-gt`` reads), ``human/points`` ragged (world frame human points),
+``camera/points_world`` ragged (every camera point in the map frame; ``camera/points`` itself is not
+rewritten: finished shards are never rewritten and ingest's resume relies on it), ``calib/T_world_camera``
+(4,4) and the registration report in scene attrs ``register``.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from ..errors import HolodataError, InputError
+from ..progress import track
+
+
+class RegistrationError(HolodataError, RuntimeError):
+    """Camera-to-map registration did not pass its acceptance check."""
+
+
+@dataclass(frozen=True)
+class RegisterConfig:
+    """Parameters (metres unless noted); see the module docstring for their roles."""
+
+    map_voxel: float = 0.04
+    cam_voxel: float = 0.03
+    icp_distances: tuple = (0.4, 0.2, 0.08, 0.04)
+    icp_iterations: int = 60
+    overlap_m: float = 0.15
+    inlier_m: float = 0.05
+    min_fitness: float = 0.6
+    max_rmse_m: float = 0.03
+    min_overlap_points: int = 300
+    fpfh_voxel: float = 0.1
+    max_range_m: float = 8.0
+    fg_min_m: float = 0.12
+    fg_sigma: float = 4.0
+    map_explain_m: float = 0.08
+    cluster_m: float = 0.08
+    min_height_m: float = 0.5
+    max_width_m: float = 1.4
+    min_points: int = 100
+    thickness_m: float = 0.22
+    surface_voxel: float = 0.04
+    segment_lidar: bool = True
+    median_frames: int = 60
+    write_camera_world: bool = True
+
+    def to_attrs(self) -> dict:
+        d = asdict(self)
+        d["icp_distances"] = list(self.icp_distances)
+        return d
+
+
+@dataclass
+class Registration:
+    """Result of :func:`register_extrinsic`: ``T`` (4,4) T_world_camera; ``method`` "icp" | "fpfh+icp";
+    ``fitness`` inlier fraction of the overlap, ``rmse`` m, ``overlap`` points; ``accepted``;
+    ``attempts`` the checks of every try (for the report)."""
+
+    T: np.ndarray
+    method: str
+    fitness: float
+    rmse: float
+    overlap: int
+    accepted: bool
+    attempts: list = field(default_factory=list)
+
+    def to_attrs(self) -> dict:
+        return {"T_world_camera": np.asarray(self.T).tolist(), "method": self.method, "fitness": self.fitness,
+                "rmse_m": self.rmse, "overlap_points": self.overlap, "accepted": self.accepted,
+                "attempts": self.attempts}
+
+
+# ------------------------------------------------------------------------------------ open3d helpers
+def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float | None = None):
+    import open3d as o3d
+
+    p = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64).reshape(-1, 3)))
+    if voxel:
+        p = p.voxel_down_sample(voxel)
+    if normals_radius:
+        p.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normals_radius, max_nn=30))
+    return p
+
+
+def check_alignment(source: np.ndarray, target_pcd, T: np.ndarray, cfg: RegisterConfig) -> dict:
+    """Overlap check of ``source`` (N,3) under ``T`` against a target cloud: ``overlap`` = points
+    within ``overlap_m`` of the target, ``fitness`` = fraction of those within ``inlier_m``, ``rmse`` of
+    the inliers (m), ``accepted`` per the thresholds of ``cfg``."""
+    import open3d as o3d
+
+    src = np.asarray(source, np.float64) @ T[:3, :3].T + T[:3, 3]
+    tree = o3d.geometry.KDTreeFlann(target_pcd)
+    tgt = np.asarray(target_pcd.points)
+    d = np.full(len(src), np.inf)
+    for i, p in enumerate(src):
+        k, idx, _ = tree.search_knn_vector_3d(p, 1)
+        if k:
+            d[i] = np.linalg.norm(tgt[idx[0]] - p)
+    return _check_from_distances(d, cfg)
+
+
+def _nn_distances(src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+    from scipy.spatial import cKDTree
+
+    if len(tgt) == 0:
+        return np.full(len(src), np.inf)
+    return cKDTree(tgt).query(src, k=1, workers=-1)[0]
+
+
+def _check_from_distances(d: np.ndarray, cfg: RegisterConfig) -> dict:
+    ov = d < cfg.overlap_m
+    n = int(ov.sum())
+    inl = d < cfg.inlier_m
+    fit = float(inl.sum() / n) if n else 0.0
+    rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
+    ok = n >= cfg.min_overlap_points and fit >= cfg.min_fitness and rmse <= cfg.max_rmse_m
+    return {"overlap": n, "fitness": fit, "rmse": rmse, "accepted": bool(ok)}
+
+
+def icp(source: np.ndarray, target_pcd, init: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
+    """Coarse-to-fine point-to-plane ICP (open3d, Tukey loss with k = the stage's distance / 2) of
+    ``source`` (N,3) onto ``target_pcd`` (with normals) from ``init``; returns the (4,4) transform."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    src = _pcd(source)
+    T = np.asarray(init, np.float64).copy()
+    for dist in cfg.icp_distances:
+        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=dist / 2))
+        res = reg.registration_icp(src, target_pcd, dist, T, est,
+                                   reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7,
+                                                              max_iteration=cfg.icp_iterations))
+        T = np.asarray(res.transformation)
+    return T
+
+
+def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int = 0) -> np.ndarray:
+    """Global alignment of two clouds (N,3)/(M,3) by FPFH features + RANSAC (open3d); returns T."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    o3d.utility.random.seed(seed)
+    feats = []
+    for pts in (source, target):
+        p = _pcd(pts, voxel, 2 * voxel)
+        f = reg.compute_fpfh_feature(p, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+        feats.append((p, f))
+    (ps, fs), (pt, ft) = feats
+    res = reg.registration_ransac_based_on_feature_matching(
+        ps, pt, fs, ft, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+        reg.RANSACConvergenceCriteria(100000, 0.999))
+    return np.asarray(res.transformation)
+
+
+def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray,
+                       cfg: RegisterConfig | None = None, allow_fallback: bool = True) -> Registration:
+    """``T_world_camera`` from the static camera cloud ``static_cam`` (N,3, camera frame) and the map
+    ``map_points`` (M,3, world) from ``init`` (4,4): ICP, checked; FPFH+RANSAC+ICP fallback, checked.
+    Never returns an unchecked transform: ``accepted`` False means both failed (the caller raises)."""
+    cfg = cfg or RegisterConfig()
+    src = np.asarray(_pcd(static_cam, cfg.cam_voxel).points)
+    src = src[np.linalg.norm(src, axis=1) <= cfg.max_range_m]
+    tgt = _pcd(map_points, cfg.map_voxel, 3 * cfg.map_voxel)
+    tgt_pts = np.asarray(tgt.points)
+    attempts = []
+
+    def check(T):
+        return _check_from_distances(_nn_distances(src @ T[:3, :3].T + T[:3, 3], tgt_pts), cfg)
+
+    T = icp(src, tgt, init, cfg)
+    c = check(T)
+    attempts.append({"method": "icp", **c})
+    best = ("icp", T, c)
+    if not c["accepted"] and allow_fallback:
+        Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
+        T2 = icp(src, tgt, Tg, cfg)
+        c2 = check(T2)
+        attempts.append({"method": "fpfh+icp", **c2})
+        if c2["accepted"] or (not c["accepted"] and c2["overlap"] * c2["fitness"] > c["overlap"] * c["fitness"]):
+            best = ("fpfh+icp", T2, c2)
+    m, T, c = best
+    return Registration(T, m, c["fitness"], c["rmse"], c["overlap"], c["accepted"], attempts)
+
+
+# ------------------------------------------------------------------------------------ camera frames
+@dataclass
+class CameraFrames:
+    """A scene's camera clouds on the depth image grid: ``K`` (3,3), ``shape`` (h, w)."""
+
+    scene: object
+    K: np.ndarray
+    shape: tuple
+
+    @classmethod
+    def open(cls, scene, url: str = "") -> "CameraFrames":
+        where = f"{url}: scene {scene.id!r}"
+        if "camera/points" not in set(scene.arrays()):
+            raise InputError(f"{where} has no camera/points (nothing to register)")
+        intr = ((scene.attrs.get("sensors") or {}).get("camera") or {}).get("intrinsics")
+        if not intr or "K" not in intr:
+            raise InputError(f"{where}: camera has no intrinsics (sensors.camera.intrinsics); register needs a "
+                             f"depth camera whose pixels can be recovered")
+        return cls(scene, np.asarray(intr["K"], float), (int(intr["height"]), int(intr["width"])))
+
+    def depth(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """(depth (h,w) float32 NaN = none, points (N,3) finite camera-frame points)."""
+        p = np.asarray(self.scene.ragged("camera/points", k), np.float64)
+        p = p[np.isfinite(p).all(1) & (p[:, 2] > 0)] if len(p) else p.reshape(0, 3)
+        h, w = self.shape
+        D = np.full((h, w), np.nan, np.float32)
+        if len(p):
+            u = np.rint(self.K[0, 0] * p[:, 0] / p[:, 2] + self.K[0, 2]).astype(np.int64)
+            v = np.rint(self.K[1, 1] * p[:, 1] / p[:, 2] + self.K[1, 2]).astype(np.int64)
+            ok = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+            D[v[ok], u[ok]] = p[ok, 2]
+        return D, p
+
+    def rays(self) -> np.ndarray:
+        """(h,w,3) camera-frame rays with z = 1."""
+        h, w = self.shape
+        u, v = np.meshgrid(np.arange(w), np.arange(h))
+        return np.stack([(u - self.K[0, 2]) / self.K[0, 0], (v - self.K[1, 2]) / self.K[1, 1], np.ones((h, w))], -1)
+
+
+def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel median depth over ``frames`` (NaN where fewer than half have a return) and the
+    per-pixel robust spread (1.4826 · MAD, m)."""
+    stack = np.stack([cam.depth(k)[0] for k in track(frames, len(frames), "camera background", quiet)])
+    n = np.isfinite(stack).sum(0)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(stack, axis=0)
+            mad = 1.4826 * np.nanmedian(np.abs(stack - med[None]), axis=0)
+    med = np.where(n * 2 >= len(frames), med, np.nan).astype(np.float32)
+    return med, mad.astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------ humans
+def cluster_points(points: np.ndarray, dist: float) -> np.ndarray:
+    """Connected components of points (N,3) whose voxels (edge ``dist``) touch (26-neighbourhood):
+    labels (N,) int64 0..n-1."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    ijk = np.floor(np.asarray(points) / dist).astype(np.int64)
+    uniq, inv = np.unique(ijk, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    key = {tuple(v): i for i, v in enumerate(uniq.tolist())}
+    rows, cols = [], []
+    offs = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) > (0, 0, 0)]
+    for i, v in enumerate(uniq.tolist()):
+        for o in offs:
+            j = key.get((v[0] + o[0], v[1] + o[1], v[2] + o[2]))
+            if j is not None:
+                rows.append(i)
+                cols.append(j)
+    g = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(len(uniq), len(uniq)))
+    _, comp = connected_components(g, directed=False)
+    return comp[inv]
+
+
+def pick_human(points_world: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
+    """Boolean mask of the largest person-like cluster of ``points_world`` (N,3) (z up)."""
+    from .segment import _plan_extent
+
+    out = np.zeros(len(points_world), bool)
+    if len(points_world) < cfg.min_points:
+        return out
+    lab = cluster_points(points_world, cfg.cluster_m)
+    sizes = np.bincount(lab)
+    for c in np.argsort(-sizes):
+        if sizes[c] < cfg.min_points:
+            break
+        m = lab == c
+        p = points_world[m]
+        if np.ptp(p[:, 2]) >= cfg.min_height_m and _plan_extent(p[:, :2]) <= cfg.max_width_m:
+            return m
+    return out
+
+
+def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness: float, voxel: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Closed triangle surface around the volume swept by extruding each point (N,3) away from the
+    viewpoint ``eye`` (3,) along its viewing ray over ``thickness`` m, voxelised at ``voxel`` m:
+    vertices (V,3) float64, faces (F,3) int32, outward (counter-clockwise seen from outside)."""
+    p = np.asarray(points_world, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    d = p - np.asarray(eye, float)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    steps = np.arange(0.0, thickness + 1e-9, voxel / 2)
+    sw = (p[:, None, :] + steps[None, :, None] * d[:, None, :]).reshape(-1, 3)
+    occ = np.unique(np.floor(sw / voxel).astype(np.int64), axis=0)
+    return voxel_boundary(occ, voxel)
+
+
+def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary surface of a set of occupied voxels ``occ`` (N,3) int: two triangles per voxel face
+    not shared with another occupied voxel; shared vertices (a closed mesh), outward orientation."""
+    occ = np.asarray(occ, np.int64).reshape(-1, 3)
+    if len(occ) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    lo = occ.min(0) - 1
+    o = occ - lo
+    dims = o.max(0) + 2
+    grid = np.zeros(dims, bool)
+    grid[o[:, 0], o[:, 1], o[:, 2]] = True
+    quads = []
+    # for each axis and direction: faces where occupied voxel meets empty neighbour
+    for ax in range(3):
+        for sgn in (1, -1):
+            nb = np.roll(grid, -sgn, axis=ax)
+            face = grid & ~nb
+            idx = np.argwhere(face)
+            if not len(idx):
+                continue
+            # face plane at coordinate idx[ax] + (1 if sgn > 0 else 0); the other two axes span it
+            a1, a2 = [a for a in range(3) if a != ax]
+            base = idx.copy()
+            base[:, ax] += 1 if sgn > 0 else 0
+            c = np.zeros((len(idx), 4, 3), np.int64)
+            for q, (da, db) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
+                c[:, q] = base
+                c[:, q, a1] += da
+                c[:, q, a2] += db
+            # orientation: (a1, a2, ax) right-handed for ax = 0 -> (1,2), 1 -> (2,0), 2 -> (0,1)
+            right = (a1, a2) in ((1, 2), (2, 0), (0, 1))
+            if right != (sgn > 0):
+                c = c[:, ::-1]
+            quads.append(c)
+    q = np.concatenate(quads)                      # (Q,4,3) corner lattice coordinates
+    corners, inv = np.unique(q.reshape(-1, 3), axis=0, return_inverse=True)
+    inv = inv.reshape(-1, 4)
+    faces = np.concatenate([inv[:, [0, 1, 2]], inv[:, [0, 2, 3]]]).astype(np.int32)
+    verts = (corners + lo).astype(np.float64) * voxel
+    return verts, faces
+
+
+# ------------------------------------------------------------------------------------ pipeline
+def _parse_init(init) -> np.ndarray | None:
+    if init is None:
+        return None
+    a = np.asarray(init, float)
+    if a.shape == (4, 4):
+        return a
+    if a.shape == (6,):
+        from scipy.spatial.transform import Rotation
+
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("xyz", np.deg2rad(a[3:])).as_matrix()
+        T[:3, 3] = a[:3]
+        return T
+    raise InputError(f"--init needs x,y,z,roll,pitch,yaw (m, degrees), got {init!r}")
+
+
+def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True) -> np.ndarray:
+    """World-frame static map: every scan's returns inside the background model, voxel-thinned."""
+    from .segment import in_background
+
+    pts = []
+    for k in range(len(scans.stamps)):
+        valid, _, Pw = scans.scan(k, traj, deskew)
+        p = Pw[valid]
+        if bg is not None and len(p):
+            p = p[in_background(bg, p, 0)]
+        if len(p):
+            pts.append(np.asarray(_pcd(p, voxel).points))
+    if not pts:
+        return np.zeros((0, 3))
+    return np.asarray(_pcd(np.concatenate(pts), voxel).points)
+
+
+def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
+                   quiet: bool = True) -> dict:
+    """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
+    docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes."""
+    from ..dataset import create_dataset, open_dataset
+    from .segment import LidarScans, SegmentConfig, _scene_id, build_background, segment_scene
+
+    cfg = cfg or RegisterConfig()
+    t0 = time.perf_counter()
+    timings = {}
+    ds = open_dataset(url)
+    sid = _scene_id(ds, url, scene_id)
+    scene = ds.scene(sid)
+    cam = CameraFrames.open(scene, url)
+    scans = LidarScans.open(scene, url)
+    T_init = _parse_init(init)
+    init_source = "--init"
+    if T_init is None:
+        tf = ((scene.attrs.get("sensors") or {}).get("camera") or {}).get("T_map_sensor")
+        if tf is None:
+            raise InputError(f"{url}: scene {sid!r}: no TF pose of the camera in the map (sensors.camera.T_map_sensor); "
+                             f"give --init x,y,z,roll,pitch,yaw")
+        T_init, init_source = np.asarray(tf, float), "tf"
+    names = set(scene.arrays())
+    n = scene.n_frames
+    # 1. map (static part) and LiDAR segmentation
+    traj = scans.trajectory()
+    scfg = SegmentConfig()
+    bg = build_background(scans, scfg, traj, quiet)
+    M = map_cloud(scans, bg, traj, cfg.map_voxel)
+    if len(M) < 100:
+        raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
+    timings["map_s"] = time.perf_counter() - t0
+    seg_summary = None
+    if cfg.segment_lidar and "lidar/instance" not in names:
+        seg_summary = segment_scene(url, sid, scfg, quiet)
+    timings["segment_s"] = time.perf_counter() - t0 - timings["map_s"]
+    # 2. static camera cloud
+    t1 = time.perf_counter()
+    cam_frames = [k for k in range(n) if len(scene.ragged("camera/points", k))]
+    if not cam_frames:
+        raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
+    if len(cam_frames) > cfg.median_frames:  # evenly spread subset: memory stays flat in recording length
+        cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
+    med, mad = static_depth(cam, cam_frames, quiet)
+    rays = cam.rays()
+    okm = np.isfinite(med)
+    static_cam = rays[okm] * med[okm][:, None]
+    # 3. extrinsic
+    reg = register_extrinsic(static_cam, M, T_init, cfg)
+    timings["extrinsic_s"] = time.perf_counter() - t1
+    if not reg.accepted:
+        a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm"
+                      for x in reg.attempts)
+        raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
+                                f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
+                                f"{cfg.max_rmse_m * 100:.1f} cm); give a better --init")
+    T = reg.T
+    # 4. humans
+    t2 = time.perf_counter()
+    from scipy.spatial import cKDTree
+
+    mtree = cKDTree(M)
+    eye = T[:3, 3]
+    sigma = np.where(np.isfinite(mad), mad, 0.0)
+    human_pts = []
+    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
+    sw = w.scene(sid)
+    for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
+        if name in sw.arrays():
+            sw.remove(name)
+    cw_arr = sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"]) if cfg.write_camera_world else None
+    cam_world: list = []
+    for k in track(range(n), n, f"register {sid}", quiet):
+        D, p = cam.depth(k)
+        if cw_arr is not None:  # streamed shard by shard: the whole recording's clouds never sit in memory
+            cam_world.append((p @ T[:3, :3].T + T[:3, 3]).astype(np.float32))
+            s_k = k // cw_arr.shard_frames
+            if k == cw_arr.frames(s_k).stop - 1:
+                cw_arr.write_shard(s_k, cam_world)
+                cam_world = []
+        if not len(p):
+            human_pts.append(np.zeros((0, 3), np.float32))
+            continue
+        thr = np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)
+        with np.errstate(invalid="ignore"):
+            fg = np.isfinite(D) & (~np.isfinite(med) | (D < med - thr)) & (D <= cfg.max_range_m)
+        q = rays[fg] * D[fg][:, None]
+        qw = q @ T[:3, :3].T + T[:3, 3]
+        if len(qw):
+            dmap, _ = mtree.query(qw, k=1, workers=-1)
+            qw = qw[dmap > cfg.map_explain_m]
+        hm = pick_human(qw, cfg)
+        human_pts.append(qw[hm].astype(np.float32))
+    # velocity compensation: camera stamp -> frame stamp
+    ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+    cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
+    cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
+    shift = velocity_shift(cen, cts, ts)
+    surfaces = []
+    for k in range(n):
+        if len(human_pts[k]) == 0:
+            surfaces.append((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
+            continue
+        v, f = closed_surface(human_pts[k].astype(np.float64) + shift[k], eye + shift[k], cfg.thickness_m,
+                              cfg.surface_voxel)
+        surfaces.append((v.astype(np.float32), f.astype(np.int32)))
+    timings["humans_s"] = time.perf_counter() - t2
+    # 5. write
+    specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
+             "human/faces": (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
+             "human/points": (3, "float32", "m", ["point", "xyz"], human_pts)}
+    for name, (width, dt, units, dims, per_frame) in specs.items():
+        r = sw.ragged_array(name, width, dt, units, dims)
+        for s in range(r.n_shards):
+            sl = r.frames(s)
+            r.write_shard(s, per_frame[sl])
+    sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
+                   attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
+    n_h = int(sum(len(s[1]) > 0 for s in surfaces))
+    report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
+              "frames_with_human": n_h, "frames": n, "params": cfg.to_attrs(),
+              "surface": "voxel boundary of the camera-ray extrusion (closed)",
+              "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
+              "seconds": time.perf_counter() - t0, "timings": timings}
+    sw.set_attrs({"register": report})
+    out = {"scene": sid, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
+    if seg_summary:
+        out["segment"] = seg_summary
+    return out
+
+
+def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarray) -> np.ndarray:
+    """(T,3) shifts = velocity · (frame time − camera time), velocity by central differences of the
+    centroid track over frames with a detection (zero where it cannot be estimated or the camera
+    stamp is missing)."""
+    n = len(centroids)
+    out = np.zeros((n, 3))
+    ok = np.isfinite(centroids).all(1) & (cam_ts != 0)
+    idx = np.flatnonzero(ok)
+    if len(idx) < 2:
+        return out
+    t = cam_ts[idx].astype(np.float64) / 1e9
+    c = centroids[idx]
+    for j, k in enumerate(idx):
+        a, b = max(j - 1, 0), min(j + 1, len(idx) - 1)
+        if t[b] - t[a] <= 0 or t[b] - t[a] > 2.0:
+            continue
+        v = (c[b] - c[a]) / (t[b] - t[a])
+        v[2] = 0.0
+        out[k] = v * (frame_ts[k] - cam_ts[k]) / 1e9
+    return out
+
+
+__all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
+           "check_alignment", "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
+           "CameraFrames", "register_scene", "velocity_shift", "map_cloud"]
