@@ -1,0 +1,160 @@
+"""Datasets on S3 through fsspec: a real S3-compatible server (moto's server mode) on 127.0.0.1.
+
+Credentials and the endpoint come only from the environment (``AWS_*`` incl. ``AWS_ENDPOINT_URL``,
+or fsspec's ``FSSPEC_S3_*``); nothing S3-specific is passed on the command line.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import holodata.dataset as hds
+from holodata.cli.main import cli
+
+from _recordings import write_recording
+from test_distributed import free_port, gt_args, make_inputs, manifests
+
+BUCKET = "holodata-test"
+
+
+def _clear_fs_cache() -> None:
+    import s3fs
+
+    s3fs.S3FileSystem.clear_instance_cache()
+
+
+@pytest.fixture(scope="module")
+def s3():
+    """moto S3 server on a free port; AWS_* env pointing at it for this module. Yields the endpoint."""
+    from moto.server import ThreadedMotoServer
+
+    port = free_port()
+    server = ThreadedMotoServer(ip_address="127.0.0.1", port=port, verbose=False)
+    server.start()
+    endpoint = f"http://127.0.0.1:{port}"
+    with pytest.MonkeyPatch.context() as mp:
+        for k in list(os.environ):
+            if k.startswith(("AWS_", "FSSPEC_S3")):
+                mp.delenv(k)
+        mp.setenv("AWS_ENDPOINT_URL", endpoint)
+        mp.setenv("AWS_ACCESS_KEY_ID", "testing")
+        mp.setenv("AWS_SECRET_ACCESS_KEY", "testing")
+        mp.setenv("AWS_DEFAULT_REGION", "us-east-1")
+        _clear_fs_cache()
+        import fsspec
+
+        fsspec.filesystem("s3").mkdir(BUCKET)
+        try:
+            yield endpoint
+        finally:
+            _clear_fs_cache()
+            server.stop()
+
+
+def test_api_write_read_validate_and_detect_corruption(s3):
+    from holodata.conventions import Grid, RangeBins
+
+    url = f"s3://{BUCKET}/api.zarr"
+    w = hds.create_dataset(url, grid=Grid(4, 8), range_bins=RangeBins(16, 0.1), shard_frames=2)
+    sc = w.scene("a", n_frames=5, attrs={"frame_sensor": "radar"})
+    ts = sc.frame_array("time/timestamp_ns", (), "int64", dims=["frame"], units="ns")
+    hm = sc.frame_array("radar/heatmap", (16, 4, 8), "float32", dims=["frame", "range", "elevation", "azimuth"])
+    pts = sc.ragged_array("lidar/points", width=3, units="m")
+    rng = np.random.default_rng(0)
+    data = rng.random((5, 16, 4, 8)).astype(np.float32)
+    clouds = [rng.random((n, 3)).astype(np.float32) for n in (3, 0, 7, 1, 2)]
+    for k in range(ts.n_shards):
+        sl = ts.frames(k)
+        ts.write_shard(k, np.arange(5)[sl] * 10)
+        hm.write_shard(k, data[sl])
+        pts.write_shard(k, clouds[sl])
+    sc.write_array("mesh/vertices", np.eye(3, dtype=np.float32), dims=["vertex", "xyz"], units="m")
+    # a second writer process would see the same state: reopen = resume, nothing left to write
+    again = hds.create_dataset(url, grid=Grid(4, 8), range_bins=RangeBins(16, 0.1))
+    assert again.scene("a").frame_array("radar/heatmap", (16, 4, 8), "float32").complete
+
+    ds = hds.open_dataset(url)
+    s = ds.scene("a")
+    np.testing.assert_array_equal(s["radar/heatmap"][...], data)
+    np.testing.assert_array_equal(s["time/timestamp_ns"][...], np.arange(5) * 10)
+    for i, c in enumerate(clouds):
+        np.testing.assert_array_equal(s.ragged("lidar/points", i), c)
+    rep = hds.validate_dataset(url)
+    assert rep["ok"], rep["problems"][:3]
+    info = hds.dataset_info(url)
+    assert info["scenes"][0]["scene" if "scene" in info["scenes"][0] else "id"] == "a"
+
+    # object stores have no rename: a shard is one PUT; garbage under a committed key is detected
+    import fsspec
+
+    fs = fsspec.filesystem("s3")
+    fs.pipe_file(f"{BUCKET}/api.zarr/scenes/a/radar/heatmap/c/1/0/0/0", b"garbage")
+    rep = hds.validate_dataset(url)
+    assert not rep["ok"] and any("radar/heatmap" in str(p) for p in rep["problems"])
+
+
+def test_cli_raytrace_on_dask_workers_to_s3_validate_info(s3, tmp_path):
+    make_inputs(tmp_path, 6)
+    r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "ref.zarr"))
+    assert r.exit_code == 0, r.output
+    url = f"s3://{BUCKET}/gt.zarr"
+    # LocalCluster workers are new processes: they get the endpoint/credentials from the environment
+    r = CliRunner().invoke(cli, gt_args(tmp_path, url) + ["--workers", "2"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["scenes"][0]["dask_workers"] == 2
+    assert manifests(url) == manifests(tmp_path / "ref.zarr")
+    r = CliRunner().invoke(cli, ["validate", url, "--json"])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["ok"]
+    r = CliRunner().invoke(cli, ["info", url, "--json"])
+    assert r.exit_code == 0 and "gt/range" in r.output
+    # resume on S3 (in-process this time): every shard is committed, nothing rewritten
+    r = CliRunner().invoke(cli, gt_args(tmp_path, url))
+    assert r.exit_code == 0 and json.loads(r.output)["scenes"][0]["shards_skipped"] == 3
+
+    # a fresh process configured only through fsspec's FSSPEC_S3_* variables (no AWS_ENDPOINT_URL)
+    env = {k: v for k, v in os.environ.items() if k != "AWS_ENDPOINT_URL"}
+    env.update(FSSPEC_S3_ENDPOINT_URL=s3, FSSPEC_S3_KEY="testing", FSSPEC_S3_SECRET="testing")
+    env.pop("AWS_ACCESS_KEY_ID"), env.pop("AWS_SECRET_ACCESS_KEY")
+    p = subprocess.run([str(Path(sys.executable).parent / "holodata"), "validate", url, "--json"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+    assert json.loads(p.stdout)["ok"]
+
+
+def test_cli_ingest_out_s3_and_missing_dataset(s3, tmp_path):
+    write_recording(tmp_path / "rec", "mcap", n_radar=4)
+    url = f"s3://{BUCKET}/ingest.zarr"
+    r = CliRunner().invoke(cli, ["ingest", str(tmp_path / "rec"), "--out", url, "--quiet", "--json"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, ["ingest", str(tmp_path / "rec"), "--out", str(tmp_path / "ref.zarr"), "--quiet"])
+    assert r.exit_code == 0, r.output
+    assert manifests(url) == manifests(tmp_path / "ref.zarr")
+    assert hds.validate_dataset(url)["ok"]
+    r = CliRunner().invoke(cli, ["validate", f"s3://{BUCKET}/nothing.zarr"])
+    assert r.exit_code == 1 and "nothing.zarr" in r.output
+
+
+def test_training_reader_on_s3(s3, tmp_path):
+    torch = pytest.importorskip("torch")
+    import fsspec
+
+    import _eval_dataset as E
+    from holodata.torch import HeatmapDataset
+
+    E.build(str(tmp_path / "train.zarr"))  # built locally, uploaded as is (an `aws s3 sync` of a dataset)
+    url = f"s3://{BUCKET}/train.zarr"
+    fsspec.filesystem("s3").put(str(tmp_path / "train.zarr"), url, recursive=True)
+    assert hds.open_dataset(url).scenes == ["room_a", "room_b", "room_c"]
+    tr = HeatmapDataset(url, split="train")
+    s = tr[1]
+    raw = hds.open_dataset(url).scene(s["scene"])
+    np.testing.assert_array_equal(s["range"].numpy(), np.asarray(raw["gt/range"][s["frame"]]))
+    assert isinstance(s["heatmap"], torch.Tensor)
