@@ -17,6 +17,7 @@ COMMAND_MODULES: list[str] = [
     "info",
     "ingest",
     "raytrace",
+    "slam",
     "synth",
     "train",
     "evaluate",

@@ -642,14 +642,23 @@ def json_safe(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
-def slam_dataset(dataset_url, scene_ids=None, **kwargs) -> list[SlamResult]:
-    """:func:`slam_scene` for each of ``scene_ids`` (default: every scene with lidar/points)."""
+def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, **kwargs) -> list[SlamResult]:
+    """:func:`slam_scene` for each of ``scene_ids`` (default: every scene with lidar/points).
+    ``single_exports``: ``tum``/``ply`` exports are allowed only when one scene is processed."""
     from ..dataset import open_dataset
 
     ds = open_dataset(dataset_url)
-    ids = list(scene_ids) if scene_ids else [s for s in ds.scenes if "lidar/points" in ds.scene(s)]
+    if scene_ids:
+        for sid in scene_ids:
+            if sid not in ds.scenes:
+                raise InputError(f"{dataset_url}: no scene {sid!r} (have: {', '.join(ds.scenes) or 'none'})")
+        ids = list(scene_ids)
+    else:
+        ids = [s for s in ds.scenes if "lidar/points" in ds.scene(s)]
     if not ids:
         raise InputError(f"{dataset_url}: no scene has lidar/points (nothing for slam)")
+    if single_exports and len(ids) > 1 and (kwargs.get("tum") or kwargs.get("ply")):
+        raise InputError(f"{dataset_url}: {len(ids)} scenes; --ply/--tum need one (give --scene)")
     return [slam_scene(dataset_url, sid, **kwargs) for sid in ids]
 
 
