@@ -32,15 +32,24 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--visible-walkers", type=click.IntRange(min=0), default=0, show_default=True,
               help="People walking in the robot's corridor, visible to the LiDAR (truth/lidar_instances.npz).")
 @click.option("--stereo-images", is_flag=True, help="Also record the rectified left/right mono8 pair (for OpenCV stereo).")
+@click.option("--count", type=click.IntRange(min=1), default=1, show_default=True,
+              help="Recordings to write: >1 writes OUT/scene_000, OUT/scene_001, ... with seeds SEED, SEED+1, ...")
+@click.option("--workers", default=0, show_default=True, type=click.IntRange(0),
+              help="With --count: one recording per task on a local Dask cluster of N worker processes.")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="With --count: one recording per task on an existing Dask cluster (tcp://host:8786 or a "
+                   "scheduler file); OUT must be a folder the workers share.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera, no_human, visible_walkers,
-          stereo_images, quiet, as_json) -> None:
+          stereo_images, count, workers, scheduler, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
 
     Example: holodata synth --out synth_L --corner L --frames 20 --seed 3
+
+    Many recordings on a Dask cluster: holodata synth --out corners/ --count 32 --workers 2
     """
     from holodata.conventions import Grid, RangeBins
     from holodata.synth import synthesize
@@ -49,10 +58,24 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera
         g = Grid.parse(grid)
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="--grid") from None
-    res = synthesize(out, corner=corner, width=width, frames=frames, format=fmt, seed=seed, human=not no_human,
-                     grid=g, range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
-                     camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, quiet=quiet,
-                     visible_walkers=visible_walkers)
+    kw = dict(corner=corner, width=width, frames=frames, format=fmt, human=not no_human, grid=g,
+              range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
+              camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers)
+    if count > 1 or workers or scheduler:
+        import json
+
+        from holodata.distributed import cluster, synth_scenes
+
+        with cluster(workers, scheduler) as client:
+            res = synth_scenes(out, count, seed=seed, client=client, quiet=quiet or as_json, **kw)
+        if as_json:
+            click.echo(json.dumps(res, indent=2, default=str))
+        else:
+            for r in res:
+                click.echo(f"recording: {r['recording']} ({r['format']}, {r['n_frames']} radar frames, "
+                           f"corner {r['corner']}, width {r['width_m']:.2f} m, seed {r['seed']})")
+        return
+    res = synthesize(out, seed=seed, quiet=quiet, **kw)
     if as_json:
         import json
 

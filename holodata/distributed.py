@@ -230,4 +230,24 @@ def synth_dask(client, jobs: list[tuple[str, dict]], quiet: bool = True) -> list
     return run_tasks(client, _synth_task, [(str(o), kw) for o, kw in jobs], keys, description="synth", quiet=quiet)
 
 
-__all__ = ["cluster", "run_tasks", "n_workers", "trace_scene_dask", "ingest_dask", "synth_dask"]
+def synth_scenes(out, count: int, seed: int = 0, client=None, quiet: bool = True, **kwargs) -> list[dict]:
+    """``count`` recordings ``out/scene_000``, ``out/scene_001`` ... with seeds ``seed``, ``seed+1`` ...
+    (other ``synthesize`` arguments shared), one task each on ``client`` or in this process.
+    Returns their summaries. ``out`` must be reachable at the same path from every worker."""
+    from .progress import track
+    from .synth import synthesize
+
+    if count < 1:
+        raise InputError(f"--count must be >= 1, got {count}")
+    out = Path(out)
+    jobs = [(str(out / f"scene_{i:03d}"), {**kwargs, "seed": seed + i}) for i in range(count)]
+    for o, _ in jobs:  # fail before any task starts
+        if Path(o).exists() and any(Path(o).iterdir()):
+            raise InputError(f"{o}: already exists and is not empty; choose an empty --out")
+    if client is not None:
+        return synth_dask(client, jobs, quiet=quiet)
+    return [synthesize(o, **{**kw, "quiet": True}).summary()
+            for o, kw in track(jobs, total=len(jobs), description="synth", quiet=quiet)]
+
+
+__all__ = ["cluster", "run_tasks", "n_workers", "trace_scene_dask", "ingest_dask", "synth_dask", "synth_scenes"]

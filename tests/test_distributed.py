@@ -233,3 +233,27 @@ def test_worker_killed_mid_job_still_completes_identically(tmp_path):
     assert json.loads(stdout)["scenes"][0]["shards_written"] == T // S
     assert manifests(out) == manifests(tmp_path / "ref.zarr")
     assert hds.validate_dataset(str(out))["ok"]
+
+
+def test_synth_count_on_cluster_matches_in_process(cluster, tmp_path):
+    import hashlib
+
+    addr, _ = cluster
+    args = ["synth", "--count", "2", "--seed", "5", "--frames", "2", "--grid", "8x32", "--range-bins", "16",
+            "--lidar", "16x128", "--camera", "24x32", "--quiet", "--json"]
+    r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "ref")])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "dask"), "--scheduler", addr])
+    assert r.exit_code == 0, r.output
+    assert [s["seed"] for s in json.loads(r.output)] == [5, 6]
+
+    def digest(root: Path) -> dict:
+        return {str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted(root.rglob("*")) if p.is_file()}
+
+    ref, got = digest(tmp_path / "ref"), digest(tmp_path / "dask")
+    assert any(k.endswith(".mcap") for k in ref) and len(ref) > 4
+    assert got == ref
+    # an existing recording is refused before any task runs
+    r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "dask"), "--scheduler", addr])
+    assert r.exit_code == 1 and "already exists" in r.output
