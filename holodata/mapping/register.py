@@ -61,7 +61,10 @@ class RegisterConfig:
 
     map_voxel: float = 0.04
     cam_voxel: float = 0.03
-    icp_distances: tuple = (0.4, 0.2, 0.08, 0.04)
+    icp_distances: tuple = (0.15, 0.08, 0.04)
+    map_sigma_m: float = 0.015
+    crop_m: float = 0.6
+    check_sigma_m: float = 0.02
     icp_iterations: int = 60
     overlap_m: float = 0.15
     inlier_m: float = 0.05
@@ -69,7 +72,7 @@ class RegisterConfig:
     max_rmse_m: float = 0.03
     min_overlap_points: int = 300
     fpfh_voxel: float = 0.1
-    max_range_m: float = 8.0
+    max_range_m: float = 12.0
     fg_min_m: float = 0.12
     fg_sigma: float = 4.0
     map_explain_m: float = 0.08
@@ -173,6 +176,47 @@ def icp(source: np.ndarray, target_pcd, init: np.ndarray, cfg: RegisterConfig) -
     return T
 
 
+def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
+                 init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25) -> np.ndarray:
+    """Noise-weighted point-to-plane ICP (Gauss-Newton on the linearised rotation, numpy/scipy):
+    ``source`` (N,3) with ``weights`` (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``;
+    per stage a nearest-neighbour correspondence within ``max(d, 3σ)`` of the stage distance d and a
+    Tukey weight with that same scale (σ = 1/sqrt(weight): noisy far points keep their unbiased
+    residuals instead of being truncated). Returns T (4,4). Used as the final refinement after the open3d ICP (Tukey scale
+    follows the stage distance when the weights are uniform)."""
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
+    tree = cKDTree(target)
+    T = np.asarray(init, np.float64).copy()
+    src = np.asarray(source, np.float64)
+    w0 = np.asarray(weights, np.float64)
+    sig = 1.0 / np.sqrt(w0)
+    for d in distances:
+        scale = np.clip(3 * sig, d, max_scale)
+        for _ in range(iterations):
+            p = src @ T[:3, :3].T + T[:3, 3]
+            dist, j = tree.query(p, k=1, distance_upper_bound=float(scale.max()), workers=-1)
+            ok = np.isfinite(dist) & (dist <= scale)
+            if ok.sum() < 6:
+                return T
+            pp, q, nn = p[ok], target[j[ok]], target_normals[j[ok]]
+            r = np.einsum("ij,ij->i", pp - q, nn)
+            u = r / scale[ok]
+            w = w0[ok] * np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+            J = np.concatenate([np.cross(pp, nn), nn], axis=1)        # d r / d (omega, t)
+            H = (J * w[:, None]).T @ J + 1e-9 * np.eye(6) * w.sum()
+            g = (J * w[:, None]).T @ r
+            x = -np.linalg.solve(H, g)
+            D = np.eye(4)
+            D[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+            D[:3, 3] = x[3:]
+            T = D @ T
+            if np.linalg.norm(x[3:]) < 1e-5 and np.linalg.norm(x[:3]) < 1e-6:
+                break
+    return T
+
+
 def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int = 0) -> np.ndarray:
     """Global alignment of two clouds (N,3)/(M,3) by FPFH features + RANSAC (open3d); returns T."""
     import open3d as o3d
@@ -193,27 +237,60 @@ def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int 
 
 
 def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray,
-                       cfg: RegisterConfig | None = None, allow_fallback: bool = True) -> Registration:
+                       cfg: RegisterConfig | None = None, allow_fallback: bool = True,
+                       sigma: np.ndarray | None = None) -> Registration:
     """``T_world_camera`` from the static camera cloud ``static_cam`` (N,3, camera frame) and the map
-    ``map_points`` (M,3, world) from ``init`` (4,4): ICP, checked; FPFH+RANSAC+ICP fallback, checked.
-    Never returns an unchecked transform: ``accepted`` False means both failed (the caller raises)."""
+    ``map_points`` (M,3, world) from ``init`` (4,4): open3d point-to-plane ICP then, with per-point
+    depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`weighted_icp`); checked;
+    FPFH+RANSAC+ICP fallback, checked. Never returns an unchecked transform: ``accepted`` False means
+    both failed (the caller raises)."""
     cfg = cfg or RegisterConfig()
-    src = np.asarray(_pcd(static_cam, cfg.cam_voxel).points)
-    src = src[np.linalg.norm(src, axis=1) <= cfg.max_range_m]
+    src_all = np.asarray(static_cam, np.float64)
+    sig = np.full(len(src_all), 0.01) if sigma is None else np.maximum(np.asarray(sigma, np.float64), 0.003)
+    keep = np.linalg.norm(src_all, axis=1) <= cfg.max_range_m
+    src_all, sig = src_all[keep], sig[keep]
+    # voxel-thin (one point per cam_voxel cell, the least noisy)
+    cell = np.floor(src_all / cfg.cam_voxel).astype(np.int64)
+    order = np.argsort(sig, kind="stable")
+    _, first = np.unique(cell[order], axis=0, return_index=True)
+    sel = order[first]
+    src, sig = src_all[sel], sig[sel]
     tgt = _pcd(map_points, cfg.map_voxel, 3 * cfg.map_voxel)
     tgt_pts = np.asarray(tgt.points)
+    tgt_n = np.asarray(tgt.normals)
+    # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
+    # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
+    full_src, full_sig = src, sig
+    near = _nn_distances(src @ init[:3, :3].T + init[:3, 3], tgt_pts) <= cfg.crop_m
+    if near.sum() >= cfg.min_overlap_points:
+        src, sig = src[near], sig[near]
     attempts = []
 
     def check(T):
-        return _check_from_distances(_nn_distances(src @ T[:3, :3].T + T[:3, 3], tgt_pts), cfg)
+        # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
+        # far stereo points are too noisy to tell a right from a slightly wrong alignment
+        p = full_src @ T[:3, :3].T + T[:3, 3]
+        d = _nn_distances(p, tgt_pts)
+        precise = full_sig <= cfg.check_sigma_m
+        if int((precise & (d < cfg.overlap_m)).sum()) >= cfg.min_overlap_points:
+            d = d[precise]
+        return _check_from_distances(d, cfg)
 
-    T = icp(src, tgt, init, cfg)
+    def refine(T0):
+        # uniform weights: per-point camera noise weights were tried and made it worse, because the
+        # map's own error (grazing, far LiDAR views of the camera's surroundings) is not modelled
+        T1 = icp(src, tgt, T0, cfg)
+        return weighted_icp(src, np.full(len(src), 1e4), tgt_pts, tgt_n, T1,
+                            (cfg.icp_distances[-1] * 2, cfg.icp_distances[-1]))
+
+    T = refine(init)
     c = check(T)
     attempts.append({"method": "icp", **c})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
+        src, sig = full_src, full_sig
         Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
-        T2 = icp(src, tgt, Tg, cfg)
+        T2 = refine(Tg)
         c2 = check(T2)
         attempts.append({"method": "fpfh+icp", **c2})
         if c2["accepted"] or (not c["accepted"] and c2["overlap"] * c2["fitness"] > c["overlap"] * c["fitness"]):
@@ -262,20 +339,37 @@ class CameraFrames:
         return np.stack([(u - self.K[0, 2]) / self.K[0, 0], (v - self.K[1, 2]) / self.K[1, 1], np.ones((h, w))], -1)
 
 
-def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """Per-pixel median depth over ``frames`` (NaN where fewer than half have a return) and the
-    per-pixel robust spread (1.4826 · MAD, m)."""
+def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Static depth picture from ``frames``: per pixel the mean of the samples within 3 robust sigmas
+    of the median (NaN where fewer than half the frames have a return), the per-sample robust spread
+    σ (1.4826 · MAD, m) and the number of samples averaged."""
+    import warnings
+
     stack = np.stack([cam.depth(k)[0] for k in track(frames, len(frames), "camera background", quiet)])
     n = np.isfinite(stack).sum(0)
-    with np.errstate(all="ignore"):
-        import warnings
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(stack, axis=0)
+        mad = 1.4826 * np.nanmedian(np.abs(stack - med[None]), axis=0)
+        inl = np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]
+        cnt = inl.sum(0)
+        mean = np.where(cnt > 0, np.nansum(np.where(inl, stack, 0.0), axis=0) / np.maximum(cnt, 1), np.nan)
+    mean = np.where(n * 2 >= len(frames), mean, np.nan).astype(np.float32)
+    return mean, mad.astype(np.float32), cnt.astype(np.int32)
 
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            med = np.nanmedian(stack, axis=0)
-            mad = 1.4826 * np.nanmedian(np.abs(stack - med[None]), axis=0)
-    med = np.where(n * 2 >= len(frames), med, np.nan).astype(np.float32)
-    return med, mad.astype(np.float32)
+
+def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    """Per-pixel depth noise σ (m) from the stereo model σ = a·z² (disparity noise), with ``a`` the
+    median of spread/z² over the pixels: smooth in z, unlike the per-pixel spread of a few frames
+    (chance small spreads would get huge weights). Falls back to the spread where a is not finite."""
+    z = np.asarray(depth, np.float64)
+    s = np.asarray(spread, np.float64)
+    ok = np.isfinite(z) & np.isfinite(s) & (z > 0.1) & (s > 0)
+    if ok.sum() < 100:
+        return np.where(np.isfinite(s), s, 0.01)
+    a = float(np.median(s[ok] / z[ok] ** 2))
+    return np.maximum(a * z ** 2, 1e-3)
 
 
 # ------------------------------------------------------------------------------------ humans
@@ -459,12 +553,13 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
     if len(cam_frames) > cfg.median_frames:  # evenly spread subset: memory stays flat in recording length
         cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
-    med, mad = static_depth(cam, cam_frames, quiet)
+    med, mad, cnt = static_depth(cam, cam_frames, quiet)
     rays = cam.rays()
-    okm = np.isfinite(med)
+    okm = np.isfinite(med) & (cnt > 0)
     static_cam = rays[okm] * med[okm][:, None]
+    sig_mean = depth_noise_model(med[okm], mad[okm]) / np.sqrt(cnt[okm])
     # 3. extrinsic
-    reg = register_extrinsic(static_cam, M, T_init, cfg)
+    reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean)
     timings["extrinsic_s"] = time.perf_counter() - t1
     if not reg.accepted:
         a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm"
