@@ -4,8 +4,10 @@ Trajectory (computed with ``evo`` itself): the estimated LiDAR trajectory and
 ``truth/trajectory_lidar.tum`` are associated by timestamp (``evo.core.sync``, 10 ms), the estimate
 is aligned to the truth with Umeyama's method (rotation + translation, no scale — ``evo``'s
 ``PoseTrajectory3D.align``), then ATE = APE translation RMSE (m) and RPE = relative translation
-error per 1 m of travelled distance (``evo`` RPE, ``delta_unit=meters``, all pairs) — RMSE (m), plus
-per-frame RPE when the path is shorter than 1 m. Cumulative error curve: fraction of poses with
+error per 1 m of travelled distance (``evo`` RPE, ``delta_unit=meters``, all pairs; NaN when the path
+is shorter) and per consecutive pose pair — RMSE (m). A path so straight that Umeyama's
+position-only fit is degenerate is aligned with :func:`pose_alignment` instead (said in the
+result's ``alignment``). Cumulative error curve: fraction of poses with
 APE ≤ x.
 
 Mesh (occlusion-aware, Skoltech3D style): both meshes are sampled uniformly by area
@@ -55,11 +57,18 @@ def trajectory_errors(estimate: Trajectory, truth: Trajectory, max_diff_s: float
     if n < 2:
         raise InputError(f"only {n} estimated pose(s) match a true pose within {max_diff_s * 1e3:.0f} ms")
     est = copy.deepcopy(est)
-    est.align(ref, correct_scale=False)
+    from evo.core.geometry import GeometryException
+
+    try:
+        est.align(ref, correct_scale=False)
+        how = "umeyama"
+    except GeometryException:  # straight path: positions alone leave the roll about it free
+        est.transform(_pose_alignment(ref, est))
+        how = "poses (path too straight for Umeyama)"
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, est))
     st = metrics.StatisticsType
-    out = {"n_matched": n, "ate_rmse_m": float(ape.get_statistic(st.rmse)), "ate_mean_m": float(ape.get_statistic(st.mean)),
+    out = {"n_matched": n, "alignment": how, "ate_rmse_m": float(ape.get_statistic(st.rmse)), "ate_mean_m": float(ape.get_statistic(st.mean)),
            "ate_median_m": float(ape.get_statistic(st.median)), "ate_max_m": float(ape.get_statistic(st.max)),
            "ape_m": [float(x) for x in ape.error]}
     rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames, all_pairs=False)
@@ -295,9 +304,14 @@ def pose_alignment(estimate: Trajectory, truth: Trajectory, max_diff_s: float = 
     """SE(3) (4,4) A minimising Σ‖A·T_est,i − T_true,i‖ over matched poses: rotation = chordal mean of
     R_true,i R_est,iᵀ, translation = mean of p_true,i − R p_est,i."""
     from evo.core import sync
-    from scipy.spatial.transform import Rotation
 
     ref, est = sync.associate_trajectories(_evo(truth), _evo(estimate), max_diff=max_diff_s)
+    return _pose_alignment(ref, est)
+
+
+def _pose_alignment(ref, est) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
     Rt = np.stack([p[:3, :3] for p in ref.poses_se3])
     Re = np.stack([p[:3, :3] for p in est.poses_se3])
     R = Rotation.from_matrix(Rt @ np.transpose(Re, (0, 2, 1))).mean().as_matrix()
@@ -312,7 +326,10 @@ def umeyama_transform(estimate: Trajectory, truth: Trajectory, max_diff_s: float
     from evo.core import geometry, sync
 
     ref, est = sync.associate_trajectories(_evo(truth), _evo(estimate), max_diff=max_diff_s)
-    r, t, _ = geometry.umeyama_alignment(est.positions_xyz.T, ref.positions_xyz.T, False)
+    try:
+        r, t, _ = geometry.umeyama_alignment(est.positions_xyz.T, ref.positions_xyz.T, False)
+    except geometry.GeometryException:
+        return _pose_alignment(ref, est)
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = r, t
     return T

@@ -66,10 +66,12 @@ class VoxelBackground:
         With ``origins`` (the sensor position (3,) of each scan, world frame) — free-space test: each
         voxel (at the centroid of its returns) is looked up in a spherical min-range image (``angle_res_deg``
         bins) of up to ``max_scans`` scans; a scan *sees it occupied* when its range there is within a
-        margin (2 voxels, or 3 % of the range) of the voxel's distance and *sees through it* (free)
+        margin of the voxel's distance (1 voxel, or 2 % of the range) and *sees through it* (free)
         when the range is longer. Static = occupied in ``>= min_hits`` scans and
         occupied/(occupied + free) ``>= min_fraction`` (voxels never seen through are static).
-        People who walk through a voxel are seen through it in the other scans and drop out.
+        People who walk through a voxel are seen through it in the other scans and drop out
+        (limit: a trail that stays hidden behind the walker — someone walking straight at the sensor
+        for the whole recording — is never seen through and stays).
 
         Without ``origins`` — occupancy count: static = occupied in ``>= min_hits`` scans and in
         ``>= min_fraction`` of the scans with returns within ``observe_radius`` (default 3 voxels).
@@ -168,7 +170,7 @@ def _free_space(pts: list, origins: np.ndarray, centers: np.ndarray, voxel: floa
         img2[hole] = minimum_filter(img2, size=3, mode="wrap")[hole]  # fill gaps between rings/columns
         rv, iv, jv = bins(centers - o)
         rr = img[iv * naz + jv]
-        margin = np.maximum(2 * voxel, 0.03 * rv)
+        margin = np.maximum(voxel, 0.02 * rv)
         occ += np.abs(rr - rv) <= margin
         free += np.isfinite(rr) & (rr > rv + margin)
     return occ, free

@@ -75,7 +75,7 @@ class SlamConfig:
     tukey_k: float = 1.0
     global_pass: bool = True
     background_voxel: float = 0.15
-    background_min_fraction: float = 0.25
+    background_min_fraction: float = 0.6
     mesh: bool = True
 
     def __post_init__(self):
@@ -570,6 +570,7 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
             poses, h2 = global_refine(scans, poses, config, max_range, quiet=quiet)
             timings["global_refine_s"] = time.perf_counter() - t0
             background = h2["background"]
+            poses = (T0 @ np.linalg.inv(poses[0])) @ poses  # keep the world frame (the anchor) exact
             health["global"] = {"fitness_min": float(h2["fitness"].min()), "fitness_mean": float(h2["fitness"].mean()),
                                 "rmse_max_m": float(h2["rmse"].max()), "rmse_mean_m": float(h2["rmse"].mean()),
                                 "map_points": h2["map_points"]}

@@ -1,0 +1,183 @@
+"""Benchmark: ``holodata slam`` accuracy and runtime per corner kind, against bare kiss-icp.
+
+For each corner kind (T, L, cross, oblique): ``holodata.synth.synthesize`` a recording (small radar
+grid to keep synth fast; LiDAR ``--lidar``), ``holodata.ingest`` it, run ``slam_scene`` (kiss-icp +
+open3d scan-to-map refinement + static mesh), and measure against ``truth/`` with
+``holodata.mapping.accuracy`` (evo ATE/RPE with Umeyama alignment; occlusion-aware mesh Chamfer and
+F-score at 2/5/10 cm). The same scans go through bare kiss-icp 1.3 (``KissICP.register_frame``
+with the same indoor config) in the same run: its ATE/RPE and the runtime ratio slam / kiss-icp
+are printed. ``--mesh-methods`` also meshes the same registered scans with the other open3d
+reconstructions (Poisson / ball pivoting / TSDF) and prints their F-scores and times.
+Finally slam runs on the real ROS 1 fixture ``../shared/fixtures/ros1/luminar-test.bag``
+(must not crash; few poses).
+
+    .venv/bin/python benchmarks/slam.py [--frames 40] [--lidar 64x1024] [--corners T,L,cross,oblique]
+                                        [--mesh-methods poisson,bpa,tsdf] [--keep DIR]
+
+Floors (issue 9): ATE < 5 cm, mesh F@5cm >= 0.90 (aim ATE < 3 cm, F >= 0.95).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from holodata.conventions import Grid, RangeBins  # noqa: E402
+from holodata.dataset import open_dataset  # noqa: E402
+from holodata.ingest import ingest  # noqa: E402
+from holodata.mapping import slam as S  # noqa: E402
+from holodata.mapping.accuracy import evaluate_slam, mesh_errors, pose_alignment, lidar_from_scene_json  # noqa: E402
+from holodata.mapping.mesh import MeshConfig  # noqa: E402
+from holodata.meshio import read_mesh  # noqa: E402
+from holodata.synth import synthesize  # noqa: E402
+from holodata.trajectory import Trajectory, read_tum  # noqa: E402
+
+LUMINAR = ROOT.parent / "shared" / "fixtures" / "ros1" / "luminar-test.bag"
+
+
+def bare_kiss(url: str, scene: str) -> tuple[float, Trajectory]:
+    """Seconds and trajectory of bare kiss-icp on the scene's scans (same config as slam's stage 1)."""
+    from kiss_icp.config import KISSConfig
+    from kiss_icp.kiss_icp import KissICP
+
+    sc = open_dataset(url).scene(scene)
+    scans = S.load_scans(sc)
+    cfg = S.SlamConfig()
+    mr = S.data_max_range(scans)
+    kc = KISSConfig()
+    kc.data.max_range, kc.data.min_range, kc.data.deskew = mr, cfg.min_range, scans.times is not None
+    kc.mapping.voxel_size = cfg.voxel
+    kc.adaptive_threshold.initial_threshold, kc.adaptive_threshold.min_motion_th = 0.5, 0.02
+    odo = KissICP(config=kc)
+    poses, ref = [], []
+    t0 = time.perf_counter()
+    for i, p in enumerate(scans.points):
+        t = scans.times[i] if scans.times is not None else np.zeros(len(p))
+        odo.register_frame(np.ascontiguousarray(p), np.ascontiguousarray(t))
+        poses.append(odo.last_pose.copy())
+        ref.append(scans.stamp_ns[i] + (int(round(t.max() * 1e9)) if np.ptp(t) > 0 else 0))
+    return time.perf_counter() - t0, Trajectory(np.asarray(ref, np.int64), np.stack(poses))
+
+
+def run_corner(corner: str, work: Path, args) -> dict:
+    out = work / corner
+    lidar = tuple(int(v) for v in args.lidar.split("x"))
+    t0 = time.perf_counter()
+    syn = synthesize(out, corner=corner, frames=args.frames, seed=args.seed, grid=Grid(16, 64), range_bins=RangeBins(32),
+                     lidar_shape=lidar, camera_shape=(48, 64), quiet=True, visible_walkers=args.walkers)
+    t_syn = time.perf_counter() - t0
+    url = str(out / "ds.zarr")
+    t0 = time.perf_counter()
+    ing = ingest([syn.recording], url, quiet=True)
+    t_ing = time.perf_counter() - t0
+    sid = ing["scenes"][0]["scene"]
+    t0 = time.perf_counter()
+    res = S.slam_scene(url, sid, quiet=True)
+    t_slam = time.perf_counter() - t0
+    t_kiss, ktraj = bare_kiss(url, sid)
+    acc = evaluate_slam(res.trajectory(), res.mesh, syn.truth_dir, out_dir=out / "report",
+                        extra_trajectories={"kiss-icp (bare)": ktraj})
+    row = {"corner": corner, "width_m": round(syn.width_m, 2), "scans": res.summary["scans"],
+           "synth_s": round(t_syn, 1), "ingest_s": round(t_ing, 1), "slam_s": round(t_slam, 1),
+           "kiss_s": round(t_kiss, 1), "ratio": round(t_slam / max(t_kiss, 1e-9), 2),
+           "ate_cm": acc["trajectory"]["ate_rmse_m"] * 100, "rpe_cm": acc["trajectory"]["rpe_frame_rmse_m"] * 100,
+           "rpe1m_cm": acc["trajectory"]["rpe_rmse_m"] * 100,
+           "kiss_ate_cm": acc["trajectory_kiss-icp (bare)"]["ate_rmse_m"] * 100,
+           "kiss_rpe_cm": acc["trajectory_kiss-icp (bare)"]["rpe_frame_rmse_m"] * 100,
+           "timings": res.summary["timings"], "mesh_faces": res.summary["mesh"]["faces"]}
+    m = acc["mesh"]
+    row.update({"chamfer_cm": m["chamfer_m"] * 100, "f2": m["f_2cm"], "f5": m["f_5cm"], "f10": m["f_10cm"],
+                "observed": m["observed_fraction"]})
+    # radar poses straight against the truth (same world frame when TF anchored the map)
+    tr = read_tum(syn.trajectory_radar)
+    Tr = res.T_world_radar
+    if Tr is not None and len(Tr) == len(tr):
+        row["radar_pose_err_cm"] = float(np.sqrt(np.mean(np.sum((Tr[:, :3, 3] - tr.poses[:, :3, 3]) ** 2, 1)))) * 100
+    methods = [x for x in args.mesh_methods.split(",") if x]
+    if methods:
+        sc = open_dataset(url).scene(sid)
+        scans = S.load_scans(sc)
+        mr = S.data_max_range(scans)
+        truth = read_tum(syn.truth_dir / "trajectory_lidar.tum")
+        A = pose_alignment(res.trajectory(), truth)
+        tm = read_mesh(syn.mesh)
+        hum = [k for k, n in tm.class_names.items() if str(n) == "human"]
+        keep = ~np.isin(tm.face_class, hum) if tm.face_class is not None else np.ones(len(tm.faces), bool)
+        row["methods"] = {}
+        for meth in methods:
+            t0 = time.perf_counter()
+            try:
+                v, f, info, _ = S.static_mesh(scans, res.scan_poses, S.SlamConfig(), mr, MeshConfig(method=meth))
+            except Exception as err:  # noqa: BLE001 - report and go on
+                row["methods"][meth] = {"error": str(err)[:120]}
+                continue
+            dt = time.perf_counter() - t0
+            vv = v.astype(np.float64) @ A[:3, :3].T + A[:3, 3]
+            me = mesh_errors(vv, f, tm.vertices, tm.faces[keep], sensor_poses=truth.poses,
+                             lidar=lidar_from_scene_json(syn.truth_dir))
+            row["methods"][meth] = {"s": round(dt, 1), "faces": int(len(f)), "f2": me["f_2cm"], "f5": me["f_5cm"],
+                                    "f10": me["f_10cm"], "chamfer_cm": me["chamfer_m"] * 100}
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=40, help="radar frames (2 Hz) per corner")
+    ap.add_argument("--lidar", default="64x1024")
+    ap.add_argument("--corners", default="T,L,cross,oblique")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--walkers", type=int, default=0, help="people walking in the robot's corridor (visible to LiDAR)")
+    ap.add_argument("--mesh-methods", default="", help="also compare these mesh methods, e.g. poisson,bpa,tsdf")
+    ap.add_argument("--skip-luminar", action="store_true")
+    ap.add_argument("--keep", default=None, help="keep the work folder here")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args()
+    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-slam-bench-"))
+    work.mkdir(parents=True, exist_ok=True)
+    rows = []
+    try:
+        for corner in args.corners.split(","):
+            row = run_corner(corner, work, args)
+            rows.append(row)
+            print(f"{corner:8s} scans {row['scans']:4d}  ATE {row['ate_cm']:.2f} cm  RPE {row['rpe_cm']:.2f} cm/frame "
+                  f"({row['rpe1m_cm']:.2f} cm/m)  | kiss-icp ATE {row['kiss_ate_cm']:.2f} cm RPE {row['kiss_rpe_cm']:.2f}"
+                  f"  | mesh F@2/5/10 {row['f2']:.3f}/{row['f5']:.3f}/{row['f10']:.3f} CD {row['chamfer_cm']:.2f} cm"
+                  f" (obs {row['observed']:.2f})  | radar pose err {row.get('radar_pose_err_cm', float('nan')):.2f} cm"
+                  f"  | slam {row['slam_s']:.1f} s = {row['ratio']:.2f}x bare kiss-icp ({row['kiss_s']:.1f} s)  "
+                  f"{json.dumps(row['timings'])}", flush=True)
+            for meth, r in (row.get("methods") or {}).items():
+                print(f"    mesh {meth:8s} {json.dumps(r)}", flush=True)
+        if not args.skip_luminar and LUMINAR.is_file():
+            url = str(work / "luminar.zarr")
+            ingest([LUMINAR], url, quiet=True)
+            sid = open_dataset(url).scenes[0]
+            t0 = time.perf_counter()
+            res = S.slam_scene(url, sid, quiet=True)
+            dt = time.perf_counter() - t0
+            t_k, _ = bare_kiss(url, sid)
+            path = float(np.sum(np.linalg.norm(np.diff(res.scan_poses[:, :3, 3], axis=0), axis=1)))
+            print(f"luminar-test.bag: {res.summary['scans']} scans, path {path:.2f} m, mesh {res.summary['mesh']['faces']} "
+                  f"faces, slam {dt:.1f} s = {dt / max(t_k, 1e-9):.2f}x bare kiss-icp ({t_k:.1f} s), health "
+                  f"{json.dumps(res.summary['health'])}")
+        if rows:
+            ok = all(r["ate_cm"] < 5 and r["f5"] >= 0.90 for r in rows)
+            print(f"floors (ATE < 5 cm, F@5cm >= 0.90): {'met' if ok else 'NOT met'} on {len(rows)} corner(s); "
+                  f"mean ATE {np.mean([r['ate_cm'] for r in rows]):.2f} cm, mean F@5 {np.mean([r['f5'] for r in rows]):.3f}")
+        if args.json:
+            print(json.dumps(rows, default=float))
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,264 @@
+"""holodata slam: background model, deskew, and a LiDAR-only recording in the Ouster driver's point
+layout (padding, per-point ``t``, organised with zeros for no return, robot starting from rest, a
+person walking) written with rosbags → ingest → slam → poses and mesh against the analytic scene."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.spatial.transform import Rotation
+
+from _recordings import Writer, cloud_msg
+from holodata.cli.main import cli
+from holodata.mapping.background import VoxelBackground
+from holodata.mapping.slam import deskew, twist
+from holodata.trajectory import Trajectory
+
+# Ouster ROS driver layout (point_step 48, padding after z and after range)
+OUSTER = np.dtype({"names": ["x", "y", "z", "intensity", "t", "reflectivity", "ring", "ambient", "range"],
+                   "formats": ["<f4", "<f4", "<f4", "<f4", "<u4", "<u2", "<u2", "<u2", "<u4"],
+                   "offsets": [0, 4, 8, 16, 20, 24, 26, 28, 32], "itemsize": 48})
+T0 = 1_700_000_000_000_000_000
+RATE_NS = 100_000_000
+ROWS, COLS, SCANS = 32, 512, 24
+
+
+# ----------------------------------------------------------------------------------------------
+# analytic scene: an L corridor (2 m wide, 2.5 m high) with a box and a pillar
+
+def _box(lo, hi):
+    import open3d as o3d
+
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    m = o3d.geometry.TriangleMesh.create_box(*(hi - lo))
+    m.translate(lo)
+    return np.asarray(m.vertices), np.asarray(m.triangles)
+
+
+def _merge(parts):
+    vs, fs, n = [], [], 0
+    for v, f in parts:
+        vs.append(v)
+        fs.append(f + n)
+        n += len(v)
+    return np.concatenate(vs), np.concatenate(fs)
+
+
+def world_mesh():
+    t = 0.1
+    return _merge([
+        _box((-3, -1 - t, -t), (6 + t, 6, 0)),          # floor
+        _box((-3, -1 - t, 2.5), (6 + t, 6, 2.5 + t)),   # ceiling
+        _box((-3, -1 - t, 0), (6 + t, -1, 2.5)),        # right wall
+        _box((-3, 1, 0), (4, 1 + t, 2.5)),              # left wall up to the branch
+        _box((6, -1, 0), (6 + t, 6, 2.5)),              # end wall
+        _box((4 - t, 1, 0), (4, 6, 2.5)),               # branch wall
+        _box((-3 - t, -1, 0), (-3, 1, 2.5)),            # back wall
+        _box((0.8, -1, 0), (1.3, -0.6, 0.8)),           # box
+        _box((2.4, 0.7, 0), (2.7, 1.0, 2.5)),           # pillar
+    ])
+
+
+def person_position(t_s):
+    """Walks away from the robot along the corridor at 1.2 m/s, then turns into the branch (out of sight)."""
+    d = 1.2 * t_s
+    return (2.4 + d, 0.4) if d < 2.0 else (4.4 + 0.2, 0.4 + (d - 2.0) + 0.0)
+
+
+def person_mesh(t_s):
+    x, y = person_position(t_s)
+    return _box((x - 0.2, y - 0.15, 0), (x + 0.2, y + 0.15, 1.7))
+
+
+def robot_pose(t_s):
+    """Starts at rest, accelerates at 0.4 m/s² after 0.3 s; small yaw."""
+    tt = np.clip(np.asarray(t_s, float) - 0.3, 0, None)
+    x = -1.5 + 0.5 * 0.4 * tt ** 2
+    T = np.zeros(np.shape(t_s) + (4, 4))
+    R = Rotation.from_euler("z", np.deg2rad(2.0)).as_matrix()
+    T[..., :3, :3] = R
+    T[..., 0, 3], T[..., 1, 3], T[..., 2, 3], T[..., 3, 3] = x, -0.1, 0.0, 1.0
+    return T
+
+
+T_BASE_LIDAR = np.eye(4)
+T_BASE_LIDAR[:3, 3] = [0.0, 0.0, 0.8]
+
+
+def ouster_scan(k, rng):
+    import open3d as o3d
+
+    t_col = np.arange(COLS) * (RATE_NS // COLS)          # ns from scan start
+    t_s = (k * RATE_NS + t_col) / 1e9
+    Tc = robot_pose(t_s) @ T_BASE_LIDAR                   # (W,4,4) per column
+    el = np.deg2rad(np.linspace(22.5, -22.5, ROWS))[:, None]
+    az = (-2 * np.pi * np.arange(COLS) / COLS)[None, :]
+    d = np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), -1)
+    dw = np.einsum("wij,hwj->hwi", Tc[:, :3, :3], d)
+    ow = np.broadcast_to(Tc[None, :, :3, 3], dw.shape)
+    scene = o3d.t.geometry.RaycastingScene()
+    v, f = world_mesh()
+    scene.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32)))
+    pv, pf = person_mesh(k * RATE_NS / 1e9 + 0.05)
+    scene.add_triangles(o3d.core.Tensor(pv.astype(np.float32)), o3d.core.Tensor(pf.astype(np.uint32)))
+    rays = np.concatenate([ow, dw], -1).reshape(-1, 6).astype(np.float32)
+    ans = scene.cast_rays(o3d.core.Tensor(rays))
+    r = ans["t_hit"].numpy().reshape(ROWS, COLS).astype(np.float64)
+    person = (ans["geometry_ids"].numpy().reshape(ROWS, COLS) == 1)
+    ok = np.isfinite(r) & (r > 0.3) & (rng.random((ROWS, COLS)) > 0.01)
+    r = np.where(ok, r + rng.normal(0, 0.01, r.shape), 0.0)
+    p = r[..., None] * d                                  # sensor frame at the column time, no deskew
+    a = np.zeros((ROWS, COLS), OUSTER)
+    a["x"], a["y"], a["z"] = p[..., 0], p[..., 1], p[..., 2]   # zeros = no return
+    a["t"] = t_col[None, :]
+    a["range"] = np.round(r * 1000).astype(np.uint32)
+    a["ring"] = np.arange(ROWS)[:, None]
+    a["intensity"] = np.where(ok, 100.0, 0.0)
+    return a, int((ok & person).sum())
+
+
+@pytest.fixture(scope="module")
+def slam_run(tmp_path_factory):
+    """LiDAR-only MCAP (rosbags) → ingest → slam (written) → result + truth."""
+    from holodata.ingest import ingest
+    from holodata.mapping.mesh import MeshConfig
+    from holodata.mapping.slam import SlamConfig, slam_scene
+
+    tmp = tmp_path_factory.mktemp("slam")
+    w = Writer(tmp / "bag", "mcap")
+    w.add("/ouster/points", "sensor_msgs/msg/PointCloud2")
+    rng = np.random.default_rng(0)
+    stamps, person_hits = [], 0
+    for k in range(SCANS):
+        a, hits = ouster_scan(k, rng)
+        person_hits += hits
+        s = T0 + k * RATE_NS
+        w.write("/ouster/points", s + 3_000_000, cloud_msg(w.T, "mcap", s, "os_sensor", a))
+        stamps.append(s)
+    w.close()
+    url = str(tmp / "ds.zarr")
+    ingest([tmp / "bag"], url, quiet=True)
+    res = slam_scene(url, config=SlamConfig(), mesh_config=MeshConfig(voxel=0.04, max_faces=100_000), quiet=True,
+                     tum=tmp / "traj.tum", ply=tmp / "mesh.ply")
+    st = np.asarray(stamps, np.int64)
+    truth = Trajectory(st, robot_pose((st - T0) / 1e9) @ T_BASE_LIDAR)
+    return {"tmp": tmp, "url": url, "res": res, "truth": truth, "person_hits": person_hits}
+
+
+def test_ouster_layout_lidar_only_slam_poses(slam_run):
+    from holodata.dataset import open_dataset
+    from holodata.mapping.accuracy import trajectory_errors
+    from holodata.trajectory import read_tum
+
+    res, truth = slam_run["res"], slam_run["truth"]
+    assert slam_run["person_hits"] > 200                 # the walking person is in the scans
+    assert len(res.timestamp_ns) == SCANS
+    e = trajectory_errors(res.trajectory(), truth)
+    assert e["n_matched"] == SCANS
+    assert e["path_length_m"] > 0.5                       # the robot moved (from rest)
+    assert e["ate_rmse_m"] < 0.02, e
+    assert e["rpe_frame_rmse_m"] < 0.02, e
+    # stored in the dataset with dims/units; no radar → no T_world_radar; TUM export round-trips
+    sc = open_dataset(slam_run["url"]).scene(res.scene)
+    P = np.asarray(sc["pose/T_world_lidar"][...])
+    assert P.shape == (SCANS, 4, 4) and np.allclose(P, res.T_world_lidar)
+    assert dict(sc["pose/T_world_lidar"].attrs)["dims"] == ["frame", "row", "col"]
+    assert "pose/T_world_radar" not in sc.arrays()
+    assert sc.attrs["slam"]["complete"] is True
+    tum = read_tum(slam_run["tmp"] / "traj.tum")
+    assert np.allclose(tum.poses[:, :3, 3], res.scan_poses[:, :3, 3], atol=1e-6)
+    # LiDAR-only, no TF: the first pose is the world origin
+    assert np.allclose(res.scan_poses[0], np.eye(4), atol=1e-9)
+
+
+def test_static_mesh_against_analytic_scene_without_the_person(slam_run):
+    from holodata.dataset import open_dataset
+    from holodata.mapping.accuracy import mesh_errors, pose_alignment
+    from holodata.meshio import read_mesh
+
+    res, truth = slam_run["res"], slam_run["truth"]
+    v, f = res.mesh
+    sc = open_dataset(slam_run["url"]).scene(res.scene)
+    assert np.array_equal(np.asarray(sc["mesh/faces"][...]), f)
+    assert read_mesh(slam_run["tmp"] / "mesh.ply").faces.shape == f.shape
+    A = pose_alignment(res.trajectory(), truth)
+    vw = v.astype(np.float64) @ A[:3, :3].T + A[:3, 3]
+    tv, tf = world_mesh()
+    m = mesh_errors(vw, f, tv, tf, sensor_poses=truth.poses, sample_spacing=0.03,
+                    lidar={"min_range_m": 0.3, "max_range_m": 100, "fov_deg": (-23, 23)})
+    assert m["f_5cm"] >= 0.9, m
+    assert m["f_10cm"] >= m["f_5cm"] >= m["f_2cm"]
+    # the person walked x 2.4 → 4.4 at y 0.25..0.55 below 1.7 m: the static mesh must not hold them
+    inside = (vw[:, 0] > 2.3) & (vw[:, 0] < 3.9) & (vw[:, 1] > 0.3) & (vw[:, 1] < 0.5) & (vw[:, 2] > 0.3) & (vw[:, 2] < 1.5)
+    assert inside.sum() == 0
+
+
+def test_background_keeps_walls_drops_walker():
+    rng = np.random.default_rng(1)
+
+    def room(n):  # closed 8 x 4 x 2.5 m box, surface points
+        face = rng.integers(0, 6, n)
+        p = np.c_[rng.uniform(-4, 4, n), rng.uniform(-2, 2, n), rng.uniform(0, 2.5, n)]
+        p[face == 0, 0], p[face == 1, 0] = -4, 4
+        p[face == 2, 1], p[face == 3, 1] = -2, 2
+        p[face == 4, 2], p[face == 5, 2] = 0, 2.5
+        return p
+
+    scans, origins, walker = [], [], []
+    for i in range(30):
+        o = np.array([-3 + 0.1 * i, 0, 1.0])
+        h = np.c_[rng.normal(-2 + 0.15 * i, 0.08, 400), rng.normal(1, 0.08, 400), rng.uniform(0.1, 1.7, 400)]
+        pts = room(30000)
+        # points behind the walker from this origin are occluded: keep it simple, drop none
+        scans.append(np.r_[pts, h])
+        origins.append(o)
+        walker.append(h)
+    bg = VoxelBackground.build(scans, voxel=0.15, origins=origins)
+    assert bg.voxel == 0.15
+    assert bg.contains(room(5000)).mean() > 0.99
+    assert bg.contains(walker[15]).mean() < 0.2
+    # one-voxel tolerance: 10 cm off a wall is background, 50 cm is not
+    wall = np.c_[np.zeros(100), np.full(100, -2.0), np.linspace(0.5, 2.0, 100)]
+    assert bg.contains(wall + [0, 0.10, 0]).all()
+    assert not bg.contains(wall + [0, 0.5, 0]).any()
+    assert not bg.contains(np.array([[np.nan, 0, 0]])).any()
+    assert bg.contains(np.zeros((0, 3))).shape == (0,)
+    # without origins: the occupancy-count model still keeps the walls
+    assert VoxelBackground.build(scans, voxel=0.15).contains(room(2000)).mean() > 0.99
+
+
+def test_deskew_undoes_constant_twist():
+    rng = np.random.default_rng(2)
+    static = rng.uniform(-5, 5, (500, 3))                # points in the frame at reference time 0
+    xi = np.array([0.0, 0.0, 0.3, 0.5, 0.1, 0.0])        # yaw 0.3 rad/s, 0.5 m/s forward
+    t = rng.uniform(0, 0.1, 500)
+    # sensor pose at t relative to the reference: R(t·ω), t·v  →  measured p_t = R⁻¹ (p - t v)
+    R = Rotation.from_rotvec(t[:, None] * xi[None, :3]).as_matrix()
+    meas = np.einsum("nji,nj->ni", R, static - t[:, None] * xi[None, 3:])
+    out = deskew(meas, t, xi)
+    assert np.abs(out - static).max() < 1e-9
+    assert np.abs(meas - static).max() > 0.03          # the skew was real
+    Ta, Tb = np.eye(4), np.eye(4)
+    Tb[:3, 3] = [0.05, 0, 0]
+    assert np.allclose(twist(Ta, Tb, 0.1), [0, 0, 0, 0.5, 0, 0])
+
+
+def test_cli_bad_input_one_line_exit_1(tmp_path):
+    r = CliRunner().invoke(cli, ["slam", str(tmp_path / "missing.zarr")], obj={})
+    assert r.exit_code == 1
+    assert r.output.strip().count("\n") == 0 and "missing.zarr" in r.output
+    r = CliRunner().invoke(cli, ["slam", str(tmp_path), "--report", str(tmp_path / "rep")], obj={})
+    assert r.exit_code == 2                                # usage: --report needs --truth
+
+
+def test_cli_scene_without_lidar(tmp_path):
+    from holodata.dataset import create_dataset
+
+    w = create_dataset(str(tmp_path / "d.zarr"))
+    sc = w.scene("s", n_frames=2)
+    a = sc.frame_array("time/timestamp_ns", dtype="int64", dims=["frame"], units="ns", fill_value=0)
+    a.write_shard(0, np.array([1, 2], np.int64))
+    r = CliRunner().invoke(cli, ["slam", str(tmp_path / "d.zarr"), "--scene", "s"], obj={})
+    assert r.exit_code == 1 and "lidar/points" in r.output and r.output.strip().count("\n") == 0
+    r = CliRunner().invoke(cli, ["slam", str(tmp_path / "d.zarr"), "--scene", "nope"], obj={})
+    assert r.exit_code == 1 and "nope" in r.output
