@@ -106,7 +106,7 @@ def main() -> None:
     if not Path(url).exists():
         build(url, grid, bins, a.frames, CORNERS[: a.scenes])
     t1 = time.perf_counter()
-    from holodata.cli.evaluate import format_tables
+    from holodata.evaluate import format_tables
     from holodata.evaluate import evaluate
     from holodata.torch import TrainConfig, train
 

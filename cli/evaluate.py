@@ -36,25 +36,10 @@ def evaluate(dataset, checkpoint, out, split, device, max_frames, estimator, scr
 
         click.echo(json.dumps(doc, indent=2))
         return
+    from holodata.evaluate import format_tables
+
     click.echo(format_tables(doc))
     click.echo(f"report: {out}/report.html")
-
-
-def format_tables(doc: dict) -> str:
-    def f(v, scale=1.0, nd=1):
-        return "   –  " if v is None else f"{v * scale:6.{nd}f}"
-
-    lines = [f"{doc['split']}: {doc['n_frames']} frames, scenes {', '.join(doc['scenes'])}",
-             "range error (cm)   b1 mean/med/p90          b2 mean/med/p90          b3 mean/med/p90"]
-    for m, r in doc["methods"].items():
-        cells = "   ".join(" ".join(f(r["range"][f"bounce_{b}"][k]) for k in ("mean_cm", "median_cm", "p90_cm")) for b in (1, 2, 3))
-        lines.append(f"  {m:<9} {cells}")
-    lines.append("point clouds       LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F %")
-    for m, r in doc["methods"].items():
-        p = r["points"]
-        lines.append(f"  {m:<9} " + " ".join(f(p["los"][k], 100) for k in ("cd", "mhd", "f_score")) + "   "
-                     + " ".join(f(p["nlos"][k], 100) for k in ("cd", "mhd", "f_score")) + "   " + f(r["human"]["f_score"], 100))
-    return "\n".join(lines)
 
 
 COMMANDS = [evaluate]

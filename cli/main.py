@@ -14,6 +14,7 @@ import click
 
 # module name under holodata.cli -> attribute holding the click command(s)
 COMMAND_MODULES: list[str] = [
+    "demo",
     "info",
     "ingest",
     "raytrace",

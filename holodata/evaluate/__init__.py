@@ -7,6 +7,7 @@ it imports torch only to run the model.
 from __future__ import annotations
 
 from .baseline import strongest_peaks
+from .report import format_tables
 from .unmirror import los_mask, normals_from_range, unmirror
 
 
@@ -17,4 +18,4 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", **kwargs) ->
     return _evaluate(dataset_url, checkpoint, out_dir, split=split, **kwargs)
 
 
-__all__ = ["evaluate", "strongest_peaks", "los_mask", "normals_from_range", "unmirror"]
+__all__ = ["evaluate", "format_tables", "strongest_peaks", "los_mask", "normals_from_range", "unmirror"]

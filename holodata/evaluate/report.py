@@ -257,3 +257,21 @@ def check_in_browser(html_path: Path) -> dict:
     errs = [ln for ln in r.stderr.splitlines()
             if "CONSOLE" in ln and ("Uncaught" in ln or "Error" in ln or "Failed to load" in ln)]
     return {"images_ok": 'data-images-ok="yes"' in r.stdout, "console_errors": errs}
+
+
+def format_tables(doc: dict) -> str:
+    """The metrics document as two plain-text tables (range errors per bounce; point clouds)."""
+    def f(v, scale=1.0, nd=1):
+        return "   –  " if v is None else f"{v * scale:6.{nd}f}"
+
+    lines = [f"{doc['split']}: {doc['n_frames']} frames, scenes {', '.join(doc['scenes'])}",
+             "range error (cm)   b1 mean/med/p90          b2 mean/med/p90          b3 mean/med/p90"]
+    for m, r in doc["methods"].items():
+        cells = "   ".join(" ".join(f(r["range"][f"bounce_{b}"][k]) for k in ("mean_cm", "median_cm", "p90_cm")) for b in (1, 2, 3))
+        lines.append(f"  {m:<9} {cells}")
+    lines.append("point clouds       LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F %")
+    for m, r in doc["methods"].items():
+        p = r["points"]
+        lines.append(f"  {m:<9} " + " ".join(f(p["los"][k], 100) for k in ("cd", "mhd", "f_score")) + "   "
+                     + " ".join(f(p["nlos"][k], 100) for k in ("cd", "mhd", "f_score")) + "   " + f(r["human"]["f_score"], 100))
+    return "\n".join(lines)
