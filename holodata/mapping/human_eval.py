@@ -8,9 +8,9 @@
   positives), the usual crowd/too-small rule — a person seen by 5 beams at 9 m is not a target.
 * :func:`extrinsic_error`: translation (m) and rotation (deg) between an estimated and the true
   ``T_world_camera`` (``truth/extrinsics.json`` ``T_world_camera_optical``: the depth cloud frame).
-* :func:`surface_centroid` / :func:`human_centroid_errors`: area-weighted centroid of a closed
-  triangle surface; per-frame distance between the registered human surface's centroid and the true
-  human mesh's (``truth/human/<frame>.ply``), the same operator on both.
+* :func:`solid_centroid` / :func:`human_centroid_errors`: centre of mass of the solid a closed
+  surface encloses; per-frame distance between the registered human surface's and the true human
+  mesh's (``truth/human/<frame>.ply``), the same operator on both.
 * :func:`write_truth_poses`: puts the true LiDAR poses (``truth/trajectory_lidar.tum``, matched by
   the scans' header stamps ``lidar/timestamp_ns``) into a dataset as ``pose/T_world_lidar`` (and the
   true radar poses as ``pose/T_world_radar``) so that segmentation/registration can be developed
@@ -155,9 +155,31 @@ def surface_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return ((a + b + c) / 3.0 * area[:, None]).sum(0) / area.sum()
 
 
+def solid_centroid(vertices: np.ndarray, faces: np.ndarray, voxel: float = 0.01) -> np.ndarray:
+    """Centre of mass (3,) of the solid a closed triangle surface encloses (uniform density): mean
+    of the centres of the ``voxel`` grid cells inside it (open3d ``RaycastingScene.compute_occupancy``).
+    Unlike a surface centroid this ignores interior faces, so a body made of overlapping closed parts
+    (the synthetic human) and a single closed surface (register's) are measured alike."""
+    import open3d as o3d
+
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    if len(f) == 0:
+        return np.full(3, np.nan)
+    sc = o3d.t.geometry.RaycastingScene()
+    sc.add_triangles(o3d.core.Tensor(v.astype(np.float32)), o3d.core.Tensor(f.astype(np.uint32)))
+    lo, hi = v.min(0), v.max(0)
+    axes = [np.arange(lo[i] + voxel / 2, hi[i], voxel) for i in range(3)]
+    g = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    occ = sc.compute_occupancy(o3d.core.Tensor(g.astype(np.float32))).numpy() > 0.5
+    if not occ.any():
+        return v[np.unique(f)].mean(0)
+    return g[occ].mean(0)
+
+
 def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path) -> dict:
-    """Per-frame distance (cm) between the centroid of ``human/vertices``+``human/faces`` and of
-    ``truth/human/<frame:06d>.ply``: {"per_frame_cm", "mean_cm", "median_cm", "max_cm", "frames",
+    """Per-frame distance (cm) between the centre of mass (:func:`solid_centroid`) of the solid
+    enclosed by ``human/vertices``+``human/faces`` and that of ``truth/human/<frame:06d>.ply``: {"per_frame_cm", "mean_cm", "median_cm", "max_cm", "frames",
     "missing"} (frames without an estimate count as missing, not as errors)."""
     from ..dataset import open_dataset
     from ..meshio import read_mesh
@@ -176,7 +198,7 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path) -> dic
             missing += 1
             errs.append(np.nan)
             continue
-        errs.append(float(np.linalg.norm(surface_centroid(v, f) - surface_centroid(m.vertices, m.faces)) * 100.0))
+        errs.append(float(np.linalg.norm(solid_centroid(v, f) - solid_centroid(m.vertices, m.faces)) * 100.0))
     e = np.asarray(errs, float)
     ok = e[np.isfinite(e)]
     return {"per_frame_cm": e.tolist(), "mean_cm": float(ok.mean()) if len(ok) else float("nan"),

@@ -80,7 +80,11 @@ class RegisterConfig:
     min_height_m: float = 0.5
     max_width_m: float = 1.4
     min_points: int = 100
+    plane_dist_m: float = 0.05
+    plane_min_fraction: float = 0.03
+    max_planes: int = 12
     thickness_m: float = 0.22
+    min_thickness_m: float = 0.06
     surface_voxel: float = 0.04
     segment_lidar: bool = True
     median_frames: int = 60
@@ -398,6 +402,37 @@ def cluster_points(points: np.ndarray, dist: float) -> np.ndarray:
     return comp[inv]
 
 
+def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) -> np.ndarray:
+    """(N,) bool: points of the static camera cloud (N,3, any frame) that are on none of the large
+    planes (floor, ceiling, walls: RANSAC planes, open3d ``segment_plane``, each holding at least
+    ``plane_min_fraction`` of the points, up to ``max_planes``). Catches a person who stands still
+    (and is therefore part of the temporal background)."""
+    import open3d as o3d
+
+    pts = np.asarray(points, np.float64)
+    keep = np.ones(len(pts), bool)
+    if len(pts) < 100:
+        return keep
+    o3d.utility.random.seed(seed)
+    vox = np.floor(pts / cfg.cam_voxel).astype(np.int64)
+    _, first, inv = np.unique(vox, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    sub = pts[first]
+    alive = np.ones(len(sub), bool)
+    for _ in range(cfg.max_planes):
+        idx = np.flatnonzero(alive)
+        if len(idx) < 100:
+            break
+        pc = _pcd(sub[idx])
+        model, inl = pc.segment_plane(distance_threshold=cfg.plane_dist_m, ransac_n=3, num_iterations=400)
+        if len(inl) < cfg.plane_min_fraction * len(sub):
+            break
+        a = np.asarray(model[:3])
+        dist = np.abs(sub @ a + model[3]) / np.linalg.norm(a)
+        alive &= ~(dist < cfg.plane_dist_m)
+    return alive[inv]
+
+
 def pick_human(points_world: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
     """Boolean mask of the largest person-like cluster of ``points_world`` (N,3) (z up)."""
     from .segment import _plan_extent
@@ -413,22 +448,50 @@ def pick_human(points_world: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
         m = lab == c
         p = points_world[m]
         if np.ptp(p[:, 2]) >= cfg.min_height_m and _plan_extent(p[:, :2]) <= cfg.max_width_m:
+            # stereo noise sprays single points behind/in front of the body: statistical outlier removal
+            _, keep = _pcd(p).remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)
+            idx = np.flatnonzero(m)
+            m[:] = False
+            m[idx[np.asarray(keep, np.int64)]] = True
             return m
     return out
 
 
-def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness: float, voxel: float
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def body_depth(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, fx: float, lo: float, hi: float) -> np.ndarray:
+    """Per human pixel, an estimate of the body's depth behind it: the metric width of its horizontal
+    run of human pixels in the image (run length · depth / fx), clipped to [lo, hi] m — limbs and head
+    are about as deep as wide, the torso is capped at ``hi``."""
+    n = len(rows)
+    if n == 0:
+        return np.zeros(0)
+    order = np.lexsort((cols, rows))
+    r, c = rows[order], cols[order]
+    new = np.ones(n, bool)
+    new[1:] = (r[1:] != r[:-1]) | (c[1:] != c[:-1] + 1)
+    run_id = np.cumsum(new) - 1
+    length = np.bincount(run_id)[run_id]
+    w = length * depth[r, c] / fx
+    out = np.empty(n)
+    out[order] = np.clip(w, lo, hi)
+    return out
+
+
+def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: float,
+                   horizontal: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Closed triangle surface around the volume swept by extruding each point (N,3) away from the
-    viewpoint ``eye`` (3,) along its viewing ray over ``thickness`` m, voxelised at ``voxel`` m:
+    viewpoint ``eye`` (3,) along its viewing ray (its horizontal part when ``horizontal``: a body's
+    depth is horizontal) over ``thickness`` m (scalar or (N,)), voxelised at ``voxel`` m:
     vertices (V,3) float64, faces (F,3) int32, outward (counter-clockwise seen from outside)."""
     p = np.asarray(points_world, np.float64).reshape(-1, 3)
     if len(p) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
     d = p - np.asarray(eye, float)
+    if horizontal:  # a body's depth is horizontal: extrude along the ray's plan direction
+        d[:, 2] = 0.0
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
-    steps = np.arange(0.0, thickness + 1e-9, voxel / 2)
-    sw = (p[:, None, :] + steps[None, :, None] * d[:, None, :]).reshape(-1, 3)
+    th = np.broadcast_to(np.asarray(thickness, float), (len(p),))
+    frac = np.linspace(0.0, 1.0, max(2, int(np.ceil(th.max() / (voxel / 2))) + 1))
+    sw = (p[:, None, :] + (frac[None, :, None] * th[:, None, None]) * d[:, None, :]).reshape(-1, 3)
     occ = np.unique(np.floor(sw / voxel).astype(np.int64), axis=0)
     return voxel_boundary(occ, voxel)
 
@@ -575,7 +638,17 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     mtree = cKDTree(M)
     eye = T[:3, 3]
     sigma = np.where(np.isfinite(mad), mad, 0.0)
-    human_pts = []
+    # a person standing still is in the temporal background: static points on no large plane and not
+    # explained by the map are candidates in every frame
+    still = np.zeros(med.shape, bool)
+    resid = static_residual(static_cam, cfg)
+    if resid.any():
+        sw_ = static_cam[resid] @ T[:3, :3].T + T[:3, 3]
+        dmap_, _ = cKDTree(M).query(sw_, k=1, workers=-1)
+        rr = np.zeros(len(static_cam), bool)
+        rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
+        still[okm] = rr
+    human_pts, thick = [], []
     w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
     sw = w.scene(sid)
     for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
@@ -596,14 +669,17 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             continue
         thr = np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)
         with np.errstate(invalid="ignore"):
-            fg = np.isfinite(D) & (~np.isfinite(med) | (D < med - thr)) & (D <= cfg.max_range_m)
-        q = rays[fg] * D[fg][:, None]
+            fg = np.isfinite(D) & (~np.isfinite(med) | (D < med - thr) | still) & (D <= cfg.max_range_m)
+        vv, uu = np.nonzero(fg)
+        q = rays[vv, uu] * D[vv, uu][:, None]
         qw = q @ T[:3, :3].T + T[:3, 3]
         if len(qw):
             dmap, _ = mtree.query(qw, k=1, workers=-1)
-            qw = qw[dmap > cfg.map_explain_m]
+            far = dmap > cfg.map_explain_m
+            qw, vv, uu = qw[far], vv[far], uu[far]
         hm = pick_human(qw, cfg)
         human_pts.append(qw[hm].astype(np.float32))
+        thick.append(body_depth(vv[hm], uu[hm], D, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m))
     # velocity compensation: camera stamp -> frame stamp
     ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
     cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
@@ -614,7 +690,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         if len(human_pts[k]) == 0:
             surfaces.append((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
             continue
-        v, f = closed_surface(human_pts[k].astype(np.float64) + shift[k], eye + shift[k], cfg.thickness_m,
+        v, f = closed_surface(human_pts[k].astype(np.float64) + shift[k], eye + shift[k], thick[k],
                               cfg.surface_voxel)
         surfaces.append((v.astype(np.float32), f.astype(np.int32)))
     timings["humans_s"] = time.perf_counter() - t2
