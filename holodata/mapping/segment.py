@@ -49,10 +49,12 @@ class SegmentConfig:
     ``erosion``: iterations of the 3×3 shrink that makes the seeds; ``dist_m`` + ``dist_per_m``·range:
     flood-fill distance threshold between grid neighbours; ``min_points``: smallest kept cluster;
     ``min_height_m`` / ``max_width_m``: person-like extent (0 / inf switch the check off);
+    ``min_depth_m``: smallest robust extent along the cluster's least principal axis (rejects flat
+    patches of wall that the background missed, e.g. behind a lane people walk often);
     ``max_instances``: keep at most this many clusters per scan (largest first; 0 = no limit)."""
 
     voxel: float = 0.15
-    min_fraction: float = 0.5
+    min_fraction: float = 0.25
     tolerance_voxels: int = 0
     erosion: int = 1
     dist_m: float = 0.10
@@ -60,8 +62,12 @@ class SegmentConfig:
     min_points: int = 15
     min_height_m: float = 0.25
     max_width_m: float = 1.5
+    min_depth_m: float = 0.06
     max_instances: int = 0
     deskew: bool = True
+    carve: bool = False
+    grow_pixels: int = 3
+    carve_stride: int = 4
 
     def to_attrs(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}
@@ -69,11 +75,13 @@ class SegmentConfig:
 
 # ------------------------------------------------------------------------------------------ core
 def _shift(a: np.ndarray, dr: int, dc: int, fill=False) -> np.ndarray:
-    """``out[i, j] = a[i + dr, (j + dc) mod W]`` (columns wrap around the scan), ``fill`` past the
-    last row."""
+    """``out[i, j] = a[i + dr, (j + dc) mod W]`` (columns wrap around the scan), ``fill`` where
+    ``i + dr`` is outside the rows (dr of either sign)."""
     out = np.roll(a, -dc, axis=1)
-    if dr:
+    if dr > 0:
         out = np.concatenate([out[dr:], np.full((dr,) + a.shape[1:], fill, dtype=a.dtype)], axis=0)
+    elif dr < 0:
+        out = np.concatenate([np.full((-dr,) + a.shape[1:], fill, dtype=a.dtype), out[:dr]], axis=0)
     return out
 
 
@@ -161,15 +169,45 @@ def destagger(a: np.ndarray, shifts: np.ndarray, inverse: bool = False) -> np.nd
     return out
 
 
+def grow(lab: np.ndarray, allowed: np.ndarray, points: np.ndarray, dist_m: float, dist_per_m: float,
+         steps: int) -> np.ndarray:
+    """Grow labels ``lab`` (H,W) int64 (-1 = none) by up to ``steps`` pixels into ``allowed`` pixels
+    (8-neighbourhood, columns wrap) whose point is within the flood-fill distance of the labelled
+    neighbour's point."""
+    lab = lab.copy()
+    rng = np.linalg.norm(points, axis=-1)
+    offs = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
+    for _ in range(steps):
+        new = lab.copy()
+        for dr, dc in offs:
+            # neighbour (i+dr, j+dc) of pixel (i, j); rows past the edge are unlabelled
+            nl = _shift(lab, dr, dc, fill=-1)
+            npnt = _shift(points, dr, dc, fill=0.0)
+            cand = (new < 0) & allowed & (nl >= 0)
+            if not cand.any():
+                continue
+            d = np.linalg.norm(points - npnt, axis=-1)
+            ok = cand & (d < dist_m + dist_per_m * rng)
+            new[ok] = nl[ok]
+        if (new == lab).all():
+            break
+        lab = new
+    return lab
+
+
 def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray | None,
                  cfg: SegmentConfig | None = None, points_world: np.ndarray | None = None,
-                 shifts: np.ndarray | None = None) -> np.ndarray:
+                 shifts: np.ndarray | None = None, background_near: np.ndarray | None = None) -> np.ndarray:
     """Instance image of one organised scan.
 
     ``points`` (H,W,3) sensor-frame points m (flood-fill distances); ``valid`` (H,W) bool returns;
     ``background`` (H,W) bool, True = return explained by the static background (None: none is);
     ``points_world`` (H,W,3) world points for the extent checks (default ``points``; the z axis must be
-    up); ``shifts`` (H,) destaggering column shifts (:func:`row_shifts`; None: measured here). The grid
+    up); ``background_near`` (H,W) bool, True = return *within one voxel* of the background: when
+    given, seeds and flood fill use only returns away from the background (a person touching a wall
+    or a patch of wall the background missed cannot merge), and the clusters then grow by
+    ``grow_pixels`` into the other foreground returns (feet, hands near walls); ``shifts`` (H,)
+    destaggering column shifts (:func:`row_shifts`; None: measured here). The grid
     is destaggered for the neighbourhood operations and the result returned in the input layout.
     Returns (H,W) uint16: 0 = background / no return, 1..n instances by decreasing size.
     """
@@ -180,12 +218,16 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
         pw = points_world if points_world is not None else points
         lab = segment_scan(destagger(np.asarray(points), shifts), destagger(np.asarray(valid, bool), shifts),
                            None if background is None else destagger(np.asarray(background, bool), shifts), cfg,
-                           destagger(np.asarray(pw), shifts), np.zeros(len(shifts), np.int64))
+                           destagger(np.asarray(pw), shifts), np.zeros(len(shifts), np.int64),
+                           None if background_near is None else destagger(np.asarray(background_near, bool), shifts))
         return destagger(lab, shifts, inverse=True)
     valid = np.asarray(valid, bool)
     fg = valid & (~np.asarray(background, bool) if background is not None else True)
-    seeds = erode(fg, cfg.erosion)
-    lab, n = flood_fill(np.asarray(points, np.float64), fg, seeds, cfg.dist_m, cfg.dist_per_m)
+    core = fg & ~np.asarray(background_near, bool) if background_near is not None else fg
+    seeds = erode(core, cfg.erosion)
+    lab, n = flood_fill(np.asarray(points, np.float64), core, seeds, cfg.dist_m, cfg.dist_per_m)
+    if background_near is not None and cfg.grow_pixels > 0 and n:
+        lab = grow(lab, fg, np.asarray(points, np.float64), cfg.dist_m, cfg.dist_per_m, cfg.grow_pixels)
     out = np.zeros(fg.shape, np.uint16)
     if n == 0:
         return out
@@ -200,11 +242,11 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
     ok = sizes >= cfg.min_points
     ok &= (zmax - zmin) >= cfg.min_height_m
     cand = np.flatnonzero(ok)
-    if np.isfinite(cfg.max_width_m):
+    if np.isfinite(cfg.max_width_m) or cfg.min_depth_m > 0:
         good = []
         for c in cand:
-            xy = ps[ls == c, :2]
-            if _plan_extent(xy) <= cfg.max_width_m:
+            q = ps[ls == c]
+            if _plan_extent(q[:, :2]) <= cfg.max_width_m and _thickness(q) >= cfg.min_depth_m:
                 good.append(c)
         cand = np.array(good, np.int64)
     cand = cand[np.argsort(-sizes[cand], kind="stable")]
@@ -214,6 +256,18 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
     remap[cand] = np.arange(1, len(cand) + 1, dtype=np.uint16)
     out[sel] = remap[ls]
     return out
+
+
+def _thickness(p: np.ndarray) -> float:
+    """Robust smallest extent (m) of a 3-D cluster: 5-95 % spread along its least principal axis.
+    A patch of wall is ~noise thin; a person's visible surface is curved and has limbs at other depths."""
+    if len(p) < 4:
+        return 0.0
+    c = p - p.mean(0)
+    _, vec = np.linalg.eigh(c.T @ c)
+    q = c @ vec[:, 0]
+    lo, hi = np.percentile(q, [5, 95])
+    return float(hi - lo)
 
 
 def _plan_extent(xy: np.ndarray) -> float:
@@ -307,14 +361,62 @@ class LidarScans:
 
 
 def build_background(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bool = True):
-    """Voxel background model of a scene's scans (world frame)."""
-    from .background import VoxelBackground
+    """Voxel background model of a scene's scans (world frame), with free-space carving.
 
-    pts = []
+    :class:`VoxelBackground` counts a voxel as observed by a scan when the scan has returns near it,
+    so a voxel in open space (a corridor's middle) is "observed" only by the person passing through
+    it and a person walking the same lane again and again becomes background. Here every scan's
+    beams also *pass through* voxels (``carve_stride`` subsampled beams, sampled every half voxel up
+    to 1.5 voxels before the return): a background voxel stays background only if it was hit in at
+    least ``min_fraction`` of the scans that either hit it or saw through it."""
+    from .background import VoxelBackground, _dilate, _keys, voxel_index
+
+    pts, free = [], []
     for k in track(range(len(scans.stamps)), len(scans.stamps), "background", quiet):
-        valid, _, Pw = scans.scan(k, traj, cfg.deskew)
+        valid, P, Pw = scans.scan(k, traj, cfg.deskew)
         pts.append(Pw[valid].astype(np.float32))
-    return VoxelBackground.build(pts, voxel=cfg.voxel, min_fraction=cfg.min_fraction)
+        if cfg.carve and valid.any() and scans.usable(k):
+            free.append(_free_keys(Pw, valid, scans.poses[k], cfg))
+    bg = VoxelBackground.build(pts, voxel=cfg.voxel, min_fraction=cfg.min_fraction)
+    if not cfg.carve or not free or len(bg.keys) == 0:
+        return bg
+    occ = np.zeros(len(bg.keys), np.int64)
+    for p in pts:
+        k = np.unique(_keys(voxel_index(p, cfg.voxel)))
+        occ += np.isin(bg.keys, k, assume_unique=True)
+    fr = np.zeros(len(bg.keys), np.int64)
+    for f in free:
+        fr += np.isin(bg.keys, f, assume_unique=True)
+    keep = occ >= cfg.min_fraction * (occ + fr)
+    keys = bg.keys[keep]
+    return VoxelBackground(bg.voxel, keys, _dilate(keys), bg.hits[keep], bg.n_scans)
+
+
+def _free_keys(Pw: np.ndarray, valid: np.ndarray, T: np.ndarray, cfg: SegmentConfig) -> np.ndarray:
+    """Sorted unique keys of the voxels a scan's (subsampled) beams pass through before their return."""
+    from .background import _keys, voxel_index
+
+    s = max(1, int(cfg.carve_stride))
+    sub = np.zeros_like(valid)
+    sub[::max(1, s // 2), ::s] = True
+    sel = valid & sub
+    end = Pw[sel]
+    o = T[:3, 3]
+    d = end - o
+    r = np.linalg.norm(d, axis=1)
+    d /= np.maximum(r, 1e-9)[:, None]
+    step = cfg.voxel / 2
+    stop = r - 1.5 * cfg.voxel
+    ts = np.arange(0.3, float(stop.max(initial=0.0)), step)
+    if len(ts) == 0:
+        return np.zeros(0, np.int64)
+    keys = []
+    for a in range(0, len(ts), 16):
+        t = ts[a:a + 16]
+        ok = t[None, :] < stop[:, None]
+        q = o + d[:, None, :] * t[None, :, None]
+        keys.append(np.unique(_keys(voxel_index(q[ok], cfg.voxel))))
+    return np.unique(np.concatenate(keys))
 
 
 def in_background(bg, points_world: np.ndarray, tolerance_voxels: int = 0) -> np.ndarray:
@@ -372,7 +474,10 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
                 continue
             bgm = np.zeros(valid.shape, bool)
             bgm[valid] = in_background(bg, Pw[valid], cfg.tolerance_voxels)
-            out[i] = segment_scan(P, valid, bgm, cfg, points_world=np.where(valid[..., None], Pw, 0.0))
+            near = np.zeros(valid.shape, bool)
+            near[valid] = in_background(bg, Pw[valid], 1)
+            out[i] = segment_scan(P, valid, bgm, cfg, points_world=np.where(valid[..., None], Pw, 0.0),
+                                  background_near=near)
             counts.append(int(out[i].max()))
         arr.write_shard(s, out)
     return {"scene": sid, "frames": scene.n_frames, "array": INSTANCE_ARRAY, "background_voxels": int(len(bg)),
