@@ -14,20 +14,21 @@ import click
 @click.option("--max-range", type=click.FloatRange(min=0, min_open=True), default=None,
               help="LiDAR max range in metres (default: from the data).")
 @click.option("--no-refine", is_flag=True, help="Bare kiss-icp poses (no open3d scan-to-map refinement).")
-@click.option("--mesh-method", type=click.Choice(["poisson", "bpa", "tsdf"]), default="poisson", show_default=True,
+@click.option("--mesh-method", type=click.Choice(["poisson", "bpa"]), default="poisson", show_default=True,
               help="Surface reconstruction of the static scene.")
-@click.option("--mesh-voxel", default=0.03, show_default=True, type=click.FloatRange(0.005, 0.5),
-              help="Resolution of the merged static cloud / TSDF voxels in metres.")
+@click.option("--mesh-voxel", default=0.04, show_default=True, type=click.FloatRange(0.005, 0.5),
+              help="Resolution of the merged (voxel-averaged) static cloud in metres.")
 @click.option("--no-mesh", is_flag=True, help="Poses only.")
 @click.option("--ply", type=click.Path(dir_okay=False), help="Also export the mesh as PLY (one scene only).")
 @click.option("--tum", type=click.Path(dir_okay=False), help="Also export the LiDAR trajectory as TUM text (one scene only).")
 @click.option("--truth", type=click.Path(file_okay=False), help="A holodata synth truth/ folder: print ATE/RPE and mesh "
               "Chamfer/F-scores against it (one scene only).")
 @click.option("--report", type=click.Path(file_okay=False), help="With --truth: folder for accuracy.json and PNG plots.")
+@click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def slam(dataset, scenes, voxel, max_range, no_refine, mesh_method, mesh_voxel, no_mesh, ply, tum, truth, report,
-         quiet, as_json):
+         force, quiet, as_json):
     """Estimate the LiDAR pose of every scan (kiss-icp, refined by scan-to-map point-to-plane ICP),
     the radar poses through the extrinsic, and a mesh of the static scene (moving points removed);
     writes pose/T_world_lidar, pose/T_world_radar, mesh/vertices, mesh/faces into the scene.
@@ -47,7 +48,7 @@ def slam(dataset, scenes, voxel, max_range, no_refine, mesh_method, mesh_voxel, 
     cfg = SlamConfig(voxel=voxel, max_range=max_range, refine=not no_refine, mesh=not no_mesh)
     mcfg = MeshConfig(method=mesh_method, voxel=mesh_voxel)
     results = slam_dataset(dataset, list(scenes) or None, config=cfg, mesh_config=mcfg, quiet=quiet, ply=ply, tum=tum,
-                           single_exports=True)
+                           force=force, single_exports=True)
     out = {"dataset": dataset, "scenes": [r.summary for r in results]}
     if truth:
         from holodata.mapping.accuracy import evaluate_slam
@@ -60,6 +61,9 @@ def slam(dataset, scenes, voxel, max_range, no_refine, mesh_method, mesh_voxel, 
         return
     for s in out["scenes"]:
         m = s.get("mesh") or {}
+        if s.get("skipped"):
+            click.echo(f"{dataset}: scene {s['scene']}: {s['skipped']}", err=quiet)
+            continue
         click.echo(f"{dataset}: scene {s['scene']}: {s['scans']} scans, {s['frames']} frames posed, "
                    f"mesh {m.get('faces', 0)} faces ({s['timings'].get('total_s')} s)", err=quiet)
     if truth:

@@ -169,6 +169,15 @@ def test_ouster_layout_lidar_only_slam_poses(slam_run):
     assert np.allclose(tum.poses[:, :3, 3], res.scan_poses[:, :3, 3], atol=1e-6)
     # LiDAR-only, no TF: the first pose is the world origin
     assert np.allclose(res.scan_poses[0], np.eye(4), atol=1e-9)
+    # a rerun with the same inputs and settings reads the finished scene back instead of recomputing
+    from holodata.mapping.mesh import MeshConfig
+    from holodata.mapping.slam import SlamConfig, slam_scene
+
+    again = slam_scene(slam_run["url"], config=SlamConfig(), mesh_config=MeshConfig(voxel=0.04, max_faces=100_000),
+                       quiet=True)
+    assert again.summary.get("skipped") and again.kiss_trajectory() is None
+    assert np.allclose(again.T_world_lidar, res.T_world_lidar) and np.array_equal(again.mesh[1], res.mesh[1])
+    assert np.allclose(again.scan_poses, res.scan_poses)
 
 
 def test_static_mesh_against_analytic_scene_without_the_person(slam_run):

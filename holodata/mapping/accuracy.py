@@ -265,6 +265,8 @@ def evaluate_slam(estimate: Trajectory, mesh: tuple | None, truth_dir, out_dir=N
     res = {"trajectory": trajectory_errors(estimate, truth)}
     curves = {label: res["trajectory"]["ape_m"]}
     for k, tr in (extra_trajectories or {}).items():
+        if tr is None:
+            continue
         res[f"trajectory_{k}"] = trajectory_errors(tr, truth)
         curves[k] = res[f"trajectory_{k}"]["ape_m"]
     if mesh is not None:

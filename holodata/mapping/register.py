@@ -80,6 +80,8 @@ class RegisterConfig:
     min_height_m: float = 0.5
     max_width_m: float = 1.4
     min_points: int = 100
+    track_radius_m: float = 2.0
+    max_speed_mps: float = 2.5
     plane_dist_m: float = 0.05
     plane_min_fraction: float = 0.03
     max_planes: int = 12
@@ -433,8 +435,9 @@ def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) ->
     return alive[inv]
 
 
-def pick_human(points_world: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
-    """Boolean mask of the largest person-like cluster of ``points_world`` (N,3) (z up)."""
+def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray | None = None) -> np.ndarray:
+    """Boolean mask of the largest person-like cluster of ``points_world`` (N,3) (z up); with
+    ``centre`` (3,) only clusters whose centroid is within ``track_radius_m`` (plan) of it count."""
     from .segment import _plan_extent
 
     out = np.zeros(len(points_world), bool)
@@ -447,6 +450,8 @@ def pick_human(points_world: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
             break
         m = lab == c
         p = points_world[m]
+        if centre is not None and np.linalg.norm(p[:, :2].mean(0) - centre[:2]) > cfg.track_radius_m:
+            continue
         if np.ptp(p[:, 2]) >= cfg.min_height_m and _plan_extent(p[:, :2]) <= cfg.max_width_m:
             # stereo noise sprays single points behind/in front of the body: statistical outlier removal
             _, keep = _pcd(p).remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)
@@ -555,13 +560,19 @@ def _parse_init(init) -> np.ndarray | None:
     raise InputError(f"--init needs x,y,z,roll,pitch,yaw (m, degrees), got {init!r}")
 
 
-def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True) -> np.ndarray:
-    """World-frame static map: every scan's returns inside the background model, voxel-thinned."""
-    from .segment import in_background
+def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, dilate_px: int = 4) -> np.ndarray:
+    """World-frame static map: every scan's returns inside the background model and away (by
+    ``dilate_px`` grid pixels) from the scan's segmented instances ``instances`` (lazy (T,H,W) array or
+    None), voxel-thinned. The instance margin removes the parts of people that fall into static voxels
+    (a hand near a wall, feet on the floor), which would otherwise bias the registration."""
+    from .segment import erode, in_background
 
     pts = []
     for k in range(len(scans.stamps)):
         valid, _, Pw = scans.scan(k, traj, deskew)
+        if instances is not None:
+            near = ~erode(~(np.asarray(instances[k]) > 0), dilate_px)  # dilation (columns wrap)
+            valid = valid & ~near
         p = Pw[valid]
         if bg is not None and len(p):
             p = p[in_background(bg, p, 0)]
@@ -600,15 +611,18 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     # 1. map (static part) and LiDAR segmentation
     traj = scans.trajectory()
     scfg = SegmentConfig()
-    bg = build_background(scans, scfg, traj, quiet)
-    M = map_cloud(scans, bg, traj, cfg.map_voxel)
-    if len(M) < 100:
-        raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
-    timings["map_s"] = time.perf_counter() - t0
     seg_summary = None
     if cfg.segment_lidar and "lidar/instance" not in names:
         seg_summary = segment_scene(url, sid, scfg, quiet)
-    timings["segment_s"] = time.perf_counter() - t0 - timings["map_s"]
+        scene = open_dataset(url).scene(sid)
+        scans = LidarScans.open(scene, url)
+    timings["segment_s"] = time.perf_counter() - t0
+    bg = build_background(scans, scfg, traj, quiet)
+    inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
+    M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst)
+    if len(M) < 100:
+        raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
+    timings["map_s"] = time.perf_counter() - t0 - timings["segment_s"]
     # 2. static camera cloud
     t1 = time.perf_counter()
     cam_frames = [k for k in range(n) if len(scene.ragged("camera/points", k))]
@@ -648,7 +662,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         rr = np.zeros(len(static_cam), bool)
         rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
         still[okm] = rr
-    human_pts, thick = [], []
+    human_pts, thick, cand = [], [], []
     w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
     sw = w.scene(sid)
     for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
@@ -665,7 +679,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                 cw_arr.write_shard(s_k, cam_world)
                 cam_world = []
         if not len(p):
-            human_pts.append(np.zeros((0, 3), np.float32))
+            cand.append((np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), D))
             continue
         thr = np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)
         with np.errstate(invalid="ignore"):
@@ -677,14 +691,21 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             dmap, _ = mtree.query(qw, k=1, workers=-1)
             far = dmap > cfg.map_explain_m
             qw, vv, uu = qw[far], vv[far], uu[far]
-        hm = pick_human(qw, cfg)
+        cand.append((qw, vv, uu, D))
+    # the person of interest: person-like clusters near the track's median (people farther away, e.g.
+    # walking past in another corridor, are not it)
+    first = [pick_human(q[0], cfg) for q in cand]
+    cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
+    centre = np.median(cents, axis=0) if len(cents) else None
+    for (qw, vv, uu, D), m0 in zip(cand, first):
+        hm = pick_human(qw, cfg, centre) if centre is not None else m0
         human_pts.append(qw[hm].astype(np.float32))
         thick.append(body_depth(vv[hm], uu[hm], D, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m))
     # velocity compensation: camera stamp -> frame stamp
     ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
     cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
     cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
-    shift = velocity_shift(cen, cts, ts)
+    shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
     surfaces = []
     for k in range(n):
         if len(human_pts[k]) == 0:
@@ -718,7 +739,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     return out
 
 
-def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarray) -> np.ndarray:
+def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
     """(T,3) shifts = velocity · (frame time − camera time), velocity by central differences of the
     centroid track over frames with a detection (zero where it cannot be estimated or the camera
     stamp is missing)."""
@@ -736,6 +757,8 @@ def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarr
             continue
         v = (c[b] - c[a]) / (t[b] - t[a])
         v[2] = 0.0
+        if np.linalg.norm(v) > max_speed:  # a wrong detection next door, not a walking person
+            continue
         out[k] = v * (frame_ts[k] - cam_ts[k]) / 1e9
     return out
 
