@@ -115,8 +115,51 @@ def run_tasks(client, fn, calls: list[tuple], keys: list[str], description: str 
     return [results[k] for k in keys]
 
 
-def _key(prefix: str) -> str:
-    return f"{prefix}-{uuid.uuid4().hex[:12]}"
+def worker_path(path_or_url) -> str:
+    """A dataset/input location as workers must see it: URLs unchanged, local paths absolute
+    (a worker's working directory is not the client's)."""
+    from .dataset.store import is_url
+
+    s = str(path_or_url)
+    if is_url(s):
+        return s
+    return str(Path(s[len("file://"):] if s.startswith("file://") else s).expanduser().absolute())
+
+
+def _for_workers(human):
+    """A human source whose file paths are absolute (HumanFile keeps its mesh in memory)."""
+    import copy
+
+    if getattr(human, "files", None):
+        human = copy.copy(human)
+        human.files = [Path(worker_path(f)) for f in human.files]
+    elif isinstance(getattr(human, "url", None), str):  # HumanDataset: reopened by URL on the worker
+        human = copy.copy(human)
+        human.url = worker_path(human.url)
+    return human
+
+
+# ---------------------------------------------------------------------------------------- workers
+_TUNED: list = []
+
+
+def tune_malloc() -> None:
+    """Undo, in this worker process, the cost of Dask's ``MALLOC_TRIM_THRESHOLD_=65536`` (set by the
+    nanny): with it glibc serves every allocation above 128 KiB by mmap and unmaps it on free, so
+    the per-frame arrays (hundreds of KiB to MiB) are page-faulted in again on every frame — ~40% more
+    CPU for raytrace-gt. Large allocations come from the heap again (below 32 MiB) and the heap is
+    trimmed only above 64 MiB of free memory. glibc only; a no-op elsewhere."""
+    if _TUNED or not os.environ.get("MALLOC_TRIM_THRESHOLD_"):
+        return
+    _TUNED.append(True)
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL("libc.so.6")
+        libc.mallopt(-3, 32 << 20)  # M_MMAP_THRESHOLD
+        libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
+    except (OSError, AttributeError):
+        pass
 
 
 # ---------------------------------------------------------------------------------------- raytrace-gt
@@ -138,16 +181,21 @@ def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: i
     from .dataset import create_dataset
     from .groundtruth import gt_array_specs, trace_shard
 
+    tune_malloc()
     t0 = time.perf_counter()
     tracer = _tracer(token, payload)
     out = trace_shard(tracer, range(start, stop), names)
     t1 = time.perf_counter()
-    cfg = payload["cfg"]
-    w = create_dataset(payload["url"], grid=payload["grid"], range_bins=payload["range_bins"])
-    sc = w.scene(payload["scene_id"])
-    specs = gt_array_specs(cfg.grid, cfg.max_bounces)
-    extra = {"codec": cfg.codec} if cfg.codec else {}
-    written = [name for name in names if sc.frame_array(name, **specs[name], **extra).write_shard(k, out[name])]
+    arrays = getattr(_LOCAL, "arrays", None)
+    if arrays is None or arrays[0] != token:  # the scene's array writers, opened once per worker thread
+        cfg = payload["cfg"]
+        w = create_dataset(payload["url"], grid=payload["grid"], range_bins=payload["range_bins"])
+        sc = w.scene(payload["scene_id"])
+        extra = {"codec": cfg.codec} if cfg.codec else {}
+        arrays = _LOCAL.arrays = (token, {name: sc.frame_array(name, **spec, **extra)
+                                          for name, spec in gt_array_specs(cfg.grid, cfg.max_bounces).items()})
+    # write_shard skips a shard whose manifest exists (asks the store, not only this writer's memory)
+    written = [name for name in names if arrays[1][name].write_shard(k, out[name])]
     try:
         from distributed import get_worker
 
@@ -167,7 +215,7 @@ def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quie
     local = getattr(client, "holodata_local_workers", 0)
     threads = cfg.nthreads or (max(1, _cpus() // local) if local else 0)
     wcfg = replace(cfg, nthreads=threads)
-    payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": human, "url": sc.ds.url,
+    payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": _for_workers(human), "url": worker_path(sc.ds.url),
                "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id}
     token = uuid.uuid4().hex
     [fut] = client.scatter([payload], broadcast=True, hash=False)
@@ -188,6 +236,7 @@ def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dic
     from .dataset import create_dataset
     from .errors import HolodataError, RecordingError
 
+    tune_malloc()
     p = None
     try:
         p = ing.plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
@@ -210,7 +259,8 @@ def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, 
     """One Dask task per recording ``todo`` [(index, path, _)] → scenes ``ids`` of the existing
     dataset ``out``. Returns (scene summaries, failures) in recording order."""
     token = uuid.uuid4().hex[:8]
-    calls = [(str(r), sid, str(out), grid, range_bins, opts) for (_, r, _), sid in zip(todo, ids)]
+    opts = {**opts, **{k: worker_path(opts[k]) for k in ("msg_dir", "meta") if opts.get(k)}}
+    calls = [(worker_path(r), sid, worker_path(out), grid, range_bins, opts) for (_, r, _), sid in zip(todo, ids)]
     keys = [f"ingest-{sid}-{token}" for sid in ids]
     res = run_tasks(client, _ingest_task, calls, keys, description="ingest", quiet=quiet)
     return [r["scene"] for r in res if "scene" in r], [r["failed"] for r in res if "failed" in r]
@@ -220,6 +270,7 @@ def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, 
 def _synth_task(out_dir: str, kwargs: dict) -> dict:
     from .synth import synthesize
 
+    tune_malloc()
     return synthesize(out_dir, **{**kwargs, "quiet": True}).summary()
 
 
@@ -240,7 +291,7 @@ def synth_scenes(out, count: int, seed: int = 0, client=None, quiet: bool = True
     if count < 1:
         raise InputError(f"--count must be >= 1, got {count}")
     out = Path(out)
-    jobs = [(str(out / f"scene_{i:03d}"), {**kwargs, "seed": seed + i}) for i in range(count)]
+    jobs = [(worker_path(out / f"scene_{i:03d}"), {**kwargs, "seed": seed + i}) for i in range(count)]
     for o, _ in jobs:  # fail before any task starts
         if Path(o).exists() and any(Path(o).iterdir()):
             raise InputError(f"{o}: already exists and is not empty; choose an empty --out")

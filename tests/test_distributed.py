@@ -138,12 +138,14 @@ def gt_args(tmp: Path, out: Path, grid="16x64", shard_frames=2) -> list[str]:
             "--processes", "1", "--quiet", "--json"]
 
 
-def test_raytrace_gt_on_cluster_matches_in_process(cluster, tmp_path):
+def test_raytrace_gt_on_cluster_matches_in_process(cluster, tmp_path, monkeypatch):
     addr, _ = cluster
     make_inputs(tmp_path, 10)
     r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "ref.zarr"))
     assert r.exit_code == 0, r.output
-    r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "dask.zarr") + ["--scheduler", addr])
+    # relative paths: the workers run in another directory and get absolute ones
+    monkeypatch.chdir(tmp_path)
+    r = CliRunner().invoke(cli, gt_args(Path("."), Path("dask.zarr")) + ["--scheduler", addr])
     assert r.exit_code == 0, r.output
     s = json.loads(r.output)["scenes"][0]
     assert s["dask_workers"] == 2 and s["shards_written"] == 5
@@ -159,6 +161,21 @@ def test_raytrace_gt_on_cluster_matches_in_process(cluster, tmp_path):
     # rerun through the cluster: everything committed, nothing traced
     r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "dask.zarr") + ["--scheduler", addr])
     assert r.exit_code == 0 and json.loads(r.output)["scenes"][0]["shards_skipped"] == 5
+    # dataset form (mesh, poses from the dataset; no human there) after dropping gt/: in-process vs cluster
+    import shutil
+
+    w = hds.create_dataset("dask.zarr", grid=hds.open_dataset("dask.zarr").grid)
+    for name in [n for n in w.scene("scene").arrays() if n.startswith("gt/")]:
+        w.scene("scene").remove(name)
+    shutil.copytree("dask.zarr", "ds_ref.zarr")
+    form = ["raytrace-gt", "--scene", "scene", "--quiet", "--json"]
+    r = CliRunner().invoke(cli, form + ["ds_ref.zarr", "--processes", "1"])
+    assert r.exit_code == 0, r.output
+    r = CliRunner().invoke(cli, form + ["dask.zarr", "--scheduler", addr])
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["scenes"][0]["shards_written"] == 5
+    got2 = manifests(tmp_path / "dask.zarr")
+    assert got2 == manifests(tmp_path / "ds_ref.zarr") and got2 != ref  # no human this time
 
 
 def test_ingest_on_cluster_matches_in_process(cluster, tmp_path):

@@ -158,3 +158,16 @@ def test_training_reader_on_s3(s3, tmp_path):
     raw = hds.open_dataset(url).scene(s["scene"])
     np.testing.assert_array_equal(s["range"].numpy(), np.asarray(raw["gt/range"][s["frame"]]))
     assert isinstance(s["heatmap"], torch.Tensor)
+
+
+def test_non_object_store_put_goes_through_a_partial_object(tmp_path):
+    """fsspec filesystems other than object stores may write in place: a put writes a hidden
+    ``.partial`` sibling and moves it over the key, leaving nothing else behind."""
+    from holodata.dataset.store import Store
+
+    st = Store(f"local://{tmp_path}/ds")
+    assert not st.local and not st.atomic_put
+    st.put("a/b.json", b"{}")
+    st.put("a/b.json", b"[1]")
+    assert st.get("a/b.json") == b"[1]" and st.list("a") == ["b.json"]
+    assert Store(f"s3://{BUCKET}/x").atomic_put and Store("memory://x").atomic_put

@@ -95,6 +95,8 @@ class Store:
             p = self._p(key)
             d, name = p.rsplit("/", 1) if "/" in p else ("", p)
             tmp = f"{d}/.{name}.{uuid.uuid4().hex}.partial" if d else f".{name}.{uuid.uuid4().hex}.partial"
+            if d:
+                self.fs.makedirs(d, exist_ok=True)
             self.fs.pipe_file(tmp, bytes(data))
             try:
                 self.fs.mv(tmp, p)
