@@ -53,3 +53,12 @@ def test_malformed_tum_names_the_line(tmp_path, content, where):
 def test_missing_tum_file(tmp_path):
     with pytest.raises(InputError, match="cannot read"):
         read_tum(tmp_path / "nope.tum")
+
+
+def test_tum_timestamps_keep_nanoseconds(tmp_path):
+    p = tmp_path / "t.tum"
+    p.write_text("1735693200.548947099 0 0 0 0 0 0 1\n1735693200.6 1 0 0 0 0 0 1\n1.5e0 2 0 0 0 0 0 1\n"
+                 .replace("1.5e0", "1735693201.5e0"))
+    t = read_tum(p).timestamp_ns
+    assert t[0] == 1735693200548947099 and t[1] == 1735693200600000000
+    assert abs(int(t[2]) - 1735693201500000000) < 1000
