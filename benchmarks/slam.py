@@ -12,7 +12,10 @@ Finally slam runs on the real ROS 1 fixture ``../shared/fixtures/ros1/luminar-te
 (must not crash; few poses).
 
     .venv/bin/python benchmarks/slam.py [--frames 40] [--lidar 64x1024] [--corners T,L,cross,oblique]
-                                        [--mesh-methods poisson,bpa] [--keep DIR]
+                                        [--walkers N] [--mesh-methods poisson,bpa] [--raytrace] [--keep DIR]
+
+``--raytrace`` also times ``raytrace-gt`` (default 64x512 grid, 3 bounces) of the same frames through
+the SLAM mesh and radar poses, so the slam runtime can be compared with the stage it feeds.
 
 Floors (issue 9): ATE < 5 cm, mesh F@5cm >= 0.90 (aim ATE < 3 cm, F >= 0.95).
 """
@@ -102,6 +105,18 @@ def run_corner(corner: str, work: Path, args) -> dict:
     Tr = res.T_world_radar
     if Tr is not None and len(Tr) == len(tr):
         row["radar_pose_err_cm"] = float(np.sqrt(np.mean(np.sum((Tr[:, :3, 3] - tr.poses[:, :3, 3]) ** 2, 1)))) * 100
+    if args.raytrace and Tr is not None:
+        # the stage slam must not dominate: raytrace-gt of the same frames at the default 64x512 grid
+        from holodata.groundtruth import GTConfig, raytrace_standalone
+        from holodata.meshio import Mesh, write_ply
+        from holodata.trajectory import write_tum
+
+        sc = open_dataset(url).scene(sid)
+        write_ply(out / "slam_mesh.ply", Mesh(res.mesh[0], res.mesh[1]))
+        write_tum(out / "radar.tum", Trajectory(np.asarray(sc["time/timestamp_ns"][...], np.int64), Tr))
+        t0 = time.perf_counter()
+        raytrace_standalone(out / "slam_mesh.ply", out / "radar.tum", str(out / "gt.zarr"), cfg=GTConfig(), quiet=True)
+        row["raytrace_s"] = round(time.perf_counter() - t0, 1)
     methods = [x for x in args.mesh_methods.split(",") if x]
     if methods:
         sc = open_dataset(url).scene(sid)
@@ -140,6 +155,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--walkers", type=int, default=0, help="people walking in the robot's corridor (visible to LiDAR)")
     ap.add_argument("--mesh-methods", default="", help="also compare these mesh methods, e.g. poisson,bpa")
+    ap.add_argument("--raytrace", action="store_true", help="also time raytrace-gt (64x512, 3 bounces) of the same frames")
     ap.add_argument("--skip-luminar", action="store_true")
     ap.add_argument("--keep", default=None, help="keep the work folder here")
     ap.add_argument("--json", action="store_true")
@@ -156,7 +172,8 @@ def main() -> None:
                   f"  | mesh F@2/5/10 {row['f2']:.3f}/{row['f5']:.3f}/{row['f10']:.3f} CD {row['chamfer_cm']:.2f} cm"
                   f" (obs {row['observed']:.2f})  | radar pose err {row.get('radar_pose_err_cm', float('nan')):.2f} cm"
                   f"  | slam {row['slam_s']:.1f} s = {row['ratio']:.2f}x bare kiss-icp ({row['kiss_s']:.1f} s)  "
-                  f"{json.dumps(row['timings'])}", flush=True)
+                  f"{json.dumps(row['timings'])}"
+                  + (f"  | raytrace-gt 64x512 {row['raytrace_s']:.1f} s" if "raytrace_s" in row else ""), flush=True)
             for meth, r in (row.get("methods") or {}).items():
                 print(f"    mesh {meth:8s} {json.dumps(r)}", flush=True)
         if not args.skip_luminar and LUMINAR.is_file():
