@@ -66,6 +66,7 @@ class SegmentConfig:
     max_instances: int = 0
     deskew: bool = True
     carve: bool = False
+    free_space: bool = True
     grow_pixels: int = 3
     carve_stride: int = 4
 
@@ -371,13 +372,17 @@ def build_background(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bo
     least ``min_fraction`` of the scans that either hit it or saw through it."""
     from .background import VoxelBackground, _dilate, _keys, voxel_index
 
-    pts, free = [], []
+    pts, free, origins = [], [], []
     for k in track(range(len(scans.stamps)), len(scans.stamps), "background", quiet):
         valid, P, Pw = scans.scan(k, traj, cfg.deskew)
+        if not scans.usable(k):
+            continue
         pts.append(Pw[valid].astype(np.float32))
-        if cfg.carve and valid.any() and scans.usable(k):
+        origins.append(scans.poses[k][:3, 3])
+        if cfg.carve and valid.any():
             free.append(_free_keys(Pw, valid, scans.poses[k], cfg))
-    bg = VoxelBackground.build(pts, voxel=cfg.voxel, min_fraction=cfg.min_fraction)
+    bg = VoxelBackground.build(pts, voxel=cfg.voxel, min_fraction=cfg.min_fraction,
+                               origins=np.array(origins) if cfg.free_space and origins else None)
     if not cfg.carve or not free or len(bg.keys) == 0:
         return bg
     occ = np.zeros(len(bg.keys), np.int64)
