@@ -65,10 +65,8 @@ class SegmentConfig:
     min_depth_m: float = 0.06
     max_instances: int = 0
     deskew: bool = True
-    carve: bool = False
     free_space: bool = True
     grow_pixels: int = 3
-    carve_stride: int = 4
 
     def to_attrs(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}
@@ -362,66 +360,22 @@ class LidarScans:
 
 
 def build_background(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bool = True):
-    """Voxel background model of a scene's scans (world frame), with free-space carving.
+    """Voxel background model of a scene's scans (world frame). With ``cfg.free_space`` the scan
+    origins go to :meth:`VoxelBackground.build` (free-space test: a voxel people walk through is seen
+    through by other scans and drops out; measured AP50 0.96 vs 0.94 with the occupancy count on a
+    60-frame corner with two walkers)."""
+    from .background import VoxelBackground
 
-    :class:`VoxelBackground` counts a voxel as observed by a scan when the scan has returns near it,
-    so a voxel in open space (a corridor's middle) is "observed" only by the person passing through
-    it and a person walking the same lane again and again becomes background. Here every scan's
-    beams also *pass through* voxels (``carve_stride`` subsampled beams, sampled every half voxel up
-    to 1.5 voxels before the return): a background voxel stays background only if it was hit in at
-    least ``min_fraction`` of the scans that either hit it or saw through it."""
-    from .background import VoxelBackground, _dilate, _keys, voxel_index
-
-    pts, free, origins = [], [], []
+    pts, origins = [], []
     for k in track(range(len(scans.stamps)), len(scans.stamps), "background", quiet):
         valid, P, Pw = scans.scan(k, traj, cfg.deskew)
         if not scans.usable(k):
             continue
         pts.append(Pw[valid].astype(np.float32))
         origins.append(scans.poses[k][:3, 3])
-        if cfg.carve and valid.any():
-            free.append(_free_keys(Pw, valid, scans.poses[k], cfg))
     bg = VoxelBackground.build(pts, voxel=cfg.voxel, min_fraction=cfg.min_fraction,
                                origins=np.array(origins) if cfg.free_space and origins else None)
-    if not cfg.carve or not free or len(bg.keys) == 0:
-        return bg
-    occ = np.zeros(len(bg.keys), np.int64)
-    for p in pts:
-        k = np.unique(_keys(voxel_index(p, cfg.voxel)))
-        occ += np.isin(bg.keys, k, assume_unique=True)
-    fr = np.zeros(len(bg.keys), np.int64)
-    for f in free:
-        fr += np.isin(bg.keys, f, assume_unique=True)
-    keep = occ >= cfg.min_fraction * (occ + fr)
-    keys = bg.keys[keep]
-    return VoxelBackground(bg.voxel, keys, _dilate(keys), bg.hits[keep], bg.n_scans)
-
-
-def _free_keys(Pw: np.ndarray, valid: np.ndarray, T: np.ndarray, cfg: SegmentConfig) -> np.ndarray:
-    """Sorted unique keys of the voxels a scan's (subsampled) beams pass through before their return."""
-    from .background import _keys, voxel_index
-
-    s = max(1, int(cfg.carve_stride))
-    sub = np.zeros_like(valid)
-    sub[::max(1, s // 2), ::s] = True
-    sel = valid & sub
-    end = Pw[sel]
-    o = T[:3, 3]
-    d = end - o
-    r = np.linalg.norm(d, axis=1)
-    d /= np.maximum(r, 1e-9)[:, None]
-    step = cfg.voxel / 2
-    stop = r - 1.5 * cfg.voxel
-    ts = np.arange(0.3, float(stop.max(initial=0.0)), step)
-    if len(ts) == 0:
-        return np.zeros(0, np.int64)
-    keys = []
-    for a in range(0, len(ts), 16):
-        t = ts[a:a + 16]
-        ok = t[None, :] < stop[:, None]
-        q = o + d[:, None, :] * t[None, :, None]
-        keys.append(np.unique(_keys(voxel_index(q[ok], cfg.voxel))))
-    return np.unique(np.concatenate(keys))
+    return bg
 
 
 def in_background(bg, points_world: np.ndarray, tolerance_voxels: int = 0) -> np.ndarray:
