@@ -271,3 +271,29 @@ def test_cli_scene_without_lidar(tmp_path):
     assert r.exit_code == 1 and "lidar/points" in r.output and r.output.strip().count("\n") == 0
     r = CliRunner().invoke(cli, ["slam", str(tmp_path / "d.zarr"), "--scene", "nope"], obj={})
     assert r.exit_code == 1 and "nope" in r.output
+
+
+def _square(z, half=1.0):
+    v = np.array([[-half, -half, z], [half, -half, z], [half, half, z], [-half, half, z]], float)
+    return v, np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def test_mesh_errors_analytic_occlusion_aware():
+    from holodata.mapping.accuracy import mesh_errors
+
+    tv, tf = _merge([_square(0.0), _square(-1.0)])     # the lower square is hidden below the upper one
+    pose = np.eye(4)
+    pose[:3, 3] = [0, 0, 2.0]                          # sensor above, looking at everything below
+    ev, ef = _square(0.03)                             # estimate: the upper square, 3 cm too high
+    m = mesh_errors(ev, ef, tv, tf, sensor_poses=pose[None], sample_spacing=0.02)
+    assert abs(m["observed_fraction"] - 0.5) < 0.02
+    assert m["precision_2cm"] == 0.0 and m["recall_2cm"] == 0.0 and m["f_2cm"] == 0.0
+    assert m["precision_5cm"] == 1.0 and m["recall_5cm"] == 1.0 and m["f_5cm"] == 1.0
+    assert abs(m["chamfer_m"] - 0.06) < 1e-3             # 3 cm each way (sum of the two means)
+    # without visibility the hidden square counts against completeness
+    m2 = mesh_errors(ev, ef, tv, tf, sensor_poses=None, sample_spacing=0.02)
+    assert abs(m2["recall_5cm"] - 0.5) < 0.02
+    # invented surface in free space counts against precision
+    ev3, ef3 = _merge([_square(0.0), _square(1.0, half=0.5)])
+    m3 = mesh_errors(ev3, ef3, tv, tf, sensor_poses=pose[None], sample_spacing=0.02)
+    assert m3["recall_2cm"] == 1.0 and abs(m3["precision_2cm"] - 4 / 5) < 0.02

@@ -15,9 +15,9 @@ Mesh (occlusion-aware, Skoltech3D style): both meshes are sampled uniformly by a
 ``RaycastingScene.compute_distance``). A true-mesh sample counts towards completeness (recall)
 only if the LiDAR observed it: seen unoccluded (first hit within ``visibility_tol``) from at
 least one true LiDAR pose, within the LiDAR's range limits and vertical field of view.
-precision(τ) = share of estimated samples within τ of the true mesh (restricted to the observed
-region's neighbourhood: estimated samples farther than ``crop`` from any observed true sample are
-ignored, as Skoltech3D crops to the reference's bounding volume), recall(τ) = share of observed
+precision(τ) = share of estimated samples within τ of the true mesh (estimated samples whose nearest
+true sample is an unobserved one are ignored — surface the LiDAR never saw cannot be judged — while
+samples in free space still count), recall(τ) = share of observed
 true samples within τ of the estimate, F = 2PR/(P+R), at τ = 2, 5, 10 cm. Chamfer distance =
 mean(acc) + mean(comp) (sum, DESIGN §5).
 """
@@ -157,7 +157,7 @@ def observed_mask(vertices, faces, samples: np.ndarray, sensor_poses: np.ndarray
 
 
 def mesh_errors(est_vertices, est_faces, true_vertices, true_faces, sensor_poses=None, taus=TAUS,
-                sample_spacing: float = 0.02, lidar: dict | None = None, crop: float = 0.3) -> dict:
+                sample_spacing: float = 0.02, lidar: dict | None = None) -> dict:
     """Occlusion-aware Chamfer and precision/recall/F at ``taus`` (see module doc). ``sensor_poses``:
     true LiDAR poses for visibility (None: every true sample counts). ``lidar``: {min_range_m,
     max_range_m, fov_deg: (min, max)}. Returns metres / fractions, plus the raw distance arrays
@@ -177,8 +177,10 @@ def mesh_errors(est_vertices, est_faces, true_vertices, true_faces, sensor_poses
         obs = np.ones(len(ts), bool)
     ts_obs = ts[obs]
     es = sample_mesh(ev, ef, sample_spacing)
-    near = cKDTree(ts_obs).query(es, k=1, distance_upper_bound=crop)[0] <= crop if len(ts_obs) else np.zeros(len(es), bool)
-    es = es[near]
+    # precision only where the truth was observed: drop estimated samples whose nearest true sample
+    # is an unobserved one (surface the LiDAR never saw); samples in free space still count
+    _, nn = cKDTree(ts).query(es, k=1)
+    es = es[obs[nn]]
     acc = mesh_distance(tv, tf, es)          # estimate → truth
     comp = mesh_distance(ev, ef, ts_obs)     # observed truth → estimate
     out = {"chamfer_m": float(acc.mean() + comp.mean()) if len(acc) and len(comp) else float("nan"),
