@@ -435,11 +435,21 @@ def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) ->
     return alive[inv]
 
 
+def _robust_plan_extent(xy: np.ndarray) -> float:
+    """Plan extent (m) along the principal axes, 2-98 % spread (stereo noise sprays a few points far
+    behind a person)."""
+    if len(xy) < 4:
+        return 0.0
+    c = xy - xy.mean(0)
+    _, vec = np.linalg.eigh(c.T @ c)
+    q = c @ vec
+    lo, hi = np.percentile(q, [2, 98], axis=0)
+    return float((hi - lo).max())
+
+
 def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray | None = None) -> np.ndarray:
     """Boolean mask of the largest person-like cluster of ``points_world`` (N,3) (z up); with
     ``centre`` (3,) only clusters whose centroid is within ``track_radius_m`` (plan) of it count."""
-    from .segment import _plan_extent
-
     out = np.zeros(len(points_world), bool)
     if len(points_world) < cfg.min_points:
         return out
@@ -452,7 +462,7 @@ def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray
         p = points_world[m]
         if centre is not None and np.linalg.norm(p[:, :2].mean(0) - centre[:2]) > cfg.track_radius_m:
             continue
-        if np.ptp(p[:, 2]) >= cfg.min_height_m and _plan_extent(p[:, :2]) <= cfg.max_width_m:
+        if np.ptp(p[:, 2]) >= cfg.min_height_m and _robust_plan_extent(p[:, :2]) <= cfg.max_width_m:
             # stereo noise sprays single points behind/in front of the body: statistical outlier removal
             _, keep = _pcd(p).remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)
             idx = np.flatnonzero(m)
@@ -765,4 +775,5 @@ def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarr
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
            "check_alignment", "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
-           "CameraFrames", "register_scene", "velocity_shift", "map_cloud"]
+           "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual", "body_depth",
+           "weighted_icp", "depth_noise_model"]

@@ -1,0 +1,27 @@
+"""A small synthetic corner for the mapping tests (part B): recorded with people walking in the robot's
+corridor (visible to the LiDAR), ingested, with the *true* LiDAR/radar poses written into the dataset
+(so segmentation and registration are tested without SLAM error). Built once per test process."""
+from __future__ import annotations
+
+import functools
+import tempfile
+from pathlib import Path
+
+
+@functools.lru_cache(maxsize=None)
+def small_corner() -> tuple[str, str]:
+    """(dataset path, truth dir) of an L corner, 10 radar frames, 2 visible walkers, standing or walking
+    human per the seed."""
+    from holodata.conventions import Grid, RangeBins
+    from holodata.ingest import ingest
+    from holodata.mapping.human_eval import write_truth_poses
+    from holodata.synth import synthesize
+
+    root = Path(tempfile.mkdtemp(prefix="holodata-mapping-"))
+    res = synthesize(root / "rec", corner="L", width=2.2, frames=10, seed=1, grid=Grid(8, 32),
+                     range_bins=RangeBins(n=64), lidar_shape=(32, 512), camera_shape=(188, 336), quiet=True,
+                     visible_walkers=2)
+    url = str(root / "ds.zarr")
+    ingest([res.recording], url, quiet=True)
+    write_truth_poses(url, "recording", res.truth_dir)
+    return url, str(res.truth_dir)
