@@ -84,7 +84,7 @@ def run_corner(corner: str, work: Path, args) -> dict:
     t_ing = time.perf_counter() - t0
     sid = ing["scenes"][0]["scene"]
     t0 = time.perf_counter()
-    res = S.slam_scene(url, sid, quiet=True)
+    res = S.slam_scene(url, sid, config=S.SlamConfig(global_pass=args.global_pass), quiet=True)
     t_slam = time.perf_counter() - t0
     t_kiss, ktraj = bare_kiss(url, sid)
     acc = evaluate_slam(res.trajectory(), res.mesh, syn.truth_dir, out_dir=out / "report",
@@ -155,6 +155,7 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--walkers", type=int, default=0, help="people walking in the robot's corridor (visible to LiDAR)")
     ap.add_argument("--mesh-methods", default="", help="also compare these mesh methods, e.g. poisson,bpa")
+    ap.add_argument("--global-pass", action="store_true", help="slam's second refinement pass against the whole map")
     ap.add_argument("--raytrace", action="store_true", help="also time raytrace-gt (64x512, 3 bounces) of the same frames")
     ap.add_argument("--skip-luminar", action="store_true")
     ap.add_argument("--keep", default=None, help="keep the work folder here")

@@ -14,6 +14,8 @@ import click
 @click.option("--max-range", type=click.FloatRange(min=0, min_open=True), default=None,
               help="LiDAR max range in metres (default: from the data).")
 @click.option("--no-refine", is_flag=True, help="Bare kiss-icp poses (no open3d scan-to-map refinement).")
+@click.option("--global-pass", is_flag=True, help="A second refinement pass of every scan against the whole static map "
+              "(slower; mm-level gain on synthetic corners).")
 @click.option("--mesh-method", type=click.Choice(["poisson", "bpa"]), default="poisson", show_default=True,
               help="Surface reconstruction of the static scene.")
 @click.option("--mesh-voxel", default=0.04, show_default=True, type=click.FloatRange(0.005, 0.5),
@@ -27,7 +29,7 @@ import click
 @click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def slam(dataset, scenes, voxel, max_range, no_refine, mesh_method, mesh_voxel, no_mesh, ply, tum, truth, report,
+def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method, mesh_voxel, no_mesh, ply, tum, truth, report,
          force, quiet, as_json):
     """Estimate the LiDAR pose of every scan (kiss-icp, refined by scan-to-map point-to-plane ICP),
     the radar poses through the extrinsic, and a mesh of the static scene (moving points removed);
@@ -45,7 +47,7 @@ def slam(dataset, scenes, voxel, max_range, no_refine, mesh_method, mesh_voxel, 
         raise click.UsageError("--ply/--tum/--truth need a single --scene")
     if report and not truth:
         raise click.UsageError("--report needs --truth")
-    cfg = SlamConfig(voxel=voxel, max_range=max_range, refine=not no_refine, mesh=not no_mesh)
+    cfg = SlamConfig(voxel=voxel, max_range=max_range, refine=not no_refine, global_pass=global_pass, mesh=not no_mesh)
     mcfg = MeshConfig(method=mesh_method, voxel=mesh_voxel)
     results = slam_dataset(dataset, list(scenes) or None, config=cfg, mesh_config=mcfg, quiet=quiet, ply=ply, tum=tum,
                            force=force, single_exports=True)
