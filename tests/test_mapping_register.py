@@ -1,0 +1,144 @@
+"""Camera-to-map registration and human surfaces (holodata.mapping.register)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from scipy.spatial.transform import Rotation
+
+from holodata.mapping.human_eval import extrinsic_error, solid_centroid
+from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, register_extrinsic,
+                                       velocity_shift, voxel_boundary)
+
+
+def _room(rng, n=60000):
+    """Points on a corner of a room with a few boxes (non-degenerate for ICP): floor z=0, walls x=0 and
+    y=0, ceiling z=2.5, boxes. (N,3) world."""
+    parts = []
+    u = rng.uniform(size=(n // 6, 2))
+    parts.append(np.c_[u[:, 0] * 4, u[:, 1] * 4, np.zeros(len(u))])
+    parts.append(np.c_[np.zeros(len(u)), u[:, 0] * 4, u[:, 1] * 2.5])
+    parts.append(np.c_[u[:, 0] * 4, np.zeros(len(u)), u[:, 1] * 2.5])
+    parts.append(np.c_[u[:, 0] * 4, u[:, 1] * 4, np.full(len(u), 2.5)])
+    for c, s in (((1.5, 1.0, 0.3), (0.6, 0.4, 0.6)), ((2.6, 2.4, 0.5), (0.5, 0.8, 1.0))):
+        q = rng.uniform(-0.5, 0.5, size=(n // 12, 3)) * s
+        ax = rng.integers(0, 3, len(q))
+        q[np.arange(len(q)), ax] = np.sign(rng.uniform(-1, 1, len(q))) * np.asarray(s)[ax] / 2
+        parts.append(q + c)
+    return np.concatenate(parts)
+
+
+def _pose(t, rotvec_deg):
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_rotvec(np.deg2rad(rotvec_deg)).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+def test_icp_recovers_a_known_rigid_transform():
+    rng = np.random.default_rng(0)
+    world = _room(rng)
+    T_true = _pose([3.2, 3.1, 1.4], [5.0, -8.0, 200.0])
+    # the camera sees part of the room, with 3 mm noise, in its own frame
+    seen = world[(world[:, 0] < 3.0) & (world[:, 1] < 3.0)]
+    cam = (seen - T_true[:3, 3]) @ T_true[:3, :3] + rng.normal(0, 0.003, seen.shape)
+    init = T_true @ _pose([0.06, -0.04, 0.03], [1.5, -2.0, 2.5])
+    assert extrinsic_error(init, T_true)["trans_cm"] > 5
+    reg = register_extrinsic(cam, world, init, RegisterConfig(min_overlap_points=100), allow_fallback=False)
+    e = extrinsic_error(reg.T, T_true)
+    assert reg.accepted and reg.method == "icp"
+    assert e["trans_cm"] < 1.0 and e["rot_deg"] < 0.5, e
+
+
+def test_fallback_is_rejected_when_nothing_fits():
+    rng = np.random.default_rng(1)
+    world = _room(rng, 20000)
+    junk = rng.uniform(-3, 3, size=(8000, 3)) * np.array([1, 1, 0.3])   # no structure of the map
+    reg = register_extrinsic(junk, world, _pose([10.0, 10.0, 0.0], [0, 0, 30]), RegisterConfig(min_overlap_points=100))
+    assert [a["method"] for a in reg.attempts] == ["icp", "fpfh+icp"]
+    assert not reg.accepted
+    assert all(not a["accepted"] for a in reg.attempts)
+
+
+def test_voxel_boundary_is_closed_and_outward():
+    occ = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1], [3, 0, 0]])   # an L plus a separate cube
+    v, f = voxel_boundary(occ, 0.1)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert (counts % 2 == 0).all()                                   # closed: every edge paired
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    vol = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    assert vol == pytest.approx(len(occ) * 0.1 ** 3, rel=1e-9)        # outward, exact volume
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+    assert area == pytest.approx((4 * 6 - 2 * 3 + 6) * 0.01, rel=1e-9)  # 18 + 6 exposed unit faces
+    # the enclosed solid's centre of mass is the mean of the voxel centres
+    np.testing.assert_allclose(solid_centroid(v, f, 0.01), (occ + 0.5).mean(0) * 0.1, atol=2e-3)
+
+
+def test_closed_surface_extrudes_away_from_the_camera():
+    pts = np.stack(np.meshgrid(np.linspace(-0.2, 0.2, 21), [2.0], np.linspace(0.0, 1.6, 41)), -1).reshape(-1, 3)
+    eye = np.array([0.0, 0.0, 1.0])
+    v, f = closed_surface(pts, eye, 0.2, 0.04)
+    assert len(f) and v[:, 1].min() == pytest.approx(2.0, abs=0.041) and v[:, 1].max() == pytest.approx(2.2, abs=0.081)
+    # horizontal extrusion: the volume's height is the visible height (not pushed down the rays)
+    assert v[:, 2].min() >= -0.04 and v[:, 2].max() <= 1.64 + 1e-9
+    # body depth from the run width: a 0.40 m wide run at 2 m with f = 200 px -> 40 px -> clipped
+    rows = np.zeros(40, np.int64)
+    cols = np.arange(40)
+    D = np.full((1, 40), 2.0)
+    np.testing.assert_allclose(body_depth(rows, cols, D, 200.0, 0.06, 0.22), 0.22)
+    np.testing.assert_allclose(body_depth(rows[:5], cols[:5], D, 200.0, 0.06, 0.22), 0.06)
+    np.testing.assert_allclose(body_depth(rows[:16], cols[:16], D, 200.0, 0.06, 0.22), 0.16)
+
+
+def test_velocity_shift():
+    c = np.array([[0.0, 0, 1], [0.5, 0, 1], [1.0, 0, 1], [np.nan, np.nan, np.nan]])
+    cam = np.array([1000, 1500, 2000, 2500]) * 1_000_000   # 0 would mean "no camera frame"
+    fr = cam + 50_000_000
+    s = velocity_shift(c, cam, fr)
+    np.testing.assert_allclose(s[:3], [[0.05, 0, 0]] * 3)     # 1 m/s for 50 ms
+    np.testing.assert_allclose(s[3], 0)
+    c[1, 0] = 5.0                                              # implausible jump: no shift
+    assert np.abs(velocity_shift(c, cam, fr)[0]).sum() == 0
+
+
+def test_register_scene_end_to_end_and_raytrace_reads_the_human():
+    from _mapping_synth import small_corner
+
+    from holodata import open_dataset
+    from holodata.groundtruth import HumanDataset
+    from holodata.mapping.human_eval import human_centroid_errors, truth_camera_extrinsic
+    from holodata.mapping.register import register_scene
+
+    url, truth = small_corner()
+    res = register_scene(url, "recording", cfg=RegisterConfig(segment_lidar=False))
+    sc = open_dataset(url).scene("recording")
+    T = np.asarray(sc["calib/T_world_camera"][...])
+    e = extrinsic_error(T, truth_camera_extrinsic(truth))
+    assert res["extrinsic"]["accepted"] and e["trans_cm"] < 5 and e["rot_deg"] < 1, e
+    assert res["frames_with_human"] >= sc.n_frames // 2
+    h = human_centroid_errors(url, "recording", truth)
+    assert h["median_cm"] < 15, h
+    src = HumanDataset(url, "recording", sc)
+    assert src.kind == "dataset:human/vertices+faces"
+    k = int(np.flatnonzero([len(sc.ragged("human/faces", i)) for i in range(sc.n_frames)])[0])
+    v, f = src(k)
+    assert f.max() < len(v) and np.isfinite(v).all()
+    cw = sc.ragged("camera/points_world", k)
+    assert len(cw) == len(sc.ragged("camera/points", k))
+
+
+def test_cli_bad_input_one_line_exit_1(tmp_path):
+    from holodata.cli.main import cli
+
+    r = CliRunner().invoke(cli, ["register", str(tmp_path / "missing.zarr")])
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1 and "missing.zarr" in r.output
+    r = CliRunner().invoke(cli, ["register", str(tmp_path / "missing.zarr"), "--init", "1,2,3"])
+    assert r.exit_code == 2 and "--init" in r.output
+    # a dataset without poses: one line naming the problem
+    from holodata.dataset import create_dataset
+
+    w = create_dataset(str(tmp_path / "d.zarr"))
+    w.scene("s", n_frames=2)
+    r = CliRunner().invoke(cli, ["register", str(tmp_path / "d.zarr")])
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1 and "camera/points" in r.output
