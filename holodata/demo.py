@@ -8,7 +8,7 @@ raytrace-gt needs. ``mapping="slam"`` runs holodata's own stages (``holodata sla
 ``holodata register``) on the ingested LiDAR and camera data; ``mapping="truth"`` copies them from
 the recordings' hidden ``truth/`` folders (an oracle: the ground truth is then exact, which
 separates mapping errors from learning errors). ``"auto"`` uses slam when holodata.mapping is
-installed (slam_scene and register_scene), else truth.
+installed, else truth.
 
 Every stage is resumable: rerunning ``demo`` on the same ``out_dir`` skips finished recordings,
 shards and epochs.
@@ -168,11 +168,10 @@ def resolve_mapping(mapping: str) -> str:
 
 
 def _has_mapping() -> bool:
-    if importlib.util.find_spec("holodata.mapping") is None:
+    try:
+        return all(importlib.util.find_spec(f"holodata.mapping.{m}") is not None for m in ("slam", "register"))
+    except ModuleNotFoundError:
         return False
-    import holodata.mapping as m
-
-    return all(hasattr(m, name) for name in ("slam_scene", "register_scene"))
 
 
 def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> dict:
@@ -264,7 +263,8 @@ def map_from_truth(sc, truth_dir: Path) -> None:
 def map_with_slam(url: str, sid: str, quiet: bool = True) -> None:
     """holodata's own mapping: ``slam`` (LiDAR poses, radar poses, static mesh) then ``register``
     (camera extrinsic, per-frame human surfaces)."""
-    from .mapping import register_scene, slam_scene
+    from .mapping.register import register_scene
+    from .mapping.slam import slam_scene
 
     slam_scene(url, sid, quiet=quiet)
     register_scene(url, sid, quiet=quiet)
