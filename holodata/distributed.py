@@ -96,7 +96,7 @@ def n_workers(client) -> int:
 
 
 def run_tasks(client, fn, calls: list[tuple], keys: list[str], description: str = "", quiet: bool = True,
-              retries: int = TASK_RETRIES, resources=None) -> list:
+              retries: int = TASK_RETRIES) -> list:
     """Submit ``fn(*args)`` for every ``args`` in ``calls`` (task keys ``keys``), show progress over
     completions, return the results in submission order. The first task error is re-raised (its
     original type, e.g. a HolodataError) after cancelling the rest."""
