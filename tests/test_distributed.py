@@ -71,7 +71,8 @@ def dask_cluster(tmp: Path, n_workers: int = 2):
         log = open(tmp / "scheduler.log", "wb")
         logs.append(log)
         procs.append(subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                              "--no-dashboard"], stdout=log, stderr=subprocess.STDOUT, env=env))
+                                              "--no-dashboard", "--scheduler-file", str(tmp / "scheduler.json")],
+                                      stdout=log, stderr=subprocess.STDOUT, env=env))
         for i in range(n_workers):
             log = open(tmp / f"worker{i}.log", "wb")
             logs.append(log)
@@ -103,8 +104,8 @@ def dask_cluster(tmp: Path, n_workers: int = 2):
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("dask")
-    with dask_cluster(tmp) as c:
-        yield c
+    with dask_cluster(tmp) as (addr, workers):
+        yield addr, workers, str(tmp / "scheduler.json")
 
 
 def manifests(url) -> dict:
@@ -139,7 +140,7 @@ def gt_args(tmp: Path, out: Path, grid="16x64", shard_frames=2) -> list[str]:
 
 
 def test_raytrace_gt_on_cluster_matches_in_process(cluster, tmp_path, monkeypatch):
-    addr, _ = cluster
+    addr, *_ = cluster
     make_inputs(tmp_path, 10)
     r = CliRunner().invoke(cli, gt_args(tmp_path, tmp_path / "ref.zarr"))
     assert r.exit_code == 0, r.output
@@ -179,13 +180,14 @@ def test_raytrace_gt_on_cluster_matches_in_process(cluster, tmp_path, monkeypatc
 
 
 def test_ingest_on_cluster_matches_in_process(cluster, tmp_path):
-    addr, _ = cluster
+    addr, _, sched_file = cluster
     write_recording(tmp_path / "a", "mcap", n_radar=5)
     write_recording(tmp_path / "b.bag", "rosbag1", n_radar=6)
     recs = [str(tmp_path / "a"), str(tmp_path / "b.bag")]
     r = CliRunner().invoke(cli, ["ingest", *recs, "--out", str(tmp_path / "ref.zarr"), "--quiet", "--json"])
     assert r.exit_code == 0, r.output
-    r = CliRunner().invoke(cli, ["ingest", *recs, "--out", str(tmp_path / "dask.zarr"), "--scheduler", addr,
+    # the scheduler file (as dask-jobqueue / `dask scheduler --scheduler-file` write it) instead of the address
+    r = CliRunner().invoke(cli, ["ingest", *recs, "--out", str(tmp_path / "dask.zarr"), "--scheduler", sched_file,
                                  "--quiet", "--json"])
     assert r.exit_code == 0, r.output
     assert [s["scene"] for s in json.loads(r.output)["scenes"]] == ["a", "b"]
@@ -255,7 +257,7 @@ def test_worker_killed_mid_job_still_completes_identically(tmp_path):
 def test_synth_count_on_cluster_matches_in_process(cluster, tmp_path):
     import hashlib
 
-    addr, _ = cluster
+    addr, *_ = cluster
     args = ["synth", "--count", "2", "--seed", "5", "--frames", "2", "--grid", "8x32", "--range-bins", "16",
             "--lidar", "16x128", "--camera", "24x32", "--quiet", "--json"]
     r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "ref")])
