@@ -381,25 +381,28 @@ def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------------ humans
 def cluster_points(points: np.ndarray, dist: float) -> np.ndarray:
     """Connected components of points (N,3) whose voxels (edge ``dist``) touch (26-neighbourhood):
-    labels (N,) int64 0..n-1."""
+    labels (N,) int64 0..n-1 (vectorised: packed voxel keys, sorted, neighbour lookup by searchsorted)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
+
+    from .background import _keys
 
     if len(points) == 0:
         return np.zeros(0, np.int64)
     ijk = np.floor(np.asarray(points) / dist).astype(np.int64)
-    uniq, inv = np.unique(ijk, axis=0, return_inverse=True)
+    keys = _keys(ijk)
+    uniq, inv = np.unique(keys, return_inverse=True)
     inv = inv.reshape(-1)
-    key = {tuple(v): i for i, v in enumerate(uniq.tolist())}
+    cells = ijk[np.unique(inv, return_index=True)[1]]
     rows, cols = [], []
-    offs = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) > (0, 0, 0)]
-    for i, v in enumerate(uniq.tolist()):
-        for o in offs:
-            j = key.get((v[0] + o[0], v[1] + o[1], v[2] + o[2]))
-            if j is not None:
-                rows.append(i)
-                cols.append(j)
-    g = coo_matrix((np.ones(len(rows), np.int8), (rows, cols)), shape=(len(uniq), len(uniq)))
+    for o in [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) > (0, 0, 0)]:
+        nk = _keys(cells + np.array(o))
+        pos = np.minimum(np.searchsorted(uniq, nk), len(uniq) - 1)
+        hit = uniq[pos] == nk
+        rows.append(np.flatnonzero(hit))
+        cols.append(pos[hit])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(len(uniq), len(uniq)))
     _, comp = connected_components(g, directed=False)
     return comp[inv]
 
