@@ -27,9 +27,11 @@ def _init(value: str | None):
               help="Initial guess of T_world_camera (camera points frame, metres and degrees, extrinsic xyz Euler); "
                    "default: the camera's TF pose in the map.")
 @click.option("--no-segment", is_flag=True, help="Skip the LiDAR-grid human segmentation (lidar/instance).")
+@click.option("--no-camera-world", is_flag=True,
+              help="Do not write camera/points_world (the whole camera cloud in the map frame; as large as camera/points).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def register(dataset, scene, init, no_segment, quiet, as_json) -> None:
+def register(dataset, scene, init, no_segment, no_camera_world, quiet, as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
     FPFH+RANSAC fallback accepted only if it passes the fitness/RMSE check; then the human in every
@@ -42,7 +44,7 @@ def register(dataset, scene, init, no_segment, quiet, as_json) -> None:
     """
     from holodata.mapping.register import RegisterConfig, register_scene
 
-    cfg = RegisterConfig(segment_lidar=not no_segment)
+    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=not no_camera_world)
     res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet)
     if as_json:
         click.echo(json.dumps(res, indent=2, default=str))
