@@ -183,9 +183,6 @@ def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: i
 
     tune_malloc()
     t0 = time.perf_counter()
-    tracer = _tracer(token, payload)
-    out = trace_shard(tracer, range(start, stop), names)
-    t1 = time.perf_counter()
     arrays = getattr(_LOCAL, "arrays", None)
     if arrays is None or arrays[0] != token:  # the scene's array writers, opened once per worker thread
         cfg = payload["cfg"]
@@ -194,8 +191,16 @@ def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: i
         extra = {"codec": cfg.codec} if cfg.codec else {}
         arrays = _LOCAL.arrays = (token, {name: sc.frame_array(name, **spec, **extra)
                                           for name, spec in gt_array_specs(cfg.grid, cfg.max_bounces).items()})
-    # write_shard skips a shard whose manifest exists (asks the store, not only this writer's memory)
-    written = [name for name in names if arrays[1][name].write_shard(k, out[name])]
+    # a rerun of a task whose shard was committed meanwhile (its worker died after the commit) is
+    # cheap: is_done asks the store for the manifest record, not only this writer's memory
+    todo = [name for name in names if not arrays[1][name].is_done(k)]
+    written = []
+    if todo:
+        out = trace_shard(_tracer(token, payload), range(start, stop), todo)
+        t1 = time.perf_counter()
+        written = [name for name in todo if arrays[1][name].write_shard(k, out[name])]
+    else:
+        t1 = time.perf_counter()
     try:
         from distributed import get_worker
 

@@ -276,3 +276,35 @@ def test_synth_count_on_cluster_matches_in_process(cluster, tmp_path):
     # an existing recording is refused before any task runs
     r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "dask"), "--scheduler", addr])
     assert r.exit_code == 1 and "already exists" in r.output
+
+
+def test_shard_task_rerun_is_idempotent(tmp_path, monkeypatch):
+    """A task rerun after its worker died: committed arrays are skipped without tracing, an array
+    whose manifest is missing (the worker died between two puts) is traced and rewritten identically."""
+    import holodata.distributed as hd
+    import holodata.groundtruth as gtm
+    from holodata.conventions import Grid
+    from holodata.meshio import read_mesh
+    from holodata.trajectory import read_tum
+
+    make_inputs(tmp_path, 4)
+    out = tmp_path / "o.zarr"
+    assert CliRunner().invoke(cli, gt_args(tmp_path, out)).exit_code == 0
+    before = manifests(out)
+    ds = hds.open_dataset(str(out))
+    m = read_mesh(tmp_path / "scene.ply")
+    traj = read_tum(tmp_path / "radar.tum")
+    payload = {"mesh": (m.vertices, m.faces, None, None), "cfg": gtm.GTConfig(grid=Grid.parse("16x64", "-45,45")),
+               "traj": traj, "human": gtm.HumanDir(tmp_path / "humans", len(traj)), "url": str(out),
+               "grid": ds.grid, "range_bins": ds.range_bins, "scene_id": "scene"}
+    traced = []
+    real = gtm.trace_shard
+    monkeypatch.setattr(gtm, "trace_shard", lambda tr, frames, names: traced.append(list(names)) or real(tr, frames, names))
+    res = hd._gt_shard_task("t1", payload, 1, list(gtm.GT_ARRAYS), 2, 4)
+    assert res["written"] == [] and traced == []
+    (out / "scenes/scene/gt/label/manifest/1.json").unlink()
+    (out / "scenes/scene/gt/label/c/1/0/0/0").write_bytes(b"torn")  # an uncommitted object
+    res = hd._gt_shard_task("t2", payload, 1, list(gtm.GT_ARRAYS), 2, 4)
+    assert res["written"] == ["gt/label"] and traced == [["gt/label"]]
+    assert manifests(out) == before
+    assert hds.validate_dataset(str(out))["ok"]
