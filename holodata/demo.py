@@ -58,7 +58,7 @@ def demo_config(quick: bool) -> DemoConfig:
     """``quick``: small grids and few frames (< 3 min on 2 cores); else the paper's 64×512 grid."""
     if quick:
         return DemoConfig(corners=DEMO_CORNERS[:6], n_test=1, frames=12, grid=Grid(32, 128),
-                          lidar_shape=(32, 512), camera_shape=(94, 168), epochs=15, depth=6,
+                          lidar_shape=(32, 512), camera_shape=(188, 336), epochs=15, depth=6,
                           base_channels=8, max_channels=64, range_pool=2)
     return DemoConfig(corners=DEMO_CORNERS, n_test=2, frames=40, grid=Grid(), lidar_shape=(64, 1024),
                       camera_shape=(188, 336), epochs=30, depth=7)
@@ -67,7 +67,8 @@ def demo_config(quick: bool) -> DemoConfig:
 @dataclass
 class DemoResult:
     """Where the demo's outputs are and what it measured. ``metrics``: the metrics.json document;
-    ``timings``: seconds per stage; ``mapping``: "slam" or "truth"."""
+    ``timings``: seconds per stage; ``mapping``: "slam" or "truth"; ``warnings``: one line per
+    scene whose mapping was incomplete."""
 
     out_dir: Path
     dataset: Path
@@ -77,6 +78,7 @@ class DemoResult:
     metrics: dict
     timings: dict
     validation: dict
+    warnings: list = field(default_factory=list)
 
 
 def scene_id(corner: str, seed: int) -> str:
@@ -118,9 +120,13 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "auto", quiet: bool = 
     stage("ingest", t0)
 
     t0 = time.perf_counter()
+    warnings: list[str] = []
     for sid in ids:
         if mapping == "slam":
-            map_with_slam(str(url), sid, quiet=quiet)
+            note = map_with_slam(str(url), sid, quiet=quiet)
+            if note:
+                warnings.append(note)
+                say(f"warning: {note}")
         else:
             map_from_truth(w.scene(sid), recs[sid].truth_dir)
     stage(f"mapping:{mapping}", t0)
@@ -150,10 +156,10 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "auto", quiet: bool = 
     report_dir = out / "report"
     doc = evaluate(str(url), run_dir, report_dir, split="test", quiet=quiet)
     stage("evaluate", t0)
-    (out / "demo.json").write_text(json.dumps({"mapping": mapping, "timings": timings,
+    (out / "demo.json").write_text(json.dumps({"mapping": mapping, "timings": timings, "warnings": warnings,
                                                "scenes": ids, "test": ids[-cfg.n_test:]}, indent=2))
     return DemoResult(out_dir=out, dataset=url, run_dir=run_dir, report=report_dir / "report.html",
-                      mapping=mapping, metrics=doc, timings=timings, validation=report)
+                      mapping=mapping, metrics=doc, timings=timings, validation=report, warnings=warnings)
 
 
 def resolve_mapping(mapping: str) -> str:
@@ -260,14 +266,19 @@ def map_from_truth(sc, truth_dir: Path) -> None:
         hf.write_shard(k, faces)
 
 
-def map_with_slam(url: str, sid: str, quiet: bool = True) -> None:
+def map_with_slam(url: str, sid: str, quiet: bool = True) -> str | None:
     """holodata's own mapping: ``slam`` (LiDAR poses, radar poses, static mesh) then ``register``
-    (camera extrinsic, per-frame human surfaces)."""
-    from .mapping.register import register_scene
+    (camera extrinsic, per-frame human surfaces). When the camera cannot be registered the scene
+    keeps its mesh and poses but has no human: returns that as a warning line (else None)."""
+    from .mapping.register import RegistrationError, register_scene
     from .mapping.slam import slam_scene
 
     slam_scene(url, sid, quiet=quiet)
-    register_scene(url, sid, quiet=quiet)
+    try:
+        register_scene(url, sid, quiet=quiet)
+    except RegistrationError as err:
+        return f"{sid}: no human in its ground truth ({' '.join(str(err).split())})"
+    return None
 
 
 __all__ = ["DemoConfig", "DemoResult", "demo_config", "run_demo", "map_from_truth", "map_with_slam",

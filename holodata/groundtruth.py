@@ -22,7 +22,8 @@ smaller files at ~2x the encoding time).
 Human sources: none; one mesh for all frames (``--human``); a directory with one mesh per frame
 *index* ``{k:06d}.ply`` (``.obj``/``.stl`` also accepted; k = 0-based row of the TUM file);
 in a dataset, ragged ``human/vertices`` + ``human/faces`` (per frame, world frame) or, failing
-that, the registered human cloud ``camera/points`` turned into small octahedra (3 cm).
+that, the registered human cloud ``human/points`` (map frame, from ``register``) turned into small
+octahedra (3 cm). ``camera/points`` is never used: it is in the camera frame until registered.
 """
 from __future__ import annotations
 
@@ -191,7 +192,7 @@ class HumanDir(HumanSource):
 
 
 class HumanDataset(HumanSource):
-    """Ragged ``human/vertices`` + ``human/faces`` of a dataset scene, else ``camera/points`` splats."""
+    """Ragged ``human/vertices`` + ``human/faces`` of a dataset scene, else ``human/points`` splats."""
 
     def __init__(self, url: str, scene_id: str, scene=None):
         self.url, self.scene_id = url, scene_id
@@ -203,8 +204,8 @@ class HumanDataset(HumanSource):
         names = set(scene.arrays())
         if {"human/vertices", "human/faces"} <= names:
             self.kind = "dataset:human/vertices+faces"
-        elif "camera/points" in names:
-            self.kind = "dataset:camera/points"
+        elif "human/points" in names:
+            self.kind = "dataset:human/points"
         else:
             self.kind = "none"
 
@@ -220,8 +221,8 @@ class HumanDataset(HumanSource):
             v = np.asarray(self.scene.ragged("human/vertices", k), dtype=np.float64)
             f = np.asarray(self.scene.ragged("human/faces", k), dtype=np.int64)
             return (v, f) if len(f) else None
-        if self.kind == "dataset:camera/points":
-            v, f = points_to_mesh(self.scene.ragged("camera/points", k))
+        if self.kind == "dataset:human/points":
+            v, f = points_to_mesh(self.scene.ragged("human/points", k))
             return (v, f) if len(f) else None
         return None
 

@@ -230,3 +230,23 @@ def test_dataset_form_reads_mesh_poses_and_human(tmp_path):
     # the human around the corner is seen only by reflection in even frames (label 4)
     assert (lab[0] == Label.NLOS_HUMAN).any() and not (lab[1] >= Label.LOS_HUMAN).any()
     assert s.attrs["gt"]["human"]["kind"] == "dataset:human/vertices+faces"
+
+
+def test_dataset_human_uses_registered_points_never_raw_camera_points(tmp_path):
+    from holodata.conventions import Grid, RangeBins
+    from holodata.dataset import create_dataset
+    from holodata.groundtruth import HumanDataset
+
+    url = str(tmp_path / "h.zarr")
+    w = create_dataset(url, grid=Grid(8, 32), range_bins=RangeBins(), created_by="test", shard_frames=2)
+    sc = w.scene("s", n_frames=2)
+    cam = sc.ragged_array("camera/points", 3)
+    cam.write_shard(0, [np.ones((5, 3), np.float32), np.ones((5, 3), np.float32)])
+    assert HumanDataset(url, "s").kind == "none"  # camera frame: not a human in the map
+    hp = sc.ragged_array("human/points", 3)
+    hp.write_shard(0, [np.zeros((0, 3), np.float32), np.array([[1.0, 2.0, 0.5]], np.float32)])
+    src = HumanDataset(url, "s")
+    assert src.kind == "dataset:human/points"
+    assert src(0) is None
+    v, f = src(1)
+    assert len(f) > 0 and np.allclose(v.mean(axis=0), [1.0, 2.0, 0.5], atol=1e-6)
