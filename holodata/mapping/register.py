@@ -5,11 +5,15 @@ Inputs (a dataset scene): ``camera/points`` (ragged, camera frame; for depth ima
 frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lidar/points`` +
 ``pose/T_world_lidar`` (the map), ``camera/timestamp_ns`` and ``time/timestamp_ns``.
 
-1. **Static camera cloud.** The camera does not move during a recording, so the per-pixel median
-   depth over all frames (pixels recovered from the intrinsics) is a denoised picture of the static
-   scene: a person covering a pixel in fewer than half of the frames does not reach the median.
+1. **Static camera cloud.** The camera does not move during a recording, so the per-pixel depth
+   over the frames (up to ``median_frames`` spread over the recording; pixels recovered from the
+   intrinsics), averaged over the samples within 3 robust sigmas of the median, is a denoised
+   picture of the static scene: a person covering a pixel in fewer than half of the frames does not
+   reach the median.
 2. **Map.** Every scan in the world frame, minus the LiDAR foreground (returns outside the 15 cm
-   voxel background, :mod:`.background`), voxel-thinned (``map_voxel``) with normals.
+   voxel background, :mod:`.background`) and minus a 4-pixel margin around the scan's segmented
+   people (``lidar/instance``; a hand near a wall falls into a static voxel and biased the extrinsic
+   by 8 cm before), voxel-thinned (``map_voxel``) with normals.
 3. **Extrinsic** ``T_world_camera`` by point-to-plane ICP (open3d, Tukey robust loss) of the static
    camera cloud onto the map from an informed initial guess: ``--init`` or the TF pose of the camera
    in the map (``sensors.camera.T_map_sensor``), coarse-to-fine correspondence distances. The
@@ -19,11 +23,17 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    (``fitness``) >= ``min_fitness`` and the inlier RMSE <= ``max_rmse_m``. Otherwise **FPFH + RANSAC**
    (open3d feature matching on both clouds) followed by the same ICP, accepted only when it passes
    the same check; if neither passes, register fails with the numbers (no silent bad extrinsic).
-4. **Human points per frame.** Camera points in front of the static median depth by more than
-   ``max(fg_min_m, fg_sigma · σ_z)`` (σ_z the stereo depth noise estimated per pixel from the
-   frames' spread), not within ``map_explain_m`` of the map, clustered (voxel connectivity,
-   ``cluster_m``); the largest person-like cluster (vertical extent >= ``min_height_m``, plan extent
-   <= ``max_width_m``) is the human, in the map frame.
+   The open3d stage is followed by a Tukey Gauss-Newton point-to-plane refinement
+   (:func:`weighted_icp`, uniform weights: per-point stereo-noise weights were measured worse).
+   The check uses the camera points with depth noise <= ``check_sigma_m`` when there are enough.
+4. **Human points per frame.** Candidates: camera points in front of the static depth by more
+   than ``max(fg_min_m, fg_sigma · σ_z)`` (σ_z the per-pixel spread over the frames) — a moving
+   person — plus the pixels of the static cloud on none of its large RANSAC planes (floor, walls,
+   ceiling) — a person standing still, who is part of the temporal background; minus points within
+   ``map_explain_m`` of the map. Clustered (voxel connectivity, ``cluster_m``); the largest
+   person-like cluster (vertical extent >= ``min_height_m``, robust plan extent <= ``max_width_m``)
+   within ``track_radius_m`` of the median position over all frames (others walking elsewhere are
+   not the person of interest), statistical outliers removed, is the human, in the map frame.
 5. **Closed surface per radar frame.** The camera sees the front of the person only. Each human
    point is extruded away from the camera along its viewing ray over ``thickness_m`` (a body's
    depth), the swept volume voxelised (``surface_voxel``) and its boundary faces emitted: a closed,
@@ -128,23 +138,6 @@ def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float |
     if normals_radius:
         p.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normals_radius, max_nn=30))
     return p
-
-
-def check_alignment(source: np.ndarray, target_pcd, T: np.ndarray, cfg: RegisterConfig) -> dict:
-    """Overlap check of ``source`` (N,3) under ``T`` against a target cloud: ``overlap`` = points
-    within ``overlap_m`` of the target, ``fitness`` = fraction of those within ``inlier_m``, ``rmse`` of
-    the inliers (m), ``accepted`` per the thresholds of ``cfg``."""
-    import open3d as o3d
-
-    src = np.asarray(source, np.float64) @ T[:3, :3].T + T[:3, 3]
-    tree = o3d.geometry.KDTreeFlann(target_pcd)
-    tgt = np.asarray(target_pcd.points)
-    d = np.full(len(src), np.inf)
-    for i, p in enumerate(src):
-        k, idx, _ = tree.search_knn_vector_3d(p, 1)
-        if k:
-            d[i] = np.linalg.norm(tgt[idx[0]] - p)
-    return _check_from_distances(d, cfg)
 
 
 def _nn_distances(src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
@@ -625,12 +618,12 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     traj = scans.trajectory()
     scfg = SegmentConfig()
     seg_summary = None
+    bg = build_background(scans, scfg, traj, quiet)
     if cfg.segment_lidar and "lidar/instance" not in names:
-        seg_summary = segment_scene(url, sid, scfg, quiet)
+        seg_summary = segment_scene(url, sid, scfg, quiet, background=bg)
         scene = open_dataset(url).scene(sid)
         scans = LidarScans.open(scene, url)
     timings["segment_s"] = time.perf_counter() - t0
-    bg = build_background(scans, scfg, traj, quiet)
     inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
     M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst)
     if len(M) < 100:
@@ -777,6 +770,6 @@ def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarr
 
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
-           "check_alignment", "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
+           "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
            "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual", "body_depth",
            "weighted_icp", "depth_noise_model"]

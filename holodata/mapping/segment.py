@@ -397,9 +397,10 @@ def in_background(bg, points_world: np.ndarray, tolerance_voxels: int = 0) -> np
 
 
 def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | None = None, quiet: bool = True,
-                  overwrite: bool = False) -> dict:
+                  overwrite: bool = False, background=None) -> dict:
     """Segment every scan of a dataset scene and write ``lidar/instance`` (T,Hl,Wl) uint16 (resumable:
-    finished shards are kept). Returns a summary {scene, frames, instances_per_scan, ...}."""
+    finished shards are kept). ``background``: a prebuilt model of these scans (else built here).
+    Returns a summary {scene, frames, instances_per_scan, ...}."""
     import time
 
     from ..dataset import create_dataset, open_dataset
@@ -411,7 +412,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
     scene = ds.scene(sid)
     scans = LidarScans.open(scene, url)
     traj = scans.trajectory()
-    bg = build_background(scans, cfg, traj, quiet)
+    bg = background if background is not None else build_background(scans, cfg, traj, quiet)
     w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
     sw = w.scene(sid)
     if overwrite and INSTANCE_ARRAY in sw.arrays():
