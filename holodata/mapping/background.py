@@ -119,18 +119,20 @@ class VoxelBackground:
         keys, hits = keys[static], occ[static]
         return cls(float(voxel), keys, _dilate(keys), hits.astype(np.int64), n)
 
-    def contains(self, points_world: np.ndarray) -> np.ndarray:
-        """(N,3) world points → (N,) bool, True = static background (within one voxel of a
-        background voxel). Non-finite points are False."""
+    def contains(self, points_world: np.ndarray, tolerance: int = 1) -> np.ndarray:
+        """(N,3) world points → (N,) bool, True = static background: within one voxel of a
+        background voxel (``tolerance=1``, default) or inside one (``tolerance=0``, stricter: what
+        the mesh uses, so a walker's body next to a wall or the floor is not kept through the
+        neighbourhood). Non-finite points are False."""
         p = np.asarray(points_world, np.float64).reshape(-1, 3)
         out = np.zeros(len(p), bool)
-        if len(self.dilated) == 0 or len(p) == 0:
+        table = self.dilated if tolerance else self.keys
+        if len(table) == 0 or len(p) == 0:
             return out
         ok = np.isfinite(p).all(1)
         k = _keys(voxel_index(p[ok], self.voxel))
-        pos = np.searchsorted(self.dilated, k)
-        pos = np.minimum(pos, len(self.dilated) - 1)
-        out[ok] = self.dilated[pos] == k
+        pos = np.minimum(np.searchsorted(table, k), len(table) - 1)
+        out[ok] = table[pos] == k
         return out
 
     def centers(self) -> np.ndarray:

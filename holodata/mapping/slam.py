@@ -414,7 +414,7 @@ def global_refine(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: f
     if background is None:
         background = VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
                                            origins=poses[:, :3, 3])
-    allp = np.concatenate([w[background.contains(w)] for w in world])
+    allp = np.concatenate([w[background.contains(w, tolerance=0)] for w in world])
     allp = downsample(allp, cfg.fine_map_voxel)
     pc = _o3d_cloud(allp)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.25, max_nn=30))
@@ -512,7 +512,7 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
     removed = 0
     for T, p in track(list(zip(poses, desk)), total=len(poses), description="slam: static points", quiet=quiet):
         w = transform(T, p)
-        m = background.contains(w)
+        m = background.contains(w, tolerance=0)
         removed += int((~m).sum())
         acc.add(w[m], T[:3, 3])
     pts, view, _ = acc.cloud()
