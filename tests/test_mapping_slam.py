@@ -229,6 +229,8 @@ def test_background_keeps_walls_drops_walker():
     # one-voxel tolerance: 10 cm off a wall is background, 50 cm is not
     wall = np.c_[np.zeros(100), np.full(100, -2.0), np.linspace(0.5, 2.0, 100)]
     assert bg.contains(wall + [0, 0.10, 0]).all()
+    assert bg.contains(wall, tolerance=0).all() and not bg.contains(wall + [0, 0.10, 0], tolerance=0).any()
+    assert bg.contains(walker[15], tolerance=0).mean() < 0.05
     assert not bg.contains(wall + [0, 0.5, 0]).any()
     assert not bg.contains(np.array([[np.nan, 0, 0]])).any()
     assert bg.contains(np.zeros((0, 3))).shape == (0,)
