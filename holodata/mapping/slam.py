@@ -546,7 +546,7 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
     the scene attribute ``slam`` when ``write``; exports the LiDAR trajectory as TUM (``tum``) and
     the mesh as PLY (``ply``). A scene already done with the same inputs and settings is not
     recomputed for writing (``force`` recomputes) — the poses are still returned."""
-    from ..dataset import create_dataset, open_dataset
+    from ..dataset import open_dataset
     from .mesh import MeshConfig
 
     t_all = time.perf_counter()
