@@ -653,6 +653,10 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
     if (sc.attrs.get("slam") or {}).get("complete"):
         sc.set_attrs({"slam": {**sc.attrs["slam"], "complete": False}})  # a crash below must not look done
     names = set(sc.arrays())
+    stale = sorted(n for n in names if n.startswith("gt/"))
+    for n in stale:  # ray-traced from the previous mesh/poses: would be silently wrong (raytrace-gt resumes)
+        sc.remove(n)
+    res.summary["removed_stale"] = stale
     pose_attrs = {"source": "slam", "world_frame": anchor.get("world_frame"), "anchor": anchor["kind"],
                   "method": "kiss-icp 1.3 + open3d scan-to-map point-to-plane ICP" if cfg.refine else "kiss-icp 1.3"}
     arrays = [("pose/T_world_lidar", res.T_world_lidar, {"time": "lidar/timestamp_ns (time/timestamp_ns when 0)"})]
