@@ -135,8 +135,10 @@ def poisson_mesh(pc, cfg: MeshConfig):
     pts = np.asarray(pc.points)
     extent = float(np.max(pts.max(0) - pts.min(0)))
     depth = cfg.poisson_depth or int(np.clip(np.ceil(np.log2(extent * 1.1 / (2 * cfg.voxel))), 6, 11))
+    # n_threads=1: PoissonRecon's multi-threaded splatting segfaults at random (isl-org/Open3D#6828;
+    # it crashed the test suite here once)
     mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc, depth=depth, scale=1.1,
-                                                                           linear_fit=False)
+                                                                           linear_fit=False, n_threads=1)
     dens = np.asarray(dens)
     v = np.asarray(mesh.vertices)
     dist, _ = cKDTree(pts).query(v, k=1, distance_upper_bound=cfg.trim_distance * 2)
