@@ -14,18 +14,21 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    voxel background, :mod:`.background`) and minus a 4-pixel margin around the scan's segmented
    people (``lidar/instance``; a hand near a wall falls into a static voxel and biased the extrinsic
    by 8 cm before), voxel-thinned (``map_voxel``) with normals.
-3. **Extrinsic** ``T_world_camera`` by point-to-plane ICP (open3d, Tukey robust loss) of the static
+3. **Extrinsic** ``T_world_camera`` by point-to-plane ICP (Gauss-Newton, Tukey loss, coarse-to-fine
+   correspondence distances ``icp_distances``; open3d for normals, FPFH and RANSAC) of the static
    camera cloud onto the map from an informed initial guess: ``--init`` or the TF pose of the camera
-   in the map (``sensors.camera.T_map_sensor``), coarse-to-fine correspondence distances. The
-   camera usually sees much that the LiDAR never did (the hidden branch), so only the *overlap*
-   counts: camera points within ``overlap_m`` of the map under the current estimate. Accepted when
-   the overlap is large enough (``min_overlap_points``), its inlier fraction within ``inlier_m``
-   (``fitness``) >= ``min_fitness`` and the inlier RMSE <= ``max_rmse_m``. Otherwise **FPFH + RANSAC**
-   (open3d feature matching on both clouds) followed by the same ICP, accepted only when it passes
-   the same check; if neither passes, register fails with the numbers (no silent bad extrinsic).
-   The open3d stage is followed by a Tukey Gauss-Newton point-to-plane refinement
-   (:func:`weighted_icp`, uniform weights: per-point stereo-noise weights were measured worse).
-   The check uses the camera points with depth noise <= ``check_sigma_m`` when there are enough.
+   in the map (``sensors.camera.T_map_sensor``). Updates are *degeneracy-aware*: directions the
+   overlap does not pin down (normal-matrix eigenvalue < ``degenerate_ratio`` × the largest, e.g. a
+   corridor seen end-on) keep the initial guess instead of sliding — open3d's ``registration_icp``
+   slid 43 cm from the exact pose on such a corner; the report counts frozen directions. The camera
+   usually sees much that the LiDAR never did (the hidden branch), so the source is cropped to
+   within ``crop_m`` of the map under the guess and only the *overlap* is judged: camera points
+   within ``overlap_m`` of the map (the precise ones, depth noise <= ``check_sigma_m``, when there
+   are enough). Accepted when the overlap is large enough (``min_overlap_points``), its inlier
+   fraction within ``inlier_m`` (``fitness``) >= ``min_fitness`` and the inlier RMSE <=
+   ``max_rmse_m``. Otherwise **FPFH + RANSAC** (open3d feature matching on both clouds) followed by
+   the same ICP, accepted only when it passes the same check; if neither passes, register fails
+   with the numbers (no silent bad extrinsic).
 4. **Human points per frame.** Candidates: camera points in front of the static depth by more
    than ``max(fg_min_m, fg_sigma · σ_z)`` (σ_z the per-pixel spread over the frames) — a moving
    person — plus the pixels of the static cloud on none of its large RANSAC planes (floor, walls,
@@ -75,7 +78,8 @@ class RegisterConfig:
     map_sigma_m: float = 0.015
     crop_m: float = 0.6
     check_sigma_m: float = 0.02
-    icp_iterations: int = 60
+    icp_iterations: int = 15
+    degenerate_ratio: float = 0.05
     overlap_m: float = 0.15
     inlier_m: float = 0.05
     min_fitness: float = 0.6
@@ -176,13 +180,18 @@ def icp(source: np.ndarray, target_pcd, init: np.ndarray, cfg: RegisterConfig) -
 
 
 def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
-                 init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25) -> np.ndarray:
+                 init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
+                 degenerate_ratio: float = 0.0, info: dict | None = None) -> np.ndarray:
     """Noise-weighted point-to-plane ICP (Gauss-Newton on the linearised rotation, numpy/scipy):
     ``source`` (N,3) with ``weights`` (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``;
     per stage a nearest-neighbour correspondence within ``max(d, 3σ)`` of the stage distance d and a
     Tukey weight with that same scale (σ = 1/sqrt(weight): noisy far points keep their unbiased
-    residuals instead of being truncated). Returns T (4,4). Used as the final refinement after the open3d ICP (Tukey scale
-    follows the stage distance when the weights are uniform)."""
+    residuals instead of being truncated). ``degenerate_ratio`` > 0: degeneracy-aware updates (Zhang
+    et al., ICRA 2016): the normal matrix, with rotations scaled by the median point distance (so both
+    blocks are in metres), is eigen-decomposed and the update is zeroed along eigenvectors whose
+    eigenvalue is below ``degenerate_ratio`` × the largest — directions the overlap does not pin
+    down keep the initial guess instead of sliding (a corridor seen end-on). ``info`` receives the
+    number of frozen directions and the eigenvalues. Returns T (4,4)."""
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
 
@@ -206,7 +215,22 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
             J = np.concatenate([np.cross(pp, nn), nn], axis=1)        # d r / d (omega, t)
             H = (J * w[:, None]).T @ J + 1e-9 * np.eye(6) * w.sum()
             g = (J * w[:, None]).T @ r
-            x = -np.linalg.solve(H, g)
+            if degenerate_ratio > 0:
+                # rotations about the cloud's centroid, scaled to metres
+                c = np.average(pp, axis=0, weights=np.maximum(w, 1e-12))
+                Lc = float(np.median(np.linalg.norm(pp - c, axis=1))) or 1.0
+                Jc = np.concatenate([np.cross(pp - c, nn) / Lc, nn], axis=1)
+                Hc = (Jc * w[:, None]).T @ Jc
+                gc = (Jc * w[:, None]).T @ r
+                ev, V = np.linalg.eigh(Hc)
+                keep = ev >= degenerate_ratio * ev.max()
+                y = -(V[:, keep] @ ((V[:, keep].T @ gc) / ev[keep]))
+                om = y[:3] / Lc
+                x = np.concatenate([om, y[3:] - np.cross(om, c)])   # about the origin: t' = t - om x c
+                if info is not None:
+                    info.update(frozen=int((~keep).sum()), eigenvalues=(ev / ev.max()).round(4).tolist())
+            else:
+                x = -np.linalg.solve(H, g)
             D = np.eye(4)
             D[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
             D[:3, 3] = x[3:]
@@ -275,23 +299,28 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
             d = d[precise]
         return _check_from_distances(d, cfg)
 
-    def refine(T0):
-        # uniform weights: per-point camera noise weights were tried and made it worse, because the
-        # map's own error (grazing, far LiDAR views of the camera's surroundings) is not modelled
-        T1 = icp(src, tgt, T0, cfg)
-        return weighted_icp(src, np.full(len(src), 1e4), tgt_pts, tgt_n, T1,
-                            (cfg.icp_distances[-1] * 2, cfg.icp_distances[-1]))
+    def refine(T0, info):
+        # Gauss-Newton point-to-plane with Tukey loss and degeneracy-aware updates. Not open3d's
+        # registration_icp: from the exact pose it slid 43 cm along a corridor the overlap sees
+        # end-on (T corner, 1.5 m wide), and it has no way to hold such directions. Uniform weights:
+        # per-point camera noise weights were measured worse (the map's own error is not modelled).
+        return weighted_icp(src, np.full(len(src), 1e4), tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
+                            degenerate_ratio=cfg.degenerate_ratio, info=info)
 
-    T = refine(init)
+    info: dict = {}
+    T = refine(init, info)
     c = check(T)
-    attempts.append({"method": "icp", **c})
+    attempts.append({"method": "icp", **c, "frozen_directions": info.get("frozen", 0),
+                     "eigenvalues_rel": info.get("eigenvalues")})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
         src, sig = full_src, full_sig
         Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
-        T2 = refine(Tg)
+        info2: dict = {}
+        T2 = refine(Tg, info2)
         c2 = check(T2)
-        attempts.append({"method": "fpfh+icp", **c2})
+        attempts.append({"method": "fpfh+icp", **c2, "frozen_directions": info2.get("frozen", 0),
+                         "eigenvalues_rel": info2.get("eigenvalues")})
         if c2["accepted"] or (not c["accepted"] and c2["overlap"] * c2["fitness"] > c["overlap"] * c["fitness"]):
             best = ("fpfh+icp", T2, c2)
     m, T, c = best
