@@ -74,17 +74,30 @@ def bare_kiss(url: str, scene: str) -> tuple[float, Trajectory]:
 def run_corner(corner: str, work: Path, args) -> dict:
     out = work / corner
     lidar = tuple(int(v) for v in args.lidar.split("x"))
-    t0 = time.perf_counter()
-    syn = synthesize(out, corner=corner, frames=args.frames, seed=args.seed, grid=Grid(16, 64), range_bins=RangeBins(32),
-                     lidar_shape=lidar, camera_shape=(48, 64), quiet=True, visible_walkers=args.walkers)
-    t_syn = time.perf_counter() - t0
     url = str(out / "ds.zarr")
+    if args.reuse and (out / "ds.zarr").is_dir():  # a kept folder of an earlier run: skip synth + ingest
+        from types import SimpleNamespace
+
+        sj = json.loads((out / "truth" / "scene.json").read_text())
+        syn = SimpleNamespace(width_m=float(sj["width_m"]), truth_dir=out / "truth", mesh=out / "truth" / "mesh.ply",
+                              trajectory_radar=out / "truth" / "trajectory_radar.tum")
+        t_syn = t_ing = float("nan")
+        sid = open_dataset(url).scenes[0]
+        for n in ("gt.zarr", "slam_mesh.ply", "radar.tum"):
+            p = out / n
+            shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+    else:
+        t0 = time.perf_counter()
+        syn = synthesize(out, corner=corner, frames=args.frames, seed=args.seed, grid=Grid(16, 64),
+                         range_bins=RangeBins(32), lidar_shape=lidar, camera_shape=(48, 64), quiet=True,
+                         visible_walkers=args.walkers)
+        t_syn = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        ing = ingest([syn.recording], url, quiet=True)
+        t_ing = time.perf_counter() - t0
+        sid = ing["scenes"][0]["scene"]
     t0 = time.perf_counter()
-    ing = ingest([syn.recording], url, quiet=True)
-    t_ing = time.perf_counter() - t0
-    sid = ing["scenes"][0]["scene"]
-    t0 = time.perf_counter()
-    res = S.slam_scene(url, sid, config=S.SlamConfig(global_pass=args.global_pass), quiet=True)
+    res = S.slam_scene(url, sid, config=S.SlamConfig(global_pass=args.global_pass), quiet=True, force=True)
     t_slam = time.perf_counter() - t0
     t_kiss, ktraj = bare_kiss(url, sid)
     acc = evaluate_slam(res.trajectory(), res.mesh, syn.truth_dir, out_dir=out / "report",
@@ -159,6 +172,7 @@ def main() -> None:
     ap.add_argument("--raytrace", action="store_true", help="also time raytrace-gt (64x512, 3 bounces) of the same frames")
     ap.add_argument("--skip-luminar", action="store_true")
     ap.add_argument("--keep", default=None, help="keep the work folder here")
+    ap.add_argument("--reuse", action="store_true", help="with --keep: reuse corners synthesised and ingested there")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-slam-bench-"))

@@ -71,7 +71,7 @@ class SlamConfig:
     refine: bool = True
     source_voxel: float = 0.12
     map_voxel: float = 0.06
-    icp_distances: tuple[float, ...] = (0.5, 0.2, 0.1)
+    icp_distances: tuple[float, ...] = (0.3, 0.1)
     icp_iterations: int = 10
     fine_source_voxel: float = 0.1
     fine_map_voxel: float = 0.04
