@@ -65,7 +65,7 @@ def bare_kiss(url: str, scene: str) -> tuple[float, Trajectory]:
     t0 = time.perf_counter()
     for i, p in enumerate(scans.points):
         t = scans.times[i] if scans.times is not None else np.zeros(len(p))
-        odo.register_frame(np.ascontiguousarray(p), np.ascontiguousarray(t))
+        odo.register_frame(np.ascontiguousarray(p, np.float64), np.ascontiguousarray(t, np.float64))
         poses.append(odo.last_pose.copy())
         ref.append(scans.stamp_ns[i] + (int(round(t.max() * 1e9)) if np.ptp(t) > 0 else 0))
     return time.perf_counter() - t0, Trajectory(np.asarray(ref, np.int64), np.stack(poses))

@@ -101,8 +101,8 @@ class SlamConfig:
 @dataclass
 class Scans:
     """LiDAR scans of one scene. ``frames`` (S,) frame index of each scan; ``stamp_ns`` (S,) scan
-    stamps (int64 ns); ``points`` list of (Ni,3) float64 sensor-frame points; ``times`` list of
-    (Ni,) float64 seconds relative to the stamp, or None when the scene has no per-point time."""
+    stamps (int64 ns); ``points`` list of (Ni,3) float32 sensor-frame points; ``times`` list of
+    (Ni,) float32 seconds relative to the stamp, or None when the scene has no per-point time."""
 
     frames: np.ndarray
     stamp_ns: np.ndarray
@@ -172,10 +172,10 @@ def load_scans(scene, quiet: bool = True) -> Scans:
             continue
         frames.append(f)
         st.append(s)
-        pts.append(p[good])
+        pts.append(p[good].astype(np.float32))  # float32 in memory: 400 scans x 65k points stay < 0.5 GB
         if has_t:
             t = np.asarray(tr[f], np.int64).reshape(-1)
-            tms.append(t[good].astype(np.float64) * 1e-9 if len(t) == len(p) else np.zeros(int(good.sum())))
+            tms.append((t[good] * 1e-9).astype(np.float32) if len(t) == len(p) else np.zeros(int(good.sum()), np.float32))
         last = s
     if not frames:
         raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has no usable LiDAR scan (all empty)")
@@ -215,8 +215,8 @@ def kiss_odometry(scans: Scans, cfg: SlamConfig, max_range: float, quiet: bool =
     for i in track(range(len(scans)), total=len(scans), description="slam: kiss-icp", quiet=quiet):
         p = np.ascontiguousarray(scans.points[i], np.float64)
         if use_t:
-            t = scans.times[i]
-            odo.register_frame(p, np.ascontiguousarray(t))
+            t = np.ascontiguousarray(scans.times[i], np.float64)
+            odo.register_frame(p, t)
             if np.ptp(t) > 0:
                 ref[i] = scans.stamp_ns[i] + int(round(float(t.max()) * 1e9))
         else:
@@ -346,7 +346,7 @@ def refine(scans: Scans, init: np.ndarray, cfg: SlamConfig, max_range: float, qu
     xi_prev = np.zeros(6)
     fallbacks = 0
     for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
-        pts = scans.points[i]
+        pts = np.asarray(scans.points[i], np.float64)
         r = np.linalg.norm(pts, axis=1)
         keep = (r >= cfg.min_range) & (r <= max_range)
         pts = pts[keep]
@@ -394,6 +394,7 @@ def deskewed_scans(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: 
     use_t = cfg.deskew and scans.times is not None
     out = []
     for i, pts in enumerate(scans.points):
+        pts = np.asarray(pts, np.float64)
         r = np.linalg.norm(pts, axis=1)
         keep = (r >= cfg.min_range) & (r <= max_range)
         out.append(deskew(pts[keep], scans.times[i][keep] if use_t else None, xis[i]))
