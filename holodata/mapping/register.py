@@ -20,7 +20,10 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    in the map (``sensors.camera.T_map_sensor``). Updates are *degeneracy-aware*: directions the
    overlap does not pin down (normal-matrix eigenvalue < ``degenerate_ratio`` × the largest, e.g. a
    corridor seen end-on) keep the initial guess instead of sliding — open3d's ``registration_icp``
-   slid 43 cm from the exact pose on such a corner; the report counts frozen directions. The camera
+   slid 43 cm from the exact pose on such a corner; the report counts frozen directions.
+   Correspondences whose camera and map normals differ by more than ~37° are dropped (near an
+   edge the nearest map point may lie on the other wall: 6-9 cm residuals that biased a cross
+   corner by 7 cm). The camera
    usually sees much that the LiDAR never did (the hidden branch), so the source is cropped to
    within ``crop_m`` of the map under the guess and only the *overlap* is judged: camera points
    within ``overlap_m`` of the map (the precise ones, depth noise <= ``check_sigma_m``, when there
@@ -80,6 +83,7 @@ class RegisterConfig:
     check_sigma_m: float = 0.02
     icp_iterations: int = 15
     degenerate_ratio: float = 0.05
+    min_normal_cos: float = 0.8
     overlap_m: float = 0.15
     inlier_m: float = 0.05
     min_fitness: float = 0.6
@@ -181,7 +185,8 @@ def icp(source: np.ndarray, target_pcd, init: np.ndarray, cfg: RegisterConfig) -
 
 def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
                  init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
-                 degenerate_ratio: float = 0.0, info: dict | None = None) -> np.ndarray:
+                 degenerate_ratio: float = 0.0, info: dict | None = None, source_normals: np.ndarray | None = None,
+                 min_normal_cos: float = 0.8) -> np.ndarray:
     """Noise-weighted point-to-plane ICP (Gauss-Newton on the linearised rotation, numpy/scipy):
     ``source`` (N,3) with ``weights`` (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``;
     per stage a nearest-neighbour correspondence within ``max(d, 3σ)`` of the stage distance d and a
@@ -191,7 +196,10 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     blocks are in metres), is eigen-decomposed and the update is zeroed along eigenvectors whose
     eigenvalue is below ``degenerate_ratio`` × the largest — directions the overlap does not pin
     down keep the initial guess instead of sliding (a corridor seen end-on). ``info`` receives the
-    number of frozen directions and the eigenvalues. Returns T (4,4)."""
+    number of frozen directions and the eigenvalues. ``source_normals`` (N,3): correspondences whose
+    normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge the nearest map point
+    can belong to the other wall, whose normal biases a point-to-plane fit by centimetres.
+    Returns T (4,4)."""
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
 
@@ -206,6 +214,10 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
             p = src @ T[:3, :3].T + T[:3, 3]
             dist, j = tree.query(p, k=1, distance_upper_bound=float(scale.max()), workers=-1)
             ok = np.isfinite(dist) & (dist <= scale)
+            if source_normals is not None:
+                jj = np.where(ok, j, 0)
+                cosn = np.abs(np.einsum("ij,ij->i", source_normals @ T[:3, :3].T, target_normals[jj]))
+                ok &= cosn >= min_normal_cos
             if ok.sum() < 6:
                 return T
             pp, q, nn = p[ok], target[j[ok]], target_normals[j[ok]]
@@ -278,15 +290,16 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     _, first = np.unique(cell[order], axis=0, return_index=True)
     sel = order[first]
     src, sig = src_all[sel], sig[sel]
+    src_n = np.asarray(_pcd(src, None, 3 * cfg.cam_voxel).normals)   # same order (no thinning)
     tgt = _pcd(map_points, cfg.map_voxel, 3 * cfg.map_voxel)
     tgt_pts = np.asarray(tgt.points)
     tgt_n = np.asarray(tgt.normals)
     # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
     # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
-    full_src, full_sig = src, sig
+    full_src, full_sig, full_n = src, sig, src_n
     near = _nn_distances(src @ init[:3, :3].T + init[:3, 3], tgt_pts) <= cfg.crop_m
     if near.sum() >= cfg.min_overlap_points:
-        src, sig = src[near], sig[near]
+        src, sig, src_n = src[near], sig[near], src_n[near]
     attempts = []
 
     def check(T):
@@ -305,7 +318,8 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         # end-on (T corner, 1.5 m wide), and it has no way to hold such directions. Uniform weights:
         # per-point camera noise weights were measured worse (the map's own error is not modelled).
         return weighted_icp(src, np.full(len(src), 1e4), tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
-                            degenerate_ratio=cfg.degenerate_ratio, info=info)
+                            degenerate_ratio=cfg.degenerate_ratio, info=info, source_normals=src_n,
+                            min_normal_cos=cfg.min_normal_cos)
 
     info: dict = {}
     T = refine(init, info)
@@ -314,7 +328,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
                      "eigenvalues_rel": info.get("eigenvalues")})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
-        src, sig = full_src, full_sig
+        src, sig, src_n = full_src, full_sig, full_n
         Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
         info2: dict = {}
         T2 = refine(Tg, info2)
