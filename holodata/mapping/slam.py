@@ -55,14 +55,17 @@ class SlamConfig:
     ``min_range``: drop returns closer than this (robot body); ``deskew``: use per-point times;
     ``refine``: open3d scan-to-map refinement after kiss-icp (False = bare kiss-icp poses);
     ``source_voxel``: scan downsampling for refinement ICP; ``map_voxel``: refinement map
-    resolution; ``icp_distances``: coarse-to-fine max correspondence distances; ``tukey_k``:
+    resolution (a scan adds to it only when the sensor moved ``map_keyframe_m`` or turned
+    ``map_keyframe_deg`` since the last scan that did); ``icp_distances``: coarse-to-fine max correspondence distances; ``tukey_k``:
     robust kernel width as a multiple of each stage's distance; ``min_fitness``: a refined scan
     pose whose share of source points with a map correspondence (finest stage) is below this keeps
     kiss-icp's relative motion instead (counted in the health figures); ``global_pass``: second
     refinement pass against the whole (background-filtered) map (measured on a synth L corner:
     ATE 0.45 → 0.35 cm, mesh F unchanged, about the cost of the first pass; off by default); ``background_voxel`` /
     ``background_min_fraction``: the voxel background model (moving points out of the map
-    and mesh); ``mesh``: build and store the static mesh.
+    and mesh); ``mesh``: build and store the static mesh from at most ``mesh_max_scans`` scans
+    (every scan that moved a keyframe distance plus scans evenly spread in time, so that people
+    walking while the robot stands still are still seen moving).
     """
 
     voxel: float = 0.15
@@ -80,6 +83,9 @@ class SlamConfig:
     tukey_k: float = 1.0
     global_pass: bool = False
     min_fitness: float = 0.3
+    map_keyframe_m: float = 0.05
+    map_keyframe_deg: float = 2.0
+    mesh_max_scans: int = 120
     background_voxel: float = 0.15
     background_min_fraction: float = 0.6
     mesh: bool = True
@@ -345,6 +351,7 @@ def refine(scans: Scans, init: np.ndarray, cfg: SlamConfig, max_range: float, qu
     rmse = np.zeros(S)
     xi_prev = np.zeros(6)
     fallbacks = 0
+    last_key, keyframes = None, 0
     for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
         pts = np.asarray(scans.points[i], np.float64)
         r = np.linalg.norm(pts, axis=1)
@@ -370,10 +377,36 @@ def refine(scans: Scans, init: np.ndarray, cfg: SlamConfig, max_range: float, qu
         poses[i] = T
         fit[i], rmse[i] = f, e
         xi_prev = xi
-        dp, dn = scan_normals(downsample(desk, cfg.map_voxel))
-        vmap.add(transform(T, dp), dn @ T[:3, :3].T)
-    health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks}
+        if last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg):
+            dp, dn = scan_normals(downsample(desk, cfg.map_voxel))
+            vmap.add(transform(T, dp), dn @ T[:3, :3].T)
+            last_key = T
+            keyframes += 1
+    health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
+              "map_keyframes": keyframes}
     return poses, health
+
+
+def _moved(Ta: np.ndarray, Tb: np.ndarray, dist_m: float, angle_deg: float) -> bool:
+    D = np.linalg.inv(Ta) @ Tb
+    ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
+    return bool(np.linalg.norm(D[:3, 3]) >= dist_m or ang >= angle_deg)
+
+
+def mesh_scan_subset(poses: np.ndarray, max_n: int, dist_m: float = 0.05, angle_deg: float = 2.0) -> np.ndarray:
+    """Indices of at most ``max_n`` scans: keyframes by motion plus scans evenly spread in time."""
+    S = len(poses)
+    if S <= max_n:
+        return np.arange(S)
+    key, last = [0], poses[0]
+    for i in range(1, S):
+        if _moved(last, poses[i], dist_m, angle_deg):
+            key.append(i)
+            last = poses[i]
+    idx = np.union1d(np.asarray(key), np.linspace(0, S - 1, max(2, max_n // 2)).round().astype(int))
+    if len(idx) > max_n:
+        idx = idx[np.linspace(0, len(idx) - 1, max_n).round().astype(int)]
+    return np.unique(idx)
 
 
 def twists_central(poses: np.ndarray, stamp_ns: np.ndarray) -> np.ndarray:
@@ -388,13 +421,15 @@ def twists_central(poses: np.ndarray, stamp_ns: np.ndarray) -> np.ndarray:
     return out
 
 
-def deskewed_scans(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: float) -> list[np.ndarray]:
-    """Per scan: range-filtered points deskewed to the scan stamp with central-difference twists."""
+def deskewed_scans(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: float, indices=None
+                   ) -> list[np.ndarray]:
+    """Per scan (or per scan of ``indices``): range-filtered points deskewed to the scan stamp with
+    central-difference twists."""
     xis = twists_central(poses, scans.stamp_ns)
     use_t = cfg.deskew and scans.times is not None
     out = []
-    for i, pts in enumerate(scans.points):
-        pts = np.asarray(pts, np.float64)
+    for i in (range(len(scans)) if indices is None else indices):
+        pts = np.asarray(scans.points[i], np.float64)
         r = np.linalg.norm(pts, axis=1)
         keep = (r >= cfg.min_range) & (r <= max_range)
         out.append(deskew(pts[keep], scans.times[i][keep] if use_t else None, xis[i]))
@@ -505,7 +540,9 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
     from .mesh import MeshConfig, PointAccumulator, build_mesh
 
     mesh_cfg = mesh_cfg or MeshConfig()
-    desk = deskewed_scans(scans, poses, cfg, max_range)
+    sub = mesh_scan_subset(poses, cfg.mesh_max_scans, cfg.map_keyframe_m, cfg.map_keyframe_deg)
+    desk = deskewed_scans(scans, poses, cfg, max_range, sub)
+    poses = poses[sub]
     if background is None:
         world = [transform(T, downsample(p, cfg.fine_map_voxel)) for T, p in zip(poses, desk)]
         background = VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
@@ -520,6 +557,7 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
     pts, view, _ = acc.cloud()
     v, f, info = build_mesh(pts, view, mesh_cfg)
     info["dynamic_points_removed"] = removed
+    info["scans_used"] = int(len(sub))
     return v, f, info, background
 
 
