@@ -99,6 +99,8 @@ class RegisterConfig:
     max_width_m: float = 1.4
     min_points: int = 100
     track_radius_m: float = 2.0
+    max_depth_spread_m: float = 0.35
+    floor_margin_m: float = 0.04
     max_speed_mps: float = 2.5
     plane_dist_m: float = 0.05
     plane_min_fraction: float = 0.03
@@ -746,8 +748,21 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     first = [pick_human(q[0], cfg) for q in cand]
     cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
     centre = np.median(cents, axis=0) if len(cents) else None
+    floor_z = None
+    if centre is not None:  # the floor under the person: low percentile of the map's nearby heights
+        near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
+        if near.sum() > 50:
+            floor_z = float(np.percentile(M[near, 2], 2))
     for (qw, vv, uu, D), m0 in zip(cand, first):
         hm = pick_human(qw, cfg, centre) if centre is not None else m0
+        if hm.any():
+            # a body is at most ~0.5 m deep along the view and stands on the floor: stereo streaks
+            # along the rays and floor returns at the feet go
+            rng_ = np.linalg.norm(qw - eye, axis=1)
+            mid = np.median(rng_[hm])
+            hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
+            if floor_z is not None:
+                hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
         human_pts.append(qw[hm].astype(np.float32))
         thick.append(body_depth(vv[hm], uu[hm], D, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m))
     # velocity compensation: camera stamp -> frame stamp
