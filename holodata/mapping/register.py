@@ -11,7 +11,7 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    picture of the static scene: a person covering a pixel in fewer than half of the frames does not
    reach the median.
 2. **Map.** Every scan in the world frame, minus the LiDAR foreground (returns outside the 15 cm
-   voxel background, :mod:`.background`) and minus a 4-pixel margin around the scan's segmented
+   voxel background, :mod:`.background`) and minus a 25 cm margin around the scan's segmented
    people (``lidar/instance``; a hand near a wall falls into a static voxel and biased the extrinsic
    by 8 cm before), voxel-thinned (``map_voxel``) with normals.
 3. **Extrinsic** ``T_world_camera`` by point-to-plane ICP (Gauss-Newton, Tukey loss, coarse-to-fine
@@ -611,19 +611,25 @@ def _parse_init(init) -> np.ndarray | None:
     raise InputError(f"--init needs x,y,z,roll,pitch,yaw (m, degrees), got {init!r}")
 
 
-def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, dilate_px: int = 4) -> np.ndarray:
-    """World-frame static map: every scan's returns inside the background model and away (by
-    ``dilate_px`` grid pixels) from the scan's segmented instances ``instances`` (lazy (T,H,W) array or
-    None), voxel-thinned. The instance margin removes the parts of people that fall into static voxels
-    (a hand near a wall, feet on the floor), which would otherwise bias the registration."""
-    from .segment import erode, in_background
+def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, margin_m: float = 0.25) -> np.ndarray:
+    """World-frame static map: every scan's returns inside the background model and farther than
+    ``margin_m`` from the scan's segmented instances ``instances`` (lazy (T,H,W) array or None),
+    voxel-thinned. The instance margin removes the parts of people that fall into static voxels (a
+    hand near a wall, feet on the floor), which would otherwise bias the registration."""
+    from scipy.spatial import cKDTree
+
+    from .segment import in_background
 
     pts = []
     for k in range(len(scans.stamps)):
         valid, _, Pw = scans.scan(k, traj, deskew)
         if instances is not None:
-            near = ~erode(~(np.asarray(instances[k]) > 0), dilate_px)  # dilation (columns wrap)
-            valid = valid & ~near
+            inst = np.asarray(instances[k]) > 0
+            if (inst & valid).any():
+                d, _ = cKDTree(Pw[inst & valid]).query(Pw[valid], k=1, distance_upper_bound=margin_m, workers=-1)
+                keep = np.zeros_like(valid)
+                keep[valid] = ~np.isfinite(d)
+                valid = keep
         p = Pw[valid]
         if bg is not None and len(p):
             p = p[in_background(bg, p, 0)]
