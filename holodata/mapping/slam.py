@@ -65,7 +65,9 @@ class SlamConfig:
     ``background_min_fraction``: the voxel background model (moving points out of the map
     and mesh); ``mesh``: build and store the static mesh from at most ``mesh_max_scans`` scans
     (every scan that moved a keyframe distance plus scans evenly spread in time, so that people
-    walking while the robot stands still are still seen moving).
+    walking while the robot stands still are still seen moving); ``still_m`` / ``still_deg``:
+    when kiss-icp says the sensor moved less than this since the previous scan (robot at rest), the
+    scan keeps the previous refined pose and kiss-icp's tiny relative motion without ICP.
     """
 
     voxel: float = 0.15
@@ -86,6 +88,8 @@ class SlamConfig:
     map_keyframe_m: float = 0.05
     map_keyframe_deg: float = 2.0
     mesh_max_scans: int = 120
+    still_m: float = 0.002
+    still_deg: float = 0.05
     background_voxel: float = 0.15
     background_min_fraction: float = 0.6
     mesh: bool = True
@@ -351,7 +355,7 @@ def refine(scans: Scans, init: np.ndarray, cfg: SlamConfig, max_range: float, qu
     rmse = np.zeros(S)
     xi_prev = np.zeros(6)
     fallbacks = 0
-    last_key, keyframes = None, 0
+    last_key, keyframes, still = None, 0, 0
     for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
         pts = np.asarray(scans.points[i], np.float64)
         r = np.linalg.norm(pts, axis=1)
@@ -367,6 +371,11 @@ def refine(scans: Scans, init: np.ndarray, cfg: SlamConfig, max_range: float, qu
         if i == 0:
             T = guess
             f, e = 1.0, 0.0
+        elif not _moved(init[i - 1], init[i], cfg.still_m, cfg.still_deg) and not _moved(
+                poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5):
+            T, f, e = guess, float(fit[i - 1]), float(rmse[i - 1])  # at rest: nothing to refine
+            still += 1
+            xi = np.zeros(6)
         else:
             tgt_p, tgt_n = vmap.crop(guess[:3, 3], max_range + 1.0)
             T, f, e = icp(downsample(desk, cfg.source_voxel), _o3d_cloud(tgt_p, tgt_n), guess, cfg)
@@ -383,7 +392,7 @@ def refine(scans: Scans, init: np.ndarray, cfg: SlamConfig, max_range: float, qu
             last_key = T
             keyframes += 1
     health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
-              "map_keyframes": keyframes}
+              "map_keyframes": keyframes, "still_scans": still}
     return poses, health
 
 
@@ -627,7 +636,8 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
         poses, h1 = refine(scans, K, config, max_range, quiet=quiet)
         timings["refine_s"] = time.perf_counter() - t0
         health["sequential"] = {"fitness_min": float(h1["fitness"][1:].min()), "fitness_mean": float(h1["fitness"][1:].mean()),
-                                "rmse_max_m": float(h1["rmse"][1:].max()), "kiss_fallbacks": h1["kiss_fallbacks"]}
+                                "rmse_max_m": float(h1["rmse"][1:].max()), "kiss_fallbacks": h1["kiss_fallbacks"],
+                                "still_scans": h1["still_scans"], "map_keyframes": h1["map_keyframes"]}
         if config.global_pass:
             t0 = time.perf_counter()
             poses, h2 = global_refine(scans, poses, config, max_range, quiet=quiet)
