@@ -60,6 +60,19 @@ def test_fallback_is_rejected_when_nothing_fits():
     assert all(not a["accepted"] for a in reg.attempts)
 
 
+def test_fallback_far_from_the_informed_guess_is_rejected_even_when_it_fits():
+    rng = np.random.default_rng(2)
+    world = _room(rng, 30000)
+    T_true = _pose([3.2, 3.1, 1.4], [5.0, -8.0, 200.0])
+    seen = world[(world[:, 0] < 3.0) & (world[:, 1] < 3.0)]
+    cam = (seen - T_true[:3, 3]) @ T_true[:3, :3] + rng.normal(0, 0.003, seen.shape)
+    init = T_true @ _pose([2.5, -2.0, 0.5], [0, 0, 150])      # 3.2 m and 150 deg off: ICP cannot converge
+    far = register_extrinsic(cam, world, init, RegisterConfig(min_overlap_points=100))
+    fb = far.attempts[-1]
+    assert fb["method"] == "fpfh+icp" and fb["prior_shift_m"] > 1.0 and not fb["accepted"]
+    assert not far.accepted
+
+
 def test_voxel_boundary_is_closed_and_outward():
     occ = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [1, 1, 1], [3, 0, 0]])   # an L plus a separate cube
     v, f = voxel_boundary(occ, 0.1)

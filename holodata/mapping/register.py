@@ -90,6 +90,10 @@ class RegisterConfig:
     max_rmse_m: float = 0.03
     min_overlap_points: int = 300
     fpfh_voxel: float = 0.1
+    # the global fallback must stay near the informed guess (TF / --init): corridors are
+    # self-similar, and FPFH+RANSAC found 5-8 m shifted alignments that passed fitness/RMSE
+    fallback_max_shift_m: float = 1.0
+    fallback_max_rot_deg: float = 20.0
     max_range_m: float = 12.0
     fg_min_m: float = 0.12
     fg_sigma: float = 4.0
@@ -273,6 +277,13 @@ def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int 
     return np.asarray(res.transformation)
 
 
+def prior_deviation(T: np.ndarray, init: np.ndarray) -> tuple[float, float]:
+    """How far a camera pose ``T`` (4,4) lies from the initial guess ``init``: (metres, degrees)."""
+    D = np.linalg.inv(init) @ T
+    cos = np.clip((np.trace(D[:3, :3]) - 1) / 2, -1.0, 1.0)
+    return float(np.linalg.norm(T[:3, 3] - init[:3, 3])), float(np.degrees(np.arccos(cos)))
+
+
 def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray,
                        cfg: RegisterConfig | None = None, allow_fallback: bool = True,
                        sigma: np.ndarray | None = None) -> Registration:
@@ -335,9 +346,13 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         info2: dict = {}
         T2 = refine(Tg, info2)
         c2 = check(T2)
+        shift, rot = prior_deviation(T2, init)
+        c2 = {**c2, "prior_shift_m": shift, "prior_rot_deg": rot}
+        if shift > cfg.fallback_max_shift_m or rot > cfg.fallback_max_rot_deg:
+            c2["accepted"] = False
         attempts.append({"method": "fpfh+icp", **c2, "frozen_directions": info2.get("frozen", 0),
                          "eigenvalues_rel": info2.get("eigenvalues")})
-        if c2["accepted"] or (not c["accepted"] and c2["overlap"] * c2["fitness"] > c["overlap"] * c["fitness"]):
+        if c2["accepted"]:
             best = ("fpfh+icp", T2, c2)
     m, T, c = best
     return Registration(T, m, c["fitness"], c["rmse"], c["overlap"], c["accepted"], attempts)
@@ -697,6 +712,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     timings["extrinsic_s"] = time.perf_counter() - t1
     if not reg.accepted:
         a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm"
+                      + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
+                         if "prior_shift_m" in x else "")
                       for x in reg.attempts)
         raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
                                 f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
