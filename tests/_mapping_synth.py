@@ -3,7 +3,9 @@ corridor (visible to the LiDAR), ingested, with the *true* LiDAR/radar poses wri
 (so segmentation and registration are tested without SLAM error). Built once per test process."""
 from __future__ import annotations
 
+import atexit
 import functools
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -18,6 +20,7 @@ def small_corner() -> tuple[str, str]:
     from holodata.synth import synthesize
 
     root = Path(tempfile.mkdtemp(prefix="holodata-mapping-"))
+    atexit.register(shutil.rmtree, root, True)
     res = synthesize(root / "rec", corner="L", width=2.2, frames=10, seed=1, grid=Grid(8, 32),
                      range_bins=RangeBins(n=64), lidar_shape=(32, 512), camera_shape=(188, 336), quiet=True,
                      visible_walkers=2)
