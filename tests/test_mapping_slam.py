@@ -299,3 +299,27 @@ def test_mesh_errors_analytic_occlusion_aware():
     ev3, ef3 = _merge([_square(0.0), _square(1.0, half=0.5)])
     m3 = mesh_errors(ev3, ef3, tv, tf, sensor_poses=pose[None], sample_spacing=0.02)
     assert m3["recall_2cm"] == 1.0 and abs(m3["precision_2cm"] - 4 / 5) < 0.02
+
+
+def test_floor_fill_closes_the_blind_disc_but_not_behind_walls():
+    """A corridor 2 m wide along x (walls y = +-1) with its floor observed only beyond 2.5 m of the
+    sensor: the fill covers the floor around the sensor and never the far side of a wall."""
+    from holodata.mapping.mesh import fill_floor_near_sensors, horizontal_planes
+
+    rng = np.random.default_rng(0)
+    xs = rng.uniform(-6, 6, 20000)
+    walls = np.c_[xs, np.where(rng.uniform(size=len(xs)) < 0.5, -1.0, 1.0), rng.uniform(0.3, 2.5, len(xs))]
+    fx, fy = rng.uniform(-6, 6, 20000), rng.uniform(-0.95, 0.95, 20000)
+    far = np.hypot(fx, fy) > 2.5
+    floor = np.c_[fx[far], fy[far], np.zeros(far.sum())]
+    pts = np.concatenate([walls, floor])
+    normals = np.concatenate([np.tile([0, 1.0, 0], (len(walls), 1)), np.tile([0, 0, 1.0], (len(floor), 1))])
+    f_z, c_z = horizontal_planes(pts, normals)
+    assert f_z == pytest.approx(0.0, abs=0.02) and c_z is None
+    v, f = fill_floor_near_sensors(pts, f_z, np.array([[0.0, 0.0, 0.7]]), radius=3.0, cell=0.1)
+    assert len(f) and np.allclose(v[:, 2], 0.0)
+    centres = v.reshape(-1, 4, 3).mean(axis=1)
+    assert np.abs(centres[:, 1]).max() < 1.0            # nothing beyond the walls
+    assert np.hypot(centres[:, 0], centres[:, 1]).max() <= 3.0 + 0.1
+    area = len(f) / 2 * 0.01
+    assert 0.6 * (2 * 2 * 2.5) < area < 2 * 3.0 * 2     # the blind disc inside the corridor is covered

@@ -22,6 +22,11 @@
    surface even from a flat synthetic depth image, so it is not offered. Poisson with trimming is
    the default: it averages the range noise into smooth planes and closes the gaps between rings.
 4. Optional quadric decimation to ``max_faces``.
+5. ``fill_planes``: holes in the floor and the ceiling that are enclosed by observed structure
+   (in plan view, ``fill_cell`` grid) are closed with flat quads at the plane's height. A LiDAR
+   with a narrow vertical field of view never sees the floor around the robot nor most of the
+   ceiling (an OS1-like 33 deg at 0.74 m: floor from ~2.5 m, a 3 m ceiling from ~7.5 m), while
+   the radar looks +-45 deg; without the fill, half of its bounce-1 beams ended in such holes.
 """
 from __future__ import annotations
 
@@ -47,6 +52,9 @@ class MeshConfig:
     density_quantile: float = 0.02
     trim_distance: float = 0.06
     max_faces: int = 400_000
+    fill_planes: bool = True
+    fill_cell: float = 0.1
+    fill_radius: float = 3.0
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -155,9 +163,89 @@ def bpa_mesh(pc, cfg: MeshConfig):
     return _clean(mesh), {"radii": list(radii)}
 
 
-def build_mesh(points: np.ndarray, view: np.ndarray, cfg: MeshConfig = MeshConfig()
+def horizontal_planes(points: np.ndarray, normals: np.ndarray, bin_m: float = 0.02,
+                      min_points: int = 200) -> tuple[float | None, float | None]:
+    """Heights (m) of the floor and the ceiling: the lowest and highest well-supported levels of
+    points whose normal is vertical (None when absent; the ceiling needs 1.8 m above the floor)."""
+    z = points[np.abs(normals[:, 2]) > 0.95, 2]
+    if len(z) < min_points:
+        return None, None
+    edges = np.arange(z.min(), z.max() + 2 * bin_m, bin_m)
+    hist, _ = np.histogram(z, edges)
+    good = np.nonzero(hist >= max(min_points, 0.01 * len(z)))[0]
+    if not len(good):
+        return None, None
+    level = lambda i: float(np.median(z[(z >= edges[i]) & (z < edges[i + 1])]))  # noqa: E731
+    floor, ceiling = level(good[0]), level(good[-1])
+    return floor, (ceiling if ceiling - floor > 1.8 else None)
+
+
+def fill_plane_holes(points: np.ndarray, height: float, other: float | None, cell: float, band: float = 0.06
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Quads at ``height`` over the plan-view cells that are holes in the occupancy of the points
+    near that height plus the walls (every point not near the ``other`` horizontal plane): cells
+    enclosed by observed structure. Returns vertices (V,3), faces (F,3); empty when none."""
+    from scipy.ndimage import binary_closing, binary_fill_holes
+
+    keep = np.ones(len(points), bool) if other is None else np.abs(points[:, 2] - other) > band
+    xy = points[keep, :2]
+    if not len(xy):
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    lo = xy.min(0) - 2 * cell
+    ij = np.floor((xy - lo) / cell).astype(np.int64)
+    occ = np.zeros(tuple(ij.max(0) + 3), bool)
+    occ[ij[:, 0], ij[:, 1]] = True
+    occ = binary_closing(occ, iterations=1)
+    ci, cj = np.nonzero(binary_fill_holes(occ) & ~occ)
+    if not len(ci):
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    x0, y0 = lo[0] + ci * cell, lo[1] + cj * cell
+    corners = np.stack([np.c_[x0, y0], np.c_[x0 + cell, y0], np.c_[x0 + cell, y0 + cell], np.c_[x0, y0 + cell]], 1)
+    v = np.concatenate([corners.reshape(-1, 2), np.full((4 * len(ci), 1), height)], axis=1)
+    b = 4 * np.arange(len(ci))[:, None]
+    return v, np.concatenate([b + [0, 1, 2], b + [0, 2, 3]])
+
+
+def fill_floor_near_sensors(points: np.ndarray, floor: float, sensor_xyz: np.ndarray, radius: float, cell: float
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """Floor quads (at height ``floor``) over the plan-view cells within ``radius`` of a sensor
+    position that the sensor sees in plan view without crossing a wall (points 0.3-2 m above the
+    floor): the floor under and around the robot, which a narrow-FOV LiDAR never samples."""
+    from scipy.ndimage import binary_dilation
+    from scipy.spatial import cKDTree
+
+    wall = points[(points[:, 2] > floor + 0.3) & (points[:, 2] < floor + 2.0), :2]
+    s_xy = np.asarray(sensor_xyz, np.float64)[:, :2]
+    lo = np.minimum(wall.min(0) if len(wall) else s_xy.min(0), s_xy.min(0)) - radius - 2 * cell
+    hi = np.maximum(wall.max(0) if len(wall) else s_xy.max(0), s_xy.max(0)) + radius + 2 * cell
+    shape = tuple(np.ceil((hi - lo) / cell).astype(np.int64) + 1)
+    occ = np.zeros(shape, bool)
+    if len(wall):
+        wij = np.floor((wall - lo) / cell).astype(np.int64)
+        occ[wij[:, 0], wij[:, 1]] = True
+        occ = binary_dilation(occ, iterations=1)
+    gi, gj = np.nonzero(np.ones(shape, bool))
+    centre = lo + (np.c_[gi, gj] + 0.5) * cell
+    dist, near = cKDTree(s_xy).query(centre, distance_upper_bound=radius)
+    ok = np.isfinite(dist) & ~occ[gi, gj]
+    gi, gj, centre, near = gi[ok], gj[ok], centre[ok], near[ok]
+    # walk each cell's plan-view segment from its nearest sensor position: no wall cell on the way
+    t = np.linspace(0.0, 1.0, int(np.ceil(radius / (0.5 * cell))) + 1)
+    seg = s_xy[near][:, None, :] + t[None, :, None] * (centre - s_xy[near])[:, None, :]
+    sij = np.clip(np.floor((seg - lo) / cell).astype(np.int64), 0, np.array(shape) - 1)
+    free = ~occ[sij[..., 0], sij[..., 1]].any(axis=1)
+    x0, y0 = lo[0] + gi[free] * cell, lo[1] + gj[free] * cell
+    n = len(x0)
+    corners = np.stack([np.c_[x0, y0], np.c_[x0 + cell, y0], np.c_[x0 + cell, y0 + cell], np.c_[x0, y0 + cell]], 1)
+    v = np.concatenate([corners.reshape(-1, 2), np.full((4 * n, 1), floor)], axis=1)
+    b = 4 * np.arange(n)[:, None]
+    return v, np.concatenate([b + [0, 1, 2], b + [0, 2, 3]]).reshape(-1, 3)
+
+
+def build_mesh(points: np.ndarray, view: np.ndarray, cfg: MeshConfig = MeshConfig(), sensor_xyz=None
                ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """Surface from the voxel-averaged static cloud ``points`` (M,3) with view directions ``view``.
+    """Surface from the voxel-averaged static cloud ``points`` (M,3) with view directions ``view``;
+    ``sensor_xyz`` (S,3) the scan positions (for filling the floor around them).
     Returns vertices (V,3) float32, faces (F,3) int32 and an info dict (method, counts, seconds)."""
     t0 = time.perf_counter()
     if len(points) < 10:
@@ -171,6 +259,20 @@ def build_mesh(points: np.ndarray, view: np.ndarray, cfg: MeshConfig = MeshConfi
         mesh = _clean(mesh.simplify_quadric_decimation(int(cfg.max_faces)))
     v = np.asarray(mesh.vertices, np.float32)
     f = np.asarray(mesh.triangles, np.int32)
+    if cfg.fill_planes:
+        floor, ceiling = horizontal_planes(np.asarray(pc.points), np.asarray(pc.normals))
+        filled = {}
+        for name, h, other in (("floor", floor, ceiling), ("ceiling", ceiling, floor)):
+            if h is None:
+                continue
+            fv, ff = fill_plane_holes(points, h, other, cfg.fill_cell)
+            if name == "floor" and sensor_xyz is not None and len(sensor_xyz):
+                nv, nf = fill_floor_near_sensors(points, h, sensor_xyz, cfg.fill_radius, cfg.fill_cell)
+                fv, ff = np.concatenate([fv, nv]), np.concatenate([ff, nf + len(fv)])
+            filled[name] = {"height_m": round(h, 3), "faces": int(len(ff))}
+            f = np.concatenate([f, (ff + len(v)).astype(np.int32)])
+            v = np.concatenate([v, fv.astype(np.float32)])
+        info["filled"] = filled
     info.update({"method": cfg.method, "vertices": int(len(v)), "faces": int(len(f)), "points": int(len(points)),
                  "seconds": round(time.perf_counter() - t0, 3)})
     return v, f, info

@@ -264,6 +264,7 @@ def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int 
 
     reg = o3d.pipelines.registration
     o3d.utility.random.seed(seed)
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # no "too few correspondences" chatter
     feats = []
     for pts in (source, target):
         p = _pcd(pts, voxel, 2 * voxel)

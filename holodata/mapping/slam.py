@@ -564,7 +564,7 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
         removed += int((~m).sum())
         acc.add(w[m], T[:3, 3])
     pts, view, _ = acc.cloud()
-    v, f, info = build_mesh(pts, view, mesh_cfg)
+    v, f, info = build_mesh(pts, view, mesh_cfg, sensor_xyz=poses[:, :3, 3])
     info["dynamic_points_removed"] = removed
     info["scans_used"] = int(len(sub))
     return v, f, info, background
