@@ -27,6 +27,8 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--range-bins", "range_bins", type=click.IntRange(min=8), default=256, show_default=True,
               help="Radar range bins (3.75 cm each).")
 @click.option("--lidar", default="64x1024", show_default=True, help="LiDAR beams x columns.")
+@click.option("--lidar-fov", "lidar_fov", type=click.FloatRange(5.0, 180.0), default=33.2, show_default=True,
+              help="LiDAR vertical field of view in degrees (33.2 OS1-like, 90 OS0-like).")
 @click.option("--camera", default="376x672", show_default=True, help="Depth camera rows x columns.")
 @click.option("--no-human", is_flag=True, help="Record the corner without a human.")
 @click.option("--visible-walkers", type=click.IntRange(min=0), default=0, show_default=True,
@@ -41,7 +43,7 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
                    "scheduler file); OUT must be a folder the workers share.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera, no_human, visible_walkers,
+def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
           stereo_images, count, workers, scheduler, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
@@ -60,7 +62,8 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, camera
         raise click.BadParameter(str(err), param_hint="--grid") from None
     kw = dict(corner=corner, width=width, frames=frames, format=fmt, human=not no_human, grid=g,
               range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
-              camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers)
+              camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers,
+              lidar_vertical_fov_deg=lidar_fov)
     if count > 1 or workers or scheduler:
         import json
 

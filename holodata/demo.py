@@ -36,7 +36,8 @@ DEMO_CORNERS: tuple[tuple[str, int], ...] = (
 class DemoConfig:
     """Sizes of one demo run. ``corners``: (kind, seed) per scene, the last ``n_test`` form the test
     split; ``frames``: radar rotations per corner (2 Hz); ``grid``: radar beam grid (H×W);
-    ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
+    ``lidar_shape`` (beams, columns); ``lidar_vertical_fov_deg`` 90 (OS0-like: the SLAM mesh then
+    covers the floor and ceiling the radar sees); ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
     ``base_channels``, ``max_channels``, ``range_pool``: the model and its training (TrainConfig)."""
 
     corners: tuple[tuple[str, int], ...]
@@ -51,6 +52,7 @@ class DemoConfig:
     base_channels: int = 16
     max_channels: int = 128
     range_pool: int = 1
+    lidar_vertical_fov_deg: float = 90.0
     range_bins: RangeBins = field(default_factory=RangeBins)
 
 
@@ -198,7 +200,8 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> di
             shutil.rmtree(d)
         out[sid] = synthesize(d, corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid,
                               range_bins=cfg.range_bins, lidar_shape=cfg.lidar_shape,
-                              camera_shape=cfg.camera_shape, quiet=quiet)
+                              camera_shape=cfg.camera_shape, lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg,
+                              quiet=quiet)
     return out
 
 

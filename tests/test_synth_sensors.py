@@ -111,3 +111,12 @@ def test_stereo_pair_is_rectified_with_the_depth_cameras_disparity():
     unshifted = np.corrcoef(a, right[ok].astype(float))[0, 1]
     assert shifted > 0.9 and shifted > unshifted + 0.05
     assert left.dtype == np.uint8 and left.std() > 5  # textured, not flat
+
+
+def test_lidar_vertical_fov_is_a_setting():
+    from holodata.synth.lidar import LidarConfig, beam_angles
+
+    alt, _ = beam_angles(LidarConfig(rows=32, vertical_fov_deg=90.0), np.random.default_rng(0))
+    assert alt.max() == pytest.approx(45.0, abs=0.3) and alt.min() == pytest.approx(-45.0, abs=0.3)
+    alt, _ = beam_angles(LidarConfig(rows=32), np.random.default_rng(0))
+    assert alt.max() == pytest.approx(16.6, abs=0.3)

@@ -84,7 +84,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
                seed: int = 0, human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
                lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
                radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False,
-               visible_walkers: int = 0) -> SynthResult:
+               visible_walkers: int = 0, lidar_vertical_fov_deg: float = 33.2) -> SynthResult:
     """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
@@ -93,6 +93,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     ``stereo_images`` adds the rectified left/right mono8 pair (``STEREO_TOPICS``) for OpenCV stereo.
     ``visible_walkers`` N adds N people walking in the approach corridor, seen by every sensor, with
     per-scan LiDAR truth instance masks in ``truth/lidar_instances.npz`` (0: none, outputs unchanged).
+    ``lidar_vertical_fov_deg``: 33.2 OS1-like (default), 90 OS0-like (sees floor and ceiling nearby).
     Same arguments → byte-identical files.
     """
     from .recording import FORMATS, recording_path
@@ -112,7 +113,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
                         camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images,
-                        visible_walkers=visible_walkers)
+                        visible_walkers=visible_walkers, lidar_vertical_fov_deg=lidar_vertical_fov_deg)
     return write_recording(sc, out_dir, format, quiet=quiet)
 
 

@@ -107,7 +107,8 @@ class Scenario:
 def build_scenario(corner: str = "L", width: float | None = None, frames: int = 20, seed: int = 0,
                    human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
                    lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16",
-                   stereo_images: bool = False, visible_walkers: int = 0) -> Scenario:
+                   stereo_images: bool = False, visible_walkers: int = 0,
+                   lidar_vertical_fov_deg: float = LidarConfig.vertical_fov_deg) -> Scenario:
     """Everything about one recording except the sensor data itself.
 
     ``visible_walkers`` N > 0 adds N people walking back and forth along the approach corridor (the
@@ -127,7 +128,7 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
                           float(rng.uniform(-1.0, 1.0)))
     T_base_lidar = _trans(float(rng.uniform(-0.08, 0.0)), 0.0, float(rng.uniform(0.7, 0.85)), float(rng.uniform(-1.0, 1.0)))
     rows, cols = lidar_shape
-    lidar_cfg = LidarConfig(rows=int(rows), cols=int(cols))
+    lidar_cfg = LidarConfig(rows=int(rows), cols=int(cols), vertical_fov_deg=float(lidar_vertical_fov_deg))
     alt, az = beam_angles(lidar_cfg, rng)
     cam_cfg = CameraConfig()
     if tuple(camera_shape) != (cam_cfg.height, cam_cfg.width):
