@@ -45,7 +45,6 @@ def trace_with_human(sc, O, D, B, max_range, t_ns):
 
 
 def build(url: str, grid: Grid, bins: RangeBins, frames: int, corners) -> list[str]:
-    from holodata.raytrace import RayScene
     from holodata.synth.scenario import Sensors, build_scenario
 
     w = create_dataset(url, grid=grid, range_bins=bins, created_by="benchmarks/model_vs_baseline.py", shard_frames=frames)

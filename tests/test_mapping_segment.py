@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from holodata.mapping.human_eval import ap50, average_precision, match_scan
-from holodata.mapping.segment import SegmentConfig, destagger, erode, row_shifts, segment_scan
+from holodata.mapping.segment import SegmentConfig, destagger, row_shifts, segment_scan
 
 
 def _scan(H=32, W=256, az_offsets=None):
