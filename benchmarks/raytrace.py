@@ -33,6 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from holodata.conventions import Grid  # noqa: E402
+from holodata.meshio import merge_meshes  # noqa: E402
 from holodata.meshio import Mesh, write_ply  # noqa: E402
 from holodata.trajectory import Trajectory, write_tum  # noqa: E402
 
@@ -47,12 +48,8 @@ def plane(p0, u, v, nu, nv):
 
 
 def merge(parts):
-    vs, fs, n = [], [], 0
-    for v, f in parts:
-        vs.append(v)
-        fs.append(f + n)
-        n += len(v)
-    return np.concatenate(vs), np.concatenate(fs).astype(np.int32)
+    v, f = merge_meshes(parts)
+    return v, f.astype(np.int32)
 
 
 def t_junction(res=0.1, width=2.0, length=12.0, height=2.6):

@@ -44,6 +44,17 @@ class Mesh:
             self.face_class = np.asarray(self.face_class, dtype=np.uint8).reshape(-1)
 
 
+def merge_meshes(parts) -> tuple[np.ndarray, np.ndarray]:
+    """One triangle soup from ``parts`` [(vertices (Vi,3), faces (Fi,3)), ...]: vertices stacked,
+    faces re-indexed by each part's vertex offset (int64)."""
+    vs, fs, n = [], [], 0
+    for v, f in parts:
+        vs.append(np.asarray(v))
+        fs.append(np.asarray(f, dtype=np.int64).reshape(-1, 3) + n)
+        n += len(v)
+    return np.concatenate(vs), np.concatenate(fs)
+
+
 def read_mesh(path: str | Path) -> Mesh:
     """Read a PLY, OBJ or STL triangle mesh, or a directory holding one mesh file per class
     (``floor.ply``, ``wall.obj``, ...: class ids 1.. in file-name order, names from the file stems).

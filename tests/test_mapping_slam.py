@@ -12,6 +12,7 @@ from _recordings import Writer, cloud_msg
 from holodata.cli.main import cli
 from holodata.mapping.background import VoxelBackground
 from holodata.mapping.slam import deskew, twist
+from holodata.meshio import merge_meshes
 from holodata.trajectory import Trajectory
 
 # Ouster ROS driver layout (point_step 48, padding after z and after range)
@@ -35,18 +36,9 @@ def _box(lo, hi):
     return np.asarray(m.vertices), np.asarray(m.triangles)
 
 
-def _merge(parts):
-    vs, fs, n = [], [], 0
-    for v, f in parts:
-        vs.append(v)
-        fs.append(f + n)
-        n += len(v)
-    return np.concatenate(vs), np.concatenate(fs)
-
-
 def world_mesh():
     t = 0.1
-    return _merge([
+    return merge_meshes([
         _box((-3, -1 - t, -t), (6 + t, 6, 0)),          # floor
         _box((-3, -1 - t, 2.5), (6 + t, 6, 2.5 + t)),   # ceiling
         _box((-3, -1 - t, 0), (6 + t, -1, 2.5)),        # right wall
@@ -283,7 +275,7 @@ def _square(z, half=1.0):
 def test_mesh_errors_analytic_occlusion_aware():
     from holodata.mapping.accuracy import mesh_errors
 
-    tv, tf = _merge([_square(0.0), _square(-1.0)])     # the lower square is hidden below the upper one
+    tv, tf = merge_meshes([_square(0.0), _square(-1.0)])     # the lower square is hidden below the upper one
     pose = np.eye(4)
     pose[:3, 3] = [0, 0, 2.0]                          # sensor above, looking at everything below
     ev, ef = _square(0.03)                             # estimate: the upper square, 3 cm too high
@@ -296,7 +288,7 @@ def test_mesh_errors_analytic_occlusion_aware():
     m2 = mesh_errors(ev, ef, tv, tf, sensor_poses=None, sample_spacing=0.02)
     assert abs(m2["recall_5cm"] - 0.5) < 0.02
     # invented surface in free space counts against precision
-    ev3, ef3 = _merge([_square(0.0), _square(1.0, half=0.5)])
+    ev3, ef3 = merge_meshes([_square(0.0), _square(1.0, half=0.5)])
     m3 = mesh_errors(ev3, ef3, tv, tf, sensor_poses=pose[None], sample_spacing=0.02)
     assert m3["recall_2cm"] == 1.0 and abs(m3["precision_2cm"] - 4 / 5) < 0.02
 

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from holodata.conventions import Label
+from holodata.meshio import merge_meshes
 from holodata.raytrace import RayScene, available_backends, trace
 from holodata.raytrace.labels import CEILING, FLOOR, WALL
 
@@ -25,12 +26,7 @@ def quad(p0, p1, p2, p3):
 
 
 def merge(*meshes):
-    vs, fs, n = [], [], 0
-    for v, f in meshes:
-        vs.append(v)
-        fs.append(np.asarray(f) + n)
-        n += len(v)
-    return np.concatenate(vs), np.concatenate(fs)
+    return merge_meshes(meshes)
 
 
 def grid_plane(z, half, n):

@@ -36,6 +36,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..meshio import merge_meshes
 from .background import _keys, voxel_index
 
 METHODS = ("poisson", "bpa")
@@ -180,6 +181,15 @@ def horizontal_planes(points: np.ndarray, normals: np.ndarray, bin_m: float = 0.
     return floor, (ceiling if ceiling - floor > 1.8 else None)
 
 
+def cell_quads(x0: np.ndarray, y0: np.ndarray, cell: float, height: float) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal square quads (two triangles each) at ``height`` over the plan-view cells whose
+    lower-left corners are ``x0``, ``y0`` (n,) m: vertices (4n,3), faces (2n,3)."""
+    corners = np.stack([np.c_[x0, y0], np.c_[x0 + cell, y0], np.c_[x0 + cell, y0 + cell], np.c_[x0, y0 + cell]], 1)
+    v = np.concatenate([corners.reshape(-1, 2), np.full((4 * len(x0), 1), height)], axis=1)
+    b = 4 * np.arange(len(x0))[:, None]
+    return v, np.concatenate([b + [0, 1, 2], b + [0, 2, 3]]).reshape(-1, 3)
+
+
 def fill_plane_holes(points: np.ndarray, height: float, other: float | None, cell: float, band: float = 0.06
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Quads at ``height`` over the plan-view cells that are holes in the occupancy of the points
@@ -197,13 +207,7 @@ def fill_plane_holes(points: np.ndarray, height: float, other: float | None, cel
     occ[ij[:, 0], ij[:, 1]] = True
     occ = binary_closing(occ, iterations=1)
     ci, cj = np.nonzero(binary_fill_holes(occ) & ~occ)
-    if not len(ci):
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
-    x0, y0 = lo[0] + ci * cell, lo[1] + cj * cell
-    corners = np.stack([np.c_[x0, y0], np.c_[x0 + cell, y0], np.c_[x0 + cell, y0 + cell], np.c_[x0, y0 + cell]], 1)
-    v = np.concatenate([corners.reshape(-1, 2), np.full((4 * len(ci), 1), height)], axis=1)
-    b = 4 * np.arange(len(ci))[:, None]
-    return v, np.concatenate([b + [0, 1, 2], b + [0, 2, 3]])
+    return cell_quads(lo[0] + ci * cell, lo[1] + cj * cell, cell, height)
 
 
 def fill_floor_near_sensors(points: np.ndarray, floor: float, sensor_xyz: np.ndarray, radius: float, cell: float
@@ -234,12 +238,7 @@ def fill_floor_near_sensors(points: np.ndarray, floor: float, sensor_xyz: np.nda
     seg = s_xy[near][:, None, :] + t[None, :, None] * (centre - s_xy[near])[:, None, :]
     sij = np.clip(np.floor((seg - lo) / cell).astype(np.int64), 0, np.array(shape) - 1)
     free = ~occ[sij[..., 0], sij[..., 1]].any(axis=1)
-    x0, y0 = lo[0] + gi[free] * cell, lo[1] + gj[free] * cell
-    n = len(x0)
-    corners = np.stack([np.c_[x0, y0], np.c_[x0 + cell, y0], np.c_[x0 + cell, y0 + cell], np.c_[x0, y0 + cell]], 1)
-    v = np.concatenate([corners.reshape(-1, 2), np.full((4 * n, 1), floor)], axis=1)
-    b = 4 * np.arange(n)[:, None]
-    return v, np.concatenate([b + [0, 1, 2], b + [0, 2, 3]]).reshape(-1, 3)
+    return cell_quads(lo[0] + gi[free] * cell, lo[1] + gj[free] * cell, cell, floor)
 
 
 def build_mesh(points: np.ndarray, view: np.ndarray, cfg: MeshConfig = MeshConfig(), sensor_xyz=None
@@ -257,22 +256,22 @@ def build_mesh(points: np.ndarray, view: np.ndarray, cfg: MeshConfig = MeshConfi
         mesh, info = bpa_mesh(pc, cfg)
     if cfg.max_faces and len(mesh.triangles) > cfg.max_faces:
         mesh = _clean(mesh.simplify_quadric_decimation(int(cfg.max_faces)))
-    v = np.asarray(mesh.vertices, np.float32)
-    f = np.asarray(mesh.triangles, np.int32)
+    parts = [(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.triangles, np.int32))]
     if cfg.fill_planes:
         floor, ceiling = horizontal_planes(np.asarray(pc.points), np.asarray(pc.normals))
         filled = {}
         for name, h, other in (("floor", floor, ceiling), ("ceiling", ceiling, floor)):
             if h is None:
                 continue
-            fv, ff = fill_plane_holes(points, h, other, cfg.fill_cell)
+            fills = [fill_plane_holes(points, h, other, cfg.fill_cell)]
             if name == "floor" and sensor_xyz is not None and len(sensor_xyz):
-                nv, nf = fill_floor_near_sensors(points, h, sensor_xyz, cfg.fill_radius, cfg.fill_cell)
-                fv, ff = np.concatenate([fv, nv]), np.concatenate([ff, nf + len(fv)])
+                fills.append(fill_floor_near_sensors(points, h, sensor_xyz, cfg.fill_radius, cfg.fill_cell))
+            fv, ff = merge_meshes(fills)
             filled[name] = {"height_m": round(h, 3), "faces": int(len(ff))}
-            f = np.concatenate([f, (ff + len(v)).astype(np.int32)])
-            v = np.concatenate([v, fv.astype(np.float32)])
+            parts.append((fv.astype(np.float32), ff))
         info["filled"] = filled
+    v, f = merge_meshes(parts)
+    v, f = v.astype(np.float32), f.astype(np.int32)
     info.update({"method": cfg.method, "vertices": int(len(v)), "faces": int(len(f)), "points": int(len(points)),
                  "seconds": round(time.perf_counter() - t0, 3)})
     return v, f, info
