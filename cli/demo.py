@@ -8,7 +8,7 @@ import click
 @click.option("--out", "out", type=click.Path(file_okay=False), default="holodata-demo", show_default=True,
               help="Output folder (recordings/, dataset.zarr, run/, report/); rerunning resumes.")
 @click.option("--quick", is_flag=True, help="Small grids and few frames: under 3 minutes on 2 cores.")
-@click.option("--mapping", type=click.Choice(["auto", "slam", "truth"]), default="auto", show_default=True,
+@click.option("--mapping", type=click.Choice(["slam", "truth"]), default="slam", show_default=True,
               help="Poses, mesh and humans from holodata slam + register, or from the synthetic truth (oracle).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")

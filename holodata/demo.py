@@ -7,15 +7,13 @@ Mapping gives each scene its radar poses, the static mesh and the per-frame huma
 raytrace-gt needs. ``mapping="slam"`` runs holodata's own stages (``holodata slam`` then
 ``holodata register``) on the ingested LiDAR and camera data; ``mapping="truth"`` copies them from
 the recordings' hidden ``truth/`` folders (an oracle: the ground truth is then exact, which
-separates mapping errors from learning errors). ``"auto"`` uses slam when holodata.mapping is
-installed, else truth.
+separates mapping errors from learning errors).
 
 Every stage is resumable: rerunning ``demo`` on the same ``out_dir`` skips finished recordings,
 shards and epochs.
 """
 from __future__ import annotations
 
-import importlib.util
 import json
 import time
 from dataclasses import dataclass, field
@@ -87,7 +85,7 @@ def scene_id(corner: str, seed: int) -> str:
     return f"{corner}_{seed}"
 
 
-def run_demo(out_dir, quick: bool = False, mapping: str = "auto", quiet: bool = False,
+def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = False,
              config: DemoConfig | None = None, log=None) -> DemoResult:
     """Run the demo into ``out_dir`` (created; reused when rerun). ``log(str)`` receives one line
     per stage (default: silent)."""
@@ -164,22 +162,13 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "auto", quiet: bool = 
                       mapping=mapping, metrics=doc, timings=timings, validation=report, warnings=warnings)
 
 
+MAPPINGS = ("slam", "truth")
+
+
 def resolve_mapping(mapping: str) -> str:
-    if mapping not in ("auto", "slam", "truth"):
-        raise InputError(f"unknown mapping {mapping!r} (choose auto, slam or truth)")
-    have_slam = _has_mapping()
-    if mapping == "auto":
-        return "slam" if have_slam else "truth"
-    if mapping == "slam" and not have_slam:
-        raise InputError("mapping 'slam' needs holodata.mapping, which this installation lacks")
+    if mapping not in MAPPINGS:
+        raise InputError(f"unknown mapping {mapping!r} (choose {' or '.join(MAPPINGS)})")
     return mapping
-
-
-def _has_mapping() -> bool:
-    try:
-        return all(importlib.util.find_spec(f"holodata.mapping.{m}") is not None for m in ("slam", "register"))
-    except ModuleNotFoundError:
-        return False
 
 
 def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> dict:
