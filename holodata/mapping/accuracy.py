@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..conventions import transform_points
 from ..errors import InputError
 from ..trajectory import Trajectory, read_tum
 
@@ -273,7 +274,7 @@ def evaluate_slam(estimate: Trajectory, mesh: tuple | None, truth_dir, out_dir=N
         curves[k] = res[f"trajectory_{k}"]["ape_m"]
     if mesh is not None:
         T_align = pose_alignment(estimate, truth)
-        v = np.asarray(mesh[0], np.float64) @ T_align[:3, :3].T + T_align[:3, 3]
+        v = transform_points(T_align, np.asarray(mesh[0], np.float64))
         tmesh = read_mesh(tm)
         keep = np.ones(len(tmesh.faces), bool)
         if tmesh.face_class is not None and tmesh.class_names:

@@ -63,6 +63,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..conventions import transform_points
 from ..errors import HolodataError, InputError
 from ..progress import track
 
@@ -217,7 +218,7 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     for d in distances:
         scale = np.clip(3 * sig, d, max_scale)
         for _ in range(iterations):
-            p = src @ T[:3, :3].T + T[:3, 3]
+            p = transform_points(T, src)
             dist, j = tree.query(p, k=1, distance_upper_bound=float(scale.max()), workers=-1)
             ok = np.isfinite(dist) & (dist <= scale)
             if source_normals is not None:
@@ -311,7 +312,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
     # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
     full_src, full_sig, full_n = src, sig, src_n
-    near = _nn_distances(src @ init[:3, :3].T + init[:3, 3], tgt_pts) <= cfg.crop_m
+    near = _nn_distances(transform_points(init, src), tgt_pts) <= cfg.crop_m
     if near.sum() >= cfg.min_overlap_points:
         src, sig, src_n = src[near], sig[near], src_n[near]
     attempts = []
@@ -319,7 +320,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     def check(T):
         # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
         # far stereo points are too noisy to tell a right from a slightly wrong alignment
-        p = full_src @ T[:3, :3].T + T[:3, 3]
+        p = transform_points(T, full_src)
         d = _nn_distances(p, tgt_pts)
         precise = full_sig <= cfg.check_sigma_m
         if int((precise & (d < cfg.overlap_m)).sum()) >= cfg.min_overlap_points:
@@ -732,7 +733,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     still = np.zeros(med.shape, bool)
     resid = static_residual(static_cam, cfg)
     if resid.any():
-        sw_ = static_cam[resid] @ T[:3, :3].T + T[:3, 3]
+        sw_ = transform_points(T, static_cam[resid])
         dmap_, _ = cKDTree(M).query(sw_, k=1, workers=-1)
         rr = np.zeros(len(static_cam), bool)
         rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
@@ -748,7 +749,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     for k in track(range(n), n, f"register {sid}", quiet):
         D, p = cam.depth(k)
         if cw_arr is not None:  # streamed shard by shard: the whole recording's clouds never sit in memory
-            cam_world.append((p @ T[:3, :3].T + T[:3, 3]).astype(np.float32))
+            cam_world.append(transform_points(T, p).astype(np.float32))
             s_k = k // cw_arr.shard_frames
             if k == cw_arr.frames(s_k).stop - 1:
                 cw_arr.write_shard(s_k, cam_world)
@@ -761,7 +762,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             fg = np.isfinite(D) & (~np.isfinite(med) | (D < med - thr) | still) & (D <= cfg.max_range_m)
         vv, uu = np.nonzero(fg)
         q = rays[vv, uu] * D[vv, uu][:, None]
-        qw = q @ T[:3, :3].T + T[:3, 3]
+        qw = transform_points(T, q)
         if len(qw):
             dmap, _ = mtree.query(qw, k=1, workers=-1)
             far = dmap > cfg.map_explain_m

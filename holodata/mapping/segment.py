@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ..conventions import transform_points
 from ..errors import DatasetError, InputError
 from ..progress import track
 
@@ -354,7 +355,7 @@ class LidarScans:
             Pw[valid] = np.einsum("nij,nj->ni", Ts[inv, :3, :3], pv) + Ts[inv, :3, 3]
             return valid, P, Pw
         T = self.poses[k]
-        Pw = P @ T[:3, :3].T + T[:3, 3]
+        Pw = transform_points(T, P)
         Pw[~valid] = np.nan
         return valid, P, Pw
 

@@ -42,6 +42,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..conventions import transform_directions, transform_points
 from ..errors import DatasetError, InputError
 from ..progress import track
 from ..trajectory import Trajectory, write_tum
@@ -256,10 +257,6 @@ def deskew(points: np.ndarray, times: np.ndarray | None, xi: np.ndarray) -> np.n
     return np.einsum("nij,nj->ni", R[inv], points) + ut[inv, None] * xi[None, 3:]
 
 
-def transform(T: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return p @ T[:3, :3].T + T[:3, 3]
-
-
 # ----------------------------------------------------------------------------------------------
 # refinement: scan-to-map point-to-plane ICP (open3d)
 
@@ -388,7 +385,7 @@ def refine(scans: Scans, init: np.ndarray, cfg: SlamConfig, max_range: float, qu
         xi_prev = xi
         if last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg):
             dp, dn = scan_normals(downsample(desk, cfg.map_voxel))
-            vmap.add(transform(T, dp), dn @ T[:3, :3].T)
+            vmap.add(transform_points(T, dp), transform_directions(T, dn))
             last_key = T
             keyframes += 1
     health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
@@ -456,7 +453,7 @@ def global_refine(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: f
 
     desk = deskewed_scans(scans, poses, cfg, max_range)
     ds = [downsample(p, cfg.fine_map_voxel) for p in desk]
-    world = [transform(T, p) for T, p in zip(poses, ds)]
+    world = [transform_points(T, p) for T, p in zip(poses, ds)]
     if background is None:
         background = VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
                                            origins=poses[:, :3, 3])
@@ -520,7 +517,6 @@ def frame_poses(scene, scans: Scans, poses: np.ndarray) -> tuple[np.ndarray, np.
     """Per-frame (T,4,4) T_world_lidar at each frame's LiDAR stamp (frame time when it has none) and
     T_world_radar at the frame time through the extrinsic (None without one)."""
     names = set(scene.arrays())
-    T = scene.n_frames
     ft = np.asarray(scene["time/timestamp_ns"][...], np.int64) if "time/timestamp_ns" in names else None
     lt = np.asarray(scene["lidar/timestamp_ns"][...], np.int64) if "lidar/timestamp_ns" in names else None
     if ft is None:
@@ -553,13 +549,13 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
     desk = deskewed_scans(scans, poses, cfg, max_range, sub)
     poses = poses[sub]
     if background is None:
-        world = [transform(T, downsample(p, cfg.fine_map_voxel)) for T, p in zip(poses, desk)]
+        world = [transform_points(T, downsample(p, cfg.fine_map_voxel)) for T, p in zip(poses, desk)]
         background = VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
                                            origins=poses[:, :3, 3])
     acc = PointAccumulator(mesh_cfg.voxel)
     removed = 0
     for T, p in track(list(zip(poses, desk)), total=len(poses), description="slam: static points", quiet=quiet):
-        w = transform(T, p)
+        w = transform_points(T, p)
         m = background.contains(w, tolerance=0)
         removed += int((~m).sum())
         acc.add(w[m], T[:3, 3])
