@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import click
 
+from holodata.cli.options import dask_options
+
 
 @click.command()
 @click.argument("recordings", nargs=-1, required=True)
@@ -22,11 +24,7 @@ import click
                    "(default per sensor: half its median period, at least 50 ms).")
 @click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None,
               help="Compression of the new arrays (default: the dataset's, zstd).")
-@click.option("--workers", default=0, show_default=True, type=click.IntRange(0),
-              help="Ingest one recording per task on a local Dask cluster of N worker processes (0 = no Dask).")
-@click.option("--scheduler", metavar="ADDRESS",
-              help="Ingest one recording per task on an existing Dask cluster (tcp://host:8786 or a scheduler "
-                   "file); recordings must be readable at the same paths on the workers.")
+@dask_options("one recording per task", "recordings must be readable at the same paths on the workers.")
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, workers, scheduler,

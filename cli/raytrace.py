@@ -5,6 +5,8 @@ import json
 
 import click
 
+from holodata.cli.options import dask_options
+
 
 @click.command("raytrace-gt")
 @click.argument("dataset", required=False)
@@ -27,8 +29,7 @@ import click
 @click.option("--shard-frames", default=None, type=click.IntRange(1), help="Frames per shard of the gt arrays (default: the dataset's; 32 for a new one).")
 @click.option("--threads", default=0, show_default=True, type=click.IntRange(0), help="Ray-casting threads per process (0 = cores / processes).")
 @click.option("--processes", default=0, show_default=True, type=click.IntRange(0), help="Local tracing processes (0 = one per core, max 4, for >= 64 frames; 1 = in-process).")
-@click.option("--workers", default=0, show_default=True, type=click.IntRange(0), help="Run one task per shard on a local Dask cluster of N worker processes (0 = no Dask).")
-@click.option("--scheduler", metavar="ADDRESS", help="Run one task per shard on an existing Dask cluster: tcp://host:8786 or a scheduler file. Dataset/inputs must be reachable from the workers (shared folder or s3://; credentials from the workers' environment).")
+@dask_options("one task per shard", "the dataset and inputs must be reachable from the workers (shared folder or s3://; credentials from the workers' environment).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,

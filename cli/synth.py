@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import click
 
+from holodata.cli.options import dask_options
+
 
 def _shape(value: str, flag: str) -> tuple[int, int]:
     try:
@@ -36,11 +38,7 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--stereo-images", is_flag=True, help="Also record the rectified left/right mono8 pair (for OpenCV stereo).")
 @click.option("--count", type=click.IntRange(min=1), default=1, show_default=True,
               help="Recordings to write: >1 writes OUT/scene_000, OUT/scene_001, ... with seeds SEED, SEED+1, ...")
-@click.option("--workers", default=0, show_default=True, type=click.IntRange(0),
-              help="With --count: one recording per task on a local Dask cluster of N worker processes.")
-@click.option("--scheduler", metavar="ADDRESS",
-              help="With --count: one recording per task on an existing Dask cluster (tcp://host:8786 or a "
-                   "scheduler file); OUT must be a folder the workers share.")
+@dask_options("one recording per task (with --count)", "OUT must be a folder the workers share.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
