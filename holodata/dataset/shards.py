@@ -1,9 +1,19 @@
 """Shard bytes: encode one whole shard in memory (so it can be put atomically and hashed), decode
 one shard read as bytes, and the per-shard manifest records.
 
-A shard is encoded by a scratch zarr array in a ``MemoryStore`` that has the target array's exact
-metadata (codecs, chunk and shard shape) but a frame axis of the shard's length; its single shard
-object is byte-for-byte what zarr would store at ``c/k/0/...`` of the real array. Decoding goes
+Fast path (every array holodata writes): chunk = one frame, codecs ``bytes`` (little endian) +
+``blosc``, index codecs ``bytes`` + ``crc32c`` at the end. The shard object is then assembled here
+per the Zarr v3 sharding spec: the frames' Blosc-compressed chunks concatenated in chunk order,
+then the index (``(offset, nbytes)`` uint64 little-endian per chunk of the shard grid, C order;
+``2**64-1`` twice for a chunk past the end of a partial last shard) and its crc32c (uint32 LE).
+This is byte-for-byte what zarr-python writes (tests/test_dataset_writer.py checks it) but
+~5-10x faster: zarr's sharding encoder runs every chunk through asyncio and copies, ~30 MB/s
+measured, against ~1 GB/s for Blosc lz4 on one core here. Blosc and crc32c release the GIL, so
+shards encode in parallel threads.
+
+Any other codec layout goes through a scratch zarr array in a ``MemoryStore`` that has the target
+array's exact metadata (codecs, chunk and shard shape) but a frame axis of the shard's length; its
+single shard object is what zarr would store at ``c/k/0/...`` of the real array. Decoding goes
 the other way, so ``validate`` reads every shard object exactly once (checksum + decode).
 """
 from __future__ import annotations
@@ -40,9 +50,66 @@ def _scratch(meta: dict, n: int):
     return ms, zarr.open_array(ms, mode="r+", config={"write_empty_chunks": True})
 
 
+_EMPTY = np.uint64(2**64 - 1)
+
+
+def _fast_layout(meta: dict):
+    """(numcodecs Blosc, chunks per shard, per-frame shape) when ``meta`` is the layout the fast
+    path handles (see module docstring), else None."""
+    try:
+        (sc,) = meta["codecs"]
+        if sc["name"] != "sharding_indexed":
+            return None
+        cfg = sc["configuration"]
+        inner, index = cfg["codecs"], cfg["index_codecs"]
+        if cfg.get("index_location", "end") != "end" or len(inner) != 2 or len(index) != 2:
+            return None
+        if inner[0]["name"] != "bytes" or (inner[0].get("configuration") or {}).get("endian", "little") != "little":
+            return None
+        if index[0]["name"] != "bytes" or (index[0].get("configuration") or {}).get("endian", "little") != "little" \
+                or index[1]["name"] != "crc32c" or inner[1]["name"] != "blosc":
+            return None
+        chunk = [int(c) for c in cfg["chunk_shape"]]
+        shard = [int(c) for c in meta["chunk_grid"]["configuration"]["chunk_shape"]]
+        shape = [int(c) for c in meta["shape"]]
+        if chunk[0] != 1 or chunk[1:] != shape[1:] or shard[1:] != shape[1:]:
+            return None
+        b = inner[1]["configuration"]
+        from numcodecs import Blosc
+
+        shuffle = {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}[b.get("shuffle", "noshuffle")]
+        codec = Blosc(cname=b["cname"], clevel=int(b["clevel"]), shuffle=shuffle, blocksize=int(b.get("blocksize", 0)),
+                      typesize=int(b["typesize"]))
+        return codec, shard[0], tuple(shape[1:])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _crc32c(b) -> int:
+    import google_crc32c
+
+    return google_crc32c.value(b)
+
+
 def encode_shard(meta: dict, data: np.ndarray) -> bytes:
     """Bytes of the shard object holding ``data`` (frames of one shard) for an array with zarr
     metadata ``meta`` (the parsed ``zarr.json``)."""
+    fast = _fast_layout(meta)
+    if fast is not None and data.dtype.byteorder in ("<", "=", "|") and data.dtype == np.dtype(meta["data_type"]):
+        codec, S, _ = fast
+        if data.shape[0] > S:
+            raise ValueError(f"{data.shape[0]} frames do not fit a shard of {S}")
+        parts = [codec.encode(np.ascontiguousarray(data[i])) for i in range(data.shape[0])]
+        index = np.full((S, 2), _EMPTY, dtype="<u8")
+        sizes = np.array([len(p) for p in parts], dtype=np.uint64)
+        index[:len(parts), 1] = sizes
+        index[:len(parts), 0] = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.uint64) if parts else []
+        ib = index.tobytes()
+        return b"".join(parts) + ib + _crc32c(ib).to_bytes(4, "little")
+    return _encode_shard_zarr(meta, data)
+
+
+def _encode_shard_zarr(meta: dict, data: np.ndarray) -> bytes:
     import zarr
 
     with zarr.config.set({"array.write_empty_chunks": True}):  # every chunk stored: a shard always exists
@@ -51,9 +118,60 @@ def encode_shard(meta: dict, data: np.ndarray) -> bytes:
     return ms._store_dict[shard_key("", 0, data.ndim).lstrip("/")].to_bytes()
 
 
+def _fast_chunks(meta: dict, n: int, blob: bytes):
+    """(codec, per-frame shape, dtype, fill, (n, 2) offsets/sizes) of a fast-layout shard, or None;
+    raises ValueError on a damaged index (bad crc32c, chunk outside the object)."""
+    fast = _fast_layout(meta)
+    if fast is None:
+        return None
+    codec, S, per = fast
+    blob = memoryview(blob)
+    ilen = 16 * S + 4
+    if len(blob) < ilen:
+        raise ValueError(f"shard object of {len(blob)} bytes is shorter than its index ({ilen} bytes)")
+    ib = bytes(blob[len(blob) - ilen:len(blob) - 4])
+    if _crc32c(ib) != int.from_bytes(blob[len(blob) - 4:], "little"):
+        raise ValueError("shard index crc32c does not match")
+    index = np.frombuffer(ib, dtype="<u8").reshape(S, 2)[:n]
+    full = index[:, 0] != _EMPTY
+    end = len(blob) - ilen
+    if np.any(full & ((index[:, 0] > end) | (index[:, 1] > end - np.minimum(index[:, 0], end)))):
+        raise ValueError("shard index points outside the shard object")
+    dt = np.dtype(meta["data_type"])
+    fill = meta.get("fill_value", 0)
+    if isinstance(fill, str):
+        try:
+            fill = float(fill)   # "NaN", "Infinity", "-Infinity"
+        except ValueError:
+            return None          # hex-encoded float fill: let zarr parse it
+    return codec, per, dt, fill, index
+
+
+def _decode_frames(codec, per, dt, fill, index, blob, start: int, stop: int) -> np.ndarray:
+    out = np.empty((stop - start,) + per, dt)
+    flat = out.reshape(stop - start, -1)
+    want = flat.shape[1] * dt.itemsize
+    mv = memoryview(blob)
+    for i in range(start, stop):
+        if index[i, 0] == _EMPTY:
+            flat[i - start] = fill
+            continue
+        o, nb = int(index[i, 0]), int(index[i, 1])
+        chunk = mv[o:o + nb]
+        # Blosc header: bytes 4-8 uncompressed size, 12-16 compressed size (uint32 LE)
+        if nb < 16 or int.from_bytes(chunk[4:8], "little") != want or int.from_bytes(chunk[12:16], "little") != nb:
+            raise ValueError(f"chunk {i} of the shard is damaged (Blosc header does not match its size)")
+        codec.decode(chunk, out=flat[i - start])
+    return out
+
+
 def decode_shard(meta: dict, n: int, blob: bytes) -> np.ndarray:
     """Inverse of :func:`encode_shard`: ``(n,) + per-frame shape`` array. Raises on corrupt bytes."""
     from zarr.core.buffer.cpu import Buffer
+
+    fast = _fast_chunks(meta, n, blob)
+    if fast is not None:
+        return _decode_frames(*fast, blob, 0, n)
 
     ms, a = _scratch(meta, n)
     ms._store_dict[shard_key("", 0, len(meta["shape"])).lstrip("/")] = Buffer.from_bytes(blob)
@@ -65,6 +183,11 @@ def decode_shard_blocks(meta: dict, n: int, blob: bytes, block: int):
     (e.g. radar heatmaps) is never decoded whole."""
     from zarr.core.buffer.cpu import Buffer
 
+    fast = _fast_chunks(meta, n, blob)
+    if fast is not None:
+        for i in range(0, n, block):
+            yield i, _decode_frames(*fast, blob, i, min(n, i + block))
+        return
     ms, a = _scratch(meta, n)
     ms._store_dict[shard_key("", 0, len(meta["shape"])).lstrip("/")] = Buffer.from_bytes(blob)
     for i in range(0, n, block):
