@@ -538,6 +538,16 @@ def _write_frame_meta(sc, traj: Trajectory) -> None:
             pa.write_shard(k, np.asarray(traj.poses[sl], dtype=np.float64))
 
 
+def _missing_hint(missing: list[str]) -> str:
+    """What to do about the arrays raytrace-gt needs but a scene lacks."""
+    if any(m.startswith("mesh/") for m in missing):
+        return "run holodata slam first"
+    if "pose/T_world_radar" in missing:
+        return ("no radar poses: slam derives them from the LiDAR poses only when the recording's static TF "
+                "gives the radar extrinsic; otherwise use the standalone form --mesh/--poses")
+    return "ingest the recording again"
+
+
 def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig | None = None,
                      quiet: bool = True, processes: int = 0, client=None) -> dict:
     """``holodata raytrace-gt DATASET [--scene ID]``: for each scene with mesh/* and pose/T_world_radar,
@@ -557,7 +567,7 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         missing = [n for n in ("mesh/vertices", "mesh/faces", "pose/T_world_radar", "time/timestamp_ns") if n not in names]
         if missing:
             if scene_ids:
-                raise InputError(f"{url}: scene {sid!r} lacks {', '.join(missing)} (run slam first)")
+                raise InputError(f"{url}: scene {sid!r} lacks {', '.join(missing)} ({_missing_hint(missing)})")
             continue
         v = np.asarray(s["mesh/vertices"][...], dtype=np.float64)
         f = np.asarray(s["mesh/faces"][...], dtype=np.int64)

@@ -250,3 +250,25 @@ def test_dataset_human_uses_registered_points_never_raw_camera_points(tmp_path):
     assert src(0) is None
     v, f = src(1)
     assert len(f) > 0 and np.allclose(v.mean(axis=0), [1.0, 2.0, 0.5], atol=1e-6)
+
+
+@pytest.mark.parametrize("have_mesh", [True, False])
+def test_dataset_form_says_what_is_missing(tmp_path, have_mesh):
+    """A scene without radar poses (LiDAR-only, no radar extrinsic) must not be told to 'run slam'
+    when slam already ran; one without a mesh must be."""
+    from holodata.conventions import RangeBins
+
+    url = str(tmp_path / "ds.zarr")
+    w = hds.create_dataset(url, grid=Grid(8, 32), range_bins=RangeBins(), created_by="test", provenance={},
+                           shard_frames=4)
+    sc = w.scene("c1", n_frames=2, attrs={"corner_type": "L", "width_m": 2.0})
+    ta = sc.frame_array("time/timestamp_ns", per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0)
+    ta.write_shard(0, np.array([0, 500_000_000]))
+    if have_mesh:
+        v, f = l_corridor()
+        sc.write_array("mesh/vertices", v.astype(np.float32), dims=["vertex", "xyz"], units="m")
+        sc.write_array("mesh/faces", f.astype(np.int32), dims=["face", "corner"], units="1")
+    r = CliRunner().invoke(cli, ["raytrace-gt", url, "--scene", "c1", "--quiet"])
+    assert r.exit_code == 1 and "Traceback" not in r.output
+    assert ("static TF" in r.output) == have_mesh and ("run holodata slam first" in r.output) != have_mesh
+    assert "gt" not in "".join(hds.open_dataset(url).scene("c1").arrays())
