@@ -951,25 +951,34 @@ def _first_string(rec: Recording, topic: str | None) -> str:
 # writing
 
 class _Background:
-    """One writer thread for shard writes (compression overlaps reading and decoding); at most
-    ``depth`` shards wait in the queue, so memory stays a few shards. Errors surface on the next
-    submit or on :meth:`join`; :meth:`close` always waits for the write in progress."""
+    """Shard writes (Blosc compression, sha256, file put) on ``workers`` threads, overlapping the
+    main thread's reading and decoding (Blosc, hashlib and file writes release the GIL). At most
+    ``depth`` shards are queued or in flight, so memory stays a few shards whatever the recording
+    size. Jobs with the same ``key`` (one ragged array: shards append in order) run in submit
+    order: each waits for its predecessor, which was submitted, and so dequeued, earlier (FIFO),
+    so the wait cannot deadlock. Errors surface on the next submit or on :meth:`join`;
+    :meth:`close` always waits for the writes in progress."""
 
-    def __init__(self, depth: int = 1):
+    def __init__(self, workers: int = 2, depth: int = 4):
         import threading
         from concurrent.futures import ThreadPoolExecutor
 
-        self.pool = ThreadPoolExecutor(1, thread_name_prefix="holodata-ingest-writer")
+        self.pool = ThreadPoolExecutor(workers, thread_name_prefix="holodata-ingest-writer")
         self.slots = threading.Semaphore(depth)
+        self.lock = threading.Lock()
         self.futures: list = []
-        self.seconds = 0.0
+        self.last: dict = {}
+        self.seconds = 0.0    # busy time summed over the workers
 
-    def _run(self, fn) -> None:
-        t = time.perf_counter()
+    def _run(self, fn, prev) -> None:
         try:
+            if prev is not None:
+                prev.result()
+            t = time.perf_counter()
             fn()
+            with self.lock:
+                self.seconds += time.perf_counter() - t
         finally:
-            self.seconds += time.perf_counter() - t
             self.slots.release()
 
     def _raise(self) -> None:
@@ -981,10 +990,13 @@ class _Background:
                 pending.append(f)
         self.futures = pending
 
-    def submit(self, fn) -> None:
+    def submit(self, fn, key=None) -> None:
         self._raise()
         self.slots.acquire()
-        self.futures.append(self.pool.submit(self._run, fn))
+        fut = self.pool.submit(self._run, fn, self.last.get(key) if key is not None else None)
+        if key is not None:
+            self.last[key] = fut
+        self.futures.append(fut)
 
     def join(self) -> None:
         for f in self.futures:
@@ -1028,10 +1040,10 @@ class _Out:
             if not final and any(f in self.expected and f not in self.buf for f in frames):
                 return
             data = [self.buf.pop(f) if f in self.buf else self.default() for f in frames]
-            k, w = self.k, self.w
-            job = (lambda: w.write_shard(k, data)) if self.ragged else (lambda: w.write_shard(k, np.stack(data)))
+            # bound now: the job may run after this loop has moved on (frame arrays take the list: no stack copy)
+            job = lambda k=self.k, w=self.w, data=data: w.write_shard(k, data)   # noqa: E731
             if self.bg is not None:
-                self.bg.submit(job)
+                self.bg.submit(job, key=id(self) if self.ragged else None)
             else:
                 t = time.perf_counter()
                 job()

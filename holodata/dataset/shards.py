@@ -64,23 +64,43 @@ def _fast_layout(meta: dict):
         inner, index = cfg["codecs"], cfg["index_codecs"]
         if cfg.get("index_location", "end") != "end" or len(inner) != 2 or len(index) != 2:
             return None
-        if inner[0]["name"] != "bytes" or (inner[0].get("configuration") or {}).get("endian", "little") != "little":
-            return None
         if index[0]["name"] != "bytes" or (index[0].get("configuration") or {}).get("endian", "little") != "little" \
-                or index[1]["name"] != "crc32c" or inner[1]["name"] != "blosc":
+                or index[1]["name"] != "crc32c":
             return None
         chunk = [int(c) for c in cfg["chunk_shape"]]
         shard = [int(c) for c in meta["chunk_grid"]["configuration"]["chunk_shape"]]
         shape = [int(c) for c in meta["shape"]]
         if chunk[0] != 1 or chunk[1:] != shape[1:] or shard[1:] != shape[1:]:
             return None
-        b = inner[1]["configuration"]
-        from numcodecs import Blosc
-
-        shuffle = {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}[b.get("shuffle", "noshuffle")]
-        codec = Blosc(cname=b["cname"], clevel=int(b["clevel"]), shuffle=shuffle, blocksize=int(b.get("blocksize", 0)),
-                      typesize=int(b["typesize"]))
+        codec = _blosc(inner)
+        if codec is None:
+            return None
         return codec, shard[0], tuple(shape[1:])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def _blosc(inner: list):
+    """numcodecs Blosc for a codec list ``[bytes (little endian), blosc]``, else None."""
+    if len(inner) != 2 or inner[0]["name"] != "bytes" or inner[1]["name"] != "blosc" \
+            or (inner[0].get("configuration") or {}).get("endian", "little") != "little":
+        return None
+    from numcodecs import Blosc
+
+    b = inner[1]["configuration"]
+    shuffle = {"noshuffle": 0, "shuffle": 1, "bitshuffle": 2}[b.get("shuffle", "noshuffle")]
+    return Blosc(cname=b["cname"], clevel=int(b["clevel"]), shuffle=shuffle, blocksize=int(b.get("blocksize", 0)),
+                 typesize=int(b["typesize"]))
+
+
+def chunk_codec(meta: dict):
+    """numcodecs Blosc that writes the chunks of an unsharded array whose codecs are ``bytes`` +
+    ``blosc`` (ragged ``values``), else None (then write through zarr)."""
+    try:
+        if meta.get("chunk_key_encoding", {}).get("name") != "default" or \
+                (meta["chunk_key_encoding"].get("configuration") or {}).get("separator", "/") != "/":
+            return None
+        return _blosc(meta["codecs"])
     except (KeyError, TypeError, ValueError):
         return None
 
@@ -92,21 +112,24 @@ def _crc32c(b) -> int:
 
 
 def encode_shard(meta: dict, data: np.ndarray) -> bytes:
-    """Bytes of the shard object holding ``data`` (frames of one shard) for an array with zarr
-    metadata ``meta`` (the parsed ``zarr.json``)."""
+    """Bytes of the shard object holding ``data`` (frames of one shard: an array, or a list of
+    per-frame arrays) for an array with zarr metadata ``meta`` (the parsed ``zarr.json``)."""
     fast = _fast_layout(meta)
-    if fast is not None and data.dtype.byteorder in ("<", "=", "|") and data.dtype == np.dtype(meta["data_type"]):
+    dt = np.dtype(meta["data_type"])
+    frames = data if isinstance(data, (list, tuple)) else None
+    if fast is not None and all(f.dtype == dt and f.dtype.byteorder in ("<", "=", "|") for f in (frames or [data])):
         codec, S, _ = fast
-        if data.shape[0] > S:
-            raise ValueError(f"{data.shape[0]} frames do not fit a shard of {S}")
-        parts = [codec.encode(np.ascontiguousarray(data[i])) for i in range(data.shape[0])]
+        n = len(frames) if frames is not None else data.shape[0]
+        if n > S:
+            raise ValueError(f"{n} frames do not fit a shard of {S}")
+        parts = [codec.encode(np.ascontiguousarray(f)) for f in (frames if frames is not None else data)]
         index = np.full((S, 2), _EMPTY, dtype="<u8")
         sizes = np.array([len(p) for p in parts], dtype=np.uint64)
         index[:len(parts), 1] = sizes
         index[:len(parts), 0] = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.uint64) if parts else []
         ib = index.tobytes()
         return b"".join(parts) + ib + _crc32c(ib).to_bytes(4, "little")
-    return _encode_shard_zarr(meta, data)
+    return _encode_shard_zarr(meta, np.stack(frames) if frames is not None else data)
 
 
 def _encode_shard_zarr(meta: dict, data: np.ndarray) -> bytes:

@@ -362,22 +362,35 @@ class FrameArrayWriter(_Sharded):
         self._init_shards(sc, name, int(meta["attributes"]["holodata"]["shard_frames"]))
 
     def write_shard(self, k: int, data) -> bool:
-        """Write shard ``k`` whole: ``data`` (len(frames(k)),) + per-frame shape. Atomic; a done
-        shard is left untouched (returns False)."""
+        """Write shard ``k`` whole: ``data`` (len(frames(k)),) + per-frame shape, or a list of
+        len(frames(k)) per-frame arrays (no stacked copy). Atomic; a done shard is left untouched
+        (returns False)."""
         sl = self.frames(k)
         if self.is_done(k):
             return False
-        data = np.asarray(data)
         want = (sl.stop - sl.start,) + self.shape[1:]
-        if data.shape != want:
-            raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: data shape {data.shape}, "
-                               f"expected {want}")
-        if data.dtype != self.dtype:
-            if not np.can_cast(data.dtype, self.dtype, casting="same_kind"):
-                raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: dtype {data.dtype} "
+        if isinstance(data, (list, tuple)):   # one array per frame: encoded frame by frame, never stacked
+            frames = [np.asarray(f) for f in data]
+            shapes = {f.shape for f in frames}
+            dtypes = {f.dtype for f in frames}
+            if len(frames) != want[0] or (frames and shapes != {want[1:]}):
+                raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: {len(frames)} frames of "
+                                   f"shape(s) {sorted(shapes)}, expected {want}")
+        else:
+            data = np.asarray(data)
+            if data.shape != want:
+                raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: data shape {data.shape}, "
+                                   f"expected {want}")
+            frames, dtypes = None, {data.dtype}
+        for dt in dtypes:
+            if dt != self.dtype and not np.can_cast(dt, self.dtype, casting="same_kind"):
+                raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: dtype {dt} "
                                    f"cannot be stored as {self.dtype}")
-            data = data.astype(self.dtype)
-        blob = sh.encode_shard(self.meta, data)
+        if frames is not None:
+            frames = [f.astype(self.dtype, copy=False) for f in frames]
+            blob = sh.encode_shard(self.meta, frames)
+        else:
+            blob = sh.encode_shard(self.meta, data.astype(self.dtype, copy=False))
         self.store.put(sh.shard_key(self.path, k, len(self.shape)), blob)
         rec = sh.manifest_record(k, sl, blob, self.shape, self.dtype)
         self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
@@ -403,6 +416,28 @@ class RaggedWriter(_Sharded):
         vm = _json(sc.ds.store, f"{sc.path}/{name}/values/zarr.json")
         self.dtype = np.dtype(vm["data_type"])
         self._init_shards(sc, name, int(hd["shard_frames"]))
+
+    def _put_rows(self, vmeta: dict, codec, r0: int, r1: int, vals: np.ndarray) -> None:
+        """Store rows ``r0:r1`` of ``values`` chunk by chunk, as zarr would (edge chunks padded with
+        the fill value; the chunk holding ``r0`` read back and completed), without zarr's per-chunk
+        asyncio path: each chunk one Blosc encode (releases the GIL) and one atomic put."""
+        rows = int(vmeta["chunk_grid"]["configuration"]["chunk_shape"][0])
+        fill = vmeta.get("fill_value", 0)
+        vals = np.ascontiguousarray(vals, dtype=self.dtype)
+        for c in range(r0 // rows, (r1 - 1) // rows + 1):
+            lo, hi = c * rows, (c + 1) * rows
+            key = f"{self.path}/values/c/{c}/0"
+            if lo >= r0 and hi <= r1:
+                chunk = vals[lo - r0:hi - r0]
+            else:
+                chunk = np.full((rows, self.width), float(fill) if isinstance(fill, str) else fill, self.dtype)
+                if lo < r0:
+                    old = self.store.get(key)
+                    if old is not None:
+                        chunk[:r0 - lo] = np.frombuffer(codec.decode(old), self.dtype).reshape(rows, self.width)[:r0 - lo]
+                a, b = max(lo, r0), min(hi, r1)
+                chunk[a - lo:b - lo] = vals[a - r0:b - r0]
+            self.store.put(key, codec.encode(chunk))
 
     def write_shard(self, k: int, per_frame: list) -> bool:
         """Append shard ``k``: a list of (Ni, width) arrays, one per frame of ``frames(k)``; shards
@@ -439,7 +474,12 @@ class RaggedWriter(_Sharded):
         if va.shape[0] != r1:
             va.resize((r1, self.width))
         if r1 > r0:
-            va[r0:r1] = vals
+            vmeta = _json(self.store, f"{self.path}/values/zarr.json")
+            codec = sh.chunk_codec(vmeta)
+            if codec is not None and list(vmeta["chunk_grid"]["configuration"]["chunk_shape"])[1:] == [self.width]:
+                self._put_rows(vmeta, codec, r0, r1, vals)
+            else:
+                va[r0:r1] = vals
         oa = zarr.open_array(zs, path=f"{self.path}/offsets", mode="r+")
         off = oa[...]
         seg = r0 + np.concatenate([[0], np.cumsum(lens)])
