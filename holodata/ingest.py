@@ -865,8 +865,9 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
             by_topic[tp] = st
     topics_read = list(by_topic) + sorted(tf_topics - set(by_topic))
     total = sum(by[t].count for t in topics_read if t in by)
+    heads = _head_topics(streams)
     index_iter = rec.raw_messages(topics_read, with_xyz=False) if rec.kind == "ouster-pcap" \
-        else rec.raw_messages(topics_read)
+        else rec.raw_heads(topics_read, heads)
     t_index = time.perf_counter()
     for raw in track(index_iter, total, f"index {rec.path.name}", quiet):
         if raw.topic in tf_topics:
@@ -934,6 +935,14 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
         plan.grid, plan.range_bins = _grid_of(rec, streams["radar"])
     plan.probe = {r: st.layout for r, st in streams.items() if r != "radar" and st.layout is not None}
     return plan
+
+
+def _head_topics(streams: dict) -> set[str]:
+    """Topics whose messages both passes may read header-only (``Recording.raw_heads``): one
+    message = one item, stamped from its header; ``Recording.decode`` reads the rest of a message
+    that is decoded after all (the frame sensor's check, a matched scan or image, a layout probe).
+    Unmatched LiDAR scans and camera images are then never read whole."""
+    return {st.topic for st in streams.values() if type(st) in (RadarStream, CloudStream, DepthStream)}
 
 
 def _first_string(rec: Recording, topic: str | None) -> str:
@@ -1197,7 +1206,8 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     total = sum(t.count for t in rec.topics(frame_ids=False) if t.name in by_topic)
     t_pass = time.perf_counter()
     t_decode = 0.0
-    for raw in track(rec.raw_messages(list(by_topic)), total, f"ingest {rec.path.name}", quiet):
+    heads = _head_topics(plan.streams)
+    for raw in track(rec.raw_heads(list(by_topic), heads), total, f"ingest {rec.path.name}", quiet):
         st = by_topic[raw.topic]
         t = time.perf_counter()
         try:

@@ -62,6 +62,7 @@ class RawMessage:
     data: bytes | memoryview | None
     encoding: str = "cdr"
     obj: object = None
+    ref: object = None   # set when ``data`` is only a header prefix: Recording.full() reads the rest
 
 
 def rate_of(count: int, first_ns: int | None, last_ns: int | None) -> float | None:
@@ -95,6 +96,17 @@ class Recording:
         """Messages of ``topics`` (all if None) in log-time order, undecoded."""
         raise NotImplementedError
 
+    def raw_heads(self, topics: Iterable[str], heads: Iterable[str]) -> Iterator[RawMessage]:
+        """Like :meth:`raw_messages`, but a reader that can seek to each message may give only a
+        header prefix (enough for :meth:`stamp_ns`/``frame_id``) of messages on ``heads``, with
+        ``ref`` set; :meth:`full` reads the rest when the message is needed after all. The
+        default reads everything."""
+        return self.raw_messages(topics)
+
+    def full(self, raw: RawMessage) -> RawMessage:
+        """``raw`` with its whole payload (itself unless it came header-only from :meth:`raw_heads`)."""
+        return raw
+
     def close(self) -> None:
         pass
 
@@ -123,6 +135,8 @@ class Recording:
         """The decoded message (rosbags message object, or the reader's own object)."""
         if raw.obj is not None:
             return raw.obj
+        if raw.ref is not None:   # header-only (raw_heads): read the whole payload now
+            raw = self.full(raw)
         if self.decoder is None:
             raise DecodeError(f"{self.path}: topic {raw.topic}: messages of this recording cannot be decoded")
         return self.decoder.decode(raw)

@@ -57,6 +57,108 @@ def topic_times_mcap(path: Path) -> dict[str, tuple[int, int]]:
     return {k: (v[0], v[1]) for k, v in out.items()}
 
 
+class McapMessageTable:
+    """Where each message of an indexed MCAP file with uncompressed chunks lies, from the file's
+    summary and chunk message indexes (parsed by the ``mcap`` library), so that a pass can read
+    only the bytes it needs: a header prefix (stamp, frame id) of a message it will not decode,
+    the whole payload of one it will. Messages come in log-time order (ties: chunk, then position
+    in the chunk — the order rosbags yields them).
+
+    ``build`` returns None (callers then read the usual way) for files without a summary or
+    message indexes, with compressed chunks, or whose indexes do not account for ``counts``."""
+
+    HEAD = 256   # bytes read for a header-only message: CDR/ROS 1 header with a frame id < ~230 chars
+
+    def __init__(self, path: Path, log_ns, offsets, channels, topics: dict[int, str]):
+        self.path, self.log_ns, self.offsets, self.channels, self.topics = path, log_ns, offsets, channels, topics
+
+    @classmethod
+    def build(cls, path: Path, counts: dict[str, int] | None = None) -> "McapMessageTable | None":
+        import numpy as np
+        from mcap.records import MessageIndex
+        from mcap.stream_reader import StreamReader
+
+        try:
+            with open(path, "rb") as f:
+                s = _summary(f)
+                if s is None or not s.chunk_indexes or any(ci.compression for ci in s.chunk_indexes):
+                    return None
+                logs, offs, chans = [], [], []
+                for ci in s.chunk_indexes:
+                    base = ci.chunk_start_offset + 9 + 40 + len(ci.compression)   # chunk records start
+                    for ch_id, off in ci.message_index_offsets.items():
+                        f.seek(off)
+                        rec = next(StreamReader(f, skip_magic=True).records)
+                        if not isinstance(rec, MessageIndex) or rec.channel_id != ch_id:
+                            return None
+                        for t, o in rec.records:
+                            logs.append(t)
+                            offs.append(base + o)
+                            chans.append(ch_id)
+            topics = {i: c.topic for i, c in s.channels.items()}
+        except Exception:  # noqa: BLE001 - anything odd: read the file the usual way
+            return None
+        log_ns = np.array(logs, np.int64)
+        offsets = np.array(offs, np.int64)
+        channels = np.array(chans, np.int64)
+        order = np.lexsort((offsets, log_ns))
+        table = cls(path, log_ns[order], offsets[order], channels[order], topics)
+        if counts is not None:
+            have: dict[str, int] = {}
+            for ch, n in zip(*np.unique(channels, return_counts=True)):
+                have[topics.get(int(ch), "")] = have.get(topics.get(int(ch), ""), 0) + int(n)
+            if any(have.get(t, 0) != n for t, n in counts.items()):
+                return None
+        return table
+
+    def messages(self, topics: Iterable[str], heads: set[str] | frozenset = frozenset()):
+        """(topic, log_ns, payload, ref) of ``topics`` in log-time order; for a topic in ``heads``
+        the payload is its first :attr:`HEAD` bytes and ``ref`` = (offset, size) to read the rest
+        with :meth:`payload` (else ref is None). Raises ValueError where a record is not the
+        message its index says."""
+        import os
+        import struct
+
+        import numpy as np
+
+        want = {i for i, t in self.topics.items() if t in set(topics)}
+        sel = np.isin(self.channels, list(want))
+        fd = os.open(self.path, os.O_RDONLY)
+        try:
+            for log, off, ch in zip(self.log_ns[sel].tolist(), self.offsets[sel].tolist(), self.channels[sel].tolist()):
+                topic = self.topics[ch]
+                head = topic in heads
+                b = os.pread(fd, 31 + (self.HEAD if head else 0), off)
+                if len(b) < 31:
+                    raise ValueError(f"message record at byte {off} lies past the end of the file")
+                op, length, cid, _, t = struct.unpack_from("<BQHIQ", b)
+                if op != 0x05 or cid != ch or t != log or length < 22:
+                    raise ValueError(f"record at byte {off} is not the indexed message (opcode {op:#x})")
+                size = length - 22
+                if head and size > self.HEAD:
+                    yield topic, log, b[31:], (off + 31, size)
+                    continue
+                data = b[31:31 + size] if head else os.pread(fd, size, off + 31)
+                if len(data) != size:
+                    raise ValueError(f"message at byte {off} is cut short")
+                yield topic, log, data, None
+        finally:
+            os.close(fd)
+
+    def payload(self, ref) -> bytes:
+        import os
+
+        off, size = ref
+        fd = os.open(self.path, os.O_RDONLY)
+        try:
+            data = os.pread(fd, size, off)
+        finally:
+            os.close(fd)
+        if len(data) != size:
+            raise ValueError(f"message at byte {off} is cut short")
+        return data
+
+
 class McapRecording(Recording):
     kind = "mcap"
 

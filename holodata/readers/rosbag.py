@@ -115,6 +115,47 @@ class RosbagsRecording(Recording):
             if msg not in self.problems:
                 self.problems.append(msg)
 
+    _table = None
+
+    def _message_table(self):
+        """:class:`.mcap_file.McapMessageTable` of a single-file rosbag2 MCAP bag with uncompressed
+        chunks whose indexes match the bag's message counts, else False."""
+        if self._table is None:
+            self._table = False
+            if self.ros_version == 2 and len(self.files) == 1 and self.files[0].suffix == ".mcap" \
+                    and not getattr(self.reader, "compression_mode", None):
+                from .mcap_file import McapMessageTable
+
+                counts: dict[str, int] = defaultdict(int)
+                for c in self.reader.connections:
+                    counts[c.topic] += c.msgcount
+                self._table = McapMessageTable.build(self.files[0], dict(counts)) or False
+        return self._table
+
+    def raw_heads(self, topics: Iterable[str], heads: Iterable[str]) -> Iterator[RawMessage]:
+        table = self._message_table()
+        if not table:
+            yield from self.raw_messages(topics)
+            return
+        want = set(topics)
+        conns = {c.topic: c for c in self.reader.connections if c.topic in want}
+        enc = {t: self._encoding(c) for t, c in conns.items()}
+        try:
+            for topic, log, data, ref in table.messages(conns, set(heads)):
+                yield RawMessage(topic, conns[topic].msgtype, log, data, enc[topic], ref=ref)
+        except (ValueError, OSError) as err:
+            self.truncated = True
+            msg = f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})"
+            if msg not in self.problems:
+                self.problems.append(msg)
+
+    def full(self, raw: RawMessage) -> RawMessage:
+        if raw.ref is None:
+            return raw
+        from dataclasses import replace
+
+        return replace(raw, data=self._message_table().payload(raw.ref), ref=None)
+
     def close(self) -> None:
         try:
             self.reader.close()
