@@ -23,7 +23,7 @@ from holodata.cli.options import dask_options
               help="Max time offset (ms) between a frame and the LiDAR scan / camera frame synced to it "
                    "(default per sensor: half its median period, at least 50 ms).")
 @click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None,
-              help="Compression of the new arrays (default: the dataset's, zstd).")
+              help="Compression of the new arrays (default: lz4 for bulk arrays, the dataset's zstd for small ones).")
 @dask_options("one recording per task", "recordings must be readable at the same paths on the workers.")
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
