@@ -114,6 +114,13 @@ def _crc32c(b) -> int:
 def encode_shard(meta: dict, data: np.ndarray) -> bytes:
     """Bytes of the shard object holding ``data`` (frames of one shard: an array, or a list of
     per-frame arrays) for an array with zarr metadata ``meta`` (the parsed ``zarr.json``)."""
+    parts = encode_shard_parts(meta, data)
+    return parts[0] if len(parts) == 1 else b"".join(parts)
+
+
+def encode_shard_parts(meta: dict, data) -> list:
+    """:func:`encode_shard` as a list of byte strings whose concatenation is the shard object
+    (written and hashed part by part: no joined copy of a large shard)."""
     fast = _fast_layout(meta)
     dt = np.dtype(meta["data_type"])
     frames = data if isinstance(data, (list, tuple)) else None
@@ -128,8 +135,8 @@ def encode_shard(meta: dict, data: np.ndarray) -> bytes:
         index[:len(parts), 1] = sizes
         index[:len(parts), 0] = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.uint64) if parts else []
         ib = index.tobytes()
-        return b"".join(parts) + ib + _crc32c(ib).to_bytes(4, "little")
-    return _encode_shard_zarr(meta, np.stack(frames) if frames is not None else data)
+        return parts + [ib + _crc32c(ib).to_bytes(4, "little")]
+    return [_encode_shard_zarr(meta, np.stack(frames) if frames is not None else data)]
 
 
 def _encode_shard_zarr(meta: dict, data: np.ndarray) -> bytes:
@@ -217,9 +224,14 @@ def decode_shard_blocks(meta: dict, n: int, blob: bytes, block: int):
         yield i, a[i:i + block]
 
 
-def manifest_record(k: int, frames: slice, blob: bytes, shape: tuple, dtype) -> dict:
-    return {"shard": k, "frames": [frames.start, frames.stop], "sha256": sha256(blob), "nbytes": len(blob),
-            "shape": list(shape), "dtype": str(np.dtype(dtype))}
+def manifest_record(k: int, frames: slice, blob, shape: tuple, dtype) -> dict:
+    """Commit record of shard ``k``; ``blob``: the shard object's bytes or its parts in order."""
+    parts = blob if isinstance(blob, (list, tuple)) else [blob]
+    h = hashlib.sha256()
+    for b in parts:
+        h.update(b)
+    return {"shard": k, "frames": [frames.start, frames.stop], "sha256": h.hexdigest(),
+            "nbytes": sum(len(b) for b in parts), "shape": list(shape), "dtype": str(np.dtype(dtype))}
 
 
 def compressor(codec: str = "zstd", clevel: int | None = None):

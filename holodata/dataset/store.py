@@ -76,15 +76,32 @@ class Store:
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             return None
 
-    def put(self, key: str, data: bytes) -> None:
-        """Write ``data`` under ``key`` in one atomic step."""
+    _dirs: set | None = None
+
+    def put(self, key: str, data) -> None:
+        """Write ``data`` (bytes, or a list of bytes-like parts written one after the other) under
+        ``key`` in one atomic step."""
+        if isinstance(data, (list, tuple)) and not self.local:
+            data = b"".join(data)
         if self.local:
             p = self.root / key
-            p.parent.mkdir(parents=True, exist_ok=True)
+            if self._dirs is None:
+                self._dirs = set()
+            if p.parent not in self._dirs:   # one mkdir per folder, not per put
+                p.parent.mkdir(parents=True, exist_ok=True)
+                self._dirs.add(p.parent)
             tmp = p.parent / f".{p.name}.{uuid.uuid4().hex}.partial"
             try:
-                with open(tmp, "wb") as f:
-                    f.write(data)
+                try:
+                    f = open(tmp, "wb")
+                except FileNotFoundError:    # folder removed since (SceneWriter.remove): make it again
+                    p.parent.mkdir(parents=True, exist_ok=True)
+                    f = open(tmp, "wb")
+                with f:
+                    if isinstance(data, (list, tuple)):
+                        f.writelines(data)
+                    else:
+                        f.write(data)
                 os.replace(tmp, p)
             finally:
                 if tmp.exists():
@@ -133,6 +150,7 @@ class Store:
         import shutil
 
         if self.local:
+            self._dirs = None
             shutil.rmtree(self.root / key, ignore_errors=True)
         elif self.fs.exists(self._p(key)):
             self.fs.rm(self._p(key), recursive=True)

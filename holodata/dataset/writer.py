@@ -263,8 +263,9 @@ class SceneWriter:
                                      "shape": list(data.shape), "dtype": str(data.dtype)}})
 
     def ragged_array(self, name: str, width: int, dtype="float32", units: str = "1", dims=None,
-                     shard_frames: int | None = None) -> "RaggedWriter":
-        """Create (or reopen) ragged array ``name``: values (N, width) + offsets (T+1,) int64."""
+                     shard_frames: int | None = None, codec: str | None = None) -> "RaggedWriter":
+        """Create (or reopen) ragged array ``name``: values (N, width) + offsets (T+1,) int64.
+        ``codec``: of the values (default: the dataset's)."""
         import zarr
 
         self._check_name(name)
@@ -288,7 +289,7 @@ class SceneWriter:
         rows = max(1, RAGGED_CHUNK_BYTES // (dtype.itemsize * max(1, width)))
         comp = sh.compressor(self.ds.codec, self.ds.clevel)
         zarr.create_array(self.ds.zstore, name=f"{path}/values", shape=(0, width), dtype=dtype, chunks=(rows, width),
-                          compressors=comp, fill_value=0, attributes={"dims": dims, "units": units})
+                          compressors=sh.compressor(codec, None) if codec else comp, fill_value=0, attributes={"dims": dims, "units": units})
         zarr.create_array(self.ds.zstore, name=f"{path}/offsets", shape=(self.n_frames + 1,), dtype="int64",
                           chunks=(self.n_frames + 1,), compressors=comp, fill_value=0,
                           attributes={"dims": ["frame_edge"], "units": "1"})
@@ -388,9 +389,9 @@ class FrameArrayWriter(_Sharded):
                                    f"cannot be stored as {self.dtype}")
         if frames is not None:
             frames = [f.astype(self.dtype, copy=False) for f in frames]
-            blob = sh.encode_shard(self.meta, frames)
+            blob = sh.encode_shard_parts(self.meta, frames)
         else:
-            blob = sh.encode_shard(self.meta, data.astype(self.dtype, copy=False))
+            blob = sh.encode_shard_parts(self.meta, data.astype(self.dtype, copy=False))
         self.store.put(sh.shard_key(self.path, k, len(self.shape)), blob)
         rec = sh.manifest_record(k, sl, blob, self.shape, self.dtype)
         self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
@@ -470,22 +471,40 @@ class RaggedWriter(_Sharded):
         r1 = r0 + int(lens.sum())
         vals = np.concatenate(parts, axis=0) if parts else np.zeros((0, self.width), self.dtype)
         zs = self.scene.ds.zstore
-        va = zarr.open_array(zs, path=f"{self.path}/values", mode="r+")
-        if va.shape[0] != r1:
-            va.resize((r1, self.width))
+        vkey = f"{self.path}/values/zarr.json"
+        vmeta = _json(self.store, vkey)
+        codec = sh.chunk_codec(vmeta)
+        fast = codec is not None and list(vmeta["chunk_grid"]["configuration"]["chunk_shape"])[1:] == [self.width]
+        va = None
+        if vmeta["shape"][0] != r1:
+            if fast and r1 > vmeta["shape"][0]:   # growing is a metadata change only: one atomic put
+                self.store.put(vkey, json.dumps({**vmeta, "shape": [r1, self.width]}, indent=2).encode())
+            else:
+                va = zarr.open_array(zs, path=f"{self.path}/values", mode="r+")
+                va.resize((r1, self.width))   # shrinking (resume after a torn append): zarr drops chunks
         if r1 > r0:
-            vmeta = _json(self.store, f"{self.path}/values/zarr.json")
-            codec = sh.chunk_codec(vmeta)
-            if codec is not None and list(vmeta["chunk_grid"]["configuration"]["chunk_shape"])[1:] == [self.width]:
+            if fast:
                 self._put_rows(vmeta, codec, r0, r1, vals)
             else:
+                va = va or zarr.open_array(zs, path=f"{self.path}/values", mode="r+")
                 va[r0:r1] = vals
-        oa = zarr.open_array(zs, path=f"{self.path}/offsets", mode="r+")
-        off = oa[...]
         seg = r0 + np.concatenate([[0], np.cumsum(lens)])
-        off[sl.start:sl.stop + 1] = seg
-        off[sl.stop + 1:] = 0
-        oa[...] = off  # one chunk: one atomic put
+        okey = f"{self.path}/offsets/c/0"
+        ometa = _json(self.store, f"{self.path}/offsets/zarr.json")
+        ocodec = sh.chunk_codec(ometa)
+        if ocodec is not None and ometa["chunk_grid"]["configuration"]["chunk_shape"] == ometa["shape"]:
+            old = self.store.get(okey)
+            off = np.zeros(self.n_frames + 1, "<i8") if old is None else \
+                np.frombuffer(ocodec.decode(old), "<i8").copy()
+            off[sl.start:sl.stop + 1] = seg
+            off[sl.stop + 1:] = 0
+            self.store.put(okey, ocodec.encode(off))   # one chunk: one atomic put
+        else:
+            oa = zarr.open_array(zs, path=f"{self.path}/offsets", mode="r+")
+            off = oa[...]
+            off[sl.start:sl.stop + 1] = seg
+            off[sl.stop + 1:] = 0
+            oa[...] = off  # one chunk: one atomic put
         rec = {"shard": k, "frames": [sl.start, sl.stop], "rows": [r0, r1], "sha256": ragged_digest(vals, seg),
                "nbytes": int(vals.nbytes), "shape": [r1, self.width], "dtype": str(self.dtype)}
         self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
