@@ -574,21 +574,29 @@ class DepthStream(_Stream):
                 continue
         raise RecordingError(f"{self.rec.path}: camera info topic {self.info_topic} has no usable CameraInfo")
 
+    _info_raw = None   # latest CameraInfo not decoded yet (decoded when an image is converted)
+
     def feed(self, raw, decode, check=False, want=None):
         if raw.topic == self.info_topic:
             if decode:
-                from .readers.images import camera_model
-
-                try:
-                    self.model = camera_model(self.rec.decode(raw), self.info_topic)
-                except HolodataError:
-                    pass
+                self._info_raw = raw
             return []
         return super().feed(raw, decode, check, want)
+
+    def _update_model(self) -> None:
+        if self._info_raw is not None:
+            from .readers.images import camera_model
+
+            raw, self._info_raw = self._info_raw, None
+            try:
+                self.model = camera_model(self.rec.decode(raw), self.info_topic)
+            except HolodataError:
+                pass
 
     def convert(self, raw, keep):
         from .readers.images import depth_image, depth_to_points
 
+        self._update_model()
         msg = self.rec.decode(raw)
         d = depth_image(msg, self.topic)
         if not keep:
@@ -656,6 +664,7 @@ class StereoStream(DepthStream):
     def _pair(self, left_raw, right_raw) -> Scan:
         from .readers.images import depth_to_points, gray_image, stereo_depth
 
+        self._update_model()
         lm = self.rec.decode(left_raw)
         L = gray_image(lm, self.topic)
         R = gray_image(self.rec.decode(right_raw), self.right_topic)

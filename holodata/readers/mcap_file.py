@@ -74,9 +74,9 @@ class McapMessageTable:
 
     @classmethod
     def build(cls, path: Path, counts: dict[str, int] | None = None) -> "McapMessageTable | None":
+        import struct
+
         import numpy as np
-        from mcap.records import MessageIndex
-        from mcap.stream_reader import StreamReader
 
         try:
             with open(path, "rb") as f:
@@ -86,21 +86,26 @@ class McapMessageTable:
                 logs, offs, chans = [], [], []
                 for ci in s.chunk_indexes:
                     base = ci.chunk_start_offset + 9 + 40 + len(ci.compression)   # chunk records start
+                    # the chunk's MessageIndex records (opcode 0x07, u64 length, u16 channel, u32 bytes,
+                    # (u64 log time, u64 offset) pairs) follow it in one block of message_index_length
+                    start = ci.chunk_start_offset + ci.chunk_length
+                    f.seek(start)
+                    block = f.read(ci.message_index_length)
                     for ch_id, off in ci.message_index_offsets.items():
-                        f.seek(off)
-                        rec = next(StreamReader(f, skip_magic=True).records)
-                        if not isinstance(rec, MessageIndex) or rec.channel_id != ch_id:
+                        p = off - start
+                        op, _, cid, nb = struct.unpack_from("<BQHI", block, p)
+                        if op != 0x07 or cid != ch_id or nb % 16 or p + 15 + nb > len(block):
                             return None
-                        for t, o in rec.records:
-                            logs.append(t)
-                            offs.append(base + o)
-                            chans.append(ch_id)
+                        pairs = np.frombuffer(block, "<u8", nb // 8, p + 15).reshape(-1, 2).astype(np.int64)
+                        logs.append(pairs[:, 0])
+                        offs.append(pairs[:, 1] + base)
+                        chans.append(np.full(len(pairs), ch_id, np.int64))
             topics = {i: c.topic for i, c in s.channels.items()}
         except Exception:  # noqa: BLE001 - anything odd: read the file the usual way
             return None
-        log_ns = np.array(logs, np.int64)
-        offsets = np.array(offs, np.int64)
-        channels = np.array(chans, np.int64)
+        if not logs:
+            return None
+        log_ns, offsets, channels = np.concatenate(logs), np.concatenate(offs), np.concatenate(chans)
         order = np.lexsort((offsets, log_ns))
         table = cls(path, log_ns[order], offsets[order], channels[order], topics)
         if counts is not None:
