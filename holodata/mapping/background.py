@@ -49,13 +49,16 @@ class VoxelBackground:
     """Set of static voxels. ``voxel`` edge (m); ``keys`` sorted unique int64 keys of background
     voxels; ``dilated`` sorted keys of background voxels grown by one voxel (the tolerance used by
     :meth:`contains`); ``hits`` (len(keys),) scans in which each background voxel was occupied;
-    ``n_scans`` scans used to build."""
+    ``n_scans`` scans used to build; ``floor`` optional floor plane [a, b, c] (``z = a·x + b·y + c``,
+    world frame) set by the human segmentation (:func:`holodata.mapping.segment.floor_plane`), None
+    otherwise — :meth:`contains` does not use it."""
 
     voxel: float
     keys: np.ndarray
     dilated: np.ndarray
     hits: np.ndarray
     n_scans: int
+    floor: np.ndarray | None = None
 
     @classmethod
     def build(cls, points_world: list[np.ndarray], voxel: float = 0.15, min_fraction: float = 0.25,
