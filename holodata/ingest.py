@@ -792,6 +792,7 @@ def plan_recording(path, topics: dict | None = None, scene_id: str | None = None
 
     from concurrent.futures import ThreadPoolExecutor
 
+    _limit_malloc_arenas()
     rec = open_recording(path, msg_dir=msg_dir, meta=meta)
     pool = ThreadPoolExecutor(1)   # checksums overlap the index pass (hashlib releases the GIL)
     sha = pool.submit(file_sha256, rec.files)
@@ -975,34 +976,37 @@ def _first_string(rec: Recording, topic: str | None) -> str:
 
 class _Background:
     """Shard writes (Blosc compression, sha256, file put) on ``workers`` threads, overlapping the
-    main thread's reading and decoding (Blosc, hashlib and file writes release the GIL). At most
-    ``depth`` shards are queued or in flight, so memory stays a few shards whatever the recording
-    size. Jobs with the same ``key`` (one ragged array: shards append in order) run in submit
-    order: each waits for its predecessor, which was submitted, and so dequeued, earlier (FIFO),
-    so the wait cannot deadlock. Errors surface on the next submit or on :meth:`join`;
-    :meth:`close` always waits for the writes in progress."""
+    main thread's reading and decoding (Blosc, hashlib and file writes release the GIL). Shard
+    data queued or in flight is bounded by ``budget`` bytes (a larger shard waits until nothing
+    else is in flight), so memory stays flat whatever the recording size. Jobs with the same
+    ``key`` (one ragged array: shards append in order) run in submit order: each waits for its
+    predecessor, which was submitted, and so dequeued, earlier (FIFO), so the wait cannot
+    deadlock. Errors surface on the next submit or on :meth:`join`; :meth:`close` always waits for
+    the writes in progress."""
 
-    def __init__(self, workers: int = 2, depth: int = 4):
+    def __init__(self, workers: int = 2, budget: int = SHARD_TARGET_BYTES + (SHARD_TARGET_BYTES >> 1)):
         import threading
         from concurrent.futures import ThreadPoolExecutor
 
         self.pool = ThreadPoolExecutor(workers, thread_name_prefix="holodata-ingest-writer")
-        self.slots = threading.Semaphore(depth)
-        self.lock = threading.Lock()
+        self.cond = threading.Condition()
+        self.budget, self.inflight = int(budget), 0
         self.futures: list = []
         self.last: dict = {}
         self.seconds = 0.0    # busy time summed over the workers
 
-    def _run(self, fn, prev) -> None:
+    def _run(self, fn, prev, nbytes: int) -> None:
         try:
             if prev is not None:
                 prev.result()
             t = time.perf_counter()
             fn()
-            with self.lock:
+            with self.cond:
                 self.seconds += time.perf_counter() - t
         finally:
-            self.slots.release()
+            with self.cond:
+                self.inflight -= nbytes
+                self.cond.notify_all()
 
     def _raise(self) -> None:
         pending = []
@@ -1013,10 +1017,13 @@ class _Background:
                 pending.append(f)
         self.futures = pending
 
-    def submit(self, fn, key=None) -> None:
+    def submit(self, fn, key=None, nbytes: int = 0) -> None:
         self._raise()
-        self.slots.acquire()
-        fut = self.pool.submit(self._run, fn, self.last.get(key) if key is not None else None)
+        with self.cond:
+            while self.inflight and self.inflight + nbytes > self.budget:
+                self.cond.wait()
+            self.inflight += nbytes
+        fut = self.pool.submit(self._run, fn, self.last.get(key) if key is not None else None, nbytes)
         if key is not None:
             self.last[key] = fut
         self.futures.append(fut)
@@ -1066,7 +1073,8 @@ class _Out:
             # bound now: the job may run after this loop has moved on (frame arrays take the list: no stack copy)
             job = lambda k=self.k, w=self.w, data=data: w.write_shard(k, data)   # noqa: E731
             if self.bg is not None:
-                self.bg.submit(job, key=id(self) if self.ragged else None)
+                self.bg.submit(job, key=id(self) if self.ragged else None,
+                               nbytes=sum(getattr(a, "nbytes", 0) for a in data))
             else:
                 t = time.perf_counter()
                 job()
@@ -1080,8 +1088,31 @@ def _shard_frames(per_frame_bytes: int, default: int) -> int:
     return int(max(1, min(default, SHARD_TARGET_BYTES // max(1, per_frame_bytes))))
 
 
+def _limit_malloc_arenas(n: int = 1) -> None:
+    """glibc gives each thread that allocates under contention its own malloc arena (up to 8 per
+    core); the writer threads free many ~1-2 MB buffers (message payloads, Blosc chunks) that then
+    fragment those arenas, so peak RSS crept up with recording length (4x recording: +20%,
+    benchmarks/ingest.py). One arena for the threads started from here on: +5-10%. No-op off glibc."""
+    global _ARENAS_LIMITED
+    if _ARENAS_LIMITED:
+        return
+    _ARENAS_LIMITED = True
+    try:
+        import ctypes
+        import ctypes.util
+
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.mallopt(-8, int(n))   # M_ARENA_MAX
+    except (OSError, AttributeError, TypeError):
+        pass
+
+
+_ARENAS_LIMITED = False
+
+
 def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> dict:
     """Pass 2: decode the matched messages and write scene ``plan.scene_id`` into writer ``ds``."""
+    _limit_malloc_arenas()
     bg = _Background()
     try:
         return _write_plan(plan, ds, quiet, codec, bg)

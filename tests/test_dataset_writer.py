@@ -162,8 +162,9 @@ from pathlib import Path
 from holodata.dataset import store as st
 real_replace, n = os.replace, [0]
 def replace(src, dst):
-    # the 7th shard object: its bytes sit in the temp file; announce, then hang before the rename
-    if "/c/" in str(dst):
+    # the 7th frame-array shard object (not a ragged values/offsets chunk): its bytes sit in the
+    # temp file; announce, then hang before the rename
+    if "/c/" in str(dst) and "/values/c/" not in str(dst) and "/offsets/c/" not in str(dst):
         n[0] += 1
         if n[0] == 7 and len(sys.argv) > 2:
             Path(sys.argv[2]).write_text(str(dst))
