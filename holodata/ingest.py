@@ -30,8 +30,8 @@ ragged (per-point time relative to the scan stamp, when the cloud has a time fie
 (T, Hl, Wl) float32 m, NaN = no return (organised clouds as published; Ouster scans destaggered),
 ``lidar/timestamp_ns``; ``camera/points`` ragged (sensor frame: optical frame for depth images),
 ``camera/timestamp_ns``; ``pose/T_world_radar`` when TF connects the radar frame to the world frame
-at every frame time. Scene attributes: ``frame_sensor``, ``source`` {recording, files, sha256,
-reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF), ``sensors`` (topics,
+at every frame time. Scene attributes: ``frame_sensor``, ``source`` {recording, files, bytes,
+sha256 (written with ``ingest.complete``), reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF), ``sensors`` (topics,
 frames, intrinsics, Ouster metadata), ``ingest`` (mapping, tolerance, counts, drops, warnings).
 
 Truncated recordings (recorder crash, file cut short): the readable prefix is ingested and the
@@ -1125,7 +1125,23 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
 
     rec, T = plan.rec, len(plan.frame_stamps)
     fs = plan.frame_sensor
-    source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "sha256": plan.sha256,
+
+    def sha256() -> list[str]:
+        """The recording files' sha256, hashed on a thread since plan_recording: waited for only
+        when a resumed scene must be compared, else at the end (overlapping the write pass)."""
+        if not plan.sha256:
+            plan.sha256 = plan.sha_future.result() if plan.sha_future is not None else file_sha256(rec.files)
+        return plan.sha256
+
+    sizes = []
+    for f in rec.files:
+        try:
+            sizes.append(Path(f).stat().st_size)
+        except OSError:
+            sizes.append(None)
+    # sha256 goes in with the final attributes (ingest.complete); "bytes" tells an interrupted run's
+    # scene from another recording's before then
+    source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "bytes": sizes,
               "reader": rec.kind, "truncated": bool(rec.truncated), **(getattr(rec, "attrs", None) or {}),
               **({"problems": rec.problems[:20]} if rec.problems else {})}
     # what the frames and their contents depend on: a resumed run must agree
@@ -1135,8 +1151,9 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     existing = ds.scene_ids()
     if plan.scene_id in existing:
         cur = ds.scene(plan.scene_id).attrs
-        have = (cur.get("source") or {}).get("sha256") if isinstance(cur.get("source"), dict) else None
-        if have and have != plan.sha256:
+        src = cur.get("source") if isinstance(cur.get("source"), dict) else {}
+        have = src.get("sha256")
+        if (have and have != sha256()) or (not have and src.get("bytes") not in (None, sizes)):
             raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was ingested from another recording "
                                f"({(cur.get('source') or {}).get('recording')}); choose another --scene-id")
         prev = (cur.get("ingest") or {}).get("fingerprint")
@@ -1322,7 +1339,8 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         sync[role] = {"matched_frames": int(ok.sum()), "tolerance_ns": int(plan.tolerance_ns.get(role, 0)),
                       "offset_ns_median": int(np.median(off)) if len(off) else None,
                       "offset_ns_max_abs": int(np.abs(off).max()) if len(off) else None}
-    sc.set_attrs({"ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
+    sc.set_attrs({"source": {**source, "sha256": sha256()},
+                  "ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
                              "time_source": plan.tmap.time,
                              "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped, "sync": sync,
                              "notes": plan.notes[:20], "warnings": warnings[:50]}})
@@ -1526,8 +1544,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
                 kw = {"shard_frames": shard_frames} if shard_frames else {}
                 ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
                                     provenance={"tool": "holodata ingest", "version": version}, **kw)
-            p.sha256 = p.sha_future.result() if p.sha_future is not None else file_sha256(p.rec.files)
-            scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))
+            scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))   # sha256: waited for at its end
         except (HolodataError, OSError) as err:
             failed.append({"recording": str(r), "error": _one_line(err)})
         finally:
