@@ -59,6 +59,7 @@ class SegmentConfig:
     min_hits: int = 2
     floor_margin_m: float = 0.07
     merge_xy_m: float = 0.15
+    max_height_m: float = 2.3
     tolerance_voxels: int = 0
     erosion: int = 1
     dist_m: float = 0.10
@@ -89,18 +90,39 @@ def _shift(a: np.ndarray, dr: int, dc: int, fill=False) -> np.ndarray:
     return out
 
 
-def erode(mask: np.ndarray, iterations: int = 1) -> np.ndarray:
-    """Binary erosion with a 3×3 square; columns wrap, rows outside the image count as background."""
+def erode(mask: np.ndarray, iterations: int = 1, structure: np.ndarray | None = None) -> np.ndarray:
+    """Binary erosion with ``structure`` (default a 3×3 square; see :func:`shrink_structure`); columns
+    wrap, rows outside the image count as background."""
     from scipy import ndimage
 
     m = np.asarray(mask, bool)
     if iterations <= 0:
         return m.copy()
+    st = np.ones((3, 3), bool) if structure is None else np.asarray(structure, bool)
     W = m.shape[1]
-    pad = iterations
-    wrapped = np.concatenate([m[:, W - pad:], m, m[:, :pad]], axis=1)
-    er = ndimage.binary_erosion(wrapped, structure=np.ones((3, 3), bool), iterations=iterations, border_value=0)
+    pad = iterations * (st.shape[1] // 2)
+    wrapped = np.concatenate([m[:, W - pad:], m, m[:, :pad]], axis=1) if pad else m
+    er = ndimage.binary_erosion(wrapped, structure=st, iterations=iterations, border_value=0)
     return er[:, pad:pad + W]
+
+
+def shrink_structure(elev: np.ndarray | None, W: int, max_aspect: float = 2.0) -> np.ndarray:
+    """Structuring element of the seed shrink for a grid with row elevations ``elev`` (H,) rad and
+    ``W`` columns: a 3×3 square when rows and columns sample angles alike, a 1×3 row (erode along
+    the columns only) when the median row spacing is more than ``max_aspect`` times the column
+    spacing 2π/W (3×1 in the converse case). An OS1-like 33° 64×1024 grid (0.53° × 0.35°) keeps the
+    square; an OS0-like 90° 32×512 grid (2.9° × 0.70°) would lose a whole 15–30 cm row off the top
+    and bottom of a person at 5 m, who is then only ~6 rows tall and often has no seed left."""
+    sq = np.ones((3, 3), bool)
+    if elev is None or len(elev) < 2:
+        return sq
+    dv = float(np.median(np.abs(np.diff(np.asarray(elev, np.float64)))))
+    dh = 2 * np.pi / W
+    if dv > max_aspect * dh:
+        return np.ones((1, 3), bool)
+    if dh > max_aspect * dv:
+        return np.ones((3, 1), bool)
+    return sq
 
 
 def beam_elevations(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -249,7 +271,8 @@ def grow(lab: np.ndarray, allowed: np.ndarray, points: np.ndarray, dist_m: float
 
 def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray | None,
                  cfg: SegmentConfig | None = None, points_world: np.ndarray | None = None,
-                 shifts: np.ndarray | None = None, background_near: np.ndarray | None = None) -> np.ndarray:
+                 shifts: np.ndarray | None = None, background_near: np.ndarray | None = None,
+                 floor: np.ndarray | None = None) -> np.ndarray:
     """Instance image of one organised scan.
 
     ``points`` (H,W,3) sensor-frame points m (flood-fill distances); ``valid`` (H,W) bool returns;
@@ -271,14 +294,17 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
         lab = segment_scan(destagger(np.asarray(points), shifts), destagger(np.asarray(valid, bool), shifts),
                            None if background is None else destagger(np.asarray(background, bool), shifts), cfg,
                            destagger(np.asarray(pw), shifts), np.zeros(len(shifts), np.int64),
-                           None if background_near is None else destagger(np.asarray(background_near, bool), shifts))
+                           None if background_near is None else destagger(np.asarray(background_near, bool), shifts),
+                           floor)
         return destagger(lab, shifts, inverse=True)
     valid = np.asarray(valid, bool)
     fg = valid & (~np.asarray(background, bool) if background is not None else True)
     core = fg & ~np.asarray(background_near, bool) if background_near is not None else fg
-    seeds = erode(core, cfg.erosion)
     P = np.asarray(points, np.float64)
-    elev = beam_elevations(P, valid) if cfg.spacing_factor > 0 else None
+    elev = beam_elevations(P, valid)
+    seeds = erode(core, cfg.erosion, shrink_structure(elev, fg.shape[1]))
+    if cfg.spacing_factor <= 0:
+        elev = None
     lab, n = flood_fill(P, core, seeds, cfg.dist_m, cfg.dist_per_m, elev, cfg.spacing_factor)
     if background_near is not None and cfg.grow_pixels > 0 and n:
         lab = grow(lab, fg, P, cfg.dist_m, cfg.dist_per_m, cfg.grow_pixels, elev, cfg.spacing_factor)
@@ -287,7 +313,7 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
         return out
     pw = np.asarray(points_world if points_world is not None else points, np.float64)
     if cfg.merge_xy_m > 0 and n > 1:
-        lab, n = merge_stacked(lab, n, pw, cfg.merge_xy_m, cfg.max_width_m)
+        lab, n = merge_stacked(lab, n, pw, cfg.merge_xy_m, cfg.max_width_m, max_height_m=cfg.max_height_m)
     sel = lab >= 0
     ls, ps = lab[sel], pw[sel]
     sizes = np.bincount(ls, minlength=n)
@@ -297,6 +323,11 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
     np.maximum.at(zmax, ls, ps[:, 2])
     ok = sizes >= cfg.min_points
     ok &= (zmax - zmin) >= cfg.min_height_m
+    if floor is not None and np.isfinite(cfg.max_height_m):
+        top = np.full(n, -np.inf)
+        hfl = above_floor(floor, ps)
+        np.maximum.at(top, ls, hfl)
+        ok &= top <= cfg.max_height_m
     cand = np.flatnonzero(ok)
     if np.isfinite(cfg.max_width_m) or cfg.min_depth_m > 0:
         good = []
@@ -315,10 +346,11 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
 
 
 def merge_stacked(lab: np.ndarray, n: int, points_world: np.ndarray, xy_m: float, max_width_m: float,
-                  min_points: int = 3) -> tuple[np.ndarray, int]:
+                  min_points: int = 3, max_height_m: float = np.inf) -> tuple[np.ndarray, int]:
     """Join clusters that stand on the same plan-view spot: two clusters (each >= ``min_points``
     returns) are one when some of their points come within ``xy_m`` (m) of each other in plan view
-    (x, y of ``points_world`` (H,W,3), z up) and together they stay within ``max_width_m`` across.
+    (x, y of ``points_world`` (H,W,3), z up), their height ranges overlap or leave a gap of at most
+    2·``xy_m``, and together they stay within ``max_width_m`` across and ``max_height_m`` tall.
     A leg or arm whose link to the torso is hidden by a limb in front (a depth jump larger than the
     flood-fill threshold; common within ~1 m of a wide-FOV LiDAR that sees the whole body) is split
     off by the flood fill; this puts it back. Returns (labels renumbered 0..m-1, m)."""
@@ -327,7 +359,12 @@ def merge_stacked(lab: np.ndarray, n: int, points_world: np.ndarray, xy_m: float
     sel = lab >= 0
     ls = lab[sel]
     xy = points_world[sel][:, :2]
+    z = points_world[sel][:, 2]
     sizes = np.bincount(ls, minlength=n)
+    zlo = np.full(n, np.inf)
+    zhi = np.full(n, -np.inf)
+    np.minimum.at(zlo, ls, z)
+    np.maximum.at(zhi, ls, z)
     big = np.flatnonzero(sizes >= min_points)
     if len(big) < 2:
         return lab, n
@@ -348,6 +385,10 @@ def merge_stacked(lab: np.ndarray, n: int, points_world: np.ndarray, xy_m: float
             ra, rb = root(a), root(b)
             if ra == rb or np.linalg.norm(cen[a] - cen[b]) > rad[a] + rad[b] + xy_m:
                 continue
+            if max(zlo[ra], zlo[rb]) - min(zhi[ra], zhi[rb]) > 2 * xy_m:
+                continue
+            if max(zhi[ra], zhi[rb]) - min(zlo[ra], zlo[rb]) > max_height_m:
+                continue
             if a not in trees:
                 trees[a] = cKDTree(pts[a])
             d, _ = trees[a].query(pts[b], k=1, distance_upper_bound=xy_m)
@@ -356,6 +397,7 @@ def merge_stacked(lab: np.ndarray, n: int, points_world: np.ndarray, xy_m: float
             members = [c for c in range(n) if root(c) in (ra, rb)]
             if _plan_extent(xy[np.isin(ls, members)]) <= max_width_m:
                 parent[rb] = ra
+                zlo[ra], zhi[ra] = min(zlo[ra], zlo[rb]), max(zhi[ra], zhi[rb])
     roots = np.array([root(c) for c in range(n)])
     uniq, new = np.unique(roots, return_inverse=True)
     out = lab.copy()
@@ -609,7 +651,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
                 continue
             bgm, near = background_masks(bg, valid, Pw, cfg)
             out[i] = segment_scan(P, valid, bgm, cfg, points_world=np.where(valid[..., None], Pw, 0.0),
-                                  background_near=near)
+                                  background_near=near, floor=getattr(bg, "floor", None))
             counts.append(int(out[i].max()))
         arr.write_shard(s, out)
     return {"scene": sid, "frames": scene.n_frames, "array": INSTANCE_ARRAY, "background_voxels": int(len(bg)),
