@@ -247,3 +247,22 @@ def test_raw_heads_reads_the_same_messages_as_rosbags(tmp_path):
         for p in (FIXTURES / "ros2" / "mcap" / "wbag", FIXTURES / "ros2" / "mcap" / "cdr_test"):
             full, got, _ = _heads_vs_full(p)
             assert got == full
+
+
+def test_raw_heads_stops_at_a_record_that_is_not_the_indexed_message(tmp_path):
+    """A message record whose log time no longer matches its chunk index (damaged bytes): the
+    seeking reader yields the messages before it, then marks the recording truncated."""
+    bag = tmp_path / "bag"
+    write_recording(bag, "mcap", n_radar=3)
+    with open_recording(bag) as r:
+        table = r._message_table()
+        n = len(table.offsets)
+        off = int(table.offsets[n // 2])
+    mcap = next(bag.glob("*.mcap"))
+    b = bytearray(mcap.read_bytes())
+    b[off + 1 + 8 + 2 + 4] ^= 0xFF        # first byte of the record's log time
+    mcap.write_bytes(bytes(b))
+    with open_recording(bag) as r:
+        got = list(r.raw_heads(sorted({t.name for t in r.topics()}), []))
+        assert len(got) == n // 2 and r.truncated
+        assert any("damaged record" in p for p in r.problems)
