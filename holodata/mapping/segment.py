@@ -128,7 +128,8 @@ def shrink_structure(elev: np.ndarray | None, W: int, max_aspect: float = 2.0) -
 def beam_elevations(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(H,) float64 elevation (rad) of each beam (row) of an organised scan, measured from the data:
     the median of ``atan2(z, hypot(x, y))`` over the row's returns; rows without returns are
-    interpolated from the others (a scan without returns gives zeros)."""
+    interpolated from the others, linearly extrapolated past the first/last row with returns (a
+    scan without returns gives zeros)."""
     p = np.asarray(points, np.float64)
     v = np.asarray(valid, bool)
     H = v.shape[0]
@@ -140,7 +141,14 @@ def beam_elevations(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
     ok = np.isfinite(out)
     if not ok.any():
         return np.zeros(H)
-    return np.interp(np.arange(H), np.flatnonzero(ok), out[ok])
+    rows = np.flatnonzero(ok)
+    el = np.interp(np.arange(H), rows, out[ok])
+    if len(rows) >= 2:  # rows above the first / below the last row with returns: linear extrapolation
+        slope = np.polyfit(rows, out[ok], 1)[0]
+        lo, hi = np.arange(rows[0]), np.arange(rows[-1] + 1, H)
+        el[lo] = out[rows[0]] + slope * (lo - rows[0])
+        el[hi] = out[rows[-1]] + slope * (hi - rows[-1])
+    return el
 
 
 def neighbour_spacing(elev: np.ndarray, W: int, dr: int, dc: int) -> np.ndarray:
