@@ -196,22 +196,25 @@ def flood_fill(points: np.ndarray, fg: np.ndarray, seeds: np.ndarray, dist_m: fl
         return lab, 0
     idx = np.full((H, W), -1, np.int64)
     idx[fg] = np.arange(n_fg)
-    rng = np.linalg.norm(points, axis=-1)
+    fi, fj = np.nonzero(fg)                      # foreground pixels only (a few % of the grid)
+    pf = np.asarray(points, np.float64)[fi, fj]
+    rf = np.linalg.norm(pf, axis=-1)
     rows, cols = [], []
     for dr, dc in NEIGHBOURS:
-        f2 = _shift(fg, dr, dc)
-        both = fg & f2
-        if not both.any():
+        i2, j2 = fi + dr, (fj + dc) % W
+        inside = (i2 >= 0) & (i2 < H)
+        k2 = np.full(n_fg, -1, np.int64)
+        k2[inside] = idx[i2[inside], j2[inside]]
+        a = np.flatnonzero(k2 >= 0)
+        if not len(a):
             continue
-        p2 = _shift(points, dr, dc, fill=0.0)
-        r2 = _shift(rng, dr, dc, fill=0.0)
-        d = np.linalg.norm(points - p2, axis=-1)
-        sp = neighbour_spacing(elev, W, dr, dc) if elev is not None else None
-        thr = link_threshold(rng, r2, sp, dist_m, dist_per_m, spacing_factor)
-        e = both & (d < thr)
-        i2 = _shift(idx, dr, dc, fill=-1)
-        rows.append(idx[e])
-        cols.append(i2[e])
+        b = k2[a]
+        d = np.linalg.norm(pf[a] - pf[b], axis=-1)
+        sp = neighbour_spacing(elev, W, dr, dc)[fi[a], 0] if elev is not None else None
+        thr = link_threshold(rf[a], rf[b], sp, dist_m, dist_per_m, spacing_factor)
+        e = d < thr
+        rows.append(a[e])
+        cols.append(b[e])
     r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
     c = np.concatenate(cols) if cols else np.zeros(0, np.int64)
     g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(n_fg, n_fg))
@@ -244,10 +247,11 @@ def row_shifts(points: np.ndarray, valid: np.ndarray) -> np.ndarray:
 def destagger(a: np.ndarray, shifts: np.ndarray, inverse: bool = False) -> np.ndarray:
     """Roll row i of ``a`` (H,W,...) by ``-shifts[i]`` (``inverse``: by ``+shifts[i]``): a pixel whose
     azimuth is ``−2πj/W + shifts[i]·2π/W`` lands in column j, so columns line up across rows."""
-    out = np.empty_like(a)
-    for i, s in enumerate(np.asarray(shifts, np.int64)):
-        out[i] = np.roll(a[i], int(s) if inverse else -int(s), axis=0)
-    return out
+    a = np.asarray(a)
+    H, W = a.shape[:2]
+    sh = np.asarray(shifts, np.int64)[:, None]
+    cols = (np.arange(W)[None, :] + (-sh if inverse else sh)) % W
+    return a[np.arange(H)[:, None], cols]
 
 
 def grow(lab: np.ndarray, allowed: np.ndarray, points: np.ndarray, dist_m: float, dist_per_m: float,
@@ -280,7 +284,7 @@ def grow(lab: np.ndarray, allowed: np.ndarray, points: np.ndarray, dist_m: float
 def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray | None,
                  cfg: SegmentConfig | None = None, points_world: np.ndarray | None = None,
                  shifts: np.ndarray | None = None, background_near: np.ndarray | None = None,
-                 floor: np.ndarray | None = None) -> np.ndarray:
+                 floor: np.ndarray | None = None, elev: np.ndarray | None = None) -> np.ndarray:
     """Instance image of one organised scan.
 
     ``points`` (H,W,3) sensor-frame points m (flood-fill distances); ``valid`` (H,W) bool returns;
@@ -290,7 +294,10 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
     given, seeds and flood fill use only returns away from the background (a person touching a wall
     or a patch of wall the background missed cannot merge), and the clusters then grow by
     ``grow_pixels`` into the other foreground returns (feet, hands near walls); ``shifts`` (H,)
-    destaggering column shifts (:func:`row_shifts`; None: measured here). The grid
+    destaggering column shifts (:func:`row_shifts`; None: measured here); ``floor`` the floor plane
+    (:func:`floor_plane`; clusters topping out more than ``cfg.max_height_m`` above it are dropped);
+    ``elev`` (H,) beam elevations (rad; :func:`beam_elevations`, None: measured here) for the
+    flood-fill threshold and the shrink structure. The grid
     is destaggered for the neighbourhood operations and the result returned in the input layout.
     Returns (H,W) uint16: 0 = background / no return, 1..n instances by decreasing size.
     """
@@ -303,13 +310,14 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
                            None if background is None else destagger(np.asarray(background, bool), shifts), cfg,
                            destagger(np.asarray(pw), shifts), np.zeros(len(shifts), np.int64),
                            None if background_near is None else destagger(np.asarray(background_near, bool), shifts),
-                           floor)
+                           floor, elev)
         return destagger(lab, shifts, inverse=True)
     valid = np.asarray(valid, bool)
     fg = valid & (~np.asarray(background, bool) if background is not None else True)
     core = fg & ~np.asarray(background_near, bool) if background_near is not None else fg
     P = np.asarray(points, np.float64)
-    elev = beam_elevations(P, valid)
+    if elev is None:
+        elev = beam_elevations(P, valid)
     seeds = erode(core, cfg.erosion, shrink_structure(elev, fg.shape[1]))
     if cfg.spacing_factor <= 0:
         elev = None
@@ -601,6 +609,25 @@ def in_background(bg, points_world: np.ndarray, tolerance_voxels: int = 0) -> np
     return out
 
 
+def grid_geometry(scans: LidarScans, n: int = 5) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(destagger shifts (H,) int, beam elevations (H,) rad) of a scene's organised scans, measured
+    once from up to ``n`` scans spread over the recording (:func:`row_shifts` — the most common value
+    per row — and the median of :func:`beam_elevations`); (None, None) without usable scans (then
+    :func:`segment_scan` measures them per scan)."""
+    sh, el = [], []
+    H = scans.shape[0]
+    for k in np.unique(np.linspace(0, len(scans.stamps) - 1, min(n, len(scans.stamps))).round().astype(int)):
+        valid, P, _ = scans.scan(int(k), None, False)
+        if valid.sum() >= 8 * H:
+            sh.append(row_shifts(P, valid))
+            el.append(beam_elevations(P, valid))
+    if not sh:
+        return None, None
+    sh = np.array(sh)
+    mode = np.array([np.bincount(c - c.min()).argmax() + c.min() for c in sh.T], np.int64)
+    return mode, np.median(el, axis=0)
+
+
 def background_masks(bg, valid: np.ndarray, points_world: np.ndarray, cfg: SegmentConfig
                      ) -> tuple[np.ndarray, np.ndarray | None]:
     """(background (H,W) bool, near (H,W) bool or None) of one scan for :func:`segment_scan`:
@@ -648,6 +675,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
                                 "values": "0 = background or no return; 1..n instances by decreasing size",
                                 "params": cfg.to_attrs(), "background_voxels": int(len(bg))})
     counts = []
+    shifts, elev = grid_geometry(scans)
     for s in track(range(arr.n_shards), arr.n_shards, f"segment {sid}", quiet):
         sl = arr.frames(s)
         if arr.is_done(s):
@@ -659,7 +687,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
                 continue
             bgm, near = background_masks(bg, valid, Pw, cfg)
             out[i] = segment_scan(P, valid, bgm, cfg, points_world=np.where(valid[..., None], Pw, 0.0),
-                                  background_near=near, floor=getattr(bg, "floor", None))
+                                  background_near=near, floor=getattr(bg, "floor", None), shifts=shifts, elev=elev)
             counts.append(int(out[i].max()))
         arr.write_shard(s, out)
     return {"scene": sid, "frames": scene.n_frames, "array": INSTANCE_ARRAY, "background_voxels": int(len(bg)),
