@@ -4,19 +4,38 @@ The method of the Ouster OS0 instance-segmentation note, on the organised scan `
 (T, Hl, Wl) of a scene whose scans have poses ``pose/T_world_lidar``:
 
 1. **Background model**: every scan's returns in the world frame go into a 15 cm voxel model of the
-   static scene (:class:`holodata.mapping.background.VoxelBackground`: voxels occupied in a good
-   fraction of the scans that observed them; people occupy a voxel only briefly).
+   static scene (:class:`holodata.mapping.background.VoxelBackground`: voxels occupied in at least
+   ``min_fraction`` of the scans that observed them, free-space test from the scan origins; people
+   occupy a voxel only briefly), plus the **floor plane** (:func:`floor_plane`): returns within
+   ``floor_margin_m`` of it are background too.
 2. **Foreground**: the returns of a scan outside the background (grid mask, (Hl, Wl)).
-3. **Seeds by shrinking**: binary erosion of the foreground mask (3×3, columns wrap around), which
-   removes isolated pixels and the fringe of mixed/edge returns.
+3. **Seeds by shrinking**: binary erosion of the foreground mask (columns wrap around), which
+   removes isolated pixels and the fringe of mixed/edge returns; 3×3, or 1×3 when the rows are
+   more than twice as far apart in angle as the columns (:func:`shrink_structure`).
 4. **Flood fill** from the seeds over grid neighbours (right, down, both diagonals, and the
    second neighbour along rows and columns to bridge single dropouts; columns wrap) that are
-   foreground and within a Euclidean distance ``dist_m + dist_per_m · range`` of each other (3-D
-   points, metres). Implemented as connected components of that neighbour graph
-   (``scipy.sparse.csgraph``) keeping the components that hold a seed.
+   foreground and within a Euclidean distance ``dist_m + dist_per_m · r + spacing_factor · s · r``
+   of each other (3-D points, metres; r the nearer range, s the beam pattern's angular step between
+   the two pixels — :func:`neighbour_spacing`, from the row elevations measured in the scan,
+   :func:`beam_elevations`). Implemented as connected components of that neighbour graph
+   (``scipy.sparse.csgraph``) keeping the components that hold a seed. Clusters standing on the
+   same plan-view spot with overlapping heights are joined (:func:`merge_stacked`: a limb split
+   off by a depth jump).
 5. **Keep the largest cluster(s)**: components with at least ``min_points`` returns whose extent is
-   person-like (vertical extent >= ``min_height_m``, horizontal extent <= ``max_width_m``), largest
-   first, at most ``max_instances``.
+   person-like (vertical extent >= ``min_height_m``, horizontal extent <= ``max_width_m``, top at
+   most ``max_height_m`` above the floor, not flat), largest first, at most ``max_instances``.
+
+Beam geometry: the constants were first tuned on an OS1-like LiDAR (33.2° vertical FOV, 64 beams,
+0.53° apart); on an OS0-like one (90°, 32 beams: 2.9° apart) walkers' AP50 fell to 0.15. Causes
+measured (``benchmarks/segment.py``): rows of a person at 4–6 m are 20–30 cm apart, beyond the
+fixed 10 cm + 2 %·r link threshold, so far people fell apart into rows; the 3×3 shrink removed a
+whole 15–30 cm row top and bottom and left such a person (~6 rows) without seeds; the far floor,
+hit by a coarse ring in a single scan as the robot moves, stayed out of the voxel background and
+joined the feet; the near-background split (seeds only away from voxels next to the background,
+then a 3-pixel regrowth) cut people within 1 m — whom a 90° LiDAR sees head to toe — into pieces
+the regrowth could not rejoin; and ``min_fraction`` 0.25 kept the trail of walkers in short
+recordings as background. AP50 now >= 0.9 for both LiDARs at 64×1024, 64×512 and 32×512 on every
+corner kind (numbers in ``benchmarks/segment.py``).
 
 Output per scan: an instance image (Hl, Wl) uint16, 0 = background / no return, 1 = the largest
 instance, 2 = the next ... Stored as ``lidar/instance`` (T, Hl, Wl) uint16 with
@@ -44,15 +63,23 @@ NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0))
 
 @dataclass(frozen=True)
 class SegmentConfig:
-    """Parameters of :func:`segment_scan` (metres). ``voxel`` / ``min_fraction``: background model;
-    ``tolerance_voxels`` 0: a return is background when its own voxel is, 1: when any voxel of its
-    3×3×3 neighbourhood is (the model's ``contains``);
-    ``erosion``: iterations of the 3×3 shrink that makes the seeds; ``dist_m`` + ``dist_per_m``·range:
-    flood-fill distance threshold between grid neighbours; ``min_points``: smallest kept cluster;
+    """Parameters of :func:`segment_scan` (metres). ``voxel`` / ``min_fraction`` / ``min_hits``:
+    background model (:meth:`VoxelBackground.build`; 0.6 as slam's: 0.25 kept walkers' trails in
+    short recordings); ``floor_margin_m``: returns this close to the floor plane are background (0: no
+    floor model); ``tolerance_voxels`` 0: a return is background when its own voxel is, 1: when any
+    voxel of its 3×3×3 neighbourhood is (the model's ``contains``);
+    ``erosion``: iterations of the shrink that makes the seeds (:func:`shrink_structure`);
+    ``dist_m`` + ``dist_per_m``·r + ``spacing_factor``·(beam step)·r: flood-fill distance threshold
+    between grid neighbours (:func:`link_threshold`); ``merge_xy_m``: join clusters this close in plan
+    view with overlapping heights (:func:`merge_stacked`; 0: off); ``max_height_m``: highest top of a
+    person above the floor (and tallest merge); ``min_points``: smallest kept cluster;
     ``min_height_m`` / ``max_width_m``: person-like extent (0 / inf switch the check off);
     ``min_depth_m``: smallest robust extent along the cluster's least principal axis (rejects flat
     patches of wall that the background missed, e.g. behind a lane people walk often);
-    ``max_instances``: keep at most this many clusters per scan (largest first; 0 = no limit)."""
+    ``max_instances``: keep at most this many clusters per scan (largest first; 0 = no limit);
+    ``grow_pixels`` > 0: seeds and flood fill only away from returns within one voxel of the
+    background, then the clusters regrow this many pixels (the former default 3: it split people
+    within ~1 m of a wide-FOV LiDAR; 0 = off)."""
 
     voxel: float = 0.15
     min_fraction: float = 0.6
@@ -526,8 +553,9 @@ class LidarScans:
 def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: int = 200) -> np.ndarray | None:
     """Floor of a scene as a plane ``z = a·x + b·y + c`` (returns (3,) [a, b, c], or None when there
     is no clear floor): the densest 2 cm slice of heights among the returns more than ``below_m``
-    under the lowest sensor origin, refined by a least-squares plane through the returns within 10 cm
-    of it (twice, trimming at 3 sigma). World z must be up."""
+    under the lowest sensor origin, refined by least-squares planes through the returns near the
+    current plane (10 cm, then 3 sigma but >= 3 cm; four rounds, so a world frame tilted by a few
+    degrees is followed). World z must be (roughly) up."""
     p = np.concatenate([np.asarray(q, np.float64).reshape(-1, 3) for q in points_world]) if len(points_world) else np.zeros((0, 3))
     p = p[np.isfinite(p).all(1)]
     if origins is not None and len(origins):
@@ -539,18 +567,16 @@ def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: i
     lo, hi = p[:, 2].min(), p[:, 2].max()
     hist, edges = np.histogram(p[:, 2], bins=max(1, int(np.ceil((hi - lo) / 0.02))), range=(lo, max(hi, lo + 0.02)))
     z0 = edges[int(np.argmax(hist))] + 0.01
-    q = p[np.abs(p[:, 2] - z0) < 0.10]
-    if len(q) < min_points:
-        return None
     coef = np.array([0.0, 0.0, z0])
-    for _ in range(3):
+    band = 0.10
+    for _ in range(4):  # re-select the returns near the current plane (follows a tilted world frame), refit
+        res = p[:, 2] - (p[:, :2] @ coef[:2] + coef[2])
+        q = p[np.abs(res) < band]
+        if len(q) < min_points:
+            return None
         A = np.c_[q[:, :2], np.ones(len(q))]
         coef = np.linalg.lstsq(A, q[:, 2], rcond=None)[0]
-        res = q[:, 2] - A @ coef
-        keep = np.abs(res) < max(3 * res.std(), 0.01)
-        if keep.sum() < min_points:
-            break
-        q = q[keep]
+        band = max(3.0 * float((q[:, 2] - A @ coef).std()), 0.03)
     return coef
 
 
