@@ -348,10 +348,21 @@ class _Sharded:
         if not self.complete:
             return
         recs = [self.record(k) for k in range(self.n_shards)]
+        shards = [{"sha256": r["sha256"], "nbytes": r.get("nbytes"), **({"rows": r["rows"]} if "rows" in r else {})}
+                  for r in recs]
+        key = f"{self.path}/zarr.json"
+        meta = _json(self.store, key)
+        if meta is not None and isinstance(meta.get("attributes"), dict):
+            # the same read-modify-write of zarr.json that zarr's attrs.update does, without a
+            # round trip through zarr's event loop per array (one atomic put)
+            hd = dict(meta["attributes"].get("holodata", {}))
+            hd["shards"] = shards
+            meta["attributes"]["holodata"] = hd
+            self.store.put(key, json.dumps(meta, indent=2).encode())
+            return
         node = zarr.open(self.scene.ds.zstore, path=self.path, mode="r+")
         hd = dict(node.attrs.get("holodata", {}))
-        hd["shards"] = [{"sha256": r["sha256"], "nbytes": r.get("nbytes"), **({"rows": r["rows"]} if "rows" in r else {})}
-                        for r in recs]
+        hd["shards"] = shards
         node.attrs.update({"holodata": hd})
 
 
