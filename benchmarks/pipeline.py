@@ -1,0 +1,165 @@
+"""Benchmark: runtime of the mapping stages against the ray tracing they feed, on one synthetic corner.
+
+``holodata.synth.synthesize`` one corner (default a 400-cycle L corner: 400 radar cycles at 2 Hz =
+200 s; the robot drives ~3.5 m and then stands; LiDAR ``--lidar`` at 10 Hz, of which ingest keeps
+the scan nearest each radar frame, so slam sees 400 scans), then times, each in seconds:
+
+* ``ingest`` (``holodata.ingest.ingest``; radar grid ``--radar-grid`` — small, to keep synth fast);
+* ``slam`` (``holodata.mapping.slam.slam_scene``: kiss-icp + scan-to-map refinement + static mesh);
+* ``register`` (``holodata.mapping.register.register_scene``: LiDAR segmentation, camera extrinsic,
+  human surfaces; its own phases are printed);
+* ``raytrace-gt`` of the same corner through the SLAM mesh and radar poses, ``GTConfig()`` (64x512
+  beams, 3 bounces), as ``benchmarks/slam.py --raytrace`` does;
+
+and prints (slam + register) / raytrace-gt as a ratio (issue 9: it must not dominate; aim < 1), with
+the load average before and after (2 shared cores: compare ratios from the same run). slam's ATE
+and mesh F@5cm against ``truth/`` are printed too, so a speed-up that costs accuracy shows.
+
+``--gt-diff`` also ray-traces the *true* mesh (``truth/mesh.ply``, people removed) at the true radar
+poses and prints, per bounce, the median |range(SLAM-mesh GT) - range(truth-mesh GT)| over beams
+valid in both (cm).
+
+    .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x512] [--walkers 0]
+                                            [--gt-diff] [--keep DIR] [--reuse]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from holodata.conventions import Grid, RangeBins  # noqa: E402
+from holodata.dataset import open_dataset  # noqa: E402
+from holodata.ingest import ingest  # noqa: E402
+
+
+def load() -> str:
+    return "load %.1f/%.1f/%.1f" % os.getloadavg()
+
+
+def gt_range_diff(a_url: str, b_url: str) -> dict:
+    """Per bounce: median and p90 |range_a - range_b| (cm) over beams with a return in both."""
+    a, b = open_dataset(a_url), open_dataset(b_url)
+    sa, sb = a.scene(a.scenes[0]), b.scene(b.scenes[0])
+    ra = np.asarray(sa["gt/range"][...], np.float64)
+    rb = np.asarray(sb["gt/range"][...], np.float64)
+    out = {}
+    for k in range(min(ra.shape[1], rb.shape[1])):  # gt/range (T, bounce, H, W)
+        x, y = ra[:, k], rb[:, k]
+        ok = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
+        d = np.abs(x[ok] - y[ok]) * 100
+        out[f"bounce{k + 1}"] = {"median_cm": float(np.median(d)) if len(d) else float("nan"),
+                                 "p90_cm": float(np.percentile(d, 90)) if len(d) else float("nan"),
+                                 "beams_both": int(ok.sum()),
+                                 "only_one": int((np.isfinite(x) & (x > 0)).sum() + (np.isfinite(y) & (y > 0)).sum()
+                                                 - 2 * ok.sum())}
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=400, help="radar cycles (2 Hz)")
+    ap.add_argument("--corner", default="L")
+    ap.add_argument("--lidar", default="64x512")
+    ap.add_argument("--camera", default="94x168")
+    ap.add_argument("--radar-grid", default="16x64x32", help="synth radar heatmap H x W x range bins (ingest cost)")
+    ap.add_argument("--walkers", type=int, default=0)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--gt-diff", action="store_true", help="also compare SLAM-mesh GT with truth-mesh GT per bounce")
+    ap.add_argument("--keep", default=None)
+    ap.add_argument("--reuse", action="store_true", help="with --keep: reuse the synthesised recording there")
+    args = ap.parse_args()
+    from holodata.groundtruth import GTConfig, raytrace_standalone
+    from holodata.mapping import slam as S
+    from holodata.mapping.accuracy import evaluate_slam
+    from holodata.mapping.register import register_scene
+    from holodata.meshio import Mesh, write_ply
+    from holodata.synth import synthesize
+    from holodata.trajectory import Trajectory, write_tum
+
+    work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-pipeline-bench-"))
+    work.mkdir(parents=True, exist_ok=True)
+    try:
+        rec = work / "syn" / "recording"
+        truth_dir = work / "syn" / "truth"
+        H, W, B = (int(v) for v in args.radar_grid.split("x"))
+        if not (args.reuse and rec.exists()):
+            shutil.rmtree(work / "syn", ignore_errors=True)
+            t0 = time.perf_counter()
+            synthesize(work / "syn", corner=args.corner, frames=args.frames, seed=args.seed, grid=Grid(H, W),
+                       range_bins=RangeBins(B), lidar_shape=tuple(int(v) for v in args.lidar.split("x")),
+                       camera_shape=tuple(int(v) for v in args.camera.split("x")), quiet=True,
+                       visible_walkers=args.walkers)
+            print(f"synth {time.perf_counter() - t0:.1f} s", flush=True)
+        url = str(work / "ds.zarr")
+        for p in (work / "ds.zarr", work / "gt.zarr", work / "gt_truth.zarr"):
+            shutil.rmtree(p, ignore_errors=True)
+        rows = {}
+        l0 = load()
+        t0 = time.perf_counter()
+        ingest([rec], url, quiet=True)
+        rows["ingest"] = time.perf_counter() - t0
+        sid = open_dataset(url).scenes[0]
+        t0 = time.perf_counter()
+        res = S.slam_scene(url, sid, quiet=True, force=True)
+        rows["slam"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        reg = {}
+        try:
+            reg = register_scene(url, sid, quiet=True)
+        except Exception as err:  # noqa: BLE001 - report and go on: the table still times it
+            reg = {"error": str(err)[:200]}
+        rows["register"] = time.perf_counter() - t0
+        sc = open_dataset(url).scene(sid)
+        write_ply(work / "slam_mesh.ply", Mesh(res.mesh[0], res.mesh[1]))
+        write_tum(work / "radar.tum", Trajectory(np.asarray(sc["time/timestamp_ns"][...], np.int64), res.T_world_radar))
+        t0 = time.perf_counter()
+        raytrace_standalone(work / "slam_mesh.ply", work / "radar.tum", str(work / "gt.zarr"), cfg=GTConfig(), quiet=True)
+        rows["raytrace-gt"] = time.perf_counter() - t0
+        l1 = load()
+        acc = evaluate_slam(res.trajectory(), res.mesh, truth_dir)
+        print(f"{args.corner} corner, {args.frames} radar cycles, LiDAR {args.lidar}, {res.summary['scans']} scans, "
+              f"walkers {args.walkers} | slam ATE {acc['trajectory']['ate_rmse_m'] * 100:.2f} cm, mesh F@5cm "
+              f"{acc['mesh']['f_5cm']:.3f} | {os.cpu_count()} cores, {l0} before, {l1} after")
+        print(f"  slam phases {json.dumps(res.summary['timings'])}  health {json.dumps(res.summary['health'])}")
+        print(f"  register phases {json.dumps(reg.get('timings', reg.get('error')))}")
+        print(f"  {'stage':14s} {'seconds':>8s}")
+        for k, v in rows.items():
+            print(f"  {k:14s} {v:8.1f}")
+        sr = rows["slam"] + rows["register"]
+        print(f"  {'slam+register':14s} {sr:8.1f}   = {sr / rows['raytrace-gt']:.2f}x raytrace-gt "
+              f"(slam alone {rows['slam'] / rows['raytrace-gt']:.2f}x)", flush=True)
+        if args.gt_diff:
+            from holodata.meshio import read_mesh
+            from holodata.trajectory import read_tum
+
+            tm = read_mesh(truth_dir / "mesh.ply")
+            hum = [k for k, n in tm.class_names.items() if str(n) == "human"]
+            keep = ~np.isin(tm.face_class, hum) if tm.face_class is not None else np.ones(len(tm.faces), bool)
+            write_ply(work / "truth_static.ply", Mesh(tm.vertices, tm.faces[keep]))
+            raytrace_standalone(work / "truth_static.ply", truth_dir / "trajectory_radar.tum",
+                                str(work / "gt_truth.zarr"), cfg=GTConfig(), quiet=True)
+            # the SLAM GT again at the true radar poses: the difference is the mesh's alone
+            raytrace_standalone(work / "slam_mesh.ply", truth_dir / "trajectory_radar.tum",
+                                str(work / "gt_slam_truthposes.zarr"), cfg=GTConfig(), quiet=True)
+            d = gt_range_diff(str(work / "gt_slam_truthposes.zarr"), str(work / "gt_truth.zarr"))
+            print("  GT range |slam mesh - true mesh| (true radar poses): " + "  ".join(
+                f"{k} median {v['median_cm']:.1f} cm p90 {v['p90_cm']:.1f} cm ({v['beams_both']} beams)"
+                for k, v in d.items()))
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
