@@ -20,13 +20,13 @@ number.
     .venv/bin/python benchmarks/ingest.py [--frames 40] [--format mcap|rosbag1|sqlite3]
         [--compression none|lz4|bz2|zstd] [--keep DIR] [--validate]
 
-Findings (2 cores shared with other jobs, load average 6-8 — wall numbers are 2-3x idle ones):
+Findings (2 cores shared with other jobs, load average 6-12 — wall numbers are 2-3x idle ones):
 
 - before (zarr writes shards, zstd clevel 3, one writer thread, every message read whole in both
   passes): rec1x ratio 0.04 / rec4x 0.07 at load ~8; the lead measured 0.09 / 0.08 idle (ingest
   1.68 s, 0.93 s of it shard writes, vs bare 0.15 s).
-- after: rec1x ratio 0.15-0.18, rec4x 0.11-0.14 at load ~6; CPU ratio 0.14-0.17 / 0.12-0.14;
-  peak RSS 270-305 MB / 290-295 MB (4x / 1x 1.07-1.08). Changes, each measured:
+- after: rec1x ratio 0.10-0.18, rec4x 0.08-0.14 at load 6-12; CPU ratio 0.11-0.18 / 0.10-0.14;
+  peak RSS 270-285 MB / 289-303 MB (4x / 1x 1.04-1.10). Changes, each measured:
   * shard objects assembled directly (Blosc chunks + index + crc32c, byte-exact with zarr-python;
     holodata/dataset/shards.py) and ragged rows written chunk by chunk with numcodecs: zarr's
     sharding encoder ran ~30-50 MB/s through its asyncio path, numcodecs Blosc runs ~1 GB/s;
@@ -39,7 +39,10 @@ Findings (2 cores shared with other jobs, load average 6-8 — wall numbers are 
   * rosbag2 MCAP bags are read through their chunk message indexes: the index pass reads a
     256-byte header prefix per message, the write pass reads whole only the messages it decodes
     (unmatched LiDAR scans, 4 of 5 here, and depth images are never read whole); CameraInfo is
-    decoded only when an image is converted.
+    decoded only when an image is converted;
+  * dataset metadata without zarr round trips where zarr only rewrites a JSON document (array
+    zarr.json made in a MemoryStore and put once, groups and shard-record folding written
+    directly): array setup per scene ~0.2 s -> ~0.06 s under load.
 - where the time goes now (rec1x, CPU seconds under load): bare 0.12-0.16; ingest 0.86-0.96 =
   main thread 0.31 (index pass, decode, dataset metadata through zarr ~0.1-0.2) + sha256 of the
   281 MB source 0.19 + shard writes 0.30 (lz4 ~0.1, sha256 of the 130 MB of shards ~0.08, page
