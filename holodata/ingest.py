@@ -1531,6 +1531,10 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
         failed += more
         todo = []
+        if not scenes and existing is None:   # created for the workers, nothing landed: leave no empty dataset
+            from .dataset.store import Store
+
+            Store(out).delete_tree("")
     for (i, r, _), sid in zip(todo, ids):
         p = None
         try:

@@ -201,6 +201,12 @@ def test_ingest_on_cluster_matches_in_process(cluster, tmp_path):
                                  "--scheduler", addr, "--quiet"])
     assert r.exit_code == 1
     assert hds.open_dataset(str(tmp_path / "c.zarr")).scenes == ["a"]
+    # every recording fails on the workers (camera-only passes the grid pre-pass): no empty dataset left
+    write_recording(tmp_path / "cam", "mcap", radar=False, lidar=False)
+    r = CliRunner().invoke(cli, ["ingest", str(tmp_path / "cam"), "--out", str(tmp_path / "d.zarr"),
+                                 "--scheduler", addr, "--quiet"])
+    assert r.exit_code == 1 and "camera" in r.output, r.output
+    assert not (tmp_path / "d.zarr").exists()
 
 
 def test_bad_scheduler_address_is_one_line_error(tmp_path, monkeypatch):
