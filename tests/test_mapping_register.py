@@ -6,8 +6,8 @@ import pytest
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 
-from holodata.mapping.human_eval import extrinsic_error, solid_centroid
-from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, register_extrinsic,
+from holodata.mapping.human_eval import extrinsic_error, relative_extrinsic_error, solid_centroid
+from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, map_normals, register_extrinsic,
                                        velocity_shift, voxel_boundary)
 
 
@@ -48,6 +48,53 @@ def test_icp_recovers_a_known_rigid_transform():
     e = extrinsic_error(reg.T, T_true)
     assert reg.accepted and reg.method == "icp"
     assert e["trans_cm"] < 1.0 and e["rot_deg"] < 0.5, e
+
+
+def _rings(world, spacing=0.3, band=0.01):
+    """A sparse LiDAR-like map of ``world``: only points within ``band`` of horizontal planes every
+    ``spacing`` m (walls and box faces become lines 30 cm apart, the floor stays whole)."""
+    z = world[:, 2]
+    return world[np.abs(z - np.round(z / spacing) * spacing) < band]
+
+
+def test_sparse_ring_map_normals_check_and_icp():
+    rng = np.random.default_rng(3)
+    world = _room(rng, 120000)
+    ring_map = _rings(world)
+    cfg = RegisterConfig(min_overlap_points=100)
+    # wall x=0 seen as lines 30 cm apart: fine neighbourhoods hold one line (arbitrary normal); the
+    # coarse neighbourhood spans lines and finds the wall's normal
+    pts, n = map_normals(ring_map, cfg)
+    wall = (pts[:, 0] < 0.01) & (pts[:, 1] > 0.5) & (pts[:, 1] < 3.5) & (pts[:, 2] > 0.5) & (pts[:, 2] < 2.0)
+    assert wall.sum() > 100 and np.mean(np.abs(n[wall, 0]) > 0.95) > 0.9
+    T_true = _pose([3.2, 3.1, 1.4], [5.0, -8.0, 200.0])
+    seen = world[(world[:, 0] < 3.0) & (world[:, 1] < 3.0)]
+    cam = (seen - T_true[:3, 3]) @ T_true[:3, :3] + rng.normal(0, 0.003, seen.shape)
+    # at the exact pose most camera points lie between the lines: far from every map point, on its surface
+    from holodata.conventions import transform_points
+    from holodata.mapping.register import _nn_distances
+
+    d = _nn_distances(transform_points(T_true, cam), ring_map)
+    assert np.mean(d[d < cfg.overlap_m] < cfg.inlier_m) < 0.6        # the old point-distance fitness
+    exact = register_extrinsic(cam, ring_map, T_true, cfg, allow_fallback=False)
+    assert exact.attempts[0]["fitness"] > 0.9 and exact.accepted    # surface distance
+    init = T_true @ _pose([0.04, -0.03, 0.02], [1.0, -1.5, 2.0])
+    reg = register_extrinsic(cam, ring_map, init, cfg, allow_fallback=False)
+    e = extrinsic_error(reg.T, T_true)
+    assert reg.accepted and e["trans_cm"] < 1.0 and e["rot_deg"] < 0.3, e
+
+
+def test_relative_extrinsic_error_ignores_a_common_map_offset():
+    T_true = _pose([5.0, 1.0, 1.2], [0, 10, 90])
+    P_true = np.stack([_pose([x, 0.0, 0.5], [0, 0, 3 * x]) for x in range(5)])
+    A = _pose([0.03, -0.02, 0.01], [0.2, 0.1, 0.4])     # the SLAM map sits a little off the world
+    e = relative_extrinsic_error(A @ P_true, A @ T_true, P_true, T_true)
+    assert e["trans_cm"] < 1e-9 and e["rot_deg"] < 1e-6 and e["scans"] == 5
+    assert extrinsic_error(A @ T_true, T_true)["trans_cm"] > 2
+    # a camera error relative to the robot is seen in full
+    D = _pose([0.0, 0.02, 0.0], [0, 0, 0])
+    e = relative_extrinsic_error(P_true, T_true @ D, P_true, T_true)
+    assert e["trans_cm"] == pytest.approx(2.0, abs=1e-9)
 
 
 def test_fallback_is_rejected_when_nothing_fits():

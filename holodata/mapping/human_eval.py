@@ -11,6 +11,8 @@
 * :func:`solid_centroid` / :func:`human_centroid_errors`: centre of mass of the solid a closed
   surface encloses; per-frame distance between the registered human surface's and the true human
   mesh's (``truth/human/<frame>.ply``), the same operator on both.
+* :func:`robot_relative_extrinsic_error`: the camera pose relative to the LiDAR at each scan, estimate
+  (scene poses) vs truth — free of a common offset of a SLAM map against the true world.
 * :func:`write_truth_poses`: puts the true LiDAR poses (``truth/trajectory_lidar.tum``, matched by
   the scans' header stamps ``lidar/timestamp_ns``) into a dataset as ``pose/T_world_lidar`` (and the
   true radar poses as ``pose/T_world_radar``) so that segmentation/registration can be developed
@@ -177,15 +179,26 @@ def solid_centroid(vertices: np.ndarray, faces: np.ndarray, voxel: float = 0.01)
     return g[occ].mean(0)
 
 
-def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path) -> dict:
+def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame: str = "world") -> dict:
     """Per-frame distance (cm) between the centre of mass (:func:`solid_centroid`) of the solid
     enclosed by ``human/vertices``+``human/faces`` and that of ``truth/human/<frame:06d>.ply``: {"per_frame_cm", "mean_cm", "median_cm", "max_cm", "frames",
-    "missing"} (frames without an estimate count as missing, not as errors)."""
+    "missing"} (frames without an estimate count as missing, not as errors). ``frame="radar"``: both
+    centroids in the radar frame of their frame (estimate through the scene's ``pose/T_world_radar``,
+    truth through ``truth/trajectory_radar.tum``): what the radar ground truth sees, free of a
+    common offset of the SLAM map and its poses against the true world."""
     from ..dataset import open_dataset
     from ..meshio import read_mesh
+    from ..trajectory import read_tum
 
     sc = open_dataset(url).scene(scene_id)
     hd = Path(truth_dir) / "human"
+    if frame not in ("world", "radar"):
+        raise InputError(f"frame must be world or radar, got {frame!r}")
+    if frame == "radar":
+        P_est = np.asarray(sc["pose/T_world_radar"][...], float)
+        P_true = read_tum(Path(truth_dir) / "trajectory_radar.tum").poses
+        if len(P_true) != sc.n_frames:
+            raise InputError(f"{truth_dir}: trajectory_radar.tum has {len(P_true)} poses for {sc.n_frames} frames")
     errs, missing = [], 0
     for k in range(sc.n_frames):
         p = hd / f"{k:06d}.ply"
@@ -198,12 +211,65 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path) -> dic
             missing += 1
             errs.append(np.nan)
             continue
-        errs.append(float(np.linalg.norm(solid_centroid(v, f) - solid_centroid(m.vertices, m.faces)) * 100.0))
+        ce, ct = solid_centroid(v, f), solid_centroid(m.vertices, m.faces)
+        if frame == "radar":
+            ce = np.linalg.solve(P_est[k], np.append(ce, 1.0))[:3]
+            ct = np.linalg.solve(P_true[k], np.append(ct, 1.0))[:3]
+        errs.append(float(np.linalg.norm(ce - ct) * 100.0))
     e = np.asarray(errs, float)
     ok = e[np.isfinite(e)]
     return {"per_frame_cm": e.tolist(), "mean_cm": float(ok.mean()) if len(ok) else float("nan"),
             "median_cm": float(np.median(ok)) if len(ok) else float("nan"),
             "max_cm": float(ok.max()) if len(ok) else float("nan"), "frames": int(len(ok)), "missing": missing}
+
+
+def true_lidar_poses(sc, truth_dir: str | Path) -> np.ndarray:
+    """(T,4,4) true ``T_world_lidar`` of a scene's scans (``truth/trajectory_lidar.tum`` matched by
+    ``lidar/timestamp_ns``, nearest within 1 ms); NaN where none matches."""
+    from ..trajectory import read_tum
+
+    lid = read_tum(Path(truth_dir) / "trajectory_lidar.tum")
+    stamps = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
+    where = {int(t): i for i, t in enumerate(lid.timestamp_ns)}
+    P = np.full((len(stamps), 4, 4), np.nan)
+    for k, s in enumerate(stamps):
+        i = where.get(int(s))
+        if i is None:  # stamps in the TUM file are rounded to µs or ns: nearest within 1 ms
+            j = int(np.argmin(np.abs(lid.timestamp_ns - s)))
+            i = j if abs(int(lid.timestamp_ns[j]) - int(s)) < 1_000_000 and s != 0 else None
+        if i is not None:
+            P[k] = lid.poses[i]
+    return P
+
+
+def robot_relative_extrinsic_error(url: str, scene_id: str, truth_dir: str | Path, T_est: np.ndarray) -> dict:
+    """Error of the camera pose *relative to the robot*: per scan k, ``inv(T_world_lidar_est[k]) @ T_est``
+    (the scene's ``pose/T_world_lidar``) against ``inv(T_world_lidar_true[k]) @ T_true``; median over
+    the scans of {"trans_cm", "rot_deg"}. With SLAM poses the map (and every pose in it) may sit a
+    little off the true world (drift since the anchored first scan); the camera registered to that
+    map carries the same offset, which the radar ground truth never sees (mesh, radar poses and human
+    are all in the map). With true poses this equals :func:`extrinsic_error`."""
+    from ..dataset import open_dataset
+
+    sc = open_dataset(url).scene(scene_id)
+    return relative_extrinsic_error(np.asarray(sc["pose/T_world_lidar"][...], float), T_est,
+                                    true_lidar_poses(sc, truth_dir), truth_camera_extrinsic(truth_dir))
+
+
+def relative_extrinsic_error(P_est: np.ndarray, T_est: np.ndarray, P_true: np.ndarray, T_true: np.ndarray) -> dict:
+    """Median over poses k of :func:`extrinsic_error` between ``inv(P_est[k]) @ T_est`` and
+    ``inv(P_true[k]) @ T_true`` (``P_*`` (K,4,4) T_world_lidar, NaN rows skipped; ``T_*`` (4,4)
+    T_world_camera): {"trans_cm", "rot_deg", "scans"}."""
+    tr, rot = [], []
+    for Pe, Pt in zip(P_est, P_true):
+        if not (np.isfinite(Pe).all() and np.isfinite(Pt).all()):
+            continue
+        e = extrinsic_error(np.linalg.solve(Pe, T_est), np.linalg.solve(Pt, T_true))
+        tr.append(e["trans_cm"])
+        rot.append(e["rot_deg"])
+    if not tr:
+        return {"trans_cm": float("nan"), "rot_deg": float("nan"), "scans": 0}
+    return {"trans_cm": float(np.median(tr)), "rot_deg": float(np.median(rot)), "scans": len(tr)}
 
 
 # ------------------------------------------------------------------------------ truth poses
@@ -217,17 +283,7 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
     truth_dir = Path(truth_dir)
     ds = open_dataset(url)
     sc = ds.scene(scene_id)
-    lid = read_tum(truth_dir / "trajectory_lidar.tum")
-    stamps = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
-    where = {int(t): i for i, t in enumerate(lid.timestamp_ns)}
-    P = np.full((sc.n_frames, 4, 4), np.nan)
-    for k, s in enumerate(stamps):
-        i = where.get(int(s))
-        if i is None:  # stamps in the TUM file are rounded to µs or ns: nearest within 1 ms
-            j = int(np.argmin(np.abs(lid.timestamp_ns - s)))
-            i = j if abs(int(lid.timestamp_ns[j]) - int(s)) < 1_000_000 and s != 0 else None
-        if i is not None:
-            P[k] = lid.poses[i]
+    P = true_lidar_poses(sc, truth_dir)
     rad = read_tum(truth_dir / "trajectory_radar.tum")
     w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
     sw = w.scene(scene_id)
@@ -243,4 +299,5 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
 
 
 __all__ = ["ap50", "match_scan", "average_precision", "segmentation_ap50", "extrinsic_error", "truth_camera_extrinsic",
-           "surface_centroid", "human_centroid_errors", "write_truth_poses", "rotation_angle_deg"]
+           "surface_centroid", "human_centroid_errors", "write_truth_poses", "rotation_angle_deg", "true_lidar_poses",
+           "robot_relative_extrinsic_error", "relative_extrinsic_error"]
