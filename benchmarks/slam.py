@@ -109,7 +109,9 @@ def run_corner(corner: str, work: Path, args) -> dict:
            "rpe1m_cm": acc["trajectory"]["rpe_rmse_m"] * 100,
            "kiss_ate_cm": acc["trajectory_kiss-icp (bare)"]["ate_rmse_m"] * 100,
            "kiss_rpe_cm": acc["trajectory_kiss-icp (bare)"]["rpe_frame_rmse_m"] * 100,
-           "timings": res.summary["timings"], "mesh_faces": res.summary["mesh"]["faces"]}
+           "timings": res.summary["timings"], "mesh_faces": res.summary["mesh"]["faces"],
+           "still_scans": (res.summary["health"].get("sequential") or {}).get("still_scans"),
+           "kiss_scans": (res.summary["health"].get("sequential") or {}).get("kiss_scans")}
     m = acc["mesh"]
     row.update({"chamfer_cm": m["chamfer_m"] * 100, "f2": m["f_2cm"], "f5": m["f_5cm"], "f10": m["f_10cm"],
                 "observed": m["observed_fraction"]})
@@ -182,7 +184,7 @@ def main() -> None:
         for corner in args.corners.split(","):
             row = run_corner(corner, work, args)
             rows.append(row)
-            print(f"{corner:8s} scans {row['scans']:4d}  ATE {row['ate_cm']:.2f} cm  RPE {row['rpe_cm']:.2f} cm/frame "
+            print(f"{corner:8s} scans {row['scans']:4d} (at rest {row['still_scans']}, fed to kiss-icp {row['kiss_scans']})  ATE {row['ate_cm']:.2f} cm  RPE {row['rpe_cm']:.2f} cm/frame "
                   f"({row['rpe1m_cm']:.2f} cm/m)  | kiss-icp ATE {row['kiss_ate_cm']:.2f} cm RPE {row['kiss_rpe_cm']:.2f}"
                   f"  | mesh F@2/5/10 {row['f2']:.3f}/{row['f5']:.3f}/{row['f10']:.3f} CD {row['chamfer_cm']:.2f} cm"
                   f" (obs {row['observed']:.2f})  | radar pose err {row.get('radar_pose_err_cm', float('nan')):.2f} cm"
