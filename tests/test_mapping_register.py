@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from holodata.mapping.human_eval import extrinsic_error, relative_extrinsic_error, solid_centroid
 from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, map_normals, register_extrinsic,
-                                       velocity_shift, voxel_boundary)
+                                       track_jumps, track_prediction, velocity_shift, voxel_boundary)
 
 
 def _room(rng, n=60000):
@@ -160,6 +160,21 @@ def test_velocity_shift():
     np.testing.assert_allclose(s[3], 0)
     c[1, 0] = 5.0                                              # implausible jump: no shift
     assert np.abs(velocity_shift(c, cam, fr)[0]).sum() == 0
+
+
+def test_track_jumps_and_prediction():
+    # a person walking 1.1 m/s along y, one frame picks a wall fragment 1.4 m away, one frame has none
+    t = np.arange(8) * 500_000_000
+    c = np.stack([np.full(8, 0.7), -6.0 + 0.55 * np.arange(8), np.full(8, 1.0)], 1)
+    c[4] = [0.7 - 1.4, -6.0 + 0.55 * 4, 0.85]
+    c[6] = np.nan
+    jumped = track_jumps(c, t, jump_m=0.4, speed_mps=1.5)
+    np.testing.assert_array_equal(np.flatnonzero(jumped), [4])          # walking 0.55 m per frame is fine
+    pred = track_prediction(np.where(jumped[:, None], np.nan, c), t)
+    np.testing.assert_allclose(pred[4], [0.7, -6.0 + 0.55 * 4, 1.0])     # linear between frames 3 and 5
+    np.testing.assert_allclose(pred[6], [0.7, -6.0 + 0.55 * 6, 1.0])
+    np.testing.assert_allclose(pred[7], c[5])                           # one side only: its centroid
+    assert not track_jumps(c[:1], t[:1]).any()
 
 
 def test_register_scene_end_to_end_and_raytrace_reads_the_human():

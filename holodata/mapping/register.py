@@ -47,7 +47,10 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    ``map_explain_m`` of the map. Clustered (voxel connectivity, ``cluster_m``); the largest
    person-like cluster (vertical extent >= ``min_height_m``, robust plan extent <= ``max_width_m``)
    within ``track_radius_m`` of the median position over all frames (others walking elsewhere are
-   not the person of interest), statistical outliers removed, is the human, in the map frame.
+   not the person of interest), statistical outliers removed, is the human, in the map frame. A
+   pick farther from both neighbouring picks than a walk allows (:func:`track_jumps`) is picked
+   again within 2 ``track_jump_m`` of where they put the person (:func:`track_prediction`), or dropped
+   (quick demo T corner: a 117-point wall fragment 1.4 m away while the person was lost in noise).
 5. **Closed surface per radar frame.** The camera sees the front of the person only. Each human
    point is extruded away from the camera along its viewing ray over ``thickness_m`` (a body's
    depth), the swept volume voxelised (``surface_voxel``) and its boundary faces emitted: a closed,
@@ -67,7 +70,7 @@ rewritten: finished shards are never rewritten and ingest's resume relies on it)
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -122,6 +125,8 @@ class RegisterConfig:
     max_width_m: float = 1.4
     min_points: int = 100
     track_radius_m: float = 2.0
+    track_jump_m: float = 0.4
+    walk_speed_mps: float = 1.5
     max_depth_spread_m: float = 0.35
     floor_margin_m: float = 0.04
     max_speed_mps: float = 2.5
@@ -864,8 +869,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
         if near.sum() > 50:
             floor_z = float(np.percentile(M[near, 2], 2))
-    for (qw, vv, uu, D), m0 in zip(cand, first):
-        hm = pick_human(qw, cfg, centre) if centre is not None else m0
+    def finish(qw, hm):
         if hm.any():
             # a body is at most ~0.5 m deep along the view and stands on the floor: stereo streaks
             # along the rays and floor returns at the feet go
@@ -874,11 +878,26 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
             if floor_z is not None:
                 hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
+        return hm
+
+    picks = [finish(qw, pick_human(qw, cfg, centre) if centre is not None else m0)
+             for (qw, vv, uu, D), m0 in zip(cand, first)]
+    ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+    cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
+    # track continuity: a pick far from where its neighbours put the person (a wall fragment while
+    # the person is lost in far stereo noise) is picked again near that prediction, or dropped
+    cen0 = np.array([c[0][m].mean(0) if m.any() else np.full(3, np.nan) for c, m in zip(cand, picks)])
+    t_cam = np.where(cts != 0, cts, ts)
+    jumped = track_jumps(cen0, t_cam, cfg.track_jump_m, cfg.walk_speed_mps)
+    pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
+    jump_cfg = replace(cfg, track_radius_m=2 * cfg.track_jump_m)
+    n_repicked = int(jumped.sum())
+    for k, ((qw, vv, uu, D), hm) in enumerate(zip(cand, picks)):
+        if jumped[k]:
+            hm = finish(qw, pick_human(qw, jump_cfg, pred[k])) if np.isfinite(pred[k]).all() else np.zeros_like(hm)
         human_pts.append(qw[hm].astype(np.float32))
         thick.append(body_depth(vv[hm], uu[hm], D, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m))
     # velocity compensation: camera stamp -> frame stamp
-    ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
-    cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
     cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
     shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
     surfaces = []
@@ -903,7 +922,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                    attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
     n_h = int(sum(len(s[1]) > 0 for s in surfaces))
     report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
-              "frames_with_human": n_h, "frames": n, "params": cfg.to_attrs(),
+              "frames_with_human": n_h, "frames": n, "frames_repicked": n_repicked, "params": cfg.to_attrs(),
               "surface": "voxel boundary of the camera-ray extrusion (closed)",
               "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
               "seconds": time.perf_counter() - t0, "timings": timings}
@@ -911,6 +930,40 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     out = {"scene": sid, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
     if seg_summary:
         out["segment"] = seg_summary
+    return out
+
+
+def track_jumps(centroids: np.ndarray, t_ns: np.ndarray, jump_m: float = 0.6, speed_mps: float = 1.5) -> np.ndarray:
+    """(T,) bool: frames whose centroid (``centroids`` (T,3), NaN = none) is farther (plan) from the
+    centroid of *each* nearest frame with one, before and after, than ``jump_m`` + ``speed_mps`` ×
+    the time between them (``t_ns`` (T,)): a person cannot have walked there."""
+    c = np.asarray(centroids, float)
+    t = np.asarray(t_ns, np.int64).astype(np.float64) / 1e9
+    ok = np.flatnonzero(np.isfinite(c).all(1))
+    out = np.zeros(len(c), bool)
+    for i, k in enumerate(ok):
+        nb = [ok[j] for j in (i - 1, i + 1) if 0 <= j < len(ok)]
+        out[k] = bool(nb) and all(np.linalg.norm(c[k, :2] - c[j, :2]) > jump_m + speed_mps * abs(t[k] - t[j]) for j in nb)
+    return out
+
+
+def track_prediction(centroids: np.ndarray, t_ns: np.ndarray, max_gap_s: float = 2.0) -> np.ndarray:
+    """(T,3) where each frame's centroid is expected from its neighbours: the nearest frame with a
+    centroid on each side (within ``max_gap_s``), linearly interpolated in time (``t_ns`` (T,)), or
+    the one side's centroid when only one exists; NaN when none. ``centroids`` (T,3), NaN = none."""
+    c = np.asarray(centroids, float)
+    t = np.asarray(t_ns, np.int64).astype(np.float64) / 1e9
+    ok = np.flatnonzero(np.isfinite(c).all(1))
+    out = np.full_like(c, np.nan)
+    for k in range(len(c)):
+        before = ok[(ok < k) & (t[k] - t[ok] <= max_gap_s)]
+        after = ok[(ok > k) & (t[ok] - t[k] <= max_gap_s)]
+        a = before[-1] if len(before) else None
+        b = after[0] if len(after) else None
+        if a is not None and b is not None and t[b] > t[a]:
+            out[k] = c[a] + (c[b] - c[a]) * (t[k] - t[a]) / (t[b] - t[a])
+        elif a is not None or b is not None:
+            out[k] = c[a if a is not None else b]
     return out
 
 
@@ -941,4 +994,5 @@ def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarr
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
            "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
            "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual", "body_depth",
-           "weighted_icp", "depth_noise_model"]
+           "weighted_icp", "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
+           "track_jumps"]
