@@ -880,7 +880,11 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                 hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
         return hm
 
-    picks = [finish(qw, pick_human(qw, cfg, centre) if centre is not None else m0)
+    def near_centre(qw, m0):
+        # the largest person-like cluster already lies near the track: it is also the largest near it
+        return m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m
+
+    picks = [finish(qw, m0 if centre is None or near_centre(qw, m0) else pick_human(qw, cfg, centre))
              for (qw, vv, uu, D), m0 in zip(cand, first)]
     ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
     cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
