@@ -195,13 +195,15 @@ def load_scans(scene, quiet: bool = True) -> Scans:
         s = int(stamps[f])
         if s == 0 or s == last:
             continue
-        p = np.asarray(_ragged_frame(pr, f, blocks, "p"), np.float64)
+        p = np.asarray(_ragged_frame(pr, f, blocks, "p"))
+        if p.dtype not in (np.float32, np.float64):
+            p = p.astype(np.float64)
         good = np.isfinite(p).all(1) & (np.abs(p).sum(1) > 0)  # organised clouds: (0,0,0) = no return
         if good.sum() < 100:
             continue
         frames.append(f)
         st.append(s)
-        pts.append(p[good].astype(np.float32))  # float32 in memory: 400 scans x 65k points stay < 0.5 GB
+        pts.append(p[good].astype(np.float32, copy=False))  # float32 in memory: 400 scans x 65k points stay < 0.5 GB
         if has_t:
             t = np.asarray(_ragged_frame(tr, f, blocks, "t"), np.int64).reshape(-1)
             tms.append((t[good] * 1e-9).astype(np.float32) if len(t) == len(p) else np.zeros(int(good.sum()), np.float32))
@@ -445,7 +447,7 @@ def _at_rest(src: np.ndarray, target, T: np.ndarray, cfg: SlamConfig) -> bool:
     tree, tp, tn = target
     d = float(min(cfg.icp_distances))
     p = transform_points(T, src)
-    dist, j = tree.query(p, k=1, distance_upper_bound=d, workers=-1)
+    dist, j = tree.query(p, k=1, distance_upper_bound=d)  # single thread: a few thousand points
     ok = np.isfinite(dist)
     if ok.mean() < cfg.min_fitness or ok.sum() < 30:
         return False
@@ -501,22 +503,31 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
     fallbacks = 0
     last_key, keyframes, still, anchor = None, 0, 0, 0
     target = _TargetCache(max_range + 1.0)
+    def ranged(p, t):
+        p = np.asarray(p, np.float64)
+        r2 = np.einsum("ij,ij->i", p, p)
+        keep = (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)
+        return p[keep], (t[keep] if t is not None else None)
+
     for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
-        pts = np.asarray(scans.points[i], np.float64)
-        r = np.linalg.norm(pts, axis=1)
-        keep = (r >= cfg.min_range) & (r <= max_range)
-        pts = pts[keep]
-        tm = scans.times[i][keep] if use_t else None
         xi = xi_prev if i > 0 else np.zeros(6)
-        # deskew only the downsampled points that are used (ICP source, map keyframe)
-        i_src = _downsample_index(pts, cfg.source_voxel)
-        src = deskew(pts[i_src], tm[i_src], xi) if use_t else pts[i_src]
+        raw_t = scans.times[i] if use_t else None
+        if (i > 0 and not _moved(poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5)
+                and (not isinstance(stream, _Fixed) or not _moved(init[anchor], init[i], cfg.still_m, cfg.still_deg))):
+            # rest check on the ICP source voxels (no deskew: the robot was at rest or nearly)
+            rest, _ = ranged(scans.points[i][_downsample_index(scans.points[i], cfg.source_voxel)], None)
+            at_rest = _at_rest(rest, target.tree(vmap, poses[anchor][:3, 3]), poses[anchor], cfg)
+        else:
+            at_rest = False
+        if not at_rest:
+            pts, tm = ranged(scans.points[i], raw_t)
+            # deskew only the downsampled points that are used (ICP source, map keyframe)
+            i_src = _downsample_index(pts, cfg.source_voxel)
+            src = deskew(pts[i_src], tm[i_src], xi) if use_t else pts[i_src]
         if i == 0:
             T = poses[0]
             f, e = 1.0, 0.0
-        elif (not _moved(poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5)
-              and (not isinstance(stream, _Fixed) or not _moved(init[anchor], init[i], cfg.still_m, cfg.still_deg))
-              and _at_rest(src, target.tree(vmap, poses[anchor][:3, 3]), poses[anchor], cfg)):
+        elif at_rest:
             # at rest: the last step was small, one point-to-plane Gauss-Newton step of this scan from the
             # last refined pose against the map is below still_check_m / still_check_deg (and, with given
             # initial poses, they moved less than still_m since) -> hold that pose; no ICP, no kiss-icp
@@ -536,7 +547,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
         poses[i] = T
         fit[i], rmse[i] = f, e
         xi_prev = xi
-        if last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg):
+        if not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
             i_map = _downsample_index(pts, cfg.map_voxel)
             dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map])
             vmap.add(transform_points(T, dp), transform_directions(T, dn))
