@@ -279,6 +279,34 @@ def test_rest_check_sees_a_few_millimetres():
     assert not _at_rest(scan @ R, target, np.eye(4), cfg)            # or turned by 0.15 deg
 
 
+def test_snap_to_planes_flattens_bumpy_walls_only():
+    """A Poisson-like bumpy floor (1 cm ripples) snaps flat (face normals exactly vertical); a sphere
+    standing on it is not a plane and keeps its shape."""
+    import open3d as o3d
+
+    from holodata.mapping.mesh import snap_to_planes
+
+    n = 80
+    x, y = np.meshgrid(np.linspace(0, 4, n), np.linspace(0, 4, n))
+    z = 0.01 * np.sin(7 * x) * np.cos(5 * y)
+    fv = np.c_[x.ravel(), y.ravel(), z.ravel()]
+    i = np.arange(n - 1)[:, None] * n + np.arange(n - 1)[None, :]
+    ff = np.concatenate([np.stack([i, i + 1, i + n], -1).reshape(-1, 3), np.stack([i + 1, i + n + 1, i + n], -1).reshape(-1, 3)])
+    sph = o3d.geometry.TriangleMesh.create_sphere(0.5, 20)
+    sph.translate((2, 2, 0.6))
+    sv, sf = np.asarray(sph.vertices), np.asarray(sph.triangles)
+    v, f = merge_meshes([(fv, ff), (sv, sf)])
+    out, info = snap_to_planes(v, f, distance=0.03, min_vertices=1000)
+    assert info["planes"] >= 1 and info["vertices_snapped"] >= 0.95 * len(fv)
+    floor = out[:len(fv)]
+    c = floor - floor.mean(0)
+    _, sv_, vt = np.linalg.svd(c, full_matrices=False)
+    assert np.abs(c @ vt[2]).max() < 1e-9                      # coplanar now (was 2 cm peak to peak)
+    assert abs(vt[2][2]) > np.cos(np.radians(0.02))            # and level: the least-squares plane of the ripples
+    assert np.abs(floor[:, :2] - fv[:, :2]).max() < 1e-3        # moved along the normal only
+    assert np.allclose(out[len(fv):], sv)                       # the sphere is untouched
+
+
 def test_cli_bad_input_one_line_exit_1(tmp_path):
     r = CliRunner().invoke(cli, ["slam", str(tmp_path / "missing.zarr")], obj={})
     assert r.exit_code == 1
