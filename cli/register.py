@@ -51,7 +51,9 @@ def register(dataset, scene, init, no_segment, no_camera_world, quiet, as_json) 
         return
     e = res["extrinsic"]
     click.echo(f"scene {res['scene']}: extrinsic by {e['method']} (init {res['init']}): fitness {e['fitness']:.2f}, "
-               f"rmse {e['rmse_m'] * 100:.1f} cm over {e['overlap_points']} overlap points")
+               f"rmse {e['rmse_m'] * 100:.1f} cm over {e['overlap_points']} overlap points"
+               + (f", pose std {e['attempts'][-1]['pose_std_m'] * 100:.1f} cm" if e.get("attempts") and
+                  "pose_std_m" in e["attempts"][-1] else ""))
     click.echo(f"human in {res['frames_with_human']}/{res['frames']} frames -> human/vertices, human/faces, human/points; "
                f"camera/points_world; {res['seconds']:.1f} s")
 

@@ -804,13 +804,15 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean)
     timings["extrinsic_s"] = time.perf_counter() - t1
     if not reg.accepted:
-        a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm"
+        a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
+                      f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
                       + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
                          if "prior_shift_m" in x else "")
                       for x in reg.attempts)
         raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
                                 f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
-                                f"{cfg.max_rmse_m * 100:.1f} cm); give a better --init")
+                                f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
+                                f"give a better --init")
     T = reg.T
     # 4. humans
     t2 = time.perf_counter()
