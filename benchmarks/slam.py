@@ -32,9 +32,12 @@ compare within one run), 64x512 LiDAR:
   slam 49.8 s (read 7.3, kiss-icp 2.2, refine 22.9 incl. the open3d import, mesh 16.2) vs
   raytrace-gt 35.2 s; ATE 0.26 -> 0.14 cm, F@2/5/10 0.966/0.985/0.993 (unchanged). CPU seconds
   of kiss-icp + refinement on the same scans (load-independent): 36.1 -> 4.8 s.
-* 60 cycles, T / L / cross / oblique: ATE 0.31 / 0.36 / 0.40 / 0.45 cm, F@5 0.987 / 0.985 / 0.987 /
-  0.986 (before: 0.30 / 0.36 / 0.39 / 0.44 cm, 0.986 / 0.985 / 0.987 / 0.986).
-* 40 cycles with ``--walkers 2``: ATE 0.45 / 0.49 / 0.51 / 0.63 cm, F@5 0.984 / 0.980 / 0.984 / 0.982.
+* 60 cycles, T / L / cross / oblique (with the mesh's plane snapping): ATE 0.31 / 0.36 / 0.38 / 0.45
+  cm, F@2 0.971 / 0.968 / 0.961 / 0.965, F@5 0.987 / 0.985 / 0.987 / 0.986, Chamfer 0.93 / 1.08 /
+  0.96 / 0.94 cm (before the speed-up: ATE 0.30 / 0.36 / 0.39 / 0.44 cm, F@5 0.986 / 0.985 / 0.987 /
+  0.986, Chamfer 1.23 / 1.33 / 1.17 / 1.19 cm).
+* 40 cycles with ``--walkers 2`` (load 4-6): ATE 0.41 / 0.49 / 0.51 / 0.63 cm, F@5 0.984 / 0.980 /
+  0.984 / 0.982; slam 5.4-7.0 s per corner.
 
 ``benchmarks/pipeline.py`` prints the ingest / slam / register / raytrace-gt table of one corner.
 """
