@@ -5,7 +5,7 @@ TUM lines are ``timestamp tx ty tz qx qy qz qw`` (seconds; quaternion x y z w). 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +21,8 @@ class Trajectory:
 
     timestamp_ns: np.ndarray
     poses: np.ndarray
+    # SLERP over all poses, built at the first interpolate (poses are not to be edited in place after)
+    _slerp: Slerp | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.timestamp_ns)
@@ -37,7 +39,9 @@ class Trajectory:
             return out.reshape(t_ns.shape + (4, 4))
         ts = self.timestamp_ns.astype(np.float64)
         q = np.clip(flat.astype(np.float64), ts[0], ts[-1])
-        rot = Slerp(ts, Rotation.from_matrix(self.poses[:, :3, :3]))(q)
+        if self._slerp is None:
+            self._slerp = Slerp(ts, Rotation.from_matrix(self.poses[:, :3, :3]))
+        rot = self._slerp(q)
         out = np.zeros((flat.size, 4, 4))
         out[:, :3, :3] = rot.as_matrix()
         for k in range(3):

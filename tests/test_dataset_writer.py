@@ -156,6 +156,26 @@ def test_ragged_in_order_and_empty_frames(tmp_path):
     np.testing.assert_array_equal(s.ragged("camera/points", 2), np.full((3, 3), 2))
 
 
+
+def test_ragged_sequential_and_random_reads_agree(tmp_path):
+    """Sequential reads come from one block per shard, random ones per frame: same rows, and a
+    caller editing a returned frame does not change the next read of it."""
+    url = str(tmp_path / "a.zarr")
+    rng = np.random.default_rng(0)
+    rows = [rng.normal(size=(int(n), 3)).astype(np.float32) for n in rng.integers(0, 50, size=11)]
+    rows[4] = np.zeros((0, 3), np.float32)
+    sc = create_dataset(url, grid=G, shard_frames=4).scene("s", n_frames=11)
+    rag = sc.ragged_array("camera/points", width=3)
+    for k in range(3):
+        rag.write_shard(k, rows[4 * k:4 * k + 4])
+    s = open_dataset(url).scene("s")
+    seq = [s.ragged("camera/points", i) for i in range(11)]
+    seq[5][:] = 99
+    for order in (range(11), [7, 2, 9, 3, 4, 5, 10, 0, 1, 6, 8], range(10, -1, -1)):
+        for i in order:
+            np.testing.assert_array_equal(s.ragged("camera/points", i), rows[i])
+    assert s._get_ragged("camera/points")._block is not None   # the sequential path was taken
+
 WRITER = """
 import os, sys, time
 from pathlib import Path

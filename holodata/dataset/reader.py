@@ -204,6 +204,8 @@ class Ragged:
         self.shard_frames = int(hd.get("shard_frames", 1))
         self._off = None
         self._done: set[int] = set()
+        self._last = -2        # last frame read: sequential reads load the rest of the shard at once
+        self._block = None     # (first frame, end frame, first row, rows) of that shard's remainder
 
     def __len__(self) -> int:
         return self.scene.n_frames
@@ -221,5 +223,14 @@ class Ragged:
             self._off = None
         if self._off is None:
             self._off = np.asarray(self.offsets[...])
+            self._block = None
         a, b = int(self._off[frame]), int(self._off[frame + 1])
-        return np.asarray(self.values[a:b])
+        sequential, self._last = frame == self._last + 1, frame
+        blk = self._block
+        if blk is None or not blk[0] <= frame < blk[1]:
+            if not sequential:   # random access: only this frame's rows
+                return np.asarray(self.values[a:b])
+            # a frame's rows straddle compressed chunks: one read per shard instead of one per frame
+            end = min((k + 1) * self.shard_frames, T)
+            blk = self._block = (frame, end, a, np.asarray(self.values[a:int(self._off[end])]))
+        return blk[3][a - blk[2]:b - blk[2]].copy()
