@@ -190,12 +190,11 @@ def load_scans(scene, quiet: bool = True) -> Scans:
     tr = scene["lidar/point_time_ns"] if has_t else None
     frames, st, pts, tms = [], [], [], []
     last = None
-    blocks: dict = {}
     for f in track(range(T), total=T, description=f"slam {scene.id}: read scans", quiet=quiet):
         s = int(stamps[f])
         if s == 0 or s == last:
             continue
-        p = np.asarray(_ragged_frame(pr, f, blocks, "p"))
+        p = pr[f]   # sequential reads: one zarr read per shard (dataset.reader.Ragged)
         if p.dtype not in (np.float32, np.float64):
             p = p.astype(np.float64)
         good = np.isfinite(p).all(1) & (np.abs(p).sum(1) > 0)  # organised clouds: (0,0,0) = no return
@@ -205,7 +204,7 @@ def load_scans(scene, quiet: bool = True) -> Scans:
         st.append(s)
         pts.append(p[good].astype(np.float32, copy=False))  # float32 in memory: 400 scans x 65k points stay < 0.5 GB
         if has_t:
-            t = np.asarray(_ragged_frame(tr, f, blocks, "t"), np.int64).reshape(-1)
+            t = np.asarray(tr[f], np.int64).reshape(-1)
             tms.append((t[good] * 1e-9).astype(np.float32) if len(t) == len(p) else np.zeros(int(good.sum()), np.float32))
         last = s
     if not frames:
@@ -213,22 +212,6 @@ def load_scans(scene, quiet: bool = True) -> Scans:
     order = np.argsort(np.asarray(st), kind="stable")
     return Scans(np.asarray(frames, np.int64)[order], np.asarray(st, np.int64)[order], [pts[i] for i in order],
                  [tms[i] for i in order] if has_t else None)
-
-
-def _ragged_frame(r, f: int, blocks: dict, tag: str) -> np.ndarray:
-    """Frame ``f`` of ragged array ``r`` read one shard at a time (one zarr read per shard instead of one
-    per frame: a frame's rows straddle compressed chunks, which per-frame reads decompressed again and
-    again). ``blocks`` caches the current shard's rows per ``tag``."""
-    k = f // r.shard_frames
-    cur = blocks.get(tag)
-    if cur is None or cur[0] != k:
-        r[k * r.shard_frames]  # checks the shard is committed (DatasetError otherwise) and loads the offsets
-        off = np.asarray(r.offsets[...], np.int64)
-        f0, f1 = k * r.shard_frames, min((k + 1) * r.shard_frames, len(off) - 1)
-        cur = (k, f0, off[f0:f1 + 1] - off[f0], np.asarray(r.values[int(off[f0]):int(off[f1])]))
-        blocks[tag] = cur
-    _, f0, o, vals = cur
-    return vals[o[f - f0]:o[f - f0 + 1]]
 
 
 def data_max_range(scans: Scans, n: int = 10) -> float:
