@@ -576,14 +576,19 @@ def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: i
     under the lowest sensor origin, refined by least-squares planes through the returns near the
     current plane (10 cm, then 3 sigma but >= 3 cm; four rounds, so a world frame tilted by a few
     degrees is followed). World z must be (roughly) up."""
-    p = np.concatenate([np.asarray(q, np.float64).reshape(-1, 3) for q in points_world]) if len(points_world) else np.zeros((0, 3))
-    p = p[np.isfinite(p).all(1)]
-    if origins is not None and len(origins):
-        p = p[p[:, 2] < float(np.min(np.asarray(origins)[:, 2])) - below_m]
+    z_max = float(np.min(np.asarray(origins)[:, 2])) - below_m if origins is not None and len(origins) else np.inf
+    rng = np.random.default_rng(0)
+    cap = max(2000, 800_000 // max(1, len(points_world)))   # per scan: no copy of every scan's points
+    low = []
+    for q in points_world:
+        q = np.asarray(q).reshape(-1, 3)
+        q = q[np.isfinite(q).all(1) & (q[:, 2] < z_max)]
+        low.append(q[rng.choice(len(q), cap, replace=False)] if len(q) > cap else q)
+    p = np.concatenate(low).astype(np.float64) if low else np.zeros((0, 3))
     if len(p) < min_points:
         return None
     if len(p) > 400_000:
-        p = p[np.random.default_rng(0).choice(len(p), 400_000, replace=False)]
+        p = p[rng.choice(len(p), 400_000, replace=False)]
     lo, hi = p[:, 2].min(), p[:, 2].max()
     hist, edges = np.histogram(p[:, 2], bins=max(1, int(np.ceil((hi - lo) / 0.02))), range=(lo, max(hi, lo + 0.02)))
     z0 = edges[int(np.argmax(hist))] + 0.01
