@@ -88,6 +88,7 @@ class RegisterConfig:
     """Parameters (metres unless noted); see the module docstring for their roles."""
 
     map_voxel: float = 0.04
+    map_max_scans: int = 120
     cam_voxel: float = 0.03
     icp_distances: tuple = (0.15, 0.08, 0.04)
     map_sigma_m: float = 0.015
@@ -719,17 +720,26 @@ def _parse_init(init) -> np.ndarray | None:
     raise InputError(f"--init needs x,y,z,roll,pitch,yaw (m, degrees), got {init!r}")
 
 
-def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, margin_m: float = 0.25) -> np.ndarray:
+def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, margin_m: float = 0.25,
+              max_scans: int = 0) -> np.ndarray:
     """World-frame static map: every scan's returns inside the background model and farther than
     ``margin_m`` from the scan's segmented instances ``instances`` (lazy (T,H,W) array or None),
-    voxel-thinned. The instance margin removes the parts of people that fall into static voxels (a
-    hand near a wall, feet on the floor), which would otherwise bias the registration."""
+    voxel-thinned; at most ``max_scans`` scans (0: all): motion keyframes plus scans spread in time,
+    as for slam's mesh (a 400-cycle corner has 400 scans, most taken at rest). The instance margin
+    removes the parts of people that fall into static voxels (a hand near a wall, feet on the
+    floor), which would otherwise bias the registration."""
     from scipy.spatial import cKDTree
 
     from .segment import in_background
 
     pts = []
-    for k in range(len(scans.stamps)):
+    ks = list(range(len(scans.stamps)))
+    if max_scans and len(ks) > max_scans:  # long recordings: motion keyframes + scans evenly spread in time
+        from .slam import mesh_scan_subset
+
+        ks = [k for k in ks if scans.usable(k)]
+        ks = [ks[i] for i in mesh_scan_subset(np.asarray(scans.poses)[ks], max_scans)]
+    for k in ks:
         valid, _, Pw = scans.scan(k, traj, deskew)
         if instances is not None:
             inst = np.asarray(instances[k]) > 0
@@ -784,7 +794,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         scans = LidarScans.open(scene, url)
     timings["segment_s"] = time.perf_counter() - t0
     inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
-    M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst)
+    M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans)
     if len(M) < 100:
         raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
     timings["map_s"] = time.perf_counter() - t0 - timings["segment_s"]
