@@ -58,10 +58,10 @@ def demo_config(quick: bool) -> DemoConfig:
     """``quick``: small grids and few frames (< 3 min on 2 cores); else the paper's 64×512 grid."""
     if quick:
         return DemoConfig(corners=DEMO_CORNERS[:6], n_test=1, frames=12, grid=Grid(32, 128),
-                          lidar_shape=(32, 512), camera_shape=(188, 336), epochs=15, depth=6,
+                          lidar_shape=(32, 512), camera_shape=(376, 672), epochs=15, depth=6,
                           base_channels=8, max_channels=64, range_pool=2)
     return DemoConfig(corners=DEMO_CORNERS, n_test=2, frames=40, grid=Grid(), lidar_shape=(64, 1024),
-                      camera_shape=(188, 336), epochs=30, depth=7)
+                      camera_shape=(376, 672), epochs=30, depth=7)
 
 
 @dataclass
