@@ -657,8 +657,22 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
     th = np.broadcast_to(np.asarray(thickness, float), (len(p),))
     frac = np.linspace(0.0, 1.0, max(2, int(np.ceil(th.max() / (voxel / 2))) + 1))
     sw = (p[:, None, :] + (frac[None, :, None] * th[:, None, None]) * d[:, None, :]).reshape(-1, 3)
-    occ = np.unique(np.floor(sw / voxel).astype(np.int64), axis=0)
+    occ = unique_rows(np.floor(sw / voxel).astype(np.int64))[0]
     return voxel_boundary(occ, voxel)
+
+
+def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(a, axis=0, return_inverse=True)`` for (N,3) int lattice points, through one int64
+    key per row (same lexicographic order; ~10x faster than the structured-row sort)."""
+    a = np.asarray(a, np.int64).reshape(-1, 3)
+    if len(a) == 0:
+        return a.copy(), np.zeros(0, np.int64)
+    lo = a.min(0)
+    o = a - lo
+    n1, n2 = int(o[:, 1].max()) + 1, int(o[:, 2].max()) + 1
+    keys, inv = np.unique((o[:, 0] * n1 + o[:, 1]) * n2 + o[:, 2], return_inverse=True)
+    rows = np.stack([keys // (n1 * n2), (keys // n2) % n1, keys % n2], 1) + lo
+    return rows, inv.reshape(-1)
 
 
 def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
@@ -696,7 +710,7 @@ def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarra
                 c = c[:, ::-1]
             quads.append(c)
     q = np.concatenate(quads)                      # (Q,4,3) corner lattice coordinates
-    corners, inv = np.unique(q.reshape(-1, 3), axis=0, return_inverse=True)
+    corners, inv = unique_rows(q.reshape(-1, 3))
     inv = inv.reshape(-1, 4)
     faces = np.concatenate([inv[:, [0, 1, 2]], inv[:, [0, 2, 3]]]).astype(np.int32)
     verts = (corners + lo).astype(np.float64) * voxel
