@@ -30,6 +30,19 @@ workers only):
     raytrace-gt        29.0     16.8
     slam+register     110.0     53.5    = 3.79x raytrace-gt wall, 3.19x its CPU (slam alone 0.77x CPU)
 
+Rerun idle (load ~1.1, after the reader's sequential ragged reads, register's map cap and its
+int64-key unique rows; `--keep /tmp/sp/p400 --reuse`):
+
+    stage            wall s    CPU s
+    ingest              4.2      7.1
+    slam               11.2     12.9    (ATE 0.24 cm, F@5cm 0.994)
+    register           26.6     27.8    (segment 17.6, map 2.6, extrinsic 1.3, humans 4.6 s wall)
+    raytrace-gt         9.7     18.5    (2 worker processes)
+    slam+register      37.8     40.7    = 3.88x raytrace-gt wall, 2.21x its CPU (slam alone 1.15x wall, 0.70x CPU)
+
+register's segmentation (background model + per-scan segmentation, each pass reading and
+deskewing every scan) is now the largest part.
+
 Before the slam speed-up (same corner, load 10-15) slam took 51.8 s wall next to raytrace-gt 44.8 s and
 register 101.7 s. register now dominates: its LiDAR scans are read frame by frame three times
 (background, segmentation, map; zarr waits), trajectories interpolated per scan, open3d voxel
