@@ -272,3 +272,16 @@ def test_dataset_form_says_what_is_missing(tmp_path, have_mesh):
     assert r.exit_code == 1 and "Traceback" not in r.output
     assert ("static TF" in r.output) == have_mesh and ("run holodata slam first" in r.output) != have_mesh
     assert "gt" not in "".join(hds.open_dataset(url).scene("c1").arrays())
+
+
+def test_process_pool_matches_in_process(inputs):
+    """``processes=2`` (spawned workers, results through shared memory) writes the same shards."""
+    from holodata.groundtruth import raytrace_standalone
+
+    kw = dict(human_dir=inputs / "humans", cfg=GTConfig(grid=Grid(8, 32), shard_frames=4), quiet=True)
+    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "a.zarr"), processes=1, **kw)
+    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "b.zarr"), processes=2, **kw)
+    a, b = hds.open_dataset(str(inputs / "a.zarr")).scene("scene"), hds.open_dataset(str(inputs / "b.zarr")).scene("scene")
+    for name in ("gt/range", "gt/label", "gt/normal"):
+        np.testing.assert_array_equal(np.asarray(a[name][...]), np.asarray(b[name][...]))
+
