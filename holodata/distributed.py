@@ -250,7 +250,6 @@ def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dic
             raise RecordingError(f"{path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
                                  f"from the dataset's {grid.to_attrs()} / {range_bins.to_attrs()}")
         ds = create_dataset(out, grid=grid, range_bins=range_bins)
-        p.sha256 = p.sha_future.result() if p.sha_future is not None else ing.file_sha256(p.rec.files)
         return {"scene": ing.write_plan(p, ds, quiet=True, codec=opts["codec"])}
     except (HolodataError, OSError) as err:
         return {"failed": {"recording": str(path), "error": ing._one_line(err)}}
