@@ -416,11 +416,8 @@ class FrameArrayWriter(_Sharded):
             if dt != self.dtype and not np.can_cast(dt, self.dtype, casting="same_kind"):
                 raise DatasetError(f"scene {self.scene.id!r} array {self.name!r} shard {k}: dtype {dt} "
                                    f"cannot be stored as {self.dtype}")
-        if frames is not None:
-            frames = [f.astype(self.dtype, copy=False) for f in frames]
-            blob = sh.encode_shard_parts(self.meta, frames)
-        else:
-            blob = sh.encode_shard_parts(self.meta, data.astype(self.dtype, copy=False))
+        blob = sh.encode_shard_parts(self.meta, [f.astype(self.dtype, copy=False) for f in frames]
+                                     if frames is not None else data.astype(self.dtype, copy=False))
         self.store.put(sh.shard_key(self.path, k, len(self.shape)), blob)
         rec = sh.manifest_record(k, sl, blob, self.shape, self.dtype)
         self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
@@ -521,19 +518,20 @@ class RaggedWriter(_Sharded):
         okey = f"{self.path}/offsets/c/0"
         ometa = _json(self.store, f"{self.path}/offsets/zarr.json")
         ocodec = sh.chunk_codec(ometa)
+        oa = None
         if ocodec is not None and ometa["chunk_grid"]["configuration"]["chunk_shape"] == ometa["shape"]:
             old = self.store.get(okey)
             off = np.zeros(self.n_frames + 1, "<i8") if old is None else \
                 np.frombuffer(ocodec.decode(old), "<i8").copy()
-            off[sl.start:sl.stop + 1] = seg
-            off[sl.stop + 1:] = 0
-            self.store.put(okey, ocodec.encode(off))   # one chunk: one atomic put
         else:
             oa = zarr.open_array(zs, path=f"{self.path}/offsets", mode="r+")
             off = oa[...]
-            off[sl.start:sl.stop + 1] = seg
-            off[sl.stop + 1:] = 0
-            oa[...] = off  # one chunk: one atomic put
+        off[sl.start:sl.stop + 1] = seg
+        off[sl.stop + 1:] = 0
+        if oa is None:
+            self.store.put(okey, ocodec.encode(off))   # one chunk: one atomic put
+        else:
+            oa[...] = off
         rec = {"shard": k, "frames": [sl.start, sl.stop], "rows": [r0, r1], "sha256": ragged_digest(vals, seg),
                "nbytes": int(vals.nbytes), "shape": [r1, self.width], "dtype": str(self.dtype)}
         self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
