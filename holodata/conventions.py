@@ -161,3 +161,9 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
 def transform_directions(T: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     """Rotate (..., 3) direction vectors by the rotation part of a 4x4 transform."""
     return dirs @ T[:3, :3].T
+
+
+def rotation_angle_deg(R: np.ndarray) -> float:
+    """Angle (degrees) of the rotation in the top-left 3x3 of ``R`` (a rotation or a 4x4 transform)."""
+    c = (np.trace(np.asarray(R)[:3, :3]) - 1.0) / 2.0
+    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))

@@ -61,3 +61,14 @@ def test_is_rigid_and_transform():
 def test_seconds_to_ns_rounds():
     assert seconds_to_ns(1.5).item() == 1_500_000_000
     assert seconds_to_ns([0.1])[0] == 100_000_000
+
+
+def test_rotation_angle_deg_analytic():
+    from scipy.spatial.transform import Rotation
+
+    from holodata.conventions import rotation_angle_deg
+
+    for deg in (0.0, 0.05, 30.0, 179.9):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_rotvec(np.deg2rad(deg) * np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1, 2, -0.5])).as_matrix()
+        assert abs(rotation_angle_deg(T) - deg) < 1e-4 and abs(rotation_angle_deg(T[:3, :3]) - deg) < 1e-4

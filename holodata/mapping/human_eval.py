@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..conventions import rotation_angle_deg
 from ..errors import InputError
 
 
@@ -123,11 +124,6 @@ def segmentation_ap50(url: str, scene_id: str, truth_dir: str | Path, min_truth_
 
 
 # ------------------------------------------------------------------------------ registration
-def rotation_angle_deg(R: np.ndarray) -> float:
-    c = (np.trace(np.asarray(R)[:3, :3]) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0))))
-
-
 def extrinsic_error(T_est: np.ndarray, T_true: np.ndarray) -> dict:
     """{"trans_cm", "rot_deg"} of ``inv(T_true) @ T_est`` (both T_world_camera, 4×4)."""
     D = np.linalg.inv(np.asarray(T_true, float)) @ np.asarray(T_est, float)
@@ -299,5 +295,5 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
 
 
 __all__ = ["ap50", "match_scan", "average_precision", "segmentation_ap50", "extrinsic_error", "truth_camera_extrinsic",
-           "surface_centroid", "human_centroid_errors", "write_truth_poses", "rotation_angle_deg", "true_lidar_poses",
+           "surface_centroid", "human_centroid_errors", "write_truth_poses", "true_lidar_poses",
            "robot_relative_extrinsic_error", "relative_extrinsic_error"]

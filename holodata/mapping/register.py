@@ -74,7 +74,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from ..conventions import transform_points
+from ..conventions import rotation_angle_deg, transform_points
 from ..errors import HolodataError, InputError
 from ..progress import track
 
@@ -362,9 +362,7 @@ def pose_uncertainty(points: np.ndarray, sigma: np.ndarray, target: np.ndarray, 
 
 def prior_deviation(T: np.ndarray, init: np.ndarray) -> tuple[float, float]:
     """How far a camera pose ``T`` (4,4) lies from the initial guess ``init``: (metres, degrees)."""
-    D = np.linalg.inv(init) @ T
-    cos = np.clip((np.trace(D[:3, :3]) - 1) / 2, -1.0, 1.0)
-    return float(np.linalg.norm(T[:3, 3] - init[:3, 3])), float(np.degrees(np.arccos(cos)))
+    return float(np.linalg.norm(T[:3, 3] - init[:3, 3])), rotation_angle_deg(np.linalg.inv(init) @ T)
 
 
 def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray,

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..conventions import transform_directions, transform_points
+from ..conventions import rotation_angle_deg, transform_directions, transform_points
 from ..errors import DatasetError, InputError
 from ..progress import track
 from ..trajectory import Trajectory, write_tum
@@ -544,8 +544,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
 
 def _moved(Ta: np.ndarray, Tb: np.ndarray, dist_m: float, angle_deg: float) -> bool:
     D = np.linalg.inv(Ta) @ Tb
-    ang = np.degrees(np.arccos(np.clip((np.trace(D[:3, :3]) - 1) / 2, -1, 1)))
-    return bool(np.linalg.norm(D[:3, 3]) >= dist_m or ang >= angle_deg)
+    return bool(np.linalg.norm(D[:3, 3]) >= dist_m or rotation_angle_deg(D) >= angle_deg)
 
 
 def mesh_scan_subset(poses: np.ndarray, max_n: int, dist_m: float = 0.05, angle_deg: float = 2.0) -> np.ndarray:
