@@ -107,6 +107,12 @@ class Recording:
         """``raw`` with its whole payload (itself unless it came header-only from :meth:`raw_heads`)."""
         return raw
 
+    def mark_truncated(self, problem: str) -> None:
+        """The recording breaks off here: ``truncated`` set, ``problem`` (one line) noted once."""
+        self.truncated = True
+        if problem not in self.problems:
+            self.problems.append(problem)
+
     def close(self) -> None:
         pass
 

@@ -275,10 +275,7 @@ class McapRecording(Recording):
                     yield "message", self.channels[key], rec
         reason = self._cut.pop(f, None)
         if reason:
-            self.truncated = True
-            msg = f"{f}: file ends early ({reason}) after {n} messages; the readable part is used"
-            if msg not in self.problems:
-                self.problems.append(msg)
+            self.mark_truncated(f"{f}: file ends early ({reason}) after {n} messages; the readable part is used")
 
     def _records(self, f: Path):
         """Top-level records framed here (opcode + u64 length, checked against the file size) and

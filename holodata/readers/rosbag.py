@@ -110,10 +110,7 @@ class RosbagsRecording(Recording):
             for c, t, data in self.reader.messages(connections=conns):
                 yield RawMessage(c.topic, c.msgtype, t, data, enc[c.id])
         except Exception as err:  # noqa: BLE001 - damaged data past the index
-            self.truncated = True
-            msg = f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})"
-            if msg not in self.problems:
-                self.problems.append(msg)
+            self.mark_truncated(f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})")
 
     _table = None
 
@@ -144,10 +141,7 @@ class RosbagsRecording(Recording):
             for topic, log, data, ref in table.messages(conns, set(heads)):
                 yield RawMessage(topic, conns[topic].msgtype, log, data, enc[topic], ref=ref)
         except (ValueError, OSError) as err:
-            self.truncated = True
-            msg = f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})"
-            if msg not in self.problems:
-                self.problems.append(msg)
+            self.mark_truncated(f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})")
 
     def full(self, raw: RawMessage) -> RawMessage:
         if raw.ref is None:
@@ -255,11 +249,8 @@ class Ros1ScanRecording(Recording):
             except RecordingError:
                 raise
             except (ReaderError, KeyError, OSError, ValueError, EOFError) as err:
-                self.truncated = True
-                msg = f"{self.path}: file ends in a damaged or partial record at byte {f.tell()} of {size} " \
-                      f"({_one_line(err)[:100]}); the readable part is used"
-                if msg not in self.problems:
-                    self.problems.append(msg)
+                self.mark_truncated(f"{self.path}: file ends in a damaged or partial record at byte {f.tell()} of "
+                                    f"{size} ({_one_line(err)[:100]}); the readable part is used")
 
     def _topics(self) -> list[TopicInfo]:
         return [TopicInfo(**vars(t)) for t in self._infos]

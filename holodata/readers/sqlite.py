@@ -96,10 +96,8 @@ class SqliteRecording(Recording):
                     except sqlite3.Error as err:
                         if order and n == 0:
                             continue  # sorting needs every page: retry in storage order
-                        self.truncated = True
-                        msg = f"{f}: database damaged after {n} readable messages ({_one_line(err)}); the readable part is used"
-                        if msg not in self.problems:
-                            self.problems.append(msg)
+                        self.mark_truncated(f"{f}: database damaged after {n} readable messages ({_one_line(err)}); "
+                                            f"the readable part is used")
                         break
             finally:
                 con.close()
