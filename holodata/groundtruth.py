@@ -42,7 +42,7 @@ from .conventions import (
     Grid,
     RangeBins,
 )
-from .errors import InputError
+from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .progress import track
 from .trajectory import Trajectory, read_tum
@@ -50,6 +50,10 @@ from .trajectory import Trajectory, read_tum
 MESH_EXTS = (".ply", ".obj", ".stl")
 HUMAN_SPLAT_RADIUS_M = 0.03
 GT_ARRAYS = ("gt/range", "gt/normal", "gt/point", "gt/label", "gt/semantic", "gt/human_center")
+
+
+class TracingError(HolodataError, RuntimeError):
+    """Tracing stopped part-way (a worker process died); written shards are kept for a resume."""
 
 
 @dataclass
@@ -405,7 +409,8 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
         _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock)
     else:
         import multiprocessing as mp
-
+        from concurrent.futures import ProcessPoolExecutor
+        from concurrent.futures.process import BrokenProcessPool
         from multiprocessing import shared_memory
 
         cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
@@ -415,10 +420,19 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
         shm = shared_memory.SharedMemory(create=True, size=size * n_slots)
         try:
             slots = [_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)]
-            with mp.get_context("spawn").Pool(workers, _worker_init, (mesh, wcfg, traj, human, shm.name, n_slots)) as pool:
+            # concurrent.futures, not multiprocessing.Pool: a worker killed by a signal or the OOM killer
+            # breaks the executor (BrokenProcessPool) where Pool would wait forever for its task
+            with ProcessPoolExecutor(workers, mp.get_context("spawn"), initializer=_worker_init,
+                                     initargs=(mesh, wcfg, traj, human, shm.name, n_slots)) as pool:
                 frames = [f for _, _, fr in plan for f in fr]
-                _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label, first.n_shards,
-                            clock)
+                try:
+                    _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label,
+                                first.n_shards, clock)
+                except BrokenProcessPool:
+                    done = sum(first.is_done(k) for k in range(first.n_shards))
+                    raise TracingError(f"{label}: a tracing process died (killed by a signal or out of memory); "
+                                       f"{done} of {first.n_shards} shards are written and kept — rerun to resume, "
+                                       f"or use --processes 1") from None
             del slots
         finally:
             shm.close()
@@ -437,7 +451,8 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
 
 def _bounded_imap(pool, frames: list, slots: list):
     """Ordered per-frame results (views into shared-memory ``slots``, valid until the next item)
-    with at most ``len(slots)`` frames in flight."""
+    with at most ``len(slots)`` frames in flight; ``pool`` a ``ProcessPoolExecutor`` whose workers ran
+    :func:`_worker_init`."""
     from collections import deque
 
     pending: deque = deque()
@@ -448,13 +463,13 @@ def _bounded_imap(pool, frames: list, slots: list):
         f = next(it, None)
         if f is not None:
             slot = free.pop()
-            pending.append(pool.apply_async(_worker_frame, (f, slot)))
+            pending.append(pool.submit(_worker_frame, f, slot))
         return f is not None
 
     while free and submit():
         pass
     while pending:
-        slot = pending.popleft().get()
+        slot = pending.popleft().result()
         yield slots[slot]
         free.append(slot)
         submit()

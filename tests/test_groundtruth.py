@@ -285,3 +285,62 @@ def test_process_pool_matches_in_process(inputs):
     for name in ("gt/range", "gt/label", "gt/normal"):
         np.testing.assert_array_equal(np.asarray(a[name][...]), np.asarray(b[name][...]))
 
+
+
+DIE_SCRIPT = '''
+import os, signal, sys
+import numpy as np
+sys.path.insert(0, {tests!r})
+import holodata.dataset as hds
+from holodata.conventions import Grid, RangeBins
+from holodata.groundtruth import GTConfig, HumanSource, TracingError, write_scene_gt
+from holodata.trajectory import Trajectory
+from test_raytrace import l_corridor
+
+
+class DieAt(HumanSource):
+    """Kills the worker process that asks for frame ``frame`` (as a signal or the OOM killer would)."""
+
+    def __init__(self, frame):
+        self.frame, self.parent = frame, os.getpid()
+
+    def __call__(self, k):
+        if k == self.frame and os.getpid() != self.parent:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return None
+
+
+if __name__ == "__main__":
+    v, f = l_corridor()
+    T = np.tile(np.eye(4), (12, 1, 1))
+    T[:, :2, 3] = np.c_[np.linspace(5.0, 7.5, 12), np.ones(12)]
+    traj = Trajectory(np.arange(12) * 500_000_000 + 10**9, T)
+    cfg = GTConfig(grid=Grid(8, 32), shard_frames=4)
+    w = hds.create_dataset(sys.argv[1], grid=cfg.grid, range_bins=RangeBins(), created_by="test", provenance={{}},
+                           shard_frames=4)
+    sc = w.scene("s", n_frames=12)
+    try:
+        write_scene_gt(sc, (v, f, None, None), cfg, traj, DieAt(int(sys.argv[2])), {{}}, processes=2)
+        print("finished")
+    except TracingError as err:
+        print("TracingError:", err)
+'''
+
+
+def test_process_pool_dead_worker_raises_instead_of_hanging(tmp_path):
+    """A tracing worker killed mid-run (SIGKILL, as by the OOM killer) stops the run with a
+    TracingError naming the problem — multiprocessing.Pool would wait forever for its task — and the
+    shards finished before it are kept."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "die.py"
+    script.write_text(DIE_SCRIPT.format(tests=os.path.dirname(__file__)))
+    url = str(tmp_path / "ds.zarr")
+    r = subprocess.run([sys.executable, str(script), url, "9"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "TracingError:" in r.stdout and "a tracing process died" in r.stdout and "rerun to resume" in r.stdout
+    import re
+
+    done, total = map(int, re.search(r"(\d+) of (\d+) shards are written", r.stdout).groups())
+    assert total == 3 and done < 3  # frame 9 is in the last shard: that one is never written
