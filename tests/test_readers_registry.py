@@ -137,6 +137,10 @@ def test_truncated_recording_gives_readable_prefix_marked(tmp_path, fmt):
         # the prefix: every message before the last one read is there
         last = max(t for _, t, _ in got)
         assert {m for m in full if m[1] < last - 200_000_000} <= set(got)
+    with open_recording(cut) as r:  # a second pass over the same recording notes the break once
+        for _ in range(2):
+            list(r.raw_messages())
+        assert r.truncated and len(r.problems) == len(set(r.problems)) >= 1
 
 
 def test_truncated_rosbag2_folder_falls_back_to_storage_file(tmp_path):

@@ -343,8 +343,7 @@ class McapRecording(Recording):
                             topic, ty, enc = self.channels[(i, ch.id)]
                             yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
                     except Exception as err:  # noqa: BLE001
-                        self.truncated = True
-                        self.problems.append(f"{f}: stopped at a damaged chunk ({_one_line(err)[:120]})")
+                        self.mark_truncated(f"{f}: stopped at a damaged chunk ({_one_line(err)[:120]})")
                 continue
             for what, ch, msg in self._stream(i, f):
                 if what != "message":

@@ -337,9 +337,8 @@ class OusterPcapRecording(Recording):
         except RecordingError:
             raise
         except Exception as err:  # noqa: BLE001 - a damaged pcap: keep the scans read so far
-            self.truncated = True
-            self.problems.append(f"{self.path}: ouster-sdk stopped after {n} scans "
-                                 f"({' '.join(str(err).split())[:120]}); the readable part is used")
+            self.mark_truncated(f"{self.path}: ouster-sdk stopped after {n} scans "
+                                f"({' '.join(str(err).split())[:120]}); the readable part is used")
         if n == 0:
             raise RecordingError(self._zero_scans_reason())
 
