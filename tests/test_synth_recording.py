@@ -183,3 +183,23 @@ def test_heatmap_peaks_agree_with_truth_mesh_and_poses(tmp_path):
         peak = np.argmax(hm[4:], axis=0) + 4  # skip the TX/RX leakage bins
         err = np.abs(peak - np.floor(r1 / 0.0375))[ok]
         assert ok.mean() > 0.9 and np.median(err) == 0 and np.mean(err <= 1) > 0.6
+
+
+@pytest.mark.parametrize("corner,width", [("T", 1.3), ("L", 3.0)])
+def test_visible_walkers_never_walk_through_each_other(corner, width):
+    """Five people in the approach corridor: those sharing a side take consecutive stretches, so no two
+    are ever closer than a body width (they passed through each other when two shared a lane)."""
+    from holodata.synth.scenario import _visible_walkers
+    from holodata.synth.worlds import make_world
+
+    walkers = _visible_walkers(make_world(corner, width=width, seed=3), 3, 5, np.array([-6.0, 0.0]),
+                               np.array([-2.0, 0.0]))
+    ts = np.linspace(0.0, 60.0, 601)
+    pos = np.array([[w.state(t)[0] for t in ts] for w in walkers])          # (5, T, 2)
+    gap = np.linalg.norm(pos[:, None] - pos[None, :], axis=-1)
+    gap[np.arange(5), np.arange(5)] = np.inf
+    assert gap.min() > 0.5
+    assert all(w.b[0] - w.a[0] > 0.5 for w in walkers)                       # everyone still walks
+    two = _visible_walkers(make_world(corner, width=width, seed=3), 3, 2, np.array([-6.0, 0.0]), np.array([-2.0, 0.0]))
+    for w in two:  # one per side: the whole stretch, as before (recordings with <= 2 walkers unchanged)
+        assert -8.5 <= w.a[0] <= -7.5 and -0.7 <= w.b[0] <= -0.4

@@ -192,7 +192,8 @@ def _visible_walkers(world: World, seed: int, n: int, start: np.ndarray, stop: n
     """``n`` people walking along the approach corridor (axis y = 0, walls y = ±width/2), off the
     robot's line: lanes alternate sides at ``|y| = width/2 - 0.4`` m (at least 0.35 m off axis), each
     walking between a point behind the robot's start and one short of the junction (x = -0.4 m),
-    at 0.7-1.3 m/s with a random phase."""
+    at 0.7-1.3 m/s with a random phase. People sharing a side split its stretch into consecutive
+    pieces 0.6 m apart (one each), so nobody walks through anybody (N <= 2: one per side)."""
     if n < 0:
         raise InputError(f"visible_walkers must be >= 0, got {n}")
     rng = _rng(seed, "walkers")
@@ -206,6 +207,15 @@ def _visible_walkers(world: World, seed: int, n: int, start: np.ndarray, stop: n
         a = np.array([x0 + float(rng.uniform(-0.5, 0.5)), y])
         b = np.array([-0.4 - float(rng.uniform(0.0, 0.3)), y])
         out.append(HumanWalk(a, b, float(rng.uniform(0.7, 1.3)), float(rng.uniform(1.55, 1.9)), float(rng.uniform(0, 1))))
+    for side in (0, 1):
+        group = out[side::2]
+        if len(group) < 2:
+            continue
+        lo, hi = min(w.a[0] for w in group), max(w.b[0] for w in group)
+        piece = (hi - lo - 0.6 * (len(group) - 1)) / len(group)
+        for j, w in enumerate(group):
+            x = lo + j * (piece + 0.6)
+            w.a, w.b = np.array([x, w.a[1]]), np.array([x + piece, w.b[1]])
     return out
 
 
