@@ -360,9 +360,9 @@ class _Sharded:
         return _json(self.store, sh.manifest_key(self.path, k))
 
     def _consolidate(self) -> None:
-        """All shards done: fold the manifest records into attrs (idempotent)."""
-        import zarr
-
+        """All shards done: fold the manifest records into attrs (idempotent): the same
+        read-modify-write of ``zarr.json`` that zarr's ``attrs.update`` does, as one atomic put without
+        a round trip through zarr's event loop per array."""
         if not self.complete:
             return
         recs = [self.record(k) for k in range(self.n_shards)]
@@ -370,18 +370,12 @@ class _Sharded:
                   for r in recs]
         key = f"{self.path}/zarr.json"
         meta = _json(self.store, key)
-        if meta is not None and isinstance(meta.get("attributes"), dict):
-            # the same read-modify-write of zarr.json that zarr's attrs.update does, without a
-            # round trip through zarr's event loop per array (one atomic put)
-            hd = dict(meta["attributes"].get("holodata", {}))
-            hd["shards"] = shards
-            meta["attributes"]["holodata"] = hd
-            self.store.put(key, json.dumps(meta, indent=2).encode())
-            return
-        node = zarr.open(self.scene.ds.zstore, path=self.path, mode="r+")
-        hd = dict(node.attrs.get("holodata", {}))
+        if meta is None or not isinstance(meta.get("attributes"), dict):
+            raise DatasetError(f"{self.scene.ds.url}: {key} is missing or has no attributes (damaged array metadata)")
+        hd = dict(meta["attributes"].get("holodata", {}))
         hd["shards"] = shards
-        node.attrs.update({"holodata": hd})
+        meta["attributes"]["holodata"] = hd
+        self.store.put(key, json.dumps(meta, indent=2).encode())
 
 
 class FrameArrayWriter(_Sharded):
