@@ -223,8 +223,14 @@ def test_resume_after_sigkill_mid_shard_matches_uninterrupted_run(tmp_path):
     assert not rep["ok"] and any(p_["rule"] == "incomplete" for p_ in rep["problems"])
     name, k = str(victim.relative_to(out / "scenes/c1")).split("/c/")
     assert not open_dataset(str(out)).scene("c1").is_done(name, int(k.split("/")[0]))
+    stale = list(victim.parent.glob(f".{victim.name}.*.partial"))
+    for f in stale:  # the killed writer's temp files, as found hours later ...
+        os.utime(f, (time.time() - 7200, time.time() - 7200))
+    young = victim.parent / f".{victim.name}.{'0' * 32}.partial"  # ... and one a live writer may own
+    young.write_bytes(b"x")
     subprocess.run([sys.executable, str(script), str(out)], check=True, timeout=120)
     assert victim.exists()
+    assert not any(f.exists() for f in stale) and young.exists()  # resuming swept only the old ones
     assert _records(out) == _records(ref)  # identical shard bytes
     assert all((out / k).stat().st_mtime_ns == m for k, m in mtimes.items())  # finished shards not rewritten
     assert validate_dataset(str(out))["ok"]

@@ -155,6 +155,34 @@ class Store:
         elif self.fs.exists(self._p(key)):
             self.fs.rm(self._p(key), recursive=True)
 
+    def sweep_partials(self, key: str, older_than_s: float = 3600.0) -> int:
+        """Remove the ``.partial`` temp objects under folder ``key`` left by writers killed mid-put
+        and older than ``older_than_s`` (a younger one may belong to a writer still running, e.g.
+        another Dask worker). Object stores with atomic PUTs never hold any. Returns how many went."""
+        import time
+
+        if not self.local and self.atomic_put:
+            return 0
+        now, n = time.time(), 0
+        if self.local:
+            d = self.root / key
+            found = list(d.rglob(".*.partial")) if d.is_dir() else []
+        else:
+            found = [p for p in self.fs.find(self._fresh(key)) if p.rsplit("/", 1)[-1].startswith(".")
+                     and p.endswith(".partial")]
+        for p in found:
+            try:
+                if self.local:
+                    mtime = p.stat().st_mtime
+                else:
+                    mtime = self.fs.modified(p).timestamp()
+                if now - mtime > older_than_s:
+                    p.unlink() if self.local else self.fs.rm_file(p)
+                    n += 1
+            except FileNotFoundError:   # finished or swept by another process meanwhile
+                pass
+        return n
+
     def list(self, key: str) -> list[str]:
         """Names (not paths) directly under folder ``key``; [] when absent."""
         try:

@@ -337,6 +337,8 @@ class _Sharded:
         self.n_shards = math.ceil(self.n_frames / S)
         self._done = {int(n[:-5]) for n in self.store.list(f"{self.path}/{sh.MANIFEST_DIR}")
                       if n.endswith(".json") and n[:-5].isdigit()}
+        if len(self._done) < self.n_shards:   # resuming: temp files of a writer killed mid-put go
+            self.store.sweep_partials(self.path)
 
     def frames(self, k: int) -> slice:
         """Frame indices of shard ``k``."""
