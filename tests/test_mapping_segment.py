@@ -237,3 +237,94 @@ def test_merge_stacked_joins_a_split_leg_but_not_neighbours():
     assert n == 3
     assert len(np.unique(out[0, :60])) == 1                              # torso + leg
     assert len({out[0, 0], out[0, 60], out[0, 100]}) == 3                # the other person, the lamp
+
+
+# ---------------------------------------------------------------------------- scans: deskew, reads
+def _moving_scans(H=8, W=64):
+    """LidarScans (no dataset: deskew only) of a trajectory that stands still for 1 s, then drives at
+    1 m/s along x turning 30°/s about z; scans every 0.25 s (the stamp is the scan start), points
+    spread over 5 m, column j at time j·100 ms/W after the stamp."""
+    from scipy.spatial.transform import Rotation
+
+    from holodata.mapping.segment import LidarScans
+    from holodata.trajectory import Trajectory
+
+    ts = np.arange(0, 3_000_000_001, 250_000_000, dtype=np.int64)
+    sec = np.maximum(ts / 1e9 - 1.0, 0.0)
+    poses = np.tile(np.eye(4), (len(ts), 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("z", 30 * sec[:, None], degrees=True).as_matrix()
+    poses[:, 0, 3] = sec
+    poses[:, 2, 3] = 0.5
+    scans = LidarScans(None, poses, ts, (H, W), True)
+    rng = np.random.default_rng(0)
+    P = rng.uniform(-5, 5, (H, W, 3))
+    valid = rng.random((H, W)) > 0.1
+    tt = np.broadcast_to((np.arange(W) * 100_000_000 // W).astype(np.int64), (H, W)).copy()
+    return scans, Trajectory(ts, poses), P, valid, tt
+
+
+def _deskew_reference(scans, traj, k, P, valid, tt):
+    """Point by point: poses[k] @ inv(traj(stamp)) @ traj(stamp + t)."""
+    s = scans.stamps[k]
+    T0 = scans.poses[k] @ np.linalg.inv(traj.interpolate(np.array([s]))[0])
+    out = np.full(P.shape, np.nan)
+    for i, j in zip(*np.nonzero(valid)):
+        T = T0 @ traj.interpolate(np.array([s + tt[i, j]]))[0]
+        out[i, j] = T[:3, :3] @ P[i, j] + T[:3, 3]
+    return out
+
+
+def test_deskew_fast_paths_match_the_point_by_point_poses():
+    scans, traj, P, valid, tt = _moving_scans()
+    rigid = lambda k: np.where(valid[..., None], P @ scans.poses[k][:3, :3].T + scans.poses[k][:3, 3], np.nan)
+    for k in (1, 6):                       # at rest (constant pose over the scan), moving
+        ref = _deskew_reference(scans, traj, k, P, valid, tt)
+        got = scans.deskew_points(k, P, valid, tt, traj)              # one pose per column
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)
+        assert np.array_equal(np.isnan(got), ~valid[..., None].repeat(3, -1))
+        tt2 = tt + np.arange(P.shape[0])[:, None] * 1_000_000       # rows at other times: per distinct time
+        np.testing.assert_allclose(scans.deskew_points(k, P, valid, tt2, traj),
+                                   _deskew_reference(scans, traj, k, P, valid, tt2), rtol=0, atol=1e-12)
+        moved = np.nanmax(np.abs(ref - rigid(k)))
+        assert (moved < 1e-12) if k == 1 else (moved > 0.05)     # deskew matters while moving
+    np.testing.assert_allclose(scans.deskew_points(6, P, valid, None, traj), rigid(6), rtol=0, atol=1e-12)
+    # the scan that starts at rest (stamp on the last pose at rest) and ends moving is not taken for a
+    # constant pose; the one before it (rest up to the next pose) is
+    k = 4
+    assert np.nanmax(np.abs(_deskew_reference(scans, traj, k, P, valid, tt) - rigid(k))) > 1e-4
+    np.testing.assert_allclose(scans.deskew_points(k, P, valid, tt, traj), _deskew_reference(scans, traj, k, P, valid, tt),
+                               rtol=0, atol=1e-12)
+
+
+def test_scans_read_in_any_order_are_the_same():
+    """range_frame loads a shard's frames at once on sequential reads; random access reads one frame."""
+    from _mapping_synth import small_corner
+
+    from holodata import open_dataset
+    from holodata.mapping.segment import LidarScans
+
+    url, _ = small_corner()
+    sc = open_dataset(url).scene("recording")
+    seq = LidarScans.open(sc, url)
+    traj = seq.trajectory()
+    order = np.random.default_rng(0).permutation(len(seq.stamps))
+    rnd = LidarScans.open(open_dataset(url).scene("recording"), url)
+    got = {int(k): rnd.scan(int(k), traj) for k in order}
+    for k in range(len(seq.stamps)):
+        a, b = seq.scan(k, traj), got[k]
+        assert np.array_equal(seq.range_frame(k), np.asarray(sc["lidar/range"][k]), equal_nan=True)
+        for x, y in zip(a, b):
+            assert np.array_equal(x, y, equal_nan=True)
+
+
+def test_segment_scan_without_enough_foreground_is_empty():
+    P, valid, box, wall = _scan()
+    cfg = SegmentConfig(min_points=5, min_height_m=0.2, min_depth_m=0.0)
+    out = segment_scan(P, valid, wall, cfg)                              # the box: one instance
+    assert out.max() == 1 and (out > 0).sum() > 50
+    for n in (0, 4):                                                     # fewer than min_points returns of it
+        bg = valid & ~box
+        keep = np.flatnonzero(box.ravel())[:n]
+        bg.ravel()[np.setdiff1d(np.flatnonzero(box.ravel()), keep)] = True
+        assert (valid & ~bg).sum() == n
+        assert not segment_scan(P, valid, bg, cfg).any()

@@ -16,7 +16,7 @@ segmentation (foreground = returns outside the background).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -25,6 +25,7 @@ from ..errors import InputError
 _OFFS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], np.int64)
 _BIAS = 1 << 20        # voxel indices shifted to be non-negative (|index| < 2^20 voxels ≈ 157 km at 15 cm)
 _BITS = 21
+_DENSE_MAX_CELLS = 1 << 24   # dense voxel grids (build's occupancy count, lookups) up to this many cells
 
 
 def _keys(ijk: np.ndarray) -> np.ndarray:
@@ -40,8 +41,65 @@ def _unkeys(keys: np.ndarray) -> np.ndarray:
 
 
 def voxel_index(points: np.ndarray, voxel: float) -> np.ndarray:
-    """(N,3) float points (m) → (N,3) int64 voxel indices ``floor(p / voxel)``."""
-    return np.floor(np.asarray(points, np.float64) / voxel).astype(np.int64)
+    """(N,3) float points (m) → (N,3) int64 voxel indices ``floor(p / voxel)`` (computed in float64)."""
+    q = np.divide(points, voxel, dtype=np.float64)
+    return np.floor(q, out=q).astype(np.int64)
+
+
+def _finite_rows(p: np.ndarray) -> np.ndarray:
+    """(N,) bool: rows of (N,3) ``p`` with three finite coordinates (``isfinite(p).all(1)``, faster)."""
+    f = np.isfinite(p)
+    return f[:, 0] & f[:, 1] & f[:, 2]
+
+
+def _box_index(ijk: np.ndarray, lo: np.ndarray, dims: np.ndarray, check: bool = True
+               ) -> tuple[np.ndarray | None, np.ndarray]:
+    """(inside (N,) bool, flat C-order cell index (M,) int64 of the inside rows) of voxel indices
+    ``ijk`` (N,3) in the box ``lo`` .. ``lo + dims - 1`` (``check`` False: all are inside; inside None)."""
+    rel = ijk - lo
+    if check:
+        ok = (rel >= 0) & (rel < dims)
+        inside = ok[:, 0] & ok[:, 1] & ok[:, 2]
+        if not inside.all():
+            rel = rel[inside]
+    else:
+        inside = None
+    return inside, (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
+
+
+def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_scan: bool = False):
+    """Voxels occupied by finite point sets ``pts`` (list of (Ni,3) float, m): (sorted unique keys (V,)
+    int64, occ (V,) int64 = in how many sets each voxel has points, per-point position in ``keys`` per
+    set (list of (Ni,) int arrays, or None), sorted unique keys per set (list, or None)). The same as
+    ``np.unique`` over the sets' unique keys, computed on a dense grid of the points' bounding box
+    (``occ[cells] += 1`` counts a cell once per set, no sort) when it has at most
+    ``_DENSE_MAX_CELLS`` cells, else with sorted keys."""
+    nz = [p for p in pts if len(p)]
+    # per column: (N,3).min(0) is ~20x slower
+    lo = np.floor(np.divide([min(p[:, j].min() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
+    hi = np.floor(np.divide([max(p[:, j].max() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
+    dims = hi - lo + 1
+    if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS:
+        cnt = np.zeros(int(np.prod(dims)), np.int32)
+        flats = []
+        for p in pts:
+            f = _box_index(voxel_index(p, voxel), lo, dims, False)[1].astype(np.int32)  # floor is monotonic: all inside
+            cnt[f] += 1                                          # buffered: +1 per cell and set
+            flats.append(f if (need_inverse or need_per_scan) else None)
+        cells = np.flatnonzero(cnt)
+        occ = cnt[cells].astype(np.int64)
+        keys = _keys(np.stack(np.unravel_index(cells, tuple(dims)), 1) + lo)   # C order == key order
+        per_scan = [keys[np.searchsorted(cells, np.unique(f))] for f in flats] if need_per_scan else None
+        inv = None
+        if need_inverse:
+            cnt[cells] = np.arange(len(cells), dtype=np.int32)
+            inv = [cnt[f] for f in flats]
+        return keys, occ, inv, per_scan
+    pk = [_keys(voxel_index(p, voxel)) for p in pts]
+    per_scan = [np.unique(k) for k in pk]
+    keys, occ = np.unique(np.concatenate(per_scan), return_counts=True)
+    inv = [np.searchsorted(keys, k) for k in pk] if need_inverse else None
+    return keys, occ, inv, per_scan if need_per_scan else None
 
 
 @dataclass
@@ -59,6 +117,8 @@ class VoxelBackground:
     hits: np.ndarray
     n_scans: int
     floor: np.ndarray | None = None
+    # dense lookup grids of keys / dilated (built by member(); False: too large, sorted keys instead)
+    _grids: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
     def build(cls, points_world: list[np.ndarray], voxel: float = 0.15, min_fraction: float = 0.25,
@@ -85,23 +145,26 @@ class VoxelBackground:
             raise InputError(f"background min_fraction must be in [0, 1], got {min_fraction}")
         if origins is not None and len(origins) != len(points_world):
             raise InputError(f"background: {len(origins)} origins for {len(points_world)} scans")
-        pts, per_scan = [], []
+        pts = []
         for p in points_world:
-            p = np.asarray(p, np.float64).reshape(-1, 3)
-            p = p[np.isfinite(p).all(1)]
-            pts.append(p)
-            per_scan.append(np.unique(_keys(voxel_index(p, voxel))))
-        n = len(per_scan)
-        if n == 0 or sum(len(k) for k in per_scan) == 0:
+            p = np.asarray(p).reshape(-1, 3)
+            if p.dtype not in (np.float32, np.float64):
+                p = p.astype(np.float64)
+            pts.append(p[_finite_rows(p)])
+        n = len(pts)
+        if n == 0 or sum(len(p) for p in pts) == 0:
             empty = np.zeros(0, np.int64)
             return cls(float(voxel), empty, empty, empty, n)
-        keys, occ = np.unique(np.concatenate(per_scan), return_counts=True)
+        free_space = origins is not None and n >= 2 and min_fraction > 0
+        keys, occ, inv, per_scan = _occupancy(pts, voxel, need_inverse=free_space,
+                                              need_per_scan=not free_space and n >= 2 and min_fraction > 0)
         need_hits = min(int(min_hits), n)
-        if origins is not None and n >= 2 and min_fraction > 0:
-            allp = np.concatenate(pts)
-            inv = np.searchsorted(keys, _keys(voxel_index(allp, voxel)))
+        if free_space:
+            inv = np.concatenate(inv)
             cnt = np.bincount(inv, minlength=len(keys)).astype(np.float64)
+            allp = np.concatenate(pts)
             cen = np.stack([np.bincount(inv, allp[:, j], len(keys)) for j in range(3)], 1) / np.maximum(cnt, 1)[:, None]
+            del inv, allp
             seen_occ, seen_free = _free_space(pts, np.asarray(origins, np.float64).reshape(-1, 3), cen, voxel,
                                               angle_res_deg, max_scans)
             tot = seen_occ + seen_free
@@ -127,16 +190,44 @@ class VoxelBackground:
         background voxel (``tolerance=1``, default) or inside one (``tolerance=0``, stricter: what
         the mesh uses, so a walker's body next to a wall or the floor is not kept through the
         neighbourhood). Non-finite points are False."""
-        p = np.asarray(points_world, np.float64).reshape(-1, 3)
+        p = np.asarray(points_world).reshape(-1, 3)
         out = np.zeros(len(p), bool)
-        table = self.dilated if tolerance else self.keys
-        if len(table) == 0 or len(p) == 0:
+        if len(p) == 0:
             return out
-        ok = np.isfinite(p).all(1)
-        k = _keys(voxel_index(p[ok], self.voxel))
-        pos = np.minimum(np.searchsorted(table, k), len(table) - 1)
-        out[ok] = table[pos] == k
+        ok = _finite_rows(p)
+        if ok.all():
+            return self.member(voxel_index(p, self.voxel), bool(tolerance))
+        out[ok] = self.member(voxel_index(p[ok], self.voxel), bool(tolerance))
         return out
+
+    def member(self, ijk: np.ndarray, dilated: bool = False) -> np.ndarray:
+        """(N,3) int voxel indices → (N,) bool: a background voxel (``dilated``: within one voxel of
+        one). A dense boolean grid of the model's bounding box (built at the first call, at most
+        ``_DENSE_MAX_CELLS`` cells) answers without hashing or sorting; larger models use the sorted keys."""
+        table = self.dilated if dilated else self.keys
+        ijk = np.asarray(ijk, np.int64).reshape(-1, 3)
+        out = np.zeros(len(ijk), bool)
+        if len(table) == 0 or len(ijk) == 0:
+            return out
+        grid = self._grids.get(dilated)
+        if grid is None:
+            cells = _unkeys(table)
+            lo = cells.min(0)
+            dims = cells.max(0) - lo + 1
+            grid = False
+            if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS:
+                occ = np.zeros(int(np.prod(dims)), bool)
+                occ[_box_index(cells, lo, dims)[1]] = True
+                grid = (lo, dims, occ)
+            self._grids[dilated] = grid
+        if grid is not False:
+            lo, dims, occ = grid
+            inside, f = _box_index(ijk, lo, dims)
+            out[inside] = occ[f]
+            return out
+        k = _keys(ijk)
+        pos = np.minimum(np.searchsorted(table, k), len(table) - 1)
+        return table[pos] == k
 
     def centers(self) -> np.ndarray:
         """(V,3) float64 centres (m) of the background voxels."""

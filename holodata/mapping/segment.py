@@ -48,11 +48,10 @@ Points: ``lidar/points`` holds the valid pixels of ``lidar/range`` in row-major 
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..conventions import transform_points
 from ..errors import DatasetError, InputError
 from ..progress import track
 
@@ -329,6 +328,9 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
     Returns (H,W) uint16: 0 = background / no return, 1..n instances by decreasing size.
     """
     cfg = cfg or SegmentConfig()
+    if background is not None and int((np.asarray(valid, bool) & ~np.asarray(background, bool)).sum()) < max(
+            cfg.min_points, 1):   # fewer foreground returns than the smallest cluster: nothing to find
+        return np.zeros(np.shape(valid), np.uint16)
     if shifts is None:
         shifts = row_shifts(np.asarray(points, np.float64), np.asarray(valid, bool))
     if np.any(shifts):
@@ -501,6 +503,10 @@ class LidarScans:
     stamps: np.ndarray
     shape: tuple
     has_time: bool
+    # lidar/range handle and the block of frames of the last sequential read (range_frame)
+    _range: object = field(default=None, init=False, repr=False, compare=False)
+    _block: tuple | None = field(default=None, init=False, repr=False, compare=False)
+    _last: int = field(default=-2, init=False, repr=False, compare=False)
 
     @classmethod
     def open(cls, scene, url: str = "") -> "LidarScans":
@@ -535,39 +541,108 @@ class LidarScans:
         keep = np.concatenate([[True], np.diff(ts) > 0]) if len(ts) else np.zeros(0, bool)
         return Trajectory(ts[keep], ps[keep]) if keep.any() else None
 
+    def range_frame(self, k: int) -> np.ndarray:
+        """(H,W) float32 ``lidar/range`` of frame ``k``. Sequential reads (k, k+1, ...) load the rest of
+        the zarr shard at once (one decompression per shard, not per frame); others read one frame."""
+        if self._range is None:
+            self._range = self.scene["lidar/range"]
+        blk = self._block
+        sequential, self._last = k == self._last + 1, k
+        if blk is not None and blk[0] <= k < blk[1]:
+            return blk[2][k - blk[0]]
+        if not sequential:
+            return np.asarray(self._range[k], np.float32)
+        step = int((getattr(self._range, "shards", None) or self._range.chunks)[0])
+        end = min((k // step + 1) * step, len(self.stamps))
+        self._block = blk = (k, end, np.asarray(self._range[k:end], np.float32))
+        return blk[2][0]
+
     def scan(self, k: int, traj=None, deskew: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Frame ``k``: (valid (H,W) bool, sensor points (H,W,3) float64, world points (H,W,3) float64).
-        World points use per-point poses interpolated from ``traj`` at ``stamp + point_time`` when
-        ``deskew`` and per-point times exist, else the scan pose."""
+        """Frame ``k``: (valid (H,W) bool, sensor points (H,W,3) float64, world points (H,W,3) float64,
+        NaN where not valid). World points use per-point poses interpolated from ``traj`` at
+        ``stamp + point_time`` when ``deskew`` and per-point times exist, else the scan pose
+        (:meth:`deskew_points`)."""
         H, W = self.shape
-        r = np.asarray(self.scene["lidar/range"][k], np.float32)
-        valid = np.isfinite(r) & (r > 0)
-        pts = np.asarray(self.scene.ragged("lidar/points", k), np.float64)
+        r = self.range_frame(k)
         fin = np.isfinite(r)
-        if len(pts) != int(fin.sum()):
+        valid = fin & (r > 0)
+        pts = np.asarray(self.scene.ragged("lidar/points", k), np.float64)
+        n_fin = int(fin.sum())
+        if len(pts) != n_fin:
             raise DatasetError(f"scene {self.scene.id!r} frame {k}: lidar/points has {len(pts)} points for "
-                               f"{int(fin.sum())} valid lidar/range pixels (expected the valid pixels in row-major order)")
+                               f"{n_fin} valid lidar/range pixels (expected the valid pixels in row-major order)")
         P = np.zeros((H, W, 3))
         P[fin] = pts
-        valid &= np.isfinite(P).all(-1)
+        f = np.isfinite(P)
+        valid &= f[..., 0] & f[..., 1] & f[..., 2]
         if not self.usable(k):
             return np.zeros((H, W), bool), P, np.full((H, W, 3), np.nan)
+        tt = None
         if deskew and self.has_time and traj is not None and len(traj) > 1:
             t = np.asarray(self.scene.ragged("lidar/point_time_ns", k), np.int64).reshape(-1)
             tt = np.zeros((H, W), np.int64)
             if len(t) == len(pts):
                 tt[fin] = t
-            # one pose per distinct time (a column's points share it)
-            ut, inv = np.unique(tt[valid] + self.stamps[k], return_inverse=True)
-            Ts = self.poses[k] @ np.linalg.inv(traj.interpolate(np.array([self.stamps[k]]))[0]) @ traj.interpolate(ut)
-            Pw = np.full((H, W, 3), np.nan)
-            pv = P[valid]
-            Pw[valid] = np.einsum("nij,nj->ni", Ts[inv, :3, :3], pv) + Ts[inv, :3, 3]
-            return valid, P, Pw
-        T = self.poses[k]
-        Pw = transform_points(T, P)
-        Pw[~valid] = np.nan
-        return valid, P, Pw
+        return valid, P, self.deskew_points(k, P, valid, tt, traj)
+
+    def deskew_points(self, k: int, P: np.ndarray, valid: np.ndarray, tt: np.ndarray | None, traj=None) -> np.ndarray:
+        """(H,W,3) world points (NaN where not ``valid``) of scan ``k``'s sensor points ``P`` (H,W,3) m
+        with per-point times ``tt`` (H,W) int64 ns after the scan stamp: point i goes through
+        ``poses[k] @ inv(traj(stamp)) @ traj(stamp + tt_i)`` (``traj`` interpolated, SLERP). ``tt`` or
+        ``traj`` None: the scan pose for every point. Shortcuts with the same result up to rounding
+        (~1e-15 m): one transform when ``traj`` holds the same pose over the whole time span of the scan
+        (the robot at rest: most scans of a recording that stands), one pose per column when the
+        returns of a column share one time (the Ouster layout; no per-point gather), else one pose per
+        distinct time."""
+        H, W = valid.shape
+        if not valid.any():
+            return np.full((H, W, 3), np.nan)
+        s = int(self.stamps[k])
+        tv = tt[valid] if tt is not None else None
+        if tv is None or traj is None or len(traj) < 2 or _constant_pose(traj, s + min(int(tv.min()), 0),
+                                                                          s + max(int(tv.max()), 0)):
+            Pw = _rigid(self.poses[k], P)                     # the whole grid: cheaper than gathering
+            Pw[~valid] = np.nan
+            return Pw
+        Pw = np.full((H, W, 3), np.nan)
+        T0 = self.poses[k] @ np.linalg.inv(traj.interpolate(np.array([s]))[0])
+        tcol = np.where(valid, tt, np.iinfo(np.int64).min).max(0)
+        if (tt == tcol[None, :])[valid].all():
+            has = np.flatnonzero(valid.any(0))
+            Ts = T0 @ traj.interpolate(tcol[has] + s)                     # (C,4,4): one pose per column
+            Pc = np.einsum("cij,hcj->hci", Ts[:, :3, :3], P[:, has]) + Ts[None, :, :3, 3]
+            Pw[:, has] = Pc
+            Pw[~valid] = np.nan
+            return Pw
+        ut, inv = np.unique(tv + s, return_inverse=True)                # one pose per distinct time
+        Ts = T0 @ traj.interpolate(ut)
+        Pw[valid] = np.einsum("nij,nj->ni", Ts[inv, :3, :3], P[valid]) + Ts[inv, :3, 3]
+        return Pw
+
+
+def _rigid(T: np.ndarray, P: np.ndarray) -> np.ndarray:
+    """``R @ p + t`` of the 4x4 ``T`` for points ``P`` (..., 3), as three scaled-column sums: ~7x
+    faster than ``P @ R.T`` on a (64,512,3) grid (same values up to rounding)."""
+    out = np.empty(np.shape(P), np.float64)
+    x, y, z = P[..., 0], P[..., 1], P[..., 2]
+    for i in range(3):
+        o = out[..., i]
+        np.multiply(x, T[i, 0], out=o)
+        o += y * T[i, 1]
+        o += z * T[i, 2]
+        o += T[i, 3]
+    return out
+
+
+def _constant_pose(traj, t0: int, t1: int) -> bool:
+    """True when trajectory ``traj`` interpolates one and the same pose over [t0, t1] (ns): every
+    pose from the last one at or before ``t0`` to the first one at or after ``t1`` is identical
+    (clamped at the ends, as :meth:`Trajectory.interpolate` is)."""
+    ts = traj.timestamp_ns
+    i0 = max(int(np.searchsorted(ts, t0, "right")) - 1, 0)
+    i1 = min(int(np.searchsorted(ts, t1, "left")), len(ts) - 1)
+    seg = traj.poses[i0:max(i1, i0) + 1]
+    return bool((seg == seg[0]).all())
 
 
 def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: int = 200) -> np.ndarray | None:
@@ -582,7 +657,8 @@ def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: i
     low = []
     for q in points_world:
         q = np.asarray(q).reshape(-1, 3)
-        q = q[np.isfinite(q).all(1) & (q[:, 2] < z_max)]
+        f = np.isfinite(q)
+        q = q[f[:, 0] & f[:, 1] & f[:, 2] & (q[:, 2] < z_max)]   # (N,3).all(1) is ~10x slower
         low.append(q[rng.choice(len(q), cap, replace=False)] if len(q) > cap else q)
     p = np.concatenate(low).astype(np.float64) if low else np.zeros((0, 3))
     if len(p) < min_points:
@@ -647,17 +723,7 @@ def in_background(bg, points_world: np.ndarray, tolerance_voxels: int = 0) -> np
     within one voxel of one (1: :meth:`VoxelBackground.contains`)."""
     if tolerance_voxels:
         return bg.contains(points_world)
-    from .background import _keys, voxel_index
-
-    p = np.asarray(points_world, np.float64).reshape(-1, 3)
-    out = np.zeros(len(p), bool)
-    if len(bg.keys) == 0 or len(p) == 0:
-        return out
-    ok = np.isfinite(p).all(1)
-    k = _keys(voxel_index(p[ok], bg.voxel))
-    pos = np.minimum(np.searchsorted(bg.keys, k), len(bg.keys) - 1)
-    out[ok] = bg.keys[pos] == k
-    return out
+    return bg.contains(points_world, 0)
 
 
 def grid_geometry(scans: LidarScans, n: int = 5) -> tuple[np.ndarray | None, np.ndarray | None]:
