@@ -228,3 +228,27 @@ def test_unique_rows_matches_numpy_unique_axis0():
         ref, ref_inv = np.unique(a, axis=0, return_inverse=True)
         assert np.array_equal(rows, ref) and np.array_equal(inv, ref_inv.reshape(-1))
         assert np.array_equal(rows[inv], a)
+
+
+def test_static_depth_keeps_the_wall_behind_a_person_seen_in_most_frames():
+    """A person walking along the camera's line of sight covers the same pixels in 8 of 12 frames:
+    the static depth there must still be the wall behind (the plain median gave the person), within
+    the stereo noise, and the moving person stays in front of it by far more than its spread."""
+    from holodata.mapping.register import static_depth
+
+    rng = np.random.default_rng(0)
+    H, W, a = 40, 60, 0.002                       # stereo noise sigma = a z^2 (3 cm at 4 m)
+    person = np.zeros((12, H, W), bool)
+    person[:8, 10:30, 20:40] = True
+    depth = np.where(person, 2.6 + 0.3 * rng.random((12, 1, 1)), 4.0)
+    frames = depth + a * depth ** 2 * rng.standard_normal(depth.shape)
+
+    class Frames:
+        def depth(self, k):
+            return frames[k].astype(np.float32), None
+
+    mean, sigma, cnt = static_depth(Frames(), list(range(12)))
+    assert np.all(np.abs(mean - 4.0) < 0.08)                       # wall everywhere, person pixels too
+    assert np.all(cnt[10:30, 20:40] <= 4) and np.median(cnt[:5]) >= 11  # only the frames that saw the wall
+    assert np.median(sigma) == pytest.approx(a * 16, rel=0.4)
+    assert np.all(frames[:8, 10:30, 20:40] < mean[10:30, 20:40] - 4 * np.median(sigma))
