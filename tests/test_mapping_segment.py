@@ -328,3 +328,83 @@ def test_segment_scan_without_enough_foreground_is_empty():
         bg.ravel()[np.setdiff1d(np.flatnonzero(box.ravel()), keep)] = True
         assert (valid & ~bg).sum() == n
         assert not segment_scan(P, valid, bg, cfg).any()
+
+
+def test_surely_without_foreground_allows_for_the_float32_rounding():
+    """Returns just below a voxel face whose float32 rounding lands on the face: float32 says
+    background, the float64 points (what background_masks decides on) are foreground."""
+    from holodata.mapping.background import VoxelBackground, _dilate, _keys
+    from holodata.mapping.segment import background_masks, surely_without_foreground
+
+    v = 0.15
+    keys = np.unique(_keys(np.array([[n, j, 3] for n in range(20, 40) for j in range(-3, 4)])))
+    keys = keys[_all_but_x29(keys)]
+    bg = VoxelBackground(v, keys, _dilate(keys), np.ones(len(keys), np.int64), 2)
+    cfg = SegmentConfig(floor_margin_m=0.0)
+    rng = np.random.default_rng(0)
+    # 20 returns in voxel (29, 0, 3), which is not background; x a hair below the face x = 30 v of the
+    # background voxel 30 (float64), but rounding to float32 puts x on or above that face
+    face = np.float64(np.float32(30 * v))
+    x = np.nextafter(face, 0) - rng.uniform(0, 2e-8, 20)
+    p64 = np.c_[x, rng.uniform(0.01, 0.14, 20), rng.uniform(3 * v + 0.01, 4 * v - 0.01, 20)]
+    p32 = p64.astype(np.float32)
+    assert (np.floor(p32[:, 0].astype(np.float64) / v) == 30).all() and (np.floor(p64[:, 0] / v) == 29).all()
+    valid = np.ones((1, 20), bool)
+    bgm, _ = background_masks(bg, valid, p64[None], cfg)
+    assert (~bgm).sum() == 20                                            # float64: all foreground
+    assert bg.contains(p32, 0).all()                                     # float32 alone: all background
+    assert not surely_without_foreground(bg, p32, cfg)
+    # far from any face the same float32 points decide
+    p_in = p32.copy()
+    p_in[:, 0] = 30.5 * v
+    assert surely_without_foreground(bg, p_in, cfg)
+    p_out = p32.copy()
+    p_out[:, 0] = 29.5 * v
+    assert not surely_without_foreground(bg, p_out, cfg)
+    assert surely_without_foreground(bg, p_out[:14], cfg)               # fewer than min_points (15)
+
+
+def _all_but_x29(keys):
+    """Background voxels of the test above: every voxel of the block except x index 29."""
+    from holodata.mapping.background import _unkeys
+
+    return _unkeys(keys)[:, 0] != 29
+
+
+def test_background_and_segment_reads_scans_once_with_the_same_masks(monkeypatch):
+    """Scans with fewer foreground returns than min_points are written empty from the background pass's
+    float32 points without a second read; the masks equal those of segment_scene reading every scan.
+    min_points is set between the scans' foreground counts so that both kinds occur."""
+    from _mapping_synth import small_corner
+
+    from holodata import open_dataset
+    from holodata.mapping import segment as S
+
+    url, _ = small_corner()
+    sc = open_dataset(url).scene("recording")
+    scans = S.LidarScans.open(sc, url)
+    traj = scans.trajectory()
+    bg = S.build_background(scans, SegmentConfig(), traj)
+    fg = []
+    for k in range(len(scans.stamps)):
+        valid, P, Pw = scans.scan(k, traj)
+        fg.append(int((valid & ~S.background_masks(bg, valid, Pw, SegmentConfig())[0]).sum()))
+    m = int(np.median(fg)) + 1
+    cfg = SegmentConfig(min_points=m)
+    few = {k for k, n in enumerate(fg) if n < m}
+    assert 0 < len(few) < len(fg)
+    S.segment_scene(url, "recording", cfg, overwrite=True, background=bg)          # reads every scan again
+    ref = np.asarray(open_dataset(url).scene("recording")["lidar/instance"][...])
+    assert ref.any()
+    reads = []
+    orig = S.LidarScans.scan
+    monkeypatch.setattr(S.LidarScans, "scan", lambda self, k, *a, **kw: reads.append(k) or orig(self, k, *a, **kw))
+    bg2, summary = S.background_and_segment(url, "recording", cfg, overwrite=True)
+    got = np.asarray(open_dataset(url).scene("recording")["lidar/instance"][...])
+    assert np.array_equal(got, ref)
+    assert np.array_equal(bg2.keys, bg.keys) and np.allclose(bg2.floor, bg.floor)
+    n = len(scans.stamps)
+    assert sorted(reads[:n]) == list(range(n))            # the background pass
+    geometry = len(np.unique(np.linspace(0, n - 1, min(5, n)).round()))
+    second = reads[n + geometry:]                         # after grid_geometry's reads
+    assert second == sorted(set(range(n)) - few)

@@ -13,6 +13,11 @@ sees *through* a voxel observed it empty); without them, by the scans whose retu
 
 Used by :mod:`holodata.mapping.mesh` (remove dynamic points before meshing) and by the human
 segmentation (foreground = returns outside the background).
+
+Indoor scenes fit a dense grid of voxels (at most ``_DENSE_MAX_CELLS``, 16.8 M: a 60×60×7 m box at
+15 cm): the occupancy count is one ``count[cells] += 1`` per scan (a cell counts once per scan) and
+lookups index a boolean grid, instead of sorting keys per scan and binary searches (400 scans of
+64×512: build 8.7 → 2.6 s, the same model); larger boxes use the sorted keys.
 """
 from __future__ import annotations
 
