@@ -25,8 +25,17 @@ BUCKET = "holodata-test"
 
 
 def _clear_fs_cache() -> None:
-    import s3fs
+    """Drop s3fs's cached filesystems and close their HTTP sessions (else aiohttp warns "Unclosed client
+    session" at interpreter exit, when fsspec's IO loop is gone)."""
+    import gc
 
+    import s3fs
+    from fsspec.asyn import get_loop
+
+    for fs in [o for o in gc.get_objects() if issubclass(type(o), s3fs.S3FileSystem)]:
+        if getattr(fs, "_s3", None) is not None:
+            s3fs.S3FileSystem.close_session(get_loop(), fs._s3)
+            fs._s3 = None
     s3fs.S3FileSystem.clear_instance_cache()
 
 
