@@ -87,8 +87,12 @@ def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_sca
     if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS:
         cnt = np.zeros(int(np.prod(dims)), np.int32)
         flats = []
+        step = np.array([dims[1] * dims[2], dims[2], 1], np.float64)
         for p in pts:
-            f = _box_index(voxel_index(p, voxel), lo, dims, False)[1].astype(np.int32)  # floor is monotonic: all inside
+            q = np.divide(p, voxel, dtype=np.float64)
+            np.floor(q, out=q)                       # voxel_index, kept in float64: integers, exact below 2^53
+            q -= lo                                  # floor is monotonic: every point is inside the box
+            f = (q @ step).astype(np.int32)          # flat C-order cell index
             cnt[f] += 1                                          # buffered: +1 per cell and set
             flats.append(f if (need_inverse or need_per_scan) else None)
         cells = np.flatnonzero(cnt)
@@ -200,19 +204,24 @@ class VoxelBackground:
         if len(p) == 0:
             return out
         ok = _finite_rows(p)
+        q = np.divide(p if ok.all() else p[ok], self.voxel, dtype=np.float64)
+        np.floor(q, out=q)                    # voxel_index in float64 (integer values, exact)
         if ok.all():
-            return self.member(voxel_index(p, self.voxel), bool(tolerance))
-        out[ok] = self.member(voxel_index(p[ok], self.voxel), bool(tolerance))
+            return self._lookup(q, bool(tolerance))
+        out[ok] = self._lookup(q, bool(tolerance))
         return out
 
     def member(self, ijk: np.ndarray, dilated: bool = False) -> np.ndarray:
         """(N,3) int voxel indices → (N,) bool: a background voxel (``dilated``: within one voxel of
         one). A dense boolean grid of the model's bounding box (built at the first call, at most
         ``_DENSE_MAX_CELLS`` cells) answers without hashing or sorting; larger models use the sorted keys."""
+        return self._lookup(np.asarray(ijk, np.int64).reshape(-1, 3).astype(np.float64), dilated)
+
+    def _lookup(self, q: np.ndarray, dilated: bool) -> np.ndarray:
+        """:meth:`member` of voxel indices given as float64 integer values ``q`` (N,3)."""
         table = self.dilated if dilated else self.keys
-        ijk = np.asarray(ijk, np.int64).reshape(-1, 3)
-        out = np.zeros(len(ijk), bool)
-        if len(table) == 0 or len(ijk) == 0:
+        out = np.zeros(len(q), bool)
+        if len(table) == 0 or len(q) == 0:
             return out
         grid = self._grids.get(dilated)
         if grid is None:
@@ -223,14 +232,17 @@ class VoxelBackground:
             if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS:
                 occ = np.zeros(int(np.prod(dims)), bool)
                 occ[_box_index(cells, lo, dims)[1]] = True
-                grid = (lo, dims, occ)
+                grid = (lo.astype(np.float64), dims.astype(np.float64), occ,
+                        np.array([dims[1] * dims[2], dims[2], 1], np.float64))
             self._grids[dilated] = grid
         if grid is not False:
-            lo, dims, occ = grid
-            inside, f = _box_index(ijk, lo, dims)
-            out[inside] = occ[f]
+            lo, dims, occ, step = grid
+            r = q - lo
+            ok = (r >= 0) & (r < dims)
+            inside = ok[:, 0] & ok[:, 1] & ok[:, 2]
+            out[inside] = occ[(r[inside] @ step).astype(np.int64)]
             return out
-        k = _keys(ijk)
+        k = _keys(q.astype(np.int64))
         pos = np.minimum(np.searchsorted(table, k), len(table) - 1)
         return table[pos] == k
 
