@@ -396,15 +396,38 @@ def test_background_and_segment_reads_scans_once_with_the_same_masks(monkeypatch
     S.segment_scene(url, "recording", cfg, overwrite=True, background=bg)          # reads every scan again
     ref = np.asarray(open_dataset(url).scene("recording")["lidar/instance"][...])
     assert ref.any()
-    reads = []
-    orig = S.LidarScans.scan
+    reads, world_reads = [], []
+    orig, orig_w = S.LidarScans.scan, S.LidarScans.scan_world
     monkeypatch.setattr(S.LidarScans, "scan", lambda self, k, *a, **kw: reads.append(k) or orig(self, k, *a, **kw))
+    monkeypatch.setattr(S.LidarScans, "scan_world",
+                        lambda self, k, *a, **kw: world_reads.append(k) or orig_w(self, k, *a, **kw))
     bg2, summary = S.background_and_segment(url, "recording", cfg, overwrite=True)
     got = np.asarray(open_dataset(url).scene("recording")["lidar/instance"][...])
     assert np.array_equal(got, ref)
     assert np.array_equal(bg2.keys, bg.keys) and np.allclose(bg2.floor, bg.floor)
     n = len(scans.stamps)
-    assert sorted(reads[:n]) == list(range(n))            # the background pass
+    assert world_reads == list(range(n))                  # the background pass
     geometry = len(np.unique(np.linspace(0, n - 1, min(5, n)).round()))
-    second = reads[n + geometry:]                         # after grid_geometry's reads
-    assert second == sorted(set(range(n)) - few)
+    assert reads[geometry:] == sorted(set(range(n)) - few)  # after grid_geometry's reads: scans with foreground
+
+
+def test_scan_world_is_scan_on_the_valid_returns():
+    """scan_world (the background pass) gives scan's valid mask and world points, moving and at rest."""
+    from _mapping_synth import small_corner
+
+    from holodata import open_dataset
+    from holodata.mapping.segment import LidarScans
+
+    url, _ = small_corner()
+    sc = open_dataset(url).scene("recording")
+    moving = LidarScans.open(sc, url)
+    rest = LidarScans(sc, np.repeat(moving.poses[:1], len(moving.poses), 0), moving.stamps, moving.shape, True)
+    for scans in (moving, rest):
+        traj = scans.trajectory()
+        for deskew in (True, False):
+            for k in range(len(scans.stamps)):
+                valid, P, Pw = scans.scan(k, traj, deskew)
+                v2, pw = scans.scan_world(k, traj, deskew)
+                assert valid.sum() > 1000
+                assert np.array_equal(valid, v2) and np.array_equal(Pw[valid], pw)
+    assert not np.allclose(moving.poses[0], moving.poses[-1])           # the robot moves in this corner

@@ -592,6 +592,39 @@ class LidarScans:
                 tt[fin] = t
         return valid, P, self.deskew_points(k, P, valid, tt, traj)
 
+    def scan_world(self, k: int, traj=None, deskew: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """Frame ``k``: (valid (H,W) bool, world points of the valid returns (N,3) float64 in row-major
+        order) — ``valid`` and ``Pw[valid]`` of :meth:`scan`, the same values; a scan taken at rest is
+        transformed as its list of returns, without the (H,W,3) grids."""
+        H, W = self.shape
+        r = self.range_frame(k)
+        fin = np.isfinite(r)
+        pts = np.asarray(self.scene.ragged("lidar/points", k), np.float64)
+        n_fin = int(fin.sum())
+        if len(pts) != n_fin:
+            raise DatasetError(f"scene {self.scene.id!r} frame {k}: lidar/points has {len(pts)} points for "
+                               f"{n_fin} valid lidar/range pixels (expected the valid pixels in row-major order)")
+        f = np.isfinite(pts)
+        vf = (r[fin] > 0) & f[:, 0] & f[:, 1] & f[:, 2]     # scan(): valid = finite range > 0, finite point
+        valid = np.zeros((H, W), bool)
+        valid[fin] = vf
+        if not self.usable(k) or not vf.any():
+            return np.zeros((H, W), bool) if not self.usable(k) else valid, np.zeros((0, 3))
+        tt = None
+        if deskew and self.has_time and traj is not None and len(traj) > 1:
+            t = np.asarray(self.scene.ragged("lidar/point_time_ns", k), np.int64).reshape(-1)
+            tv = t[vf] if len(t) == len(pts) else np.zeros(int(vf.sum()), np.int64)
+            s = int(self.stamps[k])
+            if not _constant_pose(traj, s + min(int(tv.min()), 0), s + max(int(tv.max()), 0)):
+                tt = np.zeros((H, W), np.int64)
+                if len(t) == len(pts):
+                    tt[fin] = t
+        if tt is None:
+            return valid, _rigid(self.poses[k], pts[vf])
+        P = np.zeros((H, W, 3))
+        P[fin] = pts
+        return valid, self.deskew_points(k, P, valid, tt, traj)[valid]
+
     def deskew_points(self, k: int, P: np.ndarray, valid: np.ndarray, tt: np.ndarray | None, traj=None) -> np.ndarray:
         """(H,W,3) world points (NaN where not ``valid``) of scan ``k``'s sensor points ``P`` (H,W,3) m
         with per-point times ``tt`` (H,W) int64 ns after the scan stamp: point i goes through
@@ -720,10 +753,10 @@ def _background_pass(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bo
     scans (the lists the model is built from, no copy), for :func:`segment_scene` ``world_points``."""
     pts, origins, kept = [], [], {}
     for k in track(range(len(scans.stamps)), len(scans.stamps), "background", quiet):
-        valid, P, Pw = scans.scan(k, traj, cfg.deskew)
+        valid, pw = scans.scan_world(k, traj, cfg.deskew)
         if not scans.usable(k):
             continue
-        pts.append(Pw[valid].astype(np.float32))
+        pts.append(pw.astype(np.float32))
         origins.append(scans.poses[k][:3, 3])
         if keep:
             kept[k] = (np.packbits(valid), pts[-1])
@@ -767,10 +800,11 @@ def surely_without_foreground(bg, points_world32: np.ndarray, cfg: SegmentConfig
     need = max(cfg.min_points, 1)
     if len(p) < need:
         return True
-    fg = ~in_background(bg, p, cfg.tolerance_voxels)
+    q = np.divide(p, bg.voxel, dtype=np.float64)
+    ijk = np.floor(q)                                # voxel indices, as VoxelBackground.contains computes them
+    fg = ~bg._lookup(ijk, bool(cfg.tolerance_voxels))
+    q -= ijk
     tol = 1e-6 * (np.abs(p) + 1.0)
-    q = p / bg.voxel
-    q -= np.floor(q)
     near = np.minimum(q, 1.0 - q) * bg.voxel <= tol
     amb = near[:, 0] | near[:, 1] | near[:, 2]
     floor = getattr(bg, "floor", None)
