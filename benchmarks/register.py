@@ -69,9 +69,21 @@ per source). ``--demo-config``: the LiDAR/camera of ``holodata demo --quick`` (3
 is given, its six (corner, seed) pairs T_11, L_12, cross_13, oblique_14, T_15, L_16. ``--frames 400
 --corners L --poses slam --no-perturb --no-bare`` times register on a 400-cycle corner (200 s).
 Errors are printed in the world frame of the poses (``extrinsic``: T_world_camera vs truth;
-``centroid``: world; the floors are judged on these) and relative to the robot (``robot``: camera pose in the LiDAR frame of each
-scan, median; ``radar``: human centroid in the radar frame of each frame): with SLAM poses the map
-may sit a little off the true world, which the radar ground truth never sees.
+``centroid``: world), after aligning the estimated LiDAR trajectory to the true one (``aligned``:
+:func:`holodata.mapping.human_eval.aligned_extrinsic_error`, evo-style SE(3) alignment of the poses)
+and relative to the robot (``robot``: camera pose in the LiDAR frame of each scan, median;
+``radar``: human centroid in the radar frame of each frame): with SLAM poses the map may sit a
+little off the true world (0.1-0.25 deg of yaw here: 2-4 cm at a camera 9 m
+away), which the radar ground truth never sees. The extrinsic floor is judged on ``aligned`` (with
+true poses it equals the world column): a quantity estimated in the SLAM map's frame is compared
+with the truth the way evo compares the trajectory, so neither a map offset that happens to cancel
+a registration error (T/cross seed 4 slam: 1.0-1.2 cm in the world, 3.7 cm aligned, 3.9-4.0 cm robot)
+nor one that adds to it decides. The alignment uses the poses' rotations
+(``accuracy.pose_alignment``, what the ATE falls back to on a straight path), not evo's
+position-only Umeyama: the robot drives a straight line (lateral spread ~7 mm, constant height),
+where Umeyama's yaw comes from the centimetre lateral position errors (0.3-1.2 deg: Umeyama-aligned
+extrinsic 1.9-19.6 cm on the eight slam cells); it is printed for the record. The centroid
+floor stays on the world column.
 """
 from __future__ import annotations
 
@@ -152,8 +164,9 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     from holodata import open_dataset
     from holodata.dataset import create_dataset
     from holodata.ingest import ingest
-    from holodata.mapping.human_eval import (extrinsic_error, human_centroid_errors, robot_relative_extrinsic_error,
-                                             segmentation_ap50, truth_camera_extrinsic, write_truth_poses)
+    from holodata.mapping.human_eval import (aligned_extrinsic_error, extrinsic_error, human_centroid_errors,
+                                             robot_relative_extrinsic_error, segmentation_ap50, truth_camera_extrinsic,
+                                             write_truth_poses)
     from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene
 
     out = {"corner": corner, "seed": seed, "poses": poses}
@@ -197,6 +210,7 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
         runs[name] = {"seconds": dt, "timings": r["timings"], "method": r["extrinsic"]["method"],
                       "fitness": r["extrinsic"]["fitness"], **extrinsic_error(T, Tt),
                       "robot": robot_relative_extrinsic_error(url, sid, truth_dir, T),
+                      "aligned": aligned_extrinsic_error(url, sid, truth_dir, T),
                       "human": {k: v for k, v in hw.items() if k != "per_frame_cm"},
                       "human_radar": {k: v for k, v in hr.items() if k != "per_frame_cm"}}
     out["register"] = runs
@@ -215,7 +229,10 @@ def _row(r: dict, args) -> str:
         return f"{head} REGISTRATION FAILED ({tf['seconds']:.1f} s): {tf['failed']}"
     a = r["ap50"]
     h, hr = tf["human"], tf["human_radar"]
+    al = tf["aligned"]
     line = (f"{head} AP50 {a['ap']:.3f} | extrinsic {tf['trans_cm']:5.2f} cm {tf['rot_deg']:.2f} deg "
+            f"aligned {al['trans_cm']:5.2f} cm {al['rot_deg']:.2f} deg (map {al['align_rot_deg']:.2f} deg off; Umeyama "
+            f"{al['umeyama_trans_cm']:.2f} cm) "
             f"(robot {tf['robot']['trans_cm']:5.2f} cm {tf['robot']['rot_deg']:.2f} deg, fitness {tf['fitness']:.2f})")
     pt = r["register"].get("perturbed")
     if pt is not None:
@@ -240,7 +257,8 @@ def _meets(r: dict) -> bool:
     if "failed" in tf:
         return False
     ap_ok = not np.isfinite(r["ap50"]["ap"]) or r["ap50"]["ap"] >= 0.9
-    return bool(ap_ok and tf["trans_cm"] < 2 and tf["rot_deg"] < 1 and tf["human"]["mean_cm"] < 5)
+    ex = tf["aligned"] if np.isfinite(tf["aligned"]["trans_cm"]) else tf   # the extrinsic floor: aligned column
+    return bool(ap_ok and ex["trans_cm"] < 2 and ex["rot_deg"] < 1 and tf["human"]["mean_cm"] < 5)
 
 
 def main() -> int:
@@ -290,7 +308,7 @@ def main() -> int:
         if args.json:
             print(json.dumps(rows, indent=1, default=float))
         ok = all(_meets(r) for r in rows)
-        print("floors (AP50 >= 0.9 where people walk, extrinsic < 2 cm / 1 deg, centroid < 5 cm):",
+        print("floors (AP50 >= 0.9 where people walk, aligned extrinsic < 2 cm / 1 deg, centroid < 5 cm):",
               "met" if ok else "NOT met (" + ", ".join(f"{r['corner']}_{r['seed']}/{r['poses']}" for r in rows
                                                     if not _meets(r)) + ")")
     finally:

@@ -6,7 +6,8 @@ import pytest
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 
-from holodata.mapping.human_eval import extrinsic_error, relative_extrinsic_error, solid_centroid
+from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
+                                         solid_centroid)
 from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, map_normals, register_extrinsic,
                                        track_jumps, track_prediction, velocity_shift, voxel_boundary)
 
@@ -95,6 +96,30 @@ def test_relative_extrinsic_error_ignores_a_common_map_offset():
     D = _pose([0.0, 0.02, 0.0], [0, 0, 0])
     e = relative_extrinsic_error(P_true, T_true @ D, P_true, T_true)
     assert e["trans_cm"] == pytest.approx(2.0, abs=1e-9)
+
+
+def test_aligned_extrinsic_error_removes_a_map_offset_on_a_straight_path():
+    rng = np.random.default_rng(5)
+    T_true = _pose([4.0, 9.0, 1.2], [0, 10, 90])                 # camera 9 m off the robot's path
+    n = 40
+    stamps = np.arange(n, dtype=np.int64) * 100_000_000
+    # a straight path along x (lateral wiggle 7 mm, constant height), as the synthetic corners drive
+    P_true = np.stack([_pose([0.1 * k, 0.007 * np.sin(k / 3), 0.5], [0, 0, 0.1 * np.sin(k / 5)]) for k in range(n)])
+    B = _pose([0.01, 0.0, 0.0], [0.0, 0.0, 0.25])                # the SLAM map is rotated 0.25 deg off the world
+    P_est = B @ P_true
+    P_est[:, :3, 3] += rng.normal(0, 0.003, (n, 3)) * [1, 1, 0]   # 3 mm position noise in the plane
+    P_est[:, 1, 3] += 0.02 * np.arange(n) / n                     # and 2 cm of lateral drift along the 4 m path
+    e = aligned_extrinsic_error_poses(stamps, P_est, B @ T_true, P_true, T_true)
+    assert extrinsic_error(B @ T_true, T_true)["trans_cm"] > 3          # world frame: the map's offset
+    assert e["trans_cm"] < 1.2 and e["rot_deg"] < 0.02, e           # what is left: the mean drift (1 cm)
+    assert e["align_rot_deg"] == pytest.approx(0.25, abs=0.01)
+    # position-only Umeyama takes its yaw from the lateral position errors of a straight path (0.3 deg here)
+    assert e["umeyama_trans_cm"] > 3 * e["trans_cm"]
+    # true poses: the alignment is the identity and the error is the plain one
+    D = _pose([0.01, 0.0, 0.0], [0.0, 0.3, 0.0])
+    e = aligned_extrinsic_error_poses(stamps, P_true, T_true @ D, P_true, T_true)
+    plain = extrinsic_error(T_true @ D, T_true)
+    assert e["trans_cm"] == pytest.approx(plain["trans_cm"], abs=1e-6) and e["align_rot_deg"] < 1e-6
 
 
 def test_fallback_is_rejected_when_nothing_fits():
