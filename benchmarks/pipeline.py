@@ -58,9 +58,13 @@ after the other; lidar/instance and the SLAM mesh identical; ingest's difference
     raytrace-gt          27.0 / 18.0             27.8 / 17.3
     slam+register        54.8 / 36.6             36.6 / 25.0   = 2.03x -> 1.32x raytrace-gt wall, 2.03x -> 1.44x its CPU
 
-Background + segmentation alone on this corner's dataset (same masks), load 4.5-5.3: 20.7-22.5 s
-wall, 16.9-18.1 s CPU before, 4.8-6.3 s wall, 4.6-5.8 s CPU after. register's other phases (map
-2-3 s, extrinsic 1-3 s, humans 5-7 s at this load) are now most of it.
+A second pair with the final code (``LidarScans.scan_world`` for the background pass), load 3.1-4.7:
+register 30.2 / 29.0 -> 13.6 / 12.9 s wall / CPU (segment phase 21.0 -> 4.8 s), slam+register 45.5 ->
+32.0 s = 2.04x -> 1.75x raytrace-gt wall (raytrace-gt 22.4 and 18.3 s: it varies with the load).
+Background + segmentation alone on this corner's dataset (same masks; ``background_and_segment``
+vs ``build_background`` + ``segment_scene``), load 3.8-5.3: 20.7-22.5 s wall, 16.9-18.1 s CPU before,
+4.2-4.5 s wall and CPU after. register's other phases (map ~2 s, extrinsic 1-3 s, humans ~5 s at this
+load) and slam are now most of slam+register; it is still above raytrace-gt (aim: below).
 
 Before the slam speed-up (same corner, load 10-15) slam took 51.8 s wall next to raytrace-gt 44.8 s and
 register 101.7 s. register now dominates: its LiDAR scans are read frame by frame three times

@@ -126,7 +126,8 @@ class VoxelBackground:
     hits: np.ndarray
     n_scans: int
     floor: np.ndarray | None = None
-    # dense lookup grids of keys / dilated (built by member(); False: too large, sorted keys instead)
+    # dense lookup grids of keys / dilated (built at the first lookup, so keys are not to be edited after
+    # it; False: too large, sorted keys instead)
     _grids: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @classmethod
