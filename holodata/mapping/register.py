@@ -785,7 +785,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
     docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes."""
     from ..dataset import create_dataset, open_dataset
-    from .segment import LidarScans, SegmentConfig, _scene_id, build_background, segment_scene
+    from .segment import LidarScans, SegmentConfig, _scene_id, background_and_segment
 
     cfg = cfg or RegisterConfig()
     t0 = time.perf_counter()
@@ -808,10 +808,9 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     # 1. map (static part) and LiDAR segmentation
     traj = scans.trajectory()
     scfg = SegmentConfig()
-    seg_summary = None
-    bg = build_background(scans, scfg, traj, quiet)
-    if cfg.segment_lidar and "lidar/instance" not in names:
-        seg_summary = segment_scene(url, sid, scfg, quiet, background=bg)
+    segment = cfg.segment_lidar and "lidar/instance" not in names
+    bg, seg_summary = background_and_segment(url, sid, scfg, quiet, segment=segment, scans=scans, traj=traj)
+    if segment:
         scene = open_dataset(url).scene(sid)
         scans = LidarScans.open(scene, url)
     timings["segment_s"] = time.perf_counter() - t0
