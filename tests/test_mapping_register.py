@@ -277,3 +277,17 @@ def test_static_depth_keeps_the_wall_behind_a_person_seen_in_most_frames():
     assert np.all(cnt[10:30, 20:40] <= 4) and np.median(cnt[:5]) >= 11  # only the frames that saw the wall
     assert np.median(sigma) == pytest.approx(a * 16, rel=0.4)
     assert np.all(frames[:8, 10:30, 20:40] < mean[10:30, 20:40] - 4 * np.median(sigma))
+
+
+def test_nan_quantile_matches_numpy():
+    from holodata.mapping.register import nan_quantile
+
+    rng = np.random.default_rng(3)
+    stack = rng.normal(4.0, 0.5, (13, 9, 11))
+    stack[rng.random(stack.shape) < 0.3] = np.nan
+    stack[:, 0, 0] = np.nan                                   # a pixel without any sample
+    stack[1:, 0, 1] = np.nan                                  # ... and one with a single sample
+    for q in (0.0, 0.5, 0.8, 1.0):
+        with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+            ref = np.nanquantile(stack, q, axis=0)
+        np.testing.assert_allclose(nan_quantile(stack, q), ref, rtol=0, atol=1e-12, equal_nan=True)

@@ -508,7 +508,7 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
         warnings.simplefilter("ignore", RuntimeWarning)
         med = np.nanmedian(stack, axis=0)
         mad = 1.4826 * np.nanmedian(np.abs(stack - med[None]), axis=0)
-        far = np.nanquantile(stack, far_quantile, axis=0)
+        far = nan_quantile(stack, far_quantile)
         window = np.maximum(3 * depth_noise_model(far, mad), 0.02)
         background = np.where(np.abs(stack - far[None]) <= window[None], stack, np.nan)
         med = np.nanmedian(background, axis=0)
@@ -518,6 +518,20 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
         mean = np.where(cnt > 0, np.nansum(np.where(inl, stack, 0.0), axis=0) / np.maximum(cnt, 1), np.nan)
     mean = np.where(n * 2 >= len(frames), mean, np.nan).astype(np.float32)
     return mean, mad.astype(np.float32), cnt.astype(np.int32)
+
+
+def nan_quantile(stack: np.ndarray, q: float) -> np.ndarray:
+    """``np.nanquantile(stack, q, axis=0)`` (linear interpolation) for a (F,H,W) stack, vectorised: one
+    sort along the frames instead of numpy's per-pixel loop where NaNs are present (0.9 s -> 0.05 s
+    for 60 frames of 376x672)."""
+    s = np.sort(stack, axis=0)                               # NaN sort last
+    n = np.isfinite(stack).sum(0)
+    pos = q * np.maximum(n - 1, 0)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
+    v_lo = np.take_along_axis(s, lo[None], 0)[0]
+    v_hi = np.take_along_axis(s, hi[None], 0)[0]
+    return np.where(n > 0, v_lo + (pos - lo) * (v_hi - v_lo), np.nan)
 
 
 def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
