@@ -29,9 +29,12 @@ def _init(value: str | None):
 @click.option("--no-segment", is_flag=True, help="Skip the LiDAR-grid human segmentation (lidar/instance).")
 @click.option("--no-camera-world", is_flag=True,
               help="Do not write camera/points_world (the whole camera cloud in the map frame; as large as camera/points).")
+@click.option("--truth", type=click.Path(file_okay=False, exists=True),
+              help="A holodata synth truth/ folder: print extrinsic, human centroid and segmentation errors against it.")
+@click.option("--report", type=click.Path(file_okay=False), help="With --truth: folder for register_accuracy.json and a PNG.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def register(dataset, scene, init, no_segment, no_camera_world, quiet, as_json) -> None:
+def register(dataset, scene, init, no_segment, no_camera_world, truth, report, quiet, as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
     FPFH+RANSAC fallback accepted only if it passes the fitness/RMSE check; then the human in every
@@ -41,11 +44,18 @@ def register(dataset, scene, init, no_segment, no_camera_world, quiet, as_json) 
     Example:
       holodata register data.zarr --scene corner_03
       holodata register data.zarr --init 0.7,-8.1,1.2,-95,0,-9.5 --json
+      holodata register data.zarr --truth synth_T/truth --report register_report/
     """
     from holodata.mapping.register import RegisterConfig, register_scene
 
+    if report and not truth:
+        raise click.UsageError("--report needs --truth")
     cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=not no_camera_world)
     res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet)
+    if truth:
+        from holodata.mapping.human_eval import evaluate_register
+
+        res["accuracy"] = evaluate_register(dataset, res["scene"], truth, report)
     if as_json:
         click.echo(json.dumps(res, indent=2, default=str))
         return
@@ -56,6 +66,15 @@ def register(dataset, scene, init, no_segment, no_camera_world, quiet, as_json) 
                   "pose_std_m" in e["attempts"][-1] else ""))
     click.echo(f"human in {res['frames_with_human']}/{res['frames']} frames -> human/vertices, human/faces, human/points; "
                f"camera/points_world; {res['seconds']:.1f} s")
+    if truth:
+        a = res["accuracy"]
+        e, ea, c = a["extrinsic"], a["extrinsic_aligned"], a["human_centroid"]
+        line = (f"extrinsic {e['trans_cm']:.2f} cm {e['rot_deg']:.2f} deg (trajectory-aligned {ea['trans_cm']:.2f} cm "
+                f"{ea['rot_deg']:.2f} deg); human centroid mean/median/max {c['mean_cm']:.1f}/{c['median_cm']:.1f}/"
+                f"{c['max_cm']:.1f} cm in {c['frames']} frames ({c['missing']} without a human)")
+        if "segmentation" in a:
+            line += f"; LiDAR segmentation AP50 {a['segmentation']['ap']:.3f}"
+        click.echo(line)
 
 
 COMMANDS = [register]

@@ -228,6 +228,35 @@ def test_register_scene_end_to_end_and_raytrace_reads_the_human():
     assert len(cw) == len(sc.ragged("camera/points", k))
 
 
+def test_cli_truth_report(tmp_path):
+    """``holodata register --truth --report``: one line of accuracy, register_accuracy.json with the
+    same numbers as the evaluation functions give, and the centroid PNG."""
+    import json
+    import shutil
+
+    from _mapping_synth import small_corner
+
+    from holodata import open_dataset
+    from holodata.cli.main import cli
+    from holodata.mapping.human_eval import truth_camera_extrinsic
+
+    src, truth = small_corner()
+    url = str(tmp_path / "ds.zarr")
+    shutil.copytree(src, url)
+    r = CliRunner().invoke(cli, ["register", url, "--truth", truth, "--report", str(tmp_path / "rep"), "--quiet"])
+    assert r.exit_code == 0, r.output
+    assert "trajectory-aligned" in r.output and "human centroid mean/median/max" in r.output and "AP50" in r.output
+    rep = json.loads((tmp_path / "rep" / "register_accuracy.json").read_text())
+    T = np.asarray(open_dataset(url).scene("recording")["calib/T_world_camera"][...])
+    assert rep["extrinsic"] == pytest.approx(extrinsic_error(T, truth_camera_extrinsic(truth)))
+    assert rep["extrinsic_aligned"]["trans_cm"] == pytest.approx(rep["extrinsic"]["trans_cm"], abs=1e-6)  # true poses
+    assert rep["extrinsic"]["trans_cm"] < 5 and rep["segmentation"]["ap"] >= 0.5
+    assert len(rep["human_centroid"]["per_frame_cm"]) == open_dataset(url).scene("recording").n_frames
+    assert (tmp_path / "rep" / "human_centroid.png").stat().st_size > 5000
+    r = CliRunner().invoke(cli, ["register", url, "--report", str(tmp_path / "rep2")])
+    assert r.exit_code == 2 and "--report needs --truth" in r.output
+
+
 def test_cli_bad_input_one_line_exit_1(tmp_path):
     from holodata.cli.main import cli
 

@@ -16,6 +16,8 @@
 * :func:`aligned_extrinsic_error`: the extrinsic after aligning the estimated LiDAR trajectory to the
   true one (evo-style SE(3) alignment of the poses, as the ATE does on a straight path) — how a
   quantity estimated in a SLAM map's frame is judged against the true world.
+* :func:`evaluate_register`: all of the above for one registered scene (``holodata register --truth``),
+  with a JSON report and a PNG of the per-frame centroid errors.
 * :func:`write_truth_poses`: puts the true LiDAR poses (``truth/trajectory_lidar.tum``, matched by
   the scans' header stamps ``lidar/timestamp_ns``) into a dataset as ``pose/T_world_lidar`` (and the
   true radar poses as ``pose/T_world_radar``) so that segmentation/registration can be developed
@@ -348,7 +350,71 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
             a.write_shard(s, poses[a.frames(s)])
 
 
+def evaluate_register(url: str, scene_id: str, truth_dir: str | Path, out_dir: str | Path | None = None) -> dict:
+    """``holodata register --truth``: a registered scene against a ``holodata synth`` truth folder.
+    Returns {"extrinsic": world frame {"trans_cm", "rot_deg"}, "extrinsic_aligned" (LiDAR trajectory
+    aligned to the truth first, :func:`aligned_extrinsic_error`; the floor is judged on it),
+    "extrinsic_robot" (:func:`robot_relative_extrinsic_error`), "human_centroid" (world) and
+    "human_centroid_radar" (radar frame; without radar poses absent) from
+    :func:`human_centroid_errors`, "segmentation" (:func:`segmentation_ap50`, when the truth has
+    instance masks)}. With ``out_dir``: ``register_accuracy.json`` and ``human_centroid.png``
+    (per-frame centroid error and its cumulative curve)."""
+    from ..dataset import open_dataset
+
+    truth_dir = Path(truth_dir)
+    sc = open_dataset(url).scene(scene_id)
+    if "calib/T_world_camera" not in sc.arrays():
+        raise InputError(f"{url}: scene {scene_id!r} has no calib/T_world_camera (run holodata register first)")
+    T = np.asarray(sc["calib/T_world_camera"][...], float)
+    out = {"extrinsic": extrinsic_error(T, truth_camera_extrinsic(truth_dir)),
+           "extrinsic_aligned": aligned_extrinsic_error(url, scene_id, truth_dir, T),
+           "extrinsic_robot": robot_relative_extrinsic_error(url, scene_id, truth_dir, T),
+           "human_centroid": human_centroid_errors(url, scene_id, truth_dir)}
+    if "pose/T_world_radar" in sc.arrays() and (truth_dir / "trajectory_radar.tum").is_file():
+        out["human_centroid_radar"] = human_centroid_errors(url, scene_id, truth_dir, frame="radar")
+    if (truth_dir / "lidar_instances.npz").is_file() and "lidar/instance" in sc.arrays():
+        out["segmentation"] = segmentation_ap50(url, scene_id, truth_dir)
+    if out_dir is not None:
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "register_accuracy.json").write_text(json.dumps(out, indent=2, default=float))
+        plot_centroid_errors({label: out[k]["per_frame_cm"] for k, label in
+                              (("human_centroid", "world frame"), ("human_centroid_radar", "radar frame")) if k in out},
+                             out_dir / "human_centroid.png")
+    return out
+
+
+def plot_centroid_errors(per_frame_cm: dict, path: Path) -> None:
+    """{label: per-frame centroid errors (cm, NaN = no human found)} → PNG: error per frame (left)
+    and the cumulative fraction of frames within x (right)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(9, 3.4), dpi=110)
+    for label, e in per_frame_cm.items():
+        e = np.asarray(e, float)
+        a.plot(np.arange(len(e)), e, ".-", ms=3, lw=0.8, label=label)
+        ok = np.sort(e[np.isfinite(e)])
+        if len(ok):
+            b.plot(ok, np.arange(1, len(ok) + 1) / len(e), label=f"{label} ({len(ok)}/{len(e)} frames with a human)")
+    for ax in (a, b):
+        ax.axhline(5, color="0.7", lw=0.8, ls="--") if ax is a else ax.axvline(5, color="0.7", lw=0.8, ls="--")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    a.set_xlabel("frame")
+    a.set_ylabel("human centroid error (cm)")
+    b.set_xlabel("human centroid error (cm)")
+    b.set_ylabel("fraction of frames ≤ x")
+    b.set_ylim(0, 1.01)
+    b.set_xlim(left=0)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 __all__ = ["ap50", "match_scan", "average_precision", "segmentation_ap50", "extrinsic_error", "truth_camera_extrinsic",
            "surface_centroid", "human_centroid_errors", "write_truth_poses", "true_lidar_poses",
            "robot_relative_extrinsic_error", "relative_extrinsic_error", "aligned_extrinsic_error",
-           "aligned_extrinsic_error_poses"]
+           "aligned_extrinsic_error_poses", "evaluate_register", "plot_centroid_errors"]
