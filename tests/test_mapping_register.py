@@ -8,8 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
                                          solid_centroid)
-from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, map_normals, register_extrinsic,
-                                       track_jumps, track_prediction, velocity_shift, voxel_boundary)
+from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, local_plane_projection, map_normals,
+                                       register_extrinsic, track_jumps, track_prediction, velocity_shift,
+                                       voxel_boundary)
 
 
 def _room(rng, n=60000):
@@ -120,6 +121,34 @@ def test_aligned_extrinsic_error_removes_a_map_offset_on_a_straight_path():
     e = aligned_extrinsic_error_poses(stamps, P_true, T_true @ D, P_true, T_true)
     plain = extrinsic_error(T_true @ D, T_true)
     assert e["trans_cm"] == pytest.approx(plain["trans_cm"], abs=1e-6) and e["align_rot_deg"] < 1e-6
+
+
+def test_local_plane_projection_denoises_planes_and_keeps_edges():
+    rng = np.random.default_rng(7)
+    # a tilted plane z = 0.1 x + 0.2 y with 1 cm noise along z, and a box edge elsewhere
+    xy = rng.uniform(0, 2, (6000, 2))
+    plane = np.c_[xy, 0.1 * xy[:, 0] + 0.2 * xy[:, 1]]
+    noisy = plane + np.c_[np.zeros((len(xy), 2)), rng.normal(0, 0.01, len(xy))]
+    n = np.array([-0.1, -0.2, 1.0]) / np.linalg.norm([-0.1, -0.2, 1.0])
+    out = local_plane_projection(noisy, 0.3)
+    inner = (xy > 0.3).all(1) & (xy < 1.7).all(1)
+    before = np.abs((noisy - plane) @ n)[inner]
+    after = np.abs((out - plane) @ n)[inner]
+    assert np.sqrt(np.mean(after ** 2)) < 0.25 * np.sqrt(np.mean(before ** 2))
+    # points only move along the local normal (no tangential drift)
+    move = out - noisy
+    assert np.abs(move - (move @ n)[:, None] * n)[inner].max() < 2e-3
+    # a right-angle edge (two perpendicular strips): corner neighbourhoods are not planar and stay
+    u = rng.uniform(0, 1, (4000, 2))
+    edge = np.concatenate([np.c_[u[:2000, 0], u[:2000, 1], np.zeros(2000)], np.c_[u[2000:, 0], np.zeros(2000), u[2000:, 1]]])
+    e_out = local_plane_projection(edge, 0.3)
+    corner = (edge[:, 1] < 0.02) & (edge[:, 2] < 0.02)
+    assert corner.any() and np.allclose(e_out[corner], edge[corner])
+    # only=: the others are untouched
+    m = np.zeros(len(noisy), bool)
+    m[::2] = True
+    part = local_plane_projection(noisy, 0.3, only=m)
+    assert np.array_equal(part[~m], noisy[~m]) and np.allclose(part[m], out[m])
 
 
 def test_fallback_is_rejected_when_nothing_fits():
