@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..meshio import merge_meshes
-from .background import _keys, voxel_index
+from .background import _DENSE_MAX_CELLS, _keys, _unkeys, voxel_index
 
 METHODS = ("poisson", "bpa")
 
@@ -78,6 +78,27 @@ class MeshConfig:
         return asdict(self)
 
 
+def _unique_voxels(ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(_keys(ijk), return_inverse=True)`` of (N,3) int voxel indices: sorted unique keys
+    (V,) int64 and each row's position (N,) in them. On a dense grid of the indices' bounding box
+    when it has at most ``_DENSE_MAX_CELLS`` cells (a C-order flat cell index sorts like the key;
+    ``bincount`` instead of sorting the N keys: a 400-scan corner's 2.5 M points 0.25 -> 0.1 s per
+    flush), else by sorting."""
+    if len(ijk) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    lo = ijk.min(0)
+    dims = ijk.max(0) - lo + 1
+    if float(np.prod(dims.astype(np.float64))) > _DENSE_MAX_CELLS:
+        return np.unique(_keys(ijk), return_inverse=True)
+    rel = ijk - lo
+    flat = (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
+    occ = np.bincount(flat, minlength=int(np.prod(dims)))
+    cells = np.flatnonzero(occ)
+    rank = np.zeros(len(occ), np.int32)
+    rank[cells] = np.arange(len(cells))
+    return _keys(np.stack(np.unravel_index(cells, tuple(dims)), 1) + lo), rank[flat]
+
+
 class PointAccumulator:
     """Voxel-averaged world cloud: ``add(points_world, sensor_origin)`` per scan, then ``cloud()``."""
 
@@ -107,11 +128,11 @@ class PointAccumulator:
         p = np.concatenate([a for a, _ in self._pend])
         d = np.concatenate([b for _, b in self._pend])
         self._pend, self._pend_n = [], 0
-        k = np.concatenate([self.keys, _keys(voxel_index(p, self.voxel))])
+        ijk = np.concatenate([_unkeys(self.keys), voxel_index(p, self.voxel)])
         s = np.concatenate([self.sums, p])
         v = np.concatenate([self.view, d])
         c = np.concatenate([self.counts, np.ones(len(p), np.int64)])
-        uk, inv = np.unique(k, return_inverse=True)
+        uk, inv = _unique_voxels(ijk)
         self.keys = uk
         self.sums = np.stack([np.bincount(inv, s[:, j], len(uk)) for j in range(3)], 1)
         self.view = np.stack([np.bincount(inv, v[:, j], len(uk)) for j in range(3)], 1)
