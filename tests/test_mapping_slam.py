@@ -426,3 +426,121 @@ def test_slam_runs_on_real_recordings(tmp_path, name):
     assert np.allclose(P[0], np.eye(4), atol=1e-9)               # no TF: the first scan is the world origin
     assert len(np.asarray(sc["mesh/faces"][...])) > 100
     assert summary["scans"] == len(P) and summary["mesh"]["faces"] == len(np.asarray(sc["mesh/faces"][...]))
+
+
+# ----------------------------------------------------------------------------------------------
+# slam speed-ups: the same-beam rest check, the one-pass return mask, the dense voxel unique
+
+def _room_scan(T, rng, rows=32, cols=256, noise=0.005, lo=(-4.0, -1.5, -0.8), hi=(4.0, 2.0, 1.7)):
+    """Organised scan (rows x cols beams, ±20 deg elevation) from pose ``T`` inside an axis-aligned box
+    room, ray-cast analytically: sensor-frame points (rows*cols, 3) with range noise."""
+    el = np.deg2rad(np.linspace(20, -20, rows))[:, None]
+    az = (-2 * np.pi * np.arange(cols) / cols)[None, :]
+    d = np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)), -1).reshape(-1, 3)
+    dw = d @ T[:3, :3].T
+    o = T[:3, 3]
+    with np.errstate(divide="ignore"):
+        t = np.where(dw > 0, (np.asarray(hi) - o) / dw, (np.asarray(lo) - o) / dw)
+    r = np.where(np.isfinite(t) & (t > 0), t, np.inf).min(1)
+    return (r + rng.normal(0, noise, len(r)))[:, None] * d
+
+
+def _room_map(rng, n=6000, lo=(-4.0, -1.5, -0.8), hi=(4.0, 2.0, 1.7)):
+    from scipy.spatial import cKDTree
+
+    pts, nrm = [], []
+    for ax in range(3):
+        for side, c in ((0, lo[ax]), (1, hi[ax])):
+            p = rng.uniform(lo, hi, (n, 3))
+            p[:, ax] = c
+            m = np.zeros(3)
+            m[ax] = 1.0 if side == 0 else -1.0                   # facing into the room
+            pts.append(p)
+            nrm.append(np.tile(m, (n, 1)))
+    M, N = np.concatenate(pts), np.concatenate(nrm)
+    return cKDTree(M), M, N
+
+
+def test_same_beam_rest_check_never_holds_a_scan_that_moved():
+    """The rest check beam by beam (slam._SameBeam: each pixel's map plane cached from the last scan that
+    passed the map check) holds new scans at the same pose (range noise, a person on 5 % of the beams)
+    and rejects scans taken 5 mm / 2 cm / 20 cm / 1 m further on, sideways or up, or turned 0.15 deg —
+    the same bounds as the map check (_at_rest), which it agrees with on every case."""
+    from holodata.mapping.slam import SlamConfig, _at_rest, _SameBeam
+
+    rng = np.random.default_rng(5)
+    cfg = SlamConfig()
+    target = _room_map(rng)
+    T = np.eye(4)
+    T[:3, 3] = [0.3, 0.1, 0.0]
+    ref = _room_scan(T, rng)
+    pix = np.arange(len(ref), dtype=np.int32)
+    sb = _SameBeam(ref, pix, target, T, cfg, len(ref), cfg.same_beam_points, cfg.same_beam_scale, cfg.same_beam_share)
+    assert len(sb) > 0.9 * min(len(ref), cfg.same_beam_points)
+    keep = np.ones(len(ref), bool)
+    for k in range(5):                                           # at rest: new range noise each time
+        s = _room_scan(T, rng)
+        assert sb.at_rest(s, pix, keep)
+        assert _at_rest(s[::4], target, T, cfg)
+    s = _room_scan(T, rng)
+    s[rng.random(len(s)) < 0.05] *= 0.4                          # someone close to the sensor on 5 % of beams
+    assert sb.at_rest(s, pix, keep)
+    s = _room_scan(T, rng)
+    drop = rng.random(len(s)) < 0.2                              # beams without a return (not kept)
+    assert sb.at_rest(s[~drop], pix[~drop], keep[~drop])
+    for shift in ([0.005, 0, 0], [0.02, 0, 0], [0.2, 0, 0], [1.0, 0, 0], [0, 0.005, 0], [0, 0, 0.005]):
+        M = T.copy()
+        M[:3, 3] += shift
+        s = _room_scan(M, rng)
+        assert not sb.at_rest(s, pix, keep), shift
+        assert not _at_rest(s[::4], target, T, cfg), shift
+    for axis in ("z", "y"):
+        M = T.copy()
+        M[:3, :3] = Rotation.from_euler(axis, 0.15, degrees=True).as_matrix()
+        s = _room_scan(M, rng)
+        assert not sb.at_rest(s, pix, keep), axis
+        assert not _at_rest(s[::4], target, T, cfg), axis
+
+
+def test_scan_pixels_are_the_range_image_pixels_of_the_points(slam_run):
+    """load_scans keeps each return's pixel in lidar/range (row-major valid pixels = lidar/points rows,
+    the driver's zero points dropped): the pixel's range is the point's norm."""
+    from holodata.dataset import open_dataset
+    from holodata.mapping.slam import load_scans
+
+    sc = open_dataset(slam_run["url"]).scene(slam_run["res"].scene)
+    scans = load_scans(sc)
+    rng = np.asarray(sc["lidar/range"][...], np.float64)
+    assert scans.grid == rng.shape[1:] and len(scans.pixels) == len(scans)
+    for f, p, pix in zip(scans.frames, scans.points, scans.pixels):
+        assert pix is not None and len(pix) == len(p) and np.all(np.diff(pix) > 0)
+        r = rng[f].reshape(-1)[pix]
+        assert np.all(r > 0) and np.abs(np.linalg.norm(p, axis=1) - r).max() < 0.002
+    assert "still_same_beam" in slam_run["res"].summary["health"]["sequential"]
+
+
+def test_return_mask_matches_the_four_pass_mask():
+    from holodata.mapping.slam import _returns
+
+    rng = np.random.default_rng(2)
+    for dt in (np.float32, np.float64):
+        p = rng.normal(size=(5000, 3)).astype(dt)
+        p[rng.random(5000) < 0.1] = 0.0
+        p[rng.random(5000) < 0.05, 1] = np.nan
+        p[rng.random(5000) < 0.05, 2] = np.inf
+        p[rng.random(5000) < 0.05, 0] = -np.inf
+        p[rng.random(5000) < 0.05, 0] = 0.0                      # a zero coordinate is still a return
+        old = np.isfinite(p).all(1) & (np.abs(p).sum(1) > 0)
+        assert np.array_equal(_returns(p), old)
+
+
+def test_unique_voxels_equals_np_unique_of_the_keys():
+    from holodata.mapping.background import _keys, voxel_index
+    from holodata.mapping.mesh import _unique_voxels
+
+    rng = np.random.default_rng(4)
+    for n, scale in ((0, 1.0), (1, 1.0), (50, 0.1), (20000, 3.0), (3000, 2e4)):   # the last: sorted fallback
+        ijk = voxel_index(rng.normal(size=(n, 3)) * scale, 0.04)
+        a, ai = np.unique(_keys(ijk), return_inverse=True)
+        b, bi = _unique_voxels(ijk)
+        assert np.array_equal(a, b) and np.array_equal(ai.reshape(-1), bi)
