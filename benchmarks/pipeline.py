@@ -74,6 +74,21 @@ downsampling per scan, the floor plane fit and the per-frame closed human surfac
 bounce 1/2/3 0.3/0.4/0.4 cm (p90 1.1/2.2/5.9 cm) with the plane snapping of the SLAM mesh,
 0.4/8.4/31.8 cm (p90 1.4/74.8/202.7 cm) without.
 
+After slam's beam-by-beam rest check (``slam._SameBeam``; ``--keep DIR --reuse --gt-diff``, load
+2.7-3.5, register as committed then):
+
+    stage            wall s    CPU s
+    ingest              7.8      7.1
+    slam               10.7     10.1    (ATE 0.28 cm, F@5cm 0.994; 373 scans at rest, 339 decided beam by beam)
+    register           13.6     14.2    (segment 4.1, map 1.1, extrinsic 4.8, humans 3.2 s wall)
+    raytrace-gt         8.3     15.8
+    slam+register      24.3     24.3    = 2.91x raytrace-gt wall, 1.54x its CPU (slam alone 1.28x wall, 0.64x CPU)
+
+slam alone on this corner's ingested dataset, old and new code alternated five times (load 2.4-5.5):
+13.4 -> 11.1 s wall, 12.2 -> 10.1 s CPU (means). ``--gt-diff``: bounce 1/2/3 median 0.3/0.4/0.5 cm,
+p90 1.1/2.2/6.2 cm (before: 0.3/0.4/0.4, p90 1.1/2.2/5.9 cm; a few rest scans are held now instead of
+re-registered, ATE 0.24 -> 0.28 cm; ``SlamConfig(same_beam=False)`` gives the old poses and mesh).
+
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x512] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
 """
