@@ -248,6 +248,8 @@ def test_register_scene_end_to_end_and_raytrace_reads_the_human():
     assert res["frames_with_human"] >= sc.n_frames // 2
     h = human_centroid_errors(url, "recording", truth)
     assert h["median_cm"] < 15, h
+    ha = human_centroid_errors(url, "recording", truth, frame="aligned")    # true poses: no alignment
+    np.testing.assert_allclose(ha["per_frame_cm"], h["per_frame_cm"], atol=1e-6)
     src = HumanDataset(url, "recording", sc)
     assert src.kind == "dataset:human/vertices+faces"
     k = int(np.flatnonzero([len(sc.ragged("human/faces", i)) for i in range(sc.n_frames)])[0])

@@ -186,15 +186,25 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
     "missing"} (frames without an estimate count as missing, not as errors). ``frame="radar"``: both
     centroids in the radar frame of their frame (estimate through the scene's ``pose/T_world_radar``,
     truth through ``truth/trajectory_radar.tum``): what the radar ground truth sees, free of a
-    common offset of the SLAM map and its poses against the true world."""
+    common offset of the SLAM map and its poses against the true world. ``frame="aligned"``: the
+    estimate moved by the alignment of the estimated LiDAR trajectory to the true one that
+    :func:`aligned_extrinsic_error` uses (identity with true poses)."""
     from ..dataset import open_dataset
     from ..meshio import read_mesh
     from ..trajectory import read_tum
 
     sc = open_dataset(url).scene(scene_id)
     hd = Path(truth_dir) / "human"
-    if frame not in ("world", "radar"):
-        raise InputError(f"frame must be world or radar, got {frame!r}")
+    if frame not in ("world", "radar", "aligned"):
+        raise InputError(f"frame must be world, radar or aligned, got {frame!r}")
+    A = np.eye(4)
+    if frame == "aligned":  # the estimate through the alignment of aligned_extrinsic_error
+        pair = _matched_trajectories(np.asarray(sc["lidar/timestamp_ns"][...], np.int64),
+                                     np.asarray(sc["pose/T_world_lidar"][...], float), true_lidar_poses(sc, truth_dir))
+        if pair is not None:
+            from .accuracy import pose_alignment
+
+            A = pose_alignment(*pair)
     if frame == "radar":
         P_est = np.asarray(sc["pose/T_world_radar"][...], float)
         P_true = read_tum(Path(truth_dir) / "trajectory_radar.tum").poses
@@ -213,6 +223,7 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
             errs.append(np.nan)
             continue
         ce, ct = solid_centroid(v, f), solid_centroid(m.vertices, m.faces)
+        ce = A[:3, :3] @ ce + A[:3, 3]
         if frame == "radar":
             ce = np.linalg.solve(P_est[k], np.append(ce, 1.0))[:3]
             ct = np.linalg.solve(P_true[k], np.append(ct, 1.0))[:3]
@@ -281,25 +292,34 @@ def aligned_extrinsic_error(url: str, scene_id: str, truth_dir: str | Path, T_es
                                          true_lidar_poses(sc, truth_dir), truth_camera_extrinsic(truth_dir))
 
 
+def _matched_trajectories(stamps_ns: np.ndarray, P_est: np.ndarray, P_true: np.ndarray):
+    """(estimate, truth) :class:`~holodata.trajectory.Trajectory` pair of the scans with both poses
+    finite (stamps (K,), poses (K,4,4)), in stamp order without repeated stamps; None if < 3."""
+    from ..trajectory import Trajectory
+
+    P_est, P_true = np.asarray(P_est, float), np.asarray(P_true, float)
+    ok = np.isfinite(P_est).all((1, 2)) & np.isfinite(P_true).all((1, 2))
+    t = np.asarray(stamps_ns, np.int64)
+    idx = np.flatnonzero(ok)[np.argsort(t[ok], kind="stable")]
+    if len(idx):
+        idx = idx[np.r_[True, np.diff(t[idx]) > 0]]   # Trajectory: strictly increasing stamps
+    if len(idx) < 3:
+        return None
+    return Trajectory(t[idx], P_est[idx]), Trajectory(t[idx], P_true[idx])
+
+
 def aligned_extrinsic_error_poses(stamps_ns: np.ndarray, P_est: np.ndarray, T_est: np.ndarray, P_true: np.ndarray,
                                   T_true: np.ndarray) -> dict:
     """:func:`aligned_extrinsic_error` on arrays: scan stamps (K,), estimated and true T_world_lidar
     (K,4,4) (rows with NaN skipped), estimated and true T_world_camera (4,4)."""
-    from ..trajectory import Trajectory
     from .accuracy import pose_alignment, umeyama_transform
 
     nan = float("nan")
-    ok = np.isfinite(P_est).all((1, 2)) & np.isfinite(P_true).all((1, 2))
-    t = np.asarray(stamps_ns, np.int64)[ok]
-    order = np.argsort(t, kind="stable")
-    t = t[order]
-    keep = np.r_[True, np.diff(t) > 0] if len(t) else np.zeros(0, bool)  # Trajectory: strictly increasing stamps
-    idx = np.flatnonzero(ok)[order][keep]
-    if len(idx) < 3:
+    pair = _matched_trajectories(stamps_ns, P_est, P_true)
+    if pair is None:
         return {"trans_cm": nan, "rot_deg": nan, "align_rot_deg": nan, "umeyama_trans_cm": nan,
                 "umeyama_rot_deg": nan, "umeyama_align_rot_deg": nan}
-    est = Trajectory(t[keep], np.asarray(P_est, float)[idx])
-    tru = Trajectory(t[keep], np.asarray(P_true, float)[idx])
+    est, tru = pair
     T_est = np.asarray(T_est, float)
     A = pose_alignment(est, tru)
     U = umeyama_transform(est, tru)
