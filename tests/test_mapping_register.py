@@ -351,3 +351,15 @@ def test_nan_quantile_matches_numpy():
         with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
             ref = np.nanquantile(stack, q, axis=0)
         np.testing.assert_allclose(nan_quantile(stack, q), ref, rtol=0, atol=1e-12, equal_nan=True)
+
+
+def test_local_plane_projection_chunks_give_the_same_cloud():
+    from holodata.mapping.register import local_plane_projection
+
+    rng = np.random.default_rng(5)
+    X = np.c_[rng.uniform(0, 2, 3000), rng.uniform(0, 2, 3000), rng.normal(0, 0.005, 3000)]
+    only = X[:, 0] > 0.7
+    a = local_plane_projection(X, 0.3, only=only, chunk=97)
+    b = local_plane_projection(X, 0.3, only=only, chunk=10**9)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert np.abs(a[only, 2]).max() < 0.5 * np.abs(X[only, 2]).max() and np.array_equal(a[~only], X[~only])
