@@ -565,20 +565,26 @@ class LidarScans:
         self._block = blk = (k, end, np.asarray(self._range[k:end], np.float32))
         return blk[2][0]
 
+    def _returns(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(``lidar/range`` (H,W) float32, its finite pixels (H,W) bool, ``lidar/points`` (N,3) float64:
+        one point per finite pixel in row-major order, checked) of frame ``k``."""
+        r = self.range_frame(k)
+        fin = np.isfinite(r)
+        pts = np.asarray(self.scene.ragged("lidar/points", k), np.float64)
+        n_fin = int(fin.sum())
+        if len(pts) != n_fin:
+            raise DatasetError(f"scene {self.scene.id!r} frame {k}: lidar/points has {len(pts)} points for "
+                               f"{n_fin} valid lidar/range pixels (expected the valid pixels in row-major order)")
+        return r, fin, pts
+
     def scan(self, k: int, traj=None, deskew: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Frame ``k``: (valid (H,W) bool, sensor points (H,W,3) float64, world points (H,W,3) float64,
         NaN where not valid). World points use per-point poses interpolated from ``traj`` at
         ``stamp + point_time`` when ``deskew`` and per-point times exist, else the scan pose
         (:meth:`deskew_points`)."""
         H, W = self.shape
-        r = self.range_frame(k)
-        fin = np.isfinite(r)
+        r, fin, pts = self._returns(k)
         valid = fin & (r > 0)
-        pts = np.asarray(self.scene.ragged("lidar/points", k), np.float64)
-        n_fin = int(fin.sum())
-        if len(pts) != n_fin:
-            raise DatasetError(f"scene {self.scene.id!r} frame {k}: lidar/points has {len(pts)} points for "
-                               f"{n_fin} valid lidar/range pixels (expected the valid pixels in row-major order)")
         P = np.zeros((H, W, 3))
         P[fin] = pts
         f = np.isfinite(P)
@@ -598,13 +604,7 @@ class LidarScans:
         order) — ``valid`` and ``Pw[valid]`` of :meth:`scan`, the same values; a scan taken at rest is
         transformed as its list of returns, without the (H,W,3) grids."""
         H, W = self.shape
-        r = self.range_frame(k)
-        fin = np.isfinite(r)
-        pts = np.asarray(self.scene.ragged("lidar/points", k), np.float64)
-        n_fin = int(fin.sum())
-        if len(pts) != n_fin:
-            raise DatasetError(f"scene {self.scene.id!r} frame {k}: lidar/points has {len(pts)} points for "
-                               f"{n_fin} valid lidar/range pixels (expected the valid pixels in row-major order)")
+        r, fin, pts = self._returns(k)
         f = np.isfinite(pts)
         vf = (r[fin] > 0) & f[:, 0] & f[:, 1] & f[:, 2]     # scan(): valid = finite range > 0, finite point
         valid = np.zeros((H, W), bool)
