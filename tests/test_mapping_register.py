@@ -351,6 +351,12 @@ def test_nan_quantile_matches_numpy():
         with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
             ref = np.nanquantile(stack, q, axis=0)
         np.testing.assert_allclose(nan_quantile(stack, q), ref, rtol=0, atol=1e-12, equal_nan=True)
+    with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+        med = np.nanmedian(stack, axis=0)
+    np.testing.assert_allclose(nan_quantile(stack, 0.5), med, rtol=0, atol=1e-12, equal_nan=True)
+    even = stack[:12]                                         # an even count of samples: mean of the middle two
+    with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
+        np.testing.assert_allclose(nan_quantile(even, 0.5), np.nanmedian(even, axis=0), rtol=0, atol=1e-12, equal_nan=True)
 
 
 def test_local_plane_projection_chunks_give_the_same_cloud():
