@@ -186,12 +186,15 @@ def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float |
     return p
 
 
-def _nn_distances(src: np.ndarray, tgt: np.ndarray) -> np.ndarray:
+def _nn_distances(src: np.ndarray, tgt: np.ndarray, within: float = np.inf) -> np.ndarray:
+    """(N,) distance from each ``src`` point to its nearest ``tgt`` point; with ``within`` (m) exact
+    only up to ``within`` and inf beyond (the search stops there: nearest-neighbour queries far from
+    the data — a camera's view of the branch the LiDAR never saw — are the slow ones)."""
     from scipy.spatial import cKDTree
 
     if len(tgt) == 0:
         return np.full(len(src), np.inf)
-    return cKDTree(tgt).query(src, k=1, workers=-1)[0]
+    return cKDTree(tgt).query(src, k=1, distance_upper_bound=np.nextafter(within, np.inf), workers=-1)[0]
 
 
 def _check_from_distances(d: np.ndarray, cfg: RegisterConfig, r: np.ndarray | None = None) -> dict:
@@ -436,14 +439,14 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         # denoise the target: map points near the camera cloud (under the guess) onto their local planes
         mp = np.asarray(_pcd(map_points, cfg.map_voxel).points)
         reach = cfg.crop_m + cfg.max_scale_m + cfg.map_plane_m
-        near_cam = _nn_distances(mp, transform_points(init, src)) <= reach
+        near_cam = _nn_distances(mp, transform_points(init, src), reach) <= reach
         map_points = local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
     tgt_pts, tgt_n = map_normals(map_points, cfg)
     tgt_tree = cKDTree(tgt_pts)
     # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
     # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
     full_src, full_sig, full_n = src, sig, src_n
-    near = _nn_distances(transform_points(init, src), tgt_pts) <= cfg.crop_m
+    near = _nn_distances(transform_points(init, src), tgt_pts, cfg.crop_m) <= cfg.crop_m
     if near.sum() >= cfg.min_overlap_points:
         src, sig, src_n = src[near], sig[near], src_n[near]
     attempts = []
@@ -923,7 +926,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     resid = static_residual(static_cam, cfg)
     if resid.any():
         sw_ = transform_points(T, static_cam[resid])
-        dmap_, _ = cKDTree(M).query(sw_, k=1, workers=-1)
+        dmap_ = _nn_distances(sw_, M, cfg.map_explain_m)
         rr = np.zeros(len(static_cam), bool)
         rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
         still[okm] = rr
@@ -953,8 +956,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         q = rays[vv, uu] * D[vv, uu][:, None]
         qw = transform_points(T, q)
         if len(qw):
-            dmap, _ = mtree.query(qw, k=1, workers=-1)
-            far = dmap > cfg.map_explain_m
+            dmap, _ = mtree.query(qw, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)
+            far = dmap > cfg.map_explain_m       # (the bound: far points end their search early)
             qw, vv, uu = qw[far], vv[far], uu[far]
         cand.append((qw, vv, uu, D))
     # the person of interest: person-like clusters near the track's median (people farther away, e.g.
