@@ -89,6 +89,18 @@ slam alone on this corner's ingested dataset, old and new code alternated five t
 p90 1.1/2.2/6.2 cm (before: 0.3/0.4/0.4, p90 1.1/2.2/5.9 cm; a few rest scans are held now instead of
 re-registered, ATE 0.24 -> 0.28 cm; ``SlamConfig(same_beam=False)`` gives the old poses and mesh).
 
+End of the stop (register's target denoising with its chunked neighbour search, idle, load 1.0-2.0):
+
+    stage            wall s    CPU s
+    ingest              4.2      7.1
+    slam                9.4     10.8
+    register           14.9     16.2    (segment 5.8, map 1.6, extrinsic 3.0, humans 4.1 s wall)
+    raytrace-gt         9.5     17.9
+    slam+register      24.3     27.0    = 2.56x raytrace-gt wall, 1.51x its CPU (slam alone 0.99x wall, 0.60x CPU)
+
+slam and register each run on one core, raytrace-gt on both: the aim (below raytrace-gt) needs
+register's per-scan / per-frame loops on both cores.
+
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x512] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
 """
