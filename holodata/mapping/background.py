@@ -57,19 +57,24 @@ def _finite_rows(p: np.ndarray) -> np.ndarray:
     return f[:, 0] & f[:, 1] & f[:, 2]
 
 
-def _box_index(ijk: np.ndarray, lo: np.ndarray, dims: np.ndarray, check: bool = True
-               ) -> tuple[np.ndarray | None, np.ndarray]:
-    """(inside (N,) bool, flat C-order cell index (M,) int64 of the inside rows) of voxel indices
-    ``ijk`` (N,3) in the box ``lo`` .. ``lo + dims - 1`` (``check`` False: all are inside; inside None)."""
+def _dense_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(lo, dims) of the box of voxel indices ``lo`` .. ``hi`` (3,) int64 when a dense grid of it has at
+    most ``_DENSE_MAX_CELLS`` cells; None when it is larger (then sorted keys are used)."""
+    dims = hi - lo + 1
+    return (lo, dims) if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS else None
+
+
+def _flat_index(ijk: np.ndarray, lo: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    """(N,) C-order flat cell index of voxel indices ``ijk`` (N,3) inside the box ``lo``, ``dims``; it
+    sorts like :func:`_keys`."""
     rel = ijk - lo
-    if check:
-        ok = (rel >= 0) & (rel < dims)
-        inside = ok[:, 0] & ok[:, 1] & ok[:, 2]
-        if not inside.all():
-            rel = rel[inside]
-    else:
-        inside = None
-    return inside, (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
+    return (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
+
+
+def _cell_keys(cells: np.ndarray, lo: np.ndarray, dims: np.ndarray) -> np.ndarray:
+    """:func:`_keys` of flat C-order cell indices ``cells`` of the box ``lo``, ``dims`` (sorted cells
+    give sorted keys)."""
+    return _keys(np.stack(np.unravel_index(cells, tuple(dims)), 1) + lo)
 
 
 def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_scan: bool = False):
@@ -83,8 +88,9 @@ def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_sca
     # per column: (N,3).min(0) is ~20x slower
     lo = np.floor(np.divide([min(p[:, j].min() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
     hi = np.floor(np.divide([max(p[:, j].max() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
-    dims = hi - lo + 1
-    if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS:
+    box = _dense_box(lo, hi)
+    if box is not None:
+        dims = box[1]
         cnt = np.zeros(int(np.prod(dims)), np.int32)
         flats = []
         step = np.array([dims[1] * dims[2], dims[2], 1], np.float64)
@@ -97,7 +103,7 @@ def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_sca
             flats.append(f if (need_inverse or need_per_scan) else None)
         cells = np.flatnonzero(cnt)
         occ = cnt[cells].astype(np.int64)
-        keys = _keys(np.stack(np.unravel_index(cells, tuple(dims)), 1) + lo)   # C order == key order
+        keys = _cell_keys(cells, lo, dims)
         per_scan = [keys[np.searchsorted(cells, np.unique(f))] for f in flats] if need_per_scan else None
         inv = None
         if need_inverse:
@@ -212,14 +218,11 @@ class VoxelBackground:
         out[ok] = self._lookup(q, bool(tolerance))
         return out
 
-    def member(self, ijk: np.ndarray, dilated: bool = False) -> np.ndarray:
-        """(N,3) int voxel indices → (N,) bool: a background voxel (``dilated``: within one voxel of
-        one). A dense boolean grid of the model's bounding box (built at the first call, at most
-        ``_DENSE_MAX_CELLS`` cells) answers without hashing or sorting; larger models use the sorted keys."""
-        return self._lookup(np.asarray(ijk, np.int64).reshape(-1, 3).astype(np.float64), dilated)
-
     def _lookup(self, q: np.ndarray, dilated: bool) -> np.ndarray:
-        """:meth:`member` of voxel indices given as float64 integer values ``q`` (N,3)."""
+        """(N,) bool: voxel indices given as float64 integer values ``q`` (N,3) that are background
+        voxels (``dilated``: within one voxel of one). A dense boolean grid of the model's bounding box
+        (built at the first call, at most ``_DENSE_MAX_CELLS`` cells) answers without hashing or
+        sorting; larger models use the sorted keys."""
         table = self.dilated if dilated else self.keys
         out = np.zeros(len(q), bool)
         if len(table) == 0 or len(q) == 0:
@@ -227,12 +230,12 @@ class VoxelBackground:
         grid = self._grids.get(dilated)
         if grid is None:
             cells = _unkeys(table)
-            lo = cells.min(0)
-            dims = cells.max(0) - lo + 1
+            box = _dense_box(cells.min(0), cells.max(0))
             grid = False
-            if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS:
+            if box is not None:
+                lo, dims = box
                 occ = np.zeros(int(np.prod(dims)), bool)
-                occ[_box_index(cells, lo, dims)[1]] = True
+                occ[_flat_index(cells, lo, dims)] = True
                 grid = (lo.astype(np.float64), dims.astype(np.float64), occ,
                         np.array([dims[1] * dims[2], dims[2], 1], np.float64))
             self._grids[dilated] = grid

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..meshio import merge_meshes
-from .background import _DENSE_MAX_CELLS, _keys, _unkeys, voxel_index
+from .background import _cell_keys, _dense_box, _flat_index, _keys, _unkeys, voxel_index
 
 METHODS = ("poisson", "bpa")
 
@@ -86,17 +86,16 @@ def _unique_voxels(ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     flush), else by sorting."""
     if len(ijk) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    lo = ijk.min(0)
-    dims = ijk.max(0) - lo + 1
-    if float(np.prod(dims.astype(np.float64))) > _DENSE_MAX_CELLS:
+    box = _dense_box(ijk.min(0), ijk.max(0))
+    if box is None:
         return np.unique(_keys(ijk), return_inverse=True)
-    rel = ijk - lo
-    flat = (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
+    lo, dims = box
+    flat = _flat_index(ijk, lo, dims)
     occ = np.bincount(flat, minlength=int(np.prod(dims)))
     cells = np.flatnonzero(occ)
     rank = np.zeros(len(occ), np.int32)
     rank[cells] = np.arange(len(cells))
-    return _keys(np.stack(np.unravel_index(cells, tuple(dims)), 1) + lo), rank[flat]
+    return _cell_keys(cells, lo, dims), rank[flat]
 
 
 class PointAccumulator:
