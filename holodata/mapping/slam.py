@@ -596,10 +596,13 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
     n_pix = int(np.prod(scans.grid)) if beams else 0
     same, same_beam = None, 0   # _SameBeam reference of the current anchor pose, scans it found at rest
     target = _TargetCache(max_range + 1.0)
+    def in_range(p):   # (N,) bool: returns within [min_range, max_range] of the sensor
+        r2 = np.einsum("ij,ij->i", p, p)
+        return (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)
+
     def ranged(p, t):
         p = np.asarray(p, np.float64)
-        r2 = np.einsum("ij,ij->i", p, p)
-        keep = (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)
+        keep = in_range(p)
         return p[keep], (t[keep] if t is not None else None)
 
     for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
@@ -611,9 +614,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
             pix = scans.pixels[i] if beams else None
             if same is not None and pix is not None:
                 # beam by beam against the last scan that passed the map check at this pose (_SameBeam)
-                p = scans.points[i]
-                r2 = np.einsum("ij,ij->i", p, p)
-                at_rest = same.at_rest(p, pix, (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2))
+                at_rest = same.at_rest(scans.points[i], pix, in_range(scans.points[i]))
                 same_beam += at_rest
             if not at_rest:
                 # rest check on the ICP source voxels (no deskew: the robot was at rest or nearly)
@@ -622,8 +623,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
                 at_rest = _at_rest(rest, tgt_tree, poses[anchor], cfg)
                 if at_rest and pix is not None:
                     p = np.asarray(scans.points[i], np.float64)
-                    r2 = np.einsum("ij,ij->i", p, p)
-                    keep = (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)
+                    keep = in_range(p)
                     same = _SameBeam(p[keep], pix[keep], tgt_tree, poses[anchor], cfg, n_pix, cfg.same_beam_points,
                                      cfg.same_beam_scale, cfg.same_beam_share)
         else:
