@@ -274,6 +274,14 @@ def test_cli_truth_report(tmp_path):
     src, truth = small_corner()
     url = str(tmp_path / "ds.zarr")
     shutil.copytree(src, url)
+    # the shared corner may hold lidar/instance from the segmentation tests' own settings: register's
+    # segmentation is what is scored here
+    import holodata.dataset as hds
+
+    ds = hds.open_dataset(url)
+    sw = hds.create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene("recording")
+    if "lidar/instance" in sw.arrays():
+        sw.remove("lidar/instance")
     r = CliRunner().invoke(cli, ["register", url, "--truth", truth, "--report", str(tmp_path / "rep"), "--quiet"])
     assert r.exit_code == 0, r.output
     assert "trajectory-aligned" in r.output and "human centroid mean/median/max" in r.output and "AP50" in r.output
