@@ -749,8 +749,8 @@ def build_background(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bo
 
 
 def _background_pass(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bool = True, keep: bool = False):
-    """(background model, kept) of :func:`build_background`; ``keep``: kept = {frame: (packed valid
-    mask (np.packbits), float32 world points of the valid returns in row-major order)} of the usable
+    """(background model, kept) of :func:`build_background`; ``keep``: kept = {frame: float32 world
+    points (N,3) of the valid returns in row-major order} of the usable
     scans (the lists the model is built from, no copy), for :func:`segment_scene` ``world_points``."""
     pts, origins, kept = [], [], {}
     for k in track(range(len(scans.stamps)), len(scans.stamps), "background", quiet):
@@ -760,7 +760,7 @@ def _background_pass(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bo
         pts.append(pw.astype(np.float32))
         origins.append(scans.poses[k][:3, 3])
         if keep:
-            kept[k] = (np.packbits(valid), pts[-1])
+            kept[k] = pts[-1]
     origins = np.array(origins) if origins else None
     bg = background_from_points(pts, origins, cfg)
     if cfg.floor_margin_m > 0:
@@ -867,7 +867,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
                   overwrite: bool = False, background=None, world_points: dict | None = None) -> dict:
     """Segment every scan of a dataset scene and write ``lidar/instance`` (T,Hl,Wl) uint16 (resumable:
     finished shards are kept). ``background``: a prebuilt model of these scans (else built here);
-    ``world_points``: {frame: (packed valid mask, float32 world points of the valid returns)} from
+    ``world_points``: {frame: float32 world points of the valid returns (N,3)} from
     the pass that built ``background`` (:func:`background_and_segment`): scans that are
     :func:`surely_without_foreground` are written empty without reading them again (the same
     result). Returns a summary {scene, frames, instances_per_scan, ...}."""
@@ -903,8 +903,8 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
             continue
         out = np.zeros((sl.stop - sl.start,) + scans.shape, np.uint16)
         for i, k in enumerate(range(sl.start, sl.stop)):
-            if k in world_points and surely_without_foreground(bg, world_points[k][1], cfg):
-                if world_points[k][0].any():
+            if k in world_points and surely_without_foreground(bg, world_points[k], cfg):
+                if len(world_points[k]):          # a scan with returns: it counts, with 0 instances
                     counts.append(0)
                 continue
             valid, P, Pw = scans.scan(k, traj, cfg.deskew)
