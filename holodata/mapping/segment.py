@@ -754,7 +754,7 @@ def _background_pass(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bo
     scans (the lists the model is built from, no copy), for :func:`segment_scene` ``world_points``."""
     pts, origins, kept = [], [], {}
     for k in track(range(len(scans.stamps)), len(scans.stamps), "background", quiet):
-        valid, pw = scans.scan_world(k, traj, cfg.deskew)
+        _, pw = scans.scan_world(k, traj, cfg.deskew)
         if not scans.usable(k):
             continue
         pts.append(pw.astype(np.float32))
