@@ -32,9 +32,11 @@ def _init(value: str | None):
 @click.option("--truth", type=click.Path(file_okay=False, exists=True),
               help="A holodata synth truth/ folder: print extrinsic, human centroid and segmentation errors against it.")
 @click.option("--report", type=click.Path(file_okay=False), help="With --truth: folder for register_accuracy.json and a PNG.")
+@click.option("--processes", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Processes (0: two on a machine with two or more CPUs; 1: all in this process).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def register(dataset, scene, init, no_segment, no_camera_world, truth, report, quiet, as_json) -> None:
+def register(dataset, scene, init, no_segment, no_camera_world, truth, report, processes, quiet, as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
     FPFH+RANSAC fallback accepted only if it passes the fitness/RMSE check; then the human in every
@@ -50,7 +52,7 @@ def register(dataset, scene, init, no_segment, no_camera_world, truth, report, q
 
     if report and not truth:
         raise click.UsageError("--report needs --truth")
-    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=not no_camera_world)
+    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=not no_camera_world, processes=processes)
     res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet)
     if truth:
         from holodata.mapping.human_eval import evaluate_register

@@ -377,3 +377,105 @@ def test_local_plane_projection_chunks_give_the_same_cloud():
     b = local_plane_projection(X, 0.3, only=only, chunk=10**9)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
     assert np.abs(a[only, 2]).max() < 0.5 * np.abs(X[only, 2]).max() and np.array_equal(a[~only], X[~only])
+
+
+def test_voxel_average_is_open3d_voxel_down_sample():
+    """Independent check: the same voxel means as open3d's voxel_down_sample (order aside)."""
+    import open3d as o3d
+
+    from holodata.mapping.register import voxel_average
+
+    rng = np.random.default_rng(3)
+    p = np.concatenate([rng.uniform(-5, 5, (20000, 3)), rng.normal(1.0, 0.02, (5000, 3))])   # sparse + dense voxels
+    for voxel in (0.04, 0.15):
+        ref = np.asarray(o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p)).voxel_down_sample(voxel).points)
+        got = voxel_average(p, voxel)
+        assert got.shape == ref.shape
+        np.testing.assert_allclose(got[np.lexsort(got.T)], ref[np.lexsort(ref.T)], rtol=0, atol=1e-12)
+    assert voxel_average(np.zeros((0, 3)), 0.1).shape == (0, 3)
+
+
+def _copy_small_corner(tmp_path):
+    import shutil
+
+    import holodata.dataset as hds
+    from _mapping_synth import small_corner
+
+    src, truth = small_corner()
+    url = str(tmp_path / "ds.zarr")
+    shutil.copytree(src, url)
+    ds = hds.open_dataset(url)
+    sw = hds.create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene("recording")
+    if "lidar/instance" in sw.arrays():
+        sw.remove("lidar/instance")
+    return url, sw
+
+
+def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
+    """processes=2 (LiDAR half, camera/points_world and half the surfaces in forked processes) gives
+    the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation as processes=1."""
+    from holodata import open_dataset
+    from holodata.mapping.register import register_scene
+
+    url, sw = _copy_small_corner(tmp_path)
+    names = ("human/points", "human/vertices", "human/faces", "camera/points_world")
+    outs = []
+    for processes in (1, 2):
+        for name in ("lidar/instance",) + names:
+            if name in sw.arrays():
+                sw.remove(name)
+        res = register_scene(url, "recording", cfg=RegisterConfig(processes=processes))
+        assert res["segment"]["frames"] > 0
+        sc = open_dataset(url).scene("recording")
+        outs.append((np.asarray(sc["calib/T_world_camera"][...]), np.asarray(sc["lidar/instance"][...]),
+                     {n: [np.asarray(sc.ragged(n, k)) for k in range(sc.n_frames)] for n in names}))
+    (T1, i1, r1), (T2, i2, r2) = outs
+    assert np.array_equal(T1, T2) and np.array_equal(i1, i2) and i1.any()
+    for n in names:
+        assert all(np.array_equal(a, b) for a, b in zip(r1[n], r2[n])), n
+    assert sum(len(f) for f in r1["human/faces"]) > 0
+
+
+def _killed(*args):
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_register_process_killed_is_a_one_line_error(tmp_path, monkeypatch):
+    from holodata.mapping import register as R
+
+    url, _ = _copy_small_corner(tmp_path)
+    monkeypatch.setattr(R, "lidar_map", _killed)
+    with pytest.raises(R.RegistrationError, match="died .*--processes 1"):
+        R.register_scene(url, "recording", cfg=RegisterConfig(processes=2))
+
+
+
+def test_ransac_plane_finds_the_largest_plane_and_is_deterministic():
+    """Analytic check: a tilted plane holding 60 % of the points (2 mm noise) among uniform outliers is
+    recovered (normal within 0.5 deg, offset within 5 mm); the same seed gives the same plane; and
+    static_residual keeps only a standing person's box between a floor and a wall."""
+    from holodata.mapping.register import ransac_plane, static_residual
+
+    rng = np.random.default_rng(0)
+    nrm = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0])
+    uv = rng.uniform(-3, 3, (6000, 2))
+    e1 = np.cross(nrm, [1.0, 0, 0]); e1 /= np.linalg.norm(e1)
+    e2 = np.cross(nrm, e1)
+    on = uv[:, :1] * e1 + uv[:, 1:] * e2 + 0.7 * nrm + rng.normal(0, 0.002, (6000, 1)) * nrm
+    pts = np.concatenate([on, rng.uniform(-3, 3, (4000, 3))])
+    n1, d1, k1 = ransac_plane(pts, 0.02, 200, np.random.default_rng(5))
+    n2, d2, k2 = ransac_plane(pts, 0.02, 200, np.random.default_rng(5))
+    assert np.array_equal(n1, n2) and d1 == d2 and k1 == k2
+    s = np.sign(n1 @ nrm)
+    assert np.degrees(np.arccos(min(1.0, abs(n1 @ nrm)))) < 0.5 and abs(-s * d1 - 0.7) < 0.005
+    assert 6000 <= k1 < 6200
+    floor = np.c_[rng.uniform(0, 6, (20000, 2)), np.zeros(20000)]     # a person is a small part of a room
+    wall = np.c_[np.zeros(12000), rng.uniform(0, 6, 12000), rng.uniform(0, 2.5, 12000)]
+    a, z = rng.uniform(0, np.pi, 800), rng.uniform(0.1, 1.7, 800)      # the front half of a standing body
+    person = np.c_[2.2 + 0.2 * np.cos(a), 2.2 - 0.2 * np.sin(a), z]
+    cloud = np.concatenate([floor, wall, person])
+    resid = static_residual(cloud, RegisterConfig())
+    assert resid[-800:].mean() > 0.9 and resid[:-800].mean() < 0.01

@@ -401,12 +401,13 @@ def test_background_and_segment_reads_scans_once_with_the_same_masks(monkeypatch
     monkeypatch.setattr(S.LidarScans, "scan", lambda self, k, *a, **kw: reads.append(k) or orig(self, k, *a, **kw))
     monkeypatch.setattr(S.LidarScans, "scan_world",
                         lambda self, k, *a, **kw: world_reads.append(k) or orig_w(self, k, *a, **kw))
-    bg2, summary = S.background_and_segment(url, "recording", cfg, overwrite=True)
+    bg2, summary, kept = S.background_and_segment(url, "recording", cfg, overwrite=True)
     got = np.asarray(open_dataset(url).scene("recording")["lidar/instance"][...])
     assert np.array_equal(got, ref)
     assert np.array_equal(bg2.keys, bg.keys) and np.allclose(bg2.floor, bg.floor)
     n = len(scans.stamps)
     assert world_reads == list(range(n))                  # the background pass
+    assert sorted(kept) == [k for k in range(n) if scans.usable(k)]
     geometry = len(np.unique(np.linspace(0, n - 1, min(5, n)).round()))
     assert reads[geometry:] == sorted(set(range(n)) - few)  # after grid_geometry's reads: scans with foreground
 

@@ -146,6 +146,7 @@ class RegisterConfig:
     surface_voxel: float = 0.04
     segment_lidar: bool = True
     median_frames: int = 60
+    processes: int = 0          # 0: two when the machine has two CPUs (the LiDAR half beside the camera half)
     write_camera_world: bool = True
 
     def to_attrs(self) -> dict:
@@ -175,12 +176,29 @@ class Registration:
 
 
 # ------------------------------------------------------------------------------------ open3d helpers
+def voxel_average(points: np.ndarray, voxel: float) -> np.ndarray:
+    """(V,3) float64 mean of the points (N,3) in each occupied voxel of edge ``voxel`` (m): open3d's
+    ``voxel_down_sample`` (same grid, anchored half a voxel below the points' minimum; same means up to
+    rounding) in voxel-key order instead of hash order, ~3x faster on LiDAR scans."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return p.copy()
+    lo = p.min(0) - voxel * 0.5
+    ijk = np.floor((p - lo) / voxel).astype(np.int64)
+    dims = ijk.max(0) + 1
+    key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    count = np.diff(np.r_[start, len(ks)])
+    return np.add.reduceat(p[order], start, axis=0) / count[:, None]
+
+
 def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float | None = None, max_nn: int = 30):
     import open3d as o3d
 
-    p = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64).reshape(-1, 3)))
-    if voxel:
-        p = p.voxel_down_sample(voxel)
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    p = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(voxel_average(p, voxel) if voxel else p))
     if normals_radius:
         p.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normals_radius, max_nn=max_nn))
     return p
@@ -437,7 +455,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     src_n = np.asarray(_pcd(src, None, 3 * cfg.cam_voxel).normals)   # same order (no thinning)
     if cfg.map_plane_m > 0:
         # denoise the target: map points near the camera cloud (under the guess) onto their local planes
-        mp = np.asarray(_pcd(map_points, cfg.map_voxel).points)
+        mp = voxel_average(map_points, cfg.map_voxel)
         reach = cfg.crop_m + cfg.max_scale_m + cfg.map_plane_m
         near_cam = _nn_distances(mp, transform_points(init, src), reach) <= reach
         map_points = local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
@@ -524,10 +542,14 @@ class CameraFrames:
                              f"depth camera whose pixels can be recovered")
         return cls(scene, np.asarray(intr["K"], float), (int(intr["height"]), int(intr["width"])))
 
+    def points(self, k: int) -> np.ndarray:
+        """(N,3) float64 finite camera-frame points of frame ``k`` in front of the camera (z > 0)."""
+        p = np.asarray(self.scene.ragged("camera/points", k), np.float64)
+        return p[np.isfinite(p).all(1) & (p[:, 2] > 0)] if len(p) else p.reshape(0, 3)
+
     def depth(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         """(depth (h,w) float32 NaN = none, points (N,3) finite camera-frame points)."""
-        p = np.asarray(self.scene.ragged("camera/points", k), np.float64)
-        p = p[np.isfinite(p).all(1) & (p[:, 2] > 0)] if len(p) else p.reshape(0, 3)
+        p = self.points(k)
         h, w = self.shape
         D = np.full((h, w), np.nan, np.float32)
         if len(p):
@@ -554,9 +576,14 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
     when a person walks along the camera's line of sight and covers the same pixels in most frames
     (quick demo L corner: the person became static scene in 5 of 12 frames and a wall fragment was
     taken instead, 150-180 cm off)."""
+    stack = np.stack([cam.depth(k)[0] for k in track(frames, len(frames), "camera background", quiet)])
+    return static_depth_of(stack, far_quantile)
+
+
+def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`static_depth` of a stack of depth images (F,h,w) float32 m, NaN = no return."""
     import warnings
 
-    stack = np.stack([cam.depth(k)[0] for k in track(frames, len(frames), "camera background", quiet)])
     n = np.isfinite(stack).sum(0)
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)
@@ -570,7 +597,7 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
         inl = np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]
         cnt = inl.sum(0)
         mean = np.where(cnt > 0, np.nansum(np.where(inl, stack, 0.0), axis=0) / np.maximum(cnt, 1), np.nan)
-    mean = np.where(n * 2 >= len(frames), mean, np.nan).astype(np.float32)
+    mean = np.where(n * 2 >= len(stack), mean, np.nan).astype(np.float32)
     return mean, mad.astype(np.float32), cnt.astype(np.int32)
 
 
@@ -632,16 +659,14 @@ def cluster_points(points: np.ndarray, dist: float) -> np.ndarray:
 
 def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) -> np.ndarray:
     """(N,) bool: points of the static camera cloud (N,3, any frame) that are on none of the large
-    planes (floor, ceiling, walls: RANSAC planes, open3d ``segment_plane``, each holding at least
+    planes (floor, ceiling, walls: RANSAC planes, :func:`ransac_plane`, each holding at least
     ``plane_min_fraction`` of the points, up to ``max_planes``). Catches a person who stands still
     (and is therefore part of the temporal background)."""
-    import open3d as o3d
-
     pts = np.asarray(points, np.float64)
     keep = np.ones(len(pts), bool)
     if len(pts) < 100:
         return keep
-    o3d.utility.random.seed(seed)
+    rng = np.random.default_rng(seed)
     vox = np.floor(pts / cfg.cam_voxel).astype(np.int64)
     _, first, inv = np.unique(vox, axis=0, return_index=True, return_inverse=True)
     inv = inv.reshape(-1)
@@ -651,14 +676,37 @@ def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) ->
         idx = np.flatnonzero(alive)
         if len(idx) < 100:
             break
-        pc = _pcd(sub[idx])
-        model, inl = pc.segment_plane(distance_threshold=cfg.plane_dist_m, ransac_n=3, num_iterations=400)
-        if len(inl) < cfg.plane_min_fraction * len(sub):
+        normal, offset, n_in = ransac_plane(sub[idx], cfg.plane_dist_m, 400, rng)
+        if n_in < cfg.plane_min_fraction * len(sub):
             break
-        a = np.asarray(model[:3])
-        dist = np.abs(sub @ a + model[3]) / np.linalg.norm(a)
-        alive &= ~(dist < cfg.plane_dist_m)
+        alive &= ~(np.abs(sub @ normal + offset) < cfg.plane_dist_m)
     return alive[inv]
+
+
+def ransac_plane(points: np.ndarray, dist: float, iterations: int, rng) -> tuple[np.ndarray, float, int]:
+    """Plane with the most points (N,3) within ``dist`` (m) among ``iterations`` planes through three
+    random points (numpy ``rng``), refitted by least squares to its inliers: (unit normal (3,), offset,
+    inlier count) with ``normal · p + offset = 0``. Deterministic for a given ``rng`` state (open3d's
+    multithreaded ``segment_plane`` is not, even seeded: its result depended on thread timing)."""
+    p = np.asarray(points, np.float64)
+    i = rng.integers(0, len(p), (iterations, 3))
+    n = np.cross(p[i[:, 1]] - p[i[:, 0]], p[i[:, 2]] - p[i[:, 0]])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-12
+    n, a = n[ok] / norm[ok, None], p[i[ok, 0]]
+    d = -np.einsum("ij,ij->i", n, a)
+    counts = np.zeros(len(n), np.int64)
+    step = max(1, 4_000_000 // max(len(p), 1))          # (N, step) distances at a time
+    for s in range(0, len(n), step):
+        counts[s:s + step] = (np.abs(p @ n[s:s + step].T + d[s:s + step]) < dist).sum(0)
+    if not len(counts):
+        return np.array([0.0, 0.0, 1.0]), 0.0, 0
+    b = int(np.argmax(counts))
+    q = p[np.abs(p @ n[b] + d[b]) < dist]
+    c = q.mean(0)
+    normal = np.linalg.svd(q - c, full_matrices=False)[2][-1]     # least-squares plane of the inliers
+    offset = -float(normal @ c)
+    return normal, offset, int((np.abs(p @ normal + offset) < dist).sum())
 
 
 def _robust_plan_extent(xy: np.ndarray) -> float:
@@ -811,13 +859,15 @@ def _parse_init(init) -> np.ndarray | None:
 
 
 def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, margin_m: float = 0.25,
-              max_scans: int = 0) -> np.ndarray:
+              max_scans: int = 0, world_points: dict | None = None) -> np.ndarray:
     """World-frame static map: every scan's returns inside the background model and farther than
     ``margin_m`` from the scan's segmented instances ``instances`` (lazy (T,H,W) array or None),
     voxel-thinned; at most ``max_scans`` scans (0: all): motion keyframes plus scans spread in time,
     as for slam's mesh (a 400-cycle corner has 400 scans, most taken at rest). The instance margin
     removes the parts of people that fall into static voxels (a hand near a wall, feet on the
-    floor), which would otherwise bias the registration."""
+    floor), which would otherwise bias the registration. ``world_points``: {frame: world points of
+    the valid returns (N,3)} already de-skewed with ``traj`` (the segmentation's background pass);
+    scans in it without instances are taken from it instead of being read and de-skewed again."""
     from scipy.spatial import cKDTree
 
     from .segment import in_background
@@ -830,22 +880,115 @@ def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None
         ks = [k for k in ks if scans.usable(k)]
         ks = [ks[i] for i in mesh_scan_subset(np.asarray(scans.poses)[ks], max_scans)]
     for k in ks:
-        valid, _, Pw = scans.scan(k, traj, deskew)
-        if instances is not None:
-            inst = np.asarray(instances[k]) > 0
-            if (inst & valid).any():
+        inst = np.asarray(instances[k]) > 0 if instances is not None else None
+        if world_points is not None and k in world_points and (inst is None or not inst.any()):
+            p = np.asarray(world_points[k], np.float64)
+        else:
+            valid, _, Pw = scans.scan(k, traj, deskew)
+            if inst is not None and (inst & valid).any():
                 d, _ = cKDTree(Pw[inst & valid]).query(Pw[valid], k=1, distance_upper_bound=margin_m, workers=-1)
                 keep = np.zeros_like(valid)
                 keep[valid] = ~np.isfinite(d)
                 valid = keep
-        p = Pw[valid]
+            p = Pw[valid]
         if bg is not None and len(p):
             p = p[in_background(bg, p, 0)]
         if len(p):
-            pts.append(np.asarray(_pcd(p, voxel).points))
+            pts.append(voxel_average(p, voxel))
     if not pts:
         return np.zeros((0, 3))
-    return np.asarray(_pcd(np.concatenate(pts), voxel).points)
+    return voxel_average(np.concatenate(pts), voxel)
+
+
+def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True
+              ) -> tuple[np.ndarray, dict | None, dict]:
+    """The LiDAR half of :func:`register_scene` (steps 2 and the segmentation): background model,
+    ``lidar/instance`` when ``segment``, and the static map. Returns (map points (M,3) float64 world,
+    segmentation summary or None, timings {segment_s, map_s})."""
+    from ..dataset import open_dataset
+    from .segment import LidarScans, SegmentConfig, background_and_segment
+
+    t0 = time.perf_counter()
+    scene = open_dataset(url).scene(sid)
+    scans = LidarScans.open(scene, url)
+    traj = scans.trajectory()
+    bg, seg_summary, world_points = background_and_segment(url, sid, SegmentConfig(), quiet, segment=segment,
+                                                           scans=scans, traj=traj)
+    if segment:
+        scene = open_dataset(url).scene(sid)
+    t1 = time.perf_counter()
+    inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
+    M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans,
+                  world_points=world_points)
+    return M, seg_summary, {"segment_s": t1 - t0, "map_s": time.perf_counter() - t1}
+
+
+def _beside(processes: int, fn, *args):
+    """Start ``fn(*args)`` and return a callable that waits for its result: in a forked process when
+    ``processes`` > 1 (Linux; the caller goes on meanwhile), else called right away. ``fn`` must not
+    use OpenMP (open3d) after the fork: a process forked from one that ran OpenMP threads can hang in
+    it. A process killed by a signal or the OOM killer ends in a one-line :class:`RegistrationError`."""
+    import multiprocessing as mp
+    import sys
+
+    if processes <= 1 or not sys.platform.startswith("linux"):
+        out = fn(*args)
+        return lambda: out
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    pool = ProcessPoolExecutor(1, mp.get_context("fork"))
+    fut = pool.submit(fn, *args)
+
+    def result():
+        try:
+            return fut.result()
+        except BrokenProcessPool:
+            raise RegistrationError(f"register: the process running {fn.__name__} died (killed by a signal or out "
+                                    f"of memory); rerun, or use --processes 1") from None
+        finally:
+            pool.shutdown()
+    return result
+
+
+def camera_world(url: str, sid: str, T: np.ndarray) -> None:
+    """Write ``camera/points_world`` of scene ``sid`` (made by the caller): every camera point in the
+    map frame through ``T`` (4,4) T_world_camera, float32, shard by shard (the recording's clouds
+    never sit in memory together)."""
+    from ..dataset import create_dataset, open_dataset
+
+    ds = open_dataset(url)
+    cam = CameraFrames.open(ds.scene(sid), url)
+    arr = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid).ragged_array(
+        "camera/points_world", 3, "float32", "m", ["point", "xyz"])
+    for s in range(arr.n_shards):
+        sl = arr.frames(s)
+        arr.write_shard(s, [transform_points(T, cam.points(k)).astype(np.float32) for k in range(sl.start, sl.stop)])
+
+
+def human_surfaces(points: list, thickness: list, shift: np.ndarray, eye: np.ndarray, voxel: float) -> list:
+    """:func:`closed_surface` per frame: (vertices (V,3) float32, faces (F,3) int32) of each frame's
+    human points (N,3) moved by its velocity ``shift`` (3,) m, seen from ``eye`` (3,); empty for a
+    frame without points."""
+    out = []
+    for p, th, d in zip(points, thickness, shift):
+        if len(p) == 0:
+            out.append((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
+            continue
+        v, f = closed_surface(np.asarray(p, np.float64) + d, eye + d, th, voxel)
+        out.append((v.astype(np.float32), f.astype(np.int32)))
+    return out
+
+
+def register_processes(cfg: RegisterConfig) -> int:
+    """Processes :func:`register_scene` uses: ``cfg.processes``, or with 0 two when the machine has two
+    CPUs for it (one otherwise)."""
+    import os
+
+    if cfg.processes:
+        return max(1, int(cfg.processes))
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return 2 if cpus >= 2 else 1
 
 
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
@@ -853,7 +996,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
     docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes."""
     from ..dataset import create_dataset, open_dataset
-    from .segment import LidarScans, SegmentConfig, _scene_id, background_and_segment
+    from .segment import LidarScans, _scene_id
 
     cfg = cfg or RegisterConfig()
     t0 = time.perf_counter()
@@ -862,7 +1005,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     sid = _scene_id(ds, url, scene_id)
     scene = ds.scene(sid)
     cam = CameraFrames.open(scene, url)
-    scans = LidarScans.open(scene, url)
+    LidarScans.open(scene, url)   # checks the LiDAR arrays and poses before any work starts
     T_init = _parse_init(init)
     init_source = "--init"
     if T_init is None:
@@ -873,33 +1016,39 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         T_init, init_source = np.asarray(tf, float), "tf"
     names = set(scene.arrays())
     n = scene.n_frames
-    # 1. map (static part) and LiDAR segmentation
-    traj = scans.trajectory()
-    scfg = SegmentConfig()
+    processes = register_processes(cfg)
+    # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
+    # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
     segment = cfg.segment_lidar and "lidar/instance" not in names
-    bg, seg_summary = background_and_segment(url, sid, scfg, quiet, segment=segment, scans=scans, traj=traj)
-    if segment:
-        scene = open_dataset(url).scene(sid)
-        scans = LidarScans.open(scene, url)
-    timings["segment_s"] = time.perf_counter() - t0
-    inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
-    M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans)
-    if len(M) < 100:
-        raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
-    timings["map_s"] = time.perf_counter() - t0 - timings["segment_s"]
-    # 2. static camera cloud
+    lidar = _beside(processes, lidar_map, url, sid, cfg, segment, quiet or processes > 1)
     t1 = time.perf_counter()
-    cam_frames = [k for k in range(n) if len(scene.ragged("camera/points", k))]
+    depths, has_points = [], []
+    for k in track(range(n), n, "camera depth", quiet):
+        D, p = cam.depth(k)
+        depths.append(D)
+        has_points.append(len(p) > 0)
+    cam_frames = [k for k in range(n) if has_points[k]]
     if not cam_frames:
+        lidar()
         raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
-    if len(cam_frames) > cfg.median_frames:  # evenly spread subset: memory stays flat in recording length
+    if len(cam_frames) > cfg.median_frames:  # evenly spread subset
         cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
-    med, mad, cnt = static_depth(cam, cam_frames, quiet)
+    med, mad, cnt = static_depth_of(np.stack([depths[k] for k in cam_frames]))
     rays = cam.rays()
     okm = np.isfinite(med) & (cnt > 0)
     static_cam = rays[okm] * med[okm][:, None]
     sig_mean = depth_noise_model(med[okm], mad[okm]) / np.sqrt(cnt[okm])
+    resid = static_residual(static_cam, cfg)
+    timings["camera_s"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    M, seg_summary, lidar_timings = lidar()
+    timings.update(lidar_timings)
+    timings["lidar_wait_s"] = time.perf_counter() - t1
+    if len(M) < 100:
+        raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
+    scene = open_dataset(url).scene(sid)
     # 3. extrinsic
+    t1 = time.perf_counter()
     reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean)
     timings["extrinsic_s"] = time.perf_counter() - t1
     if not reg.accepted:
@@ -923,7 +1072,6 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     # a person standing still is in the temporal background: static points on no large plane and not
     # explained by the map are candidates in every frame
     still = np.zeros(med.shape, bool)
-    resid = static_residual(static_cam, cfg)
     if resid.any():
         sw_ = transform_points(T, static_cam[resid])
         dmap_ = _nn_distances(sw_, M, cfg.map_explain_m)
@@ -936,17 +1084,13 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
         if name in sw.arrays():
             sw.remove(name)
-    cw_arr = sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"]) if cfg.write_camera_world else None
-    cam_world: list = []
+    cam_world = lambda: None  # noqa: E731
+    if cfg.write_camera_world:  # made here, written by a second process while this one finds the humans
+        sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
+        cam_world = _beside(processes, camera_world, url, sid, T)
     for k in track(range(n), n, f"register {sid}", quiet):
-        D, p = cam.depth(k)
-        if cw_arr is not None:  # streamed shard by shard: the whole recording's clouds never sit in memory
-            cam_world.append(transform_points(T, p).astype(np.float32))
-            s_k = k // cw_arr.shard_frames
-            if k == cw_arr.frames(s_k).stop - 1:
-                cw_arr.write_shard(s_k, cam_world)
-                cam_world = []
-        if not len(p):
+        D = depths[k]
+        if not has_points[k]:
             cand.append((np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), D))
             continue
         thr = np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)
@@ -1005,14 +1149,12 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     # velocity compensation: camera stamp -> frame stamp
     cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
     shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
-    surfaces = []
-    for k in range(n):
-        if len(human_pts[k]) == 0:
-            surfaces.append((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
-            continue
-        v, f = closed_surface(human_pts[k].astype(np.float64) + shift[k], eye + shift[k], thick[k],
-                              cfg.surface_voxel)
-        surfaces.append((v.astype(np.float32), f.astype(np.int32)))
+    cam_world()
+    # every other frame's surface in a second process
+    odd = _beside(processes, human_surfaces, human_pts[1::2], thick[1::2], shift[1::2], eye, cfg.surface_voxel)
+    even = human_surfaces(human_pts[0::2], thick[0::2], shift[0::2], eye, cfg.surface_voxel)
+    surfaces = [None] * n
+    surfaces[0::2], surfaces[1::2] = even, odd()
     timings["humans_s"] = time.perf_counter() - t2
     # 5. write
     specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),

@@ -770,10 +770,12 @@ def _background_pass(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bo
 
 def background_and_segment(url: str, scene_id: str | None = None, cfg: SegmentConfig | None = None,
                            quiet: bool = True, overwrite: bool = False, segment: bool = True, scans=None, traj=None):
-    """(background model, :func:`segment_scene` summary or None): :func:`build_background` of the
-    scene's scans and, with ``segment``, their segmentation, which reuses the background pass's world
-    points: scans without foreground are not read and de-skewed a second time (366 of the 400 scans
-    of a 400-cycle corner are taken at rest, most of them without foreground). ``scans`` /
+    """(background model, :func:`segment_scene` summary or None, world points): :func:`build_background`
+    of the scene's scans and, with ``segment``, their segmentation, which reuses the background pass's
+    world points: scans without foreground are not read and de-skewed a second time (366 of the 400
+    scans of a 400-cycle corner are taken at rest, most of them without foreground). World points:
+    {frame: float32 world points (N,3) of the valid returns in row-major order} of the usable scans,
+    the lists the model was built from (``holodata register`` builds its map from them). ``scans`` /
     ``traj``: the scene's :class:`LidarScans` and trajectory when the caller has them."""
     from ..dataset import open_dataset
 
@@ -784,10 +786,10 @@ def background_and_segment(url: str, scene_id: str | None = None, cfg: SegmentCo
         scans = LidarScans.open(ds.scene(sid), url)
     if traj is None:
         traj = scans.trajectory()
-    bg, kept = _background_pass(scans, cfg, traj, quiet, keep=segment)
+    bg, kept = _background_pass(scans, cfg, traj, quiet, keep=True)
     if not segment:
-        return bg, None
-    return bg, segment_scene(url, sid, cfg, quiet, overwrite, background=bg, world_points=kept)
+        return bg, None, kept
+    return bg, segment_scene(url, sid, cfg, quiet, overwrite, background=bg, world_points=kept), kept
 
 
 def surely_without_foreground(bg, points_world32: np.ndarray, cfg: SegmentConfig) -> bool:
