@@ -544,3 +544,74 @@ def test_unique_voxels_equals_np_unique_of_the_keys():
         a, ai = np.unique(_keys(ijk), return_inverse=True)
         b, bi = _unique_voxels(ijk)
         assert np.array_equal(a, b) and np.array_equal(ai.reshape(-1), bi)
+
+
+def test_deskew_any_axis_and_held_pose():
+    """deskew (Rodrigues per point) equals the rotation matrices of scipy for a twist about a tilted
+    axis; a held pose's rounding-noise twist returns the points themselves (no copy, no change)."""
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-8, 8, (2000, 3)).astype(np.float32)
+    t = np.repeat(np.linspace(0, 0.1, 100), 20).astype(np.float32)
+    xi = np.array([0.4, -0.7, 1.1, 0.3, -0.2, 0.05])
+    R = Rotation.from_rotvec(t[:, None].astype(np.float64) * xi[None, :3]).as_matrix()
+    want = np.einsum("nij,nj->ni", R, p.astype(np.float64)) + t[:, None] * xi[None, 3:]
+    assert np.abs(deskew(p, t, xi) - want).max() < 1e-12
+    noise = twist(np.eye(4), np.linalg.inv(np.linalg.inv(robot_pose(1.0))) @ np.linalg.inv(robot_pose(1.0)), 0.1)
+    assert 0 < np.abs(noise).max() < 1e-12           # equal poses, not an exact zero twist
+    assert deskew(p, t, noise) is p
+    assert deskew(p, np.zeros_like(t), xi) is p         # one time for every point: nothing to undo
+
+
+def test_streamed_scans_equal_loaded_scans(slam_run):
+    """stream_scans (a reading thread) yields load_scans' scans, in order, before it has finished."""
+    from holodata.dataset import open_dataset
+    from holodata.mapping.slam import load_scans, stream_scans
+
+    sc = open_dataset(slam_run["url"]).scene(slam_run["res"].scene)
+    want = load_scans(sc)
+    scans, feed = stream_scans(sc)
+    try:
+        assert np.array_equal(scans.frames, want.frames) and np.array_equal(scans.stamp_ns, want.stamp_ns)
+        feed.wait(0)
+        assert np.array_equal(scans.points[0], want.points[0])
+        feed.wait(len(want) - 1)
+    finally:
+        feed.close()
+    for name in ("points", "times", "pixels"):
+        assert len(getattr(scans, name)) == len(want)
+        assert all(np.array_equal(a, b) for a, b in zip(getattr(scans, name), getattr(want, name)))
+    assert scans.grid == want.grid
+
+
+def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
+    """A scan that turns out empty (its frame is dropped) sends slam back to the whole read, with the same
+    poses as without streaming; a read error in the thread ends slam with that one-line error."""
+    from holodata.errors import DatasetError, HolodataError
+    from holodata.mapping import slam as S
+
+    read = S._ScanSource.read
+    skip = int(slam_run["res"].summary["scans"]) // 2
+
+    def without_one(self, quiet=True, stop=None):
+        for k, row in enumerate(read(self, quiet, stop)):
+            if k != skip:
+                yield row
+
+    monkeypatch.setattr(S._ScanSource, "read", without_one)
+    res = S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
+    assert res.summary["scans"] == slam_run["res"].summary["scans"] - 1
+    monkeypatch.setattr(S, "stream_scans", lambda scene: None)
+    plain = S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
+    assert np.abs(res.scan_poses - plain.scan_poses).max() < 1e-6   # open3d ICP (OpenMP sums): not bit-exact run to run
+    monkeypatch.undo()
+
+    def broken(self, quiet=True, stop=None):
+        for k, row in enumerate(read(self, quiet, stop)):
+            if k == 3:
+                raise DatasetError("ds.zarr: lidar/points shard 1 is corrupt")
+            yield row
+
+    monkeypatch.setattr(S._ScanSource, "read", broken)
+    with pytest.raises(HolodataError, match="shard 1 is corrupt"):
+        S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
+    assert not any(t.name == "holodata-slam-read" for t in __import__("threading").enumerate())

@@ -40,6 +40,7 @@ optional exports.
 """
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -187,59 +188,157 @@ class SlamResult:
 # ----------------------------------------------------------------------------------------------
 # scans
 
+class _ScanSource:
+    """The LiDAR arrays of a scene (module doc, 1.): ``stamps`` (T,) int64 scan stamps, ``has_t`` (per-point
+    times present), ``grid`` (H, W) of ``lidar/range`` or None. Raises DatasetError without lidar/points."""
+
+    def __init__(self, scene):
+        names = set(scene.arrays())
+        if "lidar/points" not in names:
+            raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has no lidar/points (slam needs LiDAR scans)")
+        if "lidar/timestamp_ns" in names:
+            self.stamps = np.asarray(scene["lidar/timestamp_ns"][...], np.int64)
+        elif "time/timestamp_ns" in names:
+            self.stamps = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+        else:
+            raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has neither lidar/timestamp_ns nor time/timestamp_ns")
+        self.scene = scene
+        self.has_t = "lidar/point_time_ns" in names
+        self.rng = scene["lidar/range"] if "lidar/range" in names and len(scene["lidar/range"].shape) == 3 else None
+        self.grid = tuple(int(x) for x in self.rng.shape[1:]) if self.rng is not None else None
+
+    def candidates(self) -> np.ndarray:
+        """Frames with a stamp that is set and differs from the previous one: the scans, unless one has
+        fewer than 100 returns."""
+        out, last = [], None
+        for f, s in enumerate(self.stamps.tolist()):
+            if s != 0 and s != last:
+                out.append(f)
+                last = s
+        return np.asarray(out, np.int64)
+
+    def read(self, quiet: bool = True, stop=None):
+        """Yield (frame, stamp, points (N,3) float32, times (N,) float32 s or None, pixels (N,) int32 or
+        None) of each scan in frame order (frames without a new stamp or with < 100 returns skipped);
+        ``stop()`` True ends it early."""
+        scene, stamps, T = self.scene, self.stamps, self.scene.n_frames
+        pr = scene["lidar/points"]
+        tr = scene["lidar/point_time_ns"] if self.has_t else None
+        rng = self.rng
+        last = None
+        rblock = None  # (first frame, end frame, (n,H,W) ranges): lidar/range read a shard at a time
+        for f in track(range(T), total=T, description=f"slam {scene.id}: read scans", quiet=quiet):
+            if stop is not None and stop():
+                return
+            s = int(stamps[f])
+            if s == 0 or s == last:
+                continue
+            p = pr[f]   # sequential reads: one zarr read per shard (dataset.reader.Ragged)
+            if p.dtype not in (np.float32, np.float64):
+                p = p.astype(np.float64)
+            good = _returns(p)  # organised clouds: (0,0,0) = no return
+            n_good = int(np.count_nonzero(good))
+            if n_good < 100:
+                continue
+            every = n_good == len(p)  # unorganised clouds (synth, most drivers): no copy by a mask
+            pts = (p if every else p[good]).astype(np.float32, copy=False)  # float32: 400 scans x 65k points < 0.5 GB
+            pix = None
+            if rng is not None:
+                if rblock is None or not rblock[0] <= f < rblock[1]:
+                    step = int((getattr(rng, "shards", None) or rng.chunks)[0])
+                    end = min((f // step + 1) * step, T)
+                    rblock = (f, end, np.asarray(rng[f:end], np.float32))
+                fin = np.flatnonzero(np.isfinite(rblock[2][f - rblock[0]]).reshape(-1))
+                pix = (fin if every else fin[good]).astype(np.int32) if len(fin) == len(p) else None
+            tm = None
+            if tr is not None:
+                t = np.asarray(tr[f], np.int64).reshape(-1)
+                tm = (((t if every else t[good]) * 1e-9).astype(np.float32) if len(t) == len(p)
+                      else np.zeros(n_good, np.float32))
+            last = s
+            yield f, s, pts, tm, pix
+
+
 def load_scans(scene, quiet: bool = True) -> Scans:
     """Read the LiDAR scans of a dataset scene (see module doc). Raises DatasetError without any."""
-    names = set(scene.arrays())
-    if "lidar/points" not in names:
-        raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has no lidar/points (slam needs LiDAR scans)")
-    T = scene.n_frames
-    frame_t = np.asarray(scene["time/timestamp_ns"][...], np.int64) if "time/timestamp_ns" in names else None
-    if "lidar/timestamp_ns" in names:
-        stamps = np.asarray(scene["lidar/timestamp_ns"][...], np.int64)
-    elif frame_t is not None:
-        stamps = frame_t
-    else:
-        raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has neither lidar/timestamp_ns nor time/timestamp_ns")
-    has_t = "lidar/point_time_ns" in names
-    pr = scene["lidar/points"]
-    tr = scene["lidar/point_time_ns"] if has_t else None
-    frames, st, pts, tms, pix = [], [], [], [], []
-    last = None
-    rng = scene["lidar/range"] if "lidar/range" in names and len(scene["lidar/range"].shape) == 3 else None
-    grid = tuple(int(x) for x in rng.shape[1:]) if rng is not None else None
-    rblock = None  # (first frame, end frame, (n,H,W) ranges): lidar/range read a shard at a time
-    for f in track(range(T), total=T, description=f"slam {scene.id}: read scans", quiet=quiet):
-        s = int(stamps[f])
-        if s == 0 or s == last:
-            continue
-        p = pr[f]   # sequential reads: one zarr read per shard (dataset.reader.Ragged)
-        if p.dtype not in (np.float32, np.float64):
-            p = p.astype(np.float64)
-        good = _returns(p)  # organised clouds: (0,0,0) = no return
-        n_good = int(np.count_nonzero(good))
-        if n_good < 100:
-            continue
-        every = n_good == len(p)  # unorganised clouds (synth, most drivers): no copy by a mask
-        frames.append(f)
-        st.append(s)
-        pts.append((p if every else p[good]).astype(np.float32, copy=False))  # float32: 400 scans x 65k points < 0.5 GB
-        if rng is not None:
-            if rblock is None or not rblock[0] <= f < rblock[1]:
-                step = int((getattr(rng, "shards", None) or rng.chunks)[0])
-                end = min((f // step + 1) * step, T)
-                rblock = (f, end, np.asarray(rng[f:end], np.float32))
-            fin = np.flatnonzero(np.isfinite(rblock[2][f - rblock[0]]).reshape(-1))
-            pix.append((fin if every else fin[good]).astype(np.int32) if len(fin) == len(p) else None)
-        if has_t:
-            t = np.asarray(tr[f], np.int64).reshape(-1)
-            tms.append(((t if every else t[good]) * 1e-9).astype(np.float32) if len(t) == len(p)
-                       else np.zeros(n_good, np.float32))
-        last = s
-    if not frames:
+    src = _ScanSource(scene)
+    rows = list(src.read(quiet))
+    if not rows:
         raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has no usable LiDAR scan (all empty)")
-    order = np.argsort(np.asarray(st), kind="stable")
-    return Scans(np.asarray(frames, np.int64)[order], np.asarray(st, np.int64)[order], [pts[i] for i in order],
-                 [tms[i] for i in order] if has_t else None, grid, [pix[i] for i in order] if rng is not None else None)
+    rows.sort(key=lambda r: r[1])   # stable: by stamp
+    return Scans(np.asarray([r[0] for r in rows], np.int64), np.asarray([r[1] for r in rows], np.int64),
+                 [r[2] for r in rows], [r[3] for r in rows] if src.has_t else None, src.grid,
+                 [r[4] for r in rows] if src.rng is not None else None)
+
+
+class _StreamBroken(Exception):
+    """A streamed scan list does not hold: a frame chosen by its stamp had < 100 returns (read again whole)."""
+
+
+class _ScanFeed:
+    """Fills a :class:`Scans` (frames and stamps known, arrays empty) from a daemon thread, scan by scan;
+    :meth:`wait` blocks until scan i is there and re-raises the reader's error."""
+
+    def __init__(self, scans: Scans, src: _ScanSource):
+        self.scans, self.src = scans, src
+        self.cond = threading.Condition()
+        self.count, self.error, self.stopped = 0, None, False
+        self.read_s = self.wait_s = 0.0
+        self.thread = threading.Thread(target=self._run, name="holodata-slam-read", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        t0 = time.perf_counter()
+        sc = self.scans
+        try:
+            # quiet: one progress display at a time (the refinement's)
+            for k, (f, _, pts, tm, pix) in enumerate(self.src.read(True, stop=lambda: self.stopped)):
+                if k >= len(sc.frames) or f != sc.frames[k]:
+                    raise _StreamBroken(f"frame {f}")
+                sc.points.append(pts)
+                if sc.times is not None:
+                    sc.times.append(tm)
+                if sc.pixels is not None:
+                    sc.pixels.append(pix)
+                with self.cond:
+                    self.count = k + 1
+                    self.cond.notify_all()
+            if self.count < len(sc.frames) and not self.stopped:
+                raise _StreamBroken("fewer scans")
+        except BaseException as e:  # noqa: BLE001 - handed to the consumer by wait()
+            with self.cond:
+                self.error = e
+                self.cond.notify_all()
+        self.read_s = time.perf_counter() - t0
+
+    def wait(self, i: int) -> None:
+        t0 = time.perf_counter()
+        with self.cond:
+            while self.count <= i and self.error is None:
+                self.cond.wait()
+        self.wait_s += time.perf_counter() - t0
+        if self.count <= i:
+            raise self.error
+
+    def close(self) -> None:
+        """Stop reading (after an error of the consumer) and wait for the thread."""
+        self.stopped = True
+        self.thread.join()
+
+
+def stream_scans(scene) -> tuple[Scans, _ScanFeed] | None:
+    """The scans of :func:`load_scans`, read by a background thread while the caller already works on the
+    first ones (call ``feed.wait(i)`` before using scan i, ``feed.close()`` at the end). None when the
+    scans' stamps are not increasing in frame order (then :func:`load_scans` sorts them). A frame that
+    turns out to have < 100 returns makes ``wait`` raise :class:`_StreamBroken`: read with
+    :func:`load_scans` then."""
+    src = _ScanSource(scene)
+    frames = src.candidates()
+    if len(frames) == 0 or np.any(np.diff(src.stamps[frames]) <= 0):
+        return None
+    scans = Scans(frames, src.stamps[frames].copy(), [], [] if src.has_t else None, src.grid,
+                  [] if src.rng is not None else None)
+    return scans, _ScanFeed(scans, src)
 
 
 def _returns(p: np.ndarray) -> np.ndarray:
@@ -351,12 +450,25 @@ def twist(Ta: np.ndarray, Tb: np.ndarray, dt: float) -> np.ndarray:
 
 def deskew(points: np.ndarray, times: np.ndarray | None, xi: np.ndarray) -> np.ndarray:
     """Points (N,3) taken at ``times`` (N,) s relative to the reference, sensor moving with body twist
-    ``xi`` [ω, v] per second → the same points in the sensor frame at the reference time."""
-    if times is None or not np.any(xi) or np.ptp(times) == 0:
+    ``xi`` [ω, v] per second → the same points in the sensor frame at the reference time:
+    ``R(t)·p + t·v``, ``R(t)`` the rotation by ``t·|ω|`` about ω/|ω| (Rodrigues, per point). Returns
+    ``points`` unchanged when all times are equal or the twist turns less than 1e-12 rad and moves
+    less than 1 nm over the scan (the rounding noise of the twist between two equal held poses)."""
+    if times is None or len(points) == 0 or np.ptp(times) == 0:
         return points
-    ut, inv = np.unique(times, return_inverse=True)
-    R = Rotation.from_rotvec(ut[:, None] * xi[None, :3]).as_matrix()
-    return np.einsum("nij,nj->ni", R[inv], points) + ut[inv, None] * xi[None, 3:]
+    t = np.asarray(times, np.float64)
+    span = float(np.abs(t).max())
+    w = float(np.linalg.norm(xi[:3]))
+    if w * span < 1e-12 and float(np.linalg.norm(xi[3:])) * span < 1e-9:
+        return points
+    p = np.asarray(points, np.float64)
+    out = p + t[:, None] * xi[None, 3:]
+    if w > 0:
+        k = xi[:3] / w
+        c, s = np.cos(t * w), np.sin(t * w)
+        K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])  # K @ p = k × p
+        out += (p @ K.T) * s[:, None] + ((p @ k) * (1.0 - c))[:, None] * k[None, :] - p * (1.0 - c)[:, None]
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -571,12 +683,13 @@ def icp(src_pts: np.ndarray, target, init: np.ndarray, cfg: SlamConfig, distance
     return T, float(res.fitness), float(res.inlier_rmse)
 
 
-def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None
-           ) -> tuple[np.ndarray, dict]:
+def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None,
+           ready=None) -> tuple[np.ndarray, dict]:
     """Scan-to-map refinement (see module doc) of initial poses ``init``: (S,4,4) at the scan stamps,
     or a :class:`KissStream` asked for a scan's kiss-icp pose only when the robot is not at rest (its
     relative motion seeds the ICP; scans at rest are never fed to it). ``T0``: pose of the first scan
-    (default ``init``'s). Returns the refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
+    (default ``init``'s); ``ready(i)``: called before scan i is used (scans still being read,
+    :func:`stream_scans`). Returns the refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
     S = len(scans)
     t_s = (scans.stamp_ns - scans.stamp_ns[0]).astype(np.float64) * 1e-9
     stream = _Fixed(np.asarray(init, np.float64)) if isinstance(init, np.ndarray) else init
@@ -606,6 +719,8 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
         return p[keep], (t[keep] if t is not None else None)
 
     for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
+        if ready is not None:
+            ready(i)
         xi = xi_prev if i > 0 else np.zeros(6)
         raw_t = scans.times[i] if use_t else None
         if (i > 0 and not _moved(poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5)
@@ -822,16 +937,17 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
 
     mesh_cfg = mesh_cfg or MeshConfig()
     sub = mesh_scan_subset(poses, cfg.mesh_max_scans, cfg.map_keyframe_m, cfg.map_keyframe_deg)
+    # each scan deskewed and moved to the world once, for both the background model and the cloud
     desk = deskewed_scans(scans, poses, cfg, max_range, sub)
     poses = poses[sub]
+    world = [transform_points(T, p) for T, p in zip(poses, desk)]
+    del desk
     if background is None:
-        world = [transform_points(T, downsample(p, cfg.fine_map_voxel)) for T, p in zip(poses, desk)]
-        background = VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
-                                           origins=poses[:, :3, 3])
+        background = VoxelBackground.build([downsample(w, cfg.fine_map_voxel) for w in world], voxel=cfg.background_voxel,
+                                           min_fraction=cfg.background_min_fraction, origins=poses[:, :3, 3])
     acc = PointAccumulator(mesh_cfg.voxel)
     removed = 0
-    for T, p in track(list(zip(poses, desk)), total=len(poses), description="slam: static points", quiet=quiet):
-        w = transform_points(T, p)
+    for T, w in track(list(zip(poses, world)), total=len(poses), description="slam: static points", quiet=quiet):
         m = background.contains(w, tolerance=0)
         removed += int((~m).sum())
         acc.add(w[m], T[:3, 3])
@@ -845,6 +961,25 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
 # ----------------------------------------------------------------------------------------------
 # entry points
 
+def _import_in_background(modules) -> threading.Thread:
+    """Start importing ``modules`` in a daemon thread and return it (join it before use). kiss-icp and
+    open3d take ~1 s CPU to import (open3d's visualization module pulls in dash and plotly), mostly
+    Python; it runs while the scans are read, whose zarr decoding leaves the GIL free at times. An
+    import error is left for the real import to raise."""
+    import importlib
+
+    def run():
+        for m in modules:
+            try:
+                importlib.import_module(m)
+            except Exception:  # noqa: BLE001 - raised again, with context, by the import that needs it
+                return
+
+    th = threading.Thread(target=run, name="holodata-slam-imports", daemon=True)
+    th.start()
+    return th
+
+
 def _fingerprint(scene, cfg: SlamConfig, mesh_cfg) -> str:
     import hashlib
     import json
@@ -856,6 +991,52 @@ def _fingerprint(scene, cfg: SlamConfig, mesh_cfg) -> str:
             node = scene.nodes()[name][1]
             h.update(json.dumps(node.get("attributes", {}).get("holodata", {}).get("shards"), sort_keys=True).encode())
     return h.hexdigest()[:16]
+
+
+def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: dict, feed, quiet: bool):
+    """Poses of ``scans`` (module doc, 2.-4.): (max range, T0 the first scan's world pose, anchor info,
+    refined poses (S,4,4), kiss-icp poses (S,4,4) in the world frame, their reference stamps (S,),
+    the global pass' background model or None). Fills ``health`` and ``timings``; ``feed``: the
+    :class:`_ScanFeed` of streamed scans (None: all read)."""
+    ready = feed.wait if feed is not None else None
+    if ready is not None:
+        ready(min(len(scans), 10) - 1)   # data_max_range
+    max_range = float(config.max_range or data_max_range(scans))
+    T0, anchor = anchor_pose(scene, int(scans.stamp_ns[0]))
+    anchor["T_world_lidar0"] = T0.tolist()
+    background = None
+    if config.refine and len(scans) > 1:
+        # kiss-icp and the refinement in one pass: kiss-icp is fed only the scans where the robot moves
+        t0 = time.perf_counter()
+        ks = KissStream(scans, config, max_range)
+        poses, h1 = refine(scans, ks, config, max_range, quiet=quiet, T0=T0, ready=ready)
+        K, kref = ks.poses, ks.ref
+        timings["kiss_icp_s"] = h1["kiss_s"]
+        timings["refine_s"] = time.perf_counter() - t0 - h1["kiss_s"]
+        health["sequential"] = {"fitness_min": float(h1["fitness"][1:].min()), "fitness_mean": float(h1["fitness"][1:].mean()),
+                                "rmse_max_m": float(h1["rmse"][1:].max()), "kiss_fallbacks": h1["kiss_fallbacks"],
+                                "still_scans": h1["still_scans"], "still_same_beam": h1["still_same_beam"],
+                                "kiss_scans": h1["kiss_scans"],
+                                "map_keyframes": h1["map_keyframes"]}
+        K = (T0 @ np.linalg.inv(K[0])) @ K  # kiss-icp's poses in the world frame (module doc, 4.)
+        if config.global_pass:
+            t0 = time.perf_counter()
+            poses, h2 = global_refine(scans, poses, config, max_range, quiet=quiet)
+            timings["global_refine_s"] = time.perf_counter() - t0
+            background = h2["background"]
+            poses = (T0 @ np.linalg.inv(poses[0])) @ poses  # keep the world frame (the anchor) exact
+            health["global"] = {"fitness_min": float(h2["fitness"].min()), "fitness_mean": float(h2["fitness"].mean()),
+                                "rmse_max_m": float(h2["rmse"].max()), "rmse_mean_m": float(h2["rmse"].mean()),
+                                "map_points": h2["map_points"]}
+    else:
+        if ready is not None:
+            ready(len(scans) - 1)
+        t0 = time.perf_counter()
+        K, kref = kiss_odometry(scans, config, max_range, quiet=quiet)
+        timings["kiss_icp_s"] = time.perf_counter() - t0
+        K = (T0 @ np.linalg.inv(K[0])) @ K  # the world frame (module doc, 4.)
+        poses = Trajectory(kref, K).interpolate(scans.stamp_ns) if len(scans) > 1 else K.copy()
+    return max_range, T0, anchor, poses, K, kref, background
 
 
 def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig = SlamConfig(), mesh_config=None,
@@ -890,44 +1071,36 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
 
             write_ply(ply, Mesh(res.mesh[0], res.mesh[1]))
         return res
-    timings = {}
-    t0 = time.perf_counter()
-    scans = load_scans(scene, quiet=quiet)
-    timings["read_s"] = time.perf_counter() - t0
-    max_range = float(config.max_range or data_max_range(scans))
-    T0, anchor = anchor_pose(scene, int(scans.stamp_ns[0]))
-    anchor["T_world_lidar0"] = T0.tolist()
+    timings: dict = {}
     health: dict = {}
-    background = None
-    if config.refine and len(scans) > 1:
-        # kiss-icp and the refinement in one pass: kiss-icp is fed only the scans where the robot moves
-        t0 = time.perf_counter()
-        ks = KissStream(scans, config, max_range)
-        poses, h1 = refine(scans, ks, config, max_range, quiet=quiet, T0=T0)
-        K, kref = ks.poses, ks.ref
-        timings["kiss_icp_s"] = h1["kiss_s"]
-        timings["refine_s"] = time.perf_counter() - t0 - h1["kiss_s"]
-        health["sequential"] = {"fitness_min": float(h1["fitness"][1:].min()), "fitness_mean": float(h1["fitness"][1:].mean()),
-                                "rmse_max_m": float(h1["rmse"][1:].max()), "kiss_fallbacks": h1["kiss_fallbacks"],
-                                "still_scans": h1["still_scans"], "still_same_beam": h1["still_same_beam"],
-                                "kiss_scans": h1["kiss_scans"],
-                                "map_keyframes": h1["map_keyframes"]}
-        K = (T0 @ np.linalg.inv(K[0])) @ K  # kiss-icp's poses in the world frame (module doc, 4.)
-        if config.global_pass:
-            t0 = time.perf_counter()
-            poses, h2 = global_refine(scans, poses, config, max_range, quiet=quiet)
-            timings["global_refine_s"] = time.perf_counter() - t0
-            background = h2["background"]
-            poses = (T0 @ np.linalg.inv(poses[0])) @ poses  # keep the world frame (the anchor) exact
-            health["global"] = {"fitness_min": float(h2["fitness"].min()), "fitness_mean": float(h2["fitness"].mean()),
-                                "rmse_max_m": float(h2["rmse"].max()), "rmse_mean_m": float(h2["rmse"].mean()),
-                                "map_points": h2["map_points"]}
+    t0 = time.perf_counter()
+    imports = _import_in_background(("kiss_icp.kiss_icp", "open3d"))
+    streamed = stream_scans(scene) if config.refine else None
+    if streamed is None:
+        scans, feed = load_scans(scene, quiet=quiet), None
+        timings["read_s"] = time.perf_counter() - t0
     else:
-        t0 = time.perf_counter()
-        K, kref = kiss_odometry(scans, config, max_range, quiet=quiet)
-        timings["kiss_icp_s"] = time.perf_counter() - t0
-        K = (T0 @ np.linalg.inv(K[0])) @ K  # the world frame (module doc, 4.)
-        poses = Trajectory(kref, K).interpolate(scans.stamp_ns) if len(scans) > 1 else K.copy()
+        # read while the refinement works on the first scans (the reading thread's zarr decoding and
+        # open3d's ICP leave the GIL free for the other)
+        scans, feed = streamed
+    try:
+        try:
+            imports.join()
+            odo = _odometry(scene, scans, config, health, timings, feed, quiet)
+        except _StreamBroken:
+            feed.close()
+            t0 = time.perf_counter()
+            scans, feed = load_scans(scene, quiet=quiet), None
+            timings["read_s"] = time.perf_counter() - t0
+            odo = _odometry(scene, scans, config, health, timings, None, quiet)
+        if feed is not None:
+            feed.wait(len(scans) - 1)
+            timings["read_s"] = feed.read_s
+            timings["read_wait_s"] = feed.wait_s
+    finally:
+        if feed is not None:
+            feed.close()
+    max_range, T0, anchor, poses, K, kref, background = odo
     Kw = K
     Tl, Tr, finfo = frame_poses(scene, scans, poses)
     mesh = None
