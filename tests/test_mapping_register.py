@@ -448,7 +448,9 @@ def test_register_process_killed_is_a_one_line_error(tmp_path, monkeypatch):
 
     url, _ = _copy_small_corner(tmp_path)
     monkeypatch.setattr(R, "lidar_map", _killed)
-    with pytest.raises(R.RegistrationError, match="died .*--processes 1"):
+    from holodata.parallel import WorkerError
+
+    with pytest.raises(WorkerError, match="LiDAR map: its worker process died .*--processes 1"):
         R.register_scene(url, "recording", cfg=RegisterConfig(processes=2))
 
 

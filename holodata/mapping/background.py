@@ -176,7 +176,7 @@ class VoxelBackground:
                                               need_per_scan=not free_space and n >= 2 and min_fraction > 0)
         need_hits = min(int(min_hits), n)
         if free_space:
-            inv = np.concatenate(inv)
+            inv = np.concatenate(inv).astype(np.intp, copy=False)   # bincount would convert int32 per call
             cnt = np.bincount(inv, minlength=len(keys)).astype(np.float64)
             allp = np.concatenate(pts)
             cen = np.stack([np.bincount(inv, allp[:, j], len(keys)) for j in range(3)], 1) / np.maximum(cnt, 1)[:, None]

@@ -81,6 +81,7 @@ import numpy as np
 
 from ..conventions import rotation_angle_deg, transform_points
 from ..errors import HolodataError, InputError
+from ..parallel import cpus, fork_call
 from ..progress import track
 
 
@@ -903,8 +904,8 @@ def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None
 def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True
               ) -> tuple[np.ndarray, dict | None, dict]:
     """The LiDAR half of :func:`register_scene` (steps 2 and the segmentation): background model,
-    ``lidar/instance`` when ``segment``, and the static map. Returns (map points (M,3) float64 world,
-    segmentation summary or None, timings {segment_s, map_s})."""
+    ``lidar/instance`` when ``segment``, and the static map.
+    Returns (map points (M,3) float64 world, segmentation summary or None, timings {segment_s, map_s})."""
     from ..dataset import open_dataset
     from .segment import LidarScans, SegmentConfig, background_and_segment
 
@@ -921,34 +922,6 @@ def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: boo
     M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans,
                   world_points=world_points)
     return M, seg_summary, {"segment_s": t1 - t0, "map_s": time.perf_counter() - t1}
-
-
-def _beside(processes: int, fn, *args):
-    """Start ``fn(*args)`` and return a callable that waits for its result: in a forked process when
-    ``processes`` > 1 (Linux; the caller goes on meanwhile), else called right away. ``fn`` must not
-    use OpenMP (open3d) after the fork: a process forked from one that ran OpenMP threads can hang in
-    it. A process killed by a signal or the OOM killer ends in a one-line :class:`RegistrationError`."""
-    import multiprocessing as mp
-    import sys
-
-    if processes <= 1 or not sys.platform.startswith("linux"):
-        out = fn(*args)
-        return lambda: out
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
-
-    pool = ProcessPoolExecutor(1, mp.get_context("fork"))
-    fut = pool.submit(fn, *args)
-
-    def result():
-        try:
-            return fut.result()
-        except BrokenProcessPool:
-            raise RegistrationError(f"register: the process running {fn.__name__} died (killed by a signal or out "
-                                    f"of memory); rerun, or use --processes 1") from None
-        finally:
-            pool.shutdown()
-    return result
 
 
 def camera_world(url: str, sid: str, T: np.ndarray) -> None:
@@ -983,12 +956,9 @@ def human_surfaces(points: list, thickness: list, shift: np.ndarray, eye: np.nda
 def register_processes(cfg: RegisterConfig) -> int:
     """Processes :func:`register_scene` uses: ``cfg.processes``, or with 0 two when the machine has two
     CPUs for it (one otherwise)."""
-    import os
-
     if cfg.processes:
         return max(1, int(cfg.processes))
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 2 if cpus >= 2 else 1
+    return 2 if cpus() >= 2 else 1
 
 
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
@@ -1020,7 +990,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
     # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
     segment = cfg.segment_lidar and "lidar/instance" not in names
-    lidar = _beside(processes, lidar_map, url, sid, cfg, segment, quiet or processes > 1)
+    lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1,
+                      label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1)
     t1 = time.perf_counter()
     depths, has_points = [], []
     for k in track(range(n), n, "camera depth", quiet):
@@ -1087,7 +1058,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     cam_world = lambda: None  # noqa: E731
     if cfg.write_camera_world:  # made here, written by a second process while this one finds the humans
         sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
-        cam_world = _beside(processes, camera_world, url, sid, T)
+        cam_world = fork_call(camera_world, url, sid, T, label=f"{url}: scene {sid!r}: camera/points_world",
+                              enabled=processes > 1)
     for k in track(range(n), n, f"register {sid}", quiet):
         D = depths[k]
         if not has_points[k]:
@@ -1151,7 +1123,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
     cam_world()
     # every other frame's surface in a second process
-    odd = _beside(processes, human_surfaces, human_pts[1::2], thick[1::2], shift[1::2], eye, cfg.surface_voxel)
+    odd = fork_call(human_surfaces, human_pts[1::2], thick[1::2], shift[1::2], eye, cfg.surface_voxel,
+                    label=f"{url}: scene {sid!r}: human surfaces", enabled=processes > 1)
     even = human_surfaces(human_pts[0::2], thick[0::2], shift[0::2], eye, cfg.surface_voxel)
     surfaces = [None] * n
     surfaces[0::2], surfaces[1::2] = even, odd()
