@@ -615,3 +615,45 @@ def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
     with pytest.raises(HolodataError, match="shard 1 is corrupt"):
         S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
     assert not any(t.name == "holodata-slam-read" for t in __import__("threading").enumerate())
+
+
+def test_split_accumulator_drops_exactly_what_filtering_first_drops():
+    """PointAccumulator(split=background voxel) + drop_split_cells gives the same cloud, view directions,
+    counts and removed-point count as filtering every scan by the background model before adding it."""
+    from holodata.mapping.mesh import PointAccumulator
+
+    rng = np.random.default_rng(5)
+    scans = [rng.uniform([-3, -2, 0], [5, 4, 2.5], (20000, 3)) for _ in range(5)]
+    origins = [rng.uniform(-0.5, 0.5, 3) for _ in scans]
+    bg = VoxelBackground.build([s[::3] for s in scans[:2]], voxel=0.15)
+    first, split = PointAccumulator(0.04), PointAccumulator(0.04, split=0.15)
+    removed = 0
+    for s, o in zip(scans, origins):
+        keep = bg.contains(s, tolerance=0)
+        removed += int((~keep).sum())
+        first.add(s[keep], o)
+        split.add(s, o)
+        split._flush()                       # the split rows of earlier flushes are merged again
+    assert 0 < removed < sum(map(len, scans))
+    with pytest.raises(ValueError):
+        split.cloud()
+    assert split.drop_split_cells(lambda c: ~bg.contains(c, tolerance=0)) == removed
+    for a, b in zip(first.cloud(), split.cloud()):
+        assert a.shape == b.shape and np.abs(a - b).max() < 1e-12
+
+
+def test_mesh_background_worker_death_is_a_one_line_error(slam_run, monkeypatch):
+    """The mesh's background model runs in a forked process: one killed there ends slam with a
+    HolodataError naming it (no hang, no traceback from the child)."""
+    import os
+    import signal
+
+    from holodata.errors import HolodataError
+    from holodata.mapping import slam as S
+
+    import holodata.parallel
+
+    monkeypatch.setattr(holodata.parallel, "cpus", lambda: 2)    # forked also where fewer CPUs are free
+    monkeypatch.setattr(S, "_mesh_background", lambda *a: os.kill(os.getpid(), signal.SIGKILL))
+    with pytest.raises(HolodataError, match="mesh background model.*died"):
+        S.slam_scene(slam_run["url"], write=False, force=True, quiet=True)

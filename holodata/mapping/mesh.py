@@ -99,11 +99,18 @@ def _unique_voxels(ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class PointAccumulator:
-    """Voxel-averaged world cloud: ``add(points_world, sensor_origin)`` per scan, then ``cloud()``."""
+    """Voxel-averaged world cloud: ``add(points_world, sensor_origin)`` per scan, then ``cloud()``.
 
-    def __init__(self, voxel: float):
+    With ``split`` (m, e.g. the background model's voxel): each voxel's sums are kept apart per cell of
+    the ``split`` grid its points fell in (a ``voxel`` cell straddles at most 2 such cells per axis),
+    so that :meth:`drop_split_cells` can afterwards remove the points of chosen split cells exactly as
+    if they had not been added — the accumulation need not wait for the model that decides which."""
+
+    def __init__(self, voxel: float, split: float | None = None):
         self.voxel = float(voxel)
-        self.keys = np.zeros(0, np.int64)
+        self.split = float(split) if split else None
+        self.keys = np.zeros(0, np.int64)     # voxel key of each row (a row = voxel, or voxel x split cell)
+        self.codes = np.zeros(0, np.int64)    # split: the row's split cell, coded relative to the voxel
         self.sums = np.zeros((0, 3))
         self.view = np.zeros((0, 3))
         self.counts = np.zeros(0, np.int64)
@@ -121,25 +128,58 @@ class PointAccumulator:
         if self._pend_n > 2_000_000:
             self._flush()
 
+    def _split_base(self, ijk: np.ndarray) -> np.ndarray:
+        """(N,3) float64 split cell of each voxel's lower corner (integer values)."""
+        return np.floor(ijk * (self.voxel / self.split))
+
     def _flush(self) -> None:
         if not self._pend:
             return
         p = np.concatenate([a for a, _ in self._pend])
         d = np.concatenate([b for _, b in self._pend])
         self._pend, self._pend_n = [], 0
-        ijk = np.concatenate([_unkeys(self.keys), voxel_index(p, self.voxel)])
+        ijk_new = voxel_index(p, self.voxel)
+        ijk = np.concatenate([_unkeys(self.keys), ijk_new])
         s = np.concatenate([self.sums, p])
         v = np.concatenate([self.view, d])
         c = np.concatenate([self.counts, np.ones(len(p), np.int64)])
         uk, inv = _unique_voxels(ijk)
+        if self.split is not None:
+            # a point's split cell is its voxel corner's or one more/less per axis: code (d+1)·(9,3,1)
+            off = np.floor(np.divide(p, self.split, dtype=np.float64)) - self._split_base(ijk_new) + 1
+            code = np.concatenate([self.codes, (off @ [9.0, 3.0, 1.0]).astype(np.int64)])
+            sub, inv = np.unique(inv.astype(np.int64) * 27 + code, return_inverse=True)
+            uk, self.codes = uk[sub // 27], sub % 27
         self.keys = uk
-        self.sums = np.stack([np.bincount(inv, s[:, j], len(uk)) for j in range(3)], 1)
-        self.view = np.stack([np.bincount(inv, v[:, j], len(uk)) for j in range(3)], 1)
-        self.counts = np.bincount(inv, c.astype(np.float64), len(uk)).astype(np.int64)
+        n = len(uk)
+        self.sums = np.stack([np.bincount(inv, s[:, j], n) for j in range(3)], 1)
+        self.view = np.stack([np.bincount(inv, v[:, j], n) for j in range(3)], 1)
+        self.counts = np.bincount(inv, c.astype(np.float64), n).astype(np.int64)
+
+    def drop_split_cells(self, drop) -> int:
+        """Remove the points that fell in the split cells for which ``drop(centres)`` ((M,3) world
+        centres of split cells, m → (M,) bool) is True; returns how many points were removed. Then the
+        rows are merged back to one per voxel."""
+        self._flush()
+        if self.split is None:
+            raise ValueError("drop_split_cells needs a PointAccumulator made with split")
+        off = np.stack([self.codes // 9, self.codes // 3 % 3, self.codes % 3], 1) - 1
+        cells = self._split_base(_unkeys(self.keys)) + off
+        gone = np.asarray(drop((cells + 0.5) * self.split), bool)
+        removed = int(self.counts[gone].sum())
+        keys, inv = np.unique(self.keys[~gone], return_inverse=True)
+        n = len(keys)
+        self.sums = np.stack([np.bincount(inv, self.sums[~gone, j], n) for j in range(3)], 1)
+        self.view = np.stack([np.bincount(inv, self.view[~gone, j], n) for j in range(3)], 1)
+        self.counts = np.bincount(inv, self.counts[~gone].astype(np.float64), n).astype(np.int64)
+        self.keys, self.codes, self.split = keys, np.zeros(0, np.int64), None
+        return removed
 
     def cloud(self, min_count: int = 1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(points (M,3) voxel means, unit view directions (M,3) towards the sensors, counts (M,))."""
         self._flush()
+        if self.split is not None:
+            raise ValueError("PointAccumulator with split: call drop_split_cells first")
         m = self.counts >= min_count
         pts = self.sums[m] / self.counts[m, None]
         v = self.view[m]

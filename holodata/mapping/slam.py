@@ -929,30 +929,44 @@ def frame_poses(scene, scans: Scans, poses: np.ndarray) -> tuple[np.ndarray, np.
     return Tl, Tr, info
 
 
+def _mesh_background(scans: Scans, poses: np.ndarray, sub: np.ndarray, cfg: SlamConfig, max_range: float):
+    """The voxel background model of the mesh scans ``sub`` (deskewed, world frame, downsampled to
+    ``fine_map_voxel``): numpy and scipy only, so it can run in a forked process."""
+    from .background import VoxelBackground
+
+    world = [transform_points(T, downsample(p, cfg.fine_map_voxel))
+             for T, p in zip(poses[sub], deskewed_scans(scans, poses, cfg, max_range, sub))]
+    return VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
+                                 origins=poses[sub, :3, 3])
+
+
 def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: float, mesh_cfg=None, background=None,
                 quiet: bool = True):
-    """Mesh of the static scene from the scans at ``poses`` (world frame); returns (v, f, info, background)."""
-    from .background import VoxelBackground
+    """Mesh of the static scene from the scans at ``poses`` (world frame); returns (v, f, info, background).
+
+    Without a ``background`` its model is built in a forked process while this one accumulates the
+    points split by background voxel (:class:`~.mesh.PointAccumulator` ``split``), whose moving ones
+    are dropped once the model is there: the same cloud as filtering each scan first."""
+    from ..parallel import cpus, fork_call
     from .mesh import MeshConfig, PointAccumulator, build_mesh
 
     mesh_cfg = mesh_cfg or MeshConfig()
     sub = mesh_scan_subset(poses, cfg.mesh_max_scans, cfg.map_keyframe_m, cfg.map_keyframe_deg)
-    # each scan deskewed and moved to the world once, for both the background model and the cloud
-    desk = deskewed_scans(scans, poses, cfg, max_range, sub)
-    poses = poses[sub]
-    world = [transform_points(T, p) for T, p in zip(poses, desk)]
-    del desk
+    model = None
     if background is None:
-        background = VoxelBackground.build([downsample(w, cfg.fine_map_voxel) for w in world], voxel=cfg.background_voxel,
-                                           min_fraction=cfg.background_min_fraction, origins=poses[:, :3, 3])
-    acc = PointAccumulator(mesh_cfg.voxel)
-    removed = 0
-    for T, w in track(list(zip(poses, world)), total=len(poses), description="slam: static points", quiet=quiet):
-        m = background.contains(w, tolerance=0)
-        removed += int((~m).sum())
-        acc.add(w[m], T[:3, 3])
+        model = fork_call(_mesh_background, scans, poses, sub, cfg, max_range, label="slam: mesh background model",
+                          enabled=cpus() > 1)
+    acc = PointAccumulator(mesh_cfg.voxel, split=cfg.background_voxel if background is None else background.voxel)
+    desk = deskewed_scans(scans, poses, cfg, max_range, sub)
+    P = poses[sub]
+    for T, p in track(list(zip(P, desk)), total=len(P), description="slam: static points", quiet=quiet):
+        acc.add(transform_points(T, p), T[:3, 3])
+    del desk
+    if model is not None:
+        background = model()
+    removed = acc.drop_split_cells(lambda centres: ~background.contains(centres, tolerance=0))
     pts, view, _ = acc.cloud()
-    v, f, info = build_mesh(pts, view, mesh_cfg, sensor_xyz=poses[:, :3, 3])
+    v, f, info = build_mesh(pts, view, mesh_cfg, sensor_xyz=P[:, :3, 3])
     info["dynamic_points_removed"] = removed
     info["scans_used"] = int(len(sub))
     return v, f, info, background
