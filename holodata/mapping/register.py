@@ -790,8 +790,7 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
     th = np.broadcast_to(np.asarray(thickness, float), (len(p),))
     frac = np.linspace(0.0, 1.0, max(2, int(np.ceil(th.max() / (voxel / 2))) + 1))
     sw = (p[:, None, :] + (frac[None, :, None] * th[:, None, None]) * d[:, None, :]).reshape(-1, 3)
-    occ = unique_rows(np.floor(sw / voxel).astype(np.int64))[0]
-    return voxel_boundary(occ, voxel)
+    return voxel_boundary(np.floor(sw / voxel).astype(np.int64), voxel)     # repeated voxels are fine
 
 
 def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -809,8 +808,9 @@ def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
-    """Boundary surface of a set of occupied voxels ``occ`` (N,3) int: two triangles per voxel face
-    not shared with another occupied voxel; shared vertices (a closed mesh), outward orientation."""
+    """Boundary surface of a set of occupied voxels ``occ`` (N,3) int (repeats allowed): two triangles
+    per voxel face not shared with another occupied voxel; shared vertices (a closed mesh), outward
+    orientation; vertices in lexicographic lattice order."""
     occ = np.asarray(occ, np.int64).reshape(-1, 3)
     if len(occ) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
@@ -842,10 +842,17 @@ def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarra
             if right != (sgn > 0):
                 c = c[:, ::-1]
             quads.append(c)
-    q = np.concatenate(quads)                      # (Q,4,3) corner lattice coordinates
-    corners, inv = unique_rows(q.reshape(-1, 3))
-    inv = inv.reshape(-1, 4)
+    q = np.concatenate(quads)                      # (Q,4,3) corner lattice coordinates, in 0..dims
+    # vertex ids on a dense lattice of the box (C order = lexicographic, as unique_rows would number them)
+    flat = np.ravel_multi_index((q[..., 0], q[..., 1], q[..., 2]), tuple(dims + 1))
+    used = np.zeros(int(np.prod(dims + 1)), bool)
+    used[flat] = True
+    cells = np.flatnonzero(used)
+    ids = np.zeros(len(used), np.int64)
+    ids[cells] = np.arange(len(cells))
+    inv = ids[flat]
     faces = np.concatenate([inv[:, [0, 1, 2]], inv[:, [0, 2, 3]]]).astype(np.int32)
+    corners = np.stack(np.unravel_index(cells, tuple(dims + 1)), 1)
     verts = (corners + lo).astype(np.float64) * voxel
     return verts, faces
 
