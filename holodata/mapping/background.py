@@ -244,6 +244,8 @@ class VoxelBackground:
             r = q - lo
             ok = (r >= 0) & (r < dims)
             inside = ok[:, 0] & ok[:, 1] & ok[:, 2]
+            if inside.all():                  # the common case: no gathered copy of the indices
+                return occ[(r @ step).astype(np.int64)]
             out[inside] = occ[(r[inside] @ step).astype(np.int64)]
             return out
         k = _keys(q.astype(np.int64))
