@@ -27,63 +27,98 @@ def can_fork() -> bool:
     return sys.platform.startswith("linux")
 
 
-def fork_call(fn: Callable, *args, label: str = "", enabled: bool = True) -> Callable[[], object]:
-    """Start ``fn(*args)`` in a forked process and return a function that waits for its result
-    (re-raising the child's exception). With ``enabled`` False or where fork is not available the
-    call runs right away, in this process. A child that dies without a result raises
+class Forked:
+    """A call started by :func:`fork_call`: ``forked()`` waits for its result (re-raising the call's
+    exception); ``forked.early()`` for the value the call handed to its ``early`` callback before
+    it finished (calls started with ``early=True``)."""
+
+    def __init__(self, label: str, proc=None, recv=None, recv_early=None, value=None):
+        self.label, self._proc = label, proc
+        self._pipes = {"result": recv, "early": recv_early}
+        self._got = {} if proc is not None else value
+
+    def _get(self, which: str):
+        if which not in self._got and self._proc is None:     # ran in this process
+            self()
+            raise HolodataError(f"{self.label}: finished without its early result")
+        if which not in self._got:
+            pipe = self._pipes[which]
+            try:
+                self._got[which] = pipe.recv()
+            except EOFError:
+                if which == "early":      # the call ended (with an error?) without handing it over
+                    self()
+                    raise HolodataError(f"{self.label}: finished without its early result") from None
+                self._proc.join()
+                raise WorkerError(f"{self.label}: its worker process died (exit code {self._proc.exitcode}: killed "
+                                  f"by a signal or out of memory); rerun, or use --processes 1") from None
+            finally:
+                pipe.close()
+            if which == "result":
+                self._proc.join()
+        ok, val = self._got[which]
+        if not ok:
+            raise val
+        return val
+
+    def __call__(self):
+        return self._get("result")
+
+    def join(self) -> None:
+        """Wait for the process to end, without its result or error (cleaning up after a failure)."""
+        if self._proc is not None:
+            self._proc.join()
+
+    def early(self):
+        return self._get("early")
+
+
+def fork_call(fn: Callable, *args, label: str = "", enabled: bool = True, early: bool = False) -> Forked:
+    """Start ``fn(*args)`` in a forked process; returns a :class:`Forked` to wait for its result.
+    With ``early`` the call also gets ``early=callback``: what it passes to the callback (once) can be
+    had with ``Forked.early()`` while it goes on. With ``enabled`` False or where fork is not
+    available the call runs right away, in this process. A child that dies without a result raises
     :class:`WorkerError` naming ``label``."""
+    label = label or fn.__name__
+    kwargs = {}
     if not (enabled and can_fork()):
-        out = fn(*args)
-        return lambda: out
+        box = {}
+        if early:
+            kwargs["early"] = lambda v: box.setdefault("early", (True, v))
+        try:
+            box["result"] = (True, fn(*args, **kwargs))
+        except Exception as err:  # noqa: BLE001 - raised where the result is asked for, as from a process
+            box["result"] = (False, err)
+        return Forked(label, value=box)
     import multiprocessing as mp
 
     ctx = mp.get_context("fork")
     recv, send = ctx.Pipe(duplex=False)
+    recv_early, send_early = ctx.Pipe(duplex=False) if early else (None, None)
 
     def run():
         recv.close()
+        if early:
+            recv_early.close()
+            kwargs["early"] = lambda v: send_early.send((True, v))
         try:
-            out = (True, fn(*args))
+            out = (True, fn(*args, **kwargs))
         except BaseException as err:  # noqa: BLE001 - handed to the parent, which raises it
             out = (False, err)
+        if early:
+            send_early.close()
         try:
             send.send(out)
         except Exception as err:  # noqa: BLE001 - an unpicklable result or exception
-            send.send((False, HolodataError(f"{label or fn.__name__}: {type(err).__name__}: {err}")))
+            send.send((False, HolodataError(f"{label}: {type(err).__name__}: {err}")))
         send.close()
 
     proc = ctx.Process(target=run)   # not a daemon: it may fork workers of its own
     proc.start()
     send.close()
-    done: list = []
-
-    def result():
-        if not done:
-            try:
-                done.append(recv.recv())
-            except EOFError:
-                proc.join()
-                raise WorkerError(f"{label or fn.__name__}: its worker process died (exit code {proc.exitcode}: killed "
-                                  f"by a signal or out of memory); rerun, or use --processes 1") from None
-            finally:
-                recv.close()
-            proc.join()
-        ok, val = done[0]
-        if not ok:
-            raise val
-        return val
-    return result
+    if early:
+        send_early.close()
+    return Forked(label, proc, recv, recv_early)
 
 
-def split_call(fn: Callable, items: list, processes: int = 2, label: str = "") -> list:
-    """``fn(items)`` (a list in, a list of the same length out) with the second half of ``items`` in
-    a forked process when ``processes`` > 1; results in the order of ``items``."""
-    if processes <= 1 or len(items) < 2 or not can_fork():
-        return list(fn(items))
-    half = (len(items) + 1) // 2
-    rest = fork_call(fn, items[half:], label=label)
-    first = list(fn(items[:half]))
-    return first + list(rest())
-
-
-__all__ = ["WorkerError", "fork_call", "split_call", "cpus", "can_fork"]
+__all__ = ["WorkerError", "Forked", "fork_call", "cpus", "can_fork"]

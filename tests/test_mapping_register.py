@@ -436,7 +436,7 @@ def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
     assert sum(len(f) for f in r1["human/faces"]) > 0
 
 
-def _killed(*args):
+def _killed(*args, **kwargs):
     import os
     import signal
 

@@ -916,27 +916,34 @@ def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None
     return voxel_average(np.concatenate(pts), voxel)
 
 
-def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True
+def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True, early=None
               ) -> tuple[np.ndarray, dict | None, dict]:
-    """The LiDAR half of :func:`register_scene` (steps 2 and the segmentation): background model,
-    ``lidar/instance`` when ``segment``, and the static map.
-    Returns (map points (M,3) float64 world, segmentation summary or None, timings {segment_s, map_s})."""
+    """The LiDAR half of :func:`register_scene` (step 2 and the segmentation): background model,
+    the static map and, when ``segment``, ``lidar/instance``. The map is built first, with the
+    instance masks of the few map scans that have foreground computed on the spot, and handed to
+    ``early`` (a callback, or None) before the segmentation of every scan starts. Returns (map points
+    (M,3) float64 world, segmentation summary or None, timings {background_s, map_s, segment_s})."""
     from ..dataset import open_dataset
-    from .segment import LidarScans, SegmentConfig, background_and_segment
+    from .segment import InstanceMasks, LidarScans, SegmentConfig, background_and_segment, segment_scene
 
     t0 = time.perf_counter()
     scene = open_dataset(url).scene(sid)
     scans = LidarScans.open(scene, url)
     traj = scans.trajectory()
-    bg, seg_summary, world_points = background_and_segment(url, sid, SegmentConfig(), quiet, segment=segment,
-                                                           scans=scans, traj=traj)
-    if segment:
-        scene = open_dataset(url).scene(sid)
+    scfg = SegmentConfig()
+    bg, _, world_points = background_and_segment(url, sid, scfg, quiet, segment=False, scans=scans, traj=traj)
     t1 = time.perf_counter()
-    inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
+    if segment:
+        inst = InstanceMasks(scans, bg, scfg, traj, world_points)
+    else:
+        inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
     M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans,
                   world_points=world_points)
-    return M, seg_summary, {"segment_s": t1 - t0, "map_s": time.perf_counter() - t1}
+    t2 = time.perf_counter()
+    if early is not None:
+        early(M)
+    seg_summary = segment_scene(url, sid, scfg, quiet, background=bg, world_points=world_points) if segment else None
+    return M, seg_summary, {"background_s": t1 - t0, "map_s": t2 - t1, "segment_s": time.perf_counter() - t2}
 
 
 def camera_world(url: str, sid: str, T: np.ndarray) -> None:
@@ -1006,165 +1013,171 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
     segment = cfg.segment_lidar and "lidar/instance" not in names
     lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1,
-                      label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1)
-    t1 = time.perf_counter()
-    depths, has_points = [], []
-    for k in track(range(n), n, "camera depth", quiet):
-        D, p = cam.depth(k)
-        depths.append(D)
-        has_points.append(len(p) > 0)
-    cam_frames = [k for k in range(n) if has_points[k]]
-    if not cam_frames:
-        lidar()
-        raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
-    if len(cam_frames) > cfg.median_frames:  # evenly spread subset
-        cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
-    med, mad, cnt = static_depth_of(np.stack([depths[k] for k in cam_frames]))
-    rays = cam.rays()
-    okm = np.isfinite(med) & (cnt > 0)
-    static_cam = rays[okm] * med[okm][:, None]
-    sig_mean = depth_noise_model(med[okm], mad[okm]) / np.sqrt(cnt[okm])
-    resid = static_residual(static_cam, cfg)
-    timings["camera_s"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    M, seg_summary, lidar_timings = lidar()
-    timings.update(lidar_timings)
-    timings["lidar_wait_s"] = time.perf_counter() - t1
-    if len(M) < 100:
-        raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
-    scene = open_dataset(url).scene(sid)
-    # 3. extrinsic
-    t1 = time.perf_counter()
-    reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean)
-    timings["extrinsic_s"] = time.perf_counter() - t1
-    if not reg.accepted:
-        a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
-                      f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
-                      + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
-                         if "prior_shift_m" in x else "")
-                      for x in reg.attempts)
-        raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
-                                f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
-                                f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
-                                f"give a better --init")
-    T = reg.T
-    # 4. humans
-    t2 = time.perf_counter()
-    from scipy.spatial import cKDTree
+                      label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1, early=True)
+    try:
+        t1 = time.perf_counter()
+        depths, has_points = [], []
+        for k in track(range(n), n, "camera depth", quiet):
+            D, p = cam.depth(k)
+            depths.append(D)
+            has_points.append(len(p) > 0)
+        cam_frames = [k for k in range(n) if has_points[k]]
+        if not cam_frames:
+            lidar.early()
+            raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
+        if len(cam_frames) > cfg.median_frames:  # evenly spread subset
+            cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
+        med, mad, cnt = static_depth_of(np.stack([depths[k] for k in cam_frames]))
+        rays = cam.rays()
+        okm = np.isfinite(med) & (cnt > 0)
+        static_cam = rays[okm] * med[okm][:, None]
+        sig_mean = depth_noise_model(med[okm], mad[okm]) / np.sqrt(cnt[okm])
+        resid = static_residual(static_cam, cfg)
+        timings["camera_s"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        M = lidar.early()          # the LiDAR process goes on with the segmentation of every scan
+        timings["map_wait_s"] = time.perf_counter() - t1
+        if len(M) < 100:
+            raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
+        # 3. extrinsic
+        t1 = time.perf_counter()
+        reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean)
+        timings["extrinsic_s"] = time.perf_counter() - t1
+        if not reg.accepted:
+            a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
+                          f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
+                          + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
+                             if "prior_shift_m" in x else "")
+                          for x in reg.attempts)
+            raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
+                                    f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
+                                    f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
+                                    f"give a better --init")
+        T = reg.T
+        # 4. humans
+        t2 = time.perf_counter()
+        from scipy.spatial import cKDTree
 
-    mtree = cKDTree(M)
-    eye = T[:3, 3]
-    sigma = np.where(np.isfinite(mad), mad, 0.0)
-    # a person standing still is in the temporal background: static points on no large plane and not
-    # explained by the map are candidates in every frame
-    still = np.zeros(med.shape, bool)
-    if resid.any():
-        sw_ = transform_points(T, static_cam[resid])
-        dmap_ = _nn_distances(sw_, M, cfg.map_explain_m)
-        rr = np.zeros(len(static_cam), bool)
-        rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
-        still[okm] = rr
-    human_pts, thick, cand = [], [], []
-    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
-    sw = w.scene(sid)
-    for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
-        if name in sw.arrays():
-            sw.remove(name)
-    cam_world = lambda: None  # noqa: E731
-    if cfg.write_camera_world:  # made here, written by a second process while this one finds the humans
-        sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
-        cam_world = fork_call(camera_world, url, sid, T, label=f"{url}: scene {sid!r}: camera/points_world",
-                              enabled=processes > 1)
-    for k in track(range(n), n, f"register {sid}", quiet):
-        D = depths[k]
-        if not has_points[k]:
-            cand.append((np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), D))
-            continue
-        thr = np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)
-        with np.errstate(invalid="ignore"):
-            fg = np.isfinite(D) & (~np.isfinite(med) | (D < med - thr) | still) & (D <= cfg.max_range_m)
-        vv, uu = np.nonzero(fg)
-        q = rays[vv, uu] * D[vv, uu][:, None]
-        qw = transform_points(T, q)
-        if len(qw):
-            dmap, _ = mtree.query(qw, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)
-            far = dmap > cfg.map_explain_m       # (the bound: far points end their search early)
-            qw, vv, uu = qw[far], vv[far], uu[far]
-        cand.append((qw, vv, uu, D))
-    # the person of interest: person-like clusters near the track's median (people farther away, e.g.
-    # walking past in another corridor, are not it)
-    first = [pick_human(q[0], cfg) for q in cand]
-    cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
-    centre = np.median(cents, axis=0) if len(cents) else None
-    floor_z = None
-    if centre is not None:  # the floor under the person: low percentile of the map's nearby heights
-        near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
-        if near.sum() > 50:
-            floor_z = float(np.percentile(M[near, 2], 2))
-    def finish(qw, hm):
-        if hm.any():
-            # a body is at most ~0.5 m deep along the view and stands on the floor: stereo streaks
-            # along the rays and floor returns at the feet go
-            rng_ = np.linalg.norm(qw - eye, axis=1)
-            mid = np.median(rng_[hm])
-            hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
-            if floor_z is not None:
-                hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
-        return hm
+        mtree = cKDTree(M)
+        eye = T[:3, 3]
+        sigma = np.where(np.isfinite(mad), mad, 0.0)
+        # a person standing still is in the temporal background: static points on no large plane and not
+        # explained by the map are candidates in every frame
+        still = np.zeros(med.shape, bool)
+        if resid.any():
+            sw_ = transform_points(T, static_cam[resid])
+            dmap_ = _nn_distances(sw_, M, cfg.map_explain_m)
+            rr = np.zeros(len(static_cam), bool)
+            rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
+            still[okm] = rr
+        human_pts, thick, cand = [], [], []
+        w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
+        sw = w.scene(sid)
+        for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
+            if name in sw.arrays():
+                sw.remove(name)
+        cam_world = lambda: None  # noqa: E731
+        if cfg.write_camera_world:  # made here, written by a second process while this one finds the humans
+            sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
+            cam_world = fork_call(camera_world, url, sid, T, label=f"{url}: scene {sid!r}: camera/points_world",
+                                  enabled=processes > 1)
+        for k in track(range(n), n, f"register {sid}", quiet):
+            D = depths[k]
+            if not has_points[k]:
+                cand.append((np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), D))
+                continue
+            thr = np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)
+            with np.errstate(invalid="ignore"):
+                fg = np.isfinite(D) & (~np.isfinite(med) | (D < med - thr) | still) & (D <= cfg.max_range_m)
+            vv, uu = np.nonzero(fg)
+            q = rays[vv, uu] * D[vv, uu][:, None]
+            qw = transform_points(T, q)
+            if len(qw):
+                dmap, _ = mtree.query(qw, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)
+                far = dmap > cfg.map_explain_m       # (the bound: far points end their search early)
+                qw, vv, uu = qw[far], vv[far], uu[far]
+            cand.append((qw, vv, uu, D))
+        # the person of interest: person-like clusters near the track's median (people farther away, e.g.
+        # walking past in another corridor, are not it)
+        first = [pick_human(q[0], cfg) for q in cand]
+        cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
+        centre = np.median(cents, axis=0) if len(cents) else None
+        floor_z = None
+        if centre is not None:  # the floor under the person: low percentile of the map's nearby heights
+            near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
+            if near.sum() > 50:
+                floor_z = float(np.percentile(M[near, 2], 2))
+        def finish(qw, hm):
+            if hm.any():
+                # a body is at most ~0.5 m deep along the view and stands on the floor: stereo streaks
+                # along the rays and floor returns at the feet go
+                rng_ = np.linalg.norm(qw - eye, axis=1)
+                mid = np.median(rng_[hm])
+                hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
+                if floor_z is not None:
+                    hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
+            return hm
 
-    def near_centre(qw, m0):
-        # the largest person-like cluster already lies near the track: it is also the largest near it
-        return m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m
+        def near_centre(qw, m0):
+            # the largest person-like cluster already lies near the track: it is also the largest near it
+            return m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m
 
-    picks = [finish(qw, m0 if centre is None or near_centre(qw, m0) else pick_human(qw, cfg, centre))
-             for (qw, vv, uu, D), m0 in zip(cand, first)]
-    ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
-    cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
-    # track continuity: a pick far from where its neighbours put the person (a wall fragment while
-    # the person is lost in far stereo noise) is picked again near that prediction, or dropped
-    cen0 = np.array([c[0][m].mean(0) if m.any() else np.full(3, np.nan) for c, m in zip(cand, picks)])
-    t_cam = np.where(cts != 0, cts, ts)
-    jumped = track_jumps(cen0, t_cam, cfg.track_jump_m, cfg.walk_speed_mps)
-    pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
-    jump_cfg = replace(cfg, track_radius_m=2 * cfg.track_jump_m)
-    n_repicked = int(jumped.sum())
-    for k, ((qw, vv, uu, D), hm) in enumerate(zip(cand, picks)):
-        if jumped[k]:
-            hm = finish(qw, pick_human(qw, jump_cfg, pred[k])) if np.isfinite(pred[k]).all() else np.zeros_like(hm)
-        human_pts.append(qw[hm].astype(np.float32))
-        thick.append(body_depth(vv[hm], uu[hm], D, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m))
-    # velocity compensation: camera stamp -> frame stamp
-    cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
-    shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
-    cam_world()
-    # every other frame's surface in a second process
-    odd = fork_call(human_surfaces, human_pts[1::2], thick[1::2], shift[1::2], eye, cfg.surface_voxel,
-                    label=f"{url}: scene {sid!r}: human surfaces", enabled=processes > 1)
-    even = human_surfaces(human_pts[0::2], thick[0::2], shift[0::2], eye, cfg.surface_voxel)
-    surfaces = [None] * n
-    surfaces[0::2], surfaces[1::2] = even, odd()
-    timings["humans_s"] = time.perf_counter() - t2
-    # 5. write
-    specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
-             "human/faces": (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
-             "human/points": (3, "float32", "m", ["point", "xyz"], human_pts)}
-    for name, (width, dt, units, dims, per_frame) in specs.items():
-        r = sw.ragged_array(name, width, dt, units, dims)
-        for s in range(r.n_shards):
-            sl = r.frames(s)
-            r.write_shard(s, per_frame[sl])
-    sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
-                   attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
-    n_h = int(sum(len(s[1]) > 0 for s in surfaces))
-    report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
-              "frames_with_human": n_h, "frames": n, "frames_repicked": n_repicked, "params": cfg.to_attrs(),
-              "surface": "voxel boundary of the camera-ray extrusion (closed)",
-              "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
-              "seconds": time.perf_counter() - t0, "timings": timings}
-    sw.set_attrs({"register": report})
-    out = {"scene": sid, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
-    if seg_summary:
-        out["segment"] = seg_summary
+        picks = [finish(qw, m0 if centre is None or near_centre(qw, m0) else pick_human(qw, cfg, centre))
+                 for (qw, vv, uu, D), m0 in zip(cand, first)]
+        ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+        cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
+        # track continuity: a pick far from where its neighbours put the person (a wall fragment while
+        # the person is lost in far stereo noise) is picked again near that prediction, or dropped
+        cen0 = np.array([c[0][m].mean(0) if m.any() else np.full(3, np.nan) for c, m in zip(cand, picks)])
+        t_cam = np.where(cts != 0, cts, ts)
+        jumped = track_jumps(cen0, t_cam, cfg.track_jump_m, cfg.walk_speed_mps)
+        pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
+        jump_cfg = replace(cfg, track_radius_m=2 * cfg.track_jump_m)
+        n_repicked = int(jumped.sum())
+        for k, ((qw, vv, uu, D), hm) in enumerate(zip(cand, picks)):
+            if jumped[k]:
+                hm = finish(qw, pick_human(qw, jump_cfg, pred[k])) if np.isfinite(pred[k]).all() else np.zeros_like(hm)
+            human_pts.append(qw[hm].astype(np.float32))
+            thick.append(body_depth(vv[hm], uu[hm], D, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m))
+        # velocity compensation: camera stamp -> frame stamp
+        cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
+        shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
+        cam_world()
+        # every other frame's surface in a second process
+        odd = fork_call(human_surfaces, human_pts[1::2], thick[1::2], shift[1::2], eye, cfg.surface_voxel,
+                        label=f"{url}: scene {sid!r}: human surfaces", enabled=processes > 1)
+        even = human_surfaces(human_pts[0::2], thick[0::2], shift[0::2], eye, cfg.surface_voxel)
+        surfaces = [None] * n
+        surfaces[0::2], surfaces[1::2] = even, odd()
+        timings["humans_s"] = time.perf_counter() - t2
+        # 5. write
+        specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
+                 "human/faces": (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
+                 "human/points": (3, "float32", "m", ["point", "xyz"], human_pts)}
+        for name, (width, dt, units, dims, per_frame) in specs.items():
+            r = sw.ragged_array(name, width, dt, units, dims)
+            for s in range(r.n_shards):
+                sl = r.frames(s)
+                r.write_shard(s, per_frame[sl])
+        sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
+                       attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
+        t1 = time.perf_counter()
+        _, seg_summary, lidar_timings = lidar()   # the segmentation of every scan (lidar/instance)
+        timings.update(lidar_timings)
+        timings["segment_wait_s"] = time.perf_counter() - t1
+        n_h = int(sum(len(s[1]) > 0 for s in surfaces))
+        report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
+                  "frames_with_human": n_h, "frames": n, "frames_repicked": n_repicked, "params": cfg.to_attrs(),
+                  "surface": "voxel boundary of the camera-ray extrusion (closed)",
+                  "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
+                  "seconds": time.perf_counter() - t0, "timings": timings}
+        sw.set_attrs({"register": report})
+        out = {"scene": sid, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
+        if seg_summary:
+            out["segment"] = seg_summary
+    except BaseException:
+        lidar.join()   # it must not write on after register has failed
+        raise
     return out
 
 

@@ -898,27 +898,49 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
                                 "values": "0 = background or no return; 1..n instances by decreasing size",
                                 "params": cfg.to_attrs(), "background_voxels": int(len(bg))})
     counts = []
-    shifts, elev = grid_geometry(scans)
+    masks = InstanceMasks(scans, bg, cfg, traj, world_points)
     for s in track(range(arr.n_shards), arr.n_shards, f"segment {sid}", quiet):
         sl = arr.frames(s)
         if arr.is_done(s):
             continue
         out = np.zeros((sl.stop - sl.start,) + scans.shape, np.uint16)
         for i, k in enumerate(range(sl.start, sl.stop)):
-            if k in world_points and surely_without_foreground(bg, world_points[k], cfg):
-                if len(world_points[k]):          # a scan with returns: it counts, with 0 instances
-                    counts.append(0)
-                continue
-            valid, P, Pw = scans.scan(k, traj, cfg.deskew)
-            if not valid.any():
-                continue
-            bgm, near = background_masks(bg, valid, Pw, cfg)
-            out[i] = segment_scan(P, valid, bgm, cfg, points_world=np.where(valid[..., None], Pw, 0.0),
-                                  background_near=near, floor=getattr(bg, "floor", None), shifts=shifts, elev=elev)
-            counts.append(int(out[i].max()))
+            m = masks.mask(k)
+            if m is not None:
+                out[i] = m
+                counts.append(int(m.max()))
         arr.write_shard(s, out)
     return {"scene": sid, "frames": scene.n_frames, "array": INSTANCE_ARRAY, "background_voxels": int(len(bg)),
             "instances_per_scan": float(np.mean(counts)) if counts else 0.0, "seconds": time.perf_counter() - t0}
+
+
+class InstanceMasks:
+    """Per-scan instance masks of :func:`segment_scene`, computed on demand: ``masks[k]`` (H,W)
+    uint16 (0 = background / no return, 1..n instances). ``world_points`` {frame: float32 world points
+    of the valid returns} from the background pass: scans that are :func:`surely_without_foreground`
+    are answered from them without reading the scan again."""
+
+    def __init__(self, scans: LidarScans, bg, cfg: SegmentConfig, traj=None, world_points: dict | None = None):
+        self.scans, self.bg, self.cfg, self.traj = scans, bg, cfg, traj
+        self.world_points = world_points or {}
+        self.shifts, self.elev = grid_geometry(scans)
+
+    def mask(self, k: int) -> np.ndarray | None:
+        """Scan ``k``'s mask, or None for a scan without returns (counted by nobody)."""
+        wp = self.world_points.get(k)
+        if wp is not None and surely_without_foreground(self.bg, wp, self.cfg):
+            return np.zeros(self.scans.shape, np.uint16) if len(wp) else None
+        valid, P, Pw = self.scans.scan(k, self.traj, self.cfg.deskew)
+        if not valid.any():
+            return None
+        bgm, near = background_masks(self.bg, valid, Pw, self.cfg)
+        return segment_scan(P, valid, bgm, self.cfg, points_world=np.where(valid[..., None], Pw, 0.0),
+                            background_near=near, floor=getattr(self.bg, "floor", None), shifts=self.shifts,
+                            elev=self.elev)
+
+    def __getitem__(self, k: int) -> np.ndarray:
+        m = self.mask(k)
+        return np.zeros(self.scans.shape, np.uint16) if m is None else m
 
 
 def _scene_id(ds, url: str, scene_id: str | None) -> str:
@@ -932,4 +954,5 @@ def _scene_id(ds, url: str, scene_id: str | None) -> str:
 
 
 __all__ = ["SegmentConfig", "segment_scan", "flood_fill", "erode", "LidarScans", "build_background", "segment_scene",
+           "InstanceMasks",
            "background_and_segment", "surely_without_foreground", "INSTANCE_ARRAY"]
