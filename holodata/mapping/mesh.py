@@ -44,7 +44,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..meshio import merge_meshes
-from .background import _cell_keys, _dense_box, _flat_index, _keys, _unkeys, voxel_index
+from .background import _cell_keys, _dense_box, _flat_index, _keys, _unkeys
 
 METHODS = ("poisson", "bpa")
 
@@ -128,28 +128,29 @@ class PointAccumulator:
         if self._pend_n > 2_000_000:
             self._flush()
 
-    def _split_base(self, ijk: np.ndarray) -> np.ndarray:
-        """(N,3) float64 split cell of each voxel's lower corner (integer values)."""
-        return np.floor(ijk * (self.voxel / self.split))
-
     def _flush(self) -> None:
         if not self._pend:
             return
         p = np.concatenate([a for a, _ in self._pend])
         d = np.concatenate([b for _, b in self._pend])
         self._pend, self._pend_n = [], 0
-        ijk_new = voxel_index(p, self.voxel)
-        ijk = np.concatenate([_unkeys(self.keys), ijk_new])
+        q = np.floor(np.divide(p, self.voxel, dtype=np.float64))   # voxel_index, still float64
+        ijk = np.concatenate([_unkeys(self.keys), q.astype(np.int64)])
         s = np.concatenate([self.sums, p])
         v = np.concatenate([self.view, d])
         c = np.concatenate([self.counts, np.ones(len(p), np.int64)])
         uk, inv = _unique_voxels(ijk)
         if self.split is not None:
             # a point's split cell is its voxel corner's or one more/less per axis: code (d+1)·(9,3,1)
-            off = np.floor(np.divide(p, self.split, dtype=np.float64)) - self._split_base(ijk_new) + 1
+            off = np.floor(np.divide(p, self.split, dtype=np.float64)) - np.floor(q * (self.voxel / self.split)) + 1
             code = np.concatenate([self.codes, (off @ [9.0, 3.0, 1.0]).astype(np.int64)])
-            sub, inv = np.unique(inv.astype(np.int64) * 27 + code, return_inverse=True)
-            uk, self.codes = uk[sub // 27], sub % 27
+            sub = inv.astype(np.int64) * 27 + code
+            occ = np.bincount(sub, minlength=27 * len(uk))   # (voxel, split cell) rows: no sort
+            cells = np.flatnonzero(occ)
+            rank = np.zeros(len(occ), np.int32)
+            rank[cells] = np.arange(len(cells))
+            inv = rank[sub]
+            uk, self.codes = uk[cells // 27], cells % 27
         self.keys = uk
         n = len(uk)
         self.sums = np.stack([np.bincount(inv, s[:, j], n) for j in range(3)], 1)
@@ -164,10 +165,12 @@ class PointAccumulator:
         if self.split is None:
             raise ValueError("drop_split_cells needs a PointAccumulator made with split")
         off = np.stack([self.codes // 9, self.codes // 3 % 3, self.codes % 3], 1) - 1
-        cells = self._split_base(_unkeys(self.keys)) + off
+        cells = np.floor(_unkeys(self.keys) * (self.voxel / self.split)) + off   # the split cell of each row
         gone = np.asarray(drop((cells + 0.5) * self.split), bool)
         removed = int(self.counts[gone].sum())
-        keys, inv = np.unique(self.keys[~gone], return_inverse=True)
+        keys = self.keys[~gone]                  # sorted: rows are ordered by (voxel, split cell)
+        first = np.r_[True, keys[1:] != keys[:-1]] if len(keys) else np.zeros(0, bool)
+        inv, keys = np.cumsum(first) - 1, keys[first]
         n = len(keys)
         self.sums = np.stack([np.bincount(inv, self.sums[~gone, j], n) for j in range(3)], 1)
         self.view = np.stack([np.bincount(inv, self.view[~gone, j], n) for j in range(3)], 1)

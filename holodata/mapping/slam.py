@@ -5,7 +5,9 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
 1. **Scans** (:func:`load_scans`): ``lidar/points`` (sensor frame) per frame, the per-point time
    ``lidar/point_time_ns`` (relative to the scan stamp) when present, the scan stamp
    ``lidar/timestamp_ns`` (``time/timestamp_ns`` for LiDAR-framed scenes). Frames without a scan
-   and frames repeating the previous scan are skipped (their poses are interpolated).
+   and frames repeating the previous scan are skipped (their poses are interpolated). ``holodata
+   slam`` reads them in a thread while the refinement (3.) already works on the first ones
+   (:func:`stream_scans`).
 2. **Odometry** (:func:`kiss_odometry`): kiss-icp 1.3's Python API configured for indoor
    corridors: voxel ``SlamConfig.voxel`` (0.1–0.2 m), max range from the data (99.5th percentile
    of the ranges of the first scans, +10 %), min range ``min_range``, deskew with the per-point
@@ -34,7 +36,8 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
 
 Outputs (written with the dataset writer, whole arrays, atomically): ``pose/T_world_lidar``
 (T,4,4), ``pose/T_world_radar`` (T,4,4) when there is a radar or a radar extrinsic (replacing the
-odometry poses ingest took from TF), ``mesh/vertices`` + ``mesh/faces`` (see :mod:`.mesh`), scene
+odometry poses ingest took from TF), ``mesh/vertices`` + ``mesh/faces`` (:func:`static_mesh`, :mod:`.mesh`;
+the background model of its scans is built in a forked process beside the point accumulation), scene
 attribute ``slam`` (config, counts, timings, health figures). A TUM trajectory and a PLY are
 optional exports.
 """
@@ -929,15 +932,14 @@ def frame_poses(scene, scans: Scans, poses: np.ndarray) -> tuple[np.ndarray, np.
     return Tl, Tr, info
 
 
-def _mesh_background(scans: Scans, poses: np.ndarray, sub: np.ndarray, cfg: SlamConfig, max_range: float):
-    """The voxel background model of the mesh scans ``sub`` (deskewed, world frame, downsampled to
-    ``fine_map_voxel``): numpy and scipy only, so it can run in a forked process."""
+def _mesh_background(world: list, origins: np.ndarray, cfg: SlamConfig):
+    """The voxel background model of the mesh scans ``world`` (list of (Ni,3) deskewed world points)
+    seen from ``origins`` (S,3), downsampled to ``fine_map_voxel``: numpy and scipy only, so it can run
+    in a forked process."""
     from .background import VoxelBackground
 
-    world = [transform_points(T, downsample(p, cfg.fine_map_voxel))
-             for T, p in zip(poses[sub], deskewed_scans(scans, poses, cfg, max_range, sub))]
-    return VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
-                                 origins=poses[sub, :3, 3])
+    return VoxelBackground.build([downsample(w, cfg.fine_map_voxel) for w in world], voxel=cfg.background_voxel,
+                                 min_fraction=cfg.background_min_fraction, origins=origins)
 
 
 def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: float, mesh_cfg=None, background=None,
@@ -952,16 +954,17 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
 
     mesh_cfg = mesh_cfg or MeshConfig()
     sub = mesh_scan_subset(poses, cfg.mesh_max_scans, cfg.map_keyframe_m, cfg.map_keyframe_deg)
+    P = poses[sub]
+    # each scan deskewed and moved to the world once, for both the background model and the cloud
+    world = [transform_points(T, p) for T, p in zip(P, deskewed_scans(scans, poses, cfg, max_range, sub))]
     model = None
     if background is None:
-        model = fork_call(_mesh_background, scans, poses, sub, cfg, max_range, label="slam: mesh background model",
+        model = fork_call(_mesh_background, world, P[:, :3, 3], cfg, label="slam: mesh background model",
                           enabled=cpus() > 1)
     acc = PointAccumulator(mesh_cfg.voxel, split=cfg.background_voxel if background is None else background.voxel)
-    desk = deskewed_scans(scans, poses, cfg, max_range, sub)
-    P = poses[sub]
-    for T, p in track(list(zip(P, desk)), total=len(P), description="slam: static points", quiet=quiet):
-        acc.add(transform_points(T, p), T[:3, 3])
-    del desk
+    for T, w in track(list(zip(P, world)), total=len(P), description="slam: static points", quiet=quiet):
+        acc.add(w, T[:3, 3])
+    del world
     if model is not None:
         background = model()
     removed = acc.drop_split_cells(lambda centres: ~background.contains(centres, tolerance=0))
