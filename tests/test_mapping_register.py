@@ -312,17 +312,6 @@ def test_cli_bad_input_one_line_exit_1(tmp_path):
     assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1 and "camera/points" in r.output
 
 
-def test_unique_rows_matches_numpy_unique_axis0():
-    from holodata.mapping.register import unique_rows
-
-    rng = np.random.default_rng(3)
-    for a in (rng.integers(-40, 40, (5000, 3)), rng.integers(0, 2, (50, 3)), np.array([[7, -3, 2]])):
-        rows, inv = unique_rows(a)
-        ref, ref_inv = np.unique(a, axis=0, return_inverse=True)
-        assert np.array_equal(rows, ref) and np.array_equal(inv, ref_inv.reshape(-1))
-        assert np.array_equal(rows[inv], a)
-
-
 def test_static_depth_keeps_the_wall_behind_a_person_seen_in_most_frames():
     """A person walking along the camera's line of sight covers the same pixels in 8 of 12 frames:
     the static depth there must still be the wall behind (the plain median gave the person), within

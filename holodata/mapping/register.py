@@ -73,12 +73,14 @@ rewritten: finished shards are never rewritten and ingest's resume relies on it)
 (4,4) and the registration report in scene attrs ``register``.
 
 **Processes** (``processes``, default two on a two-CPU machine; :mod:`holodata.parallel`): the LiDAR
-half (background model, segmentation, map) runs in a forked process while this one reads the
-camera frames and builds the static depth; after the extrinsic, ``camera/points_world`` and every
-other frame's surface are written/built by a second process. The results are the same as in one
-process (test). On the 400-cycle corner this saves ~1 s of ~10 s: the camera half is short, the
-LiDAR half is the critical path, and splitting the LiDAR half's scans over two processes gained
-nothing (copy-on-write faults and pickling the points back ate it).
+half (background model, map, then the segmentation of every scan) runs in a forked process while
+this one reads the camera frames and builds the static depth; the LiDAR process hands the map over
+as soon as it is built and segments beside the extrinsic and the humans. After the extrinsic,
+``camera/points_world`` and every other frame's surface are written/built by another process. The
+results are the same as in one process (test). On the 400-cycle corner this saves ~1 s of ~11 s
+(min of three runs, 10.2 vs 11.2 s): the background model and the map are the critical path, and
+splitting their scans over two processes gained nothing (copy-on-write faults and pickling the
+points back ate it).
 """
 from __future__ import annotations
 
@@ -793,20 +795,6 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
     return voxel_boundary(np.floor(sw / voxel).astype(np.int64), voxel)     # repeated voxels are fine
 
 
-def unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(a, axis=0, return_inverse=True)`` for (N,3) int lattice points, through one int64
-    key per row (same lexicographic order; ~10x faster than the structured-row sort)."""
-    a = np.asarray(a, np.int64).reshape(-1, 3)
-    if len(a) == 0:
-        return a.copy(), np.zeros(0, np.int64)
-    lo = a.min(0)
-    o = a - lo
-    n1, n2 = int(o[:, 1].max()) + 1, int(o[:, 2].max()) + 1
-    keys, inv = np.unique((o[:, 0] * n1 + o[:, 1]) * n2 + o[:, 2], return_inverse=True)
-    rows = np.stack([keys // (n1 * n2), (keys // n2) % n1, keys % n2], 1) + lo
-    return rows, inv.reshape(-1)
-
-
 def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """Boundary surface of a set of occupied voxels ``occ`` (N,3) int (repeats allowed): two triangles
     per voxel face not shared with another occupied voxel; shared vertices (a closed mesh), outward
@@ -843,7 +831,7 @@ def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarra
                 c = c[:, ::-1]
             quads.append(c)
     q = np.concatenate(quads)                      # (Q,4,3) corner lattice coordinates, in 0..dims
-    # vertex ids on a dense lattice of the box (C order = lexicographic, as unique_rows would number them)
+    # vertex ids on a dense lattice of the box (C order: lexicographic, as a sort would number them)
     flat = np.ravel_multi_index((q[..., 0], q[..., 1], q[..., 2]), tuple(dims + 1))
     used = np.zeros(int(np.prod(dims + 1)), bool)
     used[flat] = True
