@@ -166,7 +166,8 @@ class VoxelBackground:
             p = np.asarray(p).reshape(-1, 3)
             if p.dtype not in (np.float32, np.float64):
                 p = p.astype(np.float64)
-            pts.append(p[_finite_rows(p)])
+            ok = _finite_rows(p)
+            pts.append(p if ok.all() else p[ok])       # no copy of the (usual) all-finite scan
         n = len(pts)
         if n == 0 or sum(len(p) for p in pts) == 0:
             empty = np.zeros(0, np.int64)
