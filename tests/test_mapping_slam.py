@@ -615,6 +615,7 @@ def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
     with pytest.raises(HolodataError, match="shard 1 is corrupt"):
         S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
     assert not any(t.name == "holodata-slam-read" for t in __import__("threading").enumerate())
+    assert not __import__("multiprocessing").active_children()      # nor its reader process
 
 
 def test_split_accumulator_drops_exactly_what_filtering_first_drops():

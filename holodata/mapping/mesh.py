@@ -4,7 +4,9 @@
    (:class:`~holodata.mapping.background.VoxelBackground`), merged into a voxel-averaged cloud
    (``MeshConfig.voxel``; averaging many returns per voxel beats the LiDAR range noise down),
    incrementally, so memory stays flat in the number of scans. Each voxel also keeps the mean
-   direction towards the sensors that saw it (normal orientation).
+   direction towards the sensors that saw it (normal orientation). With ``split`` it keeps each
+   voxel's points apart per background voxel, so that the moving ones can be dropped after the
+   accumulation (slam builds the background model meanwhile in a second process).
 2. Normals by open3d (hybrid radius search), oriented towards the sensors.
 3. Surface reconstruction with open3d, one of (``MeshConfig.method``):
 

@@ -43,6 +43,7 @@ optional exports.
 """
 from __future__ import annotations
 
+import contextlib
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -962,8 +963,14 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
         model = fork_call(_mesh_background, world, P[:, :3, 3], cfg, label="slam: mesh background model",
                           enabled=cpus() > 1)
     acc = PointAccumulator(mesh_cfg.voxel, split=cfg.background_voxel if background is None else background.voxel)
-    for T, w in track(list(zip(P, world)), total=len(P), description="slam: static points", quiet=quiet):
-        acc.add(w, T[:3, 3])
+    try:
+        for T, w in track(list(zip(P, world)), total=len(P), description="slam: static points", quiet=quiet):
+            acc.add(w, T[:3, 3])
+    except BaseException:
+        if model is not None:
+            with contextlib.suppress(Exception):
+                model()   # reap the worker before raising
+        raise
     del world
     if model is not None:
         background = model()
