@@ -259,29 +259,34 @@ def test_register_scene_end_to_end_and_raytrace_reads_the_human():
     assert len(cw) == len(sc.ragged("camera/points", k))
 
 
+def _copy_small_corner(tmp_path):
+    """(url, scene writer, truth dir) of a copy of the shared small corner without lidar/instance (the
+    segmentation tests may leave theirs there, made with their own settings)."""
+    import shutil
+
+    import holodata.dataset as hds
+    from _mapping_synth import small_corner
+
+    src, truth = small_corner()
+    url = str(tmp_path / "ds.zarr")
+    shutil.copytree(src, url)
+    ds = hds.open_dataset(url)
+    sw = hds.create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene("recording")
+    if "lidar/instance" in sw.arrays():
+        sw.remove("lidar/instance")
+    return url, sw, truth
+
+
 def test_cli_truth_report(tmp_path):
     """``holodata register --truth --report``: one line of accuracy, register_accuracy.json with the
     same numbers as the evaluation functions give, and the centroid PNG."""
     import json
-    import shutil
-
-    from _mapping_synth import small_corner
 
     from holodata import open_dataset
     from holodata.cli.main import cli
     from holodata.mapping.human_eval import truth_camera_extrinsic
 
-    src, truth = small_corner()
-    url = str(tmp_path / "ds.zarr")
-    shutil.copytree(src, url)
-    # the shared corner may hold lidar/instance from the segmentation tests' own settings: register's
-    # segmentation is what is scored here
-    import holodata.dataset as hds
-
-    ds = hds.open_dataset(url)
-    sw = hds.create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene("recording")
-    if "lidar/instance" in sw.arrays():
-        sw.remove("lidar/instance")
+    url, _, truth = _copy_small_corner(tmp_path)     # register's own segmentation is what is scored
     r = CliRunner().invoke(cli, ["register", url, "--truth", truth, "--report", str(tmp_path / "rep"), "--quiet"])
     assert r.exit_code == 0, r.output
     assert "trajectory-aligned" in r.output and "human centroid mean/median/max" in r.output and "AP50" in r.output
@@ -384,29 +389,13 @@ def test_voxel_average_is_open3d_voxel_down_sample():
     assert voxel_average(np.zeros((0, 3)), 0.1).shape == (0, 3)
 
 
-def _copy_small_corner(tmp_path):
-    import shutil
-
-    import holodata.dataset as hds
-    from _mapping_synth import small_corner
-
-    src, truth = small_corner()
-    url = str(tmp_path / "ds.zarr")
-    shutil.copytree(src, url)
-    ds = hds.open_dataset(url)
-    sw = hds.create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene("recording")
-    if "lidar/instance" in sw.arrays():
-        sw.remove("lidar/instance")
-    return url, sw
-
-
 def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
     """processes=2 (LiDAR half, camera/points_world and half the surfaces in forked processes) gives
     the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation as processes=1."""
     from holodata import open_dataset
     from holodata.mapping.register import register_scene
 
-    url, sw = _copy_small_corner(tmp_path)
+    url, sw, _ = _copy_small_corner(tmp_path)
     names = ("human/points", "human/vertices", "human/faces", "camera/points_world")
     outs = []
     for processes in (1, 2):
@@ -435,7 +424,7 @@ def _killed(*args, **kwargs):
 def test_register_process_killed_is_a_one_line_error(tmp_path, monkeypatch):
     from holodata.mapping import register as R
 
-    url, _ = _copy_small_corner(tmp_path)
+    url, _, _ = _copy_small_corner(tmp_path)
     monkeypatch.setattr(R, "lidar_map", _killed)
     from holodata.parallel import WorkerError
 
