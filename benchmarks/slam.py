@@ -55,6 +55,22 @@ compare within one run), 64x512 LiDAR:
   is noise-limited (its step at rest: median 1.5 mm, p99 2.4 mm of the 3 mm bound), so a sparser
   source would send more rest scans to ICP.
 
+* Both cores (2026-12-01, 400-cycle L corner of ``benchmarks/pipeline.py --keep``, ``slam_scene``
+  without writing, old and new code alternated, load 4-5 from other jobs): the scans are read in a
+  thread while the refinement works on the first ones (``stream_scans``), kiss-icp/open3d are
+  imported meanwhile, the mesh's background model is built in a forked process while the points
+  are accumulated split by background voxel, deskew is one Rodrigues formula per point (a held
+  pose's zero twist skips it) and each mesh scan is deskewed once. CPU of the main thread (the
+  critical path when the second core is free) 11.1 -> 9.1 s; all CPU (threads, children) 13.2 ->
+  13.7 s; wall at load 4-5 unchanged within the noise (15-22 s both). ATE, F-scores, Chamfer and
+  the ``pipeline.py --gt-diff`` range differences unchanged (60 cycles: ATE 0.31 / 0.36 / 0.38 /
+  0.50 cm, F@2 0.971 / 0.968 / 0.962 / 0.965; 400 cycles: GT |range| median 0.3 / 0.4 / 0.5 cm,
+  p90 1.1 / 2.2 / 6.1 cm). Measured and not taken: multi-threaded Poisson (no faster at load 1.8;
+  it segfaults at random, isl-org/Open3D#6828); Poisson depth 7 on the 60-cycle corners
+  (F@2 L 0.968 -> 0.933, cross 0.962 -> 0.861); half the mesh scans (``mesh_max_scans`` 60: bounce-3
+  GT p90 6.1 -> 9.4 cm); reading in a forked process (the 260 MB of scans pickled through a pipe
+  cost +0.8 s CPU).
+
 ``benchmarks/pipeline.py`` prints the ingest / slam / register / raytrace-gt table of one corner.
 """
 from __future__ import annotations
