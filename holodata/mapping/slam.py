@@ -1111,19 +1111,19 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
         try:
             imports.join()
             odo = _odometry(scene, scans, config, health, timings, feed, quiet)
+            if feed is not None:
+                feed.wait(len(scans) - 1)   # every scan read (the mesh uses them), or the reader's error
         except _StreamBroken:
             feed.close()
             t0 = time.perf_counter()
             scans, feed = load_scans(scene, quiet=quiet), None
             timings["read_s"] = time.perf_counter() - t0
             odo = _odometry(scene, scans, config, health, timings, None, quiet)
-        if feed is not None:
-            feed.wait(len(scans) - 1)
-            timings["read_s"] = feed.read_s
-            timings["read_wait_s"] = feed.wait_s
     finally:
         if feed is not None:
             feed.close()
+    if feed is not None:
+        timings["read_s"], timings["read_wait_s"] = feed.read_s, feed.wait_s   # reading beside the refinement
     max_range, T0, anchor, poses, K, kref, background = odo
     Kw = K
     Tl, Tr, finfo = frame_poses(scene, scans, poses)
