@@ -163,6 +163,37 @@ def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
             "bare_err": extrinsic_error(np.asarray(res.transformation), Tt), "ours_err": extrinsic_error(ours.T, Tt)}
 
 
+def truth_pose_mesh(url: str, sid: str) -> None:
+    """What ``holodata slam``'s mesh step makes from the scene's (true) poses
+    (:func:`holodata.mapping.slam.static_mesh`), written as ``mesh/*`` with the poses' ``source``
+    ("truth") so that register uses it as it uses slam's mesh on the slam cells."""
+    from holodata import open_dataset
+    from holodata.dataset import create_dataset
+    from holodata.mapping.slam import SlamConfig, data_max_range, load_scans, static_mesh
+    from holodata.trajectory import Trajectory
+
+    from holodata.mapping.register import scene_mesh
+
+    ds = open_dataset(url)
+    sc = ds.scene(sid)
+    if scene_mesh(sc) is not None:   # --keep DIR: built by an earlier run from the same poses
+        return
+    P = np.asarray(sc["pose/T_world_lidar"][...], float)
+    st = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
+    ok = np.isfinite(P).all((1, 2)) & (st > 0)
+    idx = np.flatnonzero(ok)[np.argsort(st[ok], kind="stable")]
+    idx = idx[np.r_[True, np.diff(st[idx]) > 0]]
+    scans = load_scans(sc)
+    cfg = SlamConfig()
+    v, f, _, _ = static_mesh(scans, Trajectory(st[idx], P[idx]).interpolate(scans.stamp_ns), cfg,
+                             float(cfg.max_range or data_max_range(scans)))
+    source = (sc.nodes()["pose/T_world_lidar"][1].get("attributes") or {}).get("source")
+    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid)
+    w.write_array("mesh/vertices", v.astype(np.float32), dims=["vertex", "xyz"], units="m",
+                  attrs={"source": source, "frame": "world"})
+    w.write_array("mesh/faces", f.astype(np.int32), dims=["face", "corner"], units="1", attrs={"source": source})
+
+
 def perturb(T: np.ndarray, cm: float, deg: float) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
@@ -207,6 +238,10 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     out["human_speed_mps"] = json.loads((truth_dir / "scene.json").read_text())["human"]["speed_mps"]
     if poses == "truth":
         write_truth_poses(url, sid, truth_dir)
+        if not args.no_mesh:
+            t1 = time.perf_counter()
+            truth_pose_mesh(url, sid)
+            out["mesh_s"] = time.perf_counter() - t1
     elif "slam" not in (open_dataset(url).scene(sid).attrs or {}):
         from holodata.mapping.slam import slam_scene
 
@@ -303,6 +338,8 @@ def main() -> int:
     ap.add_argument("--perturb", default="5,2", help="cm,degrees added to the TF camera pose for the second run")
     ap.add_argument("--no-perturb", action="store_true", help="only the run from the TF pose")
     ap.add_argument("--no-bare", action="store_true", help="skip the bare open3d ICP comparison")
+    ap.add_argument("--no-mesh", action="store_true",
+                    help="--poses truth: no static mesh from the true poses (register then uses the point map only)")
     ap.add_argument("--seeds", "--seed", dest="seeds", default="1", help="comma list of synth seeds")
     ap.add_argument("--keep", default=None, help="keep the recordings/datasets in this folder (reruns reuse them)")
     ap.add_argument("--json", action="store_true")
