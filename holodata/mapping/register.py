@@ -41,9 +41,11 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    (``mesh_target``; ``mesh_keep_map_m`` > 0 would instead drop the map points within that distance
    of them: measured a little worse), and directions are held at the guess only below
    ``mesh_degenerate_ratio`` (against the noisy points alone a T corner's corridor seen end-on was
-   held at the guess, which then decided the error: 2.3-2.6 cm from a 5 cm / 2 deg perturbed
+   held at the guess, which then decided the error: 2.1-2.4 cm from a 5 cm / 2 deg perturbed
    guess, 0.8-1.8 cm with the mesh and the lower ratio from either guess). Scenes without a
-   matching mesh register as before. MEASURED_TABLE_PLACEHOLDER Correspondences and the check
+   matching mesh register as before. On the 16 benchmark cells the trajectory-aligned
+   extrinsic went from 0.27-3.20 cm (4 cells over 2 cm) to 0.12-1.82 cm (benchmarks/register.py).
+   Correspondences and the check
    use the distance to the map's *surface* (point-to-plane residual), not to its nearest point: on
    that map the rings are 25-40 cm apart, so at the exact pose only 37-76 % of the overlap was
    within 5 cm of a map point (the old fitness failed at the truth) against 73-99 % within 5 cm of
@@ -478,7 +480,9 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     """``T_world_camera`` from the static camera cloud ``static_cam`` (N,3, camera frame) and the map
     ``map_points`` (M,3, world) from ``init`` (4,4): open3d point-to-plane ICP then, with per-point
     depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`weighted_icp`); checked;
-    FPFH+RANSAC+ICP fallback, checked. Never returns an unchecked transform: ``accepted`` False means
+    FPFH+RANSAC+ICP fallback, checked. ``mesh`` (vertices (V,3), faces (F,3)): a static mesh of the
+    scene in the map's frame (:func:`scene_mesh`) whose surface near the camera cloud joins the
+    target (module docstring, 3.). Never returns an unchecked transform: ``accepted`` False means
     both failed (the caller raises)."""
     from scipy.spatial import cKDTree
 
