@@ -69,6 +69,14 @@ Extrinsic from the TF pose; world / aligned / robot; centroid mean, world (align
   2.4-3.3 mm in front of the true walls (seed 1: 0.4-0.6 mm; ``static_mesh`` vs truth/mesh.ply),
   and that corner's ~400-point overlap at 6-8 m amplifies it; the camera cloud at the true pose
   lies 0.4 mm (median) from the true mesh there.
+  The quick-demo camera (`--demo-config --corners T --seeds 11,15 --poses truth,slam --no-perturb
+  --no-bare`, 21:45; same cached clouds, before -> now, TF / perturbed guess, aligned cm): T_11
+  truth 2.89 -> 1.57 / 2.87 -> 3.78, T_11 slam 1.78 -> 3.51 / 2.80 -> 3.62, T_15 truth 9.79 ->
+  10.86 / 6.19 -> 10.93, T_15 slam 11.55 -> 10.92 / 9.04 -> 11.35: no better there (its 5-15 cm
+  stereo noise is the limit, above). With the mesh and the old ratio 0.05 T_11 is 1.58-3.08, so
+  the lower ratio costs up to 2 cm on this noisy camera; on the point target the lower ratio slid
+  17 cm on T_11 (why the mesh-less path keeps 0.05). Ratios 0.02 / 0.03 with the mesh: no
+  consistent middle (T_4 slam 1.24 / 2.98 from TF; T_11 slam 2.87 / 1.58).
 
 Before the mesh target: measured 2026-12-01 19:02-19:13 UTC (2 cores shared with other jobs, load 2-3.5; runtimes are
 inflated ~1.5x) with the registration target denoised (``register.local_plane_projection``, map

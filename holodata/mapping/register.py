@@ -42,7 +42,9 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    of them: measured a little worse), and directions are held at the guess only below
    ``mesh_degenerate_ratio`` (against the noisy points alone a T corner's corridor seen end-on was
    held at the guess, which then decided the error: 2.1-2.4 cm from a 5 cm / 2 deg perturbed
-   guess, 0.8-1.8 cm with the mesh and the lower ratio from either guess). Scenes without a
+   guess, 0.8-1.8 cm with the mesh and the lower ratio from either guess; on the noisy quick-demo
+   camera the lower ratio cost up to 2 cm on T_11, and without the mesh it slid 17 cm there, so the
+   mesh-less path keeps ``degenerate_ratio``). Scenes without a
    matching mesh register as before. On the 16 benchmark cells the trajectory-aligned
    extrinsic went from 0.27-3.20 cm (4 cells over 2 cm) to 0.12-1.82 cm (benchmarks/register.py).
    Correspondences and the check
@@ -400,8 +402,9 @@ def mesh_surface_samples(vertices: np.ndarray, faces: np.ndarray, near: np.ndarr
     """Points (P,3) spread over a triangle mesh (``vertices`` (V,3), ``faces`` (F,3) int) about
     ``spacing`` apart (per face round(area / spacing²) uniform barycentric samples, at least its
     centroid) with their faces' unit normals (P,3); with ``near`` (K,3) only the samples within
-    ``reach`` of one of its points (faces whose bounding sphere is out of reach are not sampled). A denoised registration target: point-to-plane residuals
-    against a sample are residuals against the face it lies on."""
+    ``reach`` of one of its points (faces whose bounding sphere is out of reach are not sampled).
+    A denoised registration target: point-to-plane residuals against a sample are residuals
+    against the face it lies on. Deterministic for a given ``seed``."""
     from scipy.spatial import cKDTree
 
     V = np.asarray(vertices, np.float64).reshape(-1, 3)
@@ -512,8 +515,8 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         map_points = local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
     tgt_pts, tgt_n = map_normals(map_points, cfg)
     if mesh_pts is not None:
-        # the mesh's surface near the camera cloud replaces the map points it explains; map points
-        # farther than mesh_keep_map_m from it (the rest of the map, or what the mesh trimmed) stay
+        # the mesh's surface near the camera cloud joins the (denoised) map; with mesh_keep_map_m > 0
+        # it replaces the map points within that distance instead (measured a little worse)
         far = (_nn_distances(tgt_pts, mesh_pts, cfg.mesh_keep_map_m) > cfg.mesh_keep_map_m if cfg.mesh_keep_map_m > 0
                else np.ones(len(tgt_pts), bool))
         tgt_pts, tgt_n = np.concatenate([mesh_pts, tgt_pts[far]]), np.concatenate([mesh_n, tgt_n[far]])
