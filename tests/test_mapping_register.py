@@ -444,12 +444,12 @@ def test_mesh_target_recovers_the_pose_where_a_biased_map_does_not():
     on_map = register_extrinsic(cam, noisy_map, init, cfg, allow_fallback=False)
     on_mesh = register_extrinsic(cam, noisy_map, init, cfg, allow_fallback=False, mesh=(V, F))
     e_map, e_mesh = extrinsic_error(on_map.T, T_true), extrinsic_error(on_mesh.T, T_true)
-    assert on_mesh.accepted and on_mesh.method == "icp"
+    assert on_mesh.accepted and on_mesh.method == "icp" and on_mesh.attempts[0]["target"] == "map+mesh"
     assert e_mesh["trans_cm"] < 0.1 and e_mesh["rot_deg"] < 0.03, e_mesh     # 0.06 cm; 0.37 cm on the map alone
     assert e_map["trans_cm"] > 2 * e_mesh["trans_cm"], (e_map, e_mesh)
     # a mesh nowhere near the camera cloud is no target: the point map is used as without one
     away = register_extrinsic(cam, noisy_map, init, cfg, allow_fallback=False, mesh=(V + 50.0, F))
-    assert np.array_equal(away.T, on_map.T)
+    assert np.array_equal(away.T, on_map.T) and away.attempts[0]["target"] == on_map.attempts[0]["target"] == "map"
 
 
 def test_scene_mesh_only_when_built_from_the_scene_poses():

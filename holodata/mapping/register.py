@@ -567,7 +567,8 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     info: dict = {}
     T = refine(init, info)
     c = check(T, info.get("frozen", 0))
-    attempts.append({"method": "icp", **c, "frozen_directions": info.get("frozen", 0),
+    attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
+                     "frozen_directions": info.get("frozen", 0),
                      "eigenvalues_rel": info.get("eigenvalues")})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
