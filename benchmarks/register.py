@@ -16,7 +16,69 @@ humans) twice: from the TF pose of the camera (exact in synth) and from that pos
   stage at the first correspondence distance, same source/target clouds and init) in the same run:
   runtime ratio register-extrinsic / bare-ICP and the bare ICP's own error.
 
-Measured 2026-12-01 19:02-19:13 UTC (2 cores shared with other jobs, load 2-3.5; runtimes are
+Measured 2026-12-01 21:21-21:40 UTC (2 cores shared with two other jobs, load 2.5-5; runtimes
+inflated), `--poses truth,slam --seeds 1,4 --no-perturb --no-bare --keep DIR`, with the mesh target
+(``register.mesh_surface_samples``: slam's static mesh near the camera joins the denoised map as
+the target; weak directions held at the guess only below ``mesh_degenerate_ratio`` 0.01 with it).
+The truth-pose cells get the mesh slam's mesh step (``slam.static_mesh``) makes from the true
+poses (:func:`truth_pose_mesh`, 19-46 s, not in register's time; ``--no-mesh``: none). "before":
+the 19:02 run below, rerun 20:30-21:20 on the same recordings with identical extrinsics.
+Extrinsic from the TF pose; world / aligned / robot; centroid mean, world (aligned / radar frame):
+
+  corner seed poses  AP50   world            aligned          robot   centroid             | before: aligned (world) centroid
+  T       1   truth  1.000  0.74 cm 0.05 deg 0.74 cm 0.05 deg 0.74 cm 4.0 cm               | 0.90 (0.90) 3.5
+  T       1   slam   1.000  1.70 cm 0.13 deg 1.77 cm 0.13 deg 1.98 cm 4.0 (3.5/3.7) cm     | 0.27 (1.40) 4.2  <- worse
+  L       1   truth  1.000  0.12 cm 0.06 deg 0.12 cm 0.06 deg 0.12 cm 3.9 cm               | 1.03 (1.03) 4.0
+  L       1   slam   1.000  1.14 cm 0.10 deg 0.19 cm 0.02 deg 0.68 cm 3.9 (3.8/3.9) cm     | 0.96 (1.49) 4.5
+  cross   1   truth  1.000  0.53 cm 0.04 deg 0.53 cm 0.04 deg 0.53 cm 3.6 cm               | 0.81 (0.81) 3.6
+  cross   1   slam   1.000  1.26 cm 0.11 deg 0.62 cm 0.05 deg 0.78 cm 4.1 (3.7/3.8) cm     | 0.78 (0.72) 4.0
+  oblique 1   truth  1.000  0.58 cm 0.06 deg 0.58 cm 0.06 deg 0.58 cm 4.0 cm               | 0.58 (0.58) 4.1
+  oblique 1   slam   1.000  2.62 cm 0.20 deg 0.33 cm 0.03 deg 0.96 cm 5.4 (3.8/4.0) cm     | 0.48 (2.89) 5.4  <- centroid (world)
+  T       4   truth  0.988  1.65 cm 0.03 deg 1.65 cm 0.03 deg 1.65 cm 3.9 cm               | 1.02 (1.02) 3.7  <- worse
+  T       4   slam   0.988  4.79 cm 0.18 deg 1.20 cm 0.08 deg 1.52 cm 5.6 (3.7/3.7) cm     | 3.20 (2.01) 3.6  <- centroid (world)
+  L       4   truth  0.988  1.82 cm 0.13 deg 1.82 cm 0.13 deg 1.82 cm 3.9 cm               | 2.03 (2.03) 4.2
+  L       4   slam   0.988  4.64 cm 0.24 deg 0.53 cm 0.02 deg 0.81 cm 5.4 (3.7/3.7) cm     | 2.03 (3.17) 4.9  <- centroid (world)
+  cross   4   truth  0.988  1.02 cm 0.01 deg 1.02 cm 0.01 deg 1.02 cm 3.7 cm               | 0.97 (0.97) 3.6
+  cross   4   slam   0.988  4.22 cm 0.15 deg 1.19 cm 0.07 deg 1.34 cm 5.3 (3.6/3.6) cm     | 0.42 (3.96) 4.9  <- worse; centroid (world)
+  oblique 4   truth  0.988  1.19 cm 0.08 deg 1.19 cm 0.08 deg 1.19 cm 3.7 cm               | 1.82 (1.82) 3.6
+  oblique 4   slam   0.988  4.11 cm 0.36 deg 1.75 cm 0.13 deg 1.64 cm 4.6 (3.7/3.7) cm     | 2.85 (5.14) 4.8
+  Aligned extrinsic: every cell < 2 cm (before 4 missed); mean 0.95 cm (before 1.26), max 1.82 (3.20);
+  worse on T_1 slam (0.27 -> 1.77), T_4 truth (1.02 -> 1.65), cross_4 slam (0.42 -> 1.19), and
+  five cells sit at 1.65-1.82 cm, near the floor. Robot-relative: T_4 / L_4 / oblique_4 slam 3.36
+  / 2.12 / 2.73 -> 1.52 / 0.81 / 1.64 cm; cross_4 slam 0.71 -> 1.34. The world-frame centroid
+  floor (5 cm) is now missed on T_4 / L_4 / cross_4 slam (5.3-5.6 cm; aligned and radar frame
+  3.6-3.7, better than before): the camera now follows the slam map, which sits 0.21-0.25 deg
+  off the world, where before a direction held at the (world-exact, synthetic) TF guess kept it in
+  the world frame on T_4 — so the floors line still reads NOT met (oblique_1, T_4, L_4, cross_4
+  slam: the centroid's world column only). Register 13.1-30.5 s, extrinsic 4.8-11.3 s (sum over
+  the 16 cells 123 s; before 4.6-15.1 s, sum 157 s, at a similar load). Same
+  load, interleaved, register_extrinsic alone on each cell's cached clouds (21:40, load ~2-3):
+  before 2.6-6.8 s (sum 69.7 s), now 2.2-5.0 s (sum 58.2 s) — the mesh sampling (~0.6 s) is paid
+  for by the check's nearest-neighbour queries now bounded at overlap_m (same results).
+  Why (cached clouds of each cell, register_extrinsic alone): from a 5 cm / 2 deg perturbed guess
+  the T corners, whose overlap sees the corridor end-on, kept the guess's error along the held
+  direction (point target: T_1/T_4 truth 2.44/2.32 cm, T_1 slam 2.06); with the mesh and the lower
+  ratio 0.75-1.77 cm from either guess (T_1/T_4 truth, T_1/T_4 slam). The mesh alone (replacing
+  the map points it explains, ``mesh_keep_map_m`` 0.1) was a little worse than mesh + denoised map
+  (8 non-T cells from the perturbed guess, ratio 0.05: mean 0.66 vs 0.53 cm, L_4 truth 2.08 vs
+  1.75); sample spacing 1 or 4 cm instead of 2: no
+  systematic change (T_1 truth 0.39 / 0.22 vs 0.34 cm). Lowering the ratio on the point target
+  alone also kept the four T cells < 2 cm (0.64-1.76 cm from the perturbed guess) but was not
+  adopted: unmeasured on the quick-demo config, so scenes without a mesh register as before.
+  L_4 truth stays at 1.8 cm: the truth-pose meshes of the seed-4 corners have their walls
+  2.4-3.3 mm in front of the true walls (seed 1: 0.4-0.6 mm; ``static_mesh`` vs truth/mesh.ply),
+  and that corner's ~400-point overlap at 6-8 m amplifies it; the camera cloud at the true pose
+  lies 0.4 mm (median) from the true mesh there.
+  The quick-demo camera (`--demo-config --corners T --seeds 11,15 --poses truth,slam --no-perturb
+  --no-bare`, 21:45; same cached clouds, before -> now, TF / perturbed guess, aligned cm): T_11
+  truth 2.89 -> 1.57 / 2.87 -> 3.78, T_11 slam 1.78 -> 3.51 / 2.80 -> 3.62, T_15 truth 9.79 ->
+  10.86 / 6.19 -> 10.93, T_15 slam 11.55 -> 10.92 / 9.04 -> 11.35: no better there (its 5-15 cm
+  stereo noise is the limit, above). With the mesh and the old ratio 0.05 T_11 is 1.58-3.08, so
+  the lower ratio costs up to 2 cm on this noisy camera; on the point target the lower ratio slid
+  17 cm on T_11 (why the mesh-less path keeps 0.05). Ratios 0.02 / 0.03 with the mesh: no
+  consistent middle (T_4 slam 1.24 / 2.98 from TF; T_11 slam 2.87 / 1.58).
+
+Before the mesh target: measured 2026-12-01 19:02-19:13 UTC (2 cores shared with other jobs, load 2-3.5; runtimes are
 inflated ~1.5x) with the registration target denoised (``register.local_plane_projection``, map
 points near the camera cloud onto their local planes); "before": the 16:30-17:10 run (load 6-19)
 without it, its aligned column computed afterwards from the stored extrinsics. Extrinsic from the TF
@@ -87,7 +149,7 @@ radar frame, slam rows):
     .venv/bin/python benchmarks/register.py [--frames 40] [--corners T,L,cross,oblique] [--walkers 2]
                                             [--poses truth,slam] [--seeds 1,4] [--perturb 5,2] [--keep DIR]
                                             [--demo-config] [--lidar 64x1024] [--lidar-fov 33.2]
-                                            [--camera 376x672] [--no-perturb] [--no-bare] [--json]
+                                            [--camera 376x672] [--no-perturb] [--no-bare] [--no-mesh] [--json]
 
 ``--poses truth,slam`` runs every corner with both pose sources (one synthetic recording, one dataset
 per source). ``--demo-config``: the LiDAR/camera of ``holodata demo --quick`` (32x512 LiDAR with a
@@ -163,6 +225,37 @@ def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
             "bare_err": extrinsic_error(np.asarray(res.transformation), Tt), "ours_err": extrinsic_error(ours.T, Tt)}
 
 
+def truth_pose_mesh(url: str, sid: str) -> None:
+    """What ``holodata slam``'s mesh step makes from the scene's (true) poses
+    (:func:`holodata.mapping.slam.static_mesh`), written as ``mesh/*`` with the poses' ``source``
+    ("truth") so that register uses it as it uses slam's mesh on the slam cells."""
+    from holodata import open_dataset
+    from holodata.dataset import create_dataset
+    from holodata.mapping.slam import SlamConfig, data_max_range, load_scans, static_mesh
+    from holodata.trajectory import Trajectory
+
+    from holodata.mapping.register import scene_mesh
+
+    ds = open_dataset(url)
+    sc = ds.scene(sid)
+    if scene_mesh(sc) is not None:   # --keep DIR: built by an earlier run from the same poses
+        return
+    P = np.asarray(sc["pose/T_world_lidar"][...], float)
+    st = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
+    ok = np.isfinite(P).all((1, 2)) & (st > 0)
+    idx = np.flatnonzero(ok)[np.argsort(st[ok], kind="stable")]
+    idx = idx[np.r_[True, np.diff(st[idx]) > 0]]
+    scans = load_scans(sc)
+    cfg = SlamConfig()
+    v, f, _, _ = static_mesh(scans, Trajectory(st[idx], P[idx]).interpolate(scans.stamp_ns), cfg,
+                             float(cfg.max_range or data_max_range(scans)))
+    source = (sc.nodes()["pose/T_world_lidar"][1].get("attributes") or {}).get("source")
+    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid)
+    w.write_array("mesh/vertices", v.astype(np.float32), dims=["vertex", "xyz"], units="m",
+                  attrs={"source": source, "frame": "world"})
+    w.write_array("mesh/faces", f.astype(np.int32), dims=["face", "corner"], units="1", attrs={"source": source})
+
+
 def perturb(T: np.ndarray, cm: float, deg: float) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
@@ -207,6 +300,10 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     out["human_speed_mps"] = json.loads((truth_dir / "scene.json").read_text())["human"]["speed_mps"]
     if poses == "truth":
         write_truth_poses(url, sid, truth_dir)
+        if not args.no_mesh:
+            t1 = time.perf_counter()
+            truth_pose_mesh(url, sid)
+            out["mesh_s"] = time.perf_counter() - t1
     elif "slam" not in (open_dataset(url).scene(sid).attrs or {}):
         from holodata.mapping.slam import slam_scene
 
@@ -303,6 +400,8 @@ def main() -> int:
     ap.add_argument("--perturb", default="5,2", help="cm,degrees added to the TF camera pose for the second run")
     ap.add_argument("--no-perturb", action="store_true", help="only the run from the TF pose")
     ap.add_argument("--no-bare", action="store_true", help="skip the bare open3d ICP comparison")
+    ap.add_argument("--no-mesh", action="store_true",
+                    help="--poses truth: no static mesh from the true poses (register then uses the point map only)")
     ap.add_argument("--seeds", "--seed", dest="seeds", default="1", help="comma list of synth seeds")
     ap.add_argument("--keep", default=None, help="keep the recordings/datasets in this folder (reruns reuse them)")
     ap.add_argument("--json", action="store_true")

@@ -459,3 +459,100 @@ def test_ransac_plane_finds_the_largest_plane_and_is_deterministic():
     cloud = np.concatenate([floor, wall, person])
     resid = static_residual(cloud, RegisterConfig())
     assert resid[-800:].mean() > 0.9 and resid[:-800].mean() < 0.01
+
+
+def _quad(o, a, b):
+    """Two triangles of the parallelogram o, o+a, o+a+b, o+b: (4,3) vertices, (2,3) faces."""
+    o, a, b = (np.asarray(x, float) for x in (o, a, b))
+    return np.array([o, o + a, o + a + b, o + b]), np.array([[0, 1, 2], [0, 2, 3]])
+
+
+def _room_mesh():
+    """The surfaces of :func:`_room` as a triangle mesh (big quads, two triangles each)."""
+    quads = [((0, 0, 0), (4, 0, 0), (0, 4, 0)), ((0, 0, 0), (0, 4, 0), (0, 0, 2.5)),
+             ((0, 0, 0), (4, 0, 0), (0, 0, 2.5)), ((0, 0, 2.5), (4, 0, 0), (0, 4, 0))]
+    for c, s in (((1.5, 1.0, 0.3), (0.6, 0.4, 0.6)), ((2.6, 2.4, 0.5), (0.5, 0.8, 1.0))):
+        lo, s = np.asarray(c) - np.asarray(s) / 2, np.asarray(s)
+        ex, ey, ez = np.diag(s)
+        for o, a, b in ((lo, ex, ey), (lo, ey, ez), (lo, ex, ez)):
+            quads.append((o, a, b))
+            far = lo + s - np.asarray(a) - np.asarray(b)     # the opposite face
+            quads.append((far, a, b))
+    V, F = [], []
+    for q in quads:
+        v, f = _quad(*q)
+        F.append(f + 4 * len(V))
+        V.append(v)
+    return np.concatenate(V), np.concatenate(F)
+
+
+def test_mesh_surface_samples_lie_on_their_faces_and_cover_them():
+    from holodata.mapping.register import mesh_surface_samples
+
+    n = np.array([0.1, -0.2, 1.0]) / np.linalg.norm([0.1, -0.2, 1.0])
+    a = np.cross(n, [1.0, 0, 0])
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    V, F = _quad([1.0, 2.0, 0.5], 2 * a, 1.5 * b)                    # a tilted 2 x 1.5 m rectangle
+    p, pn = mesh_surface_samples(V, F, spacing=0.05)
+    assert len(p) == pytest.approx(3.0 / 0.05 ** 2, rel=0.01)          # area / spacing²
+    assert np.abs((p - V[0]) @ n).max() < 1e-9                          # on the plane
+    uv = np.linalg.lstsq(np.c_[2 * a, 1.5 * b], (p - V[0]).T, rcond=None)[0]
+    assert (uv > -1e-9).all() and (uv < 1 + 1e-9).all()                 # inside the rectangle
+    assert np.allclose(np.abs(pn @ n), 1.0)
+    # uniform: each half of the rectangle holds half the samples (binomial sd ~0.6 %)
+    assert np.mean(uv[0] < 0.5) == pytest.approx(0.5, abs=0.03)
+    # cropped to within reach of a point: only samples within reach, about the disc's share
+    c = V[0] + a + 0.75 * b
+    q, _ = mesh_surface_samples(V, F, near=c[None], reach=0.3, spacing=0.05)
+    assert np.linalg.norm(q - c, axis=1).max() <= 0.3
+    assert len(q) == pytest.approx(np.pi * 0.3 ** 2 / 0.05 ** 2, rel=0.1)
+    assert len(mesh_surface_samples(V, F, near=c[None] + 10, reach=0.3)[0]) == 0
+
+
+def test_mesh_target_recovers_the_pose_where_a_biased_map_does_not():
+    rng = np.random.default_rng(5)
+    world = _room(rng, 60000)
+    V, F = _room_mesh()
+    T_true = _pose([3.2, 3.1, 1.4], [5.0, -8.0, 200.0])
+    seen = world[(world[:, 0] < 3.0) & (world[:, 1] < 3.0)]
+    cam = (seen - T_true[:3, 3]) @ T_true[:3, :3] + rng.normal(0, 0.003, seen.shape)
+    # the LiDAR map: the room with a smooth 2 cm bias field (a spatially correlated range error the
+    # local plane fits cannot remove) and 5 mm noise
+    bias = 0.02 * np.sin(2 * np.pi * world[:, 0] / 1.7 + 0.4) * np.cos(2 * np.pi * world[:, 1] / 2.3)
+    noisy_map = world + bias[:, None] * np.array([0.3, 0.5, 0.8]) + rng.normal(0, 0.005, world.shape)
+    init = T_true @ _pose([0.04, -0.03, 0.02], [1.0, -1.5, 2.0])
+    cfg = RegisterConfig(min_overlap_points=100)
+    on_map = register_extrinsic(cam, noisy_map, init, cfg, allow_fallback=False)
+    on_mesh = register_extrinsic(cam, noisy_map, init, cfg, allow_fallback=False, mesh=(V, F))
+    e_map, e_mesh = extrinsic_error(on_map.T, T_true), extrinsic_error(on_mesh.T, T_true)
+    assert on_mesh.accepted and on_mesh.method == "icp" and on_mesh.attempts[0]["target"] == "map+mesh"
+    assert e_mesh["trans_cm"] < 0.1 and e_mesh["rot_deg"] < 0.03, e_mesh     # 0.06 cm; 0.37 cm on the map alone
+    assert e_map["trans_cm"] > 2 * e_mesh["trans_cm"], (e_map, e_mesh)
+    # a mesh nowhere near the camera cloud is no target: the point map is used as without one
+    away = register_extrinsic(cam, noisy_map, init, cfg, allow_fallback=False, mesh=(V + 50.0, F))
+    assert np.array_equal(away.T, on_map.T) and away.attempts[0]["target"] == on_map.attempts[0]["target"] == "map"
+
+
+def test_scene_mesh_only_when_built_from_the_scene_poses():
+    from holodata.mapping.register import scene_mesh
+
+    V, F = _room_mesh()
+
+    class FakeScene:
+        def __init__(self, sources):
+            self._nodes = {n: ("array", {"attributes": {"source": s}}) for n, s in sources.items()}
+            self._data = {"mesh/vertices": V, "mesh/faces": F}
+
+        def nodes(self):
+            return self._nodes
+
+        def __getitem__(self, name):
+            return self._data[name]
+
+    got = scene_mesh(FakeScene({"mesh/vertices": "slam", "mesh/faces": "slam", "pose/T_world_lidar": "slam"}))
+    assert got is not None and np.array_equal(got[0], V) and np.array_equal(got[1], F)
+    # the poses were replaced (e.g. by the true ones) after slam built the mesh: not this map's surface
+    assert scene_mesh(FakeScene({"mesh/vertices": "slam", "mesh/faces": "slam", "pose/T_world_lidar": "truth"})) is None
+    assert scene_mesh(FakeScene({"mesh/vertices": "slam", "mesh/faces": "slam"})) is None
+    assert scene_mesh(FakeScene({"pose/T_world_lidar": "slam"})) is None

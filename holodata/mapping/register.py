@@ -34,7 +34,20 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    ``map_plane_m``; edges and clutter stay): on the oblique corner, whose only overlap lies 8.5-9 m
    from the camera, the LiDAR's few-millimetre noise was amplified into a 4.5 cm extrinsic error
    (1.2 cm with the map points moved onto the true surface, 1.45 cm denoised; measured on the 16
-   benchmark cells: benchmarks/register.py). Correspondences and the check
+   benchmark cells: benchmarks/register.py). Where the scene holds a static mesh built from the
+   poses it holds (``holodata slam``'s ``mesh/*``: Poisson, the large planes snapped flat;
+   :func:`scene_mesh`), points ``mesh_sample_m`` apart on its faces within reach of the camera
+   cloud under the guess, with the faces' normals (:func:`mesh_surface_samples`), join the target
+   (``mesh_target``; ``mesh_keep_map_m`` > 0 would instead drop the map points within that distance
+   of them: measured a little worse), and directions are held at the guess only below
+   ``mesh_degenerate_ratio`` (against the noisy points alone a T corner's corridor seen end-on was
+   held at the guess, which then decided the error: 2.1-2.4 cm from a 5 cm / 2 deg perturbed
+   guess, 0.8-1.8 cm with the mesh and the lower ratio from either guess; on the noisy quick-demo
+   camera the lower ratio cost up to 2 cm on T_11, and without the mesh it slid 17 cm there, so the
+   mesh-less path keeps ``degenerate_ratio``). Scenes without a
+   matching mesh register as before. On the 16 benchmark cells the trajectory-aligned
+   extrinsic went from 0.27-3.20 cm (4 cells over 2 cm) to 0.12-1.82 cm (benchmarks/register.py).
+   Correspondences and the check
    use the distance to the map's *surface* (point-to-plane residual), not to its nearest point: on
    that map the rings are 25-40 cm apart, so at the exact pose only 37-76 % of the overlap was
    within 5 cm of a map point (the old fitness failed at the truth) against 73-99 % within 5 cm of
@@ -113,6 +126,10 @@ class RegisterConfig:
     map_normal_nn: int = 30
     map_plane_m: float = 0.3
     map_plane_ratio: float = 0.1
+    mesh_target: bool = True
+    mesh_sample_m: float = 0.02
+    mesh_keep_map_m: float = 0.0
+    mesh_degenerate_ratio: float = 0.01
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
     # measured on the quick-demo corners (noisy 188x336 stereo, 12 frames): inverse-variance weights
@@ -409,6 +426,53 @@ def local_plane_projection(points: np.ndarray, radius: float, ratio: float = 0.1
     return out
 
 
+def mesh_surface_samples(vertices: np.ndarray, faces: np.ndarray, near: np.ndarray | None = None,
+                         reach: float = np.inf, spacing: float = 0.02, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points (P,3) spread over a triangle mesh (``vertices`` (V,3), ``faces`` (F,3) int) about
+    ``spacing`` apart (per face round(area / spacing²) uniform barycentric samples, at least its
+    centroid) with their faces' unit normals (P,3); with ``near`` (K,3) only the samples within
+    ``reach`` of one of its points (faces whose bounding sphere is out of reach are not sampled).
+    A denoised registration target: point-to-plane residuals against a sample are residuals
+    against the face it lies on. Deterministic for a given ``seed``."""
+    from scipy.spatial import cKDTree
+
+    V = np.asarray(vertices, np.float64).reshape(-1, 3)
+    F = np.asarray(faces, np.int64).reshape(-1, 3)
+    crop = near is not None and np.isfinite(reach)
+    tree = None
+    if len(F) and crop:
+        if len(near) == 0:
+            F = F[:0]
+        else:
+            # faces whose bounding sphere (about the centroid) comes within reach of a near point
+            tree = cKDTree(np.asarray(near, np.float64))
+            cen = V[F].mean(1)
+            rad = np.linalg.norm(V[F] - cen[:, None], axis=2).max(1)
+            d, _ = tree.query(cen, k=1, distance_upper_bound=np.nextafter(reach + rad.max(), np.inf), workers=-1)
+            F = F[d <= reach + rad]
+    if len(F) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    cr = np.cross(b - a, c - a)
+    area2 = np.linalg.norm(cr, axis=1)
+    good = area2 > 1e-12
+    a, b, c, cr, area2 = a[good], b[good], c[good], cr[good], area2[good]
+    n = cr / area2[:, None]
+    k = np.maximum(np.rint(0.5 * area2 / spacing ** 2).astype(np.int64), 1)
+    face = np.repeat(np.arange(len(a)), k)
+    rng = np.random.default_rng(seed)
+    u, v = rng.random(len(face)), rng.random(len(face))
+    flip = u + v > 1
+    u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+    first = np.r_[0, np.cumsum(k)[:-1]]
+    u[first], v[first] = 1 / 3, 1 / 3          # every face keeps its centroid
+    p = a[face] + u[:, None] * (b - a)[face] + v[:, None] * (c - a)[face]
+    if tree is not None:
+        d, _ = tree.query(p, k=1, distance_upper_bound=np.nextafter(reach, np.inf), workers=-1)
+        return p[d <= reach], n[face][d <= reach]
+    return p, n[face]
+
+
 def pose_uncertainty(points: np.ndarray, sigma: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
                      tree, T: np.ndarray, cfg: RegisterConfig) -> dict:
     """Standard deviations (m) of the point-to-plane pose estimate ``T`` along the eigen-directions of
@@ -419,7 +483,7 @@ def pose_uncertainty(points: np.ndarray, sigma: np.ndarray, target: np.ndarray, 
     a pose they alone pin down is uncertain by centimetres even when its fitness looks good.
     Returns {"std_m": sorted (6,) largest first, "n": correspondences}."""
     p = transform_points(T, points)
-    d, j = tree.query(p, k=1, workers=-1)
+    d, j = tree.query(p, k=1, distance_upper_bound=cfg.overlap_m, workers=-1)   # (bounded: far points end early)
     ok = d < cfg.overlap_m
     if ok.sum() < 6:
         return {"std_m": [float("inf")] * 6, "n": int(ok.sum())}
@@ -444,11 +508,13 @@ def prior_deviation(T: np.ndarray, init: np.ndarray) -> tuple[float, float]:
 
 def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray,
                        cfg: RegisterConfig | None = None, allow_fallback: bool = True,
-                       sigma: np.ndarray | None = None) -> Registration:
+                       sigma: np.ndarray | None = None, mesh: tuple | None = None) -> Registration:
     """``T_world_camera`` from the static camera cloud ``static_cam`` (N,3, camera frame) and the map
     ``map_points`` (M,3, world) from ``init`` (4,4): open3d point-to-plane ICP then, with per-point
     depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`weighted_icp`); checked;
-    FPFH+RANSAC+ICP fallback, checked. Never returns an unchecked transform: ``accepted`` False means
+    FPFH+RANSAC+ICP fallback, checked. ``mesh`` (vertices (V,3), faces (F,3)): a static mesh of the
+    scene in the map's frame (:func:`scene_mesh`) whose surface near the camera cloud joins the
+    target (module docstring, 3.). Never returns an unchecked transform: ``accepted`` False means
     both failed (the caller raises)."""
     from scipy.spatial import cKDTree
 
@@ -464,13 +530,25 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     sel = order[first]
     src, sig = src_all[sel], sig[sel]
     src_n = np.asarray(_pcd(src, None, 3 * cfg.cam_voxel).normals)   # same order (no thinning)
-    if cfg.map_plane_m > 0:
+    mesh_pts = None
+    if mesh is not None and cfg.mesh_target and len(mesh[1]):
+        mesh_pts, mesh_n = mesh_surface_samples(mesh[0], mesh[1], transform_points(init, src),
+                                                cfg.crop_m + cfg.max_scale_m, cfg.mesh_sample_m)
+        if len(mesh_pts) < cfg.min_overlap_points:
+            mesh_pts = None
+    if cfg.map_plane_m > 0 and (mesh_pts is None or cfg.mesh_keep_map_m <= 0):
         # denoise the target: map points near the camera cloud (under the guess) onto their local planes
         mp = voxel_average(map_points, cfg.map_voxel)
         reach = cfg.crop_m + cfg.max_scale_m + cfg.map_plane_m
         near_cam = _nn_distances(mp, transform_points(init, src), reach) <= reach
         map_points = local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
     tgt_pts, tgt_n = map_normals(map_points, cfg)
+    if mesh_pts is not None:
+        # the mesh's surface near the camera cloud joins the (denoised) map; with mesh_keep_map_m > 0
+        # it replaces the map points within that distance instead (measured a little worse)
+        far = (_nn_distances(tgt_pts, mesh_pts, cfg.mesh_keep_map_m) > cfg.mesh_keep_map_m if cfg.mesh_keep_map_m > 0
+               else np.ones(len(tgt_pts), bool))
+        tgt_pts, tgt_n = np.concatenate([mesh_pts, tgt_pts[far]]), np.concatenate([mesh_n, tgt_n[far]])
     tgt_tree = cKDTree(tgt_pts)
     # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
     # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
@@ -484,7 +562,10 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
         # far stereo points are too noisy to tell a right from a slightly wrong alignment
         p = transform_points(T, full_src)
-        d, j = tgt_tree.query(p, k=1, workers=-1)
+        # only points within overlap_m count: the bounded search ends early for the far ones (the
+        # camera's view of what the LiDAR never saw), which an unbounded one searched the whole map for
+        d, j = tgt_tree.query(p, k=1, distance_upper_bound=cfg.overlap_m, workers=-1)
+        j = np.minimum(j, len(tgt_pts) - 1)
         r = np.einsum("ij,ij->i", p - tgt_pts[j], tgt_n[j])
         precise = full_sig <= cfg.check_sigma_m
         if int((precise & (d < cfg.overlap_m)).sum()) >= cfg.min_overlap_points:
@@ -505,14 +586,18 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         # end-on (T corner, 1.5 m wide), and it has no way to hold such directions. Uniform weights:
         # per-point camera noise weights were measured worse (the map's own error is not modelled).
         return weighted_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4), tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
-                            degenerate_ratio=cfg.degenerate_ratio, info=info, source_normals=src_n,
+                            degenerate_ratio=ratio, info=info, source_normals=src_n,
                             min_normal_cos=cfg.min_normal_cos, search_m=cfg.search_m,
                             max_std_m=cfg.max_std_m if cfg.noise_weights else 0.0, max_scale=cfg.max_scale_m)
 
+    # against the mesh's smooth surface a weak direction (a T corner's corridor seen end-on) is
+    # determined by the data; against the noisy points it was held at the guess
+    ratio = cfg.mesh_degenerate_ratio if mesh_pts is not None else cfg.degenerate_ratio
     info: dict = {}
     T = refine(init, info)
     c = check(T, info.get("frozen", 0))
-    attempts.append({"method": "icp", **c, "frozen_directions": info.get("frozen", 0),
+    attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
+                     "frozen_directions": info.get("frozen", 0),
                      "eigenvalues_rel": info.get("eigenvalues")})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
@@ -971,6 +1056,20 @@ def register_processes(cfg: RegisterConfig) -> int:
     return 2 if cpus() >= 2 else 1
 
 
+def scene_mesh(scene) -> tuple[np.ndarray, np.ndarray] | None:
+    """The scene's static mesh (``mesh/vertices`` (V,3), ``mesh/faces`` (F,3)) when it was built from
+    the poses the scene holds now: both arrays' ``source`` attribute equals ``pose/T_world_lidar``'s
+    (``holodata slam`` writes "slam" on all three; poses replaced afterwards, e.g. by the true ones,
+    leave a mesh that no longer matches the map). None otherwise."""
+    nodes = scene.nodes()
+    if not all(n in nodes for n in ("mesh/vertices", "mesh/faces", "pose/T_world_lidar")):
+        return None
+    src = [(nodes[n][1].get("attributes") or {}).get("source") for n in ("mesh/vertices", "mesh/faces", "pose/T_world_lidar")]
+    if src[0] is None or len(set(src)) != 1:
+        return None
+    return np.asarray(scene["mesh/vertices"][...], np.float64), np.asarray(scene["mesh/faces"][...], np.int64)
+
+
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
                    quiet: bool = True) -> dict:
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
@@ -1029,7 +1128,9 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
         # 3. extrinsic
         t1 = time.perf_counter()
-        reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean)
+        # (onto slam's mesh near the camera where it was built from these poses)
+        reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean,
+                                 mesh=scene_mesh(scene) if cfg.mesh_target else None)
         timings["extrinsic_s"] = time.perf_counter() - t1
         if not reg.accepted:
             a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
@@ -1231,4 +1332,4 @@ __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extr
            "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
            "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual", "body_depth",
            "weighted_icp", "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
-           "track_jumps", "local_plane_projection"]
+           "track_jumps", "local_plane_projection", "mesh_surface_samples", "scene_mesh"]
