@@ -101,6 +101,27 @@ End of the stop (register's target denoising with its chunked neighbour search, 
 slam and register each run on one core, raytrace-gt on both: the aim (below raytrace-gt) needs
 register's per-scan / per-frame loops on both cores.
 
+2026-12-01 evening, both on two cores (register: the LiDAR half in a forked process beside the camera
+half, the map handed over before the segmentation, camera/points_world and half the surfaces in a
+second process; map from the background pass's points; slam: scans read in a thread, the mesh's
+background model in a forked process). Idle (load 0.7-1.3); this evening the same code ran ~15 %
+slower than at the end of the last stop (ingest 4.2 -> 5.7-7.7 s, raytrace-gt 9.5 -> 10.2-10.4 s):
+
+    stage            wall s    CPU s
+    ingest              5.7      8.1
+    slam               11.2     14.4    (read 2.5 s in a thread, refine 3.1, mesh 5.2)
+    register           10.6     14.5    (camera 0.9, wait for the map 4.4, extrinsic 2.3, humans 2.1 s wall)
+    raytrace-gt        10.2     19.1
+    slam+register      21.8     28.9    = 2.15x raytrace-gt wall, 1.51x its CPU (a second run: 23.0 s, 2.22x)
+
+The old code in the same conditions (a worktree at 53e5261, each stage alone, alternated twice):
+slam 11.2-12.3 s vs 10.8-11.7 s now; register 15.4 s vs 13.4-14.0 s now (these include imports).
+Now register's critical path is the LiDAR process's background model and map (~5.5 s: reading and
+de-skewing 400 scans, the free-space test, the centroids), then the extrinsic (local plane
+projection of the map near the camera, 1.7 s) and the humans; slam's is its refinement and Poisson
+(2.4 s, single-threaded, holds the GIL). Splitting the background pass, the segmentation or slam's
+scan reading over two processes gained nothing measurable (copy-on-write faults, pickling).
+
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x512] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
 """

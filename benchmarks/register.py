@@ -55,6 +55,12 @@ Extrinsic from the TF pose; world / aligned / robot; centroid mean, world (align
   load, interleaved, register_extrinsic alone on each cell's cached clouds (21:40, load ~2-3):
   before 2.6-6.8 s (sum 69.7 s), now 2.2-5.0 s (sum 58.2 s) — the mesh sampling (~0.6 s) is paid
   for by the check's nearest-neighbour queries now bounded at overlap_m (same results).
+  Rerun on main after merging this with the two-process register (22:02-22:16 UTC, d0275eb, load
+  1-3 with a test run beside it): every aligned extrinsic, AP50 and centroid above the same to
+  the printed digit. With the mesh present, skipping the map's local plane projection
+  (``map_plane_m`` 0 on the cached clouds) would save ~1.7 s of register's critical path on the
+  400-cycle corner for a mean 0.95 -> 1.04 cm (max 1.82 -> 1.83, T_4 truth 1.65 -> 0.69, cross_1
+  truth 0.53 -> 1.34): not taken.
   Why (cached clouds of each cell, register_extrinsic alone): from a 5 cm / 2 deg perturbed guess
   the T corners, whose overlap sees the corridor end-on, kept the guess's error along the held
   direction (point target: T_1/T_4 truth 2.44/2.32 cm, T_1 slam 2.06); with the mesh and the lower
@@ -366,9 +372,8 @@ def _row(r: dict, args) -> str:
                  + (f"{pt['trans_cm']:.2f} cm {pt['rot_deg']:.2f} deg" if "failed" not in pt else "FAILED"))
     line += (f" | centroid mean {h['mean_cm']:.1f} med {h['median_cm']:.1f} max {h['max_cm']:.1f} cm "
              f"(aligned {tf['human_aligned']['mean_cm']:.1f}, radar frame {hr['mean_cm']:.1f}) in {h['frames']}/{h['frames'] + h['missing']} "
-             f"| speed {r['human_speed_mps']:.2f} m/s | register {tf['seconds']:.1f} s (segment "
-             f"{tf['timings']['segment_s']:.1f}, map {tf['timings']['map_s']:.1f}, extrinsic "
-             f"{tf['timings']['extrinsic_s']:.1f}, humans {tf['timings']['humans_s']:.1f})")
+             f"| speed {r['human_speed_mps']:.2f} m/s | register {tf['seconds']:.1f} s ("
+             + ", ".join(f"{k[:-2]} {v:.1f}" for k, v in tf["timings"].items()) + ")")
     if "slam_s" in r:
         line += f" slam {r['slam_s']:.1f} s"
     b = r["bare_icp"]
