@@ -19,7 +19,8 @@ humans) twice: from the TF pose of the camera (exact in synth) and from that pos
 Measured 2026-12-01 21:21-21:40 UTC (2 cores shared with two other jobs, load 2.5-5; runtimes
 inflated), `--poses truth,slam --seeds 1,4 --no-perturb --no-bare --keep DIR`, with the mesh target
 (``register.mesh_surface_samples``: slam's static mesh near the camera joins the denoised map as
-the target; weak directions held at the guess only below ``mesh_degenerate_ratio`` 0.01 with it).
+the target; weak directions held at the guess only below ``mesh_degenerate_ratio`` 0.01 with it;
+0.02 since 22:30, see the note after the table).
 The truth-pose cells get the mesh slam's mesh step (``slam.static_mesh``) makes from the true
 poses (:func:`truth_pose_mesh`, 19-46 s, not in register's time; ``--no-mesh``: none). "before":
 the 19:02 run below, rerun 20:30-21:20 on the same recordings with identical extrinsics.
@@ -61,6 +62,14 @@ Extrinsic from the TF pose; world / aligned / robot; centroid mean, world (align
   (``map_plane_m`` 0 on the cached clouds) would save ~1.7 s of register's critical path on the
   400-cycle corner for a mean 0.95 -> 1.04 cm (max 1.82 -> 1.83, T_4 truth 1.65 -> 0.69, cross_1
   truth 0.53 -> 1.34): not taken.
+  ``mesh_degenerate_ratio`` 0.01 -> 0.02 (22:30): the quick demo's cross_13 (32x512 90 deg LiDAR,
+  188x336 camera, 12 frames) slid 20.3 cm with 0.01 along its weakest direction (eigenvalue ratio
+  0.015, pose std 0.19 cm: over-confident), 6.6 cm with 0.02 (map alone 7.2). The 16 cells' cached
+  clouds with 0.02 (register_extrinsic alone, from the TF pose): aligned 0.12-1.82 cm, the same as
+  above except T_1 slam 1.61, T_1 truth 0.62, T_4 slam 1.24, T_4 truth 1.54; with 0.05 T_4 slam
+  misses (2.98 cm). Quick demo, world frame, map alone / 0.01 / 0.02: T_11 1.76 / 1.84 / 1.58,
+  L_12 2.59 / 2.56 / 2.56, T_15 2.85 / 3.15 / 3.15, L_16 4.78 / 3.06 / 3.06, oblique_14 5.38 / 3.66
+  / 3.66, cross_13 7.23 / 20.29 / 6.64 cm.
   Why (cached clouds of each cell, register_extrinsic alone): from a 5 cm / 2 deg perturbed guess
   the T corners, whose overlap sees the corridor end-on, kept the guess's error along the held
   direction (point target: T_1/T_4 truth 2.44/2.32 cm, T_1 slam 2.06); with the mesh and the lower
