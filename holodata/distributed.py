@@ -42,13 +42,10 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import InputError
+from .parallel import cpus
 
 CONNECT_TIMEOUT_S = 30  # to an existing scheduler
 TASK_RETRIES = 2  # reruns of a task that *raised* (lost workers are rescheduled by Dask itself)
-
-
-def _cpus() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 @contextmanager
@@ -218,7 +215,7 @@ def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quie
     from dataclasses import replace
 
     local = getattr(client, "holodata_local_workers", 0)
-    threads = cfg.nthreads or (max(1, _cpus() // local) if local else 0)
+    threads = cfg.nthreads or (max(1, cpus() // local) if local else 0)
     wcfg = replace(cfg, nthreads=threads)
     payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": _for_workers(human), "url": worker_path(sc.ds.url),
                "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id}

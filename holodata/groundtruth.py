@@ -28,7 +28,6 @@ octahedra (3 cm). ``camera/points`` is never used: it is in the camera frame unt
 from __future__ import annotations
 
 import hashlib
-import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +43,7 @@ from .conventions import (
 )
 from .errors import HolodataError, InputError
 from .meshio import read_mesh
+from .parallel import cpus
 from .progress import track
 from .trajectory import Trajectory, read_tum
 
@@ -366,8 +366,8 @@ def trace_shard(tracer: FrameTracer, frames, names=GT_ARRAYS) -> dict:
 
 def auto_processes(n_frames: int) -> int:
     """Tracing processes for ``n_frames``: one per core (max 4) for long runs, else in-process."""
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    return 1 if n_frames < 64 or cpus < 2 else min(cpus, 4)
+    n_cpus = cpus()
+    return 1 if n_frames < 64 or n_cpus < 2 else min(n_cpus, 4)
 
 
 def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
@@ -413,8 +413,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
         from concurrent.futures.process import BrokenProcessPool
         from multiprocessing import shared_memory
 
-        cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-        wcfg = GTConfig(**{**cfg.__dict__, "nthreads": cfg.nthreads or max(1, cpus // workers)})
+        wcfg = GTConfig(**{**cfg.__dict__, "nthreads": cfg.nthreads or max(1, cpus() // workers)})
         n_slots = 2 * workers + 2
         size = _slot_bytes(specs)
         shm = shared_memory.SharedMemory(create=True, size=size * n_slots)
