@@ -1158,7 +1158,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         still = np.zeros(med.shape, bool)
         if resid.any():
             sw_ = transform_points(T, static_cam[resid])
-            dmap_ = _nn_distances(sw_, M, cfg.map_explain_m)
+            dmap_ = mtree.query(sw_, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)[0]
             rr = np.zeros(len(static_cam), bool)
             rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
             still[okm] = rr
@@ -1173,14 +1173,15 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
             cam_world = fork_call(camera_world, url, sid, T, label=f"{url}: scene {sid!r}: camera/points_world",
                                   enabled=processes > 1)
+        front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
+        always = ~np.isfinite(med) | still
         for k in track(range(n), n, f"register {sid}", quiet):
             D = depths[k]
             if not has_points[k]:
                 cand.append((np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), D))
                 continue
-            thr = np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)
             with np.errstate(invalid="ignore"):
-                fg = np.isfinite(D) & (~np.isfinite(med) | (D < med - thr) | still) & (D <= cfg.max_range_m)
+                fg = np.isfinite(D) & (always | (D < front)) & (D <= cfg.max_range_m)
             vv, uu = np.nonzero(fg)
             q = rays[vv, uu] * D[vv, uu][:, None]
             qw = transform_points(T, q)
