@@ -37,18 +37,21 @@ class Forked:
         self._pipes = {"result": recv, "early": recv_early}
         self._got = {} if proc is not None else value
 
+    def _no_early(self):
+        """The call ended without handing over its early value: its own error, else this one."""
+        self()
+        raise HolodataError(f"{self.label}: finished without its early result") from None
+
     def _get(self, which: str):
-        if which not in self._got and self._proc is None:     # ran in this process
-            self()
-            raise HolodataError(f"{self.label}: finished without its early result")
         if which not in self._got:
+            if self._proc is None:        # ran in this process: only an early value can be missing
+                self._no_early()
             pipe = self._pipes[which]
             try:
                 self._got[which] = pipe.recv()
             except EOFError:
-                if which == "early":      # the call ended (with an error?) without handing it over
-                    self()
-                    raise HolodataError(f"{self.label}: finished without its early result") from None
+                if which == "early":
+                    self._no_early()
                 self._proc.join()
                 raise WorkerError(f"{self.label}: its worker process died (exit code {self._proc.exitcode}: killed "
                                   f"by a signal or out of memory); rerun, or use --processes 1") from None
