@@ -1018,7 +1018,8 @@ def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: boo
     t2 = time.perf_counter()
     if early is not None:
         early(M)
-    seg_summary = segment_scene(url, sid, scfg, quiet, background=bg, world_points=world_points) if segment else None
+    seg_summary = (segment_scene(url, sid, scfg, quiet, background=bg, world_points=world_points, masks=inst)
+                   if segment else None)         # the masks the map asked for are not computed again
     return M, seg_summary, {"background_s": t1 - t0, "map_s": t2 - t1, "segment_s": time.perf_counter() - t2}
 
 

@@ -866,13 +866,16 @@ def background_masks(bg, valid: np.ndarray, points_world: np.ndarray, cfg: Segme
 
 
 def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | None = None, quiet: bool = True,
-                  overwrite: bool = False, background=None, world_points: dict | None = None) -> dict:
+                  overwrite: bool = False, background=None, world_points: dict | None = None,
+                  masks: "InstanceMasks | None" = None) -> dict:
     """Segment every scan of a dataset scene and write ``lidar/instance`` (T,Hl,Wl) uint16 (resumable:
     finished shards are kept). ``background``: a prebuilt model of these scans (else built here);
     ``world_points``: {frame: float32 world points of the valid returns (N,3)} from
     the pass that built ``background`` (:func:`background_and_segment`): scans that are
     :func:`surely_without_foreground` are written empty without reading them again (the same
-    result). Returns a summary {scene, frames, instances_per_scan, ...}."""
+    result). ``masks``: the :class:`InstanceMasks` of these scans and this background that another
+    user already asked (``holodata register``'s map): the masks it holds are not computed again.
+    Returns a summary {scene, frames, instances_per_scan, ...}."""
     import time
 
     from ..dataset import create_dataset, open_dataset
@@ -898,7 +901,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
                                 "values": "0 = background or no return; 1..n instances by decreasing size",
                                 "params": cfg.to_attrs(), "background_voxels": int(len(bg))})
     counts = []
-    masks = InstanceMasks(scans, bg, cfg, traj, world_points)
+    masks = masks or InstanceMasks(scans, bg, cfg, traj, world_points)
     for s in track(range(arr.n_shards), arr.n_shards, f"segment {sid}", quiet):
         sl = arr.frames(s)
         if arr.is_done(s):
@@ -918,15 +921,19 @@ class InstanceMasks:
     """Per-scan instance masks of :func:`segment_scene`, computed on demand: ``masks[k]`` (H,W)
     uint16 (0 = background / no return, 1..n instances). ``world_points`` {frame: float32 world points
     of the valid returns} from the background pass: scans that are :func:`surely_without_foreground`
-    are answered from them without reading the scan again."""
+    are answered from them without reading the scan again. A mask asked by index (``masks[k]``) is
+    kept until :meth:`mask` hands it out (to :func:`segment_scene`), so it is computed once."""
 
     def __init__(self, scans: LidarScans, bg, cfg: SegmentConfig, traj=None, world_points: dict | None = None):
         self.scans, self.bg, self.cfg, self.traj = scans, bg, cfg, traj
         self.world_points = world_points or {}
         self.shifts, self.elev = grid_geometry(scans)
+        self._kept: dict = {}
 
     def mask(self, k: int) -> np.ndarray | None:
         """Scan ``k``'s mask, or None for a scan without returns (counted by nobody)."""
+        if k in self._kept:
+            return self._kept.pop(k)
         wp = self.world_points.get(k)
         if wp is not None and surely_without_foreground(self.bg, wp, self.cfg):
             return np.zeros(self.scans.shape, np.uint16) if len(wp) else None
@@ -939,7 +946,7 @@ class InstanceMasks:
                             elev=self.elev)
 
     def __getitem__(self, k: int) -> np.ndarray:
-        m = self.mask(k)
+        m = self._kept[k] = self.mask(k)
         return np.zeros(self.scans.shape, np.uint16) if m is None else m
 
 
