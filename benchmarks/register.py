@@ -245,18 +245,18 @@ def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
 
 def truth_pose_mesh(url: str, sid: str) -> None:
     """What ``holodata slam``'s mesh step makes from the scene's (true) poses
-    (:func:`holodata.mapping.slam.static_mesh`), written as ``mesh/*`` with the poses' ``source``
-    ("truth") so that register uses it as it uses slam's mesh on the slam cells."""
+    (:func:`holodata.mapping.slam.static_mesh`), written as ``mesh/*`` and ``map/points`` with the
+    poses' ``source`` ("truth") so that register uses them as it uses slam's on the slam cells."""
     from holodata import open_dataset
     from holodata.dataset import create_dataset
-    from holodata.mapping.slam import SlamConfig, data_max_range, load_scans, static_mesh
+    from holodata.mapping.slam import SlamConfig, data_max_range, load_scans, static_mesh, write_static_map
     from holodata.trajectory import Trajectory
 
-    from holodata.mapping.register import scene_mesh
+    from holodata.mapping.register import scene_map, scene_mesh
 
     ds = open_dataset(url)
     sc = ds.scene(sid)
-    if scene_mesh(sc) is not None:   # --keep DIR: built by an earlier run from the same poses
+    if scene_mesh(sc) is not None and scene_map(sc) is not None:   # --keep DIR: built by an earlier run
         return
     P = np.asarray(sc["pose/T_world_lidar"][...], float)
     st = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
@@ -265,13 +265,11 @@ def truth_pose_mesh(url: str, sid: str) -> None:
     idx = idx[np.r_[True, np.diff(st[idx]) > 0]]
     scans = load_scans(sc)
     cfg = SlamConfig()
-    v, f, _, _ = static_mesh(scans, Trajectory(st[idx], P[idx]).interpolate(scans.stamp_ns), cfg,
-                             float(cfg.max_range or data_max_range(scans)))
+    sm = static_mesh(scans, Trajectory(st[idx], P[idx]).interpolate(scans.stamp_ns), cfg,
+                     float(cfg.max_range or data_max_range(scans)))
     source = (sc.nodes()["pose/T_world_lidar"][1].get("attributes") or {}).get("source")
-    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid)
-    w.write_array("mesh/vertices", v.astype(np.float32), dims=["vertex", "xyz"], units="m",
-                  attrs={"source": source, "frame": "world"})
-    w.write_array("mesh/faces", f.astype(np.int32), dims=["face", "corner"], units="1", attrs={"source": source})
+    write_static_map(create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid), sm.vertices, sm.faces,
+                     sm.points, source)
 
 
 def perturb(T: np.ndarray, cm: float, deg: float) -> np.ndarray:

@@ -200,7 +200,8 @@ def run_corner(corner: str, work: Path, args) -> dict:
         for meth in methods:
             t0 = time.perf_counter()
             try:
-                v, f, info, _ = S.static_mesh(scans, res.scan_poses, S.SlamConfig(), mr, MeshConfig(method=meth))
+                sm = S.static_mesh(scans, res.scan_poses, S.SlamConfig(), mr, MeshConfig(method=meth))
+                v, f, info = sm.vertices, sm.faces, sm.info
             except Exception as err:  # noqa: BLE001 - report and go on
                 row["methods"][meth] = {"error": str(err)[:120]}
                 continue

@@ -535,14 +535,14 @@ def test_mesh_target_recovers_the_pose_where_a_biased_map_does_not():
 
 
 def test_scene_mesh_only_when_built_from_the_scene_poses():
-    from holodata.mapping.register import scene_mesh
+    from holodata.mapping.register import scene_map, scene_mesh
 
     V, F = _room_mesh()
 
     class FakeScene:
         def __init__(self, sources):
             self._nodes = {n: ("array", {"attributes": {"source": s}}) for n, s in sources.items()}
-            self._data = {"mesh/vertices": V, "mesh/faces": F}
+            self._data = {"mesh/vertices": V, "mesh/faces": F, "map/points": V[:5]}
 
         def nodes(self):
             return self._nodes
@@ -556,3 +556,44 @@ def test_scene_mesh_only_when_built_from_the_scene_poses():
     assert scene_mesh(FakeScene({"mesh/vertices": "slam", "mesh/faces": "slam", "pose/T_world_lidar": "truth"})) is None
     assert scene_mesh(FakeScene({"mesh/vertices": "slam", "mesh/faces": "slam"})) is None
     assert scene_mesh(FakeScene({"pose/T_world_lidar": "slam"})) is None
+    assert np.array_equal(scene_map(FakeScene({"map/points": "slam", "pose/T_world_lidar": "slam"})), V[:5])
+    assert scene_map(FakeScene({"map/points": "slam", "pose/T_world_lidar": "truth"})) is None
+    assert scene_map(FakeScene({"map/points": None, "pose/T_world_lidar": None})) is None
+    assert scene_map(FakeScene({"mesh/vertices": "slam", "pose/T_world_lidar": "slam"})) is None
+
+
+def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path):
+    """With ``map/points`` + ``mesh/*`` written by slam's static-map step from the poses the scene holds
+    (same ``source``), register registers onto that map (its LiDAR process only segments), in one
+    process and in two alike; the extrinsic holds; with the poses' source changed it builds its own."""
+    from holodata import open_dataset
+    from holodata.mapping.human_eval import truth_camera_extrinsic
+    from holodata.mapping.register import register_scene, scene_map
+    from holodata.mapping.slam import SlamConfig, data_max_range, load_scans, static_mesh, write_static_map
+
+    url, sw, truth = _copy_small_corner(tmp_path)
+    sc = open_dataset(url).scene("recording")
+    scans = load_scans(sc)
+    poses = np.asarray(sc["pose/T_world_lidar"][...], float)[scans.frames]
+    sm = static_mesh(scans, poses, SlamConfig(), data_max_range(scans))
+    source = (sc.nodes()["pose/T_world_lidar"][1].get("attributes") or {}).get("source")
+    assert source
+    write_static_map(sw, sm.vertices, sm.faces, sm.points, source)
+    assert np.allclose(scene_map(open_dataset(url).scene("recording")), sm.points, atol=1e-5)
+    Ts, insts = [], []
+    for processes in (1, 2):
+        if "lidar/instance" in sw.arrays():
+            sw.remove("lidar/instance")
+        res = register_scene(url, "recording", cfg=RegisterConfig(processes=processes))
+        assert res["map"].startswith("slam") and res["segment"]["frames"] > 0
+        assert "map_s" not in res["timings"] or res["timings"]["map_s"] < 0.5
+        sc = open_dataset(url).scene("recording")
+        Ts.append(np.asarray(sc["calib/T_world_camera"][...]))
+        insts.append(np.asarray(sc["lidar/instance"][...]))
+        e = extrinsic_error(Ts[-1], truth_camera_extrinsic(truth))
+        assert res["extrinsic"]["accepted"] and e["trans_cm"] < 5 and e["rot_deg"] < 1, e
+        assert res["frames_with_human"] >= sc.n_frames // 2
+    assert np.array_equal(Ts[0], Ts[1]) and np.array_equal(insts[0], insts[1]) and insts[0].any()
+    write_static_map(sw, sm.vertices, sm.faces, sm.points, source + "-other")
+    res = register_scene(url, "recording", cfg=RegisterConfig(segment_lidar=False))
+    assert res["map"] == "built from the LiDAR scans"

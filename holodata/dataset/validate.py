@@ -59,6 +59,7 @@ def expected_spec(name: str, T: int, grid, rb) -> tuple[tuple | None, tuple[str,
         "gt/human_center": ((T, None, 3), ("float32",)),
         "mesh/vertices": ((None, 3), ("float32", "float64")),
         "mesh/faces": ((None, 3), ("int32", "int64", "uint32")),
+        "map/points": ((None, 3), ("float32", "float64")),
     }
     if name in table:
         return table[name]

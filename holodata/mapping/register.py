@@ -10,10 +10,15 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    intrinsics), averaged over the samples within 3 robust sigmas of the median, is a denoised
    picture of the static scene: a person covering a pixel in fewer than half of the frames does not
    reach the median.
-2. **Map.** Every scan in the world frame, minus the LiDAR foreground (returns outside the 15 cm
-   voxel background, :mod:`.background`) and minus a 25 cm margin around the scan's segmented
-   people (``lidar/instance``; a hand near a wall falls into a static voxel and biased the extrinsic
-   by 8 cm before), voxel-thinned (``map_voxel``) with normals.
+2. **Map.** ``holodata slam``'s static map (``map/points``: the scans' static returns averaged per
+   4 cm voxel, moving ones removed by slam's background model; the input of its mesh) when it was
+   built from the poses the scene holds (``slam_map``; :func:`scene_map`). Else built here: every
+   scan in the world frame, minus the LiDAR foreground (returns outside the 15 cm voxel background,
+   :mod:`.background`) and minus a 25 cm margin around the scan's segmented people
+   (``lidar/instance``; a hand near a wall falls into a static voxel and biased the extrinsic by 8
+   cm before), voxel-thinned (``map_voxel``) with normals. On the 16 benchmark cells the two maps
+   give trajectory-aligned extrinsics of 0.12-1.94 cm (mean 0.98) and 0.12-1.82 cm (mean 0.93);
+   slam's saves register the map (the critical path of its LiDAR half).
 3. **Extrinsic** ``T_world_camera`` by point-to-plane ICP (Gauss-Newton, Tukey loss, coarse-to-fine
    correspondence distances ``icp_distances``; open3d for normals, FPFH and RANSAC) of the static
    camera cloud onto the map from an informed initial guess: ``--init`` or the TF pose of the camera
@@ -89,9 +94,10 @@ rewritten: finished shards are never rewritten and ingest's resume relies on it)
 (4,4) and the registration report in scene attrs ``register``.
 
 **Processes** (``processes``, default two on a two-CPU machine; :mod:`holodata.parallel`): the LiDAR
-half (background model, map, then the segmentation of every scan) runs in a forked process while
-this one reads the camera frames and builds the static depth; the LiDAR process hands the map over
-as soon as it is built and segments beside the extrinsic and the humans. After the extrinsic,
+half (background model, map unless slam's is used, then the segmentation of every scan) runs in a
+forked process while this one reads the camera frames and builds the static depth; the LiDAR
+process hands a map it builds over as soon as it is built and segments beside the extrinsic and
+the humans. After the extrinsic,
 ``camera/points_world`` and every other frame's surface are written/built by another process. The
 results are the same as in one process (test). On the 400-cycle corner this saves ~1 s of ~11 s
 (min of three runs, 10.2 vs 11.2 s): the background model and the map are the critical path, and
@@ -176,6 +182,7 @@ class RegisterConfig:
     min_thickness_m: float = 0.06
     surface_voxel: float = 0.04
     segment_lidar: bool = True
+    slam_map: bool = True       # slam's stored static map (map/points) as the map, when built from these poses
     median_frames: int = 60
     processes: int = 0          # 0: two when the machine has two CPUs (the LiDAR half beside the camera half)
     write_camera_world: bool = True
@@ -992,13 +999,14 @@ def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None
     return voxel_average(np.concatenate(pts), voxel)
 
 
-def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True, early=None
-              ) -> tuple[np.ndarray, dict | None, dict]:
+def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True, build_map: bool = True,
+              early=None) -> tuple[np.ndarray | None, dict | None, dict]:
     """The LiDAR half of :func:`register_scene` (step 2 and the segmentation): background model,
-    the static map and, when ``segment``, ``lidar/instance``. The map is built first, with the
-    instance masks of the few map scans that have foreground computed on the spot, and handed to
-    ``early`` (a callback, or None) before the segmentation of every scan starts. Returns (map points
-    (M,3) float64 world, segmentation summary or None, timings {background_s, map_s, segment_s})."""
+    the static map (when ``build_map``) and, when ``segment``, ``lidar/instance``. The map is built
+    first, with the instance masks of the few map scans that have foreground computed on the spot,
+    and handed to ``early`` (a callback, or None) before the segmentation of every scan starts.
+    Returns (map points (M,3) float64 world or None, segmentation summary or None, timings
+    {background_s, map_s, segment_s})."""
     from ..dataset import open_dataset
     from .segment import InstanceMasks, LidarScans, SegmentConfig, background_and_segment, segment_scene
 
@@ -1014,7 +1022,7 @@ def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: boo
     else:
         inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
     M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans,
-                  world_points=world_points)
+                  world_points=world_points) if build_map else None
     t2 = time.perf_counter()
     if early is not None:
         early(M)
@@ -1060,18 +1068,32 @@ def register_processes(cfg: RegisterConfig) -> int:
     return 2 if cpus() >= 2 else 1
 
 
+def _built_from_the_poses(scene, names: tuple) -> bool:
+    """True when the scene holds the arrays ``names`` and each one's ``source`` attribute equals
+    ``pose/T_world_lidar``'s (``holodata slam`` writes "slam" on its poses, mesh and map; poses
+    replaced afterwards, e.g. by the true ones, leave products that no longer match them)."""
+    nodes = scene.nodes()
+    names = names + ("pose/T_world_lidar",)
+    if not all(n in nodes for n in names):
+        return False
+    src = [(nodes[n][1].get("attributes") or {}).get("source") for n in names]
+    return src[0] is not None and len(set(src)) == 1
+
+
 def scene_mesh(scene) -> tuple[np.ndarray, np.ndarray] | None:
     """The scene's static mesh (``mesh/vertices`` (V,3), ``mesh/faces`` (F,3)) when it was built from
-    the poses the scene holds now: both arrays' ``source`` attribute equals ``pose/T_world_lidar``'s
-    (``holodata slam`` writes "slam" on all three; poses replaced afterwards, e.g. by the true ones,
-    leave a mesh that no longer matches the map). None otherwise."""
-    nodes = scene.nodes()
-    if not all(n in nodes for n in ("mesh/vertices", "mesh/faces", "pose/T_world_lidar")):
-        return None
-    src = [(nodes[n][1].get("attributes") or {}).get("source") for n in ("mesh/vertices", "mesh/faces", "pose/T_world_lidar")]
-    if src[0] is None or len(set(src)) != 1:
+    the poses the scene holds now (:func:`_built_from_the_poses`); None otherwise."""
+    if not _built_from_the_poses(scene, ("mesh/vertices", "mesh/faces")):
         return None
     return np.asarray(scene["mesh/vertices"][...], np.float64), np.asarray(scene["mesh/faces"][...], np.int64)
+
+
+def scene_map(scene) -> np.ndarray | None:
+    """slam's static map ``map/points`` (M,3) float64 world when it was built from the poses the scene
+    holds now (:func:`_built_from_the_poses`); None otherwise."""
+    if not _built_from_the_poses(scene, ("map/points",)):
+        return None
+    return np.asarray(scene["map/points"][...], np.float64)
 
 
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
@@ -1103,8 +1125,11 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
     # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
     segment = cfg.segment_lidar and "lidar/instance" not in names
-    lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1,
-                      label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1, early=True)
+    stored_map = scene_map(scene) if cfg.slam_map else None
+    lidar = None
+    if segment or stored_map is None:
+        lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1, stored_map is None,
+                          label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1, early=stored_map is None)
     try:
         t1 = time.perf_counter()
         depths, has_points = [], []
@@ -1114,7 +1139,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             has_points.append(len(p) > 0)
         cam_frames = [k for k in range(n) if has_points[k]]
         if not cam_frames:
-            lidar.early()
+            if stored_map is None:
+                lidar.early()
             raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
         if len(cam_frames) > cfg.median_frames:  # evenly spread subset
             cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
@@ -1126,7 +1152,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         resid = static_residual(static_cam, cfg)
         timings["camera_s"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        M = lidar.early()          # the LiDAR process goes on with the segmentation of every scan
+        # (the LiDAR process goes on with the segmentation of every scan)
+        M = stored_map if stored_map is not None else lidar.early()
         timings["map_wait_s"] = time.perf_counter() - t1
         if len(M) < 100:
             raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
@@ -1256,11 +1283,14 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
                        attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
         t1 = time.perf_counter()
-        _, seg_summary, lidar_timings = lidar()   # the segmentation of every scan (lidar/instance)
-        timings.update(lidar_timings)
+        seg_summary = None
+        if lidar is not None:
+            _, seg_summary, lidar_timings = lidar()   # the segmentation of every scan (lidar/instance)
+            timings.update(lidar_timings)
         timings["segment_wait_s"] = time.perf_counter() - t1
         n_h = int(sum(len(s[1]) > 0 for s in surfaces))
         report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
+                  "map": "slam (map/points)" if stored_map is not None else "built from the LiDAR scans",
                   "frames_with_human": n_h, "frames": n, "frames_repicked": n_repicked, "params": cfg.to_attrs(),
                   "surface": "voxel boundary of the camera-ray extrusion (closed)",
                   "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
@@ -1270,7 +1300,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         if seg_summary:
             out["segment"] = seg_summary
     except BaseException:
-        lidar.join()   # it must not write on after register has failed
+        if lidar is not None:
+            lidar.join()   # it must not write on after register has failed
         raise
     return out
 

@@ -37,7 +37,9 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
 Outputs (written with the dataset writer, whole arrays, atomically): ``pose/T_world_lidar``
 (T,4,4), ``pose/T_world_radar`` (T,4,4) when there is a radar or a radar extrinsic (replacing the
 odometry poses ingest took from TF), ``mesh/vertices`` + ``mesh/faces`` (:func:`static_mesh`, :mod:`.mesh`;
-the background model of its scans is built in a forked process beside the point accumulation), scene
+the background model of its scans is built in a forked process beside the point accumulation) and
+``map/points``, the static point map the mesh was reconstructed from (``holodata register``'s
+target), scene
 attribute ``slam`` (config, counts, timings, health figures). A TUM trajectory and a PLY are
 optional exports.
 """
@@ -177,6 +179,7 @@ class SlamResult:
     T_world_radar: np.ndarray | None
     mesh: tuple | None = None
     summary: dict = field(default_factory=dict)
+    map_points: np.ndarray | None = None
 
     def trajectory(self) -> Trajectory:
         """Refined LiDAR trajectory at the scan stamps."""
@@ -943,9 +946,23 @@ def _mesh_background(world: list, origins: np.ndarray, cfg: SlamConfig):
                                  min_fraction=cfg.background_min_fraction, origins=origins)
 
 
+@dataclass
+class StaticMap:
+    """The static scene :func:`static_mesh` makes: the mesh ``vertices`` (V,3) / ``faces`` (F,3), the
+    ``points`` (M,3) float64 m it was reconstructed from (world frame; the scans' static returns
+    averaged per ``MeshConfig.voxel`` cell, moving ones removed: the map ``holodata register``
+    registers the camera to), ``info`` (mesh figures) and the voxel ``background`` model used."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    points: np.ndarray
+    info: dict
+    background: object
+
+
 def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: float, mesh_cfg=None, background=None,
-                quiet: bool = True):
-    """Mesh of the static scene from the scans at ``poses`` (world frame); returns (v, f, info, background).
+                quiet: bool = True) -> StaticMap:
+    """Mesh of the static scene from the scans at ``poses`` (world frame), with its point cloud.
 
     Without a ``background`` its model is built in a forked process while this one accumulates the
     points split by background voxel (:class:`~.mesh.PointAccumulator` ``split``), whose moving ones
@@ -979,7 +996,7 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
     v, f, info = build_mesh(pts, view, mesh_cfg, sensor_xyz=P[:, :3, 3])
     info["dynamic_points_removed"] = removed
     info["scans_used"] = int(len(sub))
-    return v, f, info, background
+    return StaticMap(v, f, pts, info, background)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1127,19 +1144,18 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
     max_range, T0, anchor, poses, K, kref, background = odo
     Kw = K
     Tl, Tr, finfo = frame_poses(scene, scans, poses)
-    mesh = None
-    minfo = None
+    mesh = map_points = minfo = None
     if config.mesh:
         t0 = time.perf_counter()
-        v, f, minfo, background = static_mesh(scans, poses, config, max_range, mesh_config, background, quiet=quiet)
+        sm = static_mesh(scans, poses, config, max_range, mesh_config, background, quiet=quiet)
         timings["mesh_s"] = time.perf_counter() - t0
-        mesh = (v, f)
+        mesh, map_points, minfo = (sm.vertices, sm.faces), sm.points, sm.info
     timings = {k: round(v, 3) for k, v in timings.items()}
     summary = {"scene": scene_id, "scans": len(scans), "frames": scene.n_frames, "max_range_m": round(max_range, 3),
                "anchor": {k: v for k, v in anchor.items() if k != "T_world_lidar0"}, "health": health,
                "frames_info": {k: v for k, v in finfo.items() if k != "T_lidar_radar"}, "mesh": minfo,
                "timings": timings, "fingerprint": fp}
-    res = SlamResult(scene_id, scans.stamp_ns.copy(), poses, Kw, kref, Tl, Tr, mesh, summary)
+    res = SlamResult(scene_id, scans.stamp_ns.copy(), poses, Kw, kref, Tl, Tr, mesh, summary, map_points)
     if write:
         _write(dataset_url, ds, scene_id, res, config, mesh_config, anchor, finfo, fp)
     if tum is not None:
@@ -1166,7 +1182,8 @@ def _stored_result(scene, done: dict) -> SlamResult:
         mesh = (np.asarray(scene["mesh/vertices"][...], np.float32), np.asarray(scene["mesh/faces"][...], np.int32))
     summary = dict(done.get("summary") or {})
     summary["skipped"] = "already done with the same inputs and settings (force to recompute)"
-    return SlamResult(scene.id, st[first], Tl[first], None, None, Tl, Tr, mesh, summary)
+    points = np.asarray(scene["map/points"][...], np.float64) if "map/points" in names else None
+    return SlamResult(scene.id, st[first], Tl[first], None, None, Tl, Tr, mesh, summary, points)
 
 
 def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor, finfo, fp) -> None:
@@ -1197,16 +1214,28 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
         for k in range(a.n_shards):
             a.write_shard(k, P[a.frames(k)])
     if res.mesh is not None:
-        for name in ("mesh/face_class",):
-            if name in names:
-                sc.remove(name)
-        sc.write_array("mesh/vertices", res.mesh[0].astype(np.float32), dims=["vertex", "xyz"], units="m",
-                       attrs={"source": "slam", "frame": "world"})
-        sc.write_array("mesh/faces", res.mesh[1].astype(np.int32), dims=["face", "corner"], units="1",
-                       attrs={"source": "slam"})
+        if "mesh/face_class" in names:
+            sc.remove("mesh/face_class")
+        write_static_map(sc, res.mesh[0], res.mesh[1], res.map_points, "slam")
     sc.set_attrs({"slam": {"complete": True, "fingerprint": fp, "config": cfg.to_attrs(),
                            "mesh_config": mesh_cfg.to_attrs() if cfg.mesh else None,
                            "anchor": anchor, "summary": json_safe(res.summary)}})
+
+
+def write_static_map(sc, vertices: np.ndarray, faces: np.ndarray, points: np.ndarray | None, source: str) -> None:
+    """Write a :class:`StaticMap`'s ``mesh/vertices``, ``mesh/faces`` and (when given) ``map/points``
+    (M,3) float32 into the scene writer ``sc``, each with the ``source`` of the poses they were built
+    from: ``holodata register`` uses them only while that matches ``pose/T_world_lidar``'s."""
+    sc.write_array("mesh/vertices", np.asarray(vertices, np.float32), dims=["vertex", "xyz"], units="m",
+                   attrs={"source": source, "frame": "world"})
+    sc.write_array("mesh/faces", np.asarray(faces, np.int32), dims=["face", "corner"], units="1",
+                   attrs={"source": source})
+    if points is not None:
+        sc.write_array("map/points", np.asarray(points, np.float32), dims=["point", "xyz"], units="m",
+                       attrs={"source": source, "frame": "world",
+                              "what": "static LiDAR returns averaged per mesh voxel (the mesh's input)"})
+    elif "map/points" in sc.arrays():
+        sc.remove("map/points")
 
 
 def json_safe(obj):
@@ -1235,5 +1264,5 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, **kw
     return [slam_scene(dataset_url, sid, **kwargs) for sid in ids]
 
 
-__all__ = ["SlamConfig", "SlamResult", "Scans", "load_scans", "kiss_odometry", "refine", "global_refine",
+__all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine", "global_refine",
            "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "frame_poses"]
