@@ -154,13 +154,41 @@ def is_rigid(T: np.ndarray, atol: float = 1e-6) -> np.ndarray:
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 transform to (N, 3) points."""
-    return points @ T[:3, :3].T + T[:3, 3]
+    """Points (..., 3) through the 4x4 transform ``T`` (or a stack (..., 4, 4) broadcast against the
+    points' leading axes, e.g. (1,C,4,4) with (H,C,3): one pose per column): ``R @ p + t``, float64.
+    Computed as three scaled-column sums, in blocks of rows, without BLAS: ``points @ R.T`` goes to
+    OpenBLAS, whose threads on a busy 2-core machine took 42-54 ms for 100k-250k points (3-6 ms with
+    one thread) against 0.8-2.9 ms here. Same values up to rounding (~1e-16 m)."""
+    T = np.asarray(T, np.float64)
+    P = np.asarray(points)
+    out = np.empty(np.broadcast_shapes(P.shape, T.shape[:-2] + (3,)), np.float64)
+    if T.ndim == 2 and P.ndim == 2 and len(P) > _CHUNK:   # blocks that stay in cache: 2x on 1M points
+        for a in range(0, len(P), _CHUNK):
+            _transform_into(T, P[a:a + _CHUNK], out[a:a + _CHUNK])
+        return out
+    _transform_into(T, P, out)
+    return out
+
+
+_CHUNK = 32768
+
+
+def _transform_into(T: np.ndarray, P: np.ndarray, out: np.ndarray) -> None:
+    x, y, z = P[..., 0], P[..., 1], P[..., 2]
+    for i in range(3):
+        o = out[..., i]
+        np.multiply(x, T[..., i, 0], out=o)
+        o += y * T[..., i, 1]
+        o += z * T[..., i, 2]
+        o += T[..., i, 3]
 
 
 def transform_directions(T: np.ndarray, dirs: np.ndarray) -> np.ndarray:
-    """Rotate (..., 3) direction vectors by the rotation part of a 4x4 transform."""
-    return dirs @ T[:3, :3].T
+    """Rotate (..., 3) direction vectors by the rotation part of a 4x4 transform (float64; as
+    :func:`transform_points`, without BLAS)."""
+    R = np.zeros((4, 4))
+    R[:3, :3] = np.asarray(T, np.float64)[:3, :3]
+    return transform_points(R, dirs)
 
 
 def rotation_angle_deg(R: np.ndarray) -> float:

@@ -56,6 +56,17 @@ def test_is_rigid_and_transform():
     reflect = np.diag([1.0, 1.0, -1.0, 1.0])
     assert not is_rigid(reflect)
     np.testing.assert_allclose(transform_points(T, np.array([[1.0, 0, 0]])), [[1 + c, 2 + s, 3]])
+    # against the matrix product, for (N,3), a single point, float32 in, and a stack of poses broadcast
+    rng = np.random.default_rng(0)
+    P = rng.normal(size=(1000, 3))
+    np.testing.assert_allclose(transform_points(T, P), P @ T[:3, :3].T + T[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(transform_points(T, P[0]), T[:3, :3] @ P[0] + T[:3, 3], atol=1e-12)
+    assert transform_points(T, P.astype(np.float32)).dtype == np.float64
+    Ts = np.stack([T, np.eye(4)])[None]                     # (1,2,4,4): one pose per column
+    G = P[:10].reshape(5, 2, 3)
+    out = transform_points(Ts, G)
+    np.testing.assert_allclose(out[:, 0], G[:, 0] @ T[:3, :3].T + T[:3, 3], atol=1e-12)
+    np.testing.assert_allclose(out[:, 1], G[:, 1], atol=1e-12)
 
 
 def test_seconds_to_ns_rounds():

@@ -332,13 +332,44 @@ def test_static_depth_keeps_the_wall_behind_a_person_seen_in_most_frames():
 
     class Frames:
         def depth(self, k):
-            return frames[k].astype(np.float32), None
+            return frames[k].astype(np.float32)
 
     mean, sigma, cnt = static_depth(Frames(), list(range(12)))
     assert np.all(np.abs(mean - 4.0) < 0.08)                       # wall everywhere, person pixels too
     assert np.all(cnt[10:30, 20:40] <= 4) and np.median(cnt[:5]) >= 11  # only the frames that saw the wall
     assert np.median(sigma) == pytest.approx(a * 16, rel=0.4)
     assert np.all(frames[:8, 10:30, 20:40] < mean[10:30, 20:40] - 4 * np.median(sigma))
+
+
+def test_camera_frames_depth_puts_each_point_back_on_its_pixel():
+    """camera/points made from a depth image (one point per valid pixel along its ray, as ingest
+    stores a depth camera's cloud) project back onto the same image in float32; points with NaN, z <= 0
+    or outside the image go nowhere."""
+    from holodata.mapping.register import CameraFrames
+
+    rng = np.random.default_rng(3)
+    h, w = 47, 83
+    K = np.array([[61.3, 0, 41.2], [0, 60.9, 23.7], [0, 0, 1]])
+    D = rng.uniform(0.3, 15.0, (h, w)).astype(np.float32)
+    D[rng.random((h, w)) < 0.2] = np.nan
+    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((h, w))], -1)
+    ok = np.isfinite(D)
+    pts = (rays * D[..., None].astype(np.float64))[ok].astype(np.float32)
+    junk = np.array([[np.nan, 0, 1], [0, np.nan, 1], [0, 0, np.nan], [0.1, 0.1, -2.0], [100.0, 0, 1.0],
+                     [np.inf, 0, 1], [0, 0, 0]], np.float32)
+
+    class Scene:
+        def ragged(self, name, k):
+            assert name == "camera/points"
+            return np.concatenate([pts, junk]) if k == 0 else np.zeros((0, 3), np.float32)
+
+    cam = CameraFrames(Scene(), K, (h, w))
+    got = cam.depth(0)
+    assert got.dtype == np.float32 and got.shape == (h, w)
+    np.testing.assert_array_equal(np.isfinite(got), ok)
+    np.testing.assert_allclose(got[ok], D[ok], rtol=1e-6)
+    assert not np.isfinite(cam.depth(1)).any()
 
 
 def test_nan_quantile_matches_numpy():

@@ -60,6 +60,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from ..conventions import transform_points
 from ..errors import DatasetError, InputError
 from ..progress import track
 
@@ -621,7 +622,7 @@ class LidarScans:
                 if len(t) == len(pts):
                     tt[fin] = t
         if tt is None:
-            return valid, _rigid(self.poses[k], pts[vf])
+            return valid, transform_points(self.poses[k], pts[vf])
         P = np.zeros((H, W, 3))
         P[fin] = pts
         return valid, self.deskew_points(k, P, valid, tt, traj)[valid]
@@ -642,7 +643,7 @@ class LidarScans:
         tv = tt[valid] if tt is not None else None
         if tv is None or traj is None or len(traj) < 2 or _constant_pose(traj, s + min(int(tv.min()), 0),
                                                                           s + max(int(tv.max()), 0)):
-            Pw = _rigid(self.poses[k], P)                     # the whole grid: cheaper than gathering
+            Pw = transform_points(self.poses[k], P)        # the whole grid: cheaper than gathering
             Pw[~valid] = np.nan
             return Pw
         Pw = np.full((H, W, 3), np.nan)
@@ -651,28 +652,13 @@ class LidarScans:
         if (tt == tcol[None, :])[valid].all():
             has = np.flatnonzero(valid.any(0))
             Ts = T0 @ traj.interpolate(tcol[has] + s)                     # (C,4,4): one pose per column
-            Pw[:, has] = _rigid(Ts[None], P[:, has])
+            Pw[:, has] = transform_points(Ts[None], P[:, has])
             Pw[~valid] = np.nan
             return Pw
         ut, inv = np.unique(tv + s, return_inverse=True)                # one pose per distinct time
         Ts = T0 @ traj.interpolate(ut)
         Pw[valid] = np.einsum("nij,nj->ni", Ts[inv, :3, :3], P[valid]) + Ts[inv, :3, 3]
         return Pw
-
-
-def _rigid(T: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """``R @ p + t`` for points ``P`` (..., 3) of the 4x4 transform ``T`` (..., 4, 4), broadcast over
-    the leading axes (e.g. (1,C,4,4) with (H,C,3): one pose per column), as three scaled-column sums:
-    ~7x faster than ``P @ R.T`` on a (64,512,3) grid and than the einsum (same values up to rounding)."""
-    out = np.empty(np.broadcast_shapes(np.shape(P), np.shape(T)[:-2] + (3,)), np.float64)
-    x, y, z = P[..., 0], P[..., 1], P[..., 2]
-    for i in range(3):
-        o = out[..., i]
-        np.multiply(x, T[..., i, 0], out=o)
-        o += y * T[..., i, 1]
-        o += z * T[..., i, 2]
-        o += T[..., i, 3]
-    return out
 
 
 def _constant_pose(traj, t0: int, t1: int) -> bool:
