@@ -99,10 +99,11 @@ forked process while this one reads the camera frames and builds the static dept
 process hands a map it builds over as soon as it is built and segments beside the extrinsic and
 the humans. After the extrinsic,
 ``camera/points_world`` and every other frame's surface are written/built by another process. The
-results are the same as in one process (test). On the 400-cycle corner this saves ~1 s of ~11 s
-(min of three runs, 10.2 vs 11.2 s): the background model and the map are the critical path, and
-splitting their scans over two processes gained nothing (copy-on-write faults and pickling the
-points back ate it).
+results are the same as in one process (test). On the 400-cycle corner (64x512 LiDAR, 94x168
+camera) the background model and the map were the critical path (~5.5 s of ~11 s; splitting their
+scans over two processes gained nothing: copy-on-write faults and pickling the points back ate it);
+with slam's map the LiDAR process only builds the background model and segments, beside the rest
+(register 7.3 s at load 5, ``benchmarks/pipeline.py``).
 """
 from __future__ import annotations
 
