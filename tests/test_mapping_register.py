@@ -8,10 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
                                          solid_centroid)
-from holodata.mapping.register import (RegisterConfig, body_columns, body_depth, closed_surface, local_plane_projection, map_normals,
-                                       register_extrinsic, track_jumps, track_prediction, track_velocity, velocity_shift,
-                                       walk_back_fraction,
-                                       voxel_boundary)
+from holodata.mapping.register import (RegisterConfig, body_columns, body_depth, closed_surface, local_plane_projection,
+                                       map_normals, radial_speed, register_extrinsic, track_jumps, track_prediction,
+                                       track_velocity, velocity_shift, voxel_boundary)
 
 
 def _room(rng, n=60000):
@@ -311,15 +310,21 @@ def test_velocity_shift():
 
 
 
-def test_walk_back_fraction_and_deeper_columns():
-    """Walking along the view (radial speed >= walk_back_speed_mps) adds walk_back_frac of the run depth
-    behind the columns; standing or crossing the view adds nothing; the front stays."""
+def test_radial_speed_and_deeper_columns():
+    """The speed along the view is one-sided (a turn keeps its walking speed), 0 across the view or
+    standing; back_frac deepens the columns behind, the front stays."""
     eye = np.zeros(3)
-    c = np.array([0.0, 3.0, 1.0])
-    assert walk_back_fraction(np.array([0.0, 1.2, 0.0]), c, eye, 0.4, 1.0) == pytest.approx(0.4)
-    assert walk_back_fraction(np.array([0.0, -0.5, 0.0]), c, eye, 0.4, 1.0) == pytest.approx(0.2)
-    assert walk_back_fraction(np.array([1.2, 0.0, 0.0]), c, eye, 0.4, 1.0) == pytest.approx(0.0)
-    assert walk_back_fraction(np.zeros(3), c, eye, 0.4, 1.0) == 0.0
+    cam = np.arange(5) * 500_000_000 + 1_000_000_000
+    toward = np.array([[0.0, 4.0, 1], [0, 3.5, 1], [0, 3.0, 1], [0, 3.5, 1], [0, 4.0, 1]])   # 1 m/s, turns at 3 m
+    np.testing.assert_allclose(radial_speed(toward, cam, eye), 1.0)
+    across = np.array([[-1.0, 3.0, 1], [-0.5, 3.0, 1], [0, 3.0, 1], [0.5, 3.0, 1], [1.0, 3.0, 1]])
+    assert radial_speed(across, cam, eye)[2] == pytest.approx(0.0, abs=1e-12)
+    still = np.tile([0.0, 3.0, 1.0], (5, 1))
+    still[3] = np.nan
+    np.testing.assert_allclose(radial_speed(still, cam, eye), 0.0)
+    jump = toward.copy()
+    jump[2, 1] = 9.0                                    # 11 m/s: not a walk
+    assert radial_speed(jump, cam, eye)[2] == 0.0
     p, rows, cols, t, eye, f = _pinhole_cylinder(0.075, 3.0, 1.0)
     s0, _, _ = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22)
     s1, _, _ = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22, back_frac=0.4)

@@ -83,8 +83,8 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    ``floor_reach_m`` of the floor reaches down to it (the foreground test loses the feet, whose
    background, the floor just behind them, is too near). A person walking along the view hides the
    far leg (in stride) and arm behind the near ones: the columns' far ends go ``walk_back_frac`` · D
-   further back, scaled by the radial walking speed (track velocity along the view) up to
-   ``walk_back_speed_mps`` (:func:`walk_back_fraction`; 0 for a person standing or crossing the view).
+   further back, scaled by the speed along the view (:func:`radial_speed`) up to
+   ``walk_back_speed_mps`` (0 for a person standing or crossing the view).
    The columns are voxelised
    (``surface_voxel``) by volume: a voxel is occupied when they fill at least half of it, and its
    boundary faces are emitted (:func:`closed_surface`): a closed, watertight, outward-oriented
@@ -193,7 +193,7 @@ class RegisterConfig:
     surface_voxel: float = 0.04
     surface_gap_px: int = 2
     floor_reach_m: float = 0.12
-    walk_back_frac: float = 0.4
+    walk_back_frac: float = 0.3
     walk_back_speed_mps: float = 1.0
     segment_lidar: bool = True
     median_frames: int = 60
@@ -921,7 +921,8 @@ def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, d
     it reaches the floor (the foreground test loses the feet, whose background — the floor just
     behind them — is too near: 1-2 l of the body missing, the centroid 2 cm too high). ``back_frac``:
     every column's far end goes ``back_frac`` · D further back (the front stays): a person walking along
-    the view hides the far leg and arm behind the near ones (:func:`walk_back_fraction`)."""
+    the view hides the far leg and arm behind the near ones (register: ``walk_back_frac`` scaled by
+    :func:`radial_speed`)."""
     p = np.asarray(points_world, np.float64).reshape(-1, 3)
     n = len(p)
     z = np.asarray(depth, np.float64)
@@ -1384,8 +1385,9 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         vel = track_velocity(cen, cts, cfg.max_speed_mps)
         shift = vel * ((ts - cts) / 1e9)[:, None]
         # the solid behind the visible front (deeper behind a person walking along the view: the far leg)
+        walk = cfg.walk_back_frac * np.minimum(1.0, radial_speed(cen, cts, eye, cfg.max_speed_mps) / cfg.walk_back_speed_mps)
         for k, (qh, vh, uh, dh) in enumerate(pixels):
-            back = walk_back_fraction(vel[k], cen[k], eye, cfg.walk_back_frac, cfg.walk_back_speed_mps) if len(qh) else 0.0
+            back = float(walk[k])
             columns.append(body_columns(qh, vh, uh, dh, eye, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m,
                                         cfg.surface_gap_px, floor_z, cfg.floor_reach_m, back))
         del pixels
@@ -1493,18 +1495,27 @@ def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarr
     return v * ((np.asarray(frame_ts, np.int64) - np.asarray(cam_ts, np.int64)) / 1e9)[:, None]
 
 
-def walk_back_fraction(velocity: np.ndarray, centroid: np.ndarray, eye: np.ndarray, frac: float,
-                       speed_mps: float) -> float:
-    """The fraction of the run depth D added behind a walking person's columns (:func:`body_columns`
-    ``back_frac``): ``frac`` × min(1, |radial speed| / ``speed_mps``), the radial speed being the plan
-    velocity (3,) m/s along the camera's plan view direction from ``eye`` (3,) to ``centroid`` (3,)
-    (0 for a person standing, or walking across the view, whose limbs are all in sight)."""
-    u = np.asarray(centroid, float)[:2] - np.asarray(eye, float)[:2]
-    nu = np.linalg.norm(u)
-    if not np.isfinite(nu) or nu < 1e-9 or speed_mps <= 0:
-        return 0.0
-    radial = abs(float(np.asarray(velocity, float)[:2] @ (u / nu)))
-    return float(frac * min(1.0, radial / speed_mps))
+def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
+    """(T,) m/s: how fast the person walks along the camera's view in each frame — the larger of the
+    one-sided plan speeds toward the previous and the next detection (within 2 s, at most ``max_speed``)
+    along the plan direction from ``eye`` (3,) to the frame's centroid (``centroids`` (T,3), NaN: no
+    detection; ``cam_ts`` (T,) ns, 0: none). One-sided: at a turn the central difference is near zero
+    while the legs are still in stride. 0 without a neighbour."""
+    c = np.asarray(centroids, float)
+    out = np.zeros(len(c))
+    idx = np.flatnonzero(np.isfinite(c).all(1) & (np.asarray(cam_ts) != 0))
+    t = np.asarray(cam_ts, np.int64)[idx] / 1e9
+    for j, k in enumerate(idx):
+        u = c[k, :2] - np.asarray(eye, float)[:2]
+        nu = np.linalg.norm(u)
+        if nu < 1e-9:
+            continue
+        for m in (j - 1, j + 1):
+            if 0 <= m < len(idx) and 0 < abs(t[m] - t[j]) <= 2.0:
+                v = (c[idx[m], :2] - c[k, :2]) / (t[m] - t[j])
+                if np.linalg.norm(v) <= max_speed:
+                    out[k] = max(out[k], abs(float(v @ u)) / nu)
+    return out
 
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
@@ -1512,4 +1523,4 @@ __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extr
            "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual", "body_depth",
            "body_columns", "pixel_runs",
            "weighted_icp", "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
-           "track_jumps", "local_plane_projection", "track_velocity", "walk_back_fraction", "mesh_surface_samples", "scene_mesh"]
+           "track_jumps", "local_plane_projection", "track_velocity", "radial_speed", "mesh_surface_samples", "scene_mesh"]
