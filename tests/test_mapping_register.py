@@ -8,9 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
                                          solid_centroid)
-from holodata.mapping.register import (RegisterConfig, body_depth, closed_surface, local_plane_projection, map_normals,
-                                       register_extrinsic, track_jumps, track_prediction, velocity_shift,
-                                       voxel_boundary)
+from holodata.mapping.register import (RegisterConfig, body_columns, body_depth, closed_surface, local_plane_projection,
+                                       map_normals, radial_speed, register_extrinsic, track_jumps, track_prediction,
+                                       track_velocity, velocity_shift, voxel_boundary)
 
 
 def _room(rng, n=60000):
@@ -205,6 +205,99 @@ def test_closed_surface_extrudes_away_from_the_camera():
     np.testing.assert_allclose(body_depth(rows[:16], cols[:16], D, 200.0, 0.06, 0.22), 0.16)
 
 
+def _pinhole_cylinder(radius=0.075, dist=3.0, height=1.0, f=300.0, sigma=0.0, seed=0):
+    """A vertical cylinder (axis at plan (0, dist), z in [0.2, 0.2 + height]) seen by a level pinhole camera
+    at the origin, 1 m high, looking along +y: the visible front's points (world), pixel rows/cols, optical
+    depths (with Gaussian noise ``sigma`` m along the rays) and the camera centre."""
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.arange(-60, 61), np.arange(-150, 151))
+    d = np.stack([u / f, np.ones(u.shape), -v / f], -1).reshape(-1, 3)   # world rays (y forward, z up), optical z = 1
+    # first hit of the ray with the infinite cylinder x^2 + (y - dist)^2 = r^2 (plan)
+    a = d[:, 0] ** 2 + d[:, 1] ** 2
+    b = -2 * d[:, 1] * dist
+    c = dist ** 2 - radius ** 2
+    disc = b * b - 4 * a * c
+    ok = disc > 0
+    t = np.where(ok, (-b - np.sqrt(np.where(ok, disc, 0))) / (2 * a), np.nan)
+    eye = np.array([0.0, 0.0, 1.0])
+    p = eye + d * t[:, None]
+    ok &= (p[:, 2] > 0.2) & (p[:, 2] < 0.2 + height)
+    t = t[ok] + rng.normal(0, sigma, ok.sum()) * np.linalg.norm(d[ok], axis=1) if sigma else t[ok]
+    p = eye + d[ok] * t[:, None]
+    return p, (v.ravel()[ok] + 150), (u.ravel()[ok] + 60), t, eye, f
+
+
+@pytest.mark.parametrize("sigma", [0.0, 0.03])
+def test_body_columns_cylinder_volume_and_centroid(sigma):
+    """A 15 cm limb at 3 m: the solid's volume is the cylinder's (pi r^2 h) within 12 %, its centre of mass
+    on the axis within 1 cm in plan and 1.5 cm in height, its front within a voxel of the true front — also
+    with 3 cm depth noise (the old per-point extrusion over the run width into every touched voxel: > 1.4x)."""
+    r, dist, h, vox = 0.075, 3.0, 1.0, 0.04
+    p, rows, cols, t, eye, f = _pinhole_cylinder(r, dist, h, sigma=sigma)
+    span, px, down = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22)
+    assert np.isnan(down).all() and np.allclose(px, t / f)
+    v, fc = closed_surface(p, eye, span, vox, pixel_m=px)
+    a, b, c = v[fc[:, 0]], v[fc[:, 1]], v[fc[:, 2]]
+    vol = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    assert vol == pytest.approx(np.pi * r * r * h, rel=0.12)
+    cen = solid_centroid(v, fc, 0.01)
+    assert np.linalg.norm(cen[:2] - [0.0, dist]) < 0.01 and abs(cen[2] - (0.2 + h / 2)) < 0.015, cen
+    front = v[(np.abs(v[:, 0]) < 0.03) & (np.abs(v[:, 2] - 0.7) < 0.3), 1].min()
+    assert abs(front - (dist - r)) <= vox / 2 + 1e-9, front
+    # the old model: every point extruded by the run width, every touched voxel occupied
+    th = body_depth(rows, cols, _depth_image(rows, cols, t), f, 0.06, 0.22)
+    vo, fo = closed_surface(p, eye, th, vox)
+    ao, bo, co = vo[fo[:, 0]], vo[fo[:, 1]], vo[fo[:, 2]]
+    assert np.einsum("ij,ij->i", ao, np.cross(bo, co)).sum() / 6.0 > 1.4 * np.pi * r * r * h
+
+
+def _depth_image(rows, cols, z):
+    D = np.full((rows.max() + 1, cols.max() + 1), np.nan)
+    D[rows, cols] = z
+    return D
+
+
+def test_closed_surface_half_filled_voxels_closed_outward_and_feet_reach_the_floor():
+    """The volume-weighted voxelisation is closed and outward (every edge paired, the signed volume the
+    occupied voxels'); a box of columns aligned with the voxels keeps its size; the lowest pixels' columns
+    reach ``down_to``."""
+    vox = 0.04
+    # a 0.2 x 0.2 x 0.4 m block of horizontal columns along +y, pixels 1 cm, from y = 2.01 to 2.21 (off the
+    # voxel grid by a quarter voxel)
+    x, z = np.meshgrid(np.arange(0.015, 0.21, 0.01), np.arange(0.215, 0.61, 0.01))
+    p = np.c_[x.ravel(), np.full(x.size, 2.01), z.ravel()]
+    eye = np.array([0.1, 0.0, 0.4])
+    span = np.tile([0.0, 0.2], (len(p), 1))
+    v, fc = closed_surface(p, eye, span, vox, horizontal=True, pixel_m=0.01)
+    edges = np.sort(np.concatenate([fc[:, [0, 1]], fc[:, [1, 2]], fc[:, [2, 0]]]), axis=1)
+    assert (np.unique(edges, axis=0, return_counts=True)[1] % 2 == 0).all()
+    a, b, c = v[fc[:, 0]], v[fc[:, 1]], v[fc[:, 2]]
+    vol = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    assert vol == pytest.approx(0.2 * 0.2 * 0.4, rel=0.25)   # the columns fan out slightly from the eye
+    assert v[:, 2].min() == pytest.approx(0.21, abs=vox / 2) and v[:, 2].max() == pytest.approx(0.61, abs=vox / 2)
+    # the old touched-voxel rule grows every side by up to a voxel
+    vt, ft = closed_surface(p, eye, span, vox)
+    at, bt, ct = vt[ft[:, 0]], vt[ft[:, 1]], vt[ft[:, 2]]
+    assert np.einsum("ij,ij->i", at, np.cross(bt, ct)).sum() / 6.0 > 1.3 * vol
+    # feet: the bottom row's columns reach the floor at z = 0
+    down = np.where(p[:, 2] < 0.22, 0.0, np.nan)
+    vf, ff = closed_surface(p, eye, span, vox, pixel_m=0.01, down_to=down)
+    assert vf[:, 2].min() == pytest.approx(0.0, abs=vox / 2 + 1e-9)
+
+
+def test_body_columns_lowest_pixels_reach_the_floor():
+    p, rows, cols, t, eye, f = _pinhole_cylinder(0.075, 3.0, 1.0)
+    _, _, down = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22, floor_z=0.12, floor_reach_m=0.12)
+    low = np.isfinite(down)
+    assert low.any() and (down[low] == 0.12).all()
+    # one per image column, the lowest (largest row) one
+    assert len(np.unique(cols[low])) == low.sum() == len(np.unique(cols))
+    for c in np.unique(cols)[:5]:
+        assert rows[low & (cols == c)][0] == rows[cols == c].max()
+    _, _, none = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22, floor_z=-0.5, floor_reach_m=0.12)
+    assert np.isnan(none).all()
+
+
 def test_velocity_shift():
     c = np.array([[0.0, 0, 1], [0.5, 0, 1], [1.0, 0, 1], [np.nan, np.nan, np.nan]])
     cam = np.array([1000, 1500, 2000, 2500]) * 1_000_000   # 0 would mean "no camera frame"
@@ -215,6 +308,39 @@ def test_velocity_shift():
     c[1, 0] = 5.0                                              # implausible jump: no shift
     assert np.abs(velocity_shift(c, cam, fr)[0]).sum() == 0
 
+
+
+def test_radial_speed_and_deeper_columns():
+    """The speed along the view is one-sided (a turn keeps its walking speed), 0 across the view or
+    standing; back_frac deepens the columns behind, the front stays."""
+    eye = np.zeros(3)
+    cam = np.arange(5) * 500_000_000 + 1_000_000_000
+    toward = np.array([[0.0, 4.0, 1], [0, 3.5, 1], [0, 3.0, 1], [0, 3.5, 1], [0, 4.0, 1]])   # 1 m/s, turns at 3 m
+    np.testing.assert_allclose(radial_speed(toward, cam, eye), 1.0)
+    across = np.array([[-1.0, 3.0, 1], [-0.5, 3.0, 1], [0, 3.0, 1], [0.5, 3.0, 1], [1.0, 3.0, 1]])
+    assert radial_speed(across, cam, eye)[2] == pytest.approx(0.0, abs=1e-12)
+    still = np.tile([0.0, 3.0, 1.0], (5, 1))
+    still[3] = np.nan
+    np.testing.assert_allclose(radial_speed(still, cam, eye), 0.0)
+    jump = toward.copy()
+    jump[2, 1] = 9.0                                    # 11 m/s: not a walk
+    assert radial_speed(jump, cam, eye)[2] == 0.0
+    p, rows, cols, t, eye, f = _pinhole_cylinder(0.075, 3.0, 1.0)
+    s0, _, _ = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22)
+    s1, _, _ = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22, back_frac=0.4)
+    np.testing.assert_allclose(s1[:, 0], s0[:, 0])
+    extra = s1[:, 1] - s0[:, 1]
+    assert np.median(extra) == pytest.approx(0.4 * 0.15, abs=0.005)          # D = the 15 cm run width
+    assert (extra >= 0.4 * 0.06 - 1e-12).all() and (extra <= 0.4 * 0.22 + 1e-12).all()
+
+
+def test_track_velocity_is_the_shift_per_second():
+    c = np.array([[0.0, 0, 1], [0.5, 0.2, 1.3], [1.0, 0.4, 1], [np.nan, np.nan, np.nan]])
+    cam = np.array([1000, 1500, 2000, 2500]) * 1_000_000
+    v = track_velocity(c, cam)
+    np.testing.assert_allclose(v[:3], [[1.0, 0.4, 0.0]] * 3)   # plan velocity (z dropped)
+    np.testing.assert_allclose(v[3], 0)
+    np.testing.assert_allclose(velocity_shift(c, cam, cam + 50_000_000), v * 0.05)
 
 def test_track_jumps_and_prediction():
     # a person walking 1.1 m/s along y, one frame picks a wall fragment 1.4 m away, one frame has none
