@@ -303,7 +303,7 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     from holodata.mapping.human_eval import (aligned_extrinsic_error, extrinsic_error, human_centroid_errors,
                                              robot_relative_extrinsic_error, segmentation_ap50, truth_camera_extrinsic,
                                              write_truth_poses)
-    from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene
+    from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene, scene_map
 
     out = {"corner": corner, "seed": seed, "poses": poses}
     t0 = time.perf_counter()
@@ -320,7 +320,7 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
             t1 = time.perf_counter()
             truth_pose_mesh(url, sid)
             out["mesh_s"] = time.perf_counter() - t1
-    elif "slam" not in (open_dataset(url).scene(sid).attrs or {}):
+    elif scene_map(open_dataset(url).scene(sid)) is None:    # (slam_scene skips a scene it has done)
         from holodata.mapping.slam import slam_scene
 
         t1 = time.perf_counter()

@@ -8,7 +8,7 @@ from scipy.spatial.transform import Rotation
 
 from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
                                          solid_centroid)
-from holodata.mapping.register import (RegisterConfig, body_columns, body_depth, closed_surface, local_plane_projection,
+from holodata.mapping.register import (RegisterConfig, body_columns, closed_surface, local_plane_projection,
                                        map_normals, radial_speed, register_extrinsic, track_jumps, track_prediction,
                                        track_velocity, velocity_shift, voxel_boundary)
 
@@ -196,13 +196,6 @@ def test_closed_surface_extrudes_away_from_the_camera():
     assert len(f) and v[:, 1].min() == pytest.approx(2.0, abs=0.041) and v[:, 1].max() == pytest.approx(2.2, abs=0.081)
     # horizontal extrusion: the volume's height is the visible height (not pushed down the rays)
     assert v[:, 2].min() >= -0.04 and v[:, 2].max() <= 1.64 + 1e-9
-    # body depth from the run width: a 0.40 m wide run at 2 m with f = 200 px -> 40 px -> clipped
-    rows = np.zeros(40, np.int64)
-    cols = np.arange(40)
-    D = np.full((1, 40), 2.0)
-    np.testing.assert_allclose(body_depth(rows, cols, D, 200.0, 0.06, 0.22), 0.22)
-    np.testing.assert_allclose(body_depth(rows[:5], cols[:5], D, 200.0, 0.06, 0.22), 0.06)
-    np.testing.assert_allclose(body_depth(rows[:16], cols[:16], D, 200.0, 0.06, 0.22), 0.16)
 
 
 def _pinhole_cylinder(radius=0.075, dist=3.0, height=1.0, f=300.0, sigma=0.0, seed=0):
@@ -244,17 +237,11 @@ def test_body_columns_cylinder_volume_and_centroid(sigma):
     assert np.linalg.norm(cen[:2] - [0.0, dist]) < 0.01 and abs(cen[2] - (0.2 + h / 2)) < 0.015, cen
     front = v[(np.abs(v[:, 0]) < 0.03) & (np.abs(v[:, 2] - 0.7) < 0.3), 1].min()
     assert abs(front - (dist - r)) <= vox / 2 + 1e-9, front
-    # the old model: every point extruded by the run width, every touched voxel occupied
-    th = body_depth(rows, cols, _depth_image(rows, cols, t), f, 0.06, 0.22)
-    vo, fo = closed_surface(p, eye, th, vox)
+    # the old model: every point extruded by the run's width (2r here, clipped to 0.22), every touched
+    # voxel occupied
+    vo, fo = closed_surface(p, eye, 2 * r, vox)
     ao, bo, co = vo[fo[:, 0]], vo[fo[:, 1]], vo[fo[:, 2]]
     assert np.einsum("ij,ij->i", ao, np.cross(bo, co)).sum() / 6.0 > 1.4 * np.pi * r * r * h
-
-
-def _depth_image(rows, cols, z):
-    D = np.full((rows.max() + 1, cols.max() + 1), np.nan)
-    D[rows, cols] = z
-    return D
 
 
 def test_closed_surface_half_filled_voxels_closed_outward_and_feet_reach_the_floor():

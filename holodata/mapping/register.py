@@ -904,27 +904,6 @@ def pixel_runs(rows: np.ndarray, cols: np.ndarray, gap: int = 1) -> tuple[np.nda
     return order, np.cumsum(new) - 1
 
 
-def body_depth(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, fx: float, lo: float, hi: float,
-               gap: int = 1) -> np.ndarray:
-    """Per human pixel, an estimate of the body's depth behind it: the metric width of its horizontal
-    run of human pixels in the image (run length · depth / fx), clipped to [lo, hi] m — limbs and head
-    are about as deep as wide, the torso is capped at ``hi``. ``gap``: see :func:`pixel_runs`."""
-    n = len(rows)
-    if n == 0:
-        return np.zeros(0)
-    order, run_id = pixel_runs(rows, cols, gap)
-    r, c = rows[order], cols[order]
-    cmin = np.full(run_id[-1] + 1, np.iinfo(np.int64).max)
-    np.minimum.at(cmin, run_id, c)
-    cmax = np.full(run_id[-1] + 1, -1)
-    np.maximum.at(cmax, run_id, c)
-    length = (cmax - cmin + 1)[run_id]
-    w = length * depth[r, c] / fx
-    out = np.empty(n)
-    out[order] = np.clip(w, lo, hi)
-    return out
-
-
 def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, eye: np.ndarray,
                  fx: float, lo: float, hi: float, gap: int = 2, floor_z: float | None = None,
                  floor_reach_m: float = 0.12, back_frac: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -1430,8 +1409,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             pixels.append((qw[hm], vv[hm], uu[hm], D[vv[hm], uu[hm]]))
         # velocity compensation: camera stamp -> frame stamp
         cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
-        vel = track_velocity(cen, cts, cfg.max_speed_mps)
-        shift = vel * ((ts - cts) / 1e9)[:, None]
+        shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
         # the solid behind the visible front (deeper behind a person walking along the view: the far leg)
         walk = cfg.walk_back_frac * np.minimum(
             1.0, radial_speed(cen, cts, eye, cfg.max_speed_mps) / cfg.walk_back_speed_mps)
@@ -1574,7 +1552,7 @@ def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray, max
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
            "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
-           "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual", "body_depth",
+           "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual",
            "body_columns", "pixel_runs",
            "weighted_icp", "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
            "track_jumps", "local_plane_projection", "track_velocity", "radial_speed", "mesh_surface_samples",

@@ -1105,7 +1105,7 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
     fp = _fingerprint(scene, config, mesh_config if config.mesh else None)
     done = scene.attrs.get("slam") or {}
     if (write and not force and done.get("complete") and done.get("fingerprint") == fp
-            and "pose/T_world_lidar" in scene and (not config.mesh or "mesh/faces" in scene)):
+            and "pose/T_world_lidar" in scene and (not config.mesh or ("mesh/faces" in scene and "map/points" in scene))):
         res = _stored_result(scene, done)
         if tum is not None:
             write_tum(tum, res.trajectory())
