@@ -11,8 +11,9 @@ the scan nearest each radar frame, so slam sees 400 scans), then times, each in 
 * ``raytrace-gt`` of the same corner through the SLAM mesh and radar poses, ``GTConfig()`` (64x512
   beams, 3 bounces), as ``benchmarks/slam.py --raytrace`` does;
 
-and prints (slam + register) / raytrace-gt as a ratio (issue 9: it must not dominate; aim < 1), with
-the load average before and after (2 shared cores: compare ratios from the same run). slam's ATE
+and prints (slam + register) / raytrace-gt as a ratio (issue 9: it must not dominate; aim < 1) and
+slam + register's share of the four stages' wall time, with the load average before and after (2
+shared cores: compare ratios from the same run). slam's ATE
 and mesh F@5cm against ``truth/`` are printed too, so a speed-up that costs accuracy shows.
 
 ``--gt-diff`` also ray-traces the *true* mesh (``truth/mesh.ply``, people removed) at the true radar
@@ -249,6 +250,9 @@ def main() -> None:
         print(f"  {'slam+register':14s} {sr:8.1f} {sc_:8.1f}   = {sr / rows['raytrace-gt']:.2f}x raytrace-gt wall, "
               f"{sc_ / cpus['raytrace-gt']:.2f}x its CPU (slam alone {rows['slam'] / rows['raytrace-gt']:.2f}x wall, "
               f"{cpus['slam'] / cpus['raytrace-gt']:.2f}x CPU)", flush=True)
+        total = sum(rows.values())
+        print(f"  slam+register = {100 * sr / total:.0f} % of the pipeline's wall time (ingest + slam + register + "
+              f"raytrace-gt = {total:.1f} s); largest stage: {max(rows, key=rows.get)}", flush=True)
         if args.gt_diff:
             from holodata.meshio import read_mesh
             from holodata.trajectory import read_tum
