@@ -189,7 +189,7 @@ def main() -> None:
     ap.add_argument("--keep", default=None)
     ap.add_argument("--reuse", action="store_true", help="with --keep: reuse the synthesised recording there")
     args = ap.parse_args()
-    from holodata.groundtruth import GTConfig, raytrace_standalone
+    from holodata.groundtruth import GTConfig, HumanDataset, raytrace_standalone
     from holodata.mapping import slam as S
     from holodata.mapping.accuracy import evaluate_slam
     from holodata.mapping.register import register_scene
@@ -234,7 +234,10 @@ def main() -> None:
         write_ply(work / "slam_mesh.ply", Mesh(res.mesh[0], res.mesh[1]))
         write_tum(work / "radar.tum", Trajectory(np.asarray(sc["time/timestamp_ns"][...], np.int64), res.T_world_radar))
         t0, c0 = time.perf_counter(), cpu()
-        raytrace_standalone(work / "slam_mesh.ply", work / "radar.tum", str(work / "gt.zarr"), cfg=GTConfig(), quiet=True)
+        # what `holodata raytrace-gt DATASET` traces: the mesh and register's human surfaces, at 64x512
+        # (the dataset's own radar grid is kept small to keep synth and ingest fast)
+        raytrace_standalone(work / "slam_mesh.ply", work / "radar.tum", str(work / "gt.zarr"), cfg=GTConfig(),
+                            human=HumanDataset(url, sid), quiet=True)
         rows["raytrace-gt"], cpus["raytrace-gt"] = time.perf_counter() - t0, cpu() - c0
         l1 = load()
         acc = evaluate_slam(res.trajectory(), res.mesh, truth_dir)

@@ -499,11 +499,14 @@ def _make_scene(vertices, faces, face_class, class_names, cfg: GTConfig):
         raise InputError(f"scene mesh: {err}") from None
 
 
-def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *, human: str | Path | None = None,
-                        human_dir: str | Path | None = None, scene_id: str = "scene", cfg: GTConfig | None = None,
-                        quiet: bool = True, processes: int = 0, client=None) -> dict:
+def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *,
+                        human: str | Path | HumanSource | None = None, human_dir: str | Path | None = None,
+                        scene_id: str = "scene", cfg: GTConfig | None = None, quiet: bool = True, processes: int = 0,
+                        client=None) -> dict:
     """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a DESIGN §3 dataset
-    (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards."""
+    (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards.
+    ``human``: one mesh file for every frame, or (Python API) any :class:`HumanSource`, e.g. a
+    dataset scene's per-frame surfaces (:class:`HumanDataset`) indexed by the TUM rows."""
     cfg = cfg or GTConfig()
     from .raytrace import available_backends
 
@@ -514,7 +517,9 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     mesh = read_mesh(mesh_path)
     traj = read_tum(poses_path)
     hsrc: HumanSource = HumanSource()
-    if human is not None:
+    if isinstance(human, HumanSource):
+        hsrc = human
+    elif human is not None:
         hsrc = HumanFile(human)
     elif human_dir is not None:
         hsrc = HumanDir(human_dir, len(traj))

@@ -344,3 +344,18 @@ def test_process_pool_dead_worker_raises_instead_of_hanging(tmp_path):
 
     done, total = map(int, re.search(r"(\d+) of (\d+) shards are written", r.stdout).groups())
     assert total == 3 and done < 3  # frame 9 is in the last shard: that one is never written
+
+
+def test_standalone_takes_a_human_source_object(inputs):
+    """The Python API's ``human=`` also takes any HumanSource (e.g. a dataset's surfaces): the same GT as
+    the per-frame files it serves."""
+    cfg = GTConfig(grid=Grid(8, 32), shard_frames=4)
+    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "files.zarr"),
+                        human_dir=inputs / "humans", cfg=cfg)
+    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "object.zarr"),
+                        human=HumanDir(inputs / "humans", 10), cfg=cfg)
+    a, b = (hds.open_dataset(str(inputs / n)).scene("scene") for n in ("files.zarr", "object.zarr"))
+    lab = np.asarray(b["gt/label"][...])
+    assert np.isin(lab, [Label.LOS_HUMAN, Label.NLOS_HUMAN]).any()
+    np.testing.assert_array_equal(np.asarray(a["gt/range"][...]), np.asarray(b["gt/range"][...]))
+    np.testing.assert_array_equal(np.asarray(a["gt/label"][...]), lab)
