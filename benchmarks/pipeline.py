@@ -8,8 +8,10 @@ the scan nearest each radar frame, so slam sees 400 scans), then times, each in 
 * ``slam`` (``holodata.mapping.slam.slam_scene``: kiss-icp + scan-to-map refinement + static mesh);
 * ``register`` (``holodata.mapping.register.register_scene``: LiDAR segmentation, camera extrinsic,
   human surfaces; its own phases are printed);
-* ``raytrace-gt`` of the same corner through the SLAM mesh and radar poses, ``GTConfig()`` (64x512
-  beams, 3 bounces), as ``benchmarks/slam.py --raytrace`` does;
+* ``raytrace-gt`` of the same corner through the SLAM mesh, radar poses and register's human surfaces,
+  ``GTConfig()`` (64x512 beams, 3 bounces): the work of ``holodata raytrace-gt DATASET`` at the paper's
+  beam grid (until 2026-12-02 the mesh alone, as ``benchmarks/slam.py --raytrace`` does: 6.7 s
+  instead of 9.8-10.4 s on the default corner, so the ratios above that date are ~1.5x too high);
 
 and prints (slam + register) / raytrace-gt as a ratio (issue 9: it must not dominate; aim < 1) and
 slam + register's share of the four stages' wall time, with the load average before and after (2
@@ -122,6 +124,26 @@ de-skewing 400 scans, the free-space test, the centroids), then the extrinsic (l
 projection of the map near the camera, 1.7 s) and the humans; slam's is its refinement and Poisson
 (2.4 s, single-threaded, holds the GIL). Splitting the background pass, the segmentation or slam's
 scan reading over two processes gained nothing measurable (copy-on-write faults, pickling).
+
+2026-12-02, idle (load 1.0-1.7), after slam stores its static point map (``map/points``) and register
+registers onto it instead of building its own (its LiDAR process only builds the background model and
+segments), with BLAS-free ``transform_points``, and the human solid model; raytrace-gt with humans:
+
+    stage            wall s    CPU s
+    ingest          3.2-3.3   5.0-5.2
+    slam            6.8-7.3   8.7-9.5   (read 1.6 s in a thread, kiss-icp 0.5, refine 1.9, mesh 3.3-3.7)
+    register        4.6       7.6-7.8   (camera 0.3-0.4, extrinsic 1.5, humans 2.1-2.2 | LiDAR process:
+                                         background 2.3-2.7, segment 0.7-0.8 s)
+    raytrace-gt     9.9-10.1 18.9-19.2
+    slam+register  11.4-11.9 16.6-17.0  = 1.15-1.18x raytrace-gt wall, 0.88-0.89x its CPU; 47 % of the four
+                                          stages' wall time; raytrace-gt is the largest stage
+
+The code before (a worktree at c3791e1) alternated with this one on the same recording, three pairs
+(raytrace-gt then without humans, 7.7-9.9 s): slam+register 13.6-16.0 s old vs 11.1-15.7 s new (the
+first pair ran on a cold page cache: 15.3 vs 15.7), register 6.9-7.9 vs 4.1-5.5 s (the map's wait,
+2.8-3.4 s, is gone), slam unchanged within the noise (6.7-8.1 vs 7.0-10.2 s).
+Where the rest is: slam's Poisson (1.7 s, single-threaded) and point accumulation (1.3 s), register's
+two halves are each ~3.5-4 s of CPU on the two cores.
 
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x512] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
