@@ -27,8 +27,9 @@ def _init(value: str | None):
               help="Initial guess of T_world_camera (camera points frame, metres and degrees, extrinsic xyz Euler); "
                    "default: the camera's TF pose in the map.")
 @click.option("--no-segment", is_flag=True, help="Skip the LiDAR-grid human segmentation (lidar/instance).")
-@click.option("--no-camera-world", is_flag=True,
-              help="Do not write camera/points_world (the whole camera cloud in the map frame; as large as camera/points).")
+@click.option("--camera-world/--no-camera-world", default=False, show_default=True,
+              help="Also write camera/points_world: the whole camera cloud in the map frame, as large as camera/points "
+                   "(holodata.mapping.register.camera_points_world gives it from calib/T_world_camera without the copy).")
 @click.option("--truth", type=click.Path(file_okay=False, exists=True),
               help="A holodata synth truth/ folder: print extrinsic, human centroid and segmentation errors against it.")
 @click.option("--report", type=click.Path(file_okay=False), help="With --truth: folder for register_accuracy.json and a PNG.")
@@ -36,7 +37,7 @@ def _init(value: str | None):
               help="Processes (0: two on a machine with two or more CPUs; 1: all in this process).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def register(dataset, scene, init, no_segment, no_camera_world, truth, report, processes, quiet, as_json) -> None:
+def register(dataset, scene, init, no_segment, camera_world, truth, report, processes, quiet, as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
     FPFH+RANSAC fallback accepted only if it passes the fitness/RMSE check; then the human in every
@@ -52,7 +53,7 @@ def register(dataset, scene, init, no_segment, no_camera_world, truth, report, p
 
     if report and not truth:
         raise click.UsageError("--report needs --truth")
-    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=not no_camera_world, processes=processes)
+    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=camera_world, processes=processes)
     res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet)
     if truth:
         from holodata.mapping.human_eval import evaluate_register
@@ -66,8 +67,8 @@ def register(dataset, scene, init, no_segment, no_camera_world, truth, report, p
                f"rmse {e['rmse_m'] * 100:.1f} cm over {e['overlap_points']} overlap points"
                + (f", pose std {e['attempts'][-1]['pose_std_m'] * 100:.1f} cm" if e.get("attempts") and
                   "pose_std_m" in e["attempts"][-1] else ""))
-    click.echo(f"human in {res['frames_with_human']}/{res['frames']} frames -> human/vertices, human/faces, human/points; "
-               f"camera/points_world; {res['seconds']:.1f} s")
+    click.echo(f"human in {res['frames_with_human']}/{res['frames']} frames -> human/vertices, human/faces, human/points"
+               f"{', camera/points_world' if camera_world else ''}; {res['seconds']:.1f} s")
     if truth:
         a = res["accuracy"]
         e, ea, c = a["extrinsic"], a["extrinsic_aligned"], a["human_centroid"]

@@ -8,9 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
                                          solid_centroid)
-from holodata.mapping.register import (RegisterConfig, body_columns, closed_surface, local_plane_projection,
-                                       map_normals, radial_speed, register_extrinsic, track_jumps, track_prediction,
-                                       track_velocity, velocity_shift, voxel_boundary)
+from holodata.mapping.register import (RegisterConfig, body_columns, camera_points_world, closed_surface,
+                                       local_plane_projection, map_normals, radial_speed, register_extrinsic,
+                                       track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
 
 
 def _room(rng, n=60000):
@@ -368,8 +368,12 @@ def test_register_scene_end_to_end_and_raytrace_reads_the_human():
     k = int(np.flatnonzero([len(sc.ragged("human/faces", i)) for i in range(sc.n_frames)])[0])
     v, f = src(k)
     assert f.max() < len(v) and np.isfinite(v).all()
-    cw = sc.ragged("camera/points_world", k)
-    assert len(cw) == len(sc.ragged("camera/points", k))
+    # no map-frame copy by default: camera_points_world maps camera/points through calib/T_world_camera
+    assert "camera/points_world" not in sc.arrays()
+    cw = camera_points_world(sc, k)
+    pc = np.asarray(sc.ragged("camera/points", k), np.float64)
+    assert cw.dtype == np.float32 and len(cw) == len(pc)
+    np.testing.assert_allclose(cw, pc @ T[:3, :3].T + T[:3, 3], atol=1e-4)
 
 
 def _copy_small_corner(tmp_path):
@@ -535,7 +539,8 @@ def test_voxel_average_is_open3d_voxel_down_sample():
 
 def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
     """processes=2 (LiDAR half, camera/points_world and half the surfaces in forked processes) gives
-    the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation as processes=1."""
+    the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation as processes=1; the
+    stored camera/points_world is what camera_points_world computes without it."""
     from holodata import open_dataset
     from holodata.mapping.register import register_scene
 
@@ -546,7 +551,7 @@ def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
         for name in ("lidar/instance",) + names:
             if name in sw.arrays():
                 sw.remove(name)
-        res = register_scene(url, "recording", cfg=RegisterConfig(processes=processes))
+        res = register_scene(url, "recording", cfg=RegisterConfig(processes=processes, write_camera_world=True))
         assert res["segment"]["frames"] > 0
         sc = open_dataset(url).scene("recording")
         outs.append((np.asarray(sc["calib/T_world_camera"][...]), np.asarray(sc["lidar/instance"][...]),
@@ -556,6 +561,10 @@ def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
     for n in names:
         assert all(np.array_equal(a, b) for a, b in zip(r1[n], r2[n])), n
     assert sum(len(f) for f in r1["human/faces"]) > 0
+    sw.remove("camera/points_world")
+    sc = open_dataset(url).scene("recording")
+    for k in (0, sc.n_frames - 1):
+        np.testing.assert_array_equal(camera_points_world(sc, k), r2["camera/points_world"][k])
 
 
 def _killed(*args, **kwargs):
@@ -728,7 +737,7 @@ def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path)
     for processes in (1, 2):
         if "lidar/instance" in sw.arrays():
             sw.remove("lidar/instance")
-        res = register_scene(url, "recording", cfg=RegisterConfig(processes=processes))
+        res = register_scene(url, "recording", cfg=RegisterConfig(processes=processes, write_camera_world=True))
         assert res["map"].startswith("slam") and res["segment"]["frames"] > 0
         assert "map_s" not in res["timings"] or res["timings"]["map_s"] < 0.5
         sc = open_dataset(url).scene("recording")

@@ -111,16 +111,19 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
 
 Outputs (scene): ``human/vertices`` + ``human/faces`` ragged per frame (world frame, float32 /
 int32; what ``holodata raytrace-gt`` reads), ``human/points`` ragged (world frame human points),
-``camera/points_world`` ragged (every camera point in the map frame; ``camera/points`` itself is not
-rewritten: finished shards are never rewritten and ingest's resume relies on it), ``calib/T_world_camera``
-(4,4) and the registration report in scene attrs ``register``.
+``calib/T_world_camera`` (4,4) and the registration report in scene attrs ``register``.
+``camera/points`` itself is not rewritten into the map frame (finished shards are never rewritten
+and ingest's resume relies on them): :func:`camera_points_world` gives any frame's cloud in the map
+frame through ``calib/T_world_camera``; ``write_camera_world`` (``--camera-world``) also stores that
+copy as ``camera/points_world`` — as large as ``camera/points`` (0.9 GB for 400 frames at 376x672)
+and ~7 s of register's 21 s there, so off by default.
 
 **Processes** (``processes``, default two on a two-CPU machine; :mod:`holodata.parallel`): the LiDAR
 half (background model, map unless slam's is used, then the segmentation of every scan) runs in a
 forked process while this one reads the camera frames and builds the static depth; the LiDAR
 process hands a map it builds over as soon as it is built and segments beside the extrinsic and
-the humans. After the extrinsic,
-``camera/points_world`` and every other frame's surface are written/built by another process. The
+the humans. After the extrinsic, every other frame's surface (and ``camera/points_world`` when
+asked for) is built/written by another process. The
 results are the same as in one process (test). On the 400-cycle corner (64x512 LiDAR, 94x168
 camera) the background model and the map were the critical path (~5.5 s of ~11 s; splitting their
 scans over two processes gained nothing: copy-on-write faults and pickling the points back ate it);
@@ -212,7 +215,7 @@ class RegisterConfig:
     slam_map: bool = True       # slam's stored static map (map/points) as the map, when built from these poses
     median_frames: int = 60
     processes: int = 0          # 0: two when the machine has two CPUs (the LiDAR half beside the camera half)
-    write_camera_world: bool = True
+    write_camera_world: bool = False   # camera/points_world: the map-frame copy of camera/points
 
     def to_attrs(self) -> dict:
         d = asdict(self)
@@ -677,8 +680,7 @@ class CameraFrames:
 
     def points(self, k: int) -> np.ndarray:
         """(N,3) float64 finite camera-frame points of frame ``k`` in front of the camera (z > 0)."""
-        p = np.asarray(self.scene.ragged("camera/points", k), np.float64)
-        return p[np.isfinite(p).all(1) & (p[:, 2] > 0)] if len(p) else p.reshape(0, 3)
+        return _camera_points(self.scene, k)
 
     def depth(self, k: int) -> np.ndarray:
         """(h,w) float32 depth image of frame ``k`` (NaN = none): each point in front of the camera (z > 0)
@@ -1177,6 +1179,25 @@ def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: boo
     return M, seg_summary, {"background_s": t1 - t0, "map_s": t2 - t1, "segment_s": time.perf_counter() - t2}
 
 
+def _camera_points(scene, k: int) -> np.ndarray:
+    """(N,3) float64 finite camera-frame points of frame ``k`` in front of the camera (z > 0)."""
+    p = np.asarray(scene.ragged("camera/points", k), np.float64)
+    return p[np.isfinite(p).all(1) & (p[:, 2] > 0)] if len(p) else p.reshape(0, 3)
+
+
+def camera_points_world(scene, k: int) -> np.ndarray:
+    """(N,3) float32 camera points of frame ``k`` of a registered ``scene`` in the map frame (finite,
+    in front of the camera): ``camera/points_world`` where register stored it, else the same values
+    from ``camera/points`` through ``calib/T_world_camera``."""
+    names = set(scene.arrays())
+    if "camera/points_world" in names:
+        return np.asarray(scene.ragged("camera/points_world", k))
+    if "calib/T_world_camera" not in names:
+        raise InputError(f"scene {scene.id!r} has no calib/T_world_camera (run holodata register first)")
+    T = np.asarray(scene["calib/T_world_camera"][...], np.float64)
+    return transform_points(T, _camera_points(scene, k)).astype(np.float32)
+
+
 def camera_world(url: str, sid: str, T: np.ndarray) -> None:
     """Write ``camera/points_world`` of scene ``sid`` (made by the caller): every camera point in the
     map frame through ``T`` (4,4) T_world_camera, float32, shard by shard (the recording's clouds
@@ -1551,7 +1572,7 @@ def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray, max
 
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
-           "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth",
+           "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth", "camera_points_world",
            "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual",
            "body_columns", "pixel_runs",
            "weighted_icp", "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
