@@ -2,7 +2,10 @@
 
 ``holodata.synth.synthesize`` one corner (default a 400-cycle L corner: 400 radar cycles at 2 Hz =
 200 s; the robot drives ~3.5 m and then stands; LiDAR ``--lidar`` at 10 Hz, of which ingest keeps
-the scan nearest each radar frame, so slam sees 400 scans), then times, each in seconds:
+the scan nearest each radar frame, so slam sees 400 scans; LiDAR and camera at synth's defaults,
+64x1024 and 376x672, since 2026-12-02 — the tables below that date used 64x512 and a 94x168
+camera, which flatters register: ``--lidar 64x512 --camera 94x168`` repeats them), then times, each
+in seconds:
 
 * ``ingest`` (``holodata.ingest.ingest``; radar grid ``--radar-grid`` — small, to keep synth fast);
 * ``slam`` (``holodata.mapping.slam.slam_scene``: kiss-icp + scan-to-map refinement + static mesh);
@@ -145,7 +148,27 @@ first pair ran on a cold page cache: 15.3 vs 15.7), register 6.9-7.9 vs 4.1-5.5 
 Where the rest is: slam's Poisson (1.7 s, single-threaded) and point accumulation (1.3 s), register's
 two halves are each ~3.5-4 s of CPU on the two cores.
 
-    .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x512] [--walkers 0]
+The same day at synth's default sizes (64x1024 LiDAR, 376x672 camera; load 1.4-2.3, `--keep DIR`):
+with ``camera/points_world`` still written by default (a 64x512 LiDAR) register took 18.2 s (camera
+4.0, extrinsic 1.8, humans 11.8 s: the humans phase waited for the forked writer of that 0.9 GB copy,
+which re-reads every camera frame), slam+register 2.47x raytrace-gt. With the copy on request only
+(``register --camera-world``):
+
+    stage            wall s    CPU s
+    ingest             14.3     23.1
+    slam               10.9     14.6    (ATE 0.19 cm, F@5cm 0.997; read 2.9 s, refine 3.2, mesh 6.1)
+    register           14.9     24.8    (camera 7.3, extrinsic 2.4, humans 4.5 | LiDAR process:
+                                         background 6.7, segment 1.7 s)
+    raytrace-gt        11.3     20.8
+    slam+register      25.7     39.4    = 2.28x raytrace-gt wall, 1.89x its CPU; 50 % of the pipeline;
+                                          register is the largest stage
+
+So at the recording sizes synth writes the aim is far off: register's two halves each keep a core
+busy (the camera half reads and projects 100 M camera points, 2.5-6 ms a frame, and builds the
+static depth; the LiDAR half builds its own background model from 26 M LiDAR points, which slam
+has already built once for its mesh from a subset of the same scans).
+
+    .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
 """
 from __future__ import annotations
@@ -202,8 +225,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=400, help="radar cycles (2 Hz)")
     ap.add_argument("--corner", default="L")
-    ap.add_argument("--lidar", default="64x512")
-    ap.add_argument("--camera", default="94x168")
+    ap.add_argument("--lidar", default="64x1024", help="beams x columns (holodata synth's default)")
+    ap.add_argument("--camera", default="376x672", help="rows x cols (holodata synth's default)")
     ap.add_argument("--radar-grid", default="16x64x32", help="synth radar heatmap H x W x range bins (ingest cost)")
     ap.add_argument("--walkers", type=int, default=0)
     ap.add_argument("--seed", type=int, default=1)
