@@ -16,42 +16,44 @@ humans) twice: from the TF pose of the camera (exact in synth) and from that pos
   stage at the first correspondence distance, same source/target clouds and init) in the same run:
   runtime ratio register-extrinsic / bare-ICP and the bare ICP's own error.
 
-Measured 2026-12-02 00:31-00:48 UTC on 6d1d320's register (slam's stored map ``map/points`` as the
-target's points when it matches the poses, the human solid of elliptic per-run columns; first half
-beside the test suite, load 2-4), ``--poses truth,slam --seeds 1,4 --no-perturb --no-bare --keep DIR``
-(64x1024 LiDAR, 376x672 camera, 40 frames, 2 walkers). Extrinsic from the TF pose, cm (world /
-aligned / robot); centroid mean / max, world (aligned / radar frame), cm; human found in 40/40
-frames in every cell:
+Measured 2026-12-02 01:57-02:03 UTC on the final register of that day (slam's stored map
+``map/points`` as the target's points when it matches the poses, the human solid of elliptic per-run
+columns, ``floor_reach_m`` 0.35, ``camera/points_world`` not written), ``--poses truth,slam --seeds 1,4
+--no-perturb --no-bare --keep DIR`` (64x1024 LiDAR, 376x672 camera, 40 frames, 2 walkers; idle).
+Extrinsic from the TF pose, cm (world / aligned / robot); centroid mean / max, world (aligned /
+radar frame), cm; human found in 40/40 frames in every cell:
 
   corner seed poses  AP50   world  aligned  robot   centroid              register s (extrinsic)
-  T       1   truth  1.000  0.67   0.67     0.67    1.0 / 2.0              7.5 (2.0)
-  T       1   slam   1.000  1.57   1.63     1.86    1.3 / 2.1 (1.6/1.9)    8.2 (2.2)
-  L       1   truth  1.000  0.14   0.14     0.14    0.8 / 1.5              5.5 (1.9)
-  L       1   slam   1.000  1.09   0.16     0.74    1.0 / 1.8 (0.9/1.3)    5.9 (2.1)
-  cross   1   truth  1.000  0.34   0.34     0.34    0.8 / 1.5              6.9 (2.0)
-  cross   1   slam   1.000  1.33   0.74     0.84    1.0 / 2.1 (1.1/1.4)    7.9 (2.5)
-  oblique 1   truth  1.000  0.54   0.54     0.54    1.5 / 2.9              5.2 (2.1)
-  oblique 1   slam   1.000  2.64   0.42     0.96    2.5 / 3.1 (1.9/2.3)    5.9 (2.5)
-  T       4   truth  0.988  1.82   1.82     1.82    3.5 / 7.5              4.6 (1.4)
-  T       4   slam   0.988  4.85   1.07     1.42    4.7 / 9.4 (3.1/3.2)    4.5 (1.4)
-  L       4   truth  0.988  1.87   1.87     1.87    3.2 / 6.7              5.0 (1.7)
-  L       4   slam   0.988  4.95   0.86     0.85    4.4 / 8.7 (3.0/3.0)    5.0 (1.7)
-  cross   4   truth  0.988  1.05   1.05     1.05    3.3 / 7.2              7.2 (2.1)
-  cross   4   slam   0.988  4.03   1.27     1.46    4.3 / 8.9 (3.1/3.2)    5.7 (1.6)
-  oblique 4   truth  0.988  1.53   1.53     1.53    3.1 / 6.4              5.3 (1.9)
-  oblique 4   slam   0.988  4.22   1.86     1.75    3.7 / 7.8 (3.1/3.2)    6.5 (2.1)
+  T       1   truth  1.000  0.67   0.67     0.67    1.0 / 2.0              4.5 (2.2)
+  T       1   slam   1.000  1.57   1.63     1.86    1.1 / 1.9 (1.5/1.8)    3.7 (1.8)
+  L       1   truth  1.000  0.14   0.14     0.14    0.7 / 1.3              3.7 (1.8)
+  L       1   slam   1.000  1.09   0.16     0.74    0.9 / 1.6 (0.8/1.2)    3.5 (1.6)
+  cross   1   truth  1.000  0.34   0.34     0.34    0.8 / 1.5              3.8 (1.6)
+  cross   1   slam   1.000  1.33   0.74     0.84    1.0 / 1.8 (1.0/1.3)    3.7 (1.8)
+  oblique 1   truth  1.000  0.54   0.54     0.54    1.4 / 2.8              3.9 (1.8)
+  oblique 1   slam   1.000  2.64   0.42     0.96    2.4 / 3.0 (1.8/2.2)    4.3 (2.3)
+  T       4   truth  0.988  1.82   1.82     1.82    3.5 / 6.9              3.6 (1.3)
+  T       4   slam   0.988  4.85   1.07     1.42    4.7 / 8.8 (2.9/3.0)    3.4 (1.3)
+  L       4   truth  0.988  1.87   1.87     1.87    3.3 / 5.9              4.0 (1.5)
+  L       4   slam   0.988  4.95   0.86     0.85    4.4 / 7.9 (2.8/2.8)    3.4 (1.3)
+  cross   4   truth  0.988  1.05   1.05     1.05    3.2 / 6.3              3.2 (1.2)
+  cross   4   slam   0.988  4.03   1.27     1.46    4.4 / 8.2 (2.9/3.0)    3.3 (1.1)
+  oblique 4   truth  0.988  1.53   1.53     1.53    2.8 / 5.6              3.8 (1.8)
+  oblique 4   slam   0.988  4.22   1.86     1.75    3.6 / 7.2 (2.9/2.9)    5.2 (2.2)
 
+  The same run at 00:31-00:48 (``floor_reach_m`` 0.12, camera/points_world written, load 2-4):
+  identical extrinsics and AP50; centroid world 0.8-4.7 cm (radar frame up to 3.5), register 4.5-8.2 s.
   Floors line: met in every cell (aligned extrinsic 0.14-1.87 cm, rotation <= 0.14 deg aligned,
   <= 0.36 deg world; world-frame centroid 0.8-4.7 cm). Against the run below (ratio 0.02): aligned
   extrinsic within 0.34 cm in every cell (mean 0.93 -> 1.00 cm; slam's map instead of register's
-  own moves it by noise-level amounts, see the map-voxel note further down); centroid 3.6-5.7 -> 0.8-4.7 cm (world), the human solid's doing. The
-  world-frame extrinsic of the seed-4 slam cells (4.0-4.95 cm) is the map's yaw offset (0.21-0.27
+  own moves it by noise-level amounts, see the map-voxel note further down); centroid 3.6-5.7 ->
+  0.7-4.7 cm (world), the human solid's doing. The world-frame extrinsic of the seed-4 slam cells (4.0-4.95 cm) is the map's yaw offset (0.21-0.27
   deg): slam anchors its trajectory to the TF pose at the first kept scan, and on seed 4 the
   synthetic odometry has already drifted 0.26 cm / 0.18 deg in the 0.2 s the robot drove before it
   (seed 1: 0). The data holds nothing that places the map closer to the true world; the radar
   ground truth is traced in the map's frame, where the extrinsic (aligned) and the camera relative to
   the robot (robot) are < 2 cm in every cell.
-  From a guess 5 cm / 2 deg off the TF pose (`--perturb 5,2`, the same cells, 02:17 UTC, 4a681ce),
+  From a guess 5 cm / 2 deg off the TF pose (`--perturb 5,2`, the same cells, ~01:35 UTC, 4a681ce),
   world frame, T L cross oblique: seed 1 truth 0.60 0.16 0.48 0.50, slam 1.61 1.09 1.28 2.63; seed 4
   truth 1.71 1.75 1.18 1.44, slam 4.89 4.92 3.98 4.27 cm: within 0.3 cm of the TF-guess column in
   every cell. register 3.6-6 s a cell there (humans 0.4-0.6 s: camera/points_world no longer written).
