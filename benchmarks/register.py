@@ -44,10 +44,11 @@ radar frame), cm; human found in 40/40 frames in every cell:
   The same run at 00:31-00:48 (``floor_reach_m`` 0.12, camera/points_world written, load 2-4):
   identical extrinsics and AP50; centroid world 0.8-4.7 cm (radar frame up to 3.5), register 4.5-8.2 s.
   Floors line: met in every cell (aligned extrinsic 0.14-1.87 cm, rotation <= 0.14 deg aligned,
-  <= 0.36 deg world; world-frame centroid 0.8-4.7 cm). Against the run below (ratio 0.02): aligned
+  <= 0.36 deg world; world-frame centroid 0.7-4.7 cm). Against the run below (ratio 0.02): aligned
   extrinsic within 0.34 cm in every cell (mean 0.93 -> 1.00 cm; slam's map instead of register's
   own moves it by noise-level amounts, see the map-voxel note further down); centroid 3.6-5.7 ->
-  0.7-4.7 cm (world), the human solid's doing. The world-frame extrinsic of the seed-4 slam cells (4.0-4.95 cm) is the map's yaw offset (0.21-0.27
+  0.7-4.7 cm (world), the human solid's doing. The world-frame extrinsic of the seed-4 slam cells
+  (4.0-4.95 cm) is the map's yaw offset (0.21-0.27
   deg): slam anchors its trajectory to the TF pose at the first kept scan, and on seed 4 the
   synthetic odometry has already drifted 0.26 cm / 0.18 deg in the 0.2 s the robot drove before it
   (seed 1: 0). The data holds nothing that places the map closer to the true world; the radar
