@@ -124,7 +124,9 @@ and ~7 s of register's 21 s there, so off by default.
 
 **Processes** (``processes``, default two on a two-CPU machine; :mod:`holodata.parallel`): the LiDAR
 half (background model, map unless slam's is used, then the segmentation of every scan) runs in a
-forked process while this one reads the camera frames and builds the static depth; the LiDAR
+forked process while this one builds the static depth (from at most ``median_frames`` frames; the
+humans loop makes every frame's depth image again, one at a time, so a long recording's images
+never sit in memory together: 1 GB for 1000 frames at 376x672); the LiDAR
 process hands a map it builds over as soon as it is built and segments beside the extrinsic and
 the humans. After the extrinsic, every other frame's surface (and ``camera/points_world`` when
 asked for) is built/written by another process. The
@@ -685,6 +687,10 @@ class CameraFrames:
     def points(self, k: int) -> np.ndarray:
         """(N,3) float64 finite camera-frame points of frame ``k`` in front of the camera (z > 0)."""
         return _camera_points(self.scene, k)
+
+    def counts(self) -> np.ndarray:
+        """(T,) int64 points stored per frame (from the ragged offsets; nothing else is read)."""
+        return np.diff(np.asarray(self.scene["camera/points"].offsets[...], np.int64))
 
     def depth(self, k: int) -> np.ndarray:
         """(h,w) float32 depth image of frame ``k`` (NaN = none): each point in front of the camera (z > 0)
@@ -1305,19 +1311,20 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                           label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1, early=stored_map is None)
     try:
         t1 = time.perf_counter()
-        depths, has_points = [], []
-        for k in track(range(n), n, "camera depth", quiet):
-            D = cam.depth(k)
-            depths.append(D)
-            has_points.append(bool(np.isfinite(D).any()))
-        cam_frames = [k for k in range(n) if has_points[k]]
-        if not cam_frames:
+        # the static depth from an evenly spread subset of the frames with points; every frame's depth
+        # image is made again in the humans loop (a recording's images never sit in memory together)
+        cam_frames = [int(k) for k in np.flatnonzero(cam.counts() > 0)]
+        if len(cam_frames) > cfg.median_frames:
+            cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
+        stack = np.stack([cam.depth(k) for k in track(cam_frames, len(cam_frames), "camera depth", quiet)]
+                         ) if cam_frames else np.zeros((0,) + cam.shape, np.float32)
+        keep = np.isfinite(stack).any(axis=(1, 2))
+        if not keep.any():
             if stored_map is None:
                 lidar.early()
             raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
-        if len(cam_frames) > cfg.median_frames:  # evenly spread subset
-            cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
-        med, mad, cnt = static_depth_of(np.stack([depths[k] for k in cam_frames]))
+        med, mad, cnt = static_depth_of(stack[keep])
+        del stack
         rays = cam.rays()
         okm = np.isfinite(med) & (cnt > 0)
         static_cam = rays[okm] * med[okm][:, None]
@@ -1377,20 +1384,17 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
         always = ~np.isfinite(med) | still
         for k in track(range(n), n, f"register {sid}", quiet):
-            D = depths[k]
-            if not has_points[k]:
-                cand.append((np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros(0, np.int64), D))
-                continue
+            D = cam.depth(k)
             with np.errstate(invalid="ignore"):
                 fg = np.isfinite(D) & (always | (D < front)) & (D <= cfg.max_range_m)
             vv, uu = np.nonzero(fg)
-            q = rays[vv, uu] * D[vv, uu][:, None]
-            qw = transform_points(T, q)
+            dv = D[vv, uu]
+            qw = transform_points(T, rays[vv, uu] * dv[:, None])
             if len(qw):
                 dmap, _ = mtree.query(qw, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)
                 far = dmap > cfg.map_explain_m       # (the bound: far points end their search early)
-                qw, vv, uu = qw[far], vv[far], uu[far]
-            cand.append((qw, vv, uu, D))
+                qw, vv, uu, dv = qw[far], vv[far], uu[far], dv[far]
+            cand.append((qw, vv, uu, dv))            # candidate points, their pixels and depths
         # the person of interest: person-like clusters near the track's median (people farther away, e.g.
         # walking past in another corridor, are not it)
         first = [pick_human(q[0], cfg) for q in cand]
@@ -1417,7 +1421,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             return m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m
 
         picks = [finish(qw, m0 if centre is None or near_centre(qw, m0) else pick_human(qw, cfg, centre))
-                 for (qw, vv, uu, D), m0 in zip(cand, first)]
+                 for (qw, vv, uu, dv), m0 in zip(cand, first)]
         ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
         cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
         # track continuity: a pick far from where its neighbours put the person (a wall fragment while
@@ -1428,11 +1432,11 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
         jump_cfg = replace(cfg, track_radius_m=2 * cfg.track_jump_m)
         n_repicked = int(jumped.sum())
-        for k, ((qw, vv, uu, D), hm) in enumerate(zip(cand, picks)):
+        for k, ((qw, vv, uu, dv), hm) in enumerate(zip(cand, picks)):
             if jumped[k]:
                 hm = finish(qw, pick_human(qw, jump_cfg, pred[k])) if np.isfinite(pred[k]).all() else np.zeros_like(hm)
             human_pts.append(qw[hm].astype(np.float32))
-            pixels.append((qw[hm], vv[hm], uu[hm], D[vv[hm], uu[hm]]))
+            pixels.append((qw[hm], vv[hm], uu[hm], dv[hm]))
         # velocity compensation: camera stamp -> frame stamp
         cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
         shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
