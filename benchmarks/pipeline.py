@@ -163,7 +163,14 @@ which re-reads every camera frame), slam+register 2.47x raytrace-gt. With the co
     slam+register      25.7     39.4    = 2.28x raytrace-gt wall, 1.89x its CPU; 50 % of the pipeline;
                                           register is the largest stage
 
-So at the recording sizes synth writes the aim is far off: register's two halves each keep a core
+Then with register's depth images made one frame at a time (the static depth from 60 frames first,
+so the extrinsic starts while the LiDAR process still works), two runs (`--keep DIR [--reuse]`,
+load 1.3-2.0): slam 8.7 / 9.9, register 9.9 / 11.3 (camera 1.7-2.6, extrinsic 2.1-2.3, humans 5.7-5.9
+| background 4.8-5.7, segment 1.2-1.3), raytrace-gt 10.7 / 11.4 s: slam+register 18.7 / 21.2 s =
+1.74x / 1.86x raytrace-gt wall, 1.45x / 1.51x its CPU, 46-47 % of the pipeline; the largest stage
+raytrace-gt / ingest. register alone on that corner, old and new alternated: 13.6 / 11.3 -> 11.3 /
+10.4 s, max RSS 0.95 -> 0.62 GB.
+So at the recording sizes synth writes the aim is still far off: register's two halves each keep a core
 busy (the camera half reads and projects 100 M camera points, 2.5-6 ms a frame, and builds the
 static depth; the LiDAR half builds its own background model from 26 M LiDAR points, which slam
 has already built once for its mesh from a subset of the same scans).
