@@ -725,7 +725,7 @@ class CameraFrames:
 
 
 def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_quantile: float = 0.8
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Static depth picture from ``frames``: per pixel the mean of the *background* samples (NaN where
     fewer than half the frames have a return), their robust spread σ (1.4826 · MAD, m) and how many
     were averaged. A moving person is only ever in front of the static scene, so the background
@@ -733,9 +733,13 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
     ``far_quantile`` sample, then within 3 robust sigmas of their median. The plain median failed
     when a person walks along the camera's line of sight and covers the same pixels in most frames
     (quick demo L corner: the person became static scene in 5 of 12 frames and a wall fragment was
-    taken instead, 150-180 cm off)."""
+    taken instead, 150-180 cm off). Frames whose depth image holds no return are left out; None when
+    none holds one."""
+    if not frames:
+        return None
     stack = np.stack([cam.depth(k) for k in track(frames, len(frames), "camera background", quiet)])
-    return static_depth_of(stack, far_quantile)
+    keep = np.isfinite(stack).any(axis=(1, 2))
+    return static_depth_of(stack[keep], far_quantile) if keep.any() else None
 
 
 def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -982,6 +986,12 @@ def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, d
     return span, z / fx, down
 
 
+def _repeat_index(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Item i repeated ``counts[i]`` times: (owner (sum,) item index, (sum,) index within its repeats)."""
+    owner = np.repeat(np.arange(len(counts)), counts)
+    return owner, np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+
+
 def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: float,
                    horizontal: bool = True, pixel_m=None, down_to=None) -> tuple[np.ndarray, np.ndarray]:
     """Closed triangle surface around the volume swept by the points (N,3) along their viewing rays
@@ -1019,8 +1029,7 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
     step = voxel / 2
     L = np.maximum(b - a, 0.0)
     ns = np.maximum(1, np.ceil(L / step).astype(np.int64))
-    idx = np.repeat(np.arange(len(p)), ns)
-    k = np.arange(len(idx)) - np.repeat(np.cumsum(ns) - ns, ns)
+    idx, k = _repeat_index(ns)
     t = a[idx] + (k + 0.5) / ns[idx] * L[idx]
     q = p[idx] + t[:, None] * d[idx]
     wgt = px[idx] ** 2 * (L / ns)[idx]
@@ -1031,8 +1040,7 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
             qs, ws, j0 = q[sel], wgt[sel], idx[sel]
             ext = np.maximum(qs[:, 2] - px[j0] / 2 - dz[j0], 0.0)
             m = np.maximum(1, np.ceil(ext / step).astype(np.int64))
-            j = np.repeat(np.arange(len(qs)), m)
-            kk = np.arange(len(j)) - np.repeat(np.cumsum(m) - m, m)
+            j, kk = _repeat_index(m)
             qq = qs[j].copy()
             qq[:, 2] -= px[j0][j] / 2 + (kk + 0.5) / m[j] * ext[j]
             q = np.concatenate([q, qq])
@@ -1196,6 +1204,11 @@ def _camera_points(scene, k: int) -> np.ndarray:
     return p[np.isfinite(p).all(1) & (p[:, 2] > 0)] if len(p) else p.reshape(0, 3)
 
 
+def _camera_points_through(scene, T: np.ndarray, k: int) -> np.ndarray:
+    """(N,3) float32: :func:`_camera_points` of frame ``k`` through ``T`` (4,4) T_world_camera."""
+    return transform_points(T, _camera_points(scene, k)).astype(np.float32)
+
+
 def camera_points_world(scene, k: int) -> np.ndarray:
     """(N,3) float32 camera points of frame ``k`` of a registered ``scene`` in the map frame (finite,
     in front of the camera): ``camera/points_world`` where register stored it, else the same values
@@ -1205,8 +1218,7 @@ def camera_points_world(scene, k: int) -> np.ndarray:
         return np.asarray(scene.ragged("camera/points_world", k))
     if "calib/T_world_camera" not in names:
         raise InputError(f"scene {scene.id!r} has no calib/T_world_camera (run holodata register first)")
-    T = np.asarray(scene["calib/T_world_camera"][...], np.float64)
-    return transform_points(T, _camera_points(scene, k)).astype(np.float32)
+    return _camera_points_through(scene, np.asarray(scene["calib/T_world_camera"][...], np.float64), k)
 
 
 def camera_world(url: str, sid: str, T: np.ndarray) -> None:
@@ -1216,12 +1228,12 @@ def camera_world(url: str, sid: str, T: np.ndarray) -> None:
     from ..dataset import create_dataset, open_dataset
 
     ds = open_dataset(url)
-    cam = CameraFrames.open(ds.scene(sid), url)
+    scene = ds.scene(sid)
     arr = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid).ragged_array(
         "camera/points_world", 3, "float32", "m", ["point", "xyz"])
     for s in range(arr.n_shards):
         sl = arr.frames(s)
-        arr.write_shard(s, [transform_points(T, cam.points(k)).astype(np.float32) for k in range(sl.start, sl.stop)])
+        arr.write_shard(s, [_camera_points_through(scene, T, k) for k in range(sl.start, sl.stop)])
 
 
 def human_surfaces(points: list, columns: list, shift: np.ndarray, eye: np.ndarray, voxel: float) -> list:
@@ -1316,15 +1328,12 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         cam_frames = [int(k) for k in np.flatnonzero(cam.counts() > 0)]
         if len(cam_frames) > cfg.median_frames:
             cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
-        stack = np.stack([cam.depth(k) for k in track(cam_frames, len(cam_frames), "camera depth", quiet)]
-                         ) if cam_frames else np.zeros((0,) + cam.shape, np.float32)
-        keep = np.isfinite(stack).any(axis=(1, 2))
-        if not keep.any():
+        static = static_depth(cam, cam_frames, quiet)
+        if static is None:
             if stored_map is None:
                 lidar.early()
             raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
-        med, mad, cnt = static_depth_of(stack[keep])
-        del stack
+        med, mad, cnt = static
         rays = cam.rays()
         okm = np.isfinite(med) & (cnt > 0)
         static_cam = rays[okm] * med[okm][:, None]
