@@ -82,6 +82,13 @@ def test_robot_starts_at_rest_and_odometry_drifts():
     v = np.linalg.norm(np.diff(xy, axis=0), axis=1) / dt
     assert v[:10].max() < 0.05 and v.max() <= 0.5 + 1e-6 and v.max() > 0.25
     assert np.allclose(xy[-1], [-1.0, 0.0], atol=0.06)
+    # the heading turns smoothly (no step where the weave fades in) and follows the path's tangent
+    yaw = np.unwrap(np.arctan2(tr.poses[:, 1, 0], tr.poses[:, 0, 0]))
+    assert np.degrees(np.abs(np.diff(yaw)) / dt).max() < 15.0
+    moving = v > 0.1
+    tangent = np.arctan2(np.diff(xy[:, 1]), np.diff(xy[:, 0]))
+    off = np.median(yaw[1:][moving] - tangent[moving])            # the constant mounting offset
+    assert np.abs(yaw[1:][moving] - tangent[moving] - off).max() < np.deg2rad(0.2)
     od, oinfo = odometry(tr, np.random.default_rng(4), scale_error=0.02, yaw_bias_dps=0.5)
     # odometry is relative to its start; compare travelled distance and heading drift
     T0 = tr.interpolate(od.timestamp_ns[:1])[0]
