@@ -724,8 +724,8 @@ class CameraFrames:
         return np.stack([(u - self.K[0, 2]) / self.K[0, 0], (v - self.K[1, 2]) / self.K[1, 1], np.ones((h, w))], -1)
 
 
-def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_quantile: float = 0.8
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_quantile: float = 0.8,
+                 images: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Static depth picture from ``frames``: per pixel the mean of the *background* samples (NaN where
     fewer than half the frames have a return), their robust spread σ (1.4826 · MAD, m) and how many
     were averaged. A moving person is only ever in front of the static scene, so the background
@@ -734,10 +734,13 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
     when a person walks along the camera's line of sight and covers the same pixels in most frames
     (quick demo L corner: the person became static scene in 5 of 12 frames and a wall fragment was
     taken instead, 150-180 cm off). Frames whose depth image holds no return are left out; None when
-    none holds one."""
+    none holds one. ``images``: a dict that receives {frame: depth image} of ``frames``."""
     if not frames:
         return None
-    stack = np.stack([cam.depth(k) for k in track(frames, len(frames), "camera background", quiet)])
+    images = {} if images is None else images
+    for k in track(frames, len(frames), "camera background", quiet):
+        images[k] = cam.depth(k)
+    stack = np.stack([images[k] for k in frames])
     keep = np.isfinite(stack).any(axis=(1, 2))
     return static_depth_of(stack[keep], far_quantile) if keep.any() else None
 
@@ -775,6 +778,33 @@ def nan_quantile(stack: np.ndarray, q: float) -> np.ndarray:
     v_lo = np.take_along_axis(s, lo[None], 0)[0]
     v_hi = np.take_along_axis(s, hi[None], 0)[0]
     return np.where(n > 0, v_lo + (pos - lo) * (v_hi - v_lo), np.nan)
+
+
+def frame_candidates(cam: CameraFrames, frames, T: np.ndarray, rays: np.ndarray, front: np.ndarray,
+                     always: np.ndarray, map_tree, cfg: "RegisterConfig", images: dict | None = None,
+                     quiet: bool = True, label: str = "human candidates") -> list:
+    """Per frame k of ``frames``: the returns that may be a person, (qw (N,3) float64 map frame, vv, uu
+    (N,) int64 pixel rows / columns, dv (N,) float32 optical depths m): returns within
+    ``cfg.max_range_m`` nearer than ``front`` (h,w) m (the static depth less its noise margin) or on
+    pixels marked ``always`` (h,w) bool, moved to the map through ``T`` (4,4) T_world_camera along the
+    pixel ``rays`` (h,w,3), and farther than ``cfg.map_explain_m`` from every map point (``map_tree``,
+    a cKDTree of them). ``images``: depth images already made, by frame (taken out of the dict as used)."""
+    out = []
+    bound = np.nextafter(cfg.map_explain_m, np.inf)    # far points end their search early
+    for k in track(frames, len(frames), label, quiet):
+        D = images.pop(k, None) if images else None
+        if D is None:
+            D = cam.depth(k)
+        with np.errstate(invalid="ignore"):
+            fg = np.isfinite(D) & (always | (D < front)) & (D <= cfg.max_range_m)
+        vv, uu = np.nonzero(fg)
+        dv = D[vv, uu]
+        qw = transform_points(T, rays[vv, uu] * dv[:, None])
+        if len(qw):
+            far = map_tree.query(qw, k=1, distance_upper_bound=bound, workers=1)[0] > cfg.map_explain_m
+            qw, vv, uu, dv = qw[far], vv[far], uu[far], dv[far]
+        out.append((qw, vv, uu, dv))
+    return out
 
 
 def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
@@ -1328,7 +1358,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         cam_frames = [int(k) for k in np.flatnonzero(cam.counts() > 0)]
         if len(cam_frames) > cfg.median_frames:
             cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
-        static = static_depth(cam, cam_frames, quiet)
+        images = {}          # the depth images made for the static depth, used again for the humans
+        static = static_depth(cam, cam_frames, quiet, images=images)
         if static is None:
             if stored_map is None:
                 lidar.early()
@@ -1379,7 +1410,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             rr = np.zeros(len(static_cam), bool)
             rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
             still[okm] = rr
-        human_pts, columns, pixels, cand = [], [], [], []
+        human_pts, columns, pixels = [], [], []
         w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
         sw = w.scene(sid)
         for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
@@ -1392,18 +1423,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                                   enabled=processes > 1)
         front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
         always = ~np.isfinite(med) | still
-        for k in track(range(n), n, f"register {sid}", quiet):
-            D = cam.depth(k)
-            with np.errstate(invalid="ignore"):
-                fg = np.isfinite(D) & (always | (D < front)) & (D <= cfg.max_range_m)
-            vv, uu = np.nonzero(fg)
-            dv = D[vv, uu]
-            qw = transform_points(T, rays[vv, uu] * dv[:, None])
-            if len(qw):
-                dmap, _ = mtree.query(qw, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)
-                far = dmap > cfg.map_explain_m       # (the bound: far points end their search early)
-                qw, vv, uu, dv = qw[far], vv[far], uu[far], dv[far]
-            cand.append((qw, vv, uu, dv))            # candidate points, their pixels and depths
+        cand = frame_candidates(cam, range(n), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
+        del images
         # the person of interest: person-like clusters near the track's median (people farther away, e.g.
         # walking past in another corridor, are not it)
         first = [pick_human(q[0], cfg) for q in cand]
