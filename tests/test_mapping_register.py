@@ -750,3 +750,37 @@ def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path)
     write_static_map(sw, sm.vertices, sm.faces, sm.points, source + "-other")
     res = register_scene(url, "recording", cfg=RegisterConfig(segment_lidar=False))
     assert res["map"] == "built from the LiDAR scans"
+
+
+def test_centred_offset_is_the_motion_of_the_centre_and_the_scaled_rotation():
+    from holodata.mapping.register import _centred_offset
+
+    T0 = _pose([1.0, 2.0, 0.5], [0.0, 0.0, 30.0])
+    D = _pose([0.02, -0.01, 0.03], [0.2, -0.1, 0.3])
+    c, Lc = np.array([3.0, -1.0, 1.0]), 4.0
+    y = _centred_offset(D @ T0, T0, c, Lc)
+    assert np.allclose(y[:3], Rotation.from_matrix(D[:3, :3]).as_rotvec() * Lc)
+    assert np.allclose(y[3:], D[:3, :3] @ c + D[:3, 3] - c)
+    assert np.allclose(_centred_offset(T0, T0, c, Lc), 0.0)
+
+
+def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
+    from holodata.mapping.register import weighted_icp
+
+    rng = np.random.default_rng(2)
+    u = rng.uniform(size=(8000, 2))
+    # a corridor along y: walls x = +-1, floor and ceiling; nothing fixes a shift along y
+    world = np.concatenate([np.c_[np.full(len(u), s), u[:, 0] * 10, u[:, 1] * 2.5] for s in (-1.0, 1.0)]
+                           + [np.c_[u[:, 0] * 2 - 1, u[:, 1] * 10, np.full(len(u), z)] for z in (0.0, 2.5)])
+    normals = np.zeros_like(world)
+    normals[: 2 * len(u), 0] = 1.0
+    normals[2 * len(u):, 2] = 1.0
+    T_true = _pose([0.0, 1.0, 1.2], [-90.0, 0.0, 0.0])
+    cam = (world - T_true[:3, 3]) @ T_true[:3, :3]
+    guess = _pose([0.03, 0.05, -0.02], [0.0, 0.0, 0.0]) @ T_true
+    info = {}
+    T = weighted_icp(cam, np.full(len(cam), 1e4), world, normals, guess, distances=(0.15, 0.05),
+                     degenerate_ratio=0.02, info=info)
+    assert info["frozen"] == 1
+    assert abs(T[0, 3] - T_true[0, 3]) < 2e-3 and abs(T[2, 3] - T_true[2, 3]) < 2e-3   # walls and floor fix x, z
+    assert abs(T[1, 3] - guess[1, 3]) < 2e-3                                             # y stays at the guess

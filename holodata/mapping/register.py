@@ -25,7 +25,10 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    in the map (``sensors.camera.T_map_sensor``). Updates are *degeneracy-aware*: directions the
    overlap does not pin down (normal-matrix eigenvalue < ``degenerate_ratio`` × the largest, e.g. a
    corridor seen end-on) keep the initial guess instead of sliding — open3d's ``registration_icp``
-   slid 43 cm from the exact pose on such a corner; the report counts frozen directions.
+   slid 43 cm from the exact pose on such a corner; the report counts frozen directions. A held
+   direction is taken back to the guess, not only left where it is: a coarse stage, whose wider
+   correspondences still pin it down, had slid the quick demo's cross corner 14 cm along the corridor
+   before the fine stages held it there (16.4 -> 3.7 cm trajectory-aligned; 2026-12-02).
    Correspondences whose camera and map normals differ by more than ~37° are dropped (near an
    edge the nearest map point may lie on the other wall: 6-9 cm residuals that biased a cross
    corner by 7 cm). The camera
@@ -321,6 +324,16 @@ def icp(source: np.ndarray, target_pcd, init: np.ndarray, cfg: RegisterConfig) -
     return T
 
 
+def _centred_offset(T: np.ndarray, T0: np.ndarray, c: np.ndarray, Lc: float) -> np.ndarray:
+    """(6,) the motion from pose ``T0`` to ``T`` (4,4; ``T = D @ T0``) in :func:`weighted_icp`'s update
+    coordinates: rotation vector × ``Lc`` (m), then the translation of the point ``c`` (3,) (m)."""
+    from scipy.spatial.transform import Rotation
+
+    D = T @ np.linalg.inv(T0)
+    om = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+    return np.concatenate([om * Lc, D[:3, :3] @ c + D[:3, 3] - c])
+
+
 def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
                  init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
                  degenerate_ratio: float = 0.0, info: dict | None = None, source_normals: np.ndarray | None = None,
@@ -333,7 +346,8 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     et al., ICRA 2016): the normal matrix, with rotations scaled by the median point distance (so both
     blocks are in metres), is eigen-decomposed and the update is zeroed along eigenvectors whose
     eigenvalue is below ``degenerate_ratio`` × the largest — directions the overlap does not pin
-    down keep the initial guess instead of sliding (a corridor seen end-on). ``info`` receives the
+    down keep the initial guess instead of sliding (a corridor seen end-on): the update along them
+    takes the pose back to ``init`` there, so a slide of a coarser stage is undone. ``info`` receives the
     number of frozen directions and the eigenvalues. ``source_normals`` (N,3): correspondences whose
     normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge the nearest map point
     can belong to the other wall, whose normal biases a point-to-plane fit by centimetres.
@@ -345,7 +359,8 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     from scipy.spatial.transform import Rotation
 
     tree = cKDTree(target)
-    T = np.asarray(init, np.float64).copy()
+    T0 = np.asarray(init, np.float64)
+    T = T0.copy()
     src = np.asarray(source, np.float64)
     w0 = np.asarray(weights, np.float64)
     sig = 1.0 / np.sqrt(w0)
@@ -383,6 +398,10 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
                 if max_std_m > 0:  # weights are inverse variances: 1/sqrt(ev) is the direction's std (m)
                     keep &= ev >= 1.0 / max_std_m ** 2
                 y = -(V[:, keep] @ ((V[:, keep].T @ gc) / ev[keep]))
+                if not keep.all():
+                    # held directions go back to the guess: an earlier (coarser) stage may have moved
+                    # along them while they were still pinned down by wrong correspondences
+                    y -= V[:, ~keep] @ (V[:, ~keep].T @ _centred_offset(T, T0, c, Lc))
                 om = y[:3] / Lc
                 x = np.concatenate([om, y[3:] - np.cross(om, c)])   # about the origin: t' = t - om x c
                 if info is not None:
