@@ -458,6 +458,32 @@ def test_static_depth_keeps_the_wall_behind_a_person_seen_in_most_frames():
     assert np.all(frames[:8, 10:30, 20:40] < mean[10:30, 20:40] - 4 * np.median(sigma))
 
 
+def test_static_depth_leaves_out_pixels_a_person_covers_in_every_frame():
+    """A person walking back and forth along the line of sight covers some pixels in all 40 frames
+    (depths 1.9-3.1 m, 30 % of the frames at the far end): no static depth there (the far end of the
+    walk is not background; before, it was), while the wall around keeps its depth."""
+    from holodata.mapping.register import static_depth
+
+    rng = np.random.default_rng(1)
+    H, W, a, F = 30, 40, 0.002, 40
+    walk = rng.uniform(1.9, 3.1, F)               # anywhere along the walk ...
+    walk[rng.permutation(F)[:12]] = 3.1            # ... and 30 % of the frames at its far end
+    depth = np.full((F, H, W), 4.0)
+    depth[:, 10:20, 15:25] = walk[:, None, None]
+    frames = depth + a * depth ** 2 * rng.standard_normal(depth.shape)
+
+    class Frames:
+        def depth(self, k):
+            return frames[k].astype(np.float32)
+
+    mean, _, cnt = static_depth(Frames(), list(range(F)))
+    assert np.isnan(mean[10:20, 15:25]).mean() >= 0.9    # (a chance gap in the sampled walk leaves a few)
+    assert np.median(cnt[10:20, 15:25]) >= 8             # (the far end holds many frames)
+    wall = np.ones((H, W), bool)
+    wall[10:20, 15:25] = False
+    assert np.all(np.abs(mean[wall] - 4.0) < 0.08)
+
+
 def test_camera_frames_depth_puts_each_point_back_on_its_pixel():
     """camera/points made from a depth image (one point per valid pixel along its ray, as ingest
     stores a depth camera's cloud) project back onto the same image in float32; points with NaN, z <= 0

@@ -752,8 +752,12 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
     ``far_quantile`` sample, then within 3 robust sigmas of their median. The plain median failed
     when a person walks along the camera's line of sight and covers the same pixels in most frames
     (quick demo L corner: the person became static scene in 5 of 12 frames and a wall fragment was
-    taken instead, 150-180 cm off). Frames whose depth image holds no return are left out; None when
-    none holds one. ``images``: a dict that receives {frame: depth image} of ``frames``."""
+    taken instead, 150-180 cm off). A pixel has no static depth (NaN: its returns are candidates in
+    every frame) where fewer than half the frames have a return, or where fewer than half the returns
+    are background samples and the nearest other sample lies within the window of them (a continuum of
+    depths: something moving along the line of sight that covers the pixel in every frame, not a wall
+    seen behind a person). Frames whose depth image holds no return are left out; None when none holds
+    one. ``images``: a dict that receives {frame: depth image} of ``frames``."""
     if not frames:
         return None
     images = {} if images is None else images
@@ -781,7 +785,16 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
         inl = np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]
         cnt = inl.sum(0)
         mean = np.where(cnt > 0, np.nansum(np.where(inl, stack, 0.0), axis=0) / np.maximum(cnt, 1), np.nan)
-    mean = np.where(n * 2 >= len(stack), mean, np.nan).astype(np.float32)
+        # the nearest sample short of the background window: a background seen in a minority of the
+        # frames must stand apart from what was in front of it (a wall behind a person); far samples
+        # that continue the nearer ones are the far end of something moving along the line of sight
+        below = np.max(np.where(stack < (far - window)[None], stack, -np.inf), axis=0)
+        apart = (far - window) - below >= window
+    # no static depth where fewer than half the frames have a return, nor where fewer than half the
+    # returns are background and these do not stand apart (the full demo's oblique_18: a person walking
+    # along the line of sight covers such pixels in every frame; their "static" depth was the person at
+    # the far end of the walk, whose torso was background there in 16 of 40 frames, 48 cm off)
+    mean = np.where((n * 2 >= len(stack)) & ((cnt * 2 >= n) | apart), mean, np.nan).astype(np.float32)
     return mean, mad.astype(np.float32), cnt.astype(np.int32)
 
 
