@@ -26,9 +26,11 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    overlap does not pin down (normal-matrix eigenvalue < ``degenerate_ratio`` × the largest, e.g. a
    corridor seen end-on) keep the initial guess instead of sliding — open3d's ``registration_icp``
    slid 43 cm from the exact pose on such a corner; the report counts frozen directions. A held
-   direction is taken back to the guess, not only left where it is: a coarse stage, whose wider
-   correspondences still pin it down, had slid the quick demo's cross corner 14 cm along the corridor
-   before the fine stages held it there (16.4 -> 3.7 cm trajectory-aligned; 2026-12-02).
+   direction is also taken back to within ``hold_m`` (5 cm, what an informed guess is good for) of
+   the guess: a coarse stage, whose wider correspondences still pin it down, had slid the quick
+   demo's cross corner 14 cm along the corridor before the fine stages held it there (2026-12-02;
+   taking held directions all the way back instead cost the T corners up to 1.8 cm from a guess 5 cm
+   / 2 deg off, and T_4 with SLAM poses 2.1 cm, whose coarse stages had found real edges).
    Correspondences whose camera and map normals differ by more than ~37° are dropped (near an
    edge the nearest map point may lie on the other wall: 6-9 cm residuals that biased a cross
    corner by 7 cm). The camera
@@ -176,6 +178,7 @@ class RegisterConfig:
     mesh_degenerate_ratio: float = 0.02
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
+    hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (module doc, 3.)
     # measured on the quick-demo corners (noisy 188x336 stereo, 12 frames): inverse-variance weights
     # and variance-based freezing were no better than uniform weights (module docstring); kept as options
     noise_weights: bool = False
@@ -337,7 +340,8 @@ def _centred_offset(T: np.ndarray, T0: np.ndarray, c: np.ndarray, Lc: float) -> 
 def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
                  init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
                  degenerate_ratio: float = 0.0, info: dict | None = None, source_normals: np.ndarray | None = None,
-                 min_normal_cos: float = 0.8, search_m: float = 0.0, max_std_m: float = 0.0) -> np.ndarray:
+                 min_normal_cos: float = 0.8, search_m: float = 0.0, max_std_m: float = 0.0,
+                 hold_m: float = 0.05) -> np.ndarray:
     """Noise-weighted point-to-plane ICP (Gauss-Newton on the linearised rotation, numpy/scipy):
     ``source`` (N,3) with ``weights`` (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``;
     per stage a nearest-neighbour correspondence within ``max(d, 3σ)`` of the stage distance d and a
@@ -346,8 +350,9 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     et al., ICRA 2016): the normal matrix, with rotations scaled by the median point distance (so both
     blocks are in metres), is eigen-decomposed and the update is zeroed along eigenvectors whose
     eigenvalue is below ``degenerate_ratio`` × the largest — directions the overlap does not pin
-    down keep the initial guess instead of sliding (a corridor seen end-on): the update along them
-    takes the pose back to ``init`` there, so a slide of a coarser stage is undone. ``info`` receives the
+    down keep the initial guess instead of sliding (a corridor seen end-on); a coarser stage may
+    have moved along them, and the update takes the pose back to within ``hold_m`` (m; rotations
+    scaled as above) of ``init`` along them. ``info`` receives the
     number of frozen directions and the eigenvalues. ``source_normals`` (N,3): correspondences whose
     normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge the nearest map point
     can belong to the other wall, whose normal biases a point-to-plane fit by centimetres.
@@ -399,9 +404,10 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
                     keep &= ev >= 1.0 / max_std_m ** 2
                 y = -(V[:, keep] @ ((V[:, keep].T @ gc) / ev[keep]))
                 if not keep.all():
-                    # held directions go back to the guess: an earlier (coarser) stage may have moved
-                    # along them while they were still pinned down by wrong correspondences
-                    y -= V[:, ~keep] @ (V[:, ~keep].T @ _centred_offset(T, T0, c, Lc))
+                    # held directions stay within hold_m of the guess: an earlier (coarser) stage may have
+                    # moved along them, rightly (edges within its reach) or not (wrong correspondences)
+                    dev = V[:, ~keep].T @ _centred_offset(T, T0, c, Lc)
+                    y -= V[:, ~keep] @ (np.sign(dev) * np.maximum(np.abs(dev) - hold_m, 0.0))
                 om = y[:3] / Lc
                 x = np.concatenate([om, y[3:] - np.cross(om, c)])   # about the origin: t' = t - om x c
                 if info is not None:
@@ -653,7 +659,8 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         return weighted_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4), tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
                             degenerate_ratio=ratio, info=info, source_normals=src_n,
                             min_normal_cos=cfg.min_normal_cos, search_m=cfg.search_m,
-                            max_std_m=cfg.max_std_m if cfg.noise_weights else 0.0, max_scale=cfg.max_scale_m)
+                            max_std_m=cfg.max_std_m if cfg.noise_weights else 0.0, max_scale=cfg.max_scale_m,
+                            hold_m=cfg.hold_m)
 
     # against the mesh's smooth surface a weak direction (a T corner's corridor seen end-on) is
     # determined by the data; against the noisy points it was held at the guess
