@@ -16,71 +16,76 @@ humans) twice: from the TF pose of the camera (exact in synth) and from that pos
   stage at the first correspondence distance, same source/target clouds and init) in the same run:
   runtime ratio register-extrinsic / bare-ICP and the bare ICP's own error.
 
-Measured 2026-12-02 03:52-04:02 UTC at a09d1a6, idle (after three changes of that day: the synth
-robot's heading follows its path's tangent — a kink where the weave faded in had put a ~4 deg
-heading step into one 200 Hz sample, and SLAM maps came out up to 0.5 deg rotated —, directions
-the ICP holds go back to the guess, and no static depth for pixels a walker covers in every frame),
-``--poses truth,slam --seeds 1,4 --no-perturb --no-bare --keep DIR`` (64x1024 LiDAR 33.2 deg,
-376x672 camera, 40 frames, 2 walkers). Extrinsic cm world / aligned / robot, map offset deg,
-centroid mean / max world (aligned / radar frame) cm, register s (extrinsic s); human found in
-40/40 frames everywhere:
+Measured 2026-12-02 04:29-04:40 UTC at 9140929 (load ~2: a fresh-clone CI ran alongside), after
+four changes of that day: the synth robot's heading follows its path's tangent (a kink where the
+weave faded in had put a ~4 deg heading step into one 200 Hz sample; SLAM maps came out up to 0.5
+deg rotated, and every recording's first metres changed), no static depth for pixels a walker
+covers in every frame, and directions the ICP holds taken back to within ``hold_m`` (5 cm) of the
+guess. ``--poses truth,slam --seeds 1,4 --no-bare --keep DIR`` (64x1024 LiDAR 33.2 deg, 376x672
+camera, 40 frames, 2 walkers). Extrinsic cm world / aligned / robot, map offset deg, centroid mean
+/ max world (aligned / radar frame) cm, register s (extrinsic s); human found in 40/40 frames in
+every cell:
 
   corner seed poses  AP50   world  align  robot  map    centroid                   register s
-  T         1  truth  1.000  0.35   0.35   0.35   0.00    0.7 /  1.5 (0.7 / 0.7)   5.2 (2.5)
-  T         1  slam   1.000  0.73   1.39   1.36   0.08    0.8 /  1.7 (1.3 / 1.5)   4.6 (1.9)
-  L         1  truth  1.000  0.36   0.36   0.36   0.00    0.6 /  1.5 (0.6 / 0.6)   4.6 (1.9)
-  L         1  slam   1.000  0.85   0.67   0.83   0.11    1.1 /  1.9 (1.2 / 1.4)   4.3 (1.8)
-  cross     1  truth  1.000  0.75   0.75   0.75   0.00    1.0 /  1.7 (1.0 / 1.0)   4.2 (2.1)
-  cross     1  slam   1.000  1.15   0.92   0.99   0.10    0.8 /  1.4 (1.3 / 1.3)   5.2 (2.1)
-  oblique   1  truth  1.000  0.63   0.63   0.63   0.00    1.3 /  2.5 (1.3 / 1.3)   5.1 (2.5)
-  oblique   1  slam   1.000  1.53   0.61   0.86   0.11    1.5 /  2.6 (1.7 / 2.0)   4.8 (2.4)
-  T         4  truth  0.988  0.40   0.40   0.40   0.00    2.9 /  5.7 (2.9 / 2.9)   4.9 (1.8)
-  T         4  slam   0.988  3.89   2.95   3.06   0.30    3.7 /  6.7 (3.7 / 3.7)   5.0 (1.6)
-  L         4  truth  0.988  1.94   1.94   1.94   0.00    3.1 /  5.7 (3.1 / 3.1)   4.2 (1.5)
-  L         4  slam   0.988  5.98   1.04   1.37   0.37    5.1 /  8.1 (2.7 / 2.8)   4.5 (1.7)
-  cross     4  truth  0.988  0.85   0.85   0.85   0.00    3.1 /  6.1 (3.1 / 3.1)   3.6 (1.3)
-  cross     4  slam   0.975  3.95   1.44   1.49   0.23    4.5 /  8.0 (3.0 / 3.0)   4.1 (1.3)
-  oblique   4  truth  0.988  0.82   0.82   0.82   0.00    2.9 /  5.3 (2.9 / 2.9)   4.6 (1.7)
-  oblique   4  slam   0.988  4.71   1.91   1.84   0.31    4.1 /  7.4 (2.8 / 2.8)   4.3 (1.8)
+  T         1  truth  1.000  0.99   0.99   0.99   0.00    1.1 /  2.0 (1.1 / 1.1)   6.8 (3.0)
+  T         1  slam   1.000  1.11   1.78   1.69   0.08    1.3 /  2.1 (1.8 / 1.9)   5.0 (2.2)
+  L         1  truth  1.000  0.36   0.36   0.36   0.00    0.6 /  1.5 (0.6 / 0.6)   5.5 (2.4)
+  L         1  slam   1.000  0.85   0.67   0.83   0.11    1.1 /  1.9 (1.2 / 1.4)   5.4 (2.2)
+  cross     1  truth  1.000  0.75   0.75   0.75   0.00    1.0 /  1.7 (1.0 / 1.0)   5.0 (2.1)
+  cross     1  slam   1.000  1.15   0.92   0.99   0.10    0.8 /  1.4 (1.3 / 1.3)   5.4 (2.2)
+  oblique   1  truth  1.000  0.63   0.63   0.63   0.00    1.3 /  2.5 (1.3 / 1.3)   5.6 (2.8)
+  oblique   1  slam   1.000  1.53   0.61   0.86   0.11    1.5 /  2.6 (1.7 / 2.0)   5.3 (3.0)
+  T         4  truth  0.988  1.38   1.38   1.38   0.00    3.3 /  6.3 (3.3 / 3.3)   5.0 (1.9)
+  T         4  slam   0.988  5.26   0.87   1.41   0.30    4.9 /  8.4 (2.8 / 2.9)   5.1 (1.8)
+  L         4  truth  0.988  1.94   1.94   1.94   0.00    3.1 /  5.7 (3.1 / 3.1)   7.4 (2.1)
+  L         4  slam   0.988  5.98   1.04   1.37   0.37    5.1 /  8.1 (2.7 / 2.8)   6.7 (2.0)
+  cross     4  truth  0.988  0.85   0.85   0.85   0.00    3.1 /  6.1 (3.1 / 3.1)   7.4 (2.2)
+  cross     4  slam   0.975  3.95   1.44   1.49   0.23    4.5 /  8.0 (3.0 / 3.0)   7.5 (2.5)
+  oblique   4  truth  0.988  0.82   0.82   0.82   0.00    2.9 /  5.3 (2.9 / 2.9)   7.5 (3.4)
+  oblique   4  slam   0.988  4.71   1.91   1.84   0.31    4.1 /  7.4 (2.8 / 2.8)   8.2 (3.5)
 
-  Floors line: NOT met (T_4 slam: aligned 2.95 cm). T_4's camera sees its corridor end-on: one
-  direction is held at the TF guess, which is exact in the true world, while the SLAM map is 0.30
-  deg off it there (robot-relative 3.06 cm, world 3.89 cm). Before the held directions went back
-  to the guess, a coarse stage had moved it 0.83 cm aligned / 5.22 cm world; the same change took
-  T_1 / T_4 truth from 0.99 / 1.38 to 0.35 / 0.40 cm. L_4 truth 2.02 -> 1.94 cm with the static
-  depth rule (noise level: 1.43-2.32 cm across settings tried on it, its error is 2 cm across the
-  corridor, the truth-pose map there 0.34 cm off the true mesh).
+  Floors line: met (aligned extrinsic 0.36-1.94 cm, aligned centroid 0.6-3.3 cm). From the guess
+  5 cm / 2 deg off (world frame): seed 1 truth T/L/cross/oblique 0.97 0.29 0.77 0.59, slam 1.16
+  0.86 1.24 1.55; seed 4 truth 1.33 1.83 1.02 0.87, slam 5.32 6.01 3.96 4.66 cm, within 0.2 cm of
+  the TF-guess runs. World-frame centroids of the seed-4 slam cells 4.1-5.1 cm: the map's offset
+  (0.23-0.37 deg; the TF pose of the first scan, where the synthetic odometry has already drifted
+  0.1-0.2 deg). Taking held directions all the way back to the guess (tried first) gave T_1/T_4
+  truth 0.35/0.40 cm from the TF guess but 1.63/2.24 cm from the perturbed one, and T_4 slam 2.95
+  cm aligned (the TF guess is world-exact, the SLAM map 0.30 deg off it there).
 
-  ``--demo-config full --poses slam`` (the full demo's 8 corners at 64x1024 90 deg, 40 frames):
+  ``--demo-config full --poses slam --no-perturb --no-bare`` (the full demo's 8 corners, 64x1024
+  LiDAR 90 deg, 40 frames):
 
-  T        11  slam   nan    0.91   1.28   1.44   0.06    3.1 /  6.6 (3.3 / 3.3)   6.1 (2.9)
-  L        12  slam   nan    0.95   1.12   1.09   0.04    1.3 /  2.8 (1.2 / 1.7)   4.5 (2.1)
-  cross    13  slam   nan    2.15   2.40   2.51   0.18    3.6 /  5.6 (4.2 / 4.4)   6.1 (3.5)
-  oblique  14  slam   nan    1.69   0.84   0.91   0.02    4.1 / 10.4 (3.7 / 3.8)   5.6 (2.9)
-  T        15  slam   nan    3.63   1.43   0.95   0.20    4.8 /  9.3 (3.5 / 3.6)   4.0 (1.5)
-  L        16  slam   nan    2.39   0.44   0.51   0.14    1.4 /  2.0 (0.6 / 0.8)   4.2 (1.8)
-  cross    17  slam   nan    2.55   1.00   1.14   0.16    5.9 / 10.8 (4.7 / 4.9)   6.8 (3.5)
-  oblique  18  slam   nan    2.14   0.75   0.83   0.16    3.3 /  7.8 (3.7 / 3.7)   4.7 (2.0)
+  T        11  slam   nan    0.91   1.28   1.44   0.06    3.1 /  6.6 (3.3 / 3.3)   15.9 (7.0)
+  L        12  slam   nan    0.95   1.12   1.09   0.04    1.3 /  2.8 (1.2 / 1.7)   6.9 (2.9)
+  cross    13  slam   nan    5.10   6.71   6.85   0.18    6.6 /  7.5 (8.1 / 8.2)   8.3 (4.0)
+  oblique  14  slam   nan    1.69   0.84   0.91   0.02    4.1 / 10.4 (3.7 / 3.8)   7.8 (3.6)
+  T        15  slam   nan    3.63   1.43   0.95   0.20    4.8 /  9.3 (3.5 / 3.6)   6.1 (1.8)
+  L        16  slam   nan    2.39   0.44   0.51   0.14    1.4 /  2.0 (0.6 / 0.8)   6.3 (2.4)
+  cross    17  slam   nan    2.55   1.00   1.14   0.16    5.9 / 10.8 (4.7 / 4.9)   10.2 (5.1)
+  oblique  18  slam   nan    2.14   0.75   0.83   0.16    3.3 /  7.8 (3.7 / 3.7)   7.7 (2.9)
 
-  Floors line: NOT met (cross_13: aligned 2.40 cm, robot 2.51 cm; its camera sees no LiDAR map
-  point within 5 m, and the SLAM map 5-8 m from it is 3.2-3.4 cm off the true mesh). Before the day's
-  changes: L_13 world centroid 9.0 cm (map 0.52 deg off, the synth heading step), cross_13 7.0 cm
-  extrinsic, oblique_18 centroid 20.5 cm (16 of 40 frames ~48 cm off: the far end of the walk was
-  the static depth of the pixels the walker always covers, so its torso was background there).
+  Floors line: NOT met (cross_13: 6.71 cm aligned; 2.40 cm with held directions taken all the way
+  back, 2.45 cm before the day's register changes). Its camera sees no LiDAR map point within 5 m,
+  the SLAM map 5-8 m from it is 3.2-3.4 cm off the true mesh, and the corridor it looks along is
+  one held direction. Before the day's changes: L_13 world centroid 9.0 cm (map 0.52 deg off, the
+  synth heading step), oblique_18 centroid 20.5 cm (16 of 40 frames ~48 cm off: the far end of the
+  walk was the static depth of the pixels the walker always covers, so its torso was background).
 
-  ``--demo-config quick --poses slam`` (12 frames, 32x512 90 deg LiDAR, 376x672 camera):
+  ``--demo-config quick --poses slam --no-perturb --no-bare`` (12 frames, 32x512 90 deg LiDAR,
+  376x672 camera):
 
-  T        11  slam   nan    1.79   0.63   1.78   0.08    4.5 /  7.0 (4.9 / 5.0)   3.8 (2.2)
-  L        12  slam   nan    2.29   2.17   2.28   0.01    4.6 /  7.6 (4.9 / 5.0)   2.5 (1.3)
-  cross    13  slam   nan    7.16   3.74   3.78   0.28    9.3 / 10.9 (7.3 / 7.5)   3.5 (2.1)
-  oblique  14  slam   nan    4.43   2.81   3.10   0.38    4.3 /  6.7 (2.8 / 3.2)   4.4 (2.8)
-  T        15  slam   nan    3.67   2.91   3.20   0.08    4.7 /  6.1 (3.9 / 4.0)   2.2 (1.1)
-  L        16  slam   nan    2.76   2.25   2.08   0.11    1.5 /  2.2 (0.9 / 1.3)   2.6 (1.4)
+  T        11  slam   nan    1.80   0.65   1.78   0.08    4.4 /  7.0 (4.8 / 4.9)   4.6 (2.6)
+  L        12  slam   nan    2.29   2.17   2.28   0.01    4.6 /  7.6 (4.9 / 5.0)   4.1 (1.6)
+  cross    13  slam   nan    9.63   8.47   8.51   0.28   11.6 / 14.4 (10.9 / 11.0)   4.7 (2.8)
+  oblique  14  slam   nan    4.43   2.81   3.10   0.38    4.3 /  6.7 (2.8 / 3.2)   5.6 (3.0)
+  T        15  slam   nan    3.67   2.91   3.20   0.08    4.7 /  6.1 (3.9 / 4.0)   2.3 (1.0)
+  L        16  slam   nan    2.76   2.25   2.08   0.11    1.5 /  2.2 (0.9 / 1.3)   3.0 (1.5)
 
-  NOT met on 5 of 6 (aligned extrinsic 2.17-3.74 cm against the floor's 2; a human in 12/12 frames,
-  10/12 on T_11 and cross_13): 12 scans of a 32-beam
-  LiDAR give a map 7 cm off the true mesh near cross_13's camera; cross_13 was 16.4 cm before the
-  held directions went back to the guess (a coarse stage slid it 14 cm along its corridor).
+  NOT met on 5 of 6 (aligned extrinsic 2.17-8.47 cm; a human in 12/12 frames, 10/12 on T_11 and
+  cross_13): 12 scans of a 32-beam LiDAR give a map 7 cm off the true mesh near cross_13's camera.
+  cross_13 was 16.4 cm before held directions were taken back (a coarse stage slid it 14 cm along
+  its corridor), 3.7 cm with them taken all the way back.
 
 Measured 2026-12-02 01:57-02:03 UTC on the final register of that day (slam's stored map
 ``map/points`` as the target's points when it matches the poses, the human solid of elliptic per-run
