@@ -175,6 +175,14 @@ busy (the camera half reads and projects 100 M camera points, 2.5-6 ms a frame, 
 static depth; the LiDAR half builds its own background model from 26 M LiDAR points, which slam
 has already built once for its mesh from a subset of the same scans).
 
+2026-12-02 ~04:25 UTC after the synth heading fix (a new recording) and register's reused depth
+images / one-thread map queries, two runs (`--keep DIR [--reuse]`, load 1.9-2.2): ingest 13.8 /
+11.6, slam 9.5 / 11.8 (mesh 5.4 / 6.5), register 12.9 / 12.2 (camera 2.7-3.0, extrinsic 2.3-2.6,
+humans 6.5-6.7 | background 5.1-5.4, segment 1.9), raytrace-gt 13.5 / 12.0 s: slam+register 22.4 /
+24.1 s = 1.66x / 2.01x raytrace-gt wall, 45 / 51 % of the pipeline; largest stage ingest / register
+(by 0.2 s). Unchanged within noise: what bounds it is CPU (the camera half alone ~12 s wall; the
+LiDAR half 7-8 s beside it; slam's Poisson 3.5 s), not waiting.
+
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
 """
