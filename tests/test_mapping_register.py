@@ -434,6 +434,16 @@ def test_cli_bad_input_one_line_exit_1(tmp_path):
     assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1 and "camera/points" in r.output
 
 
+class _StackFrames:
+    """A :class:`CameraFrames` stand-in for :func:`static_depth`: frame k's depth image is ``stack[k]``."""
+
+    def __init__(self, stack):
+        self.stack = stack
+
+    def depth(self, k):
+        return self.stack[k].astype(np.float32)
+
+
 def test_static_depth_keeps_the_wall_behind_a_person_seen_in_most_frames():
     """A person walking along the camera's line of sight covers the same pixels in 8 of 12 frames:
     the static depth there must still be the wall behind (the plain median gave the person), within
@@ -447,11 +457,7 @@ def test_static_depth_keeps_the_wall_behind_a_person_seen_in_most_frames():
     depth = np.where(person, 2.6 + 0.3 * rng.random((12, 1, 1)), 4.0)
     frames = depth + a * depth ** 2 * rng.standard_normal(depth.shape)
 
-    class Frames:
-        def depth(self, k):
-            return frames[k].astype(np.float32)
-
-    mean, sigma, cnt = static_depth(Frames(), list(range(12)))
+    mean, sigma, cnt = static_depth(_StackFrames(frames), list(range(12)))
     assert np.all(np.abs(mean - 4.0) < 0.08)                       # wall everywhere, person pixels too
     assert np.all(cnt[10:30, 20:40] <= 4) and np.median(cnt[:5]) >= 11  # only the frames that saw the wall
     assert np.median(sigma) == pytest.approx(a * 16, rel=0.4)
@@ -472,11 +478,7 @@ def test_static_depth_leaves_out_pixels_a_person_covers_in_every_frame():
     depth[:, 10:20, 15:25] = walk[:, None, None]
     frames = depth + a * depth ** 2 * rng.standard_normal(depth.shape)
 
-    class Frames:
-        def depth(self, k):
-            return frames[k].astype(np.float32)
-
-    mean, _, cnt = static_depth(Frames(), list(range(F)))
+    mean, _, cnt = static_depth(_StackFrames(frames), list(range(F)))
     assert np.isnan(mean[10:20, 15:25]).mean() >= 0.9    # (a chance gap in the sampled walk leaves a few)
     assert np.median(cnt[10:20, 15:25]) >= 8             # (the far end holds many frames)
     wall = np.ones((H, W), bool)
