@@ -529,6 +529,9 @@ def test_nan_quantile_matches_numpy():
         with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
             ref = np.nanquantile(stack, q, axis=0)
         np.testing.assert_allclose(nan_quantile(stack, q), ref, rtol=0, atol=1e-12, equal_nan=True)
+    lo, hi = nan_quantile(stack, (0.2, 0.8))                  # several quantiles from the one sort
+    np.testing.assert_array_equal(lo, nan_quantile(stack, 0.2))
+    np.testing.assert_array_equal(hi, nan_quantile(stack, 0.8))
     with np.errstate(all="ignore"), pytest.warns(RuntimeWarning):
         med = np.nanmedian(stack, axis=0)
     np.testing.assert_allclose(nan_quantile(stack, 0.5), med, rtol=0, atol=1e-12, equal_nan=True)
@@ -566,9 +569,9 @@ def test_voxel_average_is_open3d_voxel_down_sample():
 
 
 def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
-    """processes=2 (LiDAR half, camera/points_world and half the surfaces in forked processes) gives
-    the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation as processes=1; the
-    stored camera/points_world is what camera_points_world computes without it."""
+    """processes=2 (LiDAR half, camera/points_world, half the human candidates and half the surfaces in
+    forked processes) gives the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation
+    as processes=1; the stored camera/points_world is what camera_points_world computes without it."""
     from holodata import open_dataset
     from holodata.mapping.register import register_scene
 
@@ -812,3 +815,4 @@ def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
     assert info["frozen"] == 1
     assert abs(T[0, 3] - T_true[0, 3]) < 2e-3 and abs(T[2, 3] - T_true[2, 3]) < 2e-3   # walls and floor fix x, z
     assert abs(T[1, 3] - guess[1, 3]) < 2e-3                                             # y stays at the guess
+

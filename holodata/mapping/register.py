@@ -133,8 +133,9 @@ forked process while this one builds the static depth (from at most ``median_fra
 humans loop makes every frame's depth image again, one at a time, so a long recording's images
 never sit in memory together: 1 GB for 1000 frames at 376x672); the LiDAR
 process hands a map it builds over as soon as it is built and segments beside the extrinsic and
-the humans. After the extrinsic, every other frame's surface (and ``camera/points_world`` when
-asked for) is built/written by another process. The
+the humans. After the extrinsic, the later half of the frames' human candidates (their depth images
+read and compared with the static depth) is found in another process, as is every other frame's
+surface (and ``camera/points_world`` when asked for). The
 results are the same as in one process (test). On the 400-cycle corner (64x512 LiDAR, 94x168
 camera) the background model and the map were the critical path (~5.5 s of ~11 s; splitting their
 scans over two processes gained nothing: copy-on-write faults and pickling the points back ate it);
@@ -782,9 +783,8 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
     n = np.isfinite(stack).sum(0)
     with warnings.catch_warnings(), np.errstate(all="ignore"):
         warnings.simplefilter("ignore", RuntimeWarning)
-        med = nan_quantile(stack, 0.5)          # = np.nanmedian(stack, axis=0), without its masked-array sort
+        med, far = nan_quantile(stack, (0.5, far_quantile))   # 0.5: np.nanmedian without its masked-array sort
         mad = 1.4826 * nan_quantile(np.abs(stack - med[None]), 0.5)
-        far = nan_quantile(stack, far_quantile)
         window = np.maximum(3 * depth_noise_model(far, mad), 0.02)
         background = np.where(np.abs(stack - far[None]) <= window[None], stack, np.nan)
         med = nan_quantile(background, 0.5)
@@ -805,18 +805,23 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
     return mean, mad.astype(np.float32), cnt.astype(np.int32)
 
 
-def nan_quantile(stack: np.ndarray, q: float) -> np.ndarray:
+def nan_quantile(stack: np.ndarray, q):
     """``np.nanquantile(stack, q, axis=0)`` (linear interpolation; q = 0.5 is ``np.nanmedian``) for a
     (F,H,W) stack, vectorised: one sort along the frames instead of numpy's per-pixel loop where NaNs
-    are present (0.9 s -> 0.05 s for 60 frames of 376x672) or nanmedian's masked-array sort."""
+    are present (0.9 s -> 0.05 s for 60 frames of 376x672) or nanmedian's masked-array sort. ``q`` a
+    number: (H,W); a tuple of numbers: a tuple of (H,W), all from the one sort."""
     s = np.sort(stack, axis=0)                               # NaN sort last
     n = np.isfinite(stack).sum(0)
-    pos = q * np.maximum(n - 1, 0)
-    lo = np.floor(pos).astype(np.int64)
-    hi = np.minimum(lo + 1, np.maximum(n - 1, 0))
-    v_lo = np.take_along_axis(s, lo[None], 0)[0]
-    v_hi = np.take_along_axis(s, hi[None], 0)[0]
-    return np.where(n > 0, v_lo + (pos - lo) * (v_hi - v_lo), np.nan)
+    top = np.maximum(n - 1, 0)
+    out = []
+    for qi in np.atleast_1d(q):
+        pos = qi * top
+        lo = np.floor(pos).astype(np.int64)
+        hi = np.minimum(lo + 1, top)
+        v_lo = np.take_along_axis(s, lo[None], 0)[0]
+        v_hi = np.take_along_axis(s, hi[None], 0)[0]
+        out.append(np.where(n > 0, v_lo + (pos - lo) * (v_hi - v_lo), np.nan))
+    return tuple(out) if isinstance(q, tuple) else out[0]
 
 
 def frame_candidates(cam: CameraFrames, frames, T: np.ndarray, rays: np.ndarray, front: np.ndarray,
@@ -1462,8 +1467,14 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                                   enabled=processes > 1)
         front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
         always = ~np.isfinite(med) | still
-        cand = frame_candidates(cam, range(n), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
+        # the later half of the frames' candidates in a second process (the LiDAR half is done or nearly)
+        half = n // 2 if processes > 1 else n
+        later = fork_call(frame_candidates, cam, range(half, n), T, rays, front, always, mtree, cfg, images,
+                          label=f"{url}: scene {sid!r}: human candidates", enabled=processes > 1)
+        cand = frame_candidates(cam, range(half), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
+        cand += later()
         del images
+        timings["candidates_s"] = time.perf_counter() - t2
         # the person of interest: person-like clusters near the track's median (people farther away, e.g.
         # walking past in another corridor, are not it)
         first = [pick_human(q[0], cfg) for q in cand]
@@ -1517,6 +1528,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             columns.append(body_columns(qh, vh, uh, dh, eye, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m,
                                         cfg.surface_gap_px, floor_z, cfg.floor_reach_m, back))
         del pixels
+        timings["picks_s"] = time.perf_counter() - t2 - timings["candidates_s"]
         cam_world()
         # every other frame's surface in a second process
         odd = fork_call(human_surfaces, human_pts[1::2], columns[1::2], shift[1::2], eye, cfg.surface_voxel,
