@@ -816,3 +816,38 @@ def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
     assert abs(T[0, 3] - T_true[0, 3]) < 2e-3 and abs(T[2, 3] - T_true[2, 3]) < 2e-3   # walls and floor fix x, z
     assert abs(T[1, 3] - guess[1, 3]) < 2e-3                                             # y stays at the guess
 
+
+
+def test_held_direction_follows_a_map_turned_about_its_anchor():
+    """A SLAM map anchored at a TF pose that was 0.3 deg off is the true world turned about the
+    anchor scan's position: a camera 10 m to the side moves 5.2 cm along the corridor it sees end-on,
+    which the ICP holds. The camera's yaw correction shows the turn; anchored_guess + hold_at put
+    the held direction where the turned map has it (without them it stays at the TF guess)."""
+    from holodata.mapping.register import anchored_guess, hold_at, weighted_icp
+
+    rng = np.random.default_rng(4)
+    u = rng.uniform(size=(8000, 2))
+    world = np.concatenate([np.c_[np.full(len(u), s), u[:, 0] * 10, u[:, 1] * 2.5] for s in (-1.0, 1.0)]
+                           + [np.c_[u[:, 0] * 2 - 1, u[:, 1] * 10, np.full(len(u), z)] for z in (0.0, 2.5)])
+    normals = np.zeros_like(world)
+    normals[: 2 * len(u), 0] = 1.0
+    normals[2 * len(u):, 2] = 1.0
+    T_true = _pose([0.0, 1.0, 1.2], [-90.0, 0.0, 0.0])
+    cam = (world - T_true[:3, 3]) @ T_true[:3, :3]
+    anchor = np.array([-10.0, 1.0, 0.5])
+    turn = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.3])
+    turn[:3, 3] = anchor - turn[:3, :3] @ anchor              # 0.3 deg about the vertical through the anchor
+    map_pts, map_n = world @ turn[:3, :3].T + turn[:3, 3], normals @ turn[:3, :3].T
+    T_map = turn @ T_true                                    # the camera in the map's frame
+    info = {}
+    T = weighted_icp(cam, np.full(len(cam), 1e4), map_pts, map_n, T_true, distances=(0.15, 0.05),
+                     degenerate_ratio=0.02, info=info)
+    assert info["frozen"] == 1
+    assert abs(T[1, 3] - T_true[1, 3]) < 2e-3               # held at the TF guess: 5.2 cm off the map's
+    assert abs(T_map[1, 3] - T_true[1, 3]) > 0.05
+    target, yaw = anchored_guess(T, T_true, anchor, 0.5)
+    assert yaw == pytest.approx(0.3, abs=0.02)
+    T2 = hold_at(T, target, info["held"])
+    np.testing.assert_allclose(T2[:3, 3], T_map[:3, 3], atol=3e-3)
+    assert abs(T2[0, 3] - T[0, 3]) < 1e-3 and abs(T2[2, 3] - T[2, 3]) < 1e-3   # determined directions kept
+    assert anchored_guess(T, T_true, anchor, 0.1)[1] == pytest.approx(0.1)     # clipped

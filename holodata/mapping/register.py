@@ -31,6 +31,17 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    demo's cross corner 14 cm along the corridor before the fine stages held it there (2026-12-02;
    taking held directions all the way back instead cost the T corners up to 1.8 cm from a guess 5 cm
    / 2 deg off, and T_4 with SLAM poses 2.1 cm, whose coarse stages had found real edges).
+   From the TF guess onto a map of ``holodata slam`` anchored at the TF pose of its first scan
+   (:func:`slam_anchor`), held directions go instead where the map's offset puts the guess: such a
+   map is the TF world turned about that scan's position by the odometry's error there (0.1-0.4
+   deg in synth: 2-7 cm at a camera 10 m away, along whatever direction is held), and the camera's
+   yaw correction, which the data does determine, measures the turn (:func:`anchored_guess`, at
+   most ``anchor_max_deg``; :func:`hold_at`). Measured 2026-12-02 on the kept benchmark cells
+   (register from the TF guess, aligned; with ``mesh_degenerate_ratio`` 0.025 / 0.03): the full
+   demo's cross_13 6.71 -> 0.78 / 0.78 cm (its coarse stage had slid 7 cm, see
+   ``mesh_degenerate_ratio``), T_4 slam 0.87 -> 0.63 / 0.85, T_1 slam 1.78 -> 1.59 / 1.55, T_11
+   slam 1.28 -> 1.54 / 1.54. A TF pose that is itself off in yaw would be read as a map offset
+   too (hence the bound); an ``--init`` guess is held where it is.
    Correspondences whose camera and map normals differ by more than ~37° are dropped (near an
    edge the nearest map point may lie on the other wall: 6-9 cm residuals that biased a cross
    corner by 7 cm). The camera
@@ -57,7 +68,12 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    mesh-less path keeps ``degenerate_ratio``; 0.01 let the quick demo's cross corner slide 20 cm
    along a direction at 0.015 whose pose std claimed 0.2 cm, so the mesh ratio is 0.02: 6.6 cm
    there, and on the 16 benchmark cells' cached clouds 0.12-1.82 cm as with 0.01, T_4 slam 1.24 vs
-   1.20, while 0.05 lets T_4 slam miss at 2.98 cm). Scenes without a
+   1.20, while 0.05 lets T_4 slam miss at 2.98 cm; 0.03 since 2026-12-02, with the anchored hold
+   above: the full demo's cross_13, 64x1024 at 90 deg, slid 7 cm along its corridor in the coarse
+   stage, where that direction stood at 0.0228 — the robust cost there keeps falling as the overlap
+   grows, with no minimum within ±12 cm — 4.93 -> 0.12 cm with the true poses; T_1 / T_4 truth
+   0.99 / 1.38 -> 0.42 / 0.41 cm; without the anchored hold 0.03 let T_4 slam miss at 3.00 cm,
+   0.85 with it). Scenes without a
    matching mesh register as before. On the 16 benchmark cells the trajectory-aligned
    extrinsic went from 0.27-3.20 cm (4 cells over 2 cm) to 0.12-1.82 cm (benchmarks/register.py).
    Correspondences and the check
@@ -176,10 +192,11 @@ class RegisterConfig:
     mesh_target: bool = True
     mesh_sample_m: float = 0.02
     mesh_keep_map_m: float = 0.0
-    mesh_degenerate_ratio: float = 0.02
+    mesh_degenerate_ratio: float = 0.03
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
     hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (module doc, 3.)
+    anchor_max_deg: float = 0.5  # TF guess on a SLAM map: held directions follow the map's offset (module doc, 3.)
     # measured on the quick-demo corners (noisy 188x336 stereo, 12 frames): inverse-variance weights
     # and variance-based freezing were no better than uniform weights (module docstring); kept as options
     noise_weights: bool = False
@@ -354,7 +371,7 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     down keep the initial guess instead of sliding (a corridor seen end-on); a coarser stage may
     have moved along them, and the update takes the pose back to within ``hold_m`` (m; rotations
     scaled as above) of ``init`` along them. ``info`` receives the
-    number of frozen directions and the eigenvalues. ``source_normals`` (N,3): correspondences whose
+    number of frozen directions, the eigenvalues and the held directions (``held``, for :func:`hold_at`). ``source_normals`` (N,3): correspondences whose
     normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge the nearest map point
     can belong to the other wall, whose normal biases a point-to-plane fit by centimetres.
     ``search_m`` > 0: nearest map points up to that far (tangentially) are used, gated on the
@@ -362,7 +379,6 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     must then be inverse variances): directions whose standard deviation 1/sqrt(eigenvalue) exceeds it
     are held too. Returns T (4,4)."""
     from scipy.spatial import cKDTree
-    from scipy.spatial.transform import Rotation
 
     tree = cKDTree(target)
     T0 = np.asarray(init, np.float64)
@@ -412,16 +428,52 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
                 om = y[:3] / Lc
                 x = np.concatenate([om, y[3:] - np.cross(om, c)])   # about the origin: t' = t - om x c
                 if info is not None:
-                    info.update(frozen=int((~keep).sum()), eigenvalues=(ev / ev.max()).round(4).tolist())
+                    info.update(frozen=int((~keep).sum()), eigenvalues=(ev / ev.max()).round(4).tolist(),
+                                held=(V[:, ~keep], c, Lc))
             else:
                 x = -np.linalg.solve(H, g)
-            D = np.eye(4)
-            D[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
-            D[:3, 3] = x[3:]
-            T = D @ T
+            T = _moved_by(T, x)
             if np.linalg.norm(x[3:]) < 1e-5 and np.linalg.norm(x[:3]) < 1e-6:
                 break
     return T
+
+
+def _moved_by(T: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``D @ T`` with D the motion (6,) ``x`` = (rotation vector, translation), about the origin."""
+    from scipy.spatial.transform import Rotation
+
+    D = np.eye(4)
+    D[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+    D[:3, 3] = x[3:]
+    return D @ T
+
+
+def hold_at(T: np.ndarray, target: np.ndarray, held: tuple) -> np.ndarray:
+    """``T`` (4,4) moved along the directions :func:`weighted_icp` held (``info["held"]``: (V (6,k),
+    centre c (3,), scale Lc) in its update coordinates) to where ``target`` (4,4) lies along them;
+    the other directions keep ``T``'s values (to first order)."""
+    V, c, Lc = held
+    y = -V @ (V.T @ _centred_offset(T, target, c, Lc))
+    om = y[:3] / Lc
+    return _moved_by(T, np.concatenate([om, y[3:] - np.cross(om, c)]))
+
+
+def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, max_deg: float) -> tuple[np.ndarray, float]:
+    """(the guess ``init`` (4,4) turned about the vertical through ``anchor`` (3,) m by the yaw that
+    the registration ``T`` (4,4) turned it by, clipped to ±``max_deg``; that yaw in degrees). A SLAM
+    map anchored at the TF pose of its first scan sits off the TF world by the odometry's drift
+    there, a rotation about that scan's position: what it moves the camera along a held direction
+    (0.3 deg at 10 m: 5 cm) the data cannot tell, but the camera's own yaw correction shows it."""
+    from scipy.spatial.transform import Rotation
+
+    D = T[:3, :3] @ init[:3, :3].T
+    yaw = float(np.degrees(np.arctan2(D[1, 0], D[0, 0])))
+    yaw = float(np.clip(yaw, -max_deg, max_deg))
+    R = np.eye(4)
+    R[:3, :3] = Rotation.from_euler("z", yaw, degrees=True).as_matrix()
+    a = np.asarray(anchor, np.float64)
+    R[:3, 3] = a - R[:3, :3] @ a
+    return R @ init, yaw
 
 
 def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int = 0) -> np.ndarray:
@@ -580,14 +632,17 @@ def prior_deviation(T: np.ndarray, init: np.ndarray) -> tuple[float, float]:
 
 def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray,
                        cfg: RegisterConfig | None = None, allow_fallback: bool = True,
-                       sigma: np.ndarray | None = None, mesh: tuple | None = None) -> Registration:
+                       sigma: np.ndarray | None = None, mesh: tuple | None = None,
+                       anchor: np.ndarray | None = None) -> Registration:
     """``T_world_camera`` from the static camera cloud ``static_cam`` (N,3, camera frame) and the map
     ``map_points`` (M,3, world) from ``init`` (4,4): open3d point-to-plane ICP then, with per-point
     depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`weighted_icp`); checked;
     FPFH+RANSAC+ICP fallback, checked. ``mesh`` (vertices (V,3), faces (F,3)): a static mesh of the
     scene in the map's frame (:func:`scene_mesh`) whose surface near the camera cloud joins the
-    target (module docstring, 3.). Never returns an unchecked transform: ``accepted`` False means
-    both failed (the caller raises)."""
+    target (module docstring, 3.). ``anchor`` (3,) m: ``init`` is a TF pose and the map a SLAM map
+    anchored at the TF pose of a scan taken there; directions the ICP holds then go where the map's
+    offset puts the guess (:func:`anchored_guess`) instead of staying at it. Never returns an
+    unchecked transform: ``accepted`` False means both failed (the caller raises)."""
     from scipy.spatial import cKDTree
 
     cfg = cfg or RegisterConfig()
@@ -668,10 +723,14 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     ratio = cfg.mesh_degenerate_ratio if mesh_pts is not None else cfg.degenerate_ratio
     info: dict = {}
     T = refine(init, info)
+    anchor_yaw = None
+    if anchor is not None and info.get("frozen") and cfg.anchor_max_deg > 0:
+        target, anchor_yaw = anchored_guess(T, init, anchor, cfg.anchor_max_deg)
+        T = hold_at(T, target, info["held"])
     c = check(T, info.get("frozen", 0))
     attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
                      "frozen_directions": info.get("frozen", 0),
-                     "eigenvalues_rel": info.get("eigenvalues")})
+                     "eigenvalues_rel": info.get("eigenvalues"), "anchor_yaw_deg": anchor_yaw})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
         src, sig, src_n = full_src, full_sig, full_n
@@ -1345,6 +1404,22 @@ def _built_from_the_poses(scene, names: tuple) -> bool:
     return src[0] is not None and len(set(src)) == 1
 
 
+def slam_anchor(scene) -> np.ndarray | None:
+    """(3,) m: the LiDAR position at the first scan when the scene's poses are ``holodata slam``'s,
+    anchored at the TF pose of that scan (their world is the TF world, off by the odometry's error
+    there); None otherwise."""
+    nodes = scene.nodes()
+    if "pose/T_world_lidar" not in nodes:
+        return None
+    if (nodes["pose/T_world_lidar"][1].get("attributes") or {}).get("source") != "slam":
+        return None
+    anchor = (scene.attrs.get("slam") or {}).get("anchor") or {}
+    T0 = anchor.get("T_world_lidar0")
+    if anchor.get("kind") != "tf" or T0 is None:
+        return None
+    return np.asarray(T0, np.float64)[:3, 3]
+
+
 def scene_mesh(scene) -> tuple[np.ndarray, np.ndarray] | None:
     """The scene's static mesh (``mesh/vertices`` (V,3), ``mesh/faces`` (F,3)) when it was built from
     the poses the scene holds now (:func:`_built_from_the_poses`); None otherwise."""
@@ -1425,7 +1500,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         t1 = time.perf_counter()
         # (onto slam's mesh near the camera where it was built from these poses)
         reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean,
-                                 mesh=scene_mesh(scene) if cfg.mesh_target else None)
+                                 mesh=scene_mesh(scene) if cfg.mesh_target else None,
+                                 anchor=slam_anchor(scene) if init_source == "tf" else None)
         timings["extrinsic_s"] = time.perf_counter() - t1
         if not reg.accepted:
             a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
