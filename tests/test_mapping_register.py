@@ -569,9 +569,9 @@ def test_voxel_average_is_open3d_voxel_down_sample():
 
 
 def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
-    """processes=2 (LiDAR half, camera/points_world, half the human candidates and half the surfaces in
-    forked processes) gives the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation
-    as processes=1; the stored camera/points_world is what camera_points_world computes without it."""
+    """processes=2 (LiDAR half, camera/points_world and half the surfaces in forked processes) gives
+    the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation as processes=1; the
+    stored camera/points_world is what camera_points_world computes without it."""
     from holodata import open_dataset
     from holodata.mapping.register import register_scene
 
@@ -795,19 +795,23 @@ def test_centred_offset_is_the_motion_of_the_centre_and_the_scaled_rotation():
     assert np.allclose(_centred_offset(T0, T0, c, Lc), 0.0)
 
 
-def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
-    from holodata.mapping.register import weighted_icp
-
-    rng = np.random.default_rng(2)
-    u = rng.uniform(size=(8000, 2))
-    # a corridor along y: walls x = +-1, floor and ceiling; nothing fixes a shift along y
+def _corridor(seed: int):
+    """A corridor along y (walls x = +-1, floor and ceiling; nothing fixes a shift along y): world
+    points (N,3), their normals, a camera pose looking along it and the points in that camera."""
+    u = np.random.default_rng(seed).uniform(size=(8000, 2))
     world = np.concatenate([np.c_[np.full(len(u), s), u[:, 0] * 10, u[:, 1] * 2.5] for s in (-1.0, 1.0)]
                            + [np.c_[u[:, 0] * 2 - 1, u[:, 1] * 10, np.full(len(u), z)] for z in (0.0, 2.5)])
     normals = np.zeros_like(world)
     normals[: 2 * len(u), 0] = 1.0
     normals[2 * len(u):, 2] = 1.0
     T_true = _pose([0.0, 1.0, 1.2], [-90.0, 0.0, 0.0])
-    cam = (world - T_true[:3, 3]) @ T_true[:3, :3]
+    return world, normals, T_true, (world - T_true[:3, 3]) @ T_true[:3, :3]
+
+
+def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
+    from holodata.mapping.register import weighted_icp
+
+    world, normals, T_true, cam = _corridor(2)
     guess = _pose([0.03, 0.05, -0.02], [0.0, 0.0, 0.0]) @ T_true
     info = {}
     T = weighted_icp(cam, np.full(len(cam), 1e4), world, normals, guess, distances=(0.15, 0.05),
@@ -825,15 +829,7 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     the held direction where the turned map has it (without them it stays at the TF guess)."""
     from holodata.mapping.register import anchored_guess, hold_at, weighted_icp
 
-    rng = np.random.default_rng(4)
-    u = rng.uniform(size=(8000, 2))
-    world = np.concatenate([np.c_[np.full(len(u), s), u[:, 0] * 10, u[:, 1] * 2.5] for s in (-1.0, 1.0)]
-                           + [np.c_[u[:, 0] * 2 - 1, u[:, 1] * 10, np.full(len(u), z)] for z in (0.0, 2.5)])
-    normals = np.zeros_like(world)
-    normals[: 2 * len(u), 0] = 1.0
-    normals[2 * len(u):, 2] = 1.0
-    T_true = _pose([0.0, 1.0, 1.2], [-90.0, 0.0, 0.0])
-    cam = (world - T_true[:3, 3]) @ T_true[:3, :3]
+    world, normals, T_true, cam = _corridor(4)
     anchor = np.array([-10.0, 1.0, 0.5])
     turn = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.3])
     turn[:3, 3] = anchor - turn[:3, :3] @ anchor              # 0.3 deg about the vertical through the anchor

@@ -37,11 +37,12 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    deg in synth: 2-7 cm at a camera 10 m away, along whatever direction is held), and the camera's
    yaw correction, which the data does determine, measures the turn (:func:`anchored_guess`, at
    most ``anchor_max_deg``; :func:`hold_at`). Measured 2026-12-02 on the kept benchmark cells
-   (register from the TF guess, aligned; with ``mesh_degenerate_ratio`` 0.025 / 0.03): the full
-   demo's cross_13 6.71 -> 0.78 / 0.78 cm (its coarse stage had slid 7 cm, see
-   ``mesh_degenerate_ratio``), T_4 slam 0.87 -> 0.63 / 0.85, T_1 slam 1.78 -> 1.59 / 1.55, T_11
-   slam 1.28 -> 1.54 / 1.54. A TF pose that is itself off in yaw would be read as a map offset
-   too (hence the bound); an ``--init`` guess is held where it is.
+   (register from the TF guess, aligned, with ``mesh_degenerate_ratio`` 0.025): the full demo's
+   cross_13 6.71 -> 0.78 cm (its coarse stage had slid 7 cm, see ``mesh_degenerate_ratio``), T_4
+   slam 0.87 -> 0.63, T_1 slam 1.78 -> 1.59, T_11 slam 1.28 -> 1.54; without the anchored hold
+   0.025 alone left cross_13 at 2.43 cm (held at the TF guess, 0.18 deg off the map there). A TF
+   pose that is itself off in yaw would be read as a map offset too (hence the bound); an
+   ``--init`` guess is held where it is.
    Correspondences whose camera and map normals differ by more than ~37° are dropped (near an
    edge the nearest map point may lie on the other wall: 6-9 cm residuals that biased a cross
    corner by 7 cm). The camera
@@ -68,12 +69,12 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    mesh-less path keeps ``degenerate_ratio``; 0.01 let the quick demo's cross corner slide 20 cm
    along a direction at 0.015 whose pose std claimed 0.2 cm, so the mesh ratio is 0.02: 6.6 cm
    there, and on the 16 benchmark cells' cached clouds 0.12-1.82 cm as with 0.01, T_4 slam 1.24 vs
-   1.20, while 0.05 lets T_4 slam miss at 2.98 cm; 0.03 since 2026-12-02, with the anchored hold
+   1.20, while 0.05 lets T_4 slam miss at 2.98 cm; 0.025 since 2026-12-02, with the anchored hold
    above: the full demo's cross_13, 64x1024 at 90 deg, slid 7 cm along its corridor in the coarse
    stage, where that direction stood at 0.0228 — the robust cost there keeps falling as the overlap
-   grows, with no minimum within ±12 cm — 4.93 -> 0.12 cm with the true poses; T_1 / T_4 truth
-   0.99 / 1.38 -> 0.42 / 0.41 cm; without the anchored hold 0.03 let T_4 slam miss at 3.00 cm,
-   0.85 with it). Scenes without a
+   grows, with no minimum within ±12 cm — 4.93 -> 0.12 cm with the true poses; 0.03 took T_1 / T_4
+   truth to 0.42 / 0.41 cm from the TF guess but T_4 truth to 2.68 cm from a 5 cm / 2 deg
+   perturbed one, whose error its 0.08 m stage then held). Scenes without a
    matching mesh register as before. On the 16 benchmark cells the trajectory-aligned
    extrinsic went from 0.27-3.20 cm (4 cells over 2 cm) to 0.12-1.82 cm (benchmarks/register.py).
    Correspondences and the check
@@ -149,9 +150,8 @@ forked process while this one builds the static depth (from at most ``median_fra
 humans loop makes every frame's depth image again, one at a time, so a long recording's images
 never sit in memory together: 1 GB for 1000 frames at 376x672); the LiDAR
 process hands a map it builds over as soon as it is built and segments beside the extrinsic and
-the humans. After the extrinsic, the later half of the frames' human candidates (their depth images
-read and compared with the static depth) is found in another process, as is every other frame's
-surface (and ``camera/points_world`` when asked for). The
+the humans. After the extrinsic, every other frame's surface (and ``camera/points_world`` when
+asked for) is built/written by another process. The
 results are the same as in one process (test). On the 400-cycle corner (64x512 LiDAR, 94x168
 camera) the background model and the map were the critical path (~5.5 s of ~11 s; splitting their
 scans over two processes gained nothing: copy-on-write faults and pickling the points back ate it);
@@ -192,7 +192,7 @@ class RegisterConfig:
     mesh_target: bool = True
     mesh_sample_m: float = 0.02
     mesh_keep_map_m: float = 0.0
-    mesh_degenerate_ratio: float = 0.03
+    mesh_degenerate_ratio: float = 0.025
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
     hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (module doc, 3.)
@@ -370,9 +370,9 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     eigenvalue is below ``degenerate_ratio`` × the largest — directions the overlap does not pin
     down keep the initial guess instead of sliding (a corridor seen end-on); a coarser stage may
     have moved along them, and the update takes the pose back to within ``hold_m`` (m; rotations
-    scaled as above) of ``init`` along them. ``info`` receives the
-    number of frozen directions, the eigenvalues and the held directions (``held``, for :func:`hold_at`). ``source_normals`` (N,3): correspondences whose
-    normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge the nearest map point
+    scaled as above) of ``init`` along them. ``info`` receives the number of frozen directions, the
+    eigenvalues and the held directions (``held``, for :func:`hold_at`). ``source_normals`` (N,3):
+    correspondences whose normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge the nearest map point
     can belong to the other wall, whose normal biases a point-to-plane fit by centimetres.
     ``search_m`` > 0: nearest map points up to that far (tangentially) are used, gated on the
     residual only (measured worse on the sparse demo map: 0 by default). ``max_std_m`` > 0 (weights
@@ -425,8 +425,7 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
                     # moved along them, rightly (edges within its reach) or not (wrong correspondences)
                     dev = V[:, ~keep].T @ _centred_offset(T, T0, c, Lc)
                     y -= V[:, ~keep] @ (np.sign(dev) * np.maximum(np.abs(dev) - hold_m, 0.0))
-                om = y[:3] / Lc
-                x = np.concatenate([om, y[3:] - np.cross(om, c)])   # about the origin: t' = t - om x c
+                x = _about_origin(y, c, Lc)
                 if info is not None:
                     info.update(frozen=int((~keep).sum()), eigenvalues=(ev / ev.max()).round(4).tolist(),
                                 held=(V[:, ~keep], c, Lc))
@@ -436,6 +435,13 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
             if np.linalg.norm(x[3:]) < 1e-5 and np.linalg.norm(x[:3]) < 1e-6:
                 break
     return T
+
+
+def _about_origin(y: np.ndarray, c: np.ndarray, Lc: float) -> np.ndarray:
+    """A motion (6,) in :func:`weighted_icp`'s update coordinates (rotation vector × ``Lc``, motion of
+    the centre ``c``) as (rotation vector, translation) about the origin: t = t_c - ω × c."""
+    om = y[:3] / Lc
+    return np.concatenate([om, y[3:] - np.cross(om, c)])
 
 
 def _moved_by(T: np.ndarray, x: np.ndarray) -> np.ndarray:
@@ -453,9 +459,7 @@ def hold_at(T: np.ndarray, target: np.ndarray, held: tuple) -> np.ndarray:
     centre c (3,), scale Lc) in its update coordinates) to where ``target`` (4,4) lies along them;
     the other directions keep ``T``'s values (to first order)."""
     V, c, Lc = held
-    y = -V @ (V.T @ _centred_offset(T, target, c, Lc))
-    om = y[:3] / Lc
-    return _moved_by(T, np.concatenate([om, y[3:] - np.cross(om, c)]))
+    return _moved_by(T, _about_origin(-V @ (V.T @ _centred_offset(T, target, c, Lc)), c, Lc))
 
 
 def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, max_deg: float) -> tuple[np.ndarray, float]:
@@ -1543,12 +1547,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                                   enabled=processes > 1)
         front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
         always = ~np.isfinite(med) | still
-        # the later half of the frames' candidates in a second process (the LiDAR half is done or nearly)
-        half = n // 2 if processes > 1 else n
-        later = fork_call(frame_candidates, cam, range(half, n), T, rays, front, always, mtree, cfg, images,
-                          label=f"{url}: scene {sid!r}: human candidates", enabled=processes > 1)
-        cand = frame_candidates(cam, range(half), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
-        cand += later()
+        # (one process: split over two beside the LiDAR half's segmentation it gained nothing, 2026-12-02)
+        cand = frame_candidates(cam, range(n), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
         del images
         timings["candidates_s"] = time.perf_counter() - t2
         # the person of interest: person-like clusters near the track's median (people farther away, e.g.
