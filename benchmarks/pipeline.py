@@ -183,6 +183,17 @@ humans 6.5-6.7 | background 5.1-5.4, segment 1.9), raytrace-gt 13.5 / 12.0 s: sl
 (by 0.2 s). Unchanged within noise: what bounds it is CPU (the camera half alone ~12 s wall; the
 LiDAR half 7-8 s beside it; slam's Poisson 3.5 s), not waiting.
 
+2026-12-02 ~06:25 UTC after register's anchored hold (results on this corner unchanged: no held
+direction), `--keep DIR --reuse`, two runs at load ~1.5: ingest 11.1 / 10.0, slam 10.8 / 10.4,
+register 12.3 / 11.0 (camera 1.8-3.3, extrinsic 2.3-2.5, humans 6.0-6.3 | background 4.9-5.3,
+segment 1.8), raytrace-gt 12.4 / 11.4 s: slam+register 23.1 / 21.4 s = 1.86x / 1.88x raytrace-gt
+wall, 50 % of the pipeline; largest stage raytrace-gt. Tried that day and dropped: the human
+candidates of half the frames in a second process (register 12.8 / 12.8 s in two runs: the LiDAR
+half's segmentation still runs then, three processes on two cores); the segmentation's background
+model with voxel centroids from the free-space test's 80 scans only (model 3.3 -> 1.2 s, but twice
+the foreground returns, so segmentation 1.6 -> 4.8 s); the model from a 120-scan subset (AP50
+unchanged on a 160-cycle corner with two walkers, 0.80 instead of >= 0.9 on a 10-scan one at half).
+
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
 """

@@ -81,19 +81,19 @@ DIR`` (64x1024 LiDAR 33.2 deg, 376x672 camera, 40 frames, 2 walkers). Extrinsic 
   the walk was the static depth of the pixels the walker always covers, so its torso was background).
 
   ``--demo-config quick --poses slam --no-perturb --no-bare`` (12 frames, 32x512 90 deg LiDAR,
-  376x672 camera):
+  376x672 camera; 06:22):
 
-  T        11  slam   nan    1.80   0.65   1.78   0.08    4.4 /  7.0 (4.8 / 4.9)   4.6 (2.6)
-  L        12  slam   nan    2.29   2.17   2.28   0.01    4.6 /  7.6 (4.9 / 5.0)   4.1 (1.6)
-  cross    13  slam   nan    9.63   8.47   8.51   0.28   11.6 / 14.4 (10.9 / 11.0)   4.7 (2.8)
-  oblique  14  slam   nan    4.43   2.81   3.10   0.38    4.3 /  6.7 (2.8 / 3.2)   5.6 (3.0)
-  T        15  slam   nan    3.67   2.91   3.20   0.08    4.7 /  6.1 (3.9 / 4.0)   2.3 (1.0)
-  L        16  slam   nan    2.76   2.25   2.08   0.11    1.5 /  2.2 (0.9 / 1.3)   3.0 (1.5)
+  T        11  slam   nan    1.81   0.41   1.67   0.08    4.5 /  7.2 (4.9 / 5.0)   3.1 (1.4)
+  L        12  slam   nan    2.29   2.17   2.28   0.01    4.6 /  7.6 (4.9 / 5.0)   2.7 (1.4)
+  cross    13  slam   nan    7.70   2.70   2.78   0.28    9.1 / 10.7 (6.0 / 6.2)   3.5 (2.2)
+  oblique  14  slam   nan    4.63   3.07   3.37   0.38    4.5 /  7.2 (2.9 / 3.3)   4.1 (2.8)
+  T        15  slam   nan    3.49   2.72   3.01   0.08    4.6 /  5.9 (3.8 / 3.9)   2.0 (0.9)
+  L        16  slam   nan    2.76   2.25   2.08   0.11    1.5 /  2.2 (0.9 / 1.3)   2.8 (1.4)
 
-  NOT met on 5 of 6 (aligned extrinsic 2.17-8.47 cm; a human in 12/12 frames, 10/12 on T_11 and
-  cross_13): 12 scans of a 32-beam LiDAR give a map 7 cm off the true mesh near cross_13's camera.
-  cross_13 was 16.4 cm before held directions were taken back (a coarse stage slid it 14 cm along
-  its corridor), 3.7 cm with them taken all the way back.
+  NOT met on 5 of 6 (aligned extrinsic 2.17-3.07 cm): outside the floors at these reduced sizes.
+  cross_13 was 8.47 cm at 04:29 (held directions within 5 cm of the guess), 16.4 cm before held
+  directions were taken back (a coarse stage slid it 14 cm along its corridor); 12 scans of a
+  32-beam LiDAR give a map 7 cm off the true mesh near its camera.
 
 Measured 2026-12-02 01:57-02:03 UTC on the final register of that day (slam's stored map
 ``map/points`` as the target's points when it matches the poses, the human solid of elliptic per-run
