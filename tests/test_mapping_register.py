@@ -824,13 +824,15 @@ def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
 
 def test_held_direction_follows_a_map_turned_about_its_anchor():
     """A SLAM map anchored at a TF pose that was 0.3 deg off is the true world turned about the
-    anchor scan's position: a camera 10 m to the side moves 5.2 cm along the corridor it sees end-on,
-    which the ICP holds. The camera's yaw correction shows the turn; anchored_guess + hold_at put
-    the held direction where the turned map has it (without them it stays at the TF guess)."""
+    anchor scan's position: the camera, 10 m from it, moves 4 cm along the corridor it sees end-on
+    (held by the ICP) and 3 cm across it. The yaw correction and the shift across the corridor both
+    show the turn; anchored_guess + hold_at put the held direction where the turned map has it
+    (without them it stays at the TF guess). A TF pose off in yaw alone turns the camera without
+    moving it: no turn is read from that."""
     from holodata.mapping.register import anchored_guess, hold_at, weighted_icp
 
     world, normals, T_true, cam = _corridor(4)
-    anchor = np.array([-10.0, 1.0, 0.5])
+    anchor = np.array([-8.0, -5.0, 0.5])
     turn = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.3])
     turn[:3, 3] = anchor - turn[:3, :3] @ anchor              # 0.3 deg about the vertical through the anchor
     map_pts, map_n = world @ turn[:3, :3].T + turn[:3, 3], normals @ turn[:3, :3].T
@@ -839,11 +841,20 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     T = weighted_icp(cam, np.full(len(cam), 1e4), map_pts, map_n, T_true, distances=(0.15, 0.05),
                      degenerate_ratio=0.02, info=info)
     assert info["frozen"] == 1
-    assert abs(T[1, 3] - T_true[1, 3]) < 2e-3               # held at the TF guess: 5.2 cm off the map's
-    assert abs(T_map[1, 3] - T_true[1, 3]) > 0.05
-    target, yaw = anchored_guess(T, T_true, anchor, 0.5)
-    assert yaw == pytest.approx(0.3, abs=0.02)
+    assert abs(T[1, 3] - T_true[1, 3]) < 2e-3               # held at the TF guess: 4 cm off the map's
+    assert abs(T_map[1, 3] - T_true[1, 3]) > 0.035
+    held = info["held"][0][3:, 0]
+    target, seen = anchored_guess(T, T_true, anchor, held, 0.5, 0.1)
+    assert seen["yaw_deg"] == pytest.approx(0.3, abs=0.02) and seen["shift_deg"] == pytest.approx(0.3, abs=0.05)
     T2 = hold_at(T, target, info["held"])
     np.testing.assert_allclose(T2[:3, 3], T_map[:3, 3], atol=3e-3)
     assert abs(T2[0, 3] - T[0, 3]) < 1e-3 and abs(T2[2, 3] - T[2, 3]) < 1e-3   # determined directions kept
-    assert anchored_guess(T, T_true, anchor, 0.1)[1] == pytest.approx(0.1)     # clipped
+    assert anchored_guess(T, T_true, anchor, held, 0.1, 0.1)[0] is None     # more than map drift
+    # the TF pose 0.3 deg off in yaw about the camera, on the unturned world: yaw without shift
+    T_tf = T_true.copy()
+    T_tf[:3, :3] = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.3])[:3, :3] @ T_true[:3, :3]
+    info = {}
+    T3 = weighted_icp(cam, np.full(len(cam), 1e4), world, normals, T_tf, distances=(0.15, 0.05),
+                      degenerate_ratio=0.02, info=info)
+    target, seen = anchored_guess(T3, T_tf, anchor, info["held"][0][3:, 0], 0.5, 0.1)
+    assert target is None and abs(seen["yaw_deg"]) > 0.25 and abs(seen["shift_deg"]) < 0.1, seen

@@ -34,15 +34,19 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    From the TF guess onto a map of ``holodata slam`` anchored at the TF pose of its first scan
    (:func:`slam_anchor`), held directions go instead where the map's offset puts the guess: such a
    map is the TF world turned about that scan's position by the odometry's error there (0.1-0.4
-   deg in synth: 2-7 cm at a camera 10 m away, along whatever direction is held), and the camera's
-   yaw correction, which the data does determine, measures the turn (:func:`anchored_guess`, at
-   most ``anchor_max_deg``; :func:`hold_at`). Measured 2026-12-02 on the kept benchmark cells
-   (register from the TF guess, aligned, with ``mesh_degenerate_ratio`` 0.025): the full demo's
-   cross_13 6.71 -> 0.78 cm (its coarse stage had slid 7 cm, see ``mesh_degenerate_ratio``), T_4
-   slam 0.87 -> 0.63, T_1 slam 1.78 -> 1.59, T_11 slam 1.28 -> 1.54; without the anchored hold
-   0.025 alone left cross_13 at 2.43 cm (held at the TF guess, 0.18 deg off the map there). A TF
-   pose that is itself off in yaw would be read as a map offset too (hence the bound); an
-   ``--init`` guess is held where it is.
+   deg in synth: 2-7 cm at a camera 10 m away, along whatever direction is held). The data shows
+   such a turn twice — in the camera's yaw correction and in its position correction across the
+   held direction — and when both give the same turn (within ``anchor_agree_deg``, at most
+   ``anchor_max_deg``) the held directions go where it puts the guess (:func:`anchored_guess`,
+   :func:`hold_at`). A TF pose that is itself off in yaw turns the camera without moving it: then
+   they disagree and the held directions stay at the guess (a TF camera pose 0.3 deg off in yaw on
+   the kept cells: T_4 / T_1 slam 0.57-0.65 / 1.85-1.87 cm, 3.65 / 4.05 cm had the yaw alone been
+   read as the map's turn). Measured 2026-12-02 on the kept benchmark cells (register from the TF
+   guess, aligned, with ``mesh_degenerate_ratio`` 0.025; the two estimates agreed within
+   0.01-0.06 deg): the full demo's cross_13 6.71 -> 0.78 cm (its coarse stage had slid 7 cm, see
+   ``mesh_degenerate_ratio``), T_4 slam 0.87 -> 0.63, T_1 slam 1.78 -> 1.59, T_11 slam 1.28 ->
+   1.54; without the anchored hold 0.025 alone left cross_13 at 2.43 cm (held at the TF guess,
+   0.18 deg off the map there). An ``--init`` guess is held where it is.
    Correspondences whose camera and map normals differ by more than ~37° are dropped (near an
    edge the nearest map point may lie on the other wall: 6-9 cm residuals that biased a cross
    corner by 7 cm). The camera
@@ -196,7 +200,8 @@ class RegisterConfig:
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
     hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (module doc, 3.)
-    anchor_max_deg: float = 0.5  # TF guess on a SLAM map: held directions follow the map's offset (module doc, 3.)
+    anchor_max_deg: float = 0.5  # TF guess on a SLAM map: held directions follow a map offset up to this (module doc, 3.)
+    anchor_agree_deg: float = 0.1  # ... shown alike by the camera's yaw and position corrections
     # measured on the quick-demo corners (noisy 188x336 stereo, 12 frames): inverse-variance weights
     # and variance-based freezing were no better than uniform weights (module docstring); kept as options
     noise_weights: bool = False
@@ -462,22 +467,37 @@ def hold_at(T: np.ndarray, target: np.ndarray, held: tuple) -> np.ndarray:
     return _moved_by(T, _about_origin(-V @ (V.T @ _centred_offset(T, target, c, Lc)), c, Lc))
 
 
-def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, max_deg: float) -> tuple[np.ndarray, float]:
-    """(the guess ``init`` (4,4) turned about the vertical through ``anchor`` (3,) m by the yaw that
-    the registration ``T`` (4,4) turned it by, clipped to ±``max_deg``; that yaw in degrees). A SLAM
-    map anchored at the TF pose of its first scan sits off the TF world by the odometry's drift
-    there, a rotation about that scan's position: what it moves the camera along a held direction
-    (0.3 deg at 10 m: 5 cm) the data cannot tell, but the camera's own yaw correction shows it."""
+def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, held_dir: np.ndarray, max_deg: float,
+                   agree_deg: float) -> tuple[np.ndarray | None, dict]:
+    """The guess ``init`` (4,4) turned about the vertical through ``anchor`` (3,) m by the map offset
+    the registration ``T`` (4,4) shows, or None where it shows none; and what was measured.
+
+    A SLAM map anchored at the TF pose of its first scan sits off the TF world by the odometry's
+    drift there, a turn δ about that scan's position. It moves the camera by δ·u (u = z × (camera -
+    anchor)): along a held direction (``held_dir`` (3,), world) the data cannot tell how far, but a
+    turn shows twice where it can, in the camera's yaw correction and in its position correction
+    across ``held_dir`` (horizontal). Both must give the same δ within ``agree_deg`` (a TF pose
+    that is itself off in yaw turns the camera without moving it) and |δ| <= ``max_deg``; δ is then
+    the yaw correction. Returns (target or None, {"yaw_deg", "shift_deg"}: the two estimates)."""
     from scipy.spatial.transform import Rotation
 
     D = T[:3, :3] @ init[:3, :3].T
     yaw = float(np.degrees(np.arctan2(D[1, 0], D[0, 0])))
-    yaw = float(np.clip(yaw, -max_deg, max_deg))
+    a = np.asarray(anchor, np.float64)
+    u = np.cross([0.0, 0.0, 1.0], init[:3, 3] - a)              # m per radian of turn
+    h = np.asarray(held_dir, np.float64)
+    across = np.array([-h[1], h[0], 0.0])
+    across /= max(np.linalg.norm(across), 1e-12)
+    lever = float(u @ across)
+    shift = (float(np.degrees((T[:3, 3] - init[:3, 3]) @ across / lever))
+             if abs(lever) >= 0.3 * np.linalg.norm(u) else None)   # None: the turn moves it along held_dir only
+    out = {"yaw_deg": round(yaw, 4), "shift_deg": None if shift is None else round(shift, 4)}
+    if shift is None or not (abs(yaw) <= max_deg and abs(shift - yaw) <= agree_deg):
+        return None, out
     R = np.eye(4)
     R[:3, :3] = Rotation.from_euler("z", yaw, degrees=True).as_matrix()
-    a = np.asarray(anchor, np.float64)
     R[:3, 3] = a - R[:3, :3] @ a
-    return R @ init, yaw
+    return R @ init, out
 
 
 def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int = 0) -> np.ndarray:
@@ -727,14 +747,17 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     ratio = cfg.mesh_degenerate_ratio if mesh_pts is not None else cfg.degenerate_ratio
     info: dict = {}
     T = refine(init, info)
-    anchor_yaw = None
+    anchor_turn = None
     if anchor is not None and info.get("frozen") and cfg.anchor_max_deg > 0:
-        target, anchor_yaw = anchored_guess(T, init, anchor, cfg.anchor_max_deg)
-        T = hold_at(T, target, info["held"])
+        V = info["held"][0]
+        target, anchor_turn = anchored_guess(T, init, anchor, V[3:, 0], cfg.anchor_max_deg, cfg.anchor_agree_deg)
+        if target is not None:
+            T = hold_at(T, target, info["held"])
+        anchor_turn["applied"] = target is not None
     c = check(T, info.get("frozen", 0))
     attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
                      "frozen_directions": info.get("frozen", 0),
-                     "eigenvalues_rel": info.get("eigenvalues"), "anchor_yaw_deg": anchor_yaw})
+                     "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
         src, sig, src_n = full_src, full_sig, full_n
