@@ -12,6 +12,10 @@ humans) twice: from the TF pose of the camera (exact in synth) and from that pos
 * extrinsic error vs ``truth/extrinsics.json`` (cm, degrees; floors 2 cm, 1°) for both inits;
 * human centroid error (centre of mass of the closed surface vs the true mesh's, cm; floor 5 cm):
   mean / median / max over frames, and frames with a human found;
+* with ``--tf-yaw DEG``: the aligned extrinsic of a third run whose *TF* camera pose (the scene's
+  ``sensors.camera.T_map_sensor``, restored afterwards) is turned DEG about the vertical through
+  the camera — register's TF path, where the anchored hold applies (a perturbed ``--init`` does not
+  reach it);
 * register's runtime (s) with its phases, and bare open3d ``registration_icp`` (point-to-plane, one
   stage at the first correspondence distance, same source/target clouds and init) in the same run:
   runtime ratio register-extrinsic / bare-ICP and the bare ICP's own error.
@@ -57,6 +61,11 @@ the results were the same). ``--poses truth,slam --seeds 1,4 --no-bare --keep DI
   0.1-0.2 deg). Taking held directions all the way back to the guess (tried first) gave T_1/T_4
   truth 0.35/0.40 cm from the TF guess but 1.63/2.24 cm from the perturbed one, and T_4 slam 2.95
   cm aligned (the TF guess is world-exact, the SLAM map 0.30 deg off it there).
+  The TF pose itself 0.3 deg off in yaw (``--poses slam --no-perturb --no-bare --tf-yaw +-0.3``,
+  06:45-06:50, on the cells with a held direction; the anchored hold's agreement check rejected the
+  turn in every run), aligned +0.3 / -0.3: T_1 1.85 / 1.87, T_4 0.65 / 0.57 cm; full demo T_11
+  1.00 / 0.98, cross_13 3.23 / 1.64 cm (its corridor held at the TF guess, 0.18 deg off the map).
+  Reading the yaw alone as the map's turn had given T_4 / T_1 3.65 / 4.05 cm at -0.3.
 
   ``--demo-config full --poses slam --no-perturb --no-bare`` (the full demo's 8 corners, 64x1024
   LiDAR 90 deg, 40 frames; 06:17-06:22):
@@ -290,7 +299,7 @@ radar frame, slam rows):
     .venv/bin/python benchmarks/register.py [--frames 40] [--corners T,L,cross,oblique] [--walkers 2]
                                             [--poses truth,slam] [--seeds 1,4] [--perturb 5,2] [--keep DIR]
                                             [--demo-config quick|full] [--lidar 64x1024] [--lidar-fov 33.2]
-                                            [--camera 376x672] [--no-perturb] [--no-bare] [--no-mesh] [--json]
+                                            [--camera 376x672] [--no-perturb] [--tf-yaw DEG] [--no-bare] [--no-mesh] [--json]
 
 ``--poses truth,slam`` runs every corner with both pose sources (one synthetic recording, one dataset
 per source). ``--demo-config quick``: the frames, LiDAR and camera of ``holodata demo --quick``
@@ -400,6 +409,18 @@ def truth_pose_mesh(url: str, sid: str) -> None:
                      sm.points, source)
 
 
+def turned_tf(sensors: dict, deg: float) -> dict:
+    """A copy of a scene's ``sensors`` attrs whose TF camera pose (``camera.T_map_sensor``) is turned
+    by ``deg`` about the vertical through the camera (its position unchanged)."""
+    from scipy.spatial.transform import Rotation
+
+    out = json.loads(json.dumps(sensors))
+    T = np.asarray(out["camera"]["T_map_sensor"], float)
+    T[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix() @ T[:3, :3]
+    out["camera"]["T_map_sensor"] = T.tolist()
+    return out
+
+
 def perturb(T: np.ndarray, cm: float, deg: float) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
@@ -456,18 +477,24 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
         out["slam_s"] = time.perf_counter() - t1
     Tt = truth_camera_extrinsic(truth_dir)
     runs = {}
-    inits = [("tf", None)] + ([] if args.no_perturb else [("perturbed", perturb(Tt, *args.perturb))])
+    inits = ([("tf", None)] + ([] if args.no_perturb else [("perturbed", perturb(Tt, *args.perturb))])
+             + ([("tf_yaw", None)] if args.tf_yaw else []))
     for name, init in inits:
         ds = open_dataset(url)
         w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
         if "lidar/instance" in w.scene(sid).arrays():
             w.scene(sid).remove("lidar/instance")
+        sensors = ds.scene(sid).attrs["sensors"]
+        if name == "tf_yaw":    # the TF pose itself off in yaw (register's TF path, not --init)
+            w.scene(sid).set_attrs({"sensors": turned_tf(sensors, args.tf_yaw)})
         t1 = time.perf_counter()
         try:
             r = register_scene(url, sid, init=init, cfg=RegisterConfig(), quiet=True)
         except RegistrationError as err:
             runs[name] = {"failed": " ".join(str(err).split()), "seconds": time.perf_counter() - t1}
             continue
+        finally:
+            w.scene(sid).set_attrs({"sensors": sensors})
         dt = time.perf_counter() - t1
         T = np.asarray(open_dataset(url).scene(sid)["calib/T_world_camera"][...])
         hw = human_centroid_errors(url, sid, truth_dir)
@@ -508,6 +535,11 @@ def _row(r: dict, args) -> str:
     if pt is not None:
         line += (f" | perturbed {args.perturb[0]:g}cm/{args.perturb[1]:g}deg -> "
                  + (f"{pt['trans_cm']:.2f} cm {pt['rot_deg']:.2f} deg" if "failed" not in pt else "FAILED"))
+    ty = r["register"].get("tf_yaw")
+    if ty is not None:
+        line += (f" | TF yaw {args.tf_yaw:+g}deg -> "
+                 + (f"aligned {ty['aligned']['trans_cm']:.2f} cm {ty['aligned']['rot_deg']:.2f} deg" if "failed" not in ty
+                    else "FAILED"))
     line += (f" | centroid mean {h['mean_cm']:.1f} med {h['median_cm']:.1f} max {h['max_cm']:.1f} cm "
              f"(aligned {tf['human_aligned']['mean_cm']:.1f}, radar frame {hr['mean_cm']:.1f}) in {h['frames']}/{h['frames'] + h['missing']} "
              f"| speed {r['human_speed_mps']:.2f} m/s | register {tf['seconds']:.1f} s ("
@@ -543,6 +575,9 @@ def main() -> int:
                     help="the frames, LiDAR, camera and corners (kind, seed) of holodata demo [--quick]")
     ap.add_argument("--poses", default="truth", help="comma list of truth, slam")
     ap.add_argument("--perturb", default="5,2", help="cm,degrees added to the TF camera pose for the second run")
+    ap.add_argument("--tf-yaw", type=float, default=0.0,
+                    help="also a run with the scene's TF camera pose turned this many degrees about the vertical "
+                         "(register's TF path, where the anchored hold applies; 0: no such run)")
     ap.add_argument("--no-perturb", action="store_true", help="only the run from the TF pose")
     ap.add_argument("--no-bare", action="store_true", help="skip the bare open3d ICP comparison")
     ap.add_argument("--no-mesh", action="store_true",
