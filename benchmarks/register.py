@@ -27,9 +27,10 @@ changed), no static depth for pixels a walker covers in every frame, directions 
 taken back to within ``hold_m`` (5 cm) of the guess — or, from the TF guess onto a slam map, to
 where the map's offset (a turn about its anchor scan, shown alike by the camera's yaw and position
 corrections) puts it — and ``mesh_degenerate_ratio`` 0.025 (the table holds for the agreement
-check added after that run: on every cell with a held direction the two agreed within 0.01-0.06 deg and
-the results were the same). ``--poses truth,slam --seeds 1,4 --no-bare --keep DIR`` (64x1024 LiDAR 33.2 deg, 376x672 camera, 40 frames, 2 walkers). Extrinsic cm world / aligned
-/ robot, map offset deg, centroid mean / max world (aligned / radar frame) cm, register s
+check added after that run: on every cell with a held direction the two agreed within 0.01-0.06
+deg and the results were the same). ``--poses truth,slam --seeds 1,4 --no-bare --keep DIR``
+(64x1024 LiDAR 33.2 deg, 376x672 camera, 40 frames, 2 walkers). Extrinsic cm world / aligned /
+robot, map offset deg, centroid mean / max world (aligned / radar frame) cm, register s
 (extrinsic s); human found in 40/40 frames in every cell:
 
   corner seed poses  AP50   world  align  robot  map    centroid                   register s

@@ -200,8 +200,8 @@ class RegisterConfig:
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
     hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (module doc, 3.)
-    anchor_max_deg: float = 0.5  # TF guess on a SLAM map: held directions follow a map offset up to this (module doc, 3.)
-    anchor_agree_deg: float = 0.1  # ... shown alike by the camera's yaw and position corrections
+    anchor_max_deg: float = 0.5    # TF guess, slam map: held directions follow a map turn up to this (module doc, 3.)
+    anchor_agree_deg: float = 0.1  # ... that the camera's yaw and position corrections show alike
     # measured on the quick-demo corners (noisy 188x336 stereo, 12 frames): inverse-variance weights
     # and variance-based freezing were no better than uniform weights (module docstring); kept as options
     noise_weights: bool = False
@@ -377,8 +377,9 @@ def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, ta
     have moved along them, and the update takes the pose back to within ``hold_m`` (m; rotations
     scaled as above) of ``init`` along them. ``info`` receives the number of frozen directions, the
     eigenvalues and the held directions (``held``, for :func:`hold_at`). ``source_normals`` (N,3):
-    correspondences whose normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge the nearest map point
-    can belong to the other wall, whose normal biases a point-to-plane fit by centimetres.
+    correspondences whose normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge
+    the nearest map point can belong to the other wall, whose normal biases a point-to-plane fit by
+    centimetres.
     ``search_m`` > 0: nearest map points up to that far (tangentially) are used, gated on the
     residual only (measured worse on the sparse demo map: 0 by default). ``max_std_m`` > 0 (weights
     must then be inverse variances): directions whose standard deviation 1/sqrt(eigenvalue) exceeds it
