@@ -485,18 +485,19 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
         w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
         if "lidar/instance" in w.scene(sid).arrays():
             w.scene(sid).remove("lidar/instance")
-        sensors = ds.scene(sid).attrs["sensors"]
-        if name == "tf_yaw":    # the TF pose itself off in yaw (register's TF path, not --init)
+        sensors = ds.scene(sid).attrs["sensors"] if name == "tf_yaw" else None
+        if sensors is not None:    # the TF pose itself off in yaw (register's TF path, not --init)
             w.scene(sid).set_attrs({"sensors": turned_tf(sensors, args.tf_yaw)})
         t1 = time.perf_counter()
         try:
             r = register_scene(url, sid, init=init, cfg=RegisterConfig(), quiet=True)
+            dt = time.perf_counter() - t1
         except RegistrationError as err:
             runs[name] = {"failed": " ".join(str(err).split()), "seconds": time.perf_counter() - t1}
             continue
         finally:
-            w.scene(sid).set_attrs({"sensors": sensors})
-        dt = time.perf_counter() - t1
+            if sensors is not None:
+                w.scene(sid).set_attrs({"sensors": sensors})
         T = np.asarray(open_dataset(url).scene(sid)["calib/T_world_camera"][...])
         hw = human_centroid_errors(url, sid, truth_dir)
         ha = human_centroid_errors(url, sid, truth_dir, frame="aligned")

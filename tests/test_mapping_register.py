@@ -821,7 +821,6 @@ def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
     assert abs(T[1, 3] - guess[1, 3]) < 2e-3                                             # y stays at the guess
 
 
-
 def test_held_direction_follows_a_map_turned_about_its_anchor():
     """A SLAM map anchored at a TF pose that was 0.3 deg off is the true world turned about the
     anchor scan's position: the camera, 10 m from it, moves 4 cm along the corridor it sees end-on
