@@ -16,6 +16,7 @@ import pytest
 from holodata.conventions import Grid, RangeBins
 from holodata.dataset import create_dataset, open_dataset
 from holodata.dataset import shards as sh
+from holodata.dataset.info import dataset_info
 from holodata.dataset.synthetic import toy_frames, write_toy_dataset
 from holodata.errors import DatasetError
 
@@ -158,8 +159,8 @@ def test_ragged_in_order_and_empty_frames(tmp_path):
 
 
 def test_ragged_sequential_and_random_reads_agree(tmp_path):
-    """Sequential reads come from one block per shard, random ones per frame: same rows, and a
-    caller editing a returned frame does not change the next read of it."""
+    """Sequential reads come from one block per shard, random ones per frame: same rows, and the
+    frames handed out are read-only (views of that block), so no caller can change a later read."""
     url = str(tmp_path / "a.zarr")
     rng = np.random.default_rng(0)
     rows = [rng.normal(size=(int(n), 3)).astype(np.float32) for n in rng.integers(0, 50, size=11)]
@@ -170,7 +171,11 @@ def test_ragged_sequential_and_random_reads_agree(tmp_path):
         rag.write_shard(k, rows[4 * k:4 * k + 4])
     s = open_dataset(url).scene("s")
     seq = [s.ragged("camera/points", i) for i in range(11)]
-    seq[5][:] = 99
+    for i in (5, 6):
+        with pytest.raises(ValueError, match="read-only"):
+            seq[i][:] = 99
+    with pytest.raises(ValueError, match="read-only"):
+        s.ragged("camera/points", 2)[:] = 99      # random access
     for order in (range(11), [7, 2, 9, 3, 4, 5, 10, 0, 1, 6, 8], range(10, -1, -1)):
         for i in order:
             np.testing.assert_array_equal(s.ragged("camera/points", i), rows[i])
@@ -228,6 +233,10 @@ def test_resume_after_sigkill_mid_shard_matches_uninterrupted_run(tmp_path):
         os.utime(f, (time.time() - 7200, time.time() - 7200))
     young = victim.parent / f".{victim.name}.{'0' * 32}.partial"  # ... and one a live writer may own
     young.write_bytes(b"x")
+    manifest = (out / next(iter(done_before))).parent
+    (manifest / f".0.json.{'0' * 32}.partial").write_bytes(b'{"sha')  # a manifest record half put
+    assert young.name not in open_dataset(str(out)).store.list(str(young.parent.relative_to(out)))
+    assert dataset_info(str(out))["scenes"]   # listings skip temp files (info read the half record as JSON)
     subprocess.run([sys.executable, str(script), str(out)], check=True, timeout=120)
     assert victim.exists()
     assert not any(f.exists() for f in stale) and young.exists()  # resuming swept only the old ones

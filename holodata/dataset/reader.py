@@ -191,7 +191,8 @@ class Scene:
 
 class Ragged:
     """Ragged array: ``values`` (N, width) and ``offsets`` (T+1,) lazy zarr arrays; ``r[i]`` is
-    frame i's (Ni, width) rows (frames of uncommitted shards raise DatasetError)."""
+    frame i's (Ni, width) rows, read-only (a view of the shard read at once when frames are read in
+    order; frames of uncommitted shards raise DatasetError)."""
 
     def __init__(self, scene: Scene, name: str):
         self.scene, self.name = scene, name
@@ -229,8 +230,12 @@ class Ragged:
         blk = self._block
         if blk is None or not blk[0] <= frame < blk[1]:
             if not sequential:   # random access: only this frame's rows
-                return np.asarray(self.values[a:b])
+                rows = np.asarray(self.values[a:b])
+                rows.flags.writeable = False
+                return rows
             # a frame's rows straddle compressed chunks: one read per shard instead of one per frame
             end = min((k + 1) * self.shard_frames, T)
-            blk = self._block = (frame, end, a, np.asarray(self.values[a:int(self._off[end])]))
-        return blk[3][a - blk[2]:b - blk[2]].copy()
+            rows = np.asarray(self.values[a:int(self._off[end])])
+            rows.flags.writeable = False   # frames are handed out as views of it, not copies
+            blk = self._block = (frame, end, a, rows)
+        return blk[3][a - blk[2]:b - blk[2]]

@@ -184,14 +184,17 @@ class Store:
         return n
 
     def list(self, key: str) -> list[str]:
-        """Names (not paths) directly under folder ``key``; [] when absent."""
+        """Names (not paths) directly under folder ``key``; [] when absent. The ``.partial`` temp
+        objects of puts in flight (or of writers killed mid-put) are not listed: they hold no data."""
         try:
             if self.local:
                 d = self.root / key
-                return sorted(p.name for p in d.iterdir()) if d.is_dir() else []
-            return sorted(p.rstrip("/").rsplit("/", 1)[-1] for p in self.fs.ls(self._fresh(key), detail=False))
+                names = [p.name for p in d.iterdir()] if d.is_dir() else []
+            else:
+                names = [p.rstrip("/").rsplit("/", 1)[-1] for p in self.fs.ls(self._fresh(key), detail=False)]
         except (FileNotFoundError, NotADirectoryError):
             return []
+        return sorted(n for n in names if not (n.startswith(".") and n.endswith(".partial")))
 
     def size(self, key: str) -> int:
         if self.local:
