@@ -177,11 +177,16 @@ class VoxelBackground:
                                               need_per_scan=not free_space and n >= 2 and min_fraction > 0)
         need_hits = min(int(min_hits), n)
         if free_space:
-            inv = np.concatenate(inv).astype(np.intp, copy=False)   # bincount would convert int32 per call
-            cnt = np.bincount(inv, minlength=len(keys)).astype(np.float64)
-            allp = np.concatenate(pts)
-            cen = np.stack([np.bincount(inv, allp[:, j], len(keys)) for j in range(3)], 1) / np.maximum(cnt, 1)[:, None]
-            del inv, allp
+            # the voxels' centroids, summed scan by scan: concatenating every scan's points and voxel
+            # positions (26 M returns for 400 scans of 64x1024) cost 2.0 s of fresh memory, this 0.2 s
+            V = len(keys)
+            sums, cnt = np.zeros((V, 3)), np.zeros(V)
+            for p, i in zip(pts, inv):
+                cnt += np.bincount(i, minlength=V)
+                for j in range(3):
+                    sums[:, j] += np.bincount(i, p[:, j], V)
+            cen = sums / np.maximum(cnt, 1)[:, None]
+            del inv, sums
             seen_occ, seen_free = _free_space(pts, np.asarray(origins, np.float64).reshape(-1, 3), cen, voxel,
                                               angle_res_deg, max_scans)
             tot = seen_occ + seen_free
