@@ -1577,8 +1577,13 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                                   enabled=processes > 1)
         front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
         always = ~np.isfinite(med) | still
-        # (one process: split over two beside the LiDAR half's segmentation it gained nothing, 2026-12-02)
-        cand = frame_candidates(cam, range(n), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
+        # the later half of the frames in a second process (numpy and scipy only: it may fork after
+        # open3d's OpenMP), once the LiDAR half has had most of the time before the extrinsic
+        half = n // 2 if processes > 1 else n
+        later = fork_call(frame_candidates, cam, range(half, n), T, rays, front, always, mtree, cfg, images,
+                          label=f"{url}: scene {sid!r}: human candidates", enabled=half < n)
+        cand = frame_candidates(cam, range(half), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
+        cand += later()
         del images
         timings["candidates_s"] = time.perf_counter() - t2
         # the person of interest: person-like clusters near the track's median (people farther away, e.g.
