@@ -191,6 +191,14 @@ def transform_directions(T: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return transform_points(R, dirs)
 
 
+def yaw_rad(R: np.ndarray) -> float:
+    """Heading (rad) of the rotation in the top-left 3x3 of ``R`` (a rotation or a 4x4 transform)
+    about the z axis: ``atan2(R[1,0], R[0,0])``, the angle of a turn about z, and the yaw of the ZYX
+    (yaw-pitch-roll) angles of any rotation."""
+    R = np.asarray(R)
+    return float(np.arctan2(R[1, 0], R[0, 0]))
+
+
 def rotation_angle_deg(R: np.ndarray) -> float:
     """Angle (degrees) of the rotation in the top-left 3x3 of ``R`` (a rotation or a 4x4 transform)."""
     c = (np.trace(np.asarray(R)[:3, :3]) - 1.0) / 2.0

@@ -74,6 +74,19 @@ def test_seconds_to_ns_rounds():
     assert seconds_to_ns([0.1])[0] == 100_000_000
 
 
+def test_yaw_rad_of_turns_and_of_tilted_rotations():
+    from scipy.spatial.transform import Rotation
+
+    from holodata.conventions import yaw_rad
+
+    for deg in (-179.0, -90.0, -0.3, 0.0, 12.5, 135.0):
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+        assert abs(np.degrees(yaw_rad(T)) - deg) < 1e-9 and abs(np.degrees(yaw_rad(T[:3, :3])) - deg) < 1e-9
+    R = Rotation.from_euler("ZYX", [40.0, 10.0, -5.0], degrees=True).as_matrix()   # yaw of yaw-pitch-roll
+    assert abs(np.degrees(yaw_rad(R)) - 40.0) < 1e-9
+
+
 def test_rotation_angle_deg_analytic():
     from scipy.spatial.transform import Rotation
 

@@ -432,3 +432,49 @@ def test_scan_world_is_scan_on_the_valid_returns():
                 assert valid.sum() > 1000
                 assert np.array_equal(valid, v2) and np.array_equal(Pw[valid], pw)
     assert not np.allclose(moving.poses[0], moving.poses[-1])           # the robot moves in this corner
+
+
+def test_lidar_instance_remembers_its_poses(tmp_path):
+    """lidar/instance records the poses it was segmented with: "current" when whole, "partial" with a
+    shard missing (a rerun resumes it), "stale" once the poses change — and a rerun then segments
+    afresh with the new poses instead of keeping shards made with the old ones."""
+    import shutil
+    from pathlib import Path
+
+    from _mapping_synth import small_corner
+
+    from holodata import open_dataset
+    from holodata.dataset import create_dataset
+    from holodata.dataset import shards as sh
+    from holodata.mapping.segment import INSTANCE_ARRAY, instance_state, pose_fingerprint, segment_scene
+
+    src, _ = small_corner()
+    url = str(tmp_path / "ds.zarr")
+    shutil.copytree(src, url)
+    sc = lambda: open_dataset(url).scene("recording")  # noqa: E731
+    segment_scene(url, "recording", overwrite=True)
+    assert instance_state(sc()) == "current"
+    ref = np.asarray(sc()[INSTANCE_ARRAY][...])
+    store = open_dataset(url).store
+    store.delete(sh.manifest_key(f"{sc().path}/{INSTANCE_ARRAY}", 0))
+    assert instance_state(sc()) == "partial"
+    segment_scene(url, "recording")
+    assert instance_state(sc()) == "current" and np.array_equal(np.asarray(sc()[INSTANCE_ARRAY][...]), ref)
+    # new poses: the robot 2 m further along x in every scan
+    ds = open_dataset(url)
+    P = np.asarray(sc()["pose/T_world_lidar"][...])
+    P[:, 0, 3] += 2.0
+    sw = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene("recording")
+    attrs = dict(sc()["pose/T_world_lidar"].attrs)
+    sw.remove("pose/T_world_lidar")
+    a = sw.frame_array("pose/T_world_lidar", per_frame_shape=(4, 4), dtype="float64", dims=attrs["dims"], units="m",
+                       fill_value=float("nan"))
+    for k in range(a.n_shards):
+        a.write_shard(k, P[a.frames(k)])
+    assert instance_state(sc()) == "stale"
+    record = Path(url) / sh.manifest_key(f"{sc().path}/{INSTANCE_ARRAY}", 0)
+    before = record.stat().st_mtime_ns
+    segment_scene(url, "recording")
+    attrs = dict(sc()[INSTANCE_ARRAY].attrs)
+    assert instance_state(sc()) == "current" and attrs["poses_sha256"] == pose_fingerprint(sc())
+    assert record.stat().st_mtime_ns != before                   # every shard made again

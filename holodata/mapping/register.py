@@ -169,7 +169,7 @@ from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
-from ..conventions import rotation_angle_deg, transform_points
+from ..conventions import rotation_angle_deg, transform_points, yaw_rad
 from ..errors import HolodataError, InputError
 from ..parallel import cpus, fork_call
 from ..progress import track
@@ -483,7 +483,7 @@ def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, held_dir
     from scipy.spatial.transform import Rotation
 
     D = T[:3, :3] @ init[:3, :3].T
-    yaw = float(np.degrees(np.arctan2(D[1, 0], D[0, 0])))
+    yaw = float(np.degrees(yaw_rad(D)))
     a = np.asarray(anchor, np.float64)
     u = np.cross([0.0, 0.0, 1.0], init[:3, 3] - a)              # m per radian of turn
     h = np.asarray(held_dir, np.float64)
@@ -1475,7 +1475,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
     docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes."""
     from ..dataset import create_dataset, open_dataset
-    from .segment import LidarScans, _scene_id
+    from .segment import LidarScans, _scene_id, instance_state
 
     cfg = cfg or RegisterConfig()
     t0 = time.perf_counter()
@@ -1498,7 +1498,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     processes = register_processes(cfg)
     # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
     # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
-    segment = cfg.segment_lidar and "lidar/instance" not in names
+    # (lidar/instance made with other poses is made again; one left unfinished is resumed)
+    segment = cfg.segment_lidar and instance_state(scene) != "current"
     stored_map = scene_map(scene) if cfg.slam_map else None
     lidar = None
     if segment or stored_map is None:

@@ -879,13 +879,14 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
     world_points = world_points or {}
     w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
     sw = w.scene(sid)
-    if overwrite and INSTANCE_ARRAY in sw.arrays():
+    poses = pose_fingerprint(scene)
+    if INSTANCE_ARRAY in sw.arrays() and (overwrite or instance_state(scene) == "stale"):
         sw.remove(INSTANCE_ARRAY)
     arr = sw.frame_array(INSTANCE_ARRAY, per_frame_shape=scans.shape, dtype="uint16", dims=["frame", "beam", "column"],
                          units="1", fill_value=0,
                          attrs={"method": "voxel background + erosion seeds + Euclidean flood fill (Ouster OS0)",
                                 "values": "0 = background or no return; 1..n instances by decreasing size",
-                                "params": cfg.to_attrs(), "background_voxels": int(len(bg))})
+                                "params": cfg.to_attrs(), "background_voxels": int(len(bg)), "poses_sha256": poses})
     counts = []
     masks = masks or InstanceMasks(scans, bg, cfg, traj, world_points)
     for s in track(range(arr.n_shards), arr.n_shards, f"segment {sid}", quiet):
@@ -901,6 +902,34 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
         arr.write_shard(s, out)
     return {"scene": sid, "frames": scene.n_frames, "array": INSTANCE_ARRAY, "background_voxels": int(len(bg)),
             "instances_per_scan": float(np.mean(counts)) if counts else 0.0, "seconds": time.perf_counter() - t0}
+
+
+def pose_fingerprint(scene) -> str | None:
+    """sha256 of the scene's ``pose/T_world_lidar`` (float64, C order); None without poses. Stored
+    with ``lidar/instance`` as ``poses_sha256``: the poses its scans were segmented with."""
+    import hashlib
+
+    if "pose/T_world_lidar" not in set(scene.arrays()):
+        return None
+    P = np.ascontiguousarray(scene["pose/T_world_lidar"][...], np.float64)
+    return hashlib.sha256(P.tobytes()).hexdigest()
+
+
+def instance_state(scene) -> str:
+    """What the scene's ``lidar/instance`` is worth now: "current" (every shard written, segmented
+    with the poses the scene holds), "partial" (same poses, shards missing: :func:`segment_scene`
+    resumes it), "stale" (segmented with other poses, or with unknown ones: ``holodata slam`` ran
+    again, or the poses were replaced) or "absent"."""
+    nodes = scene.nodes()
+    if INSTANCE_ARRAY not in nodes:
+        return "absent"
+    attrs = nodes[INSTANCE_ARRAY][1].get("attributes") or {}
+    fp = attrs.get("poses_sha256")
+    if fp is None or fp != pose_fingerprint(scene):
+        return "stale"
+    n = int((attrs.get("holodata") or {}).get("n_shards") or 0)
+    done = n > 0 and all(scene.is_done(INSTANCE_ARRAY, k) for k in range(n))
+    return "current" if done else "partial"
 
 
 class InstanceMasks:
@@ -948,4 +977,5 @@ def _scene_id(ds, url: str, scene_id: str | None) -> str:
 
 __all__ = ["SegmentConfig", "segment_scan", "flood_fill", "erode", "LidarScans", "build_background", "segment_scene",
            "InstanceMasks",
-           "background_and_segment", "surely_without_foreground", "INSTANCE_ARRAY"]
+           "background_and_segment", "surely_without_foreground", "INSTANCE_ARRAY", "instance_state",
+           "pose_fingerprint"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..conventions import yaw_rad
 from ..trajectory import Trajectory
 
 
@@ -107,7 +108,7 @@ def odometry(truth: Trajectory, rng: np.random.Generator, rate_hz: float = 30.0,
     out[0] = np.eye(4)
     for k in range(1, len(P)):
         D = np.linalg.inv(P[k - 1]) @ P[k]
-        dyaw = np.arctan2(D[1, 0], D[0, 0])
+        dyaw = yaw_rad(D)
         moving = np.linalg.norm(D[:2, 3]) > 1e-5
         noise_t = rng.normal(0.0, 0.002 * np.sqrt(dt)) if moving else 0.0
         noise_y = rng.normal(0.0, np.deg2rad(0.2) * np.sqrt(dt)) if moving else 0.0

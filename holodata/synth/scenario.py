@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..conventions import Grid, RangeBins
+from ..conventions import Grid, RangeBins, yaw_rad
 from ..errors import InputError
 from ..progress import track
 from . import truth as truthio
@@ -507,7 +507,7 @@ def _odometry_msg(bw, sc: Scenario, i: int, t_ns: int):
     dt = max(1e-9, (sc.odom.timestamp_ns[j1] - sc.odom.timestamp_ns[j0]) / 1e9)
     D = np.linalg.inv(sc.odom.poses[j0]) @ sc.odom.poses[j1]
     v = D[:3, 3] / dt
-    wz = np.arctan2(D[1, 0], D[0, 0]) / dt
+    wz = yaw_rad(D) / dt
     from scipy.spatial.transform import Rotation
 
     q = Rotation.from_matrix(P[:3, :3]).as_quat()
