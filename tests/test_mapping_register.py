@@ -517,6 +517,54 @@ def test_camera_frames_depth_puts_each_point_back_on_its_pixel():
     assert not np.isfinite(cam.depth(1)).any()
 
 
+def _static_depth_plain(stack, far_quantile=0.8):
+    """The plain formulation of :func:`static_depth_of` (a temporary per step; its code until
+    2026-12-02): the reference it must equal."""
+    from holodata.mapping.register import depth_noise_model, nan_quantile
+
+    n = np.isfinite(stack).sum(0)
+    with np.errstate(all="ignore"):
+        med, far = nan_quantile(stack, (0.5, far_quantile))
+        mad = 1.4826 * nan_quantile(np.abs(stack - med[None]), 0.5)
+        window = np.maximum(3 * depth_noise_model(far, mad), 0.02)
+        background = np.where(np.abs(stack - far[None]) <= window[None], stack, np.nan)
+        med = nan_quantile(background, 0.5)
+        mad = 1.4826 * nan_quantile(np.abs(background - med[None]), 0.5)
+        inl = np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]
+        cnt = inl.sum(0)
+        mean = np.where(cnt > 0, np.nansum(np.where(inl, stack, 0.0), axis=0) / np.maximum(cnt, 1), np.nan)
+        below = np.max(np.where(stack < (far - window)[None], stack, -np.inf), axis=0)
+        apart = (far - window) - below >= window
+    mean = np.where((n * 2 >= len(stack)) & ((cnt * 2 >= n) | apart), mean, np.nan).astype(np.float32)
+    return mean, mad.astype(np.float32), cnt.astype(np.int32)
+
+
+def test_static_depth_of_equals_its_plain_formulation():
+    """Read off one sorted copy of the stack, the static depth is the plain formulation's to the bit:
+    walls with stereo noise, a person in front in some frames, one walking along the line of sight,
+    missing samples, pixels without any, a sample at infinity and tied samples."""
+    from holodata.mapping.register import static_depth_of
+
+    rng = np.random.default_rng(7)
+    F, h, w = 21, 30, 40
+    wall = rng.uniform(2.0, 9.0, (h, w))
+    stack = (wall[None] + rng.normal(0, 0.004, (F, h, w)) * wall[None] ** 2).astype(np.float32)
+    person = rng.random((F, h, w)) < 0.25
+    stack[person] = (wall[None] - rng.uniform(0.3, 1.5, (F, h, w)))[person]
+    stack[:, :5, :5] = np.linspace(1.0, 6.0, F, dtype=np.float32)[:, None, None]   # walking along the view
+    stack[rng.random(stack.shape) < 0.2] = np.nan
+    stack[:, -1, -1] = np.nan                          # never a return
+    stack[3, -1, 0] = np.inf
+    stack[:, 0, -1] = np.float32(4.0)                  # every sample the same
+    for fq in (0.8, 0.5):
+        got = static_depth_of(stack, fq)
+        ref = _static_depth_plain(stack, fq)
+        for g, r in zip(got, ref):
+            assert g.dtype == r.dtype
+            np.testing.assert_array_equal(g, r)
+    assert np.isfinite(got[0]).mean() > 0.5 and not np.isfinite(got[0][:5, :5]).all()
+
+
 def test_nan_quantile_matches_numpy():
     from holodata.mapping.register import nan_quantile
 
