@@ -194,6 +194,25 @@ model with voxel centroids from the free-space test's 80 scans only (model 3.3 -
 the foreground returns, so segmentation 1.6 -> 4.8 s); the model from a 120-scan subset (AP50
 unchanged on a 160-cycle corner with two walkers, 0.80 instead of >= 0.9 on a 10-scan one at half).
 
+2026-12-02 ~08:15 UTC, after the background model's centroids summed scan by scan (model 3.1 -> 1.25 s),
+the human candidates of half the frames in a second process, static_depth_of from one sorted copy and
+read-only ragged views (same register output), `--keep DIR --reuse`, two runs at load 1.7-2.2: ingest
+25.4 (cold page cache) / 11.0, slam 9.7 / 10.8, register 10.8 / 10.0 (camera 1.7-2.3, extrinsic 1.9-2.0,
+humans 5.8-6.1 | background 3.8, segment 2.2-2.3), raytrace-gt 10.6 / 10.3 s: slam+register 20.5 / 20.8 s =
+1.94x / 2.02x raytrace-gt wall, 49 % of the pipeline in the warm run. register alone in a fresh process
+(as ``holodata register`` runs) went from 10.3-12.4 to 9.5-10.0 s that day; inside this benchmark's one
+process, after ingest and slam, it is slower (its forks copy a larger process). This machine (a VM)
+pays ~7 us per page fault: sys time was ~25 % of slam+register's CPU. Tried that day and dropped: reading
+the next ragged shard in a thread while the frames of this one are worked on (candidates 1.8-1.9 -> 2.2-
+2.5 s: no core is free while the LiDAR half runs); glibc malloc settings that keep freed memory
+(MALLOC_MMAP_THRESHOLD_/TRIM_THRESHOLD_: register's faults 370 k -> 160 k, no clear gain in wall time);
+numpy without transparent huge pages (register 9.5-10.0 -> 10.0-10.3 s); slam segmenting the scans in
+a second process beside its mesh so that register has no LiDAR half (slam+register in three alternated
+pairs 17.3 / 21.2 / 21.3 s vs 17.7 / 18.5 / 22.0 s before, and 19.3 / 21.2 / 19.0 vs 19.0 / 17.9 / 18.6 s:
+slam's mesh phase grew 1-2 s, register shrank 0.5-0.9 s). What bounds it: CPU, ~31 s of it for
+slam+register against raytrace-gt's ~20 s; register's camera half reads and projects 1.2 GB of
+camera points (~4 s CPU) that a depth image per frame would hold in 0.2 GB.
+
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
 """

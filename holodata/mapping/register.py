@@ -154,8 +154,9 @@ forked process while this one builds the static depth (from at most ``median_fra
 humans loop makes every frame's depth image again, one at a time, so a long recording's images
 never sit in memory together: 1 GB for 1000 frames at 376x672); the LiDAR
 process hands a map it builds over as soon as it is built and segments beside the extrinsic and
-the humans. After the extrinsic, every other frame's surface (and ``camera/points_world`` when
-asked for) is built/written by another process. The
+the humans. After the extrinsic, the human candidates of the later half of the frames (numpy and
+scipy only: a process forked after open3d's OpenMP must not use it) and every other frame's surface
+(and ``camera/points_world`` when asked for) are made in another process. The
 results are the same as in one process (test). On the 400-cycle corner (64x512 LiDAR, 94x168
 camera) the background model and the map were the critical path (~5.5 s of ~11 s; splitting their
 scans over two processes gained nothing: copy-on-write faults and pickling the points back ate it);

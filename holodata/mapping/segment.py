@@ -40,7 +40,9 @@ corner kind (numbers in ``benchmarks/segment.py``).
 Output per scan: an instance image (Hl, Wl) uint16, 0 = background / no return, 1 = the largest
 instance, 2 = the next ... Stored as ``lidar/instance`` (T, Hl, Wl) uint16 with
 ``dims = [frame, beam, column]`` and the parameters in its attributes (written shard by shard with
-the dataset writer: atomic shards, a rerun resumes).
+the dataset writer: atomic shards, a rerun resumes), with ``poses_sha256``, the fingerprint of the
+``pose/T_world_lidar`` it was made with (:func:`instance_state`: masks made with other poses are
+made again, not resumed or reused).
 
 Points: ``lidar/points`` holds the valid pixels of ``lidar/range`` in row-major order (see
 :mod:`holodata.ingest`), in the sensor frame at each point's own time; with ``lidar/point_time_ns``
