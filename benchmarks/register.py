@@ -15,7 +15,8 @@ humans) twice: from the TF pose of the camera (exact in synth) and from that pos
 * with ``--tf-yaw DEG``: the aligned extrinsic of a third run whose *TF* camera pose (the scene's
   ``sensors.camera.T_map_sensor``, restored afterwards) is turned DEG about the vertical through
   the camera — register's TF path, where the anchored hold applies (a perturbed ``--init`` does not
-  reach it);
+  reach it); with ``--tf-turn DEG`` the same turned about the vertical through the slam map's anchor
+  (the LiDAR at the first scan), the camera's position turning with it;
 * register's runtime (s) with its phases, and bare open3d ``registration_icp`` (point-to-plane, one
   stage at the first correspondence distance, same source/target clouds and init) in the same run:
   runtime ratio register-extrinsic / bare-ICP and the bare ICP's own error.
@@ -67,6 +68,12 @@ robot, map offset deg, centroid mean / max world (aligned / radar frame) cm, reg
   turn in every run), aligned +0.3 / -0.3: T_1 1.85 / 1.87, T_4 0.65 / 0.57 cm; full demo T_11
   1.00 / 0.98, cross_13 3.23 / 1.64 cm (its corridor held at the TF guess, 0.18 deg off the map).
   Reading the yaw alone as the map's turn had given T_4 / T_1 3.65 / 4.05 cm at -0.3.
+  The TF pose turned about the slam map's anchor instead (``--tf-turn +-0.3``, 2026-12-02 08:05 UTC:
+  the error the anchored hold takes for the map's own turn, as a wrong TF pose of the robot's first
+  scan would make it), aligned +0.3 / -0.3: T_1 1.69 / 1.61, T_4 1.47 / 0.58 cm (T_4's map is 0.30
+  deg off already: +0.3 makes 0.6, past ``anchor_max_deg``, so held at the guess); full demo
+  (``--demo-config full --corners T --seeds 11``, and cross 13) T_11 1.50 / 1.68, cross_13 1.05 /
+  0.54 cm (unturned 1.54 and 0.78).
 
   ``--demo-config full --poses slam --no-perturb --no-bare`` (the full demo's 8 corners, 64x1024
   LiDAR 90 deg, 40 frames; 06:17-06:22):
@@ -300,7 +307,8 @@ radar frame, slam rows):
     .venv/bin/python benchmarks/register.py [--frames 40] [--corners T,L,cross,oblique] [--walkers 2]
                                             [--poses truth,slam] [--seeds 1,4] [--perturb 5,2] [--keep DIR]
                                             [--demo-config quick|full] [--lidar 64x1024] [--lidar-fov 33.2]
-                                            [--camera 376x672] [--no-perturb] [--tf-yaw DEG] [--no-bare] [--no-mesh] [--json]
+                                            [--camera 376x672] [--no-perturb] [--tf-yaw DEG] [--tf-turn DEG]
+                                            [--no-bare] [--no-mesh] [--json]
 
 ``--poses truth,slam`` runs every corner with both pose sources (one synthetic recording, one dataset
 per source). ``--demo-config quick``: the frames, LiDAR and camera of ``holodata demo --quick``
@@ -410,14 +418,19 @@ def truth_pose_mesh(url: str, sid: str) -> None:
                      sm.points, source)
 
 
-def turned_tf(sensors: dict, deg: float) -> dict:
+def turned_tf(sensors: dict, deg: float, about: np.ndarray | None = None) -> dict:
     """A copy of a scene's ``sensors`` attrs whose TF camera pose (``camera.T_map_sensor``) is turned
-    by ``deg`` about the vertical through the camera (its position unchanged)."""
+    by ``deg`` about the vertical through the camera (its position unchanged), or through the point
+    ``about`` (3,) (the camera's position turns with it)."""
     from scipy.spatial.transform import Rotation
 
     out = json.loads(json.dumps(sensors))
     T = np.asarray(out["camera"]["T_map_sensor"], float)
-    T[:3, :3] = Rotation.from_euler("z", deg, degrees=True).as_matrix() @ T[:3, :3]
+    Rz = Rotation.from_euler("z", deg, degrees=True).as_matrix()
+    T[:3, :3] = Rz @ T[:3, :3]
+    if about is not None:
+        a = np.asarray(about, float)
+        T[:3, 3] = a + Rz @ (T[:3, 3] - a)
     out["camera"]["T_map_sensor"] = T.tolist()
     return out
 
@@ -453,7 +466,7 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     from holodata.mapping.human_eval import (aligned_extrinsic_error, extrinsic_error, human_centroid_errors,
                                              robot_relative_extrinsic_error, segmentation_ap50, truth_camera_extrinsic,
                                              write_truth_poses)
-    from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene, scene_map
+    from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene, scene_map, slam_anchor
 
     out = {"corner": corner, "seed": seed, "poses": poses}
     t0 = time.perf_counter()
@@ -479,15 +492,20 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     Tt = truth_camera_extrinsic(truth_dir)
     runs = {}
     inits = ([("tf", None)] + ([] if args.no_perturb else [("perturbed", perturb(Tt, *args.perturb))])
-             + ([("tf_yaw", None)] if args.tf_yaw else []))
+             + ([("tf_yaw", None)] if args.tf_yaw else []) + ([("tf_turn", None)] if args.tf_turn else []))
     for name, init in inits:
         ds = open_dataset(url)
         w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
         if "lidar/instance" in w.scene(sid).arrays():
             w.scene(sid).remove("lidar/instance")
-        sensors = ds.scene(sid).attrs["sensors"] if name == "tf_yaw" else None
-        if sensors is not None:    # the TF pose itself off in yaw (register's TF path, not --init)
+        sensors = ds.scene(sid).attrs["sensors"] if name in ("tf_yaw", "tf_turn") else None
+        if name == "tf_yaw":    # the TF pose itself off in yaw (register's TF path, not --init)
             w.scene(sid).set_attrs({"sensors": turned_tf(sensors, args.tf_yaw)})
+        if name == "tf_turn":   # ... turned about the slam map's anchor, as the map itself may be
+            anchor = slam_anchor(ds.scene(sid))
+            if anchor is None:
+                continue
+            w.scene(sid).set_attrs({"sensors": turned_tf(sensors, args.tf_turn, anchor)})
         t1 = time.perf_counter()
         try:
             r = register_scene(url, sid, init=init, cfg=RegisterConfig(), quiet=True)
@@ -537,11 +555,12 @@ def _row(r: dict, args) -> str:
     if pt is not None:
         line += (f" | perturbed {args.perturb[0]:g}cm/{args.perturb[1]:g}deg -> "
                  + (f"{pt['trans_cm']:.2f} cm {pt['rot_deg']:.2f} deg" if "failed" not in pt else "FAILED"))
-    ty = r["register"].get("tf_yaw")
-    if ty is not None:
-        line += (f" | TF yaw {args.tf_yaw:+g}deg -> "
-                 + (f"aligned {ty['aligned']['trans_cm']:.2f} cm {ty['aligned']['rot_deg']:.2f} deg" if "failed" not in ty
-                    else "FAILED"))
+    for key, what, deg in (("tf_yaw", "TF yaw", args.tf_yaw), ("tf_turn", "TF turned about the anchor", args.tf_turn)):
+        ty = r["register"].get(key)
+        if ty is not None:
+            line += (f" | {what} {deg:+g}deg -> "
+                     + (f"aligned {ty['aligned']['trans_cm']:.2f} cm {ty['aligned']['rot_deg']:.2f} deg"
+                        if "failed" not in ty else "FAILED"))
     line += (f" | centroid mean {h['mean_cm']:.1f} med {h['median_cm']:.1f} max {h['max_cm']:.1f} cm "
              f"(aligned {tf['human_aligned']['mean_cm']:.1f}, radar frame {hr['mean_cm']:.1f}) in {h['frames']}/{h['frames'] + h['missing']} "
              f"| speed {r['human_speed_mps']:.2f} m/s | register {tf['seconds']:.1f} s ("
@@ -580,6 +599,10 @@ def main() -> int:
     ap.add_argument("--tf-yaw", type=float, default=0.0,
                     help="also a run with the scene's TF camera pose turned this many degrees about the vertical "
                          "(register's TF path, where the anchored hold applies; 0: no such run)")
+    ap.add_argument("--tf-turn", type=float, default=0.0,
+                    help="also a run with the TF camera pose turned this many degrees about the vertical through the "
+                         "slam map's anchor (the first scan's LiDAR position; slam poses only): a TF error of the form "
+                         "the anchored hold reads as the map's turn")
     ap.add_argument("--no-perturb", action="store_true", help="only the run from the TF pose")
     ap.add_argument("--no-bare", action="store_true", help="skip the bare open3d ICP comparison")
     ap.add_argument("--no-mesh", action="store_true",
