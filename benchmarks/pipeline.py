@@ -211,7 +211,7 @@ a second process beside its mesh so that register has no LiDAR half (slam+regist
 pairs 17.3 / 21.2 / 21.3 s vs 17.7 / 18.5 / 22.0 s before, and 19.3 / 21.2 / 19.0 vs 19.0 / 17.9 / 18.6 s:
 slam's mesh phase grew 1-2 s, register shrank 0.5-0.9 s). What bounds it: CPU, ~31 s of it for
 slam+register against raytrace-gt's ~20 s; register's camera half reads and projects 1.2 GB of
-camera points (~4 s CPU) that a depth image per frame would hold in 0.2 GB.
+camera points (~4 s CPU) that a float32 depth image per frame would hold in 0.4 GB.
 
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
