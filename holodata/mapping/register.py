@@ -172,7 +172,7 @@ import numpy as np
 
 from ..conventions import rotation_angle_deg, transform_points, yaw_rad
 from ..errors import HolodataError, InputError
-from ..parallel import cpus, fork_call
+from ..parallel import cpus, fork_call, release_free_memory
 from ..progress import track
 
 
@@ -1506,6 +1506,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
 
     cfg = cfg or RegisterConfig()
     t0 = time.perf_counter()
+    release_free_memory()      # (before the forks below)
     timings = {}
     ds = open_dataset(url)
     sid = _scene_id(ds, url, scene_id)

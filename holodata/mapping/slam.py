@@ -1094,7 +1094,10 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
     from ..dataset import open_dataset
     from .mesh import MeshConfig
 
+    from ..parallel import release_free_memory
+
     t_all = time.perf_counter()
+    release_free_memory()      # (slam forks the mesh's background model)
     mesh_config = mesh_config or MeshConfig()
     ds = open_dataset(dataset_url)
     if scene_id is None:
