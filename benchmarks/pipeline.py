@@ -212,6 +212,11 @@ pairs 17.3 / 21.2 / 21.3 s vs 17.7 / 18.5 / 22.0 s before, and 19.3 / 21.2 / 19.
 slam's mesh phase grew 1-2 s, register shrank 0.5-0.9 s). What bounds it: CPU, ~31 s of it for
 slam+register against raytrace-gt's ~20 s; register's camera half reads and projects 1.2 GB of
 camera points (~4 s CPU) that a float32 depth image per frame would hold in 0.4 GB.
+Then with ``parallel.release_free_memory`` where slam and register start (register right after slam
+in one process: 10.97-11.29 -> 9.69-10.35 s in three alternated pairs), two runs at load 1.3-2.0 on a
+machine slower than that morning (raytrace-gt 12.0-13.0 s instead of 10.3-10.6): ingest 30.4 (cold) /
+11.7, slam 12.4 / 10.5, register 12.5 / 11.5, raytrace-gt 13.0 / 12.0 s: slam+register 1.92x / 1.83x
+raytrace-gt wall, 48 % of the pipeline in the warm run; largest stage ingest (cold) / raytrace-gt.
 
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse]
