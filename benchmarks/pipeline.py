@@ -217,9 +217,15 @@ in one process: 10.97-11.29 -> 9.69-10.35 s in three alternated pairs), two runs
 machine slower than that morning (raytrace-gt 12.0-13.0 s instead of 10.3-10.6): ingest 30.4 (cold) /
 11.7, slam 12.4 / 10.5, register 12.5 / 11.5, raytrace-gt 13.0 / 12.0 s: slam+register 1.92x / 1.83x
 raytrace-gt wall, 48 % of the pipeline in the warm run; largest stage ingest (cold) / raytrace-gt.
+``--repeat 3`` at ~08:47 UTC (load 1.0-2.4, the machine slower still): ingest 24.8 s (cold), medians slam
+12.1 (11.2-14.4), register 13.7 (13.4-14.4), raytrace-gt 14.4 (13.6-15.0) s: 1.79x (passes 2.12x,
+1.64x, 1.79x).
 
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
-                                            [--gt-diff] [--keep DIR] [--reuse]
+                                            [--gt-diff] [--keep DIR] [--reuse] [--repeat N]
+
+``--repeat N``: N passes of slam (recomputed), register and raytrace-gt after the one ingest; the
+table shows each stage's median (and range), and the ratio of every pass.
 """
 from __future__ import annotations
 
@@ -238,7 +244,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from holodata.conventions import Grid, RangeBins  # noqa: E402
-from holodata.dataset import open_dataset  # noqa: E402
+from holodata.dataset import create_dataset, open_dataset  # noqa: E402
 from holodata.ingest import ingest  # noqa: E402
 
 
@@ -271,6 +277,46 @@ def gt_range_diff(a_url: str, b_url: str) -> dict:
     return out
 
 
+STAGES = ("slam", "register", "raytrace-gt")
+
+
+def mapping_and_gt(url: str, sid: str, work: Path) -> tuple[dict, dict, object, dict]:
+    """One timed pass of slam (recomputed), register and raytrace-gt on the ingested dataset ``url``:
+    (wall s by stage, CPU s by stage, slam's result, register's summary)."""
+    from holodata.groundtruth import GTConfig, HumanDataset, raytrace_standalone
+    from holodata.mapping import slam as S
+    from holodata.mapping.register import register_scene
+    from holodata.meshio import Mesh, write_ply
+    from holodata.trajectory import Trajectory, write_tum
+
+    rows, cpus = {}, {}
+    t0, c0 = time.perf_counter(), cpu()
+    res = S.slam_scene(url, sid, quiet=True, force=True)
+    rows["slam"], cpus["slam"] = time.perf_counter() - t0, cpu() - c0
+    ds = open_dataset(url)
+    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid)
+    if "lidar/instance" in w.arrays():       # (a later pass's register segments again, as the first one does)
+        w.remove("lidar/instance")
+    t0, c0 = time.perf_counter(), cpu()
+    reg = {}
+    try:
+        reg = register_scene(url, sid, quiet=True)
+    except Exception as err:  # noqa: BLE001 - report and go on: the table still times it
+        reg = {"error": str(err)[:200]}
+    rows["register"], cpus["register"] = time.perf_counter() - t0, cpu() - c0
+    sc = open_dataset(url).scene(sid)
+    write_ply(work / "slam_mesh.ply", Mesh(res.mesh[0], res.mesh[1]))
+    write_tum(work / "radar.tum", Trajectory(np.asarray(sc["time/timestamp_ns"][...], np.int64), res.T_world_radar))
+    shutil.rmtree(work / "gt.zarr", ignore_errors=True)
+    t0, c0 = time.perf_counter(), cpu()
+    # what `holodata raytrace-gt DATASET` traces: the mesh and register's human surfaces, at 64x512
+    # (the dataset's own radar grid is kept small to keep synth and ingest fast)
+    raytrace_standalone(work / "slam_mesh.ply", work / "radar.tum", str(work / "gt.zarr"), cfg=GTConfig(),
+                        human=HumanDataset(url, sid), quiet=True)
+    rows["raytrace-gt"], cpus["raytrace-gt"] = time.perf_counter() - t0, cpu() - c0
+    return rows, cpus, res, reg
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=400, help="radar cycles (2 Hz)")
@@ -283,14 +329,13 @@ def main() -> None:
     ap.add_argument("--gt-diff", action="store_true", help="also compare SLAM-mesh GT with truth-mesh GT per bounce")
     ap.add_argument("--keep", default=None)
     ap.add_argument("--reuse", action="store_true", help="with --keep: reuse the synthesised recording there")
+    ap.add_argument("--repeat", type=int, default=1, help="passes of slam, register and raytrace-gt (medians printed: "
+                    "this 2-core machine's wall times vary by 10-20 %% from run to run)")
     args = ap.parse_args()
-    from holodata.groundtruth import GTConfig, HumanDataset, raytrace_standalone
-    from holodata.mapping import slam as S
+    from holodata.groundtruth import GTConfig, raytrace_standalone
     from holodata.mapping.accuracy import evaluate_slam
-    from holodata.mapping.register import register_scene
     from holodata.meshio import Mesh, write_ply
     from holodata.synth import synthesize
-    from holodata.trajectory import Trajectory, write_tum
 
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-pipeline-bench-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -309,31 +354,17 @@ def main() -> None:
         url = str(work / "ds.zarr")
         for p in (work / "ds.zarr", work / "gt.zarr", work / "gt_truth.zarr", work / "gt_slam_truthposes.zarr"):
             shutil.rmtree(p, ignore_errors=True)
-        rows, cpus = {}, {}
         l0 = load()
         t0, c0 = time.perf_counter(), cpu()
         ingest([rec], url, quiet=True)
-        rows["ingest"], cpus["ingest"] = time.perf_counter() - t0, cpu() - c0
+        ingest_s, ingest_cpu = time.perf_counter() - t0, cpu() - c0
         sid = open_dataset(url).scenes[0]
-        t0, c0 = time.perf_counter(), cpu()
-        res = S.slam_scene(url, sid, quiet=True, force=True)
-        rows["slam"], cpus["slam"] = time.perf_counter() - t0, cpu() - c0
-        t0, c0 = time.perf_counter(), cpu()
-        reg = {}
-        try:
-            reg = register_scene(url, sid, quiet=True)
-        except Exception as err:  # noqa: BLE001 - report and go on: the table still times it
-            reg = {"error": str(err)[:200]}
-        rows["register"], cpus["register"] = time.perf_counter() - t0, cpu() - c0
-        sc = open_dataset(url).scene(sid)
-        write_ply(work / "slam_mesh.ply", Mesh(res.mesh[0], res.mesh[1]))
-        write_tum(work / "radar.tum", Trajectory(np.asarray(sc["time/timestamp_ns"][...], np.int64), res.T_world_radar))
-        t0, c0 = time.perf_counter(), cpu()
-        # what `holodata raytrace-gt DATASET` traces: the mesh and register's human surfaces, at 64x512
-        # (the dataset's own radar grid is kept small to keep synth and ingest fast)
-        raytrace_standalone(work / "slam_mesh.ply", work / "radar.tum", str(work / "gt.zarr"), cfg=GTConfig(),
-                            human=HumanDataset(url, sid), quiet=True)
-        rows["raytrace-gt"], cpus["raytrace-gt"] = time.perf_counter() - t0, cpu() - c0
+        passes = []
+        for _ in range(max(1, args.repeat)):
+            passes.append(mapping_and_gt(url, sid, work))
+        rows = {"ingest": ingest_s, **{k: float(np.median([p[0][k] for p in passes])) for k in STAGES}}
+        cpus = {"ingest": ingest_cpu, **{k: float(np.median([p[1][k] for p in passes])) for k in STAGES}}
+        res, reg = passes[-1][2], passes[-1][3]
         l1 = load()
         acc = evaluate_slam(res.trajectory(), res.mesh, truth_dir)
         print(f"{args.corner} corner, {args.frames} radar cycles, LiDAR {args.lidar}, {res.summary['scans']} scans, "
@@ -341,13 +372,22 @@ def main() -> None:
               f"{acc['mesh']['f_5cm']:.3f} | {os.cpu_count()} cores, {l0} before, {l1} after")
         print(f"  slam phases {json.dumps(res.summary['timings'])}  health {json.dumps(res.summary['health'])}")
         print(f"  register phases {json.dumps(reg.get('timings', reg.get('error')))}")
-        print(f"  {'stage':14s} {'wall s':>8s} {'CPU s':>8s}   (CPU: all threads and worker processes)")
+        many = len(passes) > 1
+        print(f"  {'stage':14s} {'wall s':>8s} {'CPU s':>8s}   (CPU: all threads and worker processes"
+              + (f"; medians of {len(passes)} passes of slam, register, raytrace-gt, one ingest)" if many else ")"))
         for k, v in rows.items():
-            print(f"  {k:14s} {v:8.1f} {cpus[k]:8.1f}")
+            spread = ""
+            if many and k in STAGES:
+                w = [p[0][k] for p in passes]
+                spread = f"   ({min(w):.1f}-{max(w):.1f})"
+            print(f"  {k:14s} {v:8.1f} {cpus[k]:8.1f}{spread}")
         sr, sc_ = rows["slam"] + rows["register"], cpus["slam"] + cpus["register"]
         print(f"  {'slam+register':14s} {sr:8.1f} {sc_:8.1f}   = {sr / rows['raytrace-gt']:.2f}x raytrace-gt wall, "
               f"{sc_ / cpus['raytrace-gt']:.2f}x its CPU (slam alone {rows['slam'] / rows['raytrace-gt']:.2f}x wall, "
               f"{cpus['slam'] / cpus['raytrace-gt']:.2f}x CPU)", flush=True)
+        if many:
+            ratios = [(p[0]["slam"] + p[0]["register"]) / p[0]["raytrace-gt"] for p in passes]
+            print(f"  (slam+register) / raytrace-gt per pass: " + ", ".join(f"{r:.2f}x" for r in ratios))
         total = sum(rows.values())
         print(f"  slam+register = {100 * sr / total:.0f} % of the pipeline's wall time (ingest + slam + register + "
               f"raytrace-gt = {total:.1f} s); largest stage: {max(rows, key=rows.get)}", flush=True)
