@@ -517,10 +517,22 @@ def test_camera_frames_depth_puts_each_point_back_on_its_pixel():
     assert not np.isfinite(cam.depth(1)).any()
 
 
+def nan_quantile(stack, q):
+    """``np.nanquantile(stack, q, axis=0)`` of a (F,H,W) stack through register's ``_sorted_quantile``
+    (one sort; ``q`` a number, or a tuple of numbers for a tuple of results): what static_depth_of
+    used until 2026-12-02, checked against numpy below."""
+    from holodata.mapping.register import _sorted_quantile
+
+    s = np.sort(stack, axis=0)                               # NaN sort last
+    n = np.isfinite(stack).sum(0)
+    out = [_sorted_quantile(s, n, qi) for qi in np.atleast_1d(q)]
+    return tuple(out) if isinstance(q, tuple) else out[0]
+
+
 def _static_depth_plain(stack, far_quantile=0.8):
     """The plain formulation of :func:`static_depth_of` (a temporary per step; its code until
     2026-12-02): the reference it must equal."""
-    from holodata.mapping.register import depth_noise_model, nan_quantile
+    from holodata.mapping.register import depth_noise_model
 
     n = np.isfinite(stack).sum(0)
     with np.errstate(all="ignore"):
@@ -566,8 +578,6 @@ def test_static_depth_of_equals_its_plain_formulation():
 
 
 def test_nan_quantile_matches_numpy():
-    from holodata.mapping.register import nan_quantile
-
     rng = np.random.default_rng(3)
     stack = rng.normal(4.0, 0.5, (13, 9, 11))
     stack[rng.random(stack.shape) < 0.3] = np.nan
