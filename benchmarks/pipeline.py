@@ -221,6 +221,18 @@ raytrace-gt wall, 48 % of the pipeline in the warm run; largest stage ingest (co
 12.1 (11.2-14.4), register 13.7 (13.4-14.4), raytrace-gt 14.4 (13.6-15.0) s: 1.79x (passes 2.12x,
 1.64x, 1.79x).
 
+2026-12-02 ~10:35-11:00 UTC on a fresh machine of the same kind (code as at f0b1f45): `--keep DIR`
+(synth 206 s; load 2.0): ingest 15.8, slam 10.1, register 10.9, raytrace-gt 12.6 s = 1.67x, 43 %;
+then `--reuse --repeat 3` (idle, load 0.8-1.7): ingest 31.5 s (the recording had left the page
+cache), medians slam 9.3 (9.1-10.5), register 12.1 (12.0-12.3), raytrace-gt 12.8 (12.7-12.8) s:
+1.68x (passes 1.78x, 1.66x, 1.68x), 33 %. Tried that day and dropped: the first human picks of the
+last 40 % of the frames in a second process once the LiDAR half is done (its outlier removal in
+scipy, the same picks as open3d's): the picks phase did not get shorter (2.6-3.1 s vs 2.7-3.0 s;
+each process ran ~40 % slower per frame beside the other); slam's mesh from at most 60 instead of
+120 scans (50 instead of 78 on this corner): mesh F@5cm 0.998 both, aligned extrinsic 1.03 -> 1.07
+cm, slam 10.8 -> 9.4 s in one pair; not taken: one pair is within this machine's noise, and fewer
+scans at rest give the mesh's background model fewer looks at people walking there (unmeasured).
+
     .venv/bin/python benchmarks/pipeline.py [--frames 400] [--corner L] [--lidar 64x1024] [--camera 376x672] [--walkers 0]
                                             [--gt-diff] [--keep DIR] [--reuse] [--repeat N]
 

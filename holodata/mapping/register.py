@@ -133,7 +133,10 @@ frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lida
    0.96-1.01x (standing) / 1.24-1.28x (walking, the far-leg allowance), its front -0.7..+0.5 cm from
    the true surface, and the centroid error 0.8-1.8 cm standing, 3.0-3.3 cm walking (per-frame
    scatter of the gait: the far leg hidden or not; without the allowance 3.9-5.3 cm, the centroid
-   3.4 cm too near the camera even with the camera at its true pose); faces per frame 3100-4900
+   3.4 cm too near the camera even with the camera at its true pose; the allowance below half the
+   person's height only, 2026-12-02: T_4 true poses 3.1 -> 8.7 cm, the solid 7.6 cm too low, every
+   seed-4 cell 7.9-8.7 cm: on the synthetic walker it also stands for upper-body volume the
+   per-run ellipses miss); faces per frame 3100-4900
    (6650-8800 before), the humans phase +5 % (L_4, 40 frames: 2.09 vs 1.99 s). The camera frame of
    radar frame k is ``camera/timestamp_ns[k]`` away from ``time/timestamp_ns[k]`` (up to half a
    camera period): the surface is shifted by the human's velocity (centroid track, central
