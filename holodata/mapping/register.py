@@ -1,172 +1,48 @@
 """``holodata register``: the depth camera's one-time extrinsic in the map, and per-frame human
-points and closed human surfaces in the map frame.
+points and closed human surfaces in the map frame. Why each step is done as it is, and what was
+measured on the way: ``docs/design/register.md``.
 
 Inputs (a dataset scene): ``camera/points`` (ragged, camera frame; for depth images the optical
-frame, with the intrinsics in the scene's ``sensors.camera.intrinsics``), ``lidar/points`` +
-``pose/T_world_lidar`` (the map), ``camera/timestamp_ns`` and ``time/timestamp_ns``.
+frame, with the intrinsics in ``sensors.camera.intrinsics``), the LiDAR map (``map/points`` of
+``holodata slam``, or ``lidar/points`` + ``pose/T_world_lidar``), ``camera/timestamp_ns`` and
+``time/timestamp_ns``.
 
-1. **Static camera cloud.** The camera does not move during a recording, so the per-pixel depth
-   over the frames (up to ``median_frames`` spread over the recording; pixels recovered from the
-   intrinsics), averaged over the samples within 3 robust sigmas of the median, is a denoised
-   picture of the static scene: a person covering a pixel in fewer than half of the frames does not
-   reach the median.
-2. **Map.** ``holodata slam``'s static map (``map/points``: the scans' static returns averaged per
-   4 cm voxel, moving ones removed by slam's background model; the input of its mesh) when it was
-   built from the poses the scene holds (``slam_map``; :func:`scene_map`). Else built here: every
-   scan in the world frame, minus the LiDAR foreground (returns outside the 15 cm voxel background,
-   :mod:`.background`) and minus a 25 cm margin around the scan's segmented people
-   (``lidar/instance``; a hand near a wall falls into a static voxel and biased the extrinsic by 8
-   cm before), voxel-thinned (``map_voxel``) with normals. On the 16 benchmark cells the two maps
-   give trajectory-aligned extrinsics of 0.12-1.94 cm (mean 0.98) and 0.12-1.82 cm (mean 0.93);
-   slam's saves register the map (the critical path of its LiDAR half).
-3. **Extrinsic** ``T_world_camera`` by point-to-plane ICP (Gauss-Newton, Tukey loss, coarse-to-fine
-   correspondence distances ``icp_distances``; open3d for normals, FPFH and RANSAC) of the static
-   camera cloud onto the map from an informed initial guess: ``--init`` or the TF pose of the camera
-   in the map (``sensors.camera.T_map_sensor``). Updates are *degeneracy-aware*: directions the
-   overlap does not pin down (normal-matrix eigenvalue < ``degenerate_ratio`` × the largest, e.g. a
-   corridor seen end-on) keep the initial guess instead of sliding — open3d's ``registration_icp``
-   slid 43 cm from the exact pose on such a corner; the report counts frozen directions. A held
-   direction is also taken back to within ``hold_m`` (5 cm, what an informed guess is good for) of
-   the guess: a coarse stage, whose wider correspondences still pin it down, had slid the quick
-   demo's cross corner 14 cm along the corridor before the fine stages held it there (2026-12-02;
-   taking held directions all the way back instead cost the T corners up to 1.8 cm from a guess 5 cm
-   / 2 deg off, and T_4 with SLAM poses 2.1 cm, whose coarse stages had found real edges).
-   From the TF guess onto a map of ``holodata slam`` anchored at the TF pose of its first scan
-   (:func:`slam_anchor`), held directions go instead where the map's offset puts the guess: such a
-   map is the TF world turned about that scan's position by the odometry's error there (0.1-0.4
-   deg in synth: 2-7 cm at a camera 10 m away, along whatever direction is held). The data shows
-   such a turn twice — in the camera's yaw correction and in its position correction across the
-   held direction — and when both give the same turn (within ``anchor_agree_deg``, at most
-   ``anchor_max_deg``) the held directions go where it puts the guess (:func:`anchored_guess`,
-   :func:`hold_at`). A TF pose that is itself off in yaw turns the camera without moving it: then
-   they disagree and the held directions stay at the guess (a TF camera pose 0.3 deg off in yaw on
-   the kept cells: T_4 / T_1 slam 0.57-0.65 / 1.85-1.87 cm, 3.65 / 4.05 cm had the yaw alone been
-   read as the map's turn). Measured 2026-12-02 on the kept benchmark cells (register from the TF
-   guess, aligned, with ``mesh_degenerate_ratio`` 0.025; the two estimates agreed within
-   0.01-0.06 deg): the full demo's cross_13 6.71 -> 0.78 cm (its coarse stage had slid 7 cm, see
-   ``mesh_degenerate_ratio``), T_4 slam 0.87 -> 0.63, T_1 slam 1.78 -> 1.59, T_11 slam 1.28 ->
-   1.54; without the anchored hold 0.025 alone left cross_13 at 2.43 cm (held at the TF guess,
-   0.18 deg off the map there). An ``--init`` guess is held where it is.
-   Correspondences whose camera and map normals differ by more than ~37° are dropped (near an
-   edge the nearest map point may lie on the other wall: 6-9 cm residuals that biased a cross
-   corner by 7 cm). The camera
-   usually sees much that the LiDAR never did (the hidden branch), so the source is cropped to
-   within ``crop_m`` of the map under the guess and only the *overlap* is judged: camera points
-   within ``overlap_m`` of the map (the precise ones, depth noise <= ``check_sigma_m``, when there
-   are enough). Map normals come from a coarse copy of the map (``map_normal_voxel``, radius
-   ``map_normal_m``): on a sparse map (32 beams over 90 deg) a fine neighbourhood holds one ring, a
-   line whose PCA normal is arbitrary (walls got vertical normals). The map points near the camera
-   cloud are first projected onto their local planes (:func:`local_plane_projection`, radius
-   ``map_plane_m``; edges and clutter stay): on the oblique corner, whose only overlap lies 8.5-9 m
-   from the camera, the LiDAR's few-millimetre noise was amplified into a 4.5 cm extrinsic error
-   (1.2 cm with the map points moved onto the true surface, 1.45 cm denoised; measured on the 16
-   benchmark cells: benchmarks/register.py). Where the scene holds a static mesh built from the
-   poses it holds (``holodata slam``'s ``mesh/*``: Poisson, the large planes snapped flat;
-   :func:`scene_mesh`), points ``mesh_sample_m`` apart on its faces within reach of the camera
-   cloud under the guess, with the faces' normals (:func:`mesh_surface_samples`), join the target
-   (``mesh_target``; ``mesh_keep_map_m`` > 0 would instead drop the map points within that distance
-   of them: measured a little worse; again 2026-12-02 with 0.05, a wash: 16 benchmark cells mean
-   aligned 0.99 vs 1.01 cm but max 1.96 vs 1.94, T_4 truth 0.94 -> 1.68, T_1 truth 0.99 -> 0.41; full
-   demo mean 1.01 vs 0.97 cm), and directions are held at the guess only below
-   ``mesh_degenerate_ratio`` (against the noisy points alone a T corner's corridor seen end-on was
-   held at the guess, which then decided the error: 2.1-2.4 cm from a 5 cm / 2 deg perturbed
-   guess, 0.8-1.8 cm with the mesh and the lower ratio from either guess; on the noisy quick-demo
-   camera the lower ratio cost up to 2 cm on T_11, and without the mesh it slid 17 cm there, so the
-   mesh-less path keeps ``degenerate_ratio``; 0.01 let the quick demo's cross corner slide 20 cm
-   along a direction at 0.015 whose pose std claimed 0.2 cm, so the mesh ratio is 0.02: 6.6 cm
-   there, and on the 16 benchmark cells' cached clouds 0.12-1.82 cm as with 0.01, T_4 slam 1.24 vs
-   1.20, while 0.05 lets T_4 slam miss at 2.98 cm; 0.025 since 2026-12-02, with the anchored hold
-   above: the full demo's cross_13, 64x1024 at 90 deg, slid 7 cm along its corridor in the coarse
-   stage, where that direction stood at 0.0228 — the robust cost there keeps falling as the overlap
-   grows, with no minimum within ±12 cm — 4.93 -> 0.12 cm with the true poses; 0.03 took T_1 / T_4
-   truth to 0.42 / 0.41 cm from the TF guess but T_4 truth to 2.68 cm from a 5 cm / 2 deg
-   perturbed one, whose error its 0.08 m stage then held). Scenes without a
-   matching mesh register as before. On the 16 benchmark cells the trajectory-aligned
-   extrinsic went from 0.27-3.20 cm (4 cells over 2 cm) to 0.12-1.82 cm (benchmarks/register.py).
-   Correspondences and the check
-   use the distance to the map's *surface* (point-to-plane residual), not to its nearest point: on
-   that map the rings are 25-40 cm apart, so at the exact pose only 37-76 % of the overlap was
-   within 5 cm of a map point (the old fitness failed at the truth) against 73-99 % within 5 cm of
-   the surface. Accepted when the overlap is large enough (``min_overlap_points``), its fraction
-   within ``inlier_m`` of the surface (``fitness``) >= ``min_fitness``, the inlier RMSE <=
-   ``max_rmse_m`` and the pose is determined by the data (:func:`pose_uncertainty`: standard
-   deviation <= ``max_pose_std_m`` along every direction not held at the guess). Otherwise
-   **FPFH + RANSAC** (open3d feature matching on both clouds) followed by
-   the same ICP, accepted only when it passes the same check; if neither passes, register fails
-   with the numbers (no silent bad extrinsic).
-4. **Human points per frame.** Candidates: camera points in front of the static depth by more
-   than ``max(fg_min_m, fg_sigma · σ_z)`` (σ_z the per-pixel spread over the frames) — a moving
-   person — plus the pixels of the static cloud on none of its large RANSAC planes (floor, walls,
-   ceiling) — a person standing still, who is part of the temporal background; minus points within
-   ``map_explain_m`` of the map. Clustered (voxel connectivity, ``cluster_m``); the largest
-   person-like cluster (vertical extent >= ``min_height_m``, robust plan extent <= ``max_width_m``)
-   within ``track_radius_m`` of the median position over all frames (others walking elsewhere are
-   not the person of interest), statistical outliers removed, is the human, in the map frame. A
-   pick farther from both neighbouring picks than a walk allows (:func:`track_jumps`) is picked
-   again within 2 ``track_jump_m`` of where they put the person (:func:`track_prediction`), or dropped
-   (quick demo T corner: a 117-point wall fragment 1.4 m away while the person was lost in noise).
-5. **Closed surface per radar frame.** The camera sees the front of the person only
-   (:func:`body_columns`). Each horizontal run of human pixels (single stereo holes bridged,
-   ``surface_gap_px``) is a cross-section of the body: width w from the run, depth D = w clipped to
-   [``min_thickness_m``, ``thickness_m``] (limbs about as deep as wide, the torso capped), an ellipse
-   with axes w and D centred at the run's robust mean of (measured plan range + the ellipse's front
-   offset): each pixel stands for a horizontal column through that ellipse, so the back is the front
-   mirrored through the centre and the per-pixel stereo noise (σ ≈ 5 cm at 3.6 m on the synthetic
-   ZED) only moves the run's centre, averaged. The lowest human pixel of each image column within
-   ``floor_reach_m`` of the floor reaches down to it (the foreground test loses the feet, whose
-   background, the floor just behind them, is too near; in stride the far leg's foot and ankle are
-   also lost or hidden behind the near foot, its lowest pixel up to ~30 cm above the floor: 0.12 ->
-   0.35 m took the quick demo's walking people from 4.6 to 4.1 cm mean centroid error, their
-   estimate having sat 3.6-5 cm too high, and the 16 benchmark cells from 1.38 / 3.19 to 1.30 /
-   3.05 cm, seeds 1 / 4). A person walking along the view hides the
-   far leg (in stride) and arm behind the near ones: the columns' far ends go ``walk_back_frac`` · D
-   further back, scaled by the speed along the view (:func:`radial_speed`) up to
-   ``walk_back_speed_mps`` (> 0; nothing for a person standing or crossing the view). The columns
-   are voxelised (``surface_voxel``) by volume: a voxel is occupied when they fill at least half of
-   it, and its boundary faces are emitted (:func:`closed_surface`): a closed, watertight, outward-oriented
-   triangle surface by construction (every face separates an occupied from an empty voxel) that
-   follows concavities (between legs and arms) unlike a convex hull and, unlike Poisson/alpha
-   shapes, needs no parameters that can leave holes. Measured on the 16 benchmark cells
-   (benchmarks/register.py, true and slam poses; seed 1 a person standing, seed 4 walking along the
-   view): before (every point extruded over D away from the camera, every voxel a sample touched
-   occupied) the solid was 2.4-3.0x the true body, its front 8-10 cm nearer the camera than the true
-   surface (along the camera rays, camera at its true pose) and its centre of mass 2.4-3.3 cm too
-   low (the thin legs inflated most): centroid error 3.4-4.0 cm (aligned frame). Now the solid is
-   0.96-1.01x (standing) / 1.24-1.28x (walking, the far-leg allowance), its front -0.7..+0.5 cm from
-   the true surface, and the centroid error 0.8-1.8 cm standing, 3.0-3.3 cm walking (per-frame
-   scatter of the gait: the far leg hidden or not; without the allowance 3.9-5.3 cm, the centroid
-   3.4 cm too near the camera even with the camera at its true pose; the allowance below half the
-   person's height only, 2026-12-02: T_4 true poses 3.1 -> 8.7 cm, the solid 7.6 cm too low, every
-   seed-4 cell 7.9-8.7 cm: on the synthetic walker it also stands for upper-body volume the
-   per-run ellipses miss); faces per frame 3100-4900
-   (6650-8800 before), the humans phase +5 % (L_4, 40 frames: 2.09 vs 1.99 s). The camera frame of
-   radar frame k is ``camera/timestamp_ns[k]`` away from ``time/timestamp_ns[k]`` (up to half a
-   camera period): the surface is shifted by the human's velocity (centroid track, central
-   differences) times that offset.
+1. **Static camera cloud** (:func:`static_depth`): the camera does not move, so per pixel the
+   depth over up to ``median_frames`` frames, averaged over its background samples (a moving person
+   is only ever in front of the static scene), is a denoised picture of the static scene.
+2. **Map** (:func:`scene_map`): slam's static point map when it was built from the scene's poses;
+   else every scan in the world frame minus the LiDAR foreground and the segmented people
+   (:func:`map_cloud`).
+3. **Extrinsic** ``T_world_camera`` (:func:`register_extrinsic`): point-to-plane Gauss-Newton ICP
+   with a Tukey loss, coarse to fine (``icp_distances``), of the static camera cloud onto the map
+   (denoised onto local planes, :func:`local_plane_projection`) and slam's mesh near the camera
+   (:func:`mesh_surface_samples`), from ``--init`` or the TF pose. Directions the overlap does not
+   pin down are held at the guess (or where the SLAM map's own turn puts it, :func:`anchored_guess`)
+   instead of sliding. Accepted only when overlap, fitness, RMSE and the pose's standard deviation
+   (:func:`pose_uncertainty`) pass; else FPFH + RANSAC then the same ICP and check; else register
+   fails with the numbers.
+4. **Human points per frame** (:func:`frame_candidates`, :func:`pick_human`): returns in front of
+   the static depth (a moving person) or on no large plane of the static cloud (a person standing
+   still), not explained by the map; the largest person-like cluster near the track, outliers
+   removed; picks that jump are picked again near the track's prediction (:func:`track_jumps`).
+5. **Closed surface per radar frame** (:func:`body_columns`, :func:`closed_surface`): each
+   horizontal run of human pixels is an elliptic cross-section of the body behind the visible front
+   (deeper behind a person walking along the view, whose far leg is hidden); the columns are
+   voxelised and the boundary of the half-filled voxels is a closed, outward-oriented surface; it
+   is shifted by the human's velocity from the camera stamp to the radar frame's stamp.
 
 Outputs (scene): ``human/vertices`` + ``human/faces`` ragged per frame (world frame, float32 /
-int32; what ``holodata raytrace-gt`` reads), ``human/points`` ragged (world frame human points),
-``calib/T_world_camera`` (4,4) and the registration report in scene attrs ``register``.
-``camera/points`` itself is not rewritten into the map frame (finished shards are never rewritten
-and ingest's resume relies on them): :func:`camera_points_world` gives any frame's cloud in the map
-frame through ``calib/T_world_camera``; ``write_camera_world`` (``--camera-world``) also stores that
-copy as ``camera/points_world`` — as large as ``camera/points`` (0.9 GB for 400 frames at 376x672)
-and ~7 s of register's 21 s there, so off by default.
+int32; what ``holodata raytrace-gt`` reads), ``human/points`` ragged (world frame),
+``calib/T_world_camera`` (4,4), ``lidar/instance`` (the segmentation, :mod:`.segment`) and the
+report in the scene attrs ``register``. :func:`camera_points_world` gives any frame's camera cloud
+in the map frame; ``write_camera_world`` (``--camera-world``) also stores that copy
+(``camera/points_world``, as large as ``camera/points``).
 
 **Processes** (``processes``, default two on a two-CPU machine; :mod:`holodata.parallel`): the LiDAR
-half (background model, map unless slam's is used, then the segmentation of every scan) runs in a
-forked process while this one builds the static depth (from at most ``median_frames`` frames; the
-humans loop makes every frame's depth image again, one at a time, so a long recording's images
-never sit in memory together: 1 GB for 1000 frames at 376x672); the LiDAR
-process hands a map it builds over as soon as it is built and segments beside the extrinsic and
-the humans. After the extrinsic, the human candidates of the later half of the frames (numpy and
-scipy only: a process forked after open3d's OpenMP must not use it) and every other frame's surface
-(and ``camera/points_world`` when asked for) are made in another process. The
-results are the same as in one process (test). On the 400-cycle corner (64x512 LiDAR, 94x168
-camera) the background model and the map were the critical path (~5.5 s of ~11 s; splitting their
-scans over two processes gained nothing: copy-on-write faults and pickling the points back ate it);
-with slam's map the LiDAR process only builds the background model and segments, beside the rest
-(register 7.3 s at load 5, ``benchmarks/pipeline.py``).
+half (background model, map unless slam's is used, segmentation of every scan) runs in a forked
+process beside the camera half; after the extrinsic, the human candidates of the later half of the
+frames and every other frame's surface are made in another one. The results are the same as in
+one process (test).
 """
 from __future__ import annotations
 
@@ -187,7 +63,8 @@ class RegistrationError(HolodataError, RuntimeError):
 
 @dataclass(frozen=True)
 class RegisterConfig:
-    """Parameters (metres unless noted); see the module docstring for their roles."""
+    """Parameters (metres unless noted); docs/design/register.md says what each does and why it has
+    this value."""
 
     map_voxel: float = 0.04
     map_max_scans: int = 120
@@ -205,11 +82,12 @@ class RegisterConfig:
     mesh_degenerate_ratio: float = 0.025
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
-    hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (module doc, 3.)
-    anchor_max_deg: float = 0.5    # TF guess, slam map: held directions follow a map turn up to this (module doc, 3.)
+    hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (docs/design/register.md, 3.)
+    anchor_max_deg: float = 0.5    # TF guess, slam map: held directions follow a map turn up to this
+                                   # (docs/design/register.md, 3.)
     anchor_agree_deg: float = 0.1  # ... that the camera's yaw and position corrections show alike
     # measured on the quick-demo corners (noisy 188x336 stereo, 12 frames): inverse-variance weights
-    # and variance-based freezing were no better than uniform weights (module docstring); kept as options
+    # and variance-based freezing were no better than uniform weights; kept as options
     noise_weights: bool = False
     max_std_m: float = 0.0
     max_scale_m: float = 0.25
@@ -670,7 +548,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`weighted_icp`); checked;
     FPFH+RANSAC+ICP fallback, checked. ``mesh`` (vertices (V,3), faces (F,3)): a static mesh of the
     scene in the map's frame (:func:`scene_mesh`) whose surface near the camera cloud joins the
-    target (module docstring, 3.). ``anchor`` (3,) m: ``init`` is a TF pose and the map a SLAM map
+    target (docs/design/register.md, 3.). ``anchor`` (3,) m: ``init`` is a TF pose and the map a SLAM map
     anchored at the TF pose of a scan taken there; directions the ICP holds then go where the map's
     offset puts the guess (:func:`anchored_guess`) instead of staying at it. Never returns an
     unchecked transform: ``accepted`` False means both failed (the caller raises)."""
