@@ -143,4 +143,4 @@ def fork_call(fn: Callable, *args, label: str = "", enabled: bool = True, early:
     return Forked(label, proc, recv, recv_early)
 
 
-__all__ = ["WorkerError", "Forked", "fork_call", "cpus", "can_fork"]
+__all__ = ["WorkerError", "Forked", "fork_call", "cpus", "can_fork", "release_free_memory"]
