@@ -6,7 +6,8 @@ import click
 
 @click.command()
 @click.argument("dataset")
-@click.option("--checkpoint", required=True, type=click.Path(exists=True), help="RUN directory or RUN/checkpoint.pt.")
+@click.option("--checkpoint", type=click.Path(exists=True), help="RUN directory or RUN/checkpoint.pt (not with --oracle).")
+@click.option("--oracle", is_flag=True, help="Score the ground truth itself (GT ranges, normals, labels) through the same stage-two un-mirroring: a perfect prediction, which must score perfectly.")
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Report directory (metrics.json, report.html, PNGs).")
 @click.option("--split", default="test", show_default=True, help="Dataset split to evaluate.")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
@@ -16,15 +17,20 @@ import click
 @click.option("--screenshot", is_flag=True, help="Also save REPORT/report.png (headless Chromium).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print metrics.json on stdout.")
-def evaluate(dataset, checkpoint, out, split, device, max_frames, estimator, screenshot, quiet, as_json):
+def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estimator, screenshot, quiet, as_json):
     """Evaluate a trained checkpoint and the strongest-peaks baseline on DATASET's split.
 
+    \b
     Example: holodata evaluate demo/dataset.zarr --checkpoint runs/unet --out runs/unet/report
+    The ground truth through the same stage two (a check of origins, frames and metrics):
+             holodata evaluate demo/dataset.zarr --oracle --out oracle-report
     """
     from holodata.evaluate import evaluate as run_evaluate
 
+    if oracle == (checkpoint is not None):
+        raise click.UsageError("give either --checkpoint RUN or --oracle")
     doc = run_evaluate(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet,
-                       estimator=estimator)
+                       estimator=estimator, oracle=oracle)
     if screenshot:
         from pathlib import Path
 

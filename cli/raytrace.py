@@ -22,9 +22,9 @@ from holodata.cli.options import dask_options
 @click.option("--max-bounces", default=3, show_default=True, type=click.IntRange(1, 16))
 @click.option("--max-range", default=9.6, show_default=True, type=click.FloatRange(min=0, min_open=True), help="Metres of accumulated travel distance.")
 @click.option("--backend", type=click.Choice(["open3d", "embreex"]), default="open3d", show_default=True)
-@click.option("--rotation-radius", default=0.0, show_default=True, type=click.FloatRange(min=0), help="Beam origin on the rotation circle of this radius (m) per column; 0 = rotation centre. The paper's radar: 0.105.")
-@click.option("--column-time", is_flag=True, help="Each column at its own time within the rotation (pose SLERP between trajectory samples).")
-@click.option("--rotation-hz", default=2.0, show_default=True, type=click.FloatRange(min=0, min_open=True), help="Rotation rate for --column-time.")
+@click.option("--rotation-radius", default=None, type=click.FloatRange(min=0), help="Beam origin on the rotation circle of this radius (m) per column; 0 = rotation centre. Default: the model the recording states (DESIGN: the rotation centre).")
+@click.option("--column-time/--no-column-time", default=None, help="Each column at its own time within the rotation (pose SLERP between trajectory samples; rotation cycles from radar/cycle_ns). Default: the recording's model (on).")
+@click.option("--rotation-hz", default=None, type=click.FloatRange(min=0, min_open=True), help="Rotation rate for column times of frames without a stored rotation cycle (default 2).")
 @click.option("--codec", type=click.Choice(["lz4", "zstd"]), default="lz4", show_default=True, help="Blosc codec (with shuffle) of the gt arrays: lz4 encodes ~2x faster, zstd files are ~25% smaller.")
 @click.option("--shard-frames", default=None, type=click.IntRange(1), help="Frames per shard of the gt arrays (default: the dataset's; 32 for a new one).")
 @click.option("--threads", default=0, show_default=True, type=click.IntRange(0), help="Ray-casting threads per process (0 = cores / processes).")
@@ -66,8 +66,14 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
         g = Grid.parse(grid, elevation_fov)
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="--grid/--elevation-fov") from None
+    origin = None  # the recording's model; any origin flag replaces it (unset ones at DESIGN's defaults)
+    if (rotation_radius, column_time, rotation_hz) != (None, None, None):
+        d = OriginModel()
+        origin = OriginModel(d.rotation_radius if rotation_radius is None else rotation_radius,
+                             d.column_time if column_time is None else column_time,
+                             d.rotation_hz if rotation_hz is None else rotation_hz)
     cfg = GTConfig(grid=g, max_bounces=max_bounces, max_range=max_range, backend=backend,
-                   origin=OriginModel(rotation_radius, column_time, rotation_hz), shard_frames=shard_frames,
+                   origin=origin, shard_frames=shard_frames,
                    nthreads=threads, codec=codec)
     from holodata.distributed import cluster
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .conventions import RADAR_ROTATION_RADIUS_M, Grid, RangeBins
+from .conventions import Grid, RangeBins
 from .errors import InputError
 
 # (corner kind, seed): every kind of the reference dataset is represented; the last ones are held out
@@ -91,7 +91,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     per stage (default: silent)."""
     from .dataset import create_dataset, validate_dataset
     from .evaluate import evaluate
-    from .groundtruth import GTConfig, OriginModel, raytrace_dataset
+    from .groundtruth import GTConfig, raytrace_dataset
     from .ingest import ingest
     from .torch import TrainConfig, train
 
@@ -132,9 +132,8 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     stage(f"mapping:{mapping}", t0)
 
     t0 = time.perf_counter()
-    # the synthetic radar spins on a 10.5 cm arm while the robot moves: per-column origins and times
-    gt_cfg = GTConfig(origin=OriginModel(rotation_radius=RADAR_ROTATION_RADIUS_M, column_time=True))
-    raytrace_dataset(str(url), ids, gt_cfg, quiet=quiet)
+    # the beams the recordings state (synth: from the rotation centre, each column at its own time)
+    raytrace_dataset(str(url), ids, GTConfig(), quiet=quiet)
     w.set_splits(train=ids[: -cfg.n_test], test=ids[-cfg.n_test:])
     stage("raytrace-gt", t0)
 

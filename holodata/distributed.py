@@ -169,7 +169,8 @@ def _tracer(token: str, payload: dict):
     cur = getattr(_LOCAL, "tracer", None)
     if cur is None or cur[0] != token:
         _LOCAL.tracer = None  # drop the previous scene before building the next
-        _LOCAL.tracer = (token, FrameTracer(payload["mesh"], payload["cfg"], payload["traj"], payload["human"]))
+        _LOCAL.tracer = (token, FrameTracer(payload["mesh"], payload["cfg"], payload["traj"], payload["human"],
+                                                payload.get("cycles")))
     return _LOCAL.tracer[1]
 
 
@@ -209,16 +210,17 @@ def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: i
 
 
 def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quiet: bool = True,
-                     label: str = "raytrace-gt") -> dict:
+                     label: str = "raytrace-gt", cycles=None) -> dict:
     """Run a raytrace-gt ``plan`` [(shard, names, frames)] of dataset scene ``sc`` (a SceneWriter)
-    as one Dask task per shard. Returns {workers, ray_threads, tasks: [...]}."""
+    as one Dask task per shard (``cycles``: per-frame rotation start/end, see
+    :class:`holodata.groundtruth.FrameTracer`). Returns {workers, ray_threads, tasks: [...]}."""
     from dataclasses import replace
 
     local = getattr(client, "holodata_local_workers", 0)
     threads = cfg.nthreads or (max(1, cpus() // local) if local else 0)
     wcfg = replace(cfg, nthreads=threads)
     payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": _for_workers(human), "url": worker_path(sc.ds.url),
-               "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id}
+               "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id, "cycles": cycles}
     token = uuid.uuid4().hex
     [fut] = client.scatter([payload], broadcast=True, hash=False)
     calls = [(token, fut, k, list(names), frames.start, frames.stop) for k, names, frames in plan]

@@ -8,13 +8,11 @@ frame (:class:`holodata.raytrace.RayScene`). Outputs per scene (T frames, B boun
   gt/point (T,B,H,W,3) float32 world frame    gt/label (T,B,H,W) uint8 (conventions.Label)
   gt/semantic (T,B,H,W) uint8 class id        gt/human_center (T,1,3) float32, NaN when absent
 
-Beam origin models (recorded in scene attrs ``gt.origin_model``):
-  * default: every beam starts at the rotation centre (the pose's translation);
-  * ``rotation_radius`` r > 0: column j starts on the rotation circle at ``r (cos phi_j, sin phi_j, 0)``
-    in the radar frame (the antenna looks outward along its azimuth);
-  * ``column_time``: the frame timestamp is the middle of the rotation (the heatmap stamp); column j
-    is sampled at its centre ``t + ((j + 0.5) / W - 0.5) / rotation_hz`` with the pose interpolated
-    (SLERP) from the trajectory.
+Beam origins (:mod:`holodata.beams`, recorded in scene attrs ``gt.origin_model``): by default the
+model the recording states (scene attrs ``sensors.radar.beam_origin``, written by ingest), else
+DESIGN §2's default — the rotation centre, each column at its own time within the rotation (from
+``radar/cycle_ns`` when stored) with the pose SLERP-interpolated from the trajectory. A
+``GTConfig.origin`` (the CLI's ``--rotation-radius``/``--column-time``) overrides it.
 
 Arrays are Blosc lz4 + shuffle by default (this stage is CPU-bound; ``codec="zstd"`` gives ~25%
 smaller files at ~2x the encoding time).
@@ -41,6 +39,7 @@ from .conventions import (
     Grid,
     RangeBins,
 )
+from .beams import OriginModel, beam_rays, column_poses, column_times, scene_origin_model
 from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .parallel import cpus
@@ -57,28 +56,12 @@ class TracingError(HolodataError, RuntimeError):
 
 
 @dataclass
-class OriginModel:
-    """Where beams start: ``rotation_radius`` m (0 = rotation centre), ``column_time`` (per-column
-    pose within the rotation, SLERP), ``rotation_hz`` rotation rate for column times."""
-
-    rotation_radius: float = 0.0
-    column_time: bool = False
-    rotation_hz: float = RADAR_ROTATION_HZ
-
-    def to_attrs(self) -> dict:
-        kind = "rotation_circle" if self.rotation_radius > 0 else "rotation_centre"
-        return {"type": kind, "rotation_radius_m": float(self.rotation_radius),
-                "column_time": bool(self.column_time), "rotation_hz": float(self.rotation_hz),
-                "column_times": "t + ((j + 0.5)/W - 0.5)/rotation_hz (t = middle of the rotation)" if self.column_time else None}
-
-
-@dataclass
 class GTConfig:
     grid: Grid = field(default_factory=Grid)
     max_bounces: int = DEFAULT_MAX_BOUNCES
     max_range: float = DEFAULT_MAX_RANGE_M
     backend: str = "open3d"
-    origin: OriginModel = field(default_factory=OriginModel)
+    origin: OriginModel | None = None  # None: the scene's recorded model (ingest), else the default
     shard_frames: int | None = None  # frames per shard of new arrays (None: the dataset's, 32 when new)
     nthreads: int = 0
     codec: str | None = "lz4"  # Blosc codec of the gt arrays: lz4 encodes ~2x faster than zstd, ~30% larger
@@ -86,29 +69,6 @@ class GTConfig:
 
 
 # ---------------------------------------------------------------------------- beams
-def beam_rays(grid: Grid, pose: np.ndarray, origin: OriginModel = OriginModel(),
-              column_poses: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame beam origins and unit directions (H*W, 3) float64 for one frame.
-
-    ``pose`` (4,4) T_world_radar; ``column_poses`` (W,4,4) per-column poses (column_time model)."""
-    dirs = grid.directions()  # (H,W,3) radar frame
-    H, W = grid.H, grid.W
-    local_o = np.zeros((W, 3))
-    if origin.rotation_radius > 0:
-        az = grid.azimuths()
-        local_o[:, 0] = origin.rotation_radius * np.cos(az)
-        local_o[:, 1] = origin.rotation_radius * np.sin(az)
-    if column_poses is None:
-        R, t = pose[:3, :3], pose[:3, 3]
-        d = dirs.reshape(-1, 3) @ R.T
-        o = np.broadcast_to(local_o @ R.T + t, (H, W, 3)).reshape(-1, 3)
-        return np.ascontiguousarray(o), d
-    R, t = column_poses[:, :3, :3], column_poses[:, :3, 3]  # (W,3,3), (W,3)
-    d = np.einsum("wij,hwj->hwi", R, dirs).reshape(-1, 3)
-    o = np.broadcast_to(np.einsum("wij,wj->wi", R, local_o) + t, (H, W, 3)).reshape(-1, 3)
-    return np.ascontiguousarray(o), d
-
-
 _GRID_SOA: dict = {}
 
 
@@ -117,13 +77,6 @@ def _grid_soa(grid: Grid) -> np.ndarray:
     if grid not in _GRID_SOA:
         _GRID_SOA[grid] = np.ascontiguousarray(grid.directions().reshape(-1, 3).T, dtype=np.float32)
     return _GRID_SOA[grid]
-
-
-def column_times(t_ns: int, grid: Grid, origin: OriginModel) -> np.ndarray:
-    """(W,) int64 ns: the frame timestamp is the middle of the rotation (as the heatmap stamp);
-    column j is sampled at its centre, ``t + ((j + 0.5) / W - 0.5) / rotation_hz``."""
-    frac = (np.arange(grid.W) + 0.5) / grid.W - 0.5
-    return t_ns + np.round(frac / origin.rotation_hz * 1e9).astype(np.int64)
 
 
 # ---------------------------------------------------------------------------- humans
@@ -246,18 +199,20 @@ def mesh_sha256(vertices: np.ndarray, faces: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def trace_frame(scene, cfg: GTConfig, traj: Trajectory, k: int, human, human_vertices=None) -> dict:
+def trace_frame(scene, cfg: GTConfig, traj: Trajectory, k: int, human, human_vertices=None, cycles=None) -> dict:
     """Ground truth of frame ``k``: dict of per-frame arrays in the gt/* layout (B-major). ``human``:
-    (vertices, faces) world frame, or ``scene.prepare_dynamic(...)``, or None."""
+    (vertices, faces) world frame, or ``scene.prepare_dynamic(...)``, or None. ``cycles`` (T,2) int64
+    rotation start/end per frame (radar/cycle_ns) for per-column times, or None."""
     grid, B = cfg.grid, cfg.max_bounces
+    origin = cfg.origin or OriginModel()
     pose = traj.poses[k]
-    col = traj.interpolate(column_times(int(traj.timestamp_ns[k]), grid, cfg.origin)) if cfg.origin.column_time else None
-    if col is None and cfg.origin.rotation_radius == 0:  # fast path: one origin, rotated grid
+    col = column_poses(traj, k, grid, origin, None if cycles is None else cycles[k])
+    if col is None and origin.rotation_radius == 0:  # fast path: one origin, rotated grid
         d = pose[:3, :3].astype(np.float32) @ _grid_soa(grid)
         res = scene.trace_soa(pose[:3, 3:4].astype(np.float32), d, max_bounces=B, max_range=cfg.max_range,
                               dynamic=human)
     else:
-        o, d = beam_rays(grid, pose, cfg.origin, col)
+        o, d = beam_rays(grid, pose, origin, col)
         res = scene.trace(o, d, max_bounces=B, max_range=cfg.max_range, dynamic=human)
     H, W = grid.H, grid.W
     center = np.full((1, 3), np.nan, dtype=np.float32)
@@ -287,10 +242,18 @@ def gt_array_specs(grid: Grid, B: int) -> dict:
     }
 
 
-def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource) -> dict:
+def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource, origin_source: str | None = None,
+             cycles: bool = False) -> dict:
+    """Scene attrs ``gt``: how the ground truth was traced. ``origin_source``: where the beam-origin
+    model came from ("flags", "recording" or "default"; :func:`holodata.beams.scene_origin_model`);
+    ``cycles``: column times were taken from radar/cycle_ns."""
+    origin = cfg.origin or OriginModel()
     return {
         "backend": cfg.backend, "max_bounces": int(cfg.max_bounces), "max_range_m": float(cfg.max_range),
-        "origin_model": cfg.origin.to_attrs(), "mesh_sha256": mesh_hash, "human": human.describe(),
+        "origin_model": origin.to_attrs(),
+        "origin_source": origin_source or ("flags" if cfg.origin is not None else "default"),
+        "column_times_from": ("radar/cycle_ns" if cycles else "frame stamps") if origin.column_time else None,
+        "mesh_sha256": mesh_hash, "human": human.describe(),
         "los_tolerance_m": LOS_TOLERANCE_M, "class_source": scene.class_source,
         "class_table": {str(k): v for k, v in scene.class_names.items()}, "human_class": int(scene.human_class),
         "grid": cfg.grid.to_attrs(), "normal_dtype": "float16", "codec": cfg.codec or "dataset default (zstd)",
@@ -299,20 +262,21 @@ def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource) -> dict:
 
 class FrameTracer:
     """Traces frames of one scene; built in this process or once per worker process.
-    ``mesh`` = (vertices, faces, face_class | None, class_names | None)."""
+    ``mesh`` = (vertices, faces, face_class | None, class_names | None); ``cycles`` (T,2) int64
+    rotation start/end per frame, or None (see :func:`trace_frame`)."""
 
-    def __init__(self, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource):
+    def __init__(self, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, cycles=None):
         self.scene = _make_scene(*mesh, cfg)
-        self.cfg, self.traj, self.human = cfg, traj, human
+        self.cfg, self.traj, self.human, self.cycles = cfg, traj, human, cycles
         self._last = (None, None)
 
     def __call__(self, f: int) -> dict:
         h = self.human(f)
         if h is None:
-            return trace_frame(self.scene, self.cfg, self.traj, f, None)
+            return trace_frame(self.scene, self.cfg, self.traj, f, None, cycles=self.cycles)
         if h is not self._last[0]:  # build the human BVH once per distinct mesh
             self._last = (h, self.scene.prepare_dynamic(*h))
-        return trace_frame(self.scene, self.cfg, self.traj, f, self._last[1], human_vertices=h[0])
+        return trace_frame(self.scene, self.cfg, self.traj, f, self._last[1], human_vertices=h[0], cycles=self.cycles)
 
 
 _WORKER: dict = {}
@@ -334,13 +298,13 @@ def _slot_bytes(specs: dict) -> int:
                for s in specs.values())
 
 
-def _worker_init(mesh, cfg, traj, human, shm_name, n_slots) -> None:
+def _worker_init(mesh, cfg, traj, human, shm_name, n_slots, cycles=None) -> None:
     from multiprocessing import shared_memory
 
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
     shm = shared_memory.SharedMemory(name=shm_name)
     size = _slot_bytes(specs)
-    _WORKER.update(tracer=FrameTracer(mesh, cfg, traj, human), shm=shm,
+    _WORKER.update(tracer=FrameTracer(mesh, cfg, traj, human, cycles), shm=shm,
                    slots=[_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)])
 
 
@@ -371,14 +335,15 @@ def auto_processes(n_frames: int) -> int:
 
 
 def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
-                   quiet: bool = True, label: str = "raytrace-gt", processes: int = 1, client=None) -> dict:
+                   quiet: bool = True, label: str = "raytrace-gt", processes: int = 1, client=None,
+                   cycles=None) -> dict:
     """Trace every frame of ``traj`` and write gt/* shard by shard into dataset scene ``sc``
     (skipping shards already written; a shard's arrays are written only once all its frames are
     traced). ``processes`` > 1 traces in that many spawned processes (the static scene is built once
     per worker); writing stays in this process, with a bounded number of frames in flight, so
     memory does not grow with the frame count. ``client`` (a ``distributed.Client``): one Dask task
-    per shard instead, each worker writing its shards (:mod:`holodata.distributed`). Returns a
-    summary dict."""
+    per shard instead, each worker writing its shards (:mod:`holodata.distributed`). ``cycles``
+    (T,2) int64: each frame's rotation start/end for per-column times. Returns a summary dict."""
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
     extra = {"codec": cfg.codec} if cfg.codec else {}
     arrays = {name: sc.frame_array(name, **spec, **extra) for name, spec in specs.items()}
@@ -400,11 +365,12 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
         if n_traced:
             from .distributed import trace_scene_dask
 
-            dask_info = trace_scene_dask(client, sc, mesh, cfg, traj, human, plan, quiet=quiet, label=label)
+            dask_info = trace_scene_dask(client, sc, mesh, cfg, traj, human, plan, quiet=quiet, label=label,
+                                         cycles=cycles)
         for a in arrays.values():  # fold the workers' manifest records into attrs (idempotent)
             a._consolidate()
     elif workers == 1 or n_traced == 0:
-        tracer = FrameTracer(mesh, cfg, traj, human) if n_traced else None
+        tracer = FrameTracer(mesh, cfg, traj, human, cycles) if n_traced else None
         results = (tracer(f) for _, _, frames in plan for f in frames)
         _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock)
     else:
@@ -422,7 +388,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             # concurrent.futures, not multiprocessing.Pool: a worker killed by a signal or the OOM killer
             # breaks the executor (BrokenProcessPool) where Pool would wait forever for its task
             with ProcessPoolExecutor(workers, mp.get_context("spawn"), initializer=_worker_init,
-                                     initargs=(mesh, wcfg, traj, human, shm.name, n_slots)) as pool:
+                                     initargs=(mesh, wcfg, traj, human, shm.name, n_slots, cycles)) as pool:
                 frames = [f for _, _, fr in plan for f in fr]
                 try:
                     _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label,
@@ -599,22 +565,25 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         ts = np.asarray(s["time/timestamp_ns"][...], dtype=np.int64)
         if not np.all(np.isfinite(poses)):
             raise InputError(f"{url}: scene {sid!r} pose/T_world_radar has non-finite poses")
-        plans.append((sid, s, v, f, fc, Trajectory(ts, poses)))
+        cycles = np.asarray(s["radar/cycle_ns"][...], dtype=np.int64) if "radar/cycle_ns" in names else None
+        plans.append((sid, s, v, f, fc, Trajectory(ts, poses), cycles))
     if not plans:
         raise InputError(f"{url}: no scene has mesh/* and pose/T_world_radar (run slam first)")
     meta = getattr(ds, "meta", None) or (ds.attrs or {}).get("holodata", {})
     sf = cfg.shard_frames or int(meta.get("shard_frames") or 32)
     w = create_dataset(url, grid=grid, range_bins=ds.range_bins, created_by="holodata raytrace-gt", shard_frames=sf)
-    cfg = GTConfig(**{**cfg.__dict__, "grid": grid})
     out = []
-    for sid, s, v, f, fc, traj in plans:
+    for sid, s, v, f, fc, traj, cycles in plans:
+        origin, origin_source = scene_origin_model(s.attrs, cfg.origin)
+        scfg = GTConfig(**{**cfg.__dict__, "grid": grid, "origin": origin})
         mesh_args = (v, f, fc, s.attrs.get("class_names"))
-        scene = _make_scene(*mesh_args, cfg)
+        scene = _make_scene(*mesh_args, scfg)
         sc = w.scene(sid, n_frames=len(traj))
         hsrc = HumanDataset(url, sid, s)
-        summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mesh_sha256(v, f), hsrc),
-                                 quiet=quiet, label=f"raytrace-gt {sid}", processes=processes, client=client)
-        out.append({"scene": sid, **summary})
+        attrs = gt_attrs(scene, scfg, mesh_sha256(v, f), hsrc, origin_source, cycles is not None)
+        summary = write_scene_gt(sc, mesh_args, scfg, traj, hsrc, attrs, quiet=quiet, label=f"raytrace-gt {sid}",
+                                 processes=processes, client=client, cycles=cycles)
+        out.append({"scene": sid, "origin_model": origin.describe(), "origin_source": origin_source, **summary})
     return {"out": str(url), "scenes": out}
 
 

@@ -354,6 +354,20 @@ class _Stream:
                        "frame_id": p.frame_id}
 
 
+def radar_beam_origin(msg, topic: str = "radar"):
+    """The beam-origin model (:class:`holodata.beams.OriginModel`) a RadarHeatmap message states:
+    ``range_origin`` "rotation_centre" (or empty, as in recordings older than the field) → ranges
+    from the rotation centre; "antenna" → from the rotation circle of ``rotation_radius``. Columns
+    are formed at their own times within ``cycle_start_ns``..``cycle_end_ns`` either way."""
+    from .beams import OriginModel
+    from .messages import RANGE_ORIGINS
+
+    ro = str(getattr(msg, "range_origin", "") or "rotation_centre")
+    if ro not in RANGE_ORIGINS:
+        raise DecodeError(f"topic {topic}: RadarHeatmap range_origin {ro!r} is not one of {', '.join(RANGE_ORIGINS)}")
+    return OriginModel(float(msg.rotation_radius) if ro == "antenna" else 0.0, column_time=True)
+
+
 @dataclass
 class RadarFrame:
     heatmap: np.ndarray      # (R, H, W) float16|float32
@@ -382,6 +396,7 @@ class RadarStream(_Stream):
         if size != n:
             raise DecodeError(f"topic {self.topic}: RadarHeatmap payload is {size} bytes, {shape} {enc} needs {n}")
         if self.first is None:
+            radar_beam_origin(msg, self.topic)  # an unknown range_origin stops here, naming the topic
             self.first = msg
             self.shape, self.dtype = shape, dt
         elif shape != self.shape:
@@ -1423,7 +1438,8 @@ def _sensor_attrs(plan: Plan) -> dict:
             d.update({"type": m.__class__.__name__ if not hasattr(m, "__msgtype__") else m.__msgtype__,
                       "encoding": str(m.encoding), "shape": list(st.shape),
                       "rotation_radius_m": float(m.rotation_radius), "range_resolution_m": float(m.range_resolution),
-                      "elevation_max_rad": float(m.elevation_max), "elevation_min_rad": float(m.elevation_min)})
+                      "elevation_max_rad": float(m.elevation_max), "elevation_min_rad": float(m.elevation_min),
+                      "beam_origin": radar_beam_origin(m, st.topic).to_attrs()})
         if isinstance(st, (OusterScanStream, OusterPacketStream)):
             meta = st.rec.meta if isinstance(st, OusterScanStream) else None
             if meta is None:

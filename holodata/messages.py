@@ -10,12 +10,16 @@ from __future__ import annotations
 import numpy as np
 
 RADAR_HEATMAP_TYPE = "holodata_msgs/msg/RadarHeatmap"
+RANGE_ORIGINS = ("rotation_centre", "antenna")  # RadarHeatmap.range_origin; "" (older recordings) = centre
 
 RADAR_HEATMAP_MSGDEF = """\
 # One rotation cycle of a rotating mmWave radar, beamformed onto a (range, elevation, azimuth) grid.
 # Azimuth column j looks at phi_j = -2*pi*j/n_azimuth in the radar frame (REP-103, column 0 = +x,
 # clockwise seen from above); elevation row i at elevation_max - i*(elevation_max-elevation_min)/(n_elevation-1);
 # range bin k centre (k+0.5)*range_resolution. Amplitudes are linear (not dB).
+# range_origin says where ranges are measured from: "rotation_centre" (rotating-array beamforming aligns
+# every chirp to the centre of rotation) or "antenna" (on the rotation circle of rotation_radius metres).
+# Column j is formed at cycle_start_ns + (j+0.5)/n_azimuth*(cycle_end_ns-cycle_start_ns).
 std_msgs/Header header
 uint64 cycle_start_ns
 uint64 cycle_end_ns
@@ -26,6 +30,7 @@ float32 range_resolution
 float32 elevation_max
 float32 elevation_min
 float32 rotation_radius
+string range_origin
 string encoding
 uint8[] data
 """

@@ -5,6 +5,7 @@ holodata.raytrace; heatmaps = a Gaussian bump at each GT range bin (weaker per b
 """
 import numpy as np
 
+from holodata.beams import OriginModel
 from holodata.conventions import Grid, RangeBins
 from holodata.dataset import create_dataset
 from holodata.raytrace import RayScene
@@ -43,7 +44,8 @@ def build(url, frames=4, seed=0):
     for sid, corner, width, half in SCENES:
         V, F = box((-half, -width, -1.0), (half + 1.0, width, 1.5))
         scene = RayScene(V, F)
-        sc = w.scene(sid, n_frames=frames, attrs={"corner_type": corner, "width_m": width})
+        sc = w.scene(sid, n_frames=frames, attrs={"corner_type": corner, "width_m": width,
+                                                  "gt": {"origin_model": OriginModel(column_time=False).to_attrs()}})
         arrs = {
             "gt/range": sc.frame_array("gt/range", (B, H, W), "float32", ["frame", "bounce", "elevation", "azimuth"], "m", float("nan")),
             "gt/normal": sc.frame_array("gt/normal", (B, H, W, 3), "float32", ["frame", "bounce", "elevation", "azimuth", "xyz"], "1", float("nan")),

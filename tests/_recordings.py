@@ -87,7 +87,7 @@ def radar_msg(T, fmt, stamp_ns, hm: np.ndarray, cycle, encoding="float16", frame
     return T["holodata_msgs/msg/RadarHeatmap"](
         header=header(T, fmt, stamp_ns, frame), cycle_start_ns=int(cycle[0]), cycle_end_ns=int(cycle[1]),
         n_range=R, n_elevation=H, n_azimuth=W, range_resolution=0.0375, elevation_max=float(np.deg2rad(45.0)),
-        elevation_min=float(np.deg2rad(-45.0)), rotation_radius=0.105, encoding=encoding,
+        elevation_min=float(np.deg2rad(-45.0)), rotation_radius=0.105, range_origin="rotation_centre", encoding=encoding,
         data=np.frombuffer(hm.astype("<f2" if encoding == "float16" else "<f4").tobytes(), np.uint8))
 
 

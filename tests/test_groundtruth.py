@@ -138,7 +138,7 @@ def test_standalone_end_to_end_matches_direct_trace_and_resumes(inputs):
     out = inputs / "out.zarr"
     args = ["raytrace-gt", "--mesh", str(inputs / "scene.ply"), "--poses", str(inputs / "radar.tum"),
             "--human-dir", str(inputs / "humans"), "--out", str(out), "--scene-id", "c1", "--grid", "8x32",
-            "--shard-frames", "4", "--quiet", "--json"]
+            "--shard-frames", "4", "--no-column-time", "--quiet", "--json"]
     r = CliRunner().invoke(cli, args)
     assert r.exit_code == 0, r.output
     summary = json.loads(r.output)
@@ -151,6 +151,7 @@ def test_standalone_end_to_end_matches_direct_trace_and_resumes(inputs):
     assert np.asarray(s["gt/normal"][...]).shape == (10, 3, 8, 32, 3)
     assert np.asarray(s["time/timestamp_ns"][...]).tolist() == list(np.arange(10) * 500_000_000 + 10**9)
     assert s.attrs["gt"]["max_bounces"] == 3 and s.attrs["gt"]["origin_model"]["type"] == "rotation_centre"
+    assert s.attrs["gt"]["origin_model"]["column_time"] is False and s.attrs["gt"]["origin_source"] == "flags"
     # frame 9 independently: same poses, same human, same grid
     g = Grid(8, 32)
     o, d = beam_rays(g, pose(7.5, 1.0))

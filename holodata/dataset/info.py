@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..beams import origin_summary
 from . import shards as sh
 from .reader import list_nodes, open_dataset
 
@@ -72,7 +73,8 @@ def dataset_info(path_or_url) -> dict:
             tot_raw += raw
             tot_stored += stored
         attrs = {k: v for k, v in s.attrs.items() if k not in ("gt",)}
-        scenes.append({"scene": sid, "frames": s.n_frames, "attrs": attrs, "arrays": arrays})
+        scenes.append({"scene": sid, "frames": s.n_frames, "attrs": attrs, "arrays": arrays,
+                       "beam_origin": origin_summary(dict(s.attrs))})
     return {"dataset": ds.url, "format_version": ds.format_version, "created_by": ds.meta.get("created_by"),
             "grid": ds.meta.get("grid"), "range_bins": ds.meta.get("range_bins"), "splits": ds.splits,
             "scenes": scenes, "frames": sum(s["frames"] for s in scenes),
@@ -94,6 +96,11 @@ def format_info(summary: dict) -> str:
     for s in summary["scenes"]:
         extra = ", ".join(f"{k}={v}" for k, v in s["attrs"].items() if k != "n_frames" and not isinstance(v, (dict, list)))
         lines.append(f"scene {s['scene']}: {s['frames']} frames" + (f" ({extra})" if extra else ""))
+        bo = s.get("beam_origin")
+        if bo:
+            lines.append(f"  beams: radar {bo['radar']}; gt {bo['gt'] or 'not traced'}")
+            if bo["note"]:
+                lines.append(f"  note: {bo['note']}")
         for a in s["arrays"]:
             shp = "x".join(str(v) for v in a["shape"]) or "scalar"
             done = f" shards {a['shards_done']}/{a['shards']}" if a.get("shards") is not None else ""

@@ -2,13 +2,17 @@
 score both with the paper's metrics (holodata.metrics), write metrics.json (validated against
 schemas/metrics.schema.json), PNG figures and report.html.
 
-Point clouds live in the radar (sensor) frame with the beam origin at 0: predicted range images
-are un-mirrored with normals estimated from the predicted images (paper eq. 2–5, no learning);
-ground-truth clouds are the traced points (gt/point moved into the radar frame with
-pose/T_world_radar; without them, the GT ranges un-mirrored with the GT normals). GT
-LOS/NLOS comes from ``gt/label``; a predicted point is LOS when the predicted first-bounce image
-shows free space up to it (:func:`holodata.evaluate.unmirror.los_mask`). Human centroids are
-clusters of human-labelled points, the same procedure for prediction and GT.
+Point clouds live in the radar frame of each frame's pose, and every beam starts where the ground
+truth was traced from (the scene's beam-origin model, :mod:`holodata.evaluate.frames`): predicted
+range images are un-mirrored from those origins along those directions with normals estimated
+from the predicted images (paper eq. 2–5, no learning); ground-truth clouds are the traced points
+(gt/point moved into the radar frame with pose/T_world_radar; without them, the GT ranges
+un-mirrored with the GT normals). GT LOS/NLOS comes from ``gt/label``; a predicted point is LOS
+when the predicted first-bounce image shows free space up to it
+(:func:`holodata.evaluate.unmirror.los_mask`). Human centroids are clusters of human-labelled
+points, the same procedure for prediction and GT. ``oracle`` runs score the ground truth itself
+(GT ranges, GT normals, GT labels) through the same un-mirroring: a perfect prediction, which
+must score perfectly.
 """
 from __future__ import annotations
 
@@ -24,6 +28,7 @@ from holodata.conventions import Grid, RangeBins
 from holodata.progress import track
 
 from .baseline import strongest_peaks
+from .frames import FrameGeometry, SceneBeams
 from .unmirror import los_mask, unmirror
 
 METHODS = ("model", "baseline")
@@ -63,18 +68,19 @@ def _human_points(points, human):
 
 
 def score_frame(acc: _Acc, scene: str, pred_range, pred_human, gt_range, gt_clouds, grid: Grid,
-                tau: float, taus, max_range: float, normals=None, los=None) -> dict:
-    """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``.
-    ``normals`` (3,H,W,3) / ``los`` (3,H,W) bool override the estimated ones (oracle runs)."""
+                tau: float, taus, max_range: float, geo: FrameGeometry, normals=None, los=None) -> dict:
+    """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``; its beams
+    start at ``geo.origins`` along ``geo.directions``. ``normals`` (3,H,W,3) / ``los`` (3,H,W) bool
+    override the estimated ones (oracle runs)."""
     row = acc.per_scene.setdefault(scene, {"errors": [[], [], []], "cloud": {"los": [], "nlos": []}})
     for b in range(3):
         e = M.range_errors(pred_range[b], gt_range[b])
         acc.errors[b].append(e)
         row["errors"][b].append(e)
         acc.n_fin[b] += int(np.isfinite(pred_range[b][np.isfinite(gt_range[b])]).sum())
-    P = unmirror(pred_range, grid.directions(), normals=normals, grid=grid)["point"]
+    P = unmirror(pred_range, geo.directions, normals=normals, grid=grid, origins=geo.origins)["point"]
     if los is None:
-        los = los_mask(P, pred_range[0], grid)
+        los = los_mask(P, pred_range[0], grid, origins=geo.origins)
     pc = _clouds(P, los)
     for part in ("los", "nlos"):
         d_pg, d_gp = M.nn_distances(pc[part], gt_clouds[part])
@@ -189,7 +195,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     max_range = float(rb.max_range)
     index = data.index[:max_frames] if max_frames else data.index
     accs = {m: _Acc() for m in METHODS}
-    gt_centres, scene_info = [], {}
+    gt_centres, scene_info, beams = [], {}, {}
     example = None
     ex_pick = len(index) // 2
 
@@ -209,22 +215,23 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
             sc = ds.scene(sid)
             if sid not in scene_info:
                 scene_info[sid] = _scene_info(sc, data, i, rb)
-            g_nrm = _gt_normals(sc, k, f)
-            G = _gt_points(sc, k, f)
+                beams[sid] = SceneBeams(sc, ds.grid)
+            geo = beams[sid].frame(k, f)
+            g_nrm, G = geo.gt_normal, geo.gt_point
             if G is None:
-                G = unmirror(g_rng, grid.directions(), normals=g_nrm, grid=grid)["point"]
+                G = unmirror(g_rng, geo.directions, normals=g_nrm, grid=grid, origins=geo.origins)["point"]
             g_los = (g_lab == 1) | (g_lab == 3)
             gc = _clouds(G, g_los)
             gt_centres.append(M.human_centroids(_human_points(G, (g_lab == 3) | (g_lab == 4))))
             b_rng = strongest_peaks(hm, rb, k=3)
             if model is None:  # oracle: the ground truth is the prediction
                 p_j, h_j = g_rng, ((g_lab == 3) | (g_lab == 4)).astype(np.float32)
-                pcm = score_frame(accs["model"], sid, g_rng, h_j, g_rng, gc, grid, tau, taus, max_range,
+                pcm = score_frame(accs["model"], sid, g_rng, h_j, g_rng, gc, grid, tau, taus, max_range, geo,
                                   normals=g_nrm, los=g_los)
             else:
                 p_j = p_rng[j]
-                pcm = score_frame(accs["model"], sid, p_j, p_hum[j], g_rng, gc, grid, tau, taus, max_range)
-            pcb = score_frame(accs["baseline"], sid, b_rng, None, g_rng, gc, grid, tau, taus, max_range)
+                pcm = score_frame(accs["model"], sid, p_j, p_hum[j], g_rng, gc, grid, tau, taus, max_range, geo)
+            pcb = score_frame(accs["baseline"], sid, b_rng, None, g_rng, gc, grid, tau, taus, max_range, geo)
             if i == ex_pick:
                 example = {"scene": sid, "frame": k, "gt": g_rng, "model": p_j, "baseline": b_rng,
                            "clouds": {"gt": gc, "model": pcm, "baseline": pcb}}
@@ -238,7 +245,8 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                      "max_range_m": max_range, "cd_convention": "sum", "downsample": f,
                      "grid": grid.to_attrs(), "range_bins": rb.to_attrs(), "norm": norm.to_dict(),
                      "baseline": "three strongest range peaks per beam (>= 6 dB over the beam median, beyond 0.25 m)",
-                     "train_epochs": int(ck.get("epoch", 0)), "estimator": estimator},
+                     "train_epochs": int(ck.get("epoch", 0)), "estimator": estimator,
+                     "beam_origin": {sid: b.origin.to_attrs() for sid, b in beams.items()}},
         "methods": methods,
         "figures": [],
     }
@@ -262,34 +270,6 @@ def _sample(e: np.ndarray) -> np.ndarray:
     if e.size <= ERR_SAMPLE:
         return e
     return np.random.default_rng(0).choice(e, ERR_SAMPLE, replace=False)
-
-
-def _gt_points(sc, k: int, f: int):
-    """Traced GT points of frame k in the radar frame ((B,H,W,3) from world-frame gt/point and
-    pose/T_world_radar), or None when either is missing."""
-    names = set(sc.arrays())
-    if "gt/point" not in names or "pose/T_world_radar" not in names:
-        return None
-    p = np.asarray(sc["gt/point"][k], dtype=np.float64)
-    if f > 1:
-        p = p[:, ::f, ::f]
-    T = np.asarray(sc["pose/T_world_radar"][k], dtype=np.float64)
-    return (p - T[:3, 3]) @ T[:3, :3]
-
-
-def _gt_normals(sc, k: int, f: int):
-    """GT normals of frame k in the radar frame ((B,H,W,3); gt/normal is world frame, rotated by
-    pose/T_world_radar when present), or None."""
-    names = set(sc.arrays())
-    if "gt/normal" not in names:
-        return None
-    n = np.asarray(sc["gt/normal"][k], dtype=np.float64)
-    if f > 1:
-        n = n[:, ::f, ::f]
-    if "pose/T_world_radar" in names:
-        R = np.asarray(sc["pose/T_world_radar"][k], dtype=np.float64)[:3, :3]
-        n = n @ R  # R^T n for row vectors: world → radar frame
-    return n
 
 
 def _scene_info(sc, data, i: int, rb: RangeBins) -> dict:

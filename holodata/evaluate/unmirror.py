@@ -6,7 +6,10 @@ point ``p'_b = R_b d_1``. Un-mirroring walks the bounce chain (paper eq. 2–3):
 Unknown normals come from the range image itself (eq. 4: the closed-form normal of a spherical
 range image) and are un-mirrored through the previous bounces' normals (eq. 5, applied for every
 earlier mirror: ``n_b = L_{b−1}···L_1 n'_b`` with ``L_k = I − 2 n_k n_kᵀ``; the paper writes the
-single-mirror case). Everything is in the sensor frame with the beam origin at 0.
+single-mirror case). Everything is in the radar frame of the frame's pose; each beam starts at its
+own origin ``o`` (H,W,3) and looks along its own direction (the beam-origin model of
+:mod:`holodata.beams`, :func:`holodata.evaluate.frames.frame_geometry`): ``p'_b = o + R_b d_1``.
+Without origins every beam starts at 0 and looks along the grid's directions.
 """
 from __future__ import annotations
 
@@ -40,8 +43,9 @@ def _tangent(R: np.ndarray, P: np.ndarray, axis: int, periodic: bool) -> np.ndar
 
 
 @np.errstate(invalid="ignore", divide="ignore")
-def normals_from_range(R, grid: Grid) -> np.ndarray:
-    """Surface normals (…,H,W,3), sensor frame, unit, facing the sensor, of range image(s) R (…,H,W) m.
+def normals_from_range(R, grid: Grid, origins=None, directions=None) -> np.ndarray:
+    """Surface normals (…,H,W,3), radar frame, unit, facing the beam, of range image(s) R (…,H,W) m
+    whose beams start at ``origins`` (H,W,3; None = 0) along ``directions`` (H,W,3; None = the grid's).
 
     Paper eq. 4 gives the normal of ``p = R(θ,φ) d(θ,φ)`` as ``R_{θ,φ} b`` with
     ``b ∝ [1, (∂R/∂φ)/(R cosθ), (∂R/∂θ)/R]`` in the local frame [d, e_φ, e_θ] — i.e. the cross
@@ -50,8 +54,10 @@ def normals_from_range(R, grid: Grid) -> np.ndarray:
     into eq. 4, which carry an O(Δ) error). NaN where R or both neighbours along an axis are missing.
     """
     R = np.asarray(R, dtype=np.float64)
-    d = grid.directions()
+    d = grid.directions() if directions is None else np.asarray(directions, np.float64)
     P = R[..., None] * d
+    if origins is not None:
+        P = P + np.asarray(origins, np.float64)
     t_th = _tangent(R, P, axis=-2, periodic=False)
     t_ph = _tangent(R, P, axis=-1, periodic=True)
     n = np.cross(t_ph, t_th)
@@ -61,12 +67,13 @@ def normals_from_range(R, grid: Grid) -> np.ndarray:
 
 
 @np.errstate(invalid="ignore", divide="ignore")
-def unmirror(ranges, directions, normals=None, grid: Grid | None = None) -> dict:
+def unmirror(ranges, directions, normals=None, grid: Grid | None = None, origins=None) -> dict:
     """Un-mirror multi-return range images into real points.
 
-    ranges: (B,H,W) metres, accumulated travel distance, NaN = none. directions: (H,W,3) unit
-    beam directions d_1 (sensor frame). normals: (B,H,W,3) true surface normals, or None to
-    estimate them from ``ranges`` (then ``grid`` is required). Returns dict point (B,H,W,3)
+    ranges: (B,H,W) metres, accumulated travel distance from the beam origin, NaN = none.
+    directions: (H,W,3) unit beam directions d_1; origins: (H,W,3) beam origins (None = 0), both in
+    the radar frame. normals: (B,H,W,3) true surface normals in that frame, or None to estimate
+    them from ``ranges`` (then ``grid`` is required). Returns dict point (B,H,W,3)
     (NaN where R_b or any earlier bounce is missing), normal (B,H,W,3), direction (B,H,W,3) (the
     ray direction arriving at bounce b).
     """
@@ -76,14 +83,14 @@ def unmirror(ranges, directions, normals=None, grid: Grid | None = None) -> dict
     if normals is None:
         if grid is None:
             raise ValueError("unmirror needs grid to estimate normals")
-        mirrored = normals_from_range(R, grid)
+        mirrored = normals_from_range(R, grid, origins, d1)
     else:
         normals = np.asarray(normals, dtype=np.float64)
         normals = normals / np.linalg.norm(normals, axis=-1, keepdims=True)
     pts = np.full(R.shape + (3,), np.nan)
     nrm = np.full(R.shape + (3,), np.nan)
     dirs = np.full(R.shape + (3,), np.nan)
-    p_prev = np.zeros(d1.shape)
+    p_prev = np.zeros(d1.shape) if origins is None else np.broadcast_to(np.asarray(origins, np.float64), d1.shape)
     d = d1.copy()
     R_prev = np.zeros(R.shape[1:])
     for b in range(B):
@@ -103,10 +110,12 @@ def unmirror(ranges, directions, normals=None, grid: Grid | None = None) -> dict
     return {"point": pts, "normal": nrm, "direction": dirs}
 
 
-def los_mask(points, first_range, grid: Grid, tolerance: float = 0.15) -> np.ndarray:
-    """(B,H,W) bool: True where point b of a beam is visible from the origin in the first-bounce
-    range image ``first_range`` (H,W): its own pixel's R_1 is missing or ≥ |p| − tolerance.
-    Bounce-1 points are LOS by definition. Missing points are False."""
+def los_mask(points, first_range, grid: Grid, tolerance: float = 0.15, origins=None) -> np.ndarray:
+    """(B,H,W) bool: True where point b of a beam is visible in the first-bounce range image
+    ``first_range`` (H,W): the pixel looking at it has R_1 missing or ≥ its distance − tolerance.
+    The pixel is found from the point's direction seen from the radar frame's origin; with beam
+    ``origins`` (H,W,3) the distance is then measured from that pixel's origin. Bounce-1 points
+    are LOS by definition. Missing points are False."""
     P = np.asarray(points, dtype=np.float64)
     R1 = np.asarray(first_range, dtype=np.float64)
     r = np.linalg.norm(P, axis=-1)
@@ -119,6 +128,8 @@ def los_mask(points, first_range, grid: Grid, tolerance: float = 0.15) -> np.nda
     row = np.clip(np.where(ok, row, 0), 0, grid.H - 1).astype(int)
     col = np.where(ok, col, 0).astype(int)
     r1 = R1[row, col]
+    if origins is not None:
+        r = np.linalg.norm(P - np.asarray(origins, np.float64)[row, col], axis=-1)
     vis = ok & (~np.isfinite(r1) | (r1 >= r - tolerance))
     vis[0] = ok[0]
     return vis

@@ -388,6 +388,7 @@ class RadarHeatmapMsg:
     rotation_radius: float
     encoding: str             # float16 | float32
     data: object              # (n_range*n_elevation*n_azimuth*itemsize,) uint8
+    range_origin: str = "rotation_centre"  # or "antenna" (holodata.messages.RANGE_ORIGINS)
 
 
 @dataclass

@@ -4,6 +4,7 @@ pipelines to HDF5 instead of bags. Every group is optional, but at least radar o
     /radar/heatmap        (T, R, H, W) float16|float32 linear amplitude [frame, range, elevation, azimuth]
         attrs: range_resolution_m (default 0.0375), elevation_max_deg / elevation_min_deg (45 / -45),
                rotation_radius_m (0.105), frame_id ("radar"),
+               range_origin: "rotation_centre" (default: rotating-array beamforming) | "antenna",
                scaling: "linear" (default) | "log10(a+1e-3)/3" (PanoRadar's; undone on read)
     /radar/timestamp_ns   (T,) int64, strictly increasing (frame time, e.g. mid-cycle)
     /radar/cycle_ns       (T, 2) int64 [start, end] (optional; default timestamp -/+ half the median period)
@@ -128,7 +129,8 @@ class Hdf5Recording(Recording):
                                int(s["cycle"][i, 1]), R, H, W, float(a.get("range_resolution_m", 0.0375)),
                                float(np.deg2rad(a.get("elevation_max_deg", 45.0))),
                                float(np.deg2rad(a.get("elevation_min_deg", -45.0))),
-                               float(a.get("rotation_radius_m", 0.105)), enc, hm.reshape(-1).view(np.uint8))
+                               float(a.get("rotation_radius_m", 0.105)), enc, hm.reshape(-1).view(np.uint8),
+                               str(a.get("range_origin", "rotation_centre")))
 
     def _points(self, topic: str, i: int) -> PointsMsg:
         s = self.streams[topic]

@@ -181,4 +181,4 @@ class BagWriter:
             cycle_end_ns=int(cycle_end_ns), n_range=int(shape[0]), n_elevation=int(shape[1]),
             n_azimuth=int(shape[2]), range_resolution=float(rb.dr), elevation_max=float(np.deg2rad(g.elev_max_deg)),
             elevation_min=float(np.deg2rad(g.elev_min_deg)), rotation_radius=float(cfg.rotation_radius_m),
-            encoding=cfg.encoding, data=np.frombuffer(heatmap_bytes, np.uint8))
+            range_origin="rotation_centre", encoding=cfg.encoding, data=np.frombuffer(heatmap_bytes, np.uint8))
