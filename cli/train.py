@@ -1,4 +1,5 @@
-"""``holodata train``: the multi-return model on a dataset's train split."""
+"""``holodata train``: stage one (the multi-return model) and stage two (the learned ray tracer
+and volumetric refiner) on a dataset's train split."""
 from __future__ import annotations
 
 import click
@@ -6,39 +7,81 @@ import click
 
 @click.command()
 @click.argument("dataset")
-@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run directory (checkpoint.pt, config.json, metrics.jsonl). An existing run resumes.")
-@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Total epochs (default 20, or the config file's).")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run directory (checkpoint.pt, stage2.pt, config.json, metrics.jsonl). An existing run resumes.")
+@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Total stage-one epochs (default 20, or the config file's).")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None, help="Training device (default cpu).")
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None, help="YAML/JSON file of TrainConfig fields (flags win).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=None)
 @click.option("--lr", type=float, default=None, help="AdamW learning rate.")
 @click.option("--seed", type=int, default=None)
 @click.option("--workers", "num_workers", type=click.IntRange(min=0), default=None, help="DataLoader worker processes.")
+@click.option("--stage", type=click.Choice(["1", "2", "all"]), default="all", show_default=True,
+              help="1: stage one only; 2: stage two only (from --stage1 or RUN/checkpoint.pt); all: stage one, then stage two.")
+@click.option("--stage1", "stage1", type=click.Path(), default=None, help="Stage-one checkpoint (file or run directory) for --stage 2; must match DATASET's grid and range bins.")
+@click.option("--stage2-config", "stage2_file", type=click.Path(exists=True, dir_okay=False), default=None, help="YAML/JSON file of Stage2Config fields (flags win).")
+@click.option("--stage2-epochs", type=click.IntRange(min=0), default=None, help="Epochs of each stage-two phase (ray tracer, then refiner; default 20 each).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, quiet, as_json):
-    """Train the multi-return range-image UNet on DATASET's train split (split by scene).
+def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, stage, stage1, stage2_file,
+          stage2_epochs, quiet, as_json):
+    """Train stage one (the multi-return range-image UNet) and stage two (hybrid ray tracer +
+    volumetric refiner, stored in RUN/stage2.pt) on DATASET's train split (split by scene).
 
     Example: holodata train demo/dataset.zarr --out runs/unet --epochs 30 --device cuda
+
+    Example: holodata train demo/dataset.zarr --out runs/s2 --stage 2 --stage1 runs/unet
     """
+    from holodata.torch.stage2_train import Stage2Config, train_stage2
     from holodata.torch.train import TrainConfig, train as run_train
 
-    flags = {"epochs": epochs, "device": device, "batch_size": batch_size, "lr": lr, "seed": seed,
-             "num_workers": num_workers}
-    if config_file:
-        cfg = TrainConfig.from_file(config_file, **flags)
-    else:
-        cfg = TrainConfig.from_dict({k: v for k, v in flags.items() if v is not None})
-    res = run_train(dataset, out, cfg, quiet=quiet)
-    summary = {"run": str(res.out_dir), "checkpoint": str(res.checkpoint), "epochs": res.epochs,
-               "resumed_from": res.resumed_from, "final_loss": res.final_loss}
+    summary = {}
+    if stage in ("1", "all"):
+        flags = {"epochs": epochs, "device": device, "batch_size": batch_size, "lr": lr, "seed": seed,
+                 "num_workers": num_workers}
+        if config_file:
+            cfg = TrainConfig.from_file(config_file, **flags)
+        else:
+            cfg = TrainConfig.from_dict({k: v for k, v in flags.items() if v is not None})
+        res = run_train(dataset, out, cfg, quiet=quiet)
+        summary = {"run": str(res.out_dir), "checkpoint": str(res.checkpoint), "epochs": res.epochs,
+                   "resumed_from": res.resumed_from, "final_loss": res.final_loss}
+        if not as_json:
+            start = f" (resumed after epoch {res.resumed_from})" if res.resumed_from else ""
+            click.echo(f"trained {res.epochs} epochs{start}; final loss {res.final_loss:.4g}; checkpoint {res.checkpoint}")
+    if stage in ("2", "all"):
+        s2 = _read_mapping(stage2_file) if stage2_file else {}
+        for k, v in {"device": device, "seed": seed, "epochs_rt": stage2_epochs, "epochs_refine": stage2_epochs}.items():
+            if v is not None:
+                s2[k] = v
+        r2 = train_stage2(dataset, out, Stage2Config.from_dict(s2, source=str(stage2_file or "stage-two options")),
+                          stage1=stage1 if stage == "2" else None, quiet=quiet)
+        last = r2["history"][-1] if r2["history"] else {}
+        summary.setdefault("run", str(out))
+        summary["stage2"] = {"checkpoint": str(r2["checkpoint"]), "epochs": r2["epochs"],
+                             "resumed_from": r2["resumed_from"], "final_loss": last.get("loss")}
+        if not as_json:
+            start = f" (resumed after epoch {r2['resumed_from']})" if r2["resumed_from"] else ""
+            fl = last.get("loss")
+            click.echo(f"stage two: trained {r2['epochs']} epochs{start}; final loss "
+                       f"{'n/a' if fl is None else f'{fl:.4g}'}; checkpoint {r2['checkpoint']}")
     if as_json:
         import json
 
         click.echo(json.dumps(summary, indent=2))
-    else:
-        start = f" (resumed after epoch {res.resumed_from})" if res.resumed_from else ""
-        click.echo(f"trained {res.epochs} epochs{start}; final loss {res.final_loss:.4g}; checkpoint {res.checkpoint}")
+
+
+def _read_mapping(path) -> dict:
+    import yaml
+
+    from holodata.errors import InputError
+
+    try:
+        data = yaml.safe_load(open(path).read()) or {}
+    except (OSError, yaml.YAMLError) as err:
+        raise InputError(f"{path}: cannot read stage-two config ({' '.join(str(err).split())})") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{path}: stage-two config must be a mapping of field: value")
+    return data
 
 
 COMMANDS = [train]

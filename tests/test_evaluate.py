@@ -80,7 +80,7 @@ def test_train_cli_resumes(dataset, tmp_path):
 
     cfg = tmp_path / "cfg.yaml"
     cfg.write_text("depth: 2\nbase_channels: 4\nmax_channels: 8\nblocks: 1\nbatch_size: 4\n")
-    args = ["train", dataset, "--out", str(tmp_path / "run"), "--config", str(cfg), "--quiet", "--json"]
+    args = ["train", dataset, "--out", str(tmp_path / "run"), "--config", str(cfg), "--stage", "1", "--quiet", "--json"]
     r1 = CliRunner().invoke(cli, args + ["--epochs", "1"])
     assert r1.exit_code == 0, r1.output
     r2 = CliRunner().invoke(cli, args + ["--epochs", "2"])
@@ -89,7 +89,7 @@ def test_train_cli_resumes(dataset, tmp_path):
     assert s["epochs"] == 2 and s["resumed_from"] == 1
     lines = (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()
     assert [json.loads(x)["epoch"] for x in lines] == [1, 2]
-    r = CliRunner().invoke(cli, ["train", dataset, "--out", str(tmp_path / "x"), "--device", "cuda"])
+    r = CliRunner().invoke(cli, ["train", dataset, "--out", str(tmp_path / "x"), "--stage", "1", "--device", "cuda"])
     import torch
 
     if not torch.cuda.is_available():

@@ -1,0 +1,552 @@
+"""Training and inference of the learned stage two (:mod:`holodata.torch.stage2`).
+
+Stage two trains after stage one, from the dataset's ground truth: its input is either the GT
+range images with augmentation (Gaussian range noise of a random σ ≤ ``noise_max_m`` per frame,
+random pixel dropout, random y-mirroring of the whole frame) or, with probability ``p_stage1``,
+the stage-one model's own prediction of the training frame, so that both GT input (the
+``oracle_stage1`` row of evaluate) and model input work. Phase 1 trains the ray tracer (eq. 6);
+phase 2 freezes it and trains the volumetric refiner on its points (eq. 7), as the paper does.
+
+Run directory: ``stage2.pt`` (latest epoch of either phase; atomic, resumable),
+``stage2_config.json``, ``stage2_metrics.jsonl``. The stage-one checkpoint stays ``checkpoint.pt``.
+
+Refined points' LOS/NLOS: a voxel is LOS when most of the input points that fell into it are
+(each ray-traced point's LOS flag: visible in the first-bounce range image, as evaluate decides
+for un-refined clouds; bounce-1 points are LOS by definition).
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import time
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from holodata.conventions import Grid
+from holodata.errors import InputError
+from holodata.progress import track
+
+from .stage2 import (CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig,
+                     VoxelRefiner, lookup, ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
+
+STAGE2_CHECKPOINT = "stage2.pt"
+STAGE2_LOG = "stage2_metrics.jsonl"
+
+
+@dataclass
+class Stage2Config:
+    """Stage-two settings. Phases: ``epochs_rt`` ray-tracer epochs, then ``epochs_refine``
+    refiner epochs (ray tracer frozen). Model: ``channels``/``res_blocks``/``fusion_blocks`` of
+    each hybrid block; ``voxel`` (m), ``refine_channels`` (per UNet level), ``refine_blocks``.
+    Augmentation: ``noise_max_m`` (σ of the range noise drawn per frame in [0, noise_max_m]),
+    ``dropout`` (share of pixels dropped), ``p_stage1`` (share of samples whose input is the
+    stage-one prediction, when a stage-one model is given), ``flip`` (random y-mirror).
+    Loss: eq. 6 weights ``w_sn``, ``w_point`` (+ ``w_normal``), RT loss pixels only where
+    |R_in − R_gt| < ``input_gate_m``; eq. 7 weights ``w_cls``, ``w_reg``, ``w_dist``, class weights
+    ``human_weight`` / ``empty_weight``, EDT clipped at ``edt_clip`` voxels."""
+
+    epochs_rt: int = 20
+    epochs_refine: int = 20
+    batch_size: int = 4
+    lr: float = 2e-3
+    lr_floor: float = 0.05
+    weight_decay: float = 1e-4
+    seed: int = 0
+    device: str = "cpu"
+    channels: int = 32
+    res_blocks: int = 4
+    fusion_blocks: int = 2
+    voxel: float = 0.1
+    refine_channels: tuple = (16, 32, 48, 64)
+    refine_blocks: int = 1
+    noise_max_m: float = 0.03
+    dropout: float = 0.05
+    p_stage1: float = 0.5
+    flip: bool = True
+    input_gate_m: float = 0.3
+    w_sn: float = 1.0
+    w_point: float = 1.0
+    w_normal: float = 0.5
+    w_cls: float = 1.0
+    w_reg: float = 1.0
+    w_dist: float = 0.2
+    human_weight: float = 3.0
+    empty_weight: float = 1.0
+    edt_clip: float = 8.0
+    frames_per_scene: int | None = None
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "stage-two config") -> "Stage2Config":
+        names = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - names)
+        if unknown:
+            raise InputError(f"{source}: unknown stage-two option(s): {', '.join(unknown)}")
+        d = dict(data)
+        if "refine_channels" in d:
+            d["refine_channels"] = tuple(d["refine_channels"])
+        return cls(**d)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["refine_channels"] = list(self.refine_channels)
+        return d
+
+    @property
+    def epochs(self) -> int:
+        return self.epochs_rt + self.epochs_refine
+
+    def rt_config(self, max_range: float) -> RayTracerConfig:
+        return RayTracerConfig(self.channels, self.res_blocks, self.fusion_blocks, float(max_range))
+
+    def refiner_config(self, max_range: float) -> RefinerConfig:
+        return RefinerConfig(voxel=self.voxel, channels=tuple(self.refine_channels), blocks=self.refine_blocks,
+                             max_range=float(max_range))
+
+
+# ----------------------------------------------------------------------------- frames
+
+
+@dataclass
+class Frames:
+    """Stage-two frames in memory (each radar frame's own radar frame). range/label (T,3,H,W);
+    gt_point/gt_normal (T,3,H,W,3) NaN = none; origins/directions (T,H,W,3); s1_range/s1_human
+    (T,3,H,W) the stage-one prediction or None."""
+
+    range: np.ndarray
+    label: np.ndarray
+    gt_point: np.ndarray
+    gt_normal: np.ndarray
+    origins: np.ndarray
+    directions: np.ndarray
+    s1_range: np.ndarray | None = None
+    s1_human: np.ndarray | None = None
+    keys: list = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.range)
+
+
+class _SceneGeometry:
+    """Adapter over the dataset's beam geometry: beam origins/directions (H,W,3) and GT
+    points/normals (3,H,W,3) of frame k in its own radar frame at downsample ``f``. Uses
+    :class:`holodata.evaluate.frames.SceneBeams` (per-beam origins of the scene's origin model)
+    when available, else origins 0 and the grid's directions."""
+
+    def __init__(self, sc, full_grid: Grid, f: int):
+        from holodata.evaluate.pipeline import reduced_grid
+
+        self.sc, self.f, self.grid = sc, f, reduced_grid(full_grid, f)
+        try:
+            from holodata.evaluate.frames import SceneBeams
+        except ImportError:
+            SceneBeams = None
+        self.beams = SceneBeams(sc, full_grid) if SceneBeams is not None else None
+
+    def frame(self, k: int) -> dict:
+        sc, f = self.sc, self.f
+        if self.beams is not None:
+            g = self.beams.frame(k, f)
+            nan = np.full((3,) + g.origins.shape, np.nan)
+            return {"origins": g.origins.astype(np.float32), "directions": g.directions.astype(np.float32),
+                    "gt_point": (nan if g.gt_point is None else g.gt_point).astype(np.float32),
+                    "gt_normal": (nan if g.gt_normal is None else g.gt_normal).astype(np.float32)}
+        names = set(sc.arrays())
+        T = np.asarray(sc["pose/T_world_radar"][k], dtype=np.float64)
+        p = np.asarray(sc["gt/point"][k], dtype=np.float64)[:, ::f, ::f]
+        n = np.asarray(sc["gt/normal"][k], dtype=np.float64)[:, ::f, ::f] if "gt/normal" in names else np.full(p.shape, np.nan)
+        H, W = self.grid.H, self.grid.W
+        return {"origins": np.zeros((H, W, 3), np.float32), "directions": self.grid.directions().astype(np.float32),
+                "gt_point": ((p - T[:3, 3]) @ T[:3, :3]).astype(np.float32),
+                "gt_normal": (n @ T[:3, :3]).astype(np.float32)}
+
+
+def load_frames(dataset_url, split: str, f: int, frames_per_scene: int | None = None, quiet: bool = True) -> tuple[Frames, Grid]:
+    """The ``split`` frames of a dataset at downsample ``f`` (GT arrays, beam geometry)."""
+    from holodata.dataset import open_dataset
+    from holodata.evaluate.pipeline import reduced_grid
+
+    from .data import split_scenes
+
+    ds = open_dataset(str(dataset_url))
+    grid = reduced_grid(ds.grid, f)
+    scenes = split_scenes(list(ds.scenes), getattr(ds, "splits", None), split)
+    cols = {k: [] for k in ("range", "label", "gt_point", "gt_normal", "origins", "directions")}
+    keys = []
+    for sid in scenes:
+        sc = ds.scene(sid)
+        geo = _SceneGeometry(sc, ds.grid, f)
+        n = int(sc["gt/range"].shape[0])
+        if frames_per_scene:
+            n = min(n, frames_per_scene)
+        for k in track(range(n), total=n, description=f"stage-two frames {sid}", quiet=quiet):
+            cols["range"].append(np.asarray(sc["gt/range"][k], np.float32)[:, ::f, ::f])
+            cols["label"].append(np.asarray(sc["gt/label"][k], np.uint8)[:, ::f, ::f])
+            for name, v in geo.frame(k).items():
+                cols[name].append(v)
+            keys.append((sid, k))
+    if not keys:
+        raise InputError(f"{dataset_url}: split {split!r} has no frames for stage two")
+    return Frames(**{k: np.stack(v) for k, v in cols.items()}, keys=keys), grid
+
+
+def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", batch_size: int = 4,
+                       quiet: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """The stage-one model's (range, human prob) (T,3,H,W) for the frames ``keys`` [(scene, k)]."""
+    from holodata.dataset import open_dataset
+
+    from .data import HeatmapNorm, SampleTransform, apply_transform
+    from .train import model_from_checkpoint
+
+    model = model_from_checkpoint(ck, device=device)
+    norm = HeatmapNorm.from_dict(ck["norm"])
+    tf = ck.get("transform") or {}
+    t = SampleTransform(downsample=int(tf.get("downsample", 1)), range_pool=int(tf.get("range_pool", 1)))
+    ds = open_dataset(str(dataset_url))
+    rs, hs = [], []
+    for i0 in track(range(0, len(keys), batch_size), total=math.ceil(len(keys) / batch_size),
+                    description="stage-one predictions", quiet=quiet):
+        xs = []
+        for sid, k in keys[i0:i0 + batch_size]:
+            sc = ds.scene(sid)
+            hm = np.asarray(sc["radar/heatmap"][k])
+            r = np.asarray(sc["gt/range"][k], np.float32)
+            xs.append(norm(apply_transform(hm, r, np.zeros(r.shape, np.uint8), t)[0]))
+        with torch.no_grad():
+            p = model.predict(torch.from_numpy(np.stack(xs)).to(device))
+        rs.append(p["range"].float().cpu().numpy())
+        hs.append(p["human_prob"].float().cpu().numpy())
+    return np.concatenate(rs), np.concatenate(hs)
+
+
+def _is_human(label):
+    return (label == 3) | (label == 4)
+
+
+def make_batch(fr: Frames, idx, cfg: Stage2Config, rng: np.random.Generator | None, device) -> dict:
+    """Tensors of frames ``idx``: input range/human (augmented when ``rng``), GT, geometry."""
+    R = fr.range[idx].copy()
+    lab = fr.label[idx]
+    hum = _is_human(lab).astype(np.float32)
+    gp, gn = fr.gt_point[idx].copy(), fr.gt_normal[idx].copy()
+    org, dirs = fr.origins[idx].copy(), fr.directions[idx].copy()
+    R_in, H_in = R.copy(), hum.copy()
+    if rng is not None:
+        for j in range(len(idx)):
+            if fr.s1_range is not None and rng.random() < cfg.p_stage1:
+                R_in[j], H_in[j] = fr.s1_range[idx[j]], fr.s1_human[idx[j]]
+                continue
+            sigma = rng.uniform(0, cfg.noise_max_m)
+            R_in[j] = R[j] + rng.normal(0, 1, R[j].shape).astype(np.float32) * sigma
+            drop = rng.random(R[j].shape) < cfg.dropout
+            R_in[j][drop] = np.nan
+            H_in[j] = np.clip(hum[j] * 0.9 + 0.05 + rng.normal(0, 0.05, hum[j].shape), 0, 1)
+        if cfg.flip:
+            for j in range(len(idx)):
+                if rng.random() < 0.5:  # mirror the frame in y: column j -> (W - j) % W, y -> -y
+                    W = R.shape[-1]
+                    cols = (-np.arange(W)) % W
+                    R[j], R_in[j], H_in[j] = R[j][..., cols], R_in[j][..., cols], H_in[j][..., cols]
+                    for a in (gp, gn):
+                        a[j] = a[j][:, :, cols]
+                        a[j][..., 1] *= -1
+                    for a in (org, dirs):
+                        a[j] = a[j][:, cols]
+                        a[j][..., 1] *= -1
+                    lab = lab.copy()
+                    lab[j] = lab[j][..., cols]
+    t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
+    return {"range_in": t(R_in), "human_in": t(H_in), "range": t(R), "label": t(lab), "gt_point": t(gp),
+            "gt_normal": t(gn), "origins": t(org), "directions": t(dirs)}
+
+
+# ----------------------------------------------------------------------------- refiner targets
+
+
+def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, voxel: float, edt_clip: float):
+    """Targets of eq. 7 for the occupied input voxels (M,4) [batch, x, y, z]: class (M,) (empty /
+    human / structure of the GT points in the voxel; human when any is human), offset (M,3) m of the
+    GT points' mean from the voxel centre, EDT (M,) voxels to the nearest GT-occupied voxel
+    (scipy.ndimage.distance_transform_edt on the GT occupancy over the frame's bounding box,
+    clipped at ``edt_clip``). gt_points[j] (Q_j,3) / gt_human[j] (Q_j,) bool per frame j."""
+    from scipy.ndimage import distance_transform_edt
+
+    M = len(vox_coords)
+    cls = torch.zeros(M, dtype=torch.long)
+    reg = torch.zeros(M, 3)
+    edt = torch.full((M,), float(edt_clip))
+    vc = vox_coords.cpu()
+    for j, (P, hm) in enumerate(zip(gt_points, gt_human)):
+        sel = torch.nonzero(vc[:, 0] == j).squeeze(1)
+        if len(sel) == 0:
+            continue
+        if len(P) == 0:
+            continue
+        P = torch.from_numpy(P).float()
+        ijk = torch.floor(P / voxel).long()
+        gcoords, inv, _ = unique_coords(torch.cat([torch.full((len(P), 1), j), ijk], 1))
+        G = len(gcoords)
+        gmean = torch.zeros(G, 3).index_add_(0, inv, P) / torch.zeros(G).index_add_(0, inv, torch.ones(len(P)))[:, None]
+        ghum = torch.zeros(G).index_add_(0, inv, torch.from_numpy(hm.astype(np.float32))) > 0
+        gk = voxel_keys(gcoords)
+        sk, order = torch.sort(gk)
+        hit = lookup(sk, order, voxel_keys(vc[sel]), -1)
+        ok = hit >= 0
+        h = hit[ok]
+        cls[sel[ok]] = torch.where(ghum[h], CLASS_HUMAN, CLASS_STRUCTURE)
+        centre = (vc[sel[ok], 1:].float() + 0.5) * voxel
+        reg[sel[ok]] = gmean[h] - centre
+        # EDT over the GT voxels' bounding box grown by the clip distance (beyond it: ≥ clip)
+        c = int(math.ceil(edt_clip))
+        lo = gcoords[:, 1:].min(0).values - c
+        hi = gcoords[:, 1:].max(0).values + c
+        occ = np.zeros(tuple((hi - lo + 1).tolist()), bool)
+        g = (gcoords[:, 1:] - lo).numpy()
+        occ[g[:, 0], g[:, 1], g[:, 2]] = True
+        dist = distance_transform_edt(~occ)
+        q = vc[sel, 1:]
+        inside = ((q >= lo) & (q <= hi)).all(1)
+        qi = (q[inside] - lo).numpy()
+        e = torch.full((len(sel),), float(edt_clip))
+        e[inside] = torch.from_numpy(np.minimum(dist[qi[:, 0], qi[:, 1], qi[:, 2]], edt_clip)).float()
+        edt[sel] = e
+    return cls, reg, edt
+
+
+# ----------------------------------------------------------------------------- inference
+
+
+def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: np.ndarray | None = None) -> np.ndarray:
+    """(3,H,W) LOS flags of ray-traced points (3,H,W,3): visible in the first-bounce range image
+    (:func:`holodata.evaluate.unmirror.los_mask`, with the beams' origins where it takes them)."""
+    import inspect
+
+    from holodata.evaluate.unmirror import los_mask
+
+    P = np.asarray(points, np.float64)
+    if origins is None:
+        return los_mask(P, first_range, grid)
+    if "origins" in inspect.signature(los_mask).parameters:
+        return los_mask(P, first_range, grid, origins=np.asarray(origins, np.float64))
+    return los_mask(P - np.asarray(origins, np.float64).reshape(-1, 3).mean(0), first_range, grid)
+
+
+class Stage2:
+    """A trained stage two: ``ray_tracer`` (RayTracer) and ``refiner`` (VoxelRefiner or None)."""
+
+    def __init__(self, ray_tracer: RayTracer, refiner: VoxelRefiner | None, device="cpu"):
+        self.rt, self.refiner, self.device = ray_tracer.eval(), (refiner.eval() if refiner is not None else None), device
+
+    @torch.no_grad()
+    def predict(self, R: np.ndarray, human: np.ndarray | None, directions: np.ndarray, origins: np.ndarray,
+                grid: Grid) -> dict:
+        """One frame: R (3,H,W) m NaN = none, human (3,H,W) probability or None, directions/origins
+        (H,W,3) → {"no_refine": {point (3,H,W,3), los (3,H,W), human (3,H,W)},
+        "refined": {point (M,3), los (M,), human (M,)} (None without a refiner)}."""
+        dev = self.device
+        Rt = torch.from_numpy(np.asarray(R, np.float32))[None].to(dev)
+        d = torch.from_numpy(np.asarray(directions, np.float32)).to(dev)
+        o = torch.from_numpy(np.asarray(origins, np.float32)).to(dev)
+        out = self.rt(Rt, d, o)
+        P = out["point"][0].cpu().numpy().astype(np.float64)
+        los = los_flags(P, np.asarray(R)[0], grid, origins)
+        hp = np.zeros(R.shape, np.float32) if human is None else np.asarray(human, np.float32)
+        res = {"no_refine": {"point": P, "los": los, "human": hp >= 0.5}, "refined": None}
+        if self.refiner is not None:
+            ok = np.isfinite(P).all(-1)
+            if not ok.any():
+                e = np.zeros((0, 3))
+                res["refined"] = {"point": e, "los": np.zeros(0, bool), "human": np.zeros(0, bool)}
+                return res
+            pts = torch.from_numpy(P[ok]).float().to(dev)
+            b = torch.from_numpy(np.nonzero(ok)[0]).to(dev)
+            vox = voxelize(pts, torch.zeros_like(b), b, torch.from_numpy(hp[ok]).to(dev), self.refiner.cfg.voxel,
+                           self.refiner.cfg.max_range)
+            ro = self.refiner(vox)
+            prob = torch.softmax(ro["cls_logit"], -1)
+            keep = (prob[:, CLASS_EMPTY] < 0.5).cpu().numpy()
+            lf = torch.from_numpy(los[ok].astype(np.float32)).to(dev)
+            vlos = (torch.zeros(len(vox.coords), device=dev).index_add_(0, vox.point_voxel, lf)
+                    / torch.zeros(len(vox.coords), device=dev).index_add_(0, vox.point_voxel, torch.ones_like(lf))) >= 0.5
+            pts_out = (ro["centre"] + ro["offset"]).cpu().numpy().astype(np.float64)
+            hum = (prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE]).cpu().numpy()
+            res["refined"] = {"point": pts_out[keep], "los": vlos.cpu().numpy()[keep], "human": hum[keep]}
+        return res
+
+
+def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
+    """Stage2 from ``RUN/stage2.pt`` (or the file) and its checkpoint dict; InputError when absent."""
+    p = Path(path)
+    if p.is_dir():
+        p = p / STAGE2_CHECKPOINT
+    if not p.exists():
+        raise InputError(f"{p}: no such stage-two checkpoint (train it: holodata train DATASET --out RUN)")
+    try:
+        ck = torch.load(p, map_location="cpu", weights_only=False)
+    except Exception as err:  # noqa: BLE001
+        raise InputError(f"{p}: not a holodata stage-two checkpoint ({err.__class__.__name__})") from None
+    rt = RayTracer(RayTracerConfig(**ck["rt_config"]))
+    rt.load_state_dict(ck["rt_state"])
+    ref = None
+    if ck.get("refiner_state") is not None and ck["epoch"] > ck["stage2_config"]["epochs_rt"]:
+        ref = VoxelRefiner(RefinerConfig.from_dict(ck["refiner_config"]))
+        ref.load_state_dict(ck["refiner_state"])
+        ref = ref.to(device)
+    return Stage2(rt.to(device), ref, device), ck
+
+
+# ----------------------------------------------------------------------------- training
+
+
+def _atomic_save(obj, path: Path) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(obj, tmp)
+    os.replace(tmp, path)
+
+
+def check_stage1(ck: dict, ds, where) -> None:
+    """InputError unless the stage-one checkpoint's grid and range bins are the dataset's."""
+    meta = ck.get("meta") or {}
+    if meta.get("grid") != ds.grid.to_attrs() or meta.get("range_bins") != ds.range_bins.to_attrs():
+        raise InputError(f"{where}: stage-one checkpoint grid {meta.get('grid')} / range bins "
+                         f"{meta.get('range_bins')} differ from the dataset's {ds.grid.to_attrs()} / "
+                         f"{ds.range_bins.to_attrs()}")
+
+
+def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device):
+    """Ray-traced points of a batch → (Voxels, targets) for the refiner."""
+    with torch.no_grad():
+        out = rt(batch["range_in"], batch["directions"], batch["origins"])
+    P = out["point"]
+    ok = torch.isfinite(P).all(-1)
+    nz = torch.nonzero(ok)
+    pts = P[ok]
+    vox = voxelize(pts.float(), nz[:, 0], nz[:, 1], batch["human_in"][ok], cfg.voxel, rt.cfg.max_range)
+    gpts, ghum = [], []
+    gp = batch["gt_point"].cpu().numpy()
+    lab = batch["label"].cpu().numpy()
+    for j in range(len(gp)):
+        m = np.isfinite(gp[j]).all(-1)
+        gpts.append(gp[j][m].astype(np.float64))
+        ghum.append(_is_human(lab[j][m]))
+    cls, reg, edt = refine_targets(vox.coords, gpts, ghum, cfg.voxel, cfg.edt_clip)
+    return vox, cls.to(device), reg.to(device), edt.to(device)
+
+
+def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, meta: dict | None = None,
+               quiet: bool = False, resume: bool = True) -> dict:
+    """Train stage two on ``frames`` into ``out_dir``/stage2.pt; resumes from it when present
+    (same configuration required). Returns {"checkpoint", "epochs", "resumed_from", "history"}."""
+    from .train import resolve_device, seed_everything
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    dev = resolve_device(cfg.device)
+    seed_everything(cfg.seed)
+    rt = RayTracer(cfg.rt_config(max_range)).to(dev)
+    ref = VoxelRefiner(cfg.refiner_config(max_range)).to(dev)
+    ck_path = out / STAGE2_CHECKPOINT
+    start, history, opt_state = 0, [], None
+    if resume and ck_path.exists():
+        ck = torch.load(ck_path, map_location="cpu", weights_only=False)
+        same = {k: v for k, v in ck["stage2_config"].items() if k not in ("device", "epochs_rt", "epochs_refine")}
+        want = {k: v for k, v in cfg.to_dict().items() if k not in ("device", "epochs_rt", "epochs_refine")}
+        if same != want or ck["stage2_config"]["epochs_rt"] != cfg.epochs_rt:
+            raise InputError(f"{ck_path}: stage-two checkpoint config differs from the requested one; use a new --out")
+        rt.load_state_dict(ck["rt_state"])
+        ref.load_state_dict(ck["refiner_state"])
+        start, history, opt_state = int(ck["epoch"]), list(ck["history"]), ck["optimizer_state"]
+        torch.set_rng_state(ck["torch_rng"])
+    (out / "stage2_config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
+    from .train import _truncate_log
+
+    _truncate_log(out / STAGE2_LOG, start)
+    cw = torch.tensor([cfg.empty_weight, cfg.human_weight, 1.0], device=dev)
+    opt, opt_phase = None, None
+    for epoch in range(start, cfg.epochs):
+        phase = "rt" if epoch < cfg.epochs_rt else "refine"
+        e0, n_ep = (0, cfg.epochs_rt) if phase == "rt" else (cfg.epochs_rt, cfg.epochs_refine)
+        if opt_phase != phase:
+            params = rt.parameters() if phase == "rt" else ref.parameters()
+            opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
+            if opt_state is not None and opt_state.get("phase") == phase:
+                opt.load_state_dict(opt_state["state"])
+            opt_phase = phase
+        lr = cfg.lr * (cfg.lr_floor + (1 - cfg.lr_floor) * 0.5 * (1 + math.cos(math.pi * (epoch - e0) / max(n_ep, 1))))
+        for g in opt.param_groups:
+            g["lr"] = lr
+        rng = np.random.default_rng([cfg.seed, epoch])
+        order = rng.permutation(len(frames))
+        rt.train(phase == "rt")
+        ref.train(phase == "refine")
+        sums, n_seen, t0 = {}, 0, time.perf_counter()
+        batches = [order[i:i + cfg.batch_size] for i in range(0, len(order), cfg.batch_size)]
+        for idx in track(batches, total=len(batches), description=f"stage two {phase} {epoch + 1}/{cfg.epochs}", quiet=quiet):
+            batch = make_batch(frames, idx, cfg, rng, dev)
+            if phase == "rt":
+                o = rt(batch["range_in"], batch["directions"], batch["origins"])
+                gate = (batch["range_in"] - batch["range"]).abs() < cfg.input_gate_m
+                loss, parts = ray_trace_loss(o, batch["gt_point"], batch["gt_normal"], batch["directions"], gate,
+                                             cfg.w_sn, cfg.w_point, cfg.w_normal)
+                params = rt.parameters()
+            else:
+                vox, cls, reg, edt = _refine_batch(rt, batch, cfg, dev)
+                o = ref(vox)
+                loss, parts = refine_loss(o, cls, reg, edt, cfg.w_cls, cfg.w_reg, cfg.w_dist, cw)
+                params = ref.parameters()
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            torch.nn.utils.clip_grad_norm_(params, 5.0)
+            opt.step()
+            n_seen += len(idx)
+            sums["loss"] = sums.get("loss", 0.0) + float(loss.detach()) * len(idx)
+            for k, v in parts.items():
+                sums[k] = sums.get(k, 0.0) + v * len(idx)
+        dt = time.perf_counter() - t0
+        row = {"epoch": epoch + 1, "phase": phase, **{k: v / max(n_seen, 1) for k, v in sums.items()}, "lr": lr,
+               "samples": n_seen, "seconds": round(dt, 3)}
+        history.append(row)
+        _atomic_save({"format": "holodata-stage2-1", "epoch": epoch + 1, "phase": phase,
+                      "stage2_config": cfg.to_dict(), "rt_config": rt.cfg.to_dict(), "refiner_config": ref.cfg.to_dict(),
+                      "rt_state": rt.state_dict(), "refiner_state": ref.state_dict(),
+                      "optimizer_state": {"phase": phase, "state": opt.state_dict()}, "history": history,
+                      "torch_rng": torch.get_rng_state(), "meta": meta or {}}, ck_path)
+        with open(out / STAGE2_LOG, "a") as fh:
+            fh.write(json.dumps(row) + "\n")
+    return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history}
+
+
+def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, stage1=None,
+                 quiet: bool = False) -> dict:
+    """Train stage two on the ``train`` split of the dataset into ``out_dir``.
+
+    ``stage1``: a stage-one checkpoint (file or run dir) whose predictions join the training
+    inputs (and whose downsample stage two works at); default ``out_dir/checkpoint.pt``. It must
+    exist and match the dataset's grid and range bins (InputError otherwise). When it lives
+    outside ``out_dir`` it is copied there as ``checkpoint.pt`` so the run is self-contained."""
+    from holodata.dataset import open_dataset
+
+    from .train import CHECKPOINT, load_checkpoint
+
+    cfg = cfg if isinstance(cfg, Stage2Config) else Stage2Config.from_dict(cfg or {})
+    out = Path(out_dir)
+    src = Path(stage1) if stage1 is not None else out / CHECKPOINT
+    src_file = src / CHECKPOINT if src.is_dir() else src
+    ck1 = load_checkpoint(src_file)
+    ds = open_dataset(str(dataset_url))
+    check_stage1(ck1, ds, src_file)
+    out.mkdir(parents=True, exist_ok=True)
+    if (out / CHECKPOINT).resolve() != src_file.resolve() and not (out / CHECKPOINT).exists():
+        shutil.copy2(src_file, out / CHECKPOINT)
+    f = int((ck1.get("transform") or {}).get("downsample", 1))
+    frames, grid = load_frames(dataset_url, "train", f, cfg.frames_per_scene, quiet=quiet)
+    if cfg.p_stage1 > 0:
+        frames.s1_range, frames.s1_human = stage1_predictions(dataset_url, ck1, frames.keys, device=cfg.device, quiet=quiet)
+    meta = {"dataset": str(dataset_url), "grid": ds.grid.to_attrs(), "range_bins": ds.range_bins.to_attrs(),
+            "downsample": f, "stage1": str(src_file), "stage1_epoch": int(ck1.get("epoch", 0)),
+            "train_frames": len(frames)}
+    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), meta=meta, quiet=quiet)
