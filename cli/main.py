@@ -8,6 +8,7 @@ stderr and exit code 1; ``--debug`` shows the traceback instead. Usage errors ex
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 
 import click
@@ -29,7 +30,7 @@ COMMAND_MODULES: list[str] = [
 class HolodataGroup(click.Group):
     def invoke(self, ctx: click.Context):
         try:
-            return super().invoke(ctx)
+            result = super().invoke(ctx)
         except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
             raise
         except KeyboardInterrupt:
@@ -40,6 +41,10 @@ class HolodataGroup(click.Group):
                 raise
             click.echo(f"error: {one_line(err)}", err=True)
             sys.exit(1)
+        # the command's work is done (and committed): a Ctrl-C during interpreter shutdown would
+        # only turn exit 0 into "killed by SIGINT" over a finished result
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        return result
 
 
 def one_line(err: BaseException) -> str:

@@ -548,6 +548,7 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         if sid not in ds.scenes:
             raise InputError(f"{url}: no scene {sid!r} (have: {', '.join(ds.scenes)})")
         s = ds.scene(sid)
+        s.require_complete("raytrace-gt")
         names = set(s.arrays())
         missing = [n for n in ("mesh/vertices", "mesh/faces", "pose/T_world_radar", "time/timestamp_ns") if n not in names]
         if missing:

@@ -74,6 +74,7 @@ def dataset_info(path_or_url) -> dict:
             tot_stored += stored
         attrs = {k: v for k, v in s.attrs.items() if k not in ("gt",)}
         scenes.append({"scene": sid, "frames": s.n_frames, "attrs": attrs, "arrays": arrays,
+                       "ingest_complete": s.ingest_complete,
                        "beam_origin": origin_summary(dict(s.attrs))})
     return {"dataset": ds.url, "format_version": ds.format_version, "created_by": ds.meta.get("created_by"),
             "grid": ds.meta.get("grid"), "range_bins": ds.meta.get("range_bins"), "splits": ds.splits,
@@ -96,6 +97,9 @@ def format_info(summary: dict) -> str:
     for s in summary["scenes"]:
         extra = ", ".join(f"{k}={v}" for k, v in s["attrs"].items() if k != "n_frames" and not isinstance(v, (dict, list)))
         lines.append(f"scene {s['scene']}: {s['frames']} frames" + (f" ({extra})" if extra else ""))
+        if not s.get("ingest_complete", True):
+            lines.append("  INCOMPLETE: ingest did not finish (rerun holodata ingest with the same recording and "
+                         "--scene-id to resume)")
         bo = s.get("beam_origin")
         if bo:
             lines.append(f"  beams: radar {bo['radar']}; gt {bo['gt'] or 'not traced'}")

@@ -181,6 +181,20 @@ class Scene:
             raise DatasetError(f"{self.ds.url}: scene {self.id!r} has no ragged array {name!r}")
         return self._get_ragged(name)[frame]
 
+    @property
+    def ingest_complete(self) -> bool:
+        """False while the ``ingest`` that made this scene has not finished (scene attrs
+        ``ingest.complete``; interrupted, or still running); True for scenes made by other writers."""
+        ing = self.attrs.get("ingest")
+        return not isinstance(ing, dict) or bool(ing.get("complete", True))
+
+    def require_complete(self, stage: str) -> None:
+        """Raise :class:`DatasetError` (one line) when :attr:`ingest_complete` is False: ``stage``
+        would otherwise run on a scene that lacks arrays ingest had not written yet."""
+        if not self.ingest_complete:
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r} was not ingested completely (interrupted?): rerun "
+                               f"holodata ingest with the same recording and --scene-id to finish it before {stage}")
+
     def is_done(self, name: str, k: int) -> bool:
         """Shard ``k`` of frame/ragged array ``name`` is committed."""
         return self.ds.store.exists(sh.manifest_key(f"{self.path}/{name}", k))

@@ -102,6 +102,9 @@ def validate_dataset(path_or_url, quiet: bool = True) -> dict:
     for e in schema_errors("dataset", ds.meta):
         rep.add(None, None, None, "schema", f"root attributes: {e}")
     scenes = ds.scenes
+    if not scenes:
+        rep.add(None, None, None, "presence", "no scenes (an ingest that did not get as far as its first scene, "
+                                              "or nothing written yet)")
     for split, names in (ds.splits or {}).items():
         for n in names if isinstance(names, list) else []:
             if n not in scenes:
@@ -134,6 +137,10 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report):
     attrs = meta.get("attributes", {})
     for e in schema_errors("scene", attrs):
         rep.add(sid, None, None, "schema", f"scene attributes: {e}")
+    ing = attrs.get("ingest")
+    if isinstance(ing, dict) and not ing.get("complete", True):
+        rep.add(sid, None, None, "incomplete", "ingest did not finish (scene attrs ingest.complete is false: "
+                                               "rerun holodata ingest with the same recording and --scene-id to resume)")
     T = attrs.get("n_frames")
     if not isinstance(T, int) or T < 0:
         return None

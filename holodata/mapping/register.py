@@ -1383,6 +1383,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     ds = open_dataset(url)
     sid = _scene_id(ds, url, scene_id)
     scene = ds.scene(sid)
+    scene.require_complete("register")
     cam = CameraFrames.open(scene, url)
     LidarScans.open(scene, url)   # checks the LiDAR arrays and poses before any work starts
     T_init = _parse_init(init)

@@ -161,6 +161,7 @@ class HeatmapDataset(Dataset):
         self.index: list[tuple[str, int]] = []
         for sid in self.scenes:
             sc = ds.scene(sid)
+            sc.require_complete("training or evaluation")
             names = set(sc.arrays())
             for need in ("radar/heatmap", "gt/range"):
                 if need not in names:
