@@ -1636,11 +1636,17 @@ def list_recording(path, msg_dir=None, meta=None, topics=None) -> dict:
         lo, hi = rec.duration_ns()
         size = sum(f.stat().st_size for f in rec.files if f.exists())
         usable = bool(tmap.radar or tmap.lidar)
+        reason = None if usable else _reject_reason(rec, infos, tmap, notes)
+        lidar_type = next((t.msgtype for t in infos if t.name == tmap.lidar), None) if tmap.lidar else None
+        if usable and lidar_type is not None:
+            from .readers.ouster import SDK_TYPES, sdk_missing
+
+            reason = sdk_missing() if lidar_type in SDK_TYPES else None   # ingest would stop there
+            usable = reason is None
         return {"recording": str(rec.path), "reader": rec.kind, "files": [str(f) for f in rec.files], "bytes": size,
                 "start_ns": lo, "end_ns": hi, "duration_s": None if lo is None else (hi - lo) / 1e9,
                 "messages": sum(t.count for t in infos), "truncated": bool(rec.truncated),
-                "problems": list(rec.problems), "notes": notes, "ingestable": usable,
-                "reason": None if usable else _reject_reason(rec, infos, tmap, notes),
+                "problems": list(rec.problems), "notes": notes, "ingestable": usable, "reason": reason,
                 "topics": [{**t.to_dict(), "role": roles.get(t.name)} for t in infos]}
     finally:
         rec.close()

@@ -18,8 +18,10 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
     .venv/bin/python -m pip install -q -e ".[train,dev]"
     # Ouster's SDK reads Ouster pcap + json; it pins rosbags==0.9.23 (holodata needs >= 0.10 for
-    # rosbag2 MCAP), so it goes in without its pins, with the two helpers its readers import.
-    .venv/bin/python -m pip install -q --no-deps "ouster-sdk==1.0.1" "more-itertools>=8.6" "threadpoolctl>=3.5"
+    # rosbag2 MCAP), so it goes in without its pins, with the two helpers its readers import. The
+    # list lives in holodata.readers.ouster.SDK_REQUIREMENTS (its error message names the same).
+    mapfile -t ouster_reqs < <(.venv/bin/python -m holodata.readers.ouster)
+    .venv/bin/python -m pip install -q --no-deps "${ouster_reqs[@]}"
     touch "$stamp"
 fi
 echo "holodata is set up in .venv (activate with: source .venv/bin/activate)" >&2

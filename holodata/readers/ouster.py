@@ -11,10 +11,10 @@ as fallbacks). Nothing else in holodata imports ``ouster``.
 Scans are destaggered onto the native grid with the SDK (``pixel_shift_by_row`` of the metadata):
 row ``i`` = beam ``i`` (``beam_altitude_angles[i]``), column ``j`` = azimuth bin ``j``.
 
-Install: ``pip install --no-deps ouster-sdk`` (plus ``more-itertools``, ``laspy``, ``prettytable``,
-``threadpoolctl``, ``zeroconf``). A plain ``pip install ouster-sdk`` pins ``rosbags==0.9.23`` and
-downgrades the rosbags >= 0.11 holodata needs (bare MCAP files); pcap and packet decoding use none
-of it.
+Install: :data:`INSTALL_COMMAND` (``scripts/setup.sh`` runs it; ``python -m holodata.readers.ouster``
+prints the requirements it installs). It goes in with ``--no-deps``: a plain ``pip install
+ouster-sdk`` pins ``rosbags==0.9.23`` and downgrades the rosbags >= 0.11 holodata needs (bare MCAP
+files); pcap and packet decoding use none of it, and the two helpers listed are all its readers import.
 """
 from __future__ import annotations
 
@@ -36,12 +36,27 @@ PACKET_TYPE = "ouster_ros/msg/PacketMsg"
 TESTED_SDK = "1.0"
 
 
-def _sdk():
+# the one list of what Ouster support installs (scripts/setup.sh reads it through ``python -m``)
+SDK_REQUIREMENTS = ("ouster-sdk==1.0.1", "more-itertools>=8.6", "threadpoolctl>=3.5")
+INSTALL_COMMAND = "pip install --no-deps " + " ".join(f'"{r}"' for r in SDK_REQUIREMENTS)
+SDK_TYPES = (SCAN_TYPE, PACKET_TYPE)  # message types only the SDK decodes
+
+
+def sdk_missing() -> str | None:
+    """None when ouster-sdk imports, else the one-line reason with the command that fixes it."""
     try:
-        from ouster.sdk import core
+        from ouster.sdk import core  # noqa: F401
     except ImportError as err:
-        raise RecordingError(f"reading Ouster data needs ouster-sdk ({err}); install it with "
-                             f"`pip install --no-deps ouster-sdk more-itertools laspy prettytable threadpoolctl`") from None
+        return f"reading Ouster data needs ouster-sdk ({err}): run `{INSTALL_COMMAND}` (scripts/setup.sh does)"
+    return None
+
+
+def _sdk():
+    missing = sdk_missing()
+    if missing:
+        raise RecordingError(missing)
+    from ouster.sdk import core
+
     return core
 
 
@@ -308,6 +323,9 @@ class OusterPcapRecording(Recording):
         if head not in (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d"):
             raise RecordingError(f"{self.path}: not a classic pcap file (pcapng is not supported; convert with "
                                  f"`editcap -F pcap`)")
+        missing = sdk_missing()
+        if missing:
+            raise RecordingError(f"{self.path}: {missing}")
         self.info, self.text = load_info(self.meta_path)
         self.meta = sensor_meta(self.info, self.text)
         self._infos: list[TopicInfo] | None = None
@@ -370,3 +388,7 @@ class OusterPcapRecording(Recording):
 
     def stamp_ns(self, raw: RawMessage) -> int:
         return raw.log_ns
+
+
+if __name__ == "__main__":  # scripts/setup.sh: the requirements of Ouster support, one per line
+    print("\n".join(SDK_REQUIREMENTS))

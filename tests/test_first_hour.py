@@ -1,0 +1,39 @@
+"""Frictions a new user meets in the first hour (issue 24): Ouster support without the SDK says one
+thing everywhere, with the command that fixes it."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from holodata.cli.main import cli
+
+FIXTURES = Path(__file__).resolve().parents[2] / "shared" / "fixtures"
+PACKETS_BAG = FIXTURES / "ros1" / "512x10_raw.bag"
+PCAP = FIXTURES / "ouster" / "OS-1-32-G_v2.1.1_1024x10.pcap"
+
+
+@pytest.fixture
+def no_ouster_sdk(monkeypatch):
+    for name in ("ouster", "ouster.sdk", "ouster.sdk.core"):
+        monkeypatch.setitem(sys.modules, name, None)   # import fails as if it were not installed
+
+
+@pytest.mark.skipif(not PACKETS_BAG.is_file(), reason="shared fixtures not present")
+def test_without_the_ouster_sdk_list_and_ingest_say_the_same_one_line(no_ouster_sdk, tmp_path):
+    from holodata.readers.ouster import INSTALL_COMMAND, SDK_REQUIREMENTS
+
+    assert INSTALL_COMMAND.startswith("pip install --no-deps ") and all(r in INSTALL_COMMAND for r in SDK_REQUIREMENTS)
+    setup = (Path(__file__).resolve().parents[1] / "scripts" / "setup.sh").read_text()
+    assert "holodata.readers.ouster" in setup            # setup.sh installs exactly that list
+    r = CliRunner().invoke(cli, ["ingest", "--list", str(PACKETS_BAG)])
+    assert r.exit_code == 0, r.output
+    last = r.output.strip().splitlines()[-1]
+    assert last.startswith("Ingest:    no") and INSTALL_COMMAND in last
+    for rec in (PACKETS_BAG, PCAP):
+        r = CliRunner().invoke(cli, ["ingest", str(rec), "--out", str(tmp_path / "d.zarr")])
+        assert r.exit_code == 1 and r.stdout == ""
+        err = r.stderr.strip().splitlines()
+        assert len(err) == 1 and str(rec) in err[0] and INSTALL_COMMAND in err[0], err
