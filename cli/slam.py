@@ -24,13 +24,18 @@ import click
 @click.option("--ply", type=click.Path(dir_okay=False), help="Also export the mesh as PLY (one scene only).")
 @click.option("--tum", type=click.Path(dir_okay=False), help="Also export the LiDAR trajectory as TUM text (one scene only).")
 @click.option("--truth", type=click.Path(file_okay=False), help="A holodata synth truth/ folder: print ATE/RPE and mesh "
-              "Chamfer/F-scores against it (one scene only).")
+              "Chamfer/F-scores against it, the mesh's coverage of the true surface within the radar's 3-bounce reach "
+              "and the GT NLOS points per frame through the SLAM vs the true mesh (one scene only).")
 @click.option("--report", type=click.Path(file_okay=False), help="With --truth: folder for accuracy.json and PNG plots.")
+@click.option("--map-scene", "map_scene", default=None, metavar="MAPID",
+              help="Localisation mode: a mapping pass of the same corner (its own LiDAR-only scene, e.g. ingested "
+              "from a separate recording) is slammed first; the --scene scans are localised against its map and "
+              "get its mesh. The map scene is marked role=mapping (no train/test split, no raytrace-gt).")
 @click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method, mesh_voxel, no_mesh, ply, tum, truth, report,
-         force, quiet, as_json):
+         map_scene, force, quiet, as_json):
     """Estimate the LiDAR pose of every scan (kiss-icp, refined by scan-to-map point-to-plane ICP),
     the radar poses through the extrinsic, and a mesh of the static scene (moving points removed);
     writes pose/T_world_lidar, pose/T_world_radar, mesh/vertices, mesh/faces into the scene.
@@ -39,6 +44,7 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
     Example:
       holodata slam data.zarr --scene corner_03 --ply corner_03.ply
       holodata slam data.zarr --truth synth_L/truth --report slam_report/
+      holodata slam data.zarr --scene corner_03 --map-scene corner_03_map
     """
     from holodata.mapping.mesh import MeshConfig
     from holodata.mapping.slam import SlamConfig, slam_dataset
@@ -47,17 +53,27 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
         raise click.UsageError("--ply/--tum/--truth need a single --scene")
     if report and not truth:
         raise click.UsageError("--report needs --truth")
+    if map_scene is not None and not scenes:
+        raise click.UsageError("--map-scene needs --scene (the scenes to localise against it)")
+    if map_scene is not None and (no_refine or no_mesh):
+        raise click.UsageError("--map-scene localises by scan-to-map ICP against the map scene's mesh map: "
+                               "no --no-refine / --no-mesh")
     cfg = SlamConfig(voxel=voxel, max_range=max_range, refine=not no_refine, global_pass=global_pass, mesh=not no_mesh)
     mcfg = MeshConfig(method=mesh_method, voxel=mesh_voxel)
     results = slam_dataset(dataset, list(scenes) or None, config=cfg, mesh_config=mcfg, quiet=quiet, ply=ply, tum=tum,
-                           force=force, single_exports=True)
+                           force=force, single_exports=True, map_scene=map_scene)
     out = {"dataset": dataset, "scenes": [r.summary for r in results]}
     if truth:
         from holodata.mapping.accuracy import evaluate_slam
 
+        import holodata
+        from holodata.mapping.slam import MAPPING_ROLE
+
         r = results[0]
+        role = holodata.open_dataset(dataset).scene(r.scene).attrs.get("role")
         out["accuracy"] = evaluate_slam(r.trajectory(), r.mesh, truth, out_dir=report,
-                                        extra_trajectories={"kiss-icp": r.kiss_trajectory()})
+                                        extra_trajectories={"kiss-icp": r.kiss_trajectory()},
+                                        pass_="mapping" if role == MAPPING_ROLE else "data")
     if as_json:
         click.echo(json.dumps(out, default=str))
         return
@@ -77,6 +93,14 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
             line += (f", mesh Chamfer {m['chamfer_m'] * 100:.2f} cm, F@2/5/10cm {m['f_2cm']:.3f}/{m['f_5cm']:.3f}/"
                      f"{m['f_10cm']:.3f}")
         click.echo(line)
+        if "coverage" in a:
+            c = a["coverage"]
+            by = "/".join(f"{v:.3f}" for _, v in sorted(c["coverage_bounce"].items()))
+            click.echo(f"mesh coverage of the true surface within radar reach (tau {c['tau_m'] * 100:.0f} cm, "
+                       f"{c['grid'][0]}x{c['grid'][1]} beams, {c['max_bounces']} bounces): {c['coverage']:.3f} "
+                       f"(bounce 1/2/3 {by}); GT NLOS points per frame: {c['nlos_per_frame_est']:.0f} through the "
+                       f"SLAM mesh, {c['nlos_per_frame_true']:.0f} through the true mesh "
+                       f"(ratio {c['nlos_ratio']:.2f})")
 
 
 COMMANDS = [slam]

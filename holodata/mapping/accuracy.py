@@ -20,6 +20,13 @@ true sample is an unobserved one are ignored — surface the LiDAR never saw can
 samples in free space still count), recall(τ) = share of observed
 true samples within τ of the estimate, F = 2PR/(P+R), at τ = 2, 5, 10 cm. Chamfer distance =
 mean(acc) + mean(comp) (sum, DESIGN §5).
+
+Coverage (:func:`mesh_coverage`): the share of the true surface *within the radar's multi-bounce
+reach* that the estimated mesh covers — the radar's beams (the recording's grid, up to 3 bounces,
+9.6 m accumulated range) traced from the true radar poses through the true mesh; the hit points
+of every bounce are that surface; covered = within 5 cm of the estimated mesh. The same beams traced
+through the estimated mesh (in the truth's frame, same poses) give the GT NLOS points per frame
+the estimate yields, compared with the true mesh's.
 """
 from __future__ import annotations
 
@@ -199,6 +206,87 @@ def mesh_errors(est_vertices, est_faces, true_vertices, true_faces, sensor_poses
 
 
 # ----------------------------------------------------------------------------------------------
+# mesh coverage within the radar's multi-bounce reach
+
+COVERAGE_TAU = 0.05
+
+
+def radar_reach(vertices, faces, radar_poses: np.ndarray, grid, max_bounces: int = 3, max_range: float = 9.6,
+                max_frames: int = 60) -> dict:
+    """The surface a radar reaches: its beams (``grid``, one origin per frame at the pose's
+    translation, the rotation centre) from ``radar_poses`` (T,4,4) T_world_radar traced through the
+    mesh with up to ``max_bounces`` specular bounces and accumulated range up to ``max_range`` m
+    (:class:`holodata.raytrace.RayScene`, labels on). At most ``max_frames`` poses, evenly spread.
+    Returns ``points`` (M,3) float64 the finite hit points of every bounce, ``bounce`` (M,) int
+    1..B, ``frame`` (M,) int, ``nlos_per_frame`` (T',) count of beams·bounces labelled NLOS
+    (structure or human), ``frames`` (T',) the pose indices used."""
+    from ..beams import beam_rays
+    from ..conventions import Label
+    from ..raytrace import RayScene
+
+    P = np.asarray(radar_poses, np.float64)
+    idx = np.arange(len(P))
+    if len(P) > max_frames:
+        idx = np.unique(np.linspace(0, len(P) - 1, max_frames).round().astype(int))
+    scene = RayScene(np.asarray(vertices, np.float64), np.asarray(faces, np.int64))
+    pts, bnc, frm, nlos = [], [], [], []
+    nlos_labels = [int(Label.NLOS_STRUCTURE), int(Label.NLOS_HUMAN)]
+    for k in idx:
+        o, d = beam_rays(grid, P[k])
+        tr = scene.trace(o, d, max_bounces=max_bounces, max_range=max_range)
+        ok = np.isfinite(tr.range)
+        b = np.nonzero(ok)
+        pts.append(np.asarray(tr.point, np.float64)[ok])
+        bnc.append(b[1] + 1)
+        frm.append(np.full(len(b[0]), k))
+        nlos.append(int(np.isin(tr.label, nlos_labels).sum()))
+    cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
+    return {"points": cat(pts, (0, 3)), "bounce": cat(bnc, (0,)).astype(int), "frame": cat(frm, (0,)).astype(int),
+            "nlos_per_frame": np.asarray(nlos, np.int64), "frames": idx}
+
+
+def mesh_coverage(est_vertices, est_faces, true_vertices, true_faces, radar_poses: np.ndarray, grid,
+                  tau: float = COVERAGE_TAU, max_bounces: int = 3, max_range: float = 9.6, max_frames: int = 60) -> dict:
+    """Share of the true surface within the radar's multi-bounce reach that the estimated mesh covers.
+
+    "Within reach": the hit points of every bounce of the radar's beams traced from the true
+    ``radar_poses`` (T,4,4) through the true mesh (:func:`radar_reach`); covered: within ``tau`` m
+    (default 5 cm) of the estimated mesh (exact point-to-triangle distance). Both meshes in the same
+    (true) world frame. Also traces the beams through the estimated mesh from the same poses and
+    compares the ground truth's NLOS points per frame (beams·bounces labelled NLOS) of the two.
+    Returns ``coverage`` (all bounces), ``coverage_bounce`` {1,2,3}, ``n_points``,
+    ``nlos_per_frame_true`` / ``nlos_per_frame_est`` (means over the frames), ``nlos_ratio``
+    (est / true), ``tau_m``."""
+    reach = radar_reach(true_vertices, true_faces, radar_poses, grid, max_bounces, max_range, max_frames)
+    est = radar_reach(est_vertices, est_faces, np.asarray(radar_poses)[reach["frames"]], grid, max_bounces, max_range,
+                      len(reach["frames"]))
+    out = {"tau_m": float(tau), "n_points": int(len(reach["points"])), "frames": int(len(reach["frames"])),
+           "grid": [int(grid.H), int(grid.W)], "max_bounces": int(max_bounces), "max_range_m": float(max_range)}
+    if len(reach["points"]) == 0:
+        out.update({"coverage": float("nan"), "coverage_bounce": {}})
+    else:
+        d = mesh_distance(est_vertices, est_faces, reach["points"])
+        cov = d <= tau
+        out["coverage"] = float(cov.mean())
+        out["coverage_bounce"] = {int(b): float(cov[reach["bounce"] == b].mean())
+                                  for b in range(1, max_bounces + 1) if (reach["bounce"] == b).any()}
+    nt, ne = float(reach["nlos_per_frame"].mean()), float(est["nlos_per_frame"].mean())
+    out.update({"nlos_per_frame_true": nt, "nlos_per_frame_est": ne,
+                "nlos_ratio": ne / nt if nt > 0 else float("nan")})
+    return out
+
+
+def grid_from_scene_json(truth_dir: Path):
+    """The radar beam grid (:class:`holodata.conventions.Grid`) of a synth recording (``truth/scene.json``)."""
+    from ..conventions import Grid
+
+    d = json.loads((Path(truth_dir) / "scene.json").read_text())
+    g = (d.get("radar") or {}).get("grid") or {}
+    el = g.get("elev_deg") or [45.0, -45.0]
+    return Grid(int(g.get("H", 64)), int(g.get("W", 512)), float(el[0]), float(el[1]))
+
+
+# ----------------------------------------------------------------------------------------------
 # plots and the whole report
 
 def plot_cumulative(curves: dict, path: Path, xlabel: str, title: str, taus=None) -> None:
@@ -246,7 +334,7 @@ def lidar_from_scene_json(truth_dir: Path) -> dict:
 
 
 def evaluate_slam(estimate: Trajectory, mesh: tuple | None, truth_dir, out_dir=None, label: str = "slam",
-                  extra_trajectories: dict | None = None) -> dict:
+                  extra_trajectories: dict | None = None, coverage: bool = True, pass_: str = "data") -> dict:
     """Trajectory and mesh accuracy against ``truth_dir`` (``truth/`` of ``holodata synth``).
 
     ``estimate``: T_world_lidar at scan stamps; ``mesh``: (vertices, faces) in the same world frame
@@ -254,12 +342,19 @@ def evaluate_slam(estimate: Trajectory, mesh: tuple | None, truth_dir, out_dir=N
     The mesh is compared after the pose alignment of the trajectories (:func:`pose_alignment`:
     rotations and positions of all matched poses, well-posed even on a straight path where
     Umeyama's position-only fit leaves the roll about the path free), so a map in another world
-    frame is still measured fairly. Writes ``accuracy.json`` and PNGs
-    (``ate_cumulative.png``, ``mesh_cumulative.png``) into ``out_dir`` when given."""
+    frame is still measured fairly. With ``coverage`` (and a mesh) also the mesh's coverage of the
+    true surface within the radar's reach and the GT NLOS points per frame through both meshes
+    (:func:`mesh_coverage`, from ``truth/trajectory_radar.tum``), under ``coverage``.
+    ``pass_``: "data" (``truth/trajectory_lidar.tum``) or "mapping" (the mapping pass's
+    ``truth/mapping_trajectory_lidar.tum``: ``estimate`` is then the mapping scene's trajectory).
+    Writes ``accuracy.json`` and PNGs (``ate_cumulative.png``, ``mesh_cumulative.png``) into
+    ``out_dir`` when given."""
     from ..meshio import read_mesh
 
     truth_dir = Path(truth_dir)
-    tl = truth_dir / "trajectory_lidar.tum"
+    if pass_ not in ("data", "mapping"):
+        raise InputError(f"unknown pass {pass_!r} (data or mapping)")
+    tl = truth_dir / ("trajectory_lidar.tum" if pass_ == "data" else "mapping_trajectory_lidar.tum")
     tm = truth_dir / "mesh.ply"
     for p in (tl, tm):
         if not p.is_file():
@@ -285,6 +380,10 @@ def evaluate_slam(estimate: Trajectory, mesh: tuple | None, truth_dir, out_dir=N
         acc, comp = m.pop("_acc"), m.pop("_comp")
         res["mesh"] = m
         res["mesh_alignment"] = T_align.tolist()
+        tr = truth_dir / "trajectory_radar.tum"
+        if coverage and tr.is_file():
+            res["coverage"] = mesh_coverage(v, mesh[1], tmesh.vertices, tmesh.faces[keep], read_tum(tr).poses,
+                                            grid_from_scene_json(truth_dir))
     if out_dir is not None:
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -340,5 +439,5 @@ def umeyama_transform(estimate: Trajectory, truth: Trajectory, max_diff_s: float
     return T
 
 
-__all__ = ["trajectory_errors", "mesh_errors", "observed_mask", "sample_mesh", "mesh_distance", "evaluate_slam",
+__all__ = ["trajectory_errors", "mesh_errors", "mesh_coverage", "radar_reach", "grid_from_scene_json", "COVERAGE_TAU", "observed_mask", "sample_mesh", "mesh_distance", "evaluate_slam",
            "plot_cumulative", "umeyama_transform", "pose_alignment", "TAUS"]

@@ -46,6 +46,7 @@ optional exports.
 from __future__ import annotations
 
 import contextlib
+import functools
 import threading
 import time
 from dataclasses import asdict, dataclass, field
@@ -58,6 +59,9 @@ from ..conventions import rotation_angle_deg, transform_directions, transform_po
 from ..errors import DatasetError, InputError
 from ..progress import track
 from ..trajectory import Trajectory, write_tum
+
+
+SEED_POSES = ("kiss-icp", "tf")
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,10 @@ class SlamConfig:
     (the kiss-icp defaults 1e-4 / 500 cost 4x more time on a robot at rest for a worse ATE: it
     only seeds the refinement). Measured on a 400-cycle L corner (64x512, robot at rest after 10
     s; ``benchmarks/slam.py``): slam 84 s -> 35 s at the same load, refined ATE 0.24 -> 0.21 cm.
+    ``seed_poses``: what seeds the refinement's relative motion: "kiss-icp" (default) or "tf" — the
+    recording's odometry/TF poses (:func:`guess_poses`) where the scene has them for every scan
+    (kiss-icp otherwise); a mapping pass throttled to a few scans per second (0.3-0.4 m apart) is
+    seeded better and cheaper by its wheel odometry than by kiss-icp's constant-velocity model.
     """
 
     voxel: float = 0.15
@@ -128,8 +136,11 @@ class SlamConfig:
     background_voxel: float = 0.15
     background_min_fraction: float = 0.6
     mesh: bool = True
+    seed_poses: str = "kiss-icp"
 
     def __post_init__(self):
+        if self.seed_poses not in SEED_POSES:
+            raise InputError(f"unknown slam seed_poses {self.seed_poses!r} (choose from {', '.join(SEED_POSES)})")
         if not 0.02 <= self.voxel <= 2.0:
             raise InputError(f"slam voxel must be in [0.02, 2] m, got {self.voxel}")
         if self.max_range is not None and not self.max_range > self.min_range:
@@ -419,9 +430,12 @@ class KissStream:
 
 
 class _Fixed:
-    """Given initial poses in the :class:`KissStream` interface (every scan "fed")."""
+    """Given initial poses in the :class:`KissStream` interface (every scan "fed"). ``seed``: they are
+    odometry (TF) poses at the scan stamps, whose motion about each scan also deskews it in
+    :func:`refine` (a throttled scan rate makes the last refined step a poor guess of it in turns)."""
 
-    def __init__(self, poses: np.ndarray):
+    def __init__(self, poses: np.ndarray, seed: bool = False):
+        self.seed = seed
         self.poses = poses
         self.fed = len(poses)
         self.seconds = 0.0
@@ -693,22 +707,26 @@ def icp(src_pts: np.ndarray, target, init: np.ndarray, cfg: SlamConfig, distance
 
 
 def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None,
-           ready=None) -> tuple[np.ndarray, dict]:
+           ready=None, vmap: "VoxelMap | None" = None, grow_map: bool = True) -> tuple[np.ndarray, dict]:
     """Scan-to-map refinement (see module doc) of initial poses ``init``: (S,4,4) at the scan stamps,
     or a :class:`KissStream` asked for a scan's kiss-icp pose only when the robot is not at rest (its
     relative motion seeds the ICP; scans at rest are never fed to it). ``T0``: pose of the first scan
     (default ``init``'s); ``ready(i)``: called before scan i is used (scans still being read,
-    :func:`stream_scans`). Returns the refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
+    :func:`stream_scans`); ``vmap``: start from this map (world frame) instead of an empty one, and
+    with ``grow_map`` False never add the scans to it (localisation against a fixed map). Returns the
+    refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
     S = len(scans)
     t_s = (scans.stamp_ns - scans.stamp_ns[0]).astype(np.float64) * 1e-9
     stream = _Fixed(np.asarray(init, np.float64)) if isinstance(init, np.ndarray) else init
+    # odometry seeds (_Fixed(seed=True)): deskew with their motion about each scan, not the last step's
+    seed_twist = twists_central(stream.poses, scans.stamp_ns) if getattr(stream, "seed", False) else None
     init = stream.poses
     poses = np.zeros((S, 4, 4))
     poses[0] = stream.pose(0)
     if T0 is not None:
         poses[0] = T0
     use_t = cfg.deskew and scans.times is not None
-    vmap = VoxelMap(cfg.map_voxel)
+    vmap = vmap if vmap is not None else VoxelMap(cfg.map_voxel)
     fit = np.zeros(S)
     rmse = np.zeros(S)
     xi_prev = np.zeros(6)
@@ -731,6 +749,8 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
         if ready is not None:
             ready(i)
         xi = xi_prev if i > 0 else np.zeros(6)
+        if seed_twist is not None:
+            xi = seed_twist[i]
         raw_t = scans.times[i] if use_t else None
         if (i > 0 and not _moved(poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5)
                 and (not isinstance(stream, _Fixed) or not _moved(init[anchor], init[i], cfg.still_m, cfg.still_deg))):
@@ -775,13 +795,13 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
             if f < cfg.min_fitness:  # too few scan points near the map (sparse, far, outdoor): trust kiss-icp
                 T = guess
                 fallbacks += 1
-            xi = twist(poses[i - 1], T, t_s[i] - t_s[i - 1])
+            xi = twist(poses[i - 1], T, t_s[i] - t_s[i - 1]) if seed_twist is None else seed_twist[i]
             anchor = i
             same = None
         poses[i] = T
         fit[i], rmse[i] = f, e
         xi_prev = xi
-        if not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
+        if grow_map and not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
             i_map = _downsample_index(pts, cfg.map_voxel)
             dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map])
             vmap.add(transform_points(T, dp), transform_directions(T, dn))
@@ -890,6 +910,53 @@ def _attr_T(d, key) -> np.ndarray | None:
     return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
 
 
+@functools.lru_cache(maxsize=4)
+def _recording_tf(path: str, tf_topics: tuple, static: tuple, mtime_ns: int, size: int):
+    """The TF buffer of a recording's ``tf_topics`` (``static`` ones as static), read once per
+    (path, mtime, size); None when it does not read."""
+    from ..errors import HolodataError
+    from ..readers import open_recording
+    from ..readers.tf import TransformBuffer
+
+    tf = TransformBuffer()
+    try:
+        with open_recording(path) as rec:
+            for topic, _, msg in rec.messages(list(tf_topics)):
+                tf.add_message(msg, static=topic in static)
+    except (HolodataError, OSError, ValueError, AttributeError):
+        return None
+    return tf
+
+
+def recording_tf_poses(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """TF poses T_world_lidar (S,4,4) of the scene's LiDAR frame at ``stamps_ns`` (S,), read from the
+    scene's source recording (``source.recording``, its ``ingest.topics`` TF topics), with (S,) bool
+    "covered" and the world frame's name; None when the recording is gone, has no TF or TF does not
+    connect the LiDAR frame to a world frame. ingest stores TF poses only for radar frames
+    (``pose/T_world_radar``), so a LiDAR-only scene (a mapping pass) finds its TF world this way."""
+    from ..readers.tf import WORLD_FRAMES
+
+    attrs = scene.attrs
+    path = (attrs.get("source") or {}).get("recording")
+    topics = (attrs.get("ingest") or {}).get("topics") or {}
+    frame = ((attrs.get("sensors") or {}).get("lidar") or {}).get("frame_id")
+    tf_topics = list(topics.get("tf") or []) + list(topics.get("tf_static") or [])
+    if not path or not frame or not tf_topics or not Path(path).exists():
+        return None
+    st = Path(path).stat()
+    tf = _recording_tf(str(path), tuple(tf_topics), tuple(topics.get("tf_static") or []), st.st_mtime_ns, st.st_size)
+    if tf is None:
+        return None
+    world = topics.get("world_frame") or next((w for w in WORLD_FRAMES if w in tf.frames and
+                                               tf._path(w, frame, False) is not None), None)
+    if world is None:
+        return None
+    res = tf.lookup_many(world, frame, np.asarray(stamps_ns, np.int64))
+    if res is None:
+        return None
+    return np.asarray(res[0], np.float64), np.asarray(res[1], bool), str(world)
+
+
 def anchor_pose(scene, first_stamp_ns: int) -> tuple[np.ndarray, dict]:
     """T_world_lidar of the first scan and how it was chosen (see module doc, 4.)."""
     ext = scene.attrs.get("extrinsics") or {}
@@ -906,6 +973,10 @@ def anchor_pose(scene, first_stamp_ns: int) -> tuple[np.ndarray, dict]:
             if ok.sum() >= 1:
                 T_wr = Trajectory(t[ok], P[ok]).interpolate(np.array([first_stamp_ns]))[0]
                 return T_wr @ np.linalg.inv(T_br) @ T_bl, {"kind": "tf", "world_frame": dict(pa.attrs).get("world_frame")}
+    if "pose/T_world_radar" not in names:
+        rt = recording_tf_poses(scene, np.array([first_stamp_ns], np.int64))
+        if rt is not None and rt[1][0]:
+            return rt[0][0], {"kind": "tf", "world_frame": rt[2], "via": "TF of the source recording"}
     if prev and prev.get("kind") == "tf" and prev.get("T_world_lidar0") is not None:
         return np.asarray(prev["T_world_lidar0"], np.float64), {"kind": "tf", "world_frame": prev.get("world_frame")}
     if T_bl is not None:
@@ -1048,12 +1119,17 @@ def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: di
     T0, anchor = anchor_pose(scene, int(scans.stamp_ns[0]))
     anchor["T_world_lidar0"] = T0.tolist()
     background = None
+    guess = None
+    if config.refine and len(scans) > 1 and config.seed_poses == "tf":
+        if ready is not None:
+            ready(len(scans) - 1)
+        guess, health["seed_poses"] = guess_poses(scene, scans)
     if config.refine and len(scans) > 1:
         # kiss-icp and the refinement in one pass: kiss-icp is fed only the scans where the robot moves
         t0 = time.perf_counter()
-        ks = KissStream(scans, config, max_range)
+        ks = KissStream(scans, config, max_range) if guess is None else _Fixed(guess, seed=True)
         poses, h1 = refine(scans, ks, config, max_range, quiet=quiet, T0=T0, ready=ready)
-        K, kref = ks.poses, ks.ref
+        K, kref = ks.poses, (ks.ref if guess is None else scans.stamp_ns.copy())
         timings["kiss_icp_s"] = h1["kiss_s"]
         timings["refine_s"] = time.perf_counter() - t0 - h1["kiss_s"]
         health["sequential"] = {"fitness_min": float(h1["fitness"][1:].min()), "fitness_mean": float(h1["fitness"][1:].mean()),
@@ -1084,18 +1160,25 @@ def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: di
 
 def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig = SlamConfig(), mesh_config=None,
                quiet: bool = False, write: bool = True, tum: str | Path | None = None, ply: str | Path | None = None,
-               force: bool = False) -> SlamResult:
+               force: bool = False, map_scene: str | None = None) -> SlamResult:
     """Run SLAM on one scene of the dataset at ``dataset_url`` (``scene_id`` None: its only scene).
 
     Writes ``pose/T_world_lidar``, ``pose/T_world_radar`` (with a radar extrinsic), ``mesh/*`` and
     the scene attribute ``slam`` when ``write``; exports the LiDAR trajectory as TUM (``tum``) and
     the mesh as PLY (``ply``). A scene already done with the same inputs and settings is not
-    recomputed for writing (``force`` recomputes) — the poses are still returned."""
+    recomputed for writing (``force`` recomputes) — the poses are still returned.
+
+    ``map_scene``: localisation mode (:func:`localise_scene`): the scene's scans are localised
+    against the map that slam builds from that scene (a mapping pass of the same corner), whose mesh
+    and map the scene then gets."""
     from ..dataset import open_dataset
     from .mesh import MeshConfig
 
     from ..parallel import release_free_memory
 
+    if map_scene is not None:
+        return localise_scene(dataset_url, scene_id, map_scene, config=config, mesh_config=mesh_config, quiet=quiet,
+                              write=write, tum=tum, ply=ply, force=force)
     t_all = time.perf_counter()
     release_free_memory()      # (slam forks the mesh's background model)
     mesh_config = mesh_config or MeshConfig()
@@ -1173,6 +1256,192 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
     return res
 
 
+# ----------------------------------------------------------------------------------------------
+# localisation against a mapping pass
+
+MAPPING_ROLE = "mapping"   # scene attribute ``role`` of a mapping-pass scene (no train/test split, no raytrace-gt)
+
+
+def check_map_scene(ds, scene_id: str, map_scene: str) -> None:
+    """InputError (one line) unless ``map_scene`` is another scene of ``ds`` with LiDAR scans."""
+    if map_scene not in ds.scenes:
+        raise InputError(f"{ds.url}: no map scene {map_scene!r} (have: {', '.join(ds.scenes) or 'none'})")
+    if map_scene == scene_id:
+        raise InputError(f"{ds.url}: scene {scene_id!r} cannot be its own map scene")
+    if "lidar/points" not in ds.scene(map_scene):
+        raise InputError(f"{ds.url}: map scene {map_scene!r} has no lidar/points (a mapping pass needs LiDAR scans)")
+
+
+def map_target(points: np.ndarray, cfg: SlamConfig) -> VoxelMap:
+    """The refinement's point-to-plane map (:class:`VoxelMap`, ``cfg.map_voxel``) of a static point map
+    ``points`` (M,3) world frame (normals from open3d, 0.25 m / 30 neighbours)."""
+    import open3d as o3d
+
+    pc = _o3d_cloud(points)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.25, max_nn=30))
+    vm = VoxelMap(cfg.map_voxel)
+    vm.add(np.asarray(pc.points), np.asarray(pc.normals))
+    return vm
+
+
+def guess_poses(scene, scans: Scans) -> tuple[np.ndarray | None, str]:
+    """Odometry/TF-based guesses T_world_lidar (S,4,4) at the scan stamps: ingest's TF radar poses
+    (``pose/T_world_radar``, source tf) through the extrinsics, else the source recording's TF
+    (:func:`recording_tf_poses`); (None, "none") without either."""
+    names = set(scene.arrays())
+    ext = scene.attrs.get("extrinsics") or {}
+    T_bl, T_br = _attr_T(ext, "lidar"), _attr_T(ext, "radar")
+    if "pose/T_world_radar" in names and T_br is not None and dict(scene["pose/T_world_radar"].attrs).get("source") == "tf":
+        P = np.asarray(scene["pose/T_world_radar"][...], np.float64)
+        t = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+        ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1)
+        if ok.sum() >= 2:
+            T_rl = np.linalg.inv(T_br) @ (T_bl if T_bl is not None else np.eye(4))
+            return Trajectory(t[ok], P[ok]).interpolate(scans.stamp_ns) @ T_rl, "tf (pose/T_world_radar)"
+    rt = recording_tf_poses(scene, scans.stamp_ns)
+    if rt is not None and rt[1].all():
+        return rt[0], "tf (source recording)"
+    return None, "none"
+
+
+def localise_first(points: np.ndarray, vmap: VoxelMap, guess: np.ndarray, cfg: SlamConfig, max_range: float,
+                   distances=(1.0, 0.5, 0.3, 0.1, 0.05)) -> tuple[np.ndarray, float, float]:
+    """Scan-to-map ICP of one scan (sensor frame, (N,3)) from ``guess`` (4,4) with wide-to-fine
+    correspondence distances (``distances`` m; the guess may be off by the odometry's drift and the
+    two recordings' world frames); returns (T_world_lidar, fitness, inlier RMSE m)."""
+    p = np.asarray(points, np.float64)
+    r2 = np.einsum("ij,ij->i", p, p)
+    p = p[(r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)]
+    src = p[_downsample_index(p, cfg.source_voxel)]
+    tgt = _TargetCache(max_range + 1.5).cloud(vmap, guess[:3, 3])
+    return icp(src, tgt, guess, replace_cfg(cfg, icp_iterations=30), distances)
+
+
+def replace_cfg(cfg: SlamConfig, **kw) -> SlamConfig:
+    from dataclasses import replace
+
+    return replace(cfg, **kw)
+
+
+def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config: SlamConfig = SlamConfig(),
+                   mesh_config=None, quiet: bool = False, write: bool = True, tum=None, ply=None,
+                   force: bool = False) -> SlamResult:
+    """Localisation mode of ``holodata slam`` (``--map-scene``): the map first, then the data.
+
+    1. ``map_scene`` (a mapping pass of the same corner, no person: its own LiDAR-only scene) gets
+       the ordinary :func:`slam_scene` (poses, ``mesh/*``, ``map/points``; resumed when done; seeded
+       by its odometry/TF, ``seed_poses="tf"``, where it has them) and the
+       scene attribute ``role: "mapping"`` (``mapping_for``: the scenes localised against it), which
+       excludes it from train/test splits and raytrace-gt.
+    2. The scene's scans are localised against that map (its ``map/points`` as a fixed point-to-plane
+       target, never grown): the first scan by ICP from the odometry/TF-based guess
+       (:func:`guess_poses`; else the map scene's anchor) with wide-to-fine distances
+       (:func:`localise_first`), every later one by :func:`refine` from the previous pose moved by the
+       guesses' relative motion (kiss-icp's without TF), at-rest scans held as in slam.
+    3. The scene gets ``pose/T_world_lidar``, ``pose/T_world_radar``, the map's ``mesh/*`` and
+       ``map/points`` (copied, source "slam"), all in the map scene's world frame, and the attribute
+       ``slam`` with ``mode: "localisation"``, ``map_scene``, the map's anchor and the localisation's
+       health (fitness per scan, the first scan's correction from its guess).
+    Raises InputError for an unknown map scene or one without LiDAR, DatasetError when the first scan
+    does not localise (fitness below ``config.min_fitness``)."""
+    from ..dataset import create_dataset, open_dataset
+    from ..parallel import release_free_memory
+    from .mesh import MeshConfig
+
+    t_all = time.perf_counter()
+    mesh_config = mesh_config or MeshConfig()
+    ds = open_dataset(dataset_url)
+    if scene_id is None:
+        others = [s for s in ds.scenes if s != map_scene]
+        if len(others) != 1:
+            raise InputError(f"{dataset_url}: {len(others)} scenes besides the map scene; give --scene")
+        scene_id = others[0]
+    if scene_id not in ds.scenes:
+        raise InputError(f"{dataset_url}: no scene {scene_id!r} (have: {', '.join(ds.scenes) or 'none'})")
+    check_map_scene(ds, scene_id, map_scene)
+    timings: dict = {}
+    t0 = time.perf_counter()
+    # (seeded by its odometry/TF where it has them: a mapping pass is often throttled to a few scans a second)
+    mres = slam_scene(dataset_url, map_scene, config=replace_cfg(config, seed_poses="tf"), mesh_config=mesh_config,
+                      quiet=quiet, write=write, force=force)
+    timings["map_scene_s"] = time.perf_counter() - t0
+    ds = open_dataset(dataset_url)
+    mscene, scene = ds.scene(map_scene), ds.scene(scene_id)
+    if write:
+        for_ = sorted(set((mscene.attrs.get("mapping_for") or [])) | {scene_id})
+        if mscene.attrs.get("role") != MAPPING_ROLE or mscene.attrs.get("mapping_for") != for_:
+            create_dataset(dataset_url, grid=ds.grid, range_bins=ds.range_bins, created_by="holodata slam").scene(
+                map_scene).set_attrs({"role": MAPPING_ROLE, "mapping_for": for_})
+    if mres.map_points is None or mres.mesh is None:
+        raise DatasetError(f"{dataset_url}: map scene {map_scene!r} has no static map (run slam with a mesh)")
+    manchor = dict((mscene.attrs.get("slam") or {}).get("anchor") or {})
+    fp = _fingerprint(scene, config, mesh_config) + "-map-" + str((mscene.attrs.get("slam") or {}).get("fingerprint"))
+    done = scene.attrs.get("slam") or {}
+    if (write and not force and done.get("complete") and done.get("fingerprint") == fp
+            and "pose/T_world_lidar" in scene and "mesh/faces" in scene and "map/points" in scene):
+        res = _stored_result(scene, done)
+        if tum is not None:
+            write_tum(tum, res.trajectory())
+        return res
+    release_free_memory()
+    imports = _import_in_background(("open3d",))
+    t0 = time.perf_counter()
+    scans = load_scans(scene, quiet=quiet)
+    timings["read_s"] = time.perf_counter() - t0
+    imports.join()
+    max_range = float(config.max_range or data_max_range(scans))
+    t0 = time.perf_counter()
+    vmap = map_target(mres.map_points, config)
+    timings["map_target_s"] = time.perf_counter() - t0
+    guess, guess_src = guess_poses(scene, scans)
+    t0 = time.perf_counter()
+    if guess is not None:
+        g0 = guess[0]
+        init = _Fixed(guess, seed=True)
+    else:
+        g0, _ = anchor_pose(scene, int(scans.stamp_ns[0]))
+        init = KissStream(scans, config, max_range) if len(scans) > 1 else _Fixed(np.eye(4)[None].repeat(1, 0))
+    T0, fit0, rmse0 = localise_first(scans.points[0], vmap, g0, config, max_range)
+    if fit0 < config.min_fitness:
+        raise DatasetError(f"{dataset_url}: scene {scene_id!r}: its first scan does not localise in map scene "
+                           f"{map_scene!r} (fitness {fit0:.2f} < {config.min_fitness} from the {guess_src} guess)")
+    D = np.linalg.inv(g0) @ T0
+    if len(scans) > 1:
+        poses, h = refine(scans, init, config, max_range, quiet=quiet, T0=T0, vmap=vmap, grow_map=False)
+    else:
+        poses, h = T0[None].copy(), {"fitness": np.array([fit0]), "rmse": np.array([rmse0]), "kiss_fallbacks": 0,
+                                     "still_scans": 0, "kiss_scans": 0}
+    timings["localise_s"] = time.perf_counter() - t0
+    Tl, Tr, finfo = frame_poses(scene, scans, poses)
+    fit = np.r_[fit0, h["fitness"][1:]]
+    health = {"localisation": {"guess": guess_src, "first_fitness": fit0, "first_rmse_m": rmse0,
+                               "first_correction_m": float(np.linalg.norm(D[:3, 3])),
+                               "first_correction_deg": float(rotation_angle_deg(D)),
+                               "fitness_min": float(fit.min()), "fitness_mean": float(fit.mean()),
+                               "rmse_max_m": float(np.max(np.r_[rmse0, h["rmse"][1:]])),
+                               "fallbacks": int(h["kiss_fallbacks"]), "still_scans": int(h["still_scans"])}}
+    timings = {k: round(v, 3) for k, v in timings.items()}
+    anchor = {**manchor, "map_scene": map_scene}
+    summary = {"scene": scene_id, "mode": "localisation", "map_scene": map_scene, "scans": len(scans),
+               "frames": scene.n_frames, "max_range_m": round(max_range, 3),
+               "anchor": {k: v for k, v in anchor.items() if k != "T_world_lidar0"}, "health": health,
+               "frames_info": {k: v for k, v in finfo.items() if k != "T_lidar_radar"},
+               "mesh": {"from_map_scene": map_scene, "faces": int(len(mres.mesh[1]))}, "timings": timings,
+               "fingerprint": fp}
+    res = SlamResult(scene_id, scans.stamp_ns.copy(), poses, None, None, Tl, Tr, mres.mesh, summary, mres.map_points)
+    if write:
+        _write(dataset_url, ds, scene_id, res, replace_cfg(config, mesh=True), mesh_config, anchor, finfo, fp,
+               mode={"mode": "localisation", "map_scene": map_scene})
+    if tum is not None:
+        write_tum(tum, res.trajectory())
+    if ply is not None:
+        from ..meshio import Mesh, write_ply
+
+        write_ply(ply, Mesh(mres.mesh[0], mres.mesh[1]))
+    summary["timings"]["total_s"] = round(time.perf_counter() - t_all, 3)
+    return res
+
+
 def _stored_result(scene, done: dict) -> SlamResult:
     """A finished scene's result read back from the dataset (no recomputation; no kiss-icp poses)."""
     Tl = np.asarray(scene["pose/T_world_lidar"][...], np.float64)
@@ -1191,7 +1460,7 @@ def _stored_result(scene, done: dict) -> SlamResult:
     return SlamResult(scene.id, st[first], Tl[first], None, None, Tl, Tr, mesh, summary, points)
 
 
-def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor, finfo, fp) -> None:
+def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor, finfo, fp, mode=None) -> None:
     from ..dataset import create_dataset
 
     meta = ds.meta
@@ -1205,8 +1474,11 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
     for n in stale:  # ray-traced from the previous mesh/poses: would be silently wrong (raytrace-gt resumes)
         sc.remove(n)
     res.summary["removed_stale"] = stale
-    pose_attrs = {"source": "slam", "world_frame": anchor.get("world_frame"), "anchor": anchor["kind"],
+    pose_attrs = {"source": "slam", "world_frame": anchor.get("world_frame"), "anchor": anchor.get("kind"),
                   "method": "kiss-icp 1.3 + open3d scan-to-map point-to-plane ICP" if cfg.refine else "kiss-icp 1.3"}
+    if (mode or {}).get("map_scene"):
+        pose_attrs["method"] = f"open3d scan-to-map point-to-plane ICP against map scene {mode['map_scene']!r}"
+        pose_attrs["map_scene"] = mode["map_scene"]
     arrays = [("pose/T_world_lidar", res.T_world_lidar, {"time": "lidar/timestamp_ns (time/timestamp_ns when 0)"})]
     if res.T_world_radar is not None:
         arrays.append(("pose/T_world_radar", res.T_world_radar, {"time": "time/timestamp_ns",
@@ -1224,7 +1496,7 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
         write_static_map(sc, res.mesh[0], res.mesh[1], res.map_points, "slam")
     sc.set_attrs({"slam": {"complete": True, "fingerprint": fp, "config": cfg.to_attrs(),
                            "mesh_config": mesh_cfg.to_attrs() if cfg.mesh else None,
-                           "anchor": anchor, "summary": json_safe(res.summary)}})
+                           "anchor": anchor, "summary": json_safe(res.summary), **(mode or {})}})
 
 
 def write_static_map(sc, vertices: np.ndarray, faces: np.ndarray, points: np.ndarray | None, source: str) -> None:
@@ -1249,12 +1521,25 @@ def json_safe(obj):
     return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
-def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, **kwargs) -> list[SlamResult]:
+def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, map_scene: str | None = None,
+                 **kwargs) -> list[SlamResult]:
     """:func:`slam_scene` for each of ``scene_ids`` (default: every scene with lidar/points).
-    ``single_exports``: ``tum``/``ply`` exports are allowed only when one scene is processed."""
+    ``single_exports``: ``tum``/``ply`` exports are allowed only when one scene is processed.
+    ``map_scene``: localise each scene against that mapping pass (:func:`localise_scene`; needs
+    ``scene_ids``)."""
     from ..dataset import open_dataset
 
     ds = open_dataset(dataset_url)
+    if map_scene is not None:
+        if not scene_ids:
+            raise InputError(f"{dataset_url}: a map scene needs the scenes to localise (give --scene)")
+        for sid in scene_ids:
+            if sid not in ds.scenes:
+                raise InputError(f"{dataset_url}: no scene {sid!r} (have: {', '.join(ds.scenes) or 'none'})")
+            check_map_scene(ds, sid, map_scene)
+        if single_exports and len(scene_ids) > 1 and (kwargs.get("tum") or kwargs.get("ply")):
+            raise InputError(f"{dataset_url}: {len(scene_ids)} scenes; --ply/--tum need one (give --scene)")
+        return [localise_scene(dataset_url, sid, map_scene, **kwargs) for sid in scene_ids]
     if scene_ids:
         for sid in scene_ids:
             if sid not in ds.scenes:
@@ -1270,4 +1555,5 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, **kw
 
 
 __all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine", "global_refine",
-           "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "frame_poses"]
+           "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "frame_poses",
+           "localise_scene", "check_map_scene", "recording_tf_poses", "guess_poses", "MAPPING_ROLE"]

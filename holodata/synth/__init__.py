@@ -25,6 +25,7 @@ from pathlib import Path
 
 from ..conventions import Grid, RangeBins
 from ..errors import InputError
+from . import truth as truthio
 
 TOPICS = {
     "/radar/heatmap": "holodata_msgs/msg/RadarHeatmap",
@@ -37,6 +38,8 @@ TOPICS = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/odom": "nav_msgs/msg/Odometry",
 }
+# the mapping pass's recording (``mapping_pass=True``): LiDAR and odometry only
+MAPPING_TOPICS = {t: TOPICS[t] for t in ("/ouster/points", "/ouster/metadata", "/tf", "/tf_static", "/odom")}
 # with ``stereo_images=True``: the rectified pair behind the depth camera (mono8, textured scene)
 STEREO_TOPICS = {
     "/zed2i/zed_node/left/image_rect_gray": "sensor_msgs/msg/Image",
@@ -75,6 +78,8 @@ class SynthResult:
     topics: dict = field(default_factory=dict)
     counts: dict = field(default_factory=dict)
     stats: dict = field(default_factory=dict)
+    mapping_recording: Path | None = None   # the mapping pass (``mapping_pass=True``), else None
+    trajectory_lidar_mapping: Path | None = None
 
     def summary(self) -> dict:
         return {k: (str(v) if isinstance(v, Path) else v) for k, v in self.__dict__.items()}
@@ -84,7 +89,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
                seed: int = 0, human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
                lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
                radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False,
-               visible_walkers: int = 0, lidar_vertical_fov_deg: float = 33.2) -> SynthResult:
+               visible_walkers: int = 0, lidar_vertical_fov_deg: float = 33.2, mapping_pass: bool = False,
+               mapping_scan_hz: float | None = None) -> SynthResult:
     """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
@@ -94,10 +100,13 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     ``visible_walkers`` N adds N people walking in the approach corridor, seen by every sensor, with
     per-scan LiDAR truth instance masks in ``truth/lidar_instances.npz`` (0: none, outputs unchanged).
     ``lidar_vertical_fov_deg``: 33.2 OS1-like (default), 90 OS0-like (sees floor and ceiling nearby).
+    ``mapping_pass``: also record the mapping pass (module docstring): the robot drives the empty
+    corner through every leg before the data pass, LiDAR + odometry only, LiDAR throttled to
+    ``mapping_scan_hz`` (default ``scenario.MAPPING_SCAN_HZ``); the data pass is unchanged.
     Same arguments → byte-identical files.
     """
     from .recording import FORMATS, recording_path
-    from .scenario import build_scenario, write_recording
+    from .scenario import MAPPING_SCAN_HZ, build_mapping_pass, build_scenario, write_mapping_recording, write_recording
 
     if format not in FORMATS:
         raise InputError(f"unknown recording format {format!r} (choose from {', '.join(FORMATS)})")
@@ -107,14 +116,28 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         raise InputError(f"visible_walkers must be >= 0, got {visible_walkers}")
     out_dir = Path(out_dir)
     rec = recording_path(out_dir, format)
-    if rec.exists() or (out_dir / "truth").exists():
+    if mapping_scan_hz is not None and not 0.1 <= mapping_scan_hz <= 10.0:
+        raise InputError(f"mapping_scan_hz must be within 0.1-10 Hz, got {mapping_scan_hz}")
+    if rec.exists() or (out_dir / "truth").exists() or recording_path(out_dir, format, "mapping").exists():
         raise InputError(f"{out_dir}: already holds a recording or truth/ folder; choose an empty --out")
     out_dir.mkdir(parents=True, exist_ok=True)
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
                         camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images,
                         visible_walkers=visible_walkers, lidar_vertical_fov_deg=lidar_vertical_fov_deg)
-    return write_recording(sc, out_dir, format, quiet=quiet)
+    res = write_recording(sc, out_dir, format, quiet=quiet)
+    if mapping_pass:
+        import json
+
+        mp = build_mapping_pass(sc, scan_hz=mapping_scan_hz or MAPPING_SCAN_HZ)
+        entry = write_mapping_recording(sc, mp, out_dir, format, quiet=quiet)
+        scene = json.loads(res.scene_json.read_text())
+        scene["mapping_pass"] = entry
+        truthio.write_json(res.scene_json, scene)
+        res.mapping_recording = out_dir / entry["recording"]
+        res.trajectory_lidar_mapping = res.truth_dir / "mapping_trajectory_lidar.tum"
+        res.counts = dict(res.counts, mapping=entry["counts"])
+    return res
 
 
-__all__ = ["synthesize", "SynthResult", "TOPICS", "STEREO_TOPICS"]
+__all__ = ["synthesize", "SynthResult", "TOPICS", "STEREO_TOPICS", "MAPPING_TOPICS"]

@@ -118,3 +118,79 @@ def odometry(truth: Trajectory, rng: np.random.Generator, rate_hz: float = 30.0,
         D2[:2, 3] = D[:2, 3] * scale + noise_t
         out[k] = out[k - 1] @ D2
     return Trajectory(t_ns, out), {"rate_hz": rate_hz, "scale": scale, "yaw_bias_dps": float(np.rad2deg(bias))}
+
+
+def _fillet_path(waypoints: np.ndarray, radius: float, step: float = 0.01) -> np.ndarray:
+    """(N,2) points every ~``step`` m along the polyline ``waypoints`` (K,2) with each inner corner
+    replaced by a circular arc of ``radius`` m (shrunk where a leg is too short for it), so the heading
+    is continuous along the path."""
+    P = np.asarray(waypoints, float)
+    pieces = [P[:1]]
+    cur = P[0]
+    for k in range(1, len(P) - 1):
+        a, b, c = P[k - 1], P[k], P[k + 1]
+        u, v = b - a, c - b
+        lu, lv = np.linalg.norm(u), np.linalg.norm(v)
+        u, v = u / lu, v / lv
+        turn = np.arctan2(u[0] * v[1] - u[1] * v[0], u @ v)   # signed turn angle (rad)
+        if abs(turn) < 1e-6:
+            continue
+        # tangent length of the fillet, limited to under half of each leg
+        tl = min(radius * np.tan(abs(turn) / 2), 0.49 * lu, 0.49 * lv)
+        r = tl / np.tan(abs(turn) / 2)
+        p_in, p_out = b - u * tl, b + v * tl
+        n = np.array([-u[1], u[0]]) * np.sign(turn)        # towards the arc's centre
+        centre = p_in + n * r
+        seg = np.linalg.norm(p_in - cur)
+        m = max(2, int(np.ceil(seg / step)) + 1)
+        pieces.append(cur + (p_in - cur) * np.linspace(0, 1, m)[1:, None])
+        a0 = np.arctan2(*(p_in - centre)[::-1])
+        m = max(2, int(np.ceil(abs(turn) * r / step)) + 1)
+        ang = a0 + np.sign(turn) * np.linspace(0, abs(turn), m)[1:]
+        pieces.append(centre + r * np.column_stack([np.cos(ang), np.sin(ang)]))
+        cur = p_out
+    seg = np.linalg.norm(P[-1] - cur)
+    m = max(2, int(np.ceil(seg / step)) + 1)
+    pieces.append(cur + (P[-1] - cur) * np.linspace(0, 1, m)[1:, None])
+    return np.concatenate(pieces)
+
+
+def path_trajectory(waypoints, t0_ns: int, rng: np.random.Generator, speed: float = 0.6, accel: float = 0.4,
+                    turn_radius: float = 0.6, max_yaw_rate: float = 0.8, rate_hz: float = 200.0,
+                    t_start: float = 0.3, t_end: float = 0.3) -> tuple[Trajectory, dict]:
+    """True base_link trajectory along the plan-view polyline ``waypoints`` (K,2) m: corners rounded
+    to arcs of ``turn_radius`` m, a trapezoidal speed profile (cruise ``speed`` m/s, ``accel`` m/s²)
+    that slows on the arcs so the yaw rate stays below ``max_yaw_rate`` rad/s, the robot heading
+    along the path (plus a fixed ±2° mounting offset drawn from ``rng``); at rest for ``t_start`` s
+    before and ``t_end`` s after. Returns it and its parameters (length, duration)."""
+    xy = _fillet_path(np.asarray(waypoints, float), turn_radius)
+    ds = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    keep = np.r_[True, ds > 1e-9]
+    xy = xy[keep]
+    s_pts = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
+    head = np.unwrap(np.arctan2(*np.diff(xy, axis=0).T[::-1]))
+    head = np.r_[head, head[-1]]
+    # curvature -> speed limit along the path, then a forward/backward pass for the acceleration limit
+    kappa = np.abs(np.gradient(head, s_pts, edge_order=1)) if len(s_pts) > 2 else np.zeros(len(s_pts))
+    vlim = np.minimum(speed, max_yaw_rate / np.maximum(kappa, 1e-9))
+    vlim[0] = vlim[-1] = 0.0
+    v = vlim.copy()
+    dsg = np.diff(s_pts)
+    for i in range(1, len(v)):
+        v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + 2 * accel * dsg[i - 1]))
+    for i in range(len(v) - 2, -1, -1):
+        v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2 * accel * dsg[i]))
+    vm = np.maximum(0.5 * (v[1:] + v[:-1]), 1e-3)
+    t_pts = t_start + np.r_[0.0, np.cumsum(dsg / vm)]
+    duration = float(t_pts[-1] + t_end)
+    n = int(np.ceil(duration * rate_hz)) + 1
+    t = np.arange(n) / rate_hz
+    s = np.interp(t, t_pts, s_pts)
+    x, y = np.interp(s, s_pts, xy[:, 0]), np.interp(s, s_pts, xy[:, 1])
+    yaw = np.interp(s, s_pts, head) + np.deg2rad(float(rng.uniform(-2, 2)))
+    poses = pose_xy_yaw(x, y, yaw)
+    t_ns = t0_ns + np.round(t * 1e9).astype(np.int64)
+    info = {"kind": "waypoints", "waypoints": np.round(np.asarray(waypoints, float), 4).tolist(),
+            "length_m": float(s_pts[-1]), "duration_s": duration, "cruise_speed_mps": float(speed),
+            "turn_radius_m": float(turn_radius), "max_yaw_rate_rps": float(max_yaw_rate)}
+    return Trajectory(t_ns, poses), info
