@@ -35,7 +35,9 @@ class DemoConfig:
     """Sizes of one demo run. ``corners``: (kind, seed) per scene, the last ``n_test`` form the test
     split; ``frames``: radar rotations per corner (2 Hz); ``grid``: radar beam grid (H×W);
     ``lidar_shape`` (beams, columns); ``lidar_vertical_fov_deg`` 90 (OS0-like: the SLAM mesh then
-    covers the floor and ceiling the radar sees); ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
+    covers the floor and ceiling the radar sees); ``mapping_pass``: each corner is mapped first by a
+    LiDAR-only drive through its legs (scene ``<id>_map``, ``mapping_scan_hz`` scans/s) and slam
+    localises the data pass in that map; ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
     ``base_channels``, ``max_channels``, ``range_pool``: the model and its training (TrainConfig)."""
 
     corners: tuple[tuple[str, int], ...]
@@ -52,6 +54,8 @@ class DemoConfig:
     range_pool: int = 1
     lidar_vertical_fov_deg: float = 90.0
     range_bins: RangeBins = field(default_factory=RangeBins)
+    mapping_pass: bool = True
+    mapping_scan_hz: float = 2.0
 
 
 def demo_config(quick: bool) -> DemoConfig:
@@ -85,6 +89,11 @@ def scene_id(corner: str, seed: int) -> str:
     return f"{corner}_{seed}"
 
 
+def map_scene_id(sid: str) -> str:
+    """The scene id of a corner's mapping pass (``<scene id>_map``)."""
+    return f"{sid}_map"
+
+
 def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = False,
              config: DemoConfig | None = None, log=None) -> DemoResult:
     """Run the demo into ``out_dir`` (created; reused when rerun). ``log(str)`` receives one line
@@ -113,7 +122,9 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
 
     t0 = time.perf_counter()
     ids = list(recs)
-    ingest([str(recs[s].recording) for s in ids], str(url), scene_ids=ids, quiet=quiet)
+    maps = {s: map_scene_id(s) for s in ids if getattr(recs[s], "mapping_recording", None) is not None}
+    ingest([str(recs[s].recording) for s in ids] + [str(recs[s].mapping_recording) for s in maps], str(url),
+           scene_ids=ids + list(maps.values()), quiet=quiet)
     w = create_dataset(str(url), grid=cfg.grid, range_bins=cfg.range_bins, created_by="holodata demo")
     for sid in ids:
         w.scene(sid).set_attrs(truth_scene_attrs(recs[sid].truth_dir))
@@ -123,7 +134,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     warnings: list[str] = []
     for sid in ids:
         if mapping == "slam":
-            note = map_with_slam(str(url), sid, quiet=quiet)
+            note = map_with_slam(str(url), sid, quiet=quiet, map_scene=maps.get(sid))
             if note:
                 warnings.append(note)
                 say(f"warning: {note}")
@@ -171,16 +182,19 @@ def resolve_mapping(mapping: str) -> str:
 
 
 def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> dict:
-    """One MCAP recording per corner under ``rec_dir/<scene id>/``; existing ones are reused.
-    Returns {scene id: SynthResult-like object with .recording and .truth_dir}."""
+    """One MCAP recording per corner under ``rec_dir/<scene id>/`` (with ``cfg.mapping_pass`` also its
+    mapping pass, ``mapping/``); existing ones are reused. Returns {scene id: SynthResult-like object
+    with .recording, .truth_dir and .mapping_recording (None without a mapping pass)}."""
     from .synth import synthesize
 
     out = {}
     for corner, seed in cfg.corners:
         sid = scene_id(corner, seed)
         d = rec_dir / sid
-        if (d / "truth" / "scene.json").is_file() and (d / "recording").exists():
-            out[sid] = _Existing(recording=d / "recording", truth_dir=d / "truth")
+        if ((d / "truth" / "scene.json").is_file() and (d / "recording").exists()
+                and (d / "mapping").exists() == bool(cfg.mapping_pass)):
+            out[sid] = _Existing(recording=d / "recording", truth_dir=d / "truth",
+                                 mapping_recording=d / "mapping" if cfg.mapping_pass else None)
             continue
         if d.exists():  # a recording cut off half-way: start that corner again
             import shutil
@@ -189,7 +203,7 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> di
         out[sid] = synthesize(d, corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid,
                               range_bins=cfg.range_bins, lidar_shape=cfg.lidar_shape,
                               camera_shape=cfg.camera_shape, lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg,
-                              quiet=quiet)
+                              mapping_pass=cfg.mapping_pass, mapping_scan_hz=cfg.mapping_scan_hz, quiet=quiet)
     return out
 
 
@@ -197,6 +211,7 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> di
 class _Existing:
     recording: Path
     truth_dir: Path
+    mapping_recording: Path | None = None
 
 
 def truth_scene_attrs(truth_dir: Path) -> dict:
@@ -257,14 +272,15 @@ def map_from_truth(sc, truth_dir: Path) -> None:
         hf.write_shard(k, faces)
 
 
-def map_with_slam(url: str, sid: str, quiet: bool = True) -> str | None:
-    """holodata's own mapping: ``slam`` (LiDAR poses, radar poses, static mesh) then ``register``
-    (camera extrinsic, per-frame human surfaces). When the camera cannot be registered the scene
-    keeps its mesh and poses but has no human: returns that as a warning line (else None)."""
+def map_with_slam(url: str, sid: str, quiet: bool = True, map_scene: str | None = None) -> str | None:
+    """holodata's own mapping: ``slam`` (LiDAR poses, radar poses, static mesh; with ``map_scene``
+    the mesh from that mapping pass and the scene localised in it) then ``register`` (camera
+    extrinsic, per-frame human surfaces). When the camera cannot be registered the scene keeps its
+    mesh and poses but has no human: returns that as a warning line (else None)."""
     from .mapping.register import RegistrationError, register_scene
     from .mapping.slam import slam_scene
 
-    slam_scene(url, sid, quiet=quiet)
+    slam_scene(url, sid, quiet=quiet, map_scene=map_scene)
     try:
         register_scene(url, sid, quiet=quiet)
     except RegistrationError as err:
@@ -272,5 +288,5 @@ def map_with_slam(url: str, sid: str, quiet: bool = True) -> str | None:
     return None
 
 
-__all__ = ["DemoConfig", "DemoResult", "demo_config", "run_demo", "map_from_truth", "map_with_slam",
+__all__ = ["DemoConfig", "DemoResult", "demo_config", "run_demo", "map_from_truth", "map_with_slam", "map_scene_id",
            "synthesize_corners", "truth_scene_attrs", "DEMO_CORNERS"]
