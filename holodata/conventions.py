@@ -84,6 +84,9 @@ class Grid:
     def to_attrs(self) -> dict:
         return {"H": self.H, "W": self.W, "elev_deg": [self.elev_max_deg, self.elev_min_deg]}
 
+    def __str__(self) -> str:
+        return f"{self.H}×{self.W} beams (elevation {self.elev_max_deg:+g}° to {self.elev_min_deg:+g}°)"
+
     @classmethod
     def from_attrs(cls, attrs: dict) -> "Grid":
         return cls(int(attrs["H"]), int(attrs["W"]), float(attrs["elev_deg"][0]), float(attrs["elev_deg"][1]))
@@ -126,6 +129,9 @@ class RangeBins:
 
     def to_attrs(self) -> dict:
         return asdict(self)
+
+    def __str__(self) -> str:
+        return f"{self.n} range bins of {self.dr * 100:g} cm"
 
     @classmethod
     def from_attrs(cls, attrs: dict) -> "RangeBins":

@@ -1509,7 +1509,8 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
 
     try:
         existing = open_dataset(out)
-        grid, rb = existing.grid, existing.range_bins
+        # a LiDAR-only dataset has no radar grid yet: the first radar recording gives it one
+        grid, rb = (existing.grid, existing.range_bins) if existing.meta.get("grid_source") != "default" else (None, None)
     except HolodataError:
         existing, grid, rb = None, None, None
     todo = []
@@ -1526,7 +1527,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         if len(grids) > 1:
             raise RecordingError(f"recordings have different radar grids ({sorted(str(g[0].to_attrs()) for g in grids)}); "
                                  f"ingest them into separate datasets")
-        grid, rb = next(iter(grids)) if grids else (Grid(), RangeBins())
+        grid, rb = next(iter(grids)) if grids else (None, None)
     else:
         todo = [(i, r, None) for i, r in enumerate(recordings)]
     ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
@@ -1555,11 +1556,11 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         p = None
         try:
             p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet)
-            if grid is None:   # single new dataset: the recording's radar grid (or the default)
-                grid, rb = (p.grid, p.range_bins) if p.grid is not None else (Grid(), RangeBins())
-            if p.grid is not None and (p.grid, p.range_bins) != (grid, rb):
-                raise RecordingError(f"{r}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs from "
-                                     f"the dataset's {grid.to_attrs()} / {rb.to_attrs()}")
+            if p.grid is not None and grid is None:   # the first radar recording sets the dataset's grid
+                grid, rb, ds = p.grid, p.range_bins, None
+            elif p.grid is not None and (p.grid, p.range_bins) != (grid, rb):
+                raise RecordingError(f"{r}: radar grid {p.grid}, {p.range_bins} differs from the dataset's "
+                                     f"{grid}, {rb}")
             if ds is None:   # created only once something is ingestable: a failed run leaves no empty dataset
                 kw = {"shard_frames": shard_frames} if shard_frames else {}
                 ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",

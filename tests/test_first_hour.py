@@ -37,3 +37,26 @@ def test_without_the_ouster_sdk_list_and_ingest_say_the_same_one_line(no_ouster_
         assert r.exit_code == 1 and r.stdout == ""
         err = r.stderr.strip().splitlines()
         assert len(err) == 1 and str(rec) in err[0] and INSTALL_COMMAND in err[0], err
+
+
+def test_a_lidar_only_dataset_takes_the_grid_of_the_first_radar_recording(tmp_path):
+    from _recordings import write_recording
+
+    from holodata.dataset import open_dataset, validate_dataset
+    from holodata.ingest import ingest
+
+    write_recording(tmp_path / "lidar", "mcap", n_radar=2, radar=False, camera=False)
+    write_recording(tmp_path / "radar", "mcap", n_radar=2, radar_shape=(8, 4, 16))
+    write_recording(tmp_path / "other", "mcap", n_radar=2, radar_shape=(8, 6, 16))
+    url = str(tmp_path / "d.zarr")
+    ingest([tmp_path / "lidar"], url, quiet=True)
+    assert open_dataset(url).meta["grid_source"] == "default"
+    r = CliRunner().invoke(cli, ["info", url])
+    assert "no radar yet" in r.output
+    ingest([tmp_path / "radar"], url, quiet=True)                 # 4x16, not the default 64x512
+    ds = open_dataset(url)
+    assert (ds.grid.H, ds.grid.W, ds.range_bins.n) == (4, 16, 8) and ds.meta["grid_source"] == "given"
+    assert validate_dataset(url)["ok"]
+    r = CliRunner().invoke(cli, ["ingest", str(tmp_path / "other"), "--out", url])   # now the grid is set
+    assert r.exit_code == 1
+    assert "radar grid 6×16 beams (elevation +45° to -45°), 8 range bins of" in r.output and "{" not in r.output

@@ -77,7 +77,8 @@ def dataset_info(path_or_url) -> dict:
                        "ingest_complete": s.ingest_complete,
                        "beam_origin": origin_summary(dict(s.attrs))})
     return {"dataset": ds.url, "format_version": ds.format_version, "created_by": ds.meta.get("created_by"),
-            "grid": ds.meta.get("grid"), "range_bins": ds.meta.get("range_bins"), "splits": ds.splits,
+            "grid": ds.meta.get("grid"), "range_bins": ds.meta.get("range_bins"),
+            "grid_source": ds.meta.get("grid_source"), "splits": ds.splits,
             "scenes": scenes, "frames": sum(s["frames"] for s in scenes),
             "raw_bytes": tot_raw, "stored_bytes": tot_stored,
             "compression_ratio": round(tot_raw / tot_stored, 2) if tot_stored else None}
@@ -91,7 +92,9 @@ def format_info(summary: dict) -> str:
     g = summary.get("grid") or {}
     rb = summary.get("range_bins") or {}
     lines = [f"{summary['dataset']}  (holodata format {summary['format_version']}, created by {summary.get('created_by')})",
-             f"grid {g.get('H')}x{g.get('W')} elevation {g.get('elev_deg')} deg; range bins {rb.get('n')} x {rb.get('dr')} m",
+             (f"grid {g.get('H')}×{g.get('W')} beams, elevation {g.get('elev_deg')} deg; {rb.get('n')} range bins of "
+              f"{rb.get('dr')} m" if summary.get("grid_source") != "default" else
+              "grid: no radar yet (DESIGN's default 64×512 until a radar recording is ingested)"),
              f"{len(summary['scenes'])} scene(s), {summary['frames']} frames; stored {_mb(summary['stored_bytes'])} "
              f"of {_mb(summary['raw_bytes'])} raw (ratio {summary['compression_ratio']})"]
     for s in summary["scenes"]:

@@ -67,10 +67,15 @@ def create_dataset(url, grid: Grid | None = None, range_bins: RangeBins | None =
                    ) -> "DatasetWriter":
     """Create a dataset at ``url`` (local path or fsspec URL), or reopen it for resuming.
 
-    Reopening needs the same grid and range bins (else :class:`DatasetError`); ``shard_frames`` and
+    ``grid=None``: no radar grid is known yet (a LiDAR-only dataset): the root records DESIGN's
+    default grid with ``grid_source: "default"``, and the first writer that gives a grid while no
+    scene holds radar or gt arrays replaces it. Otherwise reopening needs the same grid and range
+    bins (else :class:`DatasetError`), and ``grid=None`` takes the dataset's. ``shard_frames`` and
     ``codec`` apply to arrays created from now on (existing arrays keep theirs)."""
-    return DatasetWriter(url, grid or Grid(), range_bins or RangeBins(), created_by, provenance or {},
-                         shard_frames, codec, clevel)
+    return DatasetWriter(url, grid, range_bins, created_by, provenance or {}, shard_frames, codec, clevel)
+
+
+GRID_ARRAYS = ("radar/", "gt/")  # arrays shaped by the radar grid: a dataset holding any keeps its grid
 
 
 class DatasetWriter:
@@ -81,6 +86,8 @@ class DatasetWriter:
             raise DatasetError(f"{url}: shard_frames must be >= 1, got {shard_frames}")
         self.store = Store(url)
         self.url = str(url)
+        given = grid is not None
+        grid, range_bins = grid or Grid(), range_bins or RangeBins()
         self.grid, self.range_bins = grid, range_bins
         self.shard_frames, self.codec, self.clevel = int(shard_frames), codec, clevel
         sh.compressor(codec, clevel)  # fail early on a bad codec
@@ -92,8 +99,8 @@ class DatasetWriter:
             if self.store.is_dir() and self.store.list(""):
                 raise DatasetError(f"{self.url}: folder exists, is not empty and is not a holodata dataset")
             meta = {"format_version": FORMAT_VERSION, "created_by": created_by, "grid": grid.to_attrs(),
-                    "range_bins": range_bins.to_attrs(), "splits": {"train": [], "test": []},
-                    "provenance": provenance, "shard_frames": self.shard_frames}
+                    "range_bins": range_bins.to_attrs(), "grid_source": "given" if given else "default",
+                    "splits": {"train": [], "test": []}, "provenance": provenance, "shard_frames": self.shard_frames}
             g = zarr.open_group(self.zstore, mode="w", attributes={"holodata": meta})
             g.require_group("scenes")
         else:
@@ -101,11 +108,13 @@ class DatasetWriter:
 
             meta = check_root(self.url, root)
             have_g, have_rb = Grid.from_attrs(meta["grid"]), RangeBins.from_attrs(meta["range_bins"])
-            if have_g != grid:
-                raise DatasetError(f"{self.url}: dataset grid is {have_g.to_attrs()}, writer asked for {grid.to_attrs()}")
-            if have_rb != range_bins:
-                raise DatasetError(f"{self.url}: dataset range bins are {have_rb.to_attrs()}, writer asked for "
-                                   f"{range_bins.to_attrs()}")
+            adopt = given and (have_g, have_rb) != (grid, range_bins) and self._grid_unset(meta)
+            if not given:
+                self.grid, self.range_bins = have_g, have_rb
+            elif not adopt and have_g != grid:
+                raise DatasetError(f"{self.url}: dataset grid is {have_g}, writer asked for {grid}")
+            elif not adopt and have_rb != range_bins:
+                raise DatasetError(f"{self.url}: dataset has {have_rb}, writer asked for {range_bins}")
             g = zarr.open_group(self.zstore, mode="r+")
             if "scenes" not in g:
                 g.require_group("scenes")
@@ -115,6 +124,19 @@ class DatasetWriter:
                 if {"created_by": created_by, **provenance} not in runs:
                     runs.append({"created_by": created_by, **provenance})
                     self._set_root({"provenance": hist})
+            if adopt:   # the first radar of a LiDAR-only dataset sets its grid
+                self._set_root({"grid": grid.to_attrs(), "range_bins": range_bins.to_attrs(), "grid_source": "given"})
+
+    def _grid_unset(self, meta: dict) -> bool:
+        """The dataset's grid is the default nobody chose and no array is shaped by it yet."""
+        if meta.get("grid_source") != "default":
+            return False
+        from .reader import list_nodes
+
+        for sid in self.store.list("scenes"):
+            if any(n.startswith(GRID_ARRAYS) for n in list_nodes(self.store, f"scenes/{sid}")):
+                return False
+        return True
 
     # -- root attributes --------------------------------------------------------------------------
     def _root_group(self):
