@@ -60,3 +60,17 @@ def test_a_lidar_only_dataset_takes_the_grid_of_the_first_radar_recording(tmp_pa
     r = CliRunner().invoke(cli, ["ingest", str(tmp_path / "other"), "--out", url])   # now the grid is set
     assert r.exit_code == 1
     assert "radar grid 6×16 beams (elevation +45° to -45°), 8 range bins of" in r.output and "{" not in r.output
+
+
+def test_validate_and_info_count_the_same_stored_bytes(tmp_path):
+    from _recordings import write_recording
+
+    from holodata.dataset import dataset_info, validate_dataset
+    from holodata.ingest import ingest
+
+    write_recording(tmp_path / "rec", "mcap", n_radar=3)
+    url = str(tmp_path / "d.zarr")
+    ingest([tmp_path / "rec"], url, quiet=True)
+    info, rep = dataset_info(url), validate_dataset(url)
+    ragged = sum(a["stored_bytes"] for s in info["scenes"] for a in s["arrays"] if a["kind"] == "ragged")
+    assert ragged > 0 and rep["bytes_stored"] == info["stored_bytes"]

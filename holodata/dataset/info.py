@@ -8,8 +8,11 @@ from . import shards as sh
 from .reader import list_nodes, open_dataset
 
 
-def _stored_bytes(store, path: str, kind: str, meta: dict) -> int:
-    """Bytes on storage: from the manifest records for frame arrays (no listing), else by listing."""
+def stored_bytes(store, path: str, kind: str, meta: dict) -> int:
+    """Bytes on storage of the array at ``path``: from the manifest records for frame arrays (no
+    listing), else by listing its chunks (ragged: values and offsets)."""
+    if kind == "ragged":
+        return _du(store, f"{path}/values/c") + _du(store, f"{path}/offsets/c")
     if kind == "frame":
         hd = meta.get("attributes", {}).get("holodata", {})
         if isinstance(hd.get("shards"), list):
@@ -51,7 +54,7 @@ def dataset_info(path_or_url) -> dict:
                 shape, dtype = vm.get("shape", []), vm.get("data_type", "?")
                 raw = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize + \
                     int(np.prod(om.get("shape", [0]), dtype=np.int64)) * 8
-                stored = _du(ds.store, f"{path}/values/c") + _du(ds.store, f"{path}/offsets/c")
+                stored = stored_bytes(ds.store, path, kind, meta)
                 done = sum(1 for n in ds.store.list(f"{path}/{sh.MANIFEST_DIR}") if n.endswith(".json"))
                 n_sh = meta.get("attributes", {}).get("holodata", {}).get("n_shards")
                 entry = {"name": name, "kind": "ragged", "shape": shape, "dtype": dtype,
@@ -59,7 +62,7 @@ def dataset_info(path_or_url) -> dict:
             else:
                 shape, dtype = meta.get("shape", []), meta.get("data_type", "?")
                 raw = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
-                stored = _stored_bytes(ds.store, path, kind, meta)
+                stored = stored_bytes(ds.store, path, kind, meta)
                 entry = {"name": name, "kind": kind, "shape": shape, "dtype": dtype}
                 if kind == "frame":
                     hd = meta.get("attributes", {}).get("holodata", {})

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..conventions import Label, is_rigid
 from . import shards as sh
+from .info import stored_bytes
 from .reader import Dataset, list_nodes, open_dataset
 from .schemas import schema_errors
 from .writer import ragged_digest
@@ -284,6 +285,8 @@ def _check_scene(ds: Dataset, sid: str, nodes: dict, rep: _Report, bar) -> None:
                 decoded[name] = arr
                 _value_rules(ds, sid, name, arr, fr, decoded, rep, state)
     for name, (kind, m) in nodes.items():
+        if kind != "frame":   # frame shards are counted as read; the rest as stored (the same bytes info counts)
+            rep.bytes_stored += stored_bytes(ds.store, f"scenes/{sid}/{name}", kind, m)
         if kind == "array":
             _check_small(ds, sid, name, m, rep)
         elif kind == "zarr":
