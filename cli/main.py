@@ -28,6 +28,13 @@ COMMAND_MODULES: list[str] = [
 
 
 class HolodataGroup(click.Group):
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        """``--debug`` anywhere (``holodata info X --debug`` too) is the group's flag."""
+        if "--debug" in args:
+            cut = args.index("--") if "--" in args else len(args)
+            args = ["--debug"] + [a for a in args[:cut] if a != "--debug"] + args[cut:]
+        return super().parse_args(ctx, args)
+
     def invoke(self, ctx: click.Context):
         try:
             result = super().invoke(ctx)

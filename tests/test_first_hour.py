@@ -74,3 +74,29 @@ def test_validate_and_info_count_the_same_stored_bytes(tmp_path):
     info, rep = dataset_info(url), validate_dataset(url)
     ragged = sum(a["stored_bytes"] for s in info["scenes"] for a in s["arrays"] if a["kind"] == "ragged")
     assert ragged > 0 and rep["bytes_stored"] == info["stored_bytes"]
+
+
+def test_ragged_arrays_slice_by_frames(tmp_path):
+    from _recordings import write_recording
+
+    from holodata.dataset import open_dataset
+    from holodata.errors import DatasetError
+    from holodata.ingest import ingest
+
+    write_recording(tmp_path / "rec", "mcap", n_radar=3)
+    url = str(tmp_path / "d.zarr")
+    ingest([tmp_path / "rec"], url, quiet=True)
+    pts = open_dataset(url).scene("rec")["lidar/points"]
+    two = pts[0:2]
+    assert len(two) == 2 and all((a == pts[i]).all() for i, a in enumerate(two))
+    assert len(pts[::2]) == 2 and len(pts[-1:]) == 1
+    with pytest.raises(DatasetError, match="frame number or a slice"):
+        pts["0"]
+
+
+def test_debug_flag_after_the_command(tmp_path):
+    r = CliRunner().invoke(cli, ["info", str(tmp_path / "missing.zarr"), "--debug"])
+    assert r.exit_code != 2                                  # not a usage error
+    assert isinstance(r.exception, Exception) and not isinstance(r.exception, SystemExit)  # --debug: the traceback
+    r = CliRunner().invoke(cli, ["info", str(tmp_path / "missing.zarr")])
+    assert r.exit_code == 1 and r.output.startswith("error: ")

@@ -206,7 +206,8 @@ class Scene:
 class Ragged:
     """Ragged array: ``values`` (N, width) and ``offsets`` (T+1,) lazy zarr arrays; ``r[i]`` is
     frame i's (Ni, width) rows, read-only (a view of the shard read at once when frames are read in
-    order; frames of uncommitted shards raise DatasetError)."""
+    order; frames of uncommitted shards raise DatasetError); ``r[a:b]`` is the list of those frames'
+    arrays."""
 
     def __init__(self, scene: Scene, name: str):
         self.scene, self.name = scene, name
@@ -225,8 +226,14 @@ class Ragged:
     def __len__(self) -> int:
         return self.scene.n_frames
 
-    def __getitem__(self, frame: int) -> np.ndarray:
+    def __getitem__(self, frame):
         T = self.scene.n_frames
+        if isinstance(frame, slice):
+            return [self[i] for i in range(*frame.indices(T))]
+        if not isinstance(frame, (int, np.integer)):
+            raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r}: index with a frame number or a slice "
+                               f"(frames a..b-1: [a:b]), not {type(frame).__name__}")
+        frame = int(frame)
         if not -T <= frame < T:
             raise DatasetError(f"scene {self.scene.id!r} ragged {self.name!r}: frame {frame} out of range 0..{T - 1}")
         frame %= T
