@@ -47,6 +47,7 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     import json
     import sys
 
+    from holodata.dataset.info import plural
     from holodata.ingest import format_listing, ingest as run_ingest, list_recording
 
     if list_only:
@@ -78,11 +79,11 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     else:
         for sc in summary["scenes"]:
             if sc.get("skipped"):
-                click.echo(f"{sc['scene']}: {sc['skipped']} ({sc['frames']} frames)")
+                click.echo(f"{sc['scene']}: {sc['skipped']} ({plural(sc['frames'], 'frame')})")
                 continue
             arrays = ", ".join(sc["arrays"])
             trunc = " (truncated recording: readable part)" if sc["truncated"] else ""
-            click.echo(f"{sc['scene']}: {sc['frames']} frames ({sc['frame_sensor']}) from {sc['recording']}{trunc}"
+            click.echo(f"{sc['scene']}: {plural(sc['frames'], 'frame')} ({sc['frame_sensor']}) from {sc['recording']}{trunc}"
                        f" -> {arrays}")
         click.echo(f"dataset: {summary['dataset']}")
     if not quiet:

@@ -47,6 +47,7 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
       holodata raytrace-gt s3://lab-bucket/data.zarr --scheduler tcp://head:8786
     """
     from holodata.conventions import Grid
+    from holodata.dataset.info import plural
     from holodata.groundtruth import GTConfig, OriginModel, raytrace_dataset, raytrace_standalone
 
     standalone = mesh is not None
@@ -88,8 +89,9 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
         click.echo(json.dumps(summary))
     elif not quiet:
         for s in summary["scenes"]:
-            click.echo(f"{summary['out']}: scene {s['scene']}: {s['frames']} frames, {s['shards_written']} shards "
-                       f"written, {s['shards_skipped']} already done ({s['seconds']} s)", err=True)
+            click.echo(f"{summary['out']}: scene {s['scene']}: {plural(s['frames'], 'frame')}, "
+                       f"{plural(s['shards_written'], 'shard')} written, {s['shards_skipped']} already done "
+                       f"({s['seconds']} s; beams from the {s['origin_model']})")
 
 
 COMMANDS = [raytrace_gt]

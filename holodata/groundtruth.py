@@ -508,7 +508,8 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
         sc.write_array("mesh/face_class", mesh.face_class, dims=["face"], units="1")
     summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet,
                              processes=processes, client=client)
-    return {"out": str(out), "scenes": [{"scene": scene_id, **summary}]}
+    return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": (cfg.origin or OriginModel()).describe(),
+                                         **summary}]}
 
 
 def _write_frame_meta(sc, traj: Trajectory) -> None:

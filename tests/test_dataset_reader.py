@@ -75,5 +75,5 @@ def test_fsspec_memory_url_errors_and_info():
 def test_info_text(toy):
     r = CliRunner().invoke(cli, ["info", toy])
     assert r.exit_code == 0
-    for words in ("2 scene(s), 12 frames", "gt/normal", "6x3x8x32x3", "float16", "ratio", "splits: train: a; test: b"):
+    for words in ("2 scenes, 12 frames", "gt/normal", "6x3x8x32x3", "float16", "ratio", "splits: train: a; test: b"):
         assert words in r.output

@@ -88,7 +88,14 @@ def dataset_info(path_or_url) -> dict:
 
 
 def _mb(n: int) -> str:
+    if n < 1000:
+        return f"{n} B"
     return f"{n / 1e6:,.1f} MB" if n >= 1e5 else f"{n / 1e3:,.1f} kB"
+
+
+def plural(n: int, word: str) -> str:
+    """``1 frame``, ``2 frames``."""
+    return f"{n} {word}" + ("" if n == 1 else "s")
 
 
 def format_info(summary: dict) -> str:
@@ -98,11 +105,11 @@ def format_info(summary: dict) -> str:
              (f"grid {g.get('H')}×{g.get('W')} beams, elevation {g.get('elev_deg')} deg; {rb.get('n')} range bins of "
               f"{rb.get('dr')} m" if summary.get("grid_source") != "default" else
               "grid: no radar yet (DESIGN's default 64×512 until a radar recording is ingested)"),
-             f"{len(summary['scenes'])} scene(s), {summary['frames']} frames; stored {_mb(summary['stored_bytes'])} "
+             f"{plural(len(summary['scenes']), 'scene')}, {plural(summary['frames'], 'frame')}; stored {_mb(summary['stored_bytes'])} "
              f"of {_mb(summary['raw_bytes'])} raw (ratio {summary['compression_ratio']})"]
     for s in summary["scenes"]:
         extra = ", ".join(f"{k}={v}" for k, v in s["attrs"].items() if k != "n_frames" and not isinstance(v, (dict, list)))
-        lines.append(f"scene {s['scene']}: {s['frames']} frames" + (f" ({extra})" if extra else ""))
+        lines.append(f"scene {s['scene']}: {plural(s['frames'], 'frame')}" + (f" ({extra})" if extra else ""))
         if not s.get("ingest_complete", True):
             lines.append("  INCOMPLETE: ingest did not finish (rerun holodata ingest with the same recording and "
                          "--scene-id to resume)")
@@ -111,11 +118,15 @@ def format_info(summary: dict) -> str:
             lines.append(f"  beams: radar {bo['radar']}; gt {bo['gt'] or 'not traced'}")
             if bo["note"]:
                 lines.append(f"  note: {bo['note']}")
+        if s["arrays"]:
+            lines.append(f"  {'array':<24} {'kind':<6} {'shape':<22} {'dtype':<8} {'unit':<4} {'stored':>10} / "
+                         f"{'raw':>10}  ratio  shards")
         for a in s["arrays"]:
             shp = "x".join(str(v) for v in a["shape"]) or "scalar"
-            done = f" shards {a['shards_done']}/{a['shards']}" if a.get("shards") is not None else ""
+            done = f"{a['shards_done']}/{a['shards']}" if a.get("shards") is not None else "-"
+            ratio = f"x{a['compression_ratio']}" if a["compression_ratio"] is not None else "-"
             lines.append(f"  {a['name']:<24} {a['kind']:<6} {shp:<22} {a['dtype']:<8} {a.get('units') or '':<4} "
-                         f"{_mb(a['stored_bytes']):>10} / {_mb(a['raw_bytes']):>10}  x{a['compression_ratio']}{done}")
+                         f"{_mb(a['stored_bytes']):>10} / {_mb(a['raw_bytes']):>10}  {ratio:<6} {done}")
     splits = summary.get("splits") or {}
     lines.append("splits: " + ("; ".join(f"{k}: {', '.join(v) or '-'}" for k, v in splits.items()) or "none"))
     return "\n".join(lines)
