@@ -117,7 +117,10 @@ def load_topics_file(path) -> dict:
     except OSError as err:
         raise InputError(f"{p}: cannot read topics file ({err.strerror})") from None
     except yaml.YAMLError as err:
-        raise InputError(f"{p}: not valid YAML ({_one_line(err)[:120]})") from None
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        what = getattr(err, "problem", None) or _one_line(err)
+        raise InputError(f"{p}: not valid YAML{where}: {what}") from err
     if data is None:
         return {}
     if not isinstance(data, dict):

@@ -100,3 +100,11 @@ def test_debug_flag_after_the_command(tmp_path):
     assert isinstance(r.exception, Exception) and not isinstance(r.exception, SystemExit)  # --debug: the traceback
     r = CliRunner().invoke(cli, ["info", str(tmp_path / "missing.zarr")])
     assert r.exit_code == 1 and r.output.startswith("error: ")
+
+
+def test_a_bad_topics_file_names_line_and_problem(tmp_path):
+    bad = tmp_path / "topics.yaml"
+    bad.write_text("radar: [unclosed\nlidar: /x\n")
+    r = CliRunner().invoke(cli, ["ingest", "--list", str(FIXTURES / "ros1" / "example.bag"), "--topics", str(bad)])
+    assert r.exit_code == 1
+    assert f"{bad}: not valid YAML at line 2, column 6: expected ',' or ']', but got ':'" in r.output
