@@ -1,4 +1,5 @@
 import json
+import os
 
 import numpy as np
 import pytest
@@ -109,7 +110,9 @@ def test_report_loads_in_headless_chromium(dataset, tmp_path):
     from holodata.evaluate.report import check_in_browser, find_chromium, screenshot
 
     if find_chromium() is None:
-        pytest.skip("headless Chromium not installed (Debian package `chromium`)")
+        if os.environ.get("CI"):   # scripts/setup.sh installs it: in CI this test runs, never skips
+            pytest.fail("headless Chromium missing in CI (scripts/setup.sh installs chromium-headless-shell)")
+        pytest.skip("headless Chromium not installed (Debian package `chromium-headless-shell`)")
     out = tmp_path / "rep"
     evaluate(dataset, None, out, oracle=True, quiet=True)
     res = check_in_browser(out / "report.html")

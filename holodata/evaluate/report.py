@@ -216,7 +216,7 @@ def write_report(out: Path, doc: dict, example: dict | None, errs: dict, train_l
     return [n for n, _ in figs]
 
 
-CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "chrome")
+CHROMIUM_NAMES = ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome", "chrome")
 
 
 def find_chromium() -> str | None:
@@ -234,7 +234,7 @@ def _chromium_cmd(html_path: Path, *extra: str) -> list[str]:
 
     exe = find_chromium()
     if exe is None:
-        raise HolodataError("headless Chromium not found (install Debian's `chromium` package) — needed for --screenshot")
+        raise HolodataError("headless Chromium not found (install Debian's `chromium-headless-shell` package; scripts/setup.sh does) — needed for --screenshot")
     return [exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--allow-file-access-from-files",
             "--virtual-time-budget=5000", *extra, Path(html_path).resolve().as_uri()]
 
