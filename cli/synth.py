@@ -36,18 +36,29 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--visible-walkers", type=click.IntRange(min=0), default=0, show_default=True,
               help="People walking in the robot's corridor, visible to the LiDAR (truth/lidar_instances.npz).")
 @click.option("--stereo-images", is_flag=True, help="Also record the rectified left/right mono8 pair (for OpenCV stereo).")
+@click.option("--mapping-pass/--no-mapping-pass", "mapping_pass", default=True, show_default=True,
+              help="Also record the mapping pass: the robot drives the empty corner through its legs first, "
+              "LiDAR + odometry only, as its own recording OUT/mapping (for holodata slam --map-scene).")
+@click.option("--mapping-scan-hz", type=click.FloatRange(0.1, 10.0), default=2.0, show_default=True,
+              help="LiDAR scans per second kept in the mapping pass (throttled from the 10 Hz sensor).")
+@click.option("--robot-stop-x", type=click.FloatRange(-3.0, 0.0), default=None,
+              help="Where the data pass's robot stops, metres along the approach corridor (junction at 0; default: "
+              "0.6-1.2 m short of it, drawn from the seed).")
 @click.option("--count", type=click.IntRange(min=1), default=1, show_default=True,
               help="Recordings to write: >1 writes OUT/scene_000, OUT/scene_001, ... with seeds SEED, SEED+1, ...")
 @dask_options("one recording per task (with --count)", "OUT must be a folder the workers share.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
-          stereo_images, count, workers, scheduler, quiet, as_json) -> None:
+          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, count, workers, scheduler, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
 
     Example: holodata synth --out synth_L --corner L --frames 20 --seed 3
+
+    With the mapping pass (default): holodata ingest synth_L/recording synth_L/mapping --out d.zarr
+    --scene-id L --scene-id L_map; holodata slam d.zarr --scene L --map-scene L_map
 
     Many recordings on a Dask cluster: holodata synth --out corners/ --count 32 --workers 2
     """
@@ -61,7 +72,8 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     kw = dict(corner=corner, width=width, frames=frames, format=fmt, human=not no_human, grid=g,
               range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
               camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers,
-              lidar_vertical_fov_deg=lidar_fov)
+              lidar_vertical_fov_deg=lidar_fov, mapping_pass=mapping_pass, mapping_scan_hz=mapping_scan_hz,
+              robot_stop_x=robot_stop_x)
     if count > 1 or workers or scheduler:
         import json
 
@@ -86,6 +98,9 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
                f"{res.n_frames} radar frames)")
     click.echo(f"truth:     {res.truth_dir} (corner {res.corner}, width {res.width_m:.2f} m, "
                f"human {'yes' if res.human else 'no'})")
+    if res.mapping_recording is not None:
+        click.echo(f"mapping:   {res.mapping_recording} (the empty corner, LiDAR + odometry; ingest it as its own scene "
+                   f"and use holodata slam --map-scene)")
 
 
 COMMANDS = [synth]

@@ -83,3 +83,19 @@ def test_path_trajectory_is_smooth_and_slows_in_turns():
     assert v.max() < 0.8 * 1.01 and v[:5].max() < 1e-9 and v[-5:].max() < 1e-9  # at rest at both ends
     assert abs(np.degrees(yaw[-1] - yaw[0]) - 90.0) < 2.5              # the turn (plus a +-2 deg offset)
     assert info["length_m"] == pytest.approx(3.5 + 4.0 - (2 - np.pi / 2) * 0.5, abs=0.02)
+
+
+def test_cli_records_the_mapping_pass_by_default(tmp_path):
+    from click.testing import CliRunner
+
+    from cli.main import cli
+
+    args = ["synth", "--corner", "T", "--frames", "1", "--grid", "8x32", "--range-bins", "64", "--lidar", "8x64",
+            "--camera", "12x20", "--quiet"]
+    r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "a")], obj={})
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "a" / "mapping" / "mapping.mcap").is_file() and "mapping:" in r.output
+    r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "b"), "--no-mapping-pass"], obj={})
+    assert r.exit_code == 0 and not (tmp_path / "b" / "mapping").exists()
+    r = CliRunner().invoke(cli, args + ["--out", str(tmp_path / "c"), "--mapping-scan-hz", "50"], obj={})
+    assert r.exit_code == 2

@@ -720,6 +720,10 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
     stream = _Fixed(np.asarray(init, np.float64)) if isinstance(init, np.ndarray) else init
     # odometry seeds (_Fixed(seed=True)): deskew with their motion about each scan, not the last step's
     seed_twist = twists_central(stream.poses, scans.stamp_ns) if getattr(stream, "seed", False) else None
+    # planar seeds (wheel odometry on a level floor): height, roll and pitch follow them, not the ICP
+    vertical = None
+    if seed_twist is not None and level_seeds(stream.poses):
+        vertical = (poses[0] if T0 is None else T0) @ np.linalg.inv(stream.poses[0]) @ stream.poses
     init = stream.poses
     poses = np.zeros((S, 4, 4))
     poses[0] = stream.pose(0)
@@ -795,6 +799,8 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
             if f < cfg.min_fitness:  # too few scan points near the map (sparse, far, outdoor): trust kiss-icp
                 T = guess
                 fallbacks += 1
+            if vertical is not None:
+                T = with_vertical_of(T, vertical[i])
             xi = twist(poses[i - 1], T, t_s[i] - t_s[i - 1]) if seed_twist is None else seed_twist[i]
             anchor = i
             same = None
@@ -808,10 +814,39 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
             last_key = T
             keyframes += 1
     health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
+              "vertical_from_seeds": vertical is not None,
               "map_keyframes": keyframes, "still_scans": still, "still_same_beam": same_beam,
               "kiss_scans": int(stream.fed),
               "kiss_s": float(stream.seconds)}
     return poses, health
+
+
+def level_seeds(poses: np.ndarray, height_m: float = 0.01, tilt_deg: float = 0.2) -> bool:
+    """True when seed poses (S,4,4) are those of a ground robot's odometry on a level floor: their
+    height varies by less than ``height_m`` and every tilt (roll/pitch) relative to the first is below
+    ``tilt_deg``. Such odometry pins height, roll and pitch better than scan-to-map ICP on a sparse,
+    throttled LiDAR (a synth mapping pass at 2 scans/s drifted 5 cm in height over 6 m), so
+    :func:`refine` then takes those three from the seeds (:func:`with_vertical_of`)."""
+    P = np.asarray(poses, np.float64)
+    if len(P) < 2 or np.ptp(P[:, 2, 3]) >= height_m:
+        return False
+    z0 = P[0, :3, 2]
+    return bool(np.degrees(np.arccos(np.clip(P[:, :3, 2] @ z0, -1, 1))).max() < tilt_deg)
+
+
+def with_vertical_of(T: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """``T`` (4,4) with the height, roll and pitch of ``G`` (4,4): the heading (yaw) and the planar
+    position of ``T``, the rest of ``G``."""
+    from ..conventions import yaw_rad
+
+    def rz(a):
+        c, s_ = np.cos(a), np.sin(a)
+        return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+
+    out = G.copy()
+    out[:3, :3] = rz(yaw_rad(T) - yaw_rad(G)) @ G[:3, :3]
+    out[:2, 3] = T[:2, 3]
+    return out
 
 
 def _moved(Ta: np.ndarray, Tb: np.ndarray, dist_m: float, angle_deg: float) -> bool:

@@ -6,7 +6,21 @@ Recording layout under ``out_dir``::
     recording/recording.mcap + recording/metadata.yaml   (format "mcap", rosbag2 with MCAP storage)
     recording/recording.db3  + recording/metadata.yaml   (format "rosbag2", sqlite3 storage)
     recording.bag                                         (format "rosbag1")
+    mapping/mapping.mcap + mapping/metadata.yaml          (``mapping_pass=True``; mapping.db3 / mapping.bag)
     truth/...                                             (see holodata.synth.truth)
+
+**Map first, then record** (``mapping_pass=True``, the CLI's default; HoloRadar maps each corner
+without a person before recording): the *mapping pass* is its own recording of the same corner,
+``mapping/``, ending :data:`scenario.MAPPING_GAP_S` before the data pass starts. The robot drives the
+empty corner from 1 m short of the approach corridor's end wall to the junction and up the hidden
+branch to 1.5 m short of its end (``scenario.mapping_waypoints``: from the junction the LiDAR looks
+down every other branch of a T or cross), 0.8 m/s, turns rounded to arcs with at most 0.4 rad/s.
+Topics ``MAPPING_TOPICS``: the LiDAR, throttled to ``mapping_scan_hz`` (2) scans per second, and
+its own drifting odometry (``/tf``, ``/odom``, ``/tf_static`` map→odom and base_link→os_sensor).
+Its truth (``truth/mapping_*.tum``, ``scene.json`` ``mapping_pass``) is in the data pass's world
+frame. The data pass (radar, LiDAR, camera, hidden person) is byte-identical with or without it.
+Ingest it as its own LiDAR-only scene and localise the data scene in its map with ``holodata slam
+DATASET --scene ID --map-scene MAPID``.
 
 Topics (``TOPICS``): radar heatmaps ``/radar/heatmap`` (holodata_msgs/msg/RadarHeatmap, frame
 ``radar``, header stamp = mid-cycle in the radar's clock), Ouster-like scans ``/ouster/points``
@@ -90,7 +104,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
                lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
                radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False,
                visible_walkers: int = 0, lidar_vertical_fov_deg: float = 33.2, mapping_pass: bool = False,
-               mapping_scan_hz: float | None = None) -> SynthResult:
+               mapping_scan_hz: float | None = None, robot_stop_x: float | None = None) -> SynthResult:
     """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
@@ -103,6 +117,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     ``mapping_pass``: also record the mapping pass (module docstring): the robot drives the empty
     corner through every leg before the data pass, LiDAR + odometry only, LiDAR throttled to
     ``mapping_scan_hz`` (default ``scenario.MAPPING_SCAN_HZ``); the data pass is unchanged.
+    ``robot_stop_x``: where the data pass's robot stops (m along the approach corridor, the junction
+    at 0; None: 0.6-1.2 m short of it, drawn from the seed), moved back if the person could not hide.
     Same arguments → byte-identical files.
     """
     from .recording import FORMATS, recording_path
@@ -116,6 +132,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         raise InputError(f"visible_walkers must be >= 0, got {visible_walkers}")
     out_dir = Path(out_dir)
     rec = recording_path(out_dir, format)
+    if robot_stop_x is not None and not -3.0 <= robot_stop_x <= 0.0:
+        raise InputError(f"robot_stop_x must be within -3..0 m (the junction starts at 0), got {robot_stop_x}")
     if mapping_scan_hz is not None and not 0.1 <= mapping_scan_hz <= 10.0:
         raise InputError(f"mapping_scan_hz must be within 0.1-10 Hz, got {mapping_scan_hz}")
     if rec.exists() or (out_dir / "truth").exists() or recording_path(out_dir, format, "mapping").exists():
@@ -124,7 +142,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
                         camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images,
-                        visible_walkers=visible_walkers, lidar_vertical_fov_deg=lidar_vertical_fov_deg)
+                        visible_walkers=visible_walkers, lidar_vertical_fov_deg=lidar_vertical_fov_deg,
+                        robot_stop_x=robot_stop_x)
     res = write_recording(sc, out_dir, format, quiet=quiet)
     if mapping_pass:
         import json
@@ -136,7 +155,6 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         truthio.write_json(res.scene_json, scene)
         res.mapping_recording = out_dir / entry["recording"]
         res.trajectory_lidar_mapping = res.truth_dir / "mapping_trajectory_lidar.tum"
-        res.counts = dict(res.counts, mapping=entry["counts"])
     return res
 
 

@@ -109,13 +109,18 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
                    human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
                    lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16",
                    stereo_images: bool = False, visible_walkers: int = 0,
-                   lidar_vertical_fov_deg: float = LidarConfig.vertical_fov_deg) -> Scenario:
+                   lidar_vertical_fov_deg: float = LidarConfig.vertical_fov_deg,
+                   robot_stop_x: float | None = None) -> Scenario:
     """Everything about one recording except the sensor data itself.
 
     ``visible_walkers`` N > 0 adds N people walking back and forth along the approach corridor (the
     robot's), visible to every sensor, for scoring LiDAR human segmentation against per-scan truth
     masks (``truth/lidar_instances.npz``). They draw from their own random stream, so N = 0 leaves
-    every output byte-identical to a recording made without the option."""
+    every output byte-identical to a recording made without the option. ``robot_stop_x`` (m, the
+    junction starts at x = 0): where the robot stops instead of the world's drawn stop (0.6-1.2 m
+    short of the junction); closer to the junction the radar reaches more of the hidden branch
+    (more NLOS ground truth). Either way the stop moves back in 0.5 m steps until some stretch of the
+    hidden branch is out of the robot's sight for the person."""
     try:
         world = make_world(corner, width, seed)
     except ValueError as err:
@@ -146,7 +151,8 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
     # the robot stops early enough that some stretch of the hidden branch stays out of its sight
     # (wide corridors need a longer distance to the corner)
     for attempt in range(16):
-        stop = world.robot_stop - np.array([0.5 * attempt, 0.0])
+        stop0 = world.robot_stop if robot_stop_x is None else np.array([float(robot_stop_x), world.robot_stop[1]])
+        stop = stop0 - np.array([0.5 * attempt, 0.0])
         start = world.robot_start if world.robot_start[0] < stop[0] - 1.0 else stop - np.array([1.0, 0.0])
         truth, tinfo = robot_trajectory(start, stop, duration, t0, np.random.default_rng(traj_seed))
         ts = np.linspace(truth.timestamp_ns[0], truth.timestamp_ns[-1], 60).astype(np.int64)
@@ -561,14 +567,15 @@ def mapping_waypoints(world: World, start_x: float) -> np.ndarray:
 
 
 def build_mapping_pass(sc: Scenario, scan_hz: float = MAPPING_SCAN_HZ, speed: float = MAPPING_SPEED_MPS) -> MappingPass:
-    """The mapping pass of scenario ``sc`` (:func:`mapping_waypoints` from 2 m behind the data pass's start,
-    ``speed`` m/s, turns of radius 0.4 times the narrower corridor's width). It ends
+    """The mapping pass of scenario ``sc`` (:func:`mapping_waypoints` from 1 m short of the approach
+    corridor's end wall, ``speed`` m/s, turns of radius 0.4 times the narrower corridor's width). It ends
     :data:`MAPPING_GAP_S` before the data pass starts; its odometry starts again at identity (a
     separate recording) with its own drift."""
     w = sc.world
     rng = _rng(sc.seed, "mapping")
-    # from 2 m behind the data pass's start (at least 1 m short of the approach corridor's end wall)
-    start_x = max(float(w.floor_polygon[:, 0].min()) + 1.0, float(sc.truth_info["start_xy"][0]) - 2.0)
+    # from 1 m short of the approach corridor's end wall: the radar reaches that far (9.6 m), and door
+    # recesses and pilasters behind the data pass are only mapped by driving past them
+    start_x = float(w.floor_polygon[:, 0].min()) + 1.0
     wp = mapping_waypoints(w, start_x)
     radius = 0.4 * min(w.width, w.hidden_width)
     kw = dict(speed=speed, turn_radius=radius, max_yaw_rate=MAPPING_YAW_RATE_RPS)

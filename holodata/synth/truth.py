@@ -11,6 +11,10 @@ Layout (all deterministic for a given seed)::
                                   frame's header stamp, pose at the true mid-cycle time
     truth/trajectory_lidar.tum    true T_world_lidar per LiDAR scan (header stamp; pose at scan start)
     truth/odometry.tum            the drifting T_odom_base published on /tf (for comparison)
+    truth/mapping_trajectory_base.tum, mapping_trajectory_lidar.tum, mapping_odometry.tum
+                                  the same for the mapping pass (``mapping_pass=True``; its own recording
+                                  ``mapping/``), in the data pass's world frame; ``scene.json``
+                                  ``mapping_pass`` describes it (path, scans, scan rate, odometry)
     truth/radar_frames.csv        frame, header stamp, cycle start/end, true mid time, human centre, LOS→NLOS dB
     truth/human/<frame:06d>.ply   world-frame human mesh per radar frame (only with a human)
     truth/lidar_instances.npz     only with ``visible_walkers``: per-LiDAR-scan truth instance masks on the
