@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 
 from .conventions import Grid, RangeBins
+from .dataset.validate import frames_not_finite_nonneg
 from .errors import DatasetError, HolodataError, InputError, RecordingError
 from .readers import open_recording
 from .readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, DecodeError, RawMessage, Recording, TopicInfo
@@ -333,6 +334,11 @@ class _Stream:
         except HolodataError as err:
             err.item = i
             raise
+        except Exception as err:  # noqa: BLE001 - damaged bytes deserialise into garbage of any shape
+            bad = DecodeError(f"topic {self.topic}: message at {raw.log_ns} ns does not decode "
+                              f"({err.__class__.__name__}: {' '.join(str(err).split())[:100]}; damaged message?)")
+            bad.item = i
+            raise bad from err
         return [Item(i, st, payload if decode else None)]
 
     def flush(self, decode: bool, want=None) -> list[Item]:
@@ -351,7 +357,7 @@ class _Stream:
         self._layout_tries += 1
         try:
             p = self.convert(raw, keep=True)
-        except HolodataError:
+        except Exception:  # noqa: BLE001 - a damaged message teaches nothing about the layout
             return
         self.layout = {"grid": None if p.grid is None else tuple(p.grid.shape), "time": p.time_ns is not None,
                        "frame_id": p.frame_id}
@@ -405,10 +411,15 @@ class RadarStream(_Stream):
         elif shape != self.shape:
             raise DecodeError(f"topic {self.topic}: RadarHeatmap shape {shape} differs from the first message's "
                               f"{self.shape}")
-        if not keep:
-            return None
         buf = data if isinstance(data, np.ndarray) else np.frombuffer(bytes(data), np.uint8)
         hm = buf.view(dt).reshape(shape)
+        # the layout's value rule (validate's): a heatmap with NaN/inf or negative amplitudes is a
+        # damaged message, dropped here (counted) rather than written into a dataset validate rejects
+        if len(frames_not_finite_nonneg(hm[None])):
+            raise DecodeError(f"topic {self.topic}: RadarHeatmap at {raw.log_ns} ns holds NaN/inf or negative "
+                              f"amplitudes (damaged message)")
+        if not keep:
+            return None
         return RadarFrame(hm, (int(msg.cycle_start_ns), int(msg.cycle_end_ns)))
 
 

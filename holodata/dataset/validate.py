@@ -364,7 +364,7 @@ def _aligned(ds, sid, name, fr, decoded) -> np.ndarray | None:
 _EXP_BITS = {2: (np.uint16, 0x7C00), 4: (np.uint32, 0x7F800000), 8: (np.uint64, 0x7FF0000000000000)}
 
 
-def _frames_not_finite_nonneg(a: np.ndarray) -> np.ndarray:
+def frames_not_finite_nonneg(a: np.ndarray) -> np.ndarray:
     """Frame indices where a float array holds NaN, inf or negative values. Fast path: as unsigned
     bits, a positive finite float is below the exponent mask, so one integer max per frame decides
     (float16 min/max in numpy is slow); flagged frames are re-checked exactly (-0.0 is fine)."""
@@ -455,7 +455,7 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
     elif name == "radar/heatmap":
         if a.dtype.kind != "f" or a.dtype.itemsize not in _EXP_BITS:
             return
-        for i in _frames_not_finite_nonneg(a):
+        for i in frames_not_finite_nonneg(a):
             rep.add(sid, name, fr.start + i, "heatmap", "heatmap has NaN/inf or negative amplitudes "
                                                         "(stored as linear amplitude >= 0)")
 
