@@ -136,6 +136,7 @@ def test_cli_raytrace_on_dask_workers_to_s3_validate_info(s3, tmp_path):
                        capture_output=True, text=True, timeout=120)
     assert p.returncode == 0, p.stderr
     assert json.loads(p.stdout)["ok"]
+    assert p.stderr.strip() == "", p.stderr   # no "Unclosed client session" (or any warning) after the result
 
 
 def test_cli_ingest_out_s3_and_missing_dataset(s3, tmp_path):
