@@ -66,7 +66,7 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
     try:
         g = Grid.parse(grid, elevation_fov)
     except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="--grid/--elevation-fov") from None
+        raise click.BadParameter(str(err), param_hint="--grid/--elevation-fov") from err
     origin = None  # the recording's model; any origin flag replaces it (unset ones at DESIGN's defaults)
     if (rotation_radius, column_time, rotation_hz) != (None, None, None):
         d = OriginModel()

@@ -68,7 +68,7 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     try:
         g = Grid.parse(grid)
     except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="--grid") from None
+        raise click.BadParameter(str(err), param_hint="--grid") from err
     kw = dict(corner=corner, width=width, frames=frames, format=fmt, human=not no_human, grid=g,
               range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
               camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers,

@@ -78,7 +78,7 @@ def _read_mapping(path) -> dict:
     try:
         data = yaml.safe_load(open(path).read()) or {}
     except (OSError, yaml.YAMLError) as err:
-        raise InputError(f"{path}: cannot read stage-two config ({' '.join(str(err).split())})") from None
+        raise InputError(f"{path}: cannot read stage-two config ({' '.join(str(err).split())})") from err
     if not isinstance(data, dict):
         raise InputError(f"{path}: stage-two config must be a mapping of field: value")
     return data

@@ -70,7 +70,7 @@ def cluster(workers: int = 0, scheduler: str | None = None):
             else:
                 client = Client(scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")
         except (OSError, TimeoutError, ValueError) as err:
-            raise InputError(f"{scheduler}: cannot connect to the Dask scheduler ({' '.join(str(err).split())})") from None
+            raise InputError(f"{scheduler}: cannot connect to the Dask scheduler ({' '.join(str(err).split())})") from err
         client.holodata_local_workers = 0
         try:
             yield client

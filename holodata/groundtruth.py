@@ -462,7 +462,7 @@ def _make_scene(vertices, faces, face_class, class_names, cfg: GTConfig):
         return RayScene(vertices, faces, backend=cfg.backend, face_class=face_class, class_names=class_names,
                         nthreads=cfg.nthreads)
     except ValueError as err:
-        raise InputError(f"scene mesh: {err}") from None
+        raise InputError(f"scene mesh: {err}") from err
 
 
 def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *,

@@ -116,7 +116,7 @@ def load_topics_file(path) -> dict:
     try:
         data = yaml.safe_load(p.read_text())
     except OSError as err:
-        raise InputError(f"{p}: cannot read topics file ({err.strerror})") from None
+        raise InputError(f"{p}: cannot read topics file ({err.strerror})") from err
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
@@ -862,7 +862,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
                 load_info(text)
             except HolodataError as err:
                 raise RecordingError(f"{rec.path}: Ouster packets on {tmap.lidar} cannot be decoded: "
-                                     f"{_one_line(err)}") from None
+                                     f"{_one_line(err)}") from err
             streams["lidar"] = OusterPacketStream(rec, tmap.lidar, tmap.time, text)
         elif ty == PC2:
             streams["lidar"] = CloudStream(rec, tmap.lidar, tmap.time, "lidar")
@@ -1628,7 +1628,7 @@ def _grid_of(rec, st: RadarStream) -> tuple[Grid, RangeBins]:
     try:
         return Grid(H, W, round(emax, 5), round(emin, 5)), RangeBins(R, round(float(msg.range_resolution), 7))
     except ValueError as err:
-        raise RecordingError(f"{rec.path}: radar topic {st.topic} has an unusable grid ({err})") from None
+        raise RecordingError(f"{rec.path}: radar topic {st.topic} has an unusable grid ({err})") from err
 
 
 def list_recording(path, msg_dir=None, meta=None, topics=None) -> dict:

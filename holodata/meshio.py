@@ -70,13 +70,13 @@ def read_mesh(path: str | Path) -> Mesh:
     try:
         data = path.read_bytes()
     except OSError as err:
-        raise InputError(f"{path}: cannot read mesh ({err.strerror or err})") from None
+        raise InputError(f"{path}: cannot read mesh ({err.strerror or err})") from err
     try:
         mesh = readers[ext](data)
     except InputError as err:
-        raise InputError(f"{path}: {err}") from None
+        raise InputError(f"{path}: {err}") from err
     except Exception as err:  # noqa: BLE001 - any parse failure is a bad file
-        raise InputError(f"{path}: malformed {ext[1:].upper()} mesh ({err})") from None
+        raise InputError(f"{path}: malformed {ext[1:].upper()} mesh ({err})") from err
     if len(mesh.faces) == 0:
         raise InputError(f"{path}: mesh has no triangles")
     if not np.all(np.isfinite(mesh.vertices)):

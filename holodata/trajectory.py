@@ -78,7 +78,7 @@ def read_tum(path: str | Path) -> Trajectory:
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as err:
-        raise InputError(f"{path}: cannot read trajectory ({err.__class__.__name__}: {err})") from None
+        raise InputError(f"{path}: cannot read trajectory ({err.__class__.__name__}: {err})") from err
     stamps, rows = [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.strip()

@@ -31,7 +31,7 @@ def check_root(url: str, root: dict) -> dict:
     try:
         major, _ = _version(meta["format_version"])
     except DatasetError as err:
-        raise DatasetError(f"{url}: {err}") from None
+        raise DatasetError(f"{url}: {err}") from err
     if major < SUPPORTED_MAJOR:
         raise DatasetError(f"{url}: format_version {meta['format_version']} is too old for this holodata "
                            f"(reads {SUPPORTED_MAJOR}.x); re-create the dataset with this holodata "

@@ -51,7 +51,7 @@ class Store:
             try:
                 self.fs, self.root = fsspec.core.url_to_fs(s)
             except (ImportError, ValueError) as err:
-                raise DatasetError(f"{s}: cannot open URL ({err})") from None
+                raise DatasetError(f"{s}: cannot open URL ({err})") from err
             self.root = self.root.rstrip("/")
             protos = self.fs.protocol if isinstance(self.fs.protocol, (tuple, list)) else (self.fs.protocol,)
             self.atomic_put = bool(set(protos) & ATOMIC_PUT_PROTOCOLS)

@@ -142,7 +142,7 @@ def truth_camera_extrinsic(truth_dir: str | Path) -> np.ndarray:
         d = json.loads(p.read_text())
         return np.asarray(d["T_world_camera_optical"], float)
     except (OSError, KeyError, ValueError) as err:
-        raise InputError(f"{p}: cannot read T_world_camera_optical ({err})") from None
+        raise InputError(f"{p}: cannot read T_world_camera_optical ({err})") from err
 
 
 def surface_centroid(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -177,7 +177,7 @@ def open_recording(path, msg_dir=None, meta=None, reader: str | None = None) -> 
         raise
     except Exception as err:  # noqa: BLE001 - library errors become one line naming the file
         msg = " ".join(str(err).split()) or err.__class__.__name__
-        raise RecordingError(f"{p}: cannot read as {name} ({err.__class__.__name__}: {msg[:200]})") from None
+        raise RecordingError(f"{p}: cannot read as {name} ({err.__class__.__name__}: {msg[:200]})") from err
 
 
 __all__ = ["open_recording", "guess_reader", "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",

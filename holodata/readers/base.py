@@ -198,7 +198,7 @@ def _msg_dir_types(msg_dir: Path) -> dict:
         try:
             typs.update(get_types_from_msg(f.read_text(), name))
         except Exception as err:  # noqa: BLE001 - rosbags raises several kinds
-            raise RecordingError(f"{f}: not a valid .msg definition ({' '.join(str(err).split())})") from None
+            raise RecordingError(f"{f}: not a valid .msg definition ({' '.join(str(err).split())})") from err
     return typs
 
 
@@ -302,7 +302,7 @@ class MessageDecoder:
                 return self.store.deserialize_cdr(raw.data, raw.msgtype)
         except Exception as err:  # noqa: BLE001 - rosbags raises SerdeError, struct/index/value errors
             raise DecodeError(f"topic {raw.topic}: {raw.msgtype} message of {len(raw.data)} bytes does not "
-                              f"decode ({err.__class__.__name__}: {' '.join(str(err).split())[:100]})") from None
+                              f"decode ({err.__class__.__name__}: {' '.join(str(err).split())[:100]})") from err
 
     # header fields straight from the bytes (no full decode): ROS 1 = seq u32, sec u32, nsec u32,
     # frame_id (u32 length + chars); CDR = 4-byte encapsulation, sec i32, nanosec u32, frame_id

@@ -48,7 +48,7 @@ class Hdf5Recording(Recording):
         try:
             self.f = h5py.File(self.path, "r")
         except OSError as err:
-            raise RecordingError(f"{self.path}: not a readable HDF5 file ({' '.join(str(err).split())[:120]})") from None
+            raise RecordingError(f"{self.path}: not a readable HDF5 file ({' '.join(str(err).split())[:120]})") from err
         self.files = [self.path]
         self.attrs = {"format": "holodata HDF5 layout"}
         self.streams: dict[str, dict] = {}

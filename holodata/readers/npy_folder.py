@@ -77,7 +77,7 @@ class NpyFolderRecording(Recording):
         try:
             a = np.load(p, allow_pickle=False)
         except (OSError, ValueError, EOFError) as err:
-            raise RecordingError(f"{p}: not a readable .npy array ({' '.join(str(err).split())[:100]})") from None
+            raise RecordingError(f"{p}: not a readable .npy array ({' '.join(str(err).split())[:100]})") from err
         if a.ndim == ndim + 1 and a.shape[0] == 1:
             a = a[0]
         if a.ndim != ndim or a.dtype.kind != "f":

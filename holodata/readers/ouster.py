@@ -111,12 +111,12 @@ def load_info(text_or_path):
         try:
             text = Path(text_or_path).read_text()
         except OSError as err:
-            raise RecordingError(f"{src}: cannot read Ouster metadata ({err.strerror})") from None
+            raise RecordingError(f"{src}: cannot read Ouster metadata ({err.strerror})") from err
     try:
         json.loads(text)
         info = core.SensorInfo(text)
     except Exception as err:  # noqa: BLE001
-        raise RecordingError(f"{src}: not valid Ouster sensor metadata ({' '.join(str(err).split())[:120]})") from None
+        raise RecordingError(f"{src}: not valid Ouster sensor metadata ({' '.join(str(err).split())[:120]})") from err
     return info, text
 
 
@@ -339,7 +339,7 @@ class OusterPcapRecording(Recording):
             return open_source(str(self.path), meta=[str(self.meta_path)])
         except Exception as err:  # noqa: BLE001
             raise RecordingError(f"{self.path}: ouster-sdk cannot open it with {self.meta_path.name} "
-                                 f"({' '.join(str(err).split())[:160]})") from None
+                                 f"({' '.join(str(err).split())[:160]})") from err
 
     def scans(self, with_xyz: bool = True) -> Iterator[OusterScan]:
         conv = _Converter(self.info, self.text)

@@ -316,7 +316,7 @@ def open_rosbag2(path: Path, msg_dir: Path | None = None) -> Recording:
     except Exception as err:  # noqa: BLE001 - fall back to the storage files themselves
         reason = _one_line(err)[:160]
         if not files:
-            raise RecordingError(f"{path}: rosbag2 folder without readable storage files ({reason})") from None
+            raise RecordingError(f"{path}: rosbag2 folder without readable storage files ({reason})") from err
         suffixes = {f.suffix for f in files}
         if suffixes == {".db3"}:
             from .sqlite import SqliteRecording
@@ -327,7 +327,7 @@ def open_rosbag2(path: Path, msg_dir: Path | None = None) -> Recording:
 
             rec = McapRecording(path, files, msg_dir)
         else:
-            raise RecordingError(f"{path}: rosbags cannot open it ({reason})") from None
+            raise RecordingError(f"{path}: rosbags cannot open it ({reason})") from err
         if path.is_dir():
             rec.problems.insert(0, f"{path}: rosbags cannot open the bag ({reason}); read its storage files directly")
         return rec

@@ -45,7 +45,7 @@ class SqliteRecording(Recording):
                 con = _connect(f)
                 rows = con.execute("SELECT id, name, type, serialization_format FROM topics").fetchall()
             except sqlite3.Error as err:
-                raise RecordingError(f"{f}: not a readable rosbag2 sqlite3 database ({_one_line(err)})") from None
+                raise RecordingError(f"{f}: not a readable rosbag2 sqlite3 database ({_one_line(err)})") from err
             self.topics_by_id.append({r[0]: (r[1], r[2], r[3] or "cdr") for r in rows})
             try:
                 for ty, enc, text in con.execute("SELECT topic_type, encoding, encoded_message_definition "
