@@ -121,3 +121,19 @@ def test_bad_npy_folder(tmp_path):
     with open_recording(tmp_path / "t") as r:
         with pytest.raises(RecordingError, match="not a readable .npy array"):
             list(r.messages())
+
+
+@pytest.mark.parametrize("attr, kind, radius", [(None, "rotation_centre", 0.0), ("antenna", "rotation_circle", 0.08)])
+def test_hdf5_and_npy_state_their_beam_origin(tmp_path, attr, kind, radius):
+    _h5(tmp_path / "rec.h5")
+    with h5py.File(tmp_path / "rec.h5", "a") as f:
+        if attr:
+            f["radar/heatmap"].attrs["range_origin"] = attr
+            f["radar/heatmap"].attrs["rotation_radius_m"] = radius
+    ingest([tmp_path / "rec.h5"], tmp_path / "ds.zarr")
+    bo = open_dataset(tmp_path / "ds.zarr").scene("rec").attrs["sensors"]["radar"]["beam_origin"]
+    assert (bo["type"], bo["rotation_radius_m"], bo["column_time"]) == (kind, radius, True)
+    tr, _, _ = _panoradar(tmp_path)            # PanoRadar's imaging aligns every chirp to the centre
+    ingest([tr], tmp_path / "pr.zarr")
+    assert open_dataset(tmp_path / "pr.zarr").scene("traj").attrs["sensors"]["radar"]["beam_origin"]["type"] == \
+        "rotation_centre"
