@@ -442,7 +442,7 @@ def _bounded_imap(pool, frames: list, slots: list):
 
 def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dict | None = None) -> None:
     results = iter(results)
-    for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet):
+    for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet, unit="shards"):
         bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]), dtype=specs[name]["dtype"])
                 for name in todo}
         for i in range(len(frames)):

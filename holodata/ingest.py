@@ -913,7 +913,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
     index_iter = rec.raw_messages(topics_read, with_xyz=False) if rec.kind == "ouster-pcap" \
         else rec.raw_heads(topics_read, heads)
     t_index = time.perf_counter()
-    for raw in track(index_iter, total, f"index {rec.path.name}", quiet):
+    for raw in track(index_iter, total, f"ingest {scene_id or rec.path.name}: index", quiet, unit="messages"):
         if raw.topic in tf_topics:
             try:
                 tf.add_message(rec.decode(raw), static=raw.topic in tf_static)
@@ -1301,7 +1301,8 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     t_pass = time.perf_counter()
     t_decode = 0.0
     heads = _head_topics(plan.streams)
-    for raw in track(rec.raw_heads(list(by_topic), heads), total, f"ingest {rec.path.name}", quiet):
+    for raw in track(rec.raw_heads(list(by_topic), heads), total, f"ingest {plan.scene_id}: write", quiet,
+                     unit="messages"):
         st = by_topic[raw.topic]
         t = time.perf_counter()
         try:

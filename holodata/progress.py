@@ -12,9 +12,11 @@ def progress_enabled(quiet: bool = False) -> bool:
     return not quiet and sys.stderr.isatty()
 
 
-def track(items: Iterable[T], total: int | None = None, description: str = "", quiet: bool = False) -> Iterator[T]:
-    """Yield ``items`` while showing a progress bar on stderr when it is a TTY and not ``quiet``."""
-    if not progress_enabled(quiet):
+def track(items: Iterable[T], total: int | None = None, description: str = "", quiet: bool = False,
+          unit: str = "") -> Iterator[T]:
+    """Yield ``items`` while showing a progress bar on stderr when it is a TTY and not ``quiet``
+    (``12/40 frames`` with ``unit="frames"``); no bar when there is nothing to do (``total`` 0)."""
+    if not progress_enabled(quiet) or total == 0:
         yield from items
         return
     from rich.console import Console
@@ -24,6 +26,7 @@ def track(items: Iterable[T], total: int | None = None, description: str = "", q
         TextColumn("{task.description}"),
         BarColumn(),
         MofNCompleteColumn(),
+        TextColumn(unit),
         TimeRemainingColumn(),
         console=Console(stderr=True),
         transient=False,
