@@ -131,17 +131,18 @@ def test_refine_targets_and_loss():
     gt = [np.array([[0.05, 0.05, 0.05], [0.07, 0.03, 0.05], [0.55, 0.05, 0.05]])]
     hum = [np.array([False, False, True])]
     coords = torch.tensor([[0, 0, 0, 0], [0, 5, 0, 0], [0, 3, 0, 0]])
-    cls, reg, edt = refine_targets(coords, gt, hum, 0.1, 8.0)
-    assert cls.tolist() == [2, 1, 0]
+    los = [np.array([True, False, False])]
+    cls, reg, edt, los_t = refine_targets(coords, gt, hum, 0.1, 8.0, los)
+    assert cls.tolist() == [2, 1, 0] and los_t.tolist() == [0.5, 0.0, 0.0]
     torch.testing.assert_close(reg[0], torch.tensor([0.01, -0.01, 0.0]), atol=1e-6, rtol=0)
     assert edt.tolist() == [0.0, 0.0, 2.0]
     ref = VoxelRefiner(RefinerConfig(channels=(8, 8), voxel=0.1))
     pts = torch.tensor(gt[0]).float()
     vox = voxelize(pts, torch.zeros(3, dtype=torch.long), torch.zeros(3, dtype=torch.long), torch.zeros(3), 0.1, 9.6)
     out = ref(vox)
-    c, r, e = refine_targets(vox.coords, gt, hum, 0.1, 8.0)
-    loss, parts = refine_loss(out, c, r, e)
-    assert set(parts) == {"cls", "reg", "dist"} and torch.isfinite(loss)
+    c, r, e, lt = refine_targets(vox.coords, gt, hum, 0.1, 8.0, los)
+    loss, parts = refine_loss(out, c, r, e, los_target=lt)
+    assert set(parts) == {"cls", "reg", "dist", "los"} and torch.isfinite(loss)
 
 
 @pytest.fixture(scope="module")
@@ -149,13 +150,14 @@ def dataset(tmp_path_factory):
     return E.build(str(tmp_path_factory.mktemp("ds2") / "tiny.zarr"), frames=2)
 
 
-TINY2 = dict(channels=8, res_blocks=1, fusion_blocks=1, refine_channels=[8, 8], batch_size=2, p_stage1=0.0, lr=3e-3)
+TINY2 = dict(channels=8, res_blocks=1, fusion_blocks=1, refine_channels=[8, 8], batch_size=2, p_stage1=0.0, lr=3e-3,
+             p_clean=1.0, flip=False)
 
 
 def test_tiny_training_run_decreases_loss_and_resumes(dataset, tmp_path):
     frames, grid = load_frames(dataset, "train", 1)
     cfg = Stage2Config(epochs_rt=3, epochs_refine=2, **TINY2)
-    res = fit_stage2(frames, tmp_path / "run", cfg, 9.6, quiet=True)
+    res = fit_stage2(frames, tmp_path / "run", cfg, 9.6, grid, quiet=True)
     h = res["history"]
     rt_loss = [r["loss"] for r in h if r["phase"] == "rt"]
     ref_loss = [r["loss"] for r in h if r["phase"] == "refine"]
@@ -166,7 +168,8 @@ def test_tiny_training_run_decreases_loss_and_resumes(dataset, tmp_path):
     p = s2.predict(fr.range[0], None, fr.directions[0], fr.origins[0], grid)
     assert p["no_refine"]["point"].shape == fr.gt_point[0].shape and p["refined"]["point"].shape[1] == 3
     # resume: the same config with more refiner epochs continues after epoch 5
-    res2 = fit_stage2(frames, tmp_path / "run", Stage2Config(epochs_rt=3, epochs_refine=3, **TINY2), 9.6, quiet=True)
+    res2 = fit_stage2(frames, tmp_path / "run", Stage2Config(epochs_rt=3, epochs_refine=3, **TINY2), 9.6, grid,
+                      quiet=True)
     assert res2["resumed_from"] == 5 and len(res2["history"]) == 6
     lines = (tmp_path / "run" / "stage2_metrics.jsonl").read_text().splitlines()
     assert [json.loads(x)["epoch"] for x in lines] == list(range(1, 7))

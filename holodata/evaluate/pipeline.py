@@ -32,6 +32,10 @@ from .frames import FrameGeometry, SceneBeams
 from .unmirror import los_mask, unmirror
 
 METHODS = ("model", "baseline")
+# Table-2 rows when the run has a learned stage two (RUN/stage2.pt): the refined model, the model's
+# ray-traced points before refinement, today's analytic stage two on the model's ranges, the
+# baseline, and the GT range images through the trained stage two (stage-one error removed)
+STAGE2_ROWS = ("model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1")
 ERR_SAMPLE = 200_000  # errors kept per bounce for the CDF figure
 
 
@@ -67,29 +71,53 @@ def _human_points(points, human):
     return points[ok]
 
 
-def score_frame(acc: _Acc, scene: str, pred_range, pred_human, gt_range, gt_clouds, grid: Grid,
-                tau: float, taus, max_range: float, geo: FrameGeometry, normals=None, los=None) -> dict:
-    """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``; its beams
-    start at ``geo.origins`` along ``geo.directions``. ``normals`` (3,H,W,3) / ``los`` (3,H,W) bool
-    override the estimated ones (oracle runs)."""
-    row = acc.per_scene.setdefault(scene, {"errors": [[], [], []], "cloud": {"los": [], "nlos": []}})
+def _score_ranges(acc: _Acc, row: dict, pred_range, gt_range) -> None:
     for b in range(3):
         e = M.range_errors(pred_range[b], gt_range[b])
         acc.errors[b].append(e)
         row["errors"][b].append(e)
         acc.n_fin[b] += int(np.isfinite(pred_range[b][np.isfinite(gt_range[b])]).sum())
-    P = unmirror(pred_range, geo.directions, normals=normals, grid=grid, origins=geo.origins)["point"]
-    if los is None:
-        los = los_mask(P, pred_range[0], grid, origins=geo.origins)
-    pc = _clouds(P, los)
+
+
+def _score_clouds(acc: _Acc, row: dict, pc: dict, human_points, gt_clouds, tau: float, taus) -> None:
     for part in ("los", "nlos"):
         d_pg, d_gp = M.nn_distances(pc[part], gt_clouds[part])
         m = M._cloud_summary(d_pg, d_gp, tau)
         acc.cloud[part].append(m)
         row["cloud"][part].append(m)
         acc.curve[part].append(M.prf_curve_from_distances(d_pg, d_gp, taus))
+    acc.pred_centres.append(M.human_centroids(human_points))
+
+
+def _scene_row(acc: _Acc, scene: str) -> dict:
+    return acc.per_scene.setdefault(scene, {"errors": [[], [], []], "cloud": {"los": [], "nlos": []}})
+
+
+def score_frame(acc: _Acc, scene: str, pred_range, pred_human, gt_range, gt_clouds, grid: Grid,
+                tau: float, taus, max_range: float, geo: FrameGeometry, normals=None, los=None) -> dict:
+    """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``; its beams
+    start at ``geo.origins`` along ``geo.directions``. ``normals`` (3,H,W,3) / ``los`` (3,H,W) bool
+    override the estimated ones (oracle runs)."""
+    row = _scene_row(acc, scene)
+    _score_ranges(acc, row, pred_range, gt_range)
+    P = unmirror(pred_range, geo.directions, normals=normals, grid=grid, origins=geo.origins)["point"]
+    if los is None:
+        los = los_mask(P, pred_range[0], grid, origins=geo.origins)
+    pc = _clouds(P, los)
     hum = np.zeros(P.shape[:-1], bool) if pred_human is None else (pred_human >= 0.5)
-    acc.pred_centres.append(M.human_centroids(_human_points(P, hum)))
+    _score_clouds(acc, row, pc, _human_points(P, hum), gt_clouds, tau, taus)
+    return pc
+
+
+def score_points(acc: _Acc, scene: str, pred: dict, pred_range, gt_range, gt_clouds, tau: float, taus) -> dict:
+    """Add one frame of stage-two output to ``acc``: ``pred`` {point (…,3), los (…) bool, human (…)
+    bool} (a refined voxel cloud or ray-traced point images), scored against ``gt_clouds``; range
+    errors are those of ``pred_range`` (3,H,W), the range images stage two was given."""
+    row = _scene_row(acc, scene)
+    _score_ranges(acc, row, pred_range, gt_range)
+    P = np.asarray(pred["point"], np.float64)
+    pc = _clouds(P, np.asarray(pred["los"], bool))
+    _score_clouds(acc, row, pc, _human_points(P, np.asarray(pred["human"], bool)), gt_clouds, tau, taus)
     return pc
 
 
@@ -176,12 +204,19 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     dev = resolve_device(device)
+    stage2, ck2 = None, None
     if oracle:
         ck = {"norm": HeatmapNorm().to_dict(), "transform": {}, "epoch": 0}
         model = None
     else:
         ck = load_checkpoint(checkpoint)
         model = model_from_checkpoint(ck, device=str(dev))
+        from holodata.torch.stage2_train import STAGE2_CHECKPOINT, load_stage2
+
+        s2_path = (Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent) / STAGE2_CHECKPOINT
+        if s2_path.exists():
+            stage2, ck2 = load_stage2(s2_path, device=str(dev))
+    rows = STAGE2_ROWS if stage2 is not None else METHODS
     norm = HeatmapNorm.from_dict(ck["norm"])
     tf = ck.get("transform") or {}
     f = int(tf.get("downsample", 1))
@@ -194,8 +229,8 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     rb: RangeBins = ds.range_bins
     max_range = float(rb.max_range)
     index = data.index[:max_frames] if max_frames else data.index
-    accs = {m: _Acc() for m in METHODS}
-    gt_centres, scene_info, beams = [], {}, {}
+    accs = {m: _Acc() for m in rows}
+    gt_centres, scene_info, beams, gt_nlos_points = [], {}, {}, []
     example = None
     ex_pick = len(index) // 2
 
@@ -228,15 +263,29 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                 p_j, h_j = g_rng, ((g_lab == 3) | (g_lab == 4)).astype(np.float32)
                 pcm = score_frame(accs["model"], sid, g_rng, h_j, g_rng, gc, grid, tau, taus, max_range, geo,
                                   normals=g_nrm, los=g_los)
-            else:
+            elif stage2 is None:
                 p_j = p_rng[j]
                 pcm = score_frame(accs["model"], sid, p_j, p_hum[j], g_rng, gc, grid, tau, taus, max_range, geo)
+            else:
+                p_j = p_rng[j]
+                pcs = {"model_analytic": score_frame(accs["model_analytic"], sid, p_j, p_hum[j], g_rng, gc, grid,
+                                                     tau, taus, max_range, geo)}
+                s2m = stage2.predict(p_j, p_hum[j], geo.directions, geo.origins, grid)
+                s2g = stage2.predict(g_rng, ((g_lab == 3) | (g_lab == 4)).astype(np.float32), geo.directions,
+                                     geo.origins, grid)
+                pcs["model_no_refine"] = score_points(accs["model_no_refine"], sid, s2m["no_refine"], p_j, g_rng, gc, tau, taus)
+                pcm = score_points(accs["model"], sid, s2m["refined"] or s2m["no_refine"], p_j, g_rng, gc, tau, taus)
+                pcs["oracle_stage1"] = score_points(accs["oracle_stage1"], sid, s2g["refined"] or s2g["no_refine"],
+                                                    g_rng, g_rng, gc, tau, taus)
             pcb = score_frame(accs["baseline"], sid, b_rng, None, g_rng, gc, grid, tau, taus, max_range, geo)
+            gt_nlos_points.append(int(len(gc["nlos"])))
             if i == ex_pick:
                 example = {"scene": sid, "frame": k, "gt": g_rng, "model": p_j, "baseline": b_rng,
                            "clouds": {"gt": gc, "model": pcm, "baseline": pcb}}
+                if stage2 is not None:
+                    example["clouds"].update(pcs)
 
-    methods = {m: summarise(accs[m], gt_centres, scene_info, max_range) for m in METHODS}
+    methods = {m: summarise(accs[m], gt_centres, scene_info, max_range) for m in rows}
     doc = {
         "format": "holodata-metrics-1",
         "dataset": str(dataset_url), "split": split, "checkpoint": "oracle" if oracle else str(checkpoint),
@@ -246,7 +295,9 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                      "grid": grid.to_attrs(), "range_bins": rb.to_attrs(), "norm": norm.to_dict(),
                      "baseline": "three strongest range peaks per beam (>= 6 dB over the beam median, beyond 0.25 m)",
                      "train_epochs": int(ck.get("epoch", 0)), "estimator": estimator,
-                     "beam_origin": {sid: b.origin.to_attrs() for sid, b in beams.items()}},
+                     "beam_origin": {sid: b.origin.to_attrs() for sid, b in beams.items()},
+                     "stage2": _stage2_settings(ck2),
+                     "gt_nlos_points_per_frame": float(np.mean(gt_nlos_points)) if gt_nlos_points else 0.0},
         "methods": methods,
         "figures": [],
     }
@@ -255,7 +306,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
         from .report import write_report
 
         errs = {m: [_sample(np.concatenate(accs[m].errors[b]) if accs[m].errors[b] else np.zeros(0)) for b in range(3)]
-                for m in METHODS}
+                for m in METHODS}  # the range errors of the other rows are the model's (or zero)
         log = None
         if not oracle:
             run_dir = Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent
@@ -264,6 +315,15 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     validate_metrics(doc)
     (out / "metrics.json").write_text(json.dumps(doc, indent=2) + "\n")
     return doc
+
+
+def _stage2_settings(ck2) -> str:
+    if ck2 is None:
+        return "analytic (normals from the range images, paper eq. 2-5)"
+    c = ck2["stage2_config"]
+    refined = ck2["epoch"] > c["epochs_rt"]
+    return (f"learned: hybrid ray tracer ({c['epochs_rt']} epochs)"
+            + (f" + voxel refiner ({ck2['epoch'] - c['epochs_rt']} epochs, {c['voxel'] * 100:.0f} cm voxels)" if refined else ""))
 
 
 def _sample(e: np.ndarray) -> np.ndarray:

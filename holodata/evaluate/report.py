@@ -7,7 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
-COLORS = {"gt": "0.25", "model": "tab:blue", "baseline": "tab:orange"}
+COLORS = {"gt": "0.25", "model": "tab:blue", "baseline": "tab:orange", "model_no_refine": "tab:cyan",
+          "model_analytic": "tab:brown", "oracle_stage1": "tab:olive"}
+BEV_ORDER = ("gt", "model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1")
 
 
 def _plt():
@@ -59,8 +61,9 @@ def fig_error_cdf(path: Path, errs: dict) -> None:
 
 def fig_bev(path: Path, ex: dict) -> None:
     plt = _plt()
-    names = ("gt", "model", "baseline")
-    fig, axes = plt.subplots(1, 3, figsize=(13, 4.6), sharex=True, sharey=True)
+    names = [n for n in BEV_ORDER if n in ex["clouds"]]
+    fig, axes = plt.subplots(1, len(names), figsize=(4.4 * len(names), 4.6), sharex=True, sharey=True, squeeze=False)
+    axes = axes[0]
     for ax, name in zip(axes, names):
         cl = ex["clouds"][name]
         for part, col in (("los", "tab:green"), ("nlos", "tab:purple")):
@@ -202,7 +205,12 @@ def write_report(out: Path, doc: dict, example: dict | None, errs: dict, train_l
         f"({doc['n_frames']} frames, scenes {html.escape(', '.join(doc['scenes']))}); checkpoint "
         f"<code>{html.escape(doc['checkpoint'])}</code> ({s['train_epochs']} epochs). Baseline: {html.escape(s['baseline'])}. "
         f"CD = sum of the two directed mean distances, MHD = their max, F-score at τ = {s['tau_m'] * 100:.0f} cm. "
-        "Stage two is the non-learned un-mirroring (normals from the range images, paper eq. 2–5).</p>",
+        f"Stage two: {html.escape(str(s.get('stage2', 'analytic (normals from the range images, paper eq. 2-5)')))}"
+        + (" (rows: model = refined, model_no_refine = the learned ray tracer's points, model_analytic = eq. 2–5 "
+           "on the model's ranges, oracle_stage1 = GT range images through the learned stage two)"
+           if "oracle_stage1" in doc["methods"] else "")
+        + (f". GT NLOS points per frame: {s['gt_nlos_points_per_frame']:.0f}" if s.get("gt_nlos_points_per_frame") is not None else "")
+        + ".</p>",
         _tables(doc),
     ]
     for name, cap in figs:
@@ -264,14 +272,16 @@ def format_tables(doc: dict) -> str:
     def f(v, scale=1.0, nd=1):
         return "   –  " if v is None else f"{v * scale:6.{nd}f}"
 
-    lines = [f"{doc['split']}: {doc['n_frames']} frames, scenes {', '.join(doc['scenes'])}",
-             "range error (cm)   b1 mean/med/p90          b2 mean/med/p90          b3 mean/med/p90"]
+    nl = doc["settings"].get("gt_nlos_points_per_frame")
+    lines = [f"{doc['split']}: {doc['n_frames']} frames, scenes {', '.join(doc['scenes'])}"
+             + ("" if nl is None else f"; GT NLOS points per frame {nl:.0f}"),
+             "range error (cm)         b1 mean/med/p90          b2 mean/med/p90          b3 mean/med/p90"]
     for m, r in doc["methods"].items():
         cells = "   ".join(" ".join(f(r["range"][f"bounce_{b}"][k]) for k in ("mean_cm", "median_cm", "p90_cm")) for b in (1, 2, 3))
-        lines.append(f"  {m:<9} {cells}")
-    lines.append("point clouds       LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F %")
+        lines.append(f"  {m:<15} {cells}")
+    lines.append("point clouds             LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F %")
     for m, r in doc["methods"].items():
         p = r["points"]
-        lines.append(f"  {m:<9} " + " ".join(f(p["los"][k], 100) for k in ("cd", "mhd", "f_score")) + "   "
+        lines.append(f"  {m:<15} " + " ".join(f(p["los"][k], 100) for k in ("cd", "mhd", "f_score")) + "   "
                      + " ".join(f(p["nlos"][k], 100) for k in ("cd", "mhd", "f_score")) + "   " + f(r["human"]["f_score"], 100))
     return "\n".join(lines)

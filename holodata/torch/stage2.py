@@ -410,7 +410,7 @@ class _SparseRes(nn.Module):
         return F.relu(x + self.n2(self.c2(y, nbr)))
 
 
-N_POINT_FEATURES = 12
+N_POINT_FEATURES = 13
 
 
 @dataclass
@@ -447,17 +447,19 @@ class Voxels:
 
 
 def voxelize(points: torch.Tensor, batch: torch.Tensor, bounce: torch.Tensor, human: torch.Tensor,
-             voxel: float, max_range: float) -> Voxels:
+             voxel: float, max_range: float, los: torch.Tensor | None = None) -> Voxels:
     """Voxelise points (P,3) m of frames ``batch`` (P,) with bounce index (P,) in 0..2 and stage-one
     human probability (P,). Per-point features (the paper's (x, y, z, Δx, Δy, Δz, i, n) plus the
-    human probability): xyz / max_range (3), offset to the voxel centre / voxel (3), bounce one-hot
-    (3), log(1 + points in the voxel) (1), human probability (1), 1 (a bias input)."""
+    human probability and the point's LOS flag): xyz / max_range (3), offset to the voxel centre /
+    voxel (3), bounce one-hot (3), log(1 + points in the voxel) (1), human probability (1), LOS flag
+    (1; visible in the first-bounce image, 0 when not given), 1 (a bias input)."""
     ijk = torch.floor(points / voxel).long()
     coords_p = torch.cat([batch.long()[:, None], ijk], 1)
     coords, inv, counts = unique_coords(coords_p)
     centre = (ijk.to(points.dtype) + 0.5) * voxel
     feat = torch.cat([points / max_range, (points - centre) / voxel, F.one_hot(bounce.long(), 3).to(points.dtype),
                       torch.log1p(counts[inv].to(points.dtype))[:, None], human[:, None].to(points.dtype),
+                      (torch.zeros_like(points[:, 0]) if los is None else los.to(points.dtype))[:, None],
                       torch.ones_like(points[:, :1])], 1)
     return Voxels(coords, inv, feat, voxel)
 
@@ -477,9 +479,12 @@ class VoxelEncoder(nn.Module):
 class VoxelRefiner(nn.Module):
     """Sparse 3-D UNet over the occupied voxels (submanifold convolutions; each coarser level is
     the set of parent voxels, features mean-pooled down and gathered back up with a skip
-    concatenation). Heads: class logits (empty, human, structure) and offset (voxels, ±max_offset).
+    concatenation). Heads: class logits (empty, human, structure), offset (voxels, ±max_offset) and
+    a LOS logit (an addition to the paper, which reports LOS and NLOS clouds without saying how it
+    splits its volume).
 
-    forward(Voxels) → dict cls_logit (M,3), offset (M,3) in metres, centre (M,3) metres, voxel (m)."""
+    forward(Voxels) → dict cls_logit (M,3), los_logit (M,) (LOS vs NLOS of the voxel's surface),
+    offset (M,3) in metres, centre (M,3) metres, voxel (m)."""
 
     def __init__(self, cfg: RefinerConfig | None = None):
         super().__init__()
@@ -495,6 +500,7 @@ class VoxelRefiner(nn.Module):
         self.dec = nn.ModuleList([nn.ModuleList([_SparseRes(ch[i]) for _ in range(self.cfg.blocks)])
                                   for i in range(len(ch) - 1)])
         self.cls = nn.Linear(ch[0], 3)
+        self.los = nn.Linear(ch[0], 1)
         self.reg = nn.Linear(ch[0], 3)
         nn.init.zeros_(self.reg.weight)
         nn.init.zeros_(self.reg.bias)
@@ -520,7 +526,7 @@ class VoxelRefiner(nn.Module):
                 x = blk(x, lv["nbr"])
         v = vox.voxel
         centre = (vox.coords[:, 1:].to(x.dtype) + 0.5) * v
-        return {"cls_logit": self.cls(x), "offset": torch.tanh(self.reg(x)) * self.cfg.max_offset * v,
+        return {"cls_logit": self.cls(x), "los_logit": self.los(x)[:, 0], "offset": torch.tanh(self.reg(x)) * self.cfg.max_offset * v,
                 "centre": centre, "voxel": v}
 
 
@@ -529,14 +535,16 @@ CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE = 0, 1, 2
 
 def refine_loss(out: dict, cls_target: torch.Tensor, reg_target: torch.Tensor, edt: torch.Tensor,
                 w_cls: float = 1.0, w_reg: float = 1.0, w_dist: float = 0.2,
-                class_weight: torch.Tensor | None = None) -> tuple[torch.Tensor, dict]:
+                class_weight: torch.Tensor | None = None, los_target: torch.Tensor | None = None,
+                w_los: float = 1.0) -> tuple[torch.Tensor, dict]:
     """Eq. 7: ``λ_cls CE(V̂_cls, V_cls) + λ_reg |V̂_reg − V_reg|_1 + λ_dist |V̂_cls ∗ EDT(V_cls)|_1``.
 
     cls_target (M,) long (0 empty, 1 human, 2 structure) per occupied input voxel; reg_target (M,3)
     metres (offset of the GT points' mean from the voxel centre; used where the class is not
     empty, divided by the voxel size); edt (M,) distance (voxels) from each voxel to the nearest GT
     occupied voxel. The distance term weights the predicted non-empty probability by that distance
-    (the volume V̂_cls read as P(non-empty))."""
+    (the volume V̂_cls read as P(non-empty)). ``los_target`` (M,) float (share of the voxel's GT
+    points that are LOS): BCE of the LOS logit over GT-occupied voxels, weight ``w_los``."""
     logit = out["cls_logit"]
     parts = {"cls": F.cross_entropy(logit, cls_target, weight=class_weight)}
     occ = cls_target != CLASS_EMPTY
@@ -548,4 +556,8 @@ def refine_loss(out: dict, cls_target: torch.Tensor, reg_target: torch.Tensor, e
     p_occ = 1.0 - torch.softmax(logit, -1)[:, CLASS_EMPTY]
     parts["dist"] = (p_occ * edt).mean()
     total = w_cls * parts["cls"] + w_reg * parts["reg"] + w_dist * parts["dist"]
+    if los_target is not None and "los_logit" in out:
+        parts["los"] = (F.binary_cross_entropy_with_logits(out["los_logit"][occ], los_target[occ]) if occ.any()
+                        else logit.sum() * 0.0)
+        total = total + w_los * parts["los"]
     return total, {k: float(v.detach()) for k, v in parts.items()}

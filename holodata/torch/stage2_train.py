@@ -10,9 +10,10 @@ phase 2 freezes it and trains the volumetric refiner on its points (eq. 7), as t
 Run directory: ``stage2.pt`` (latest epoch of either phase; atomic, resumable),
 ``stage2_config.json``, ``stage2_metrics.jsonl``. The stage-one checkpoint stays ``checkpoint.pt``.
 
-Refined points' LOS/NLOS: a voxel is LOS when most of the input points that fell into it are
-(each ray-traced point's LOS flag: visible in the first-bounce range image, as evaluate decides
-for un-refined clouds; bounce-1 points are LOS by definition).
+Refined points' LOS/NLOS: the refiner's LOS head (trained on the share of the voxel's GT points
+labelled LOS); its inputs include each ray-traced point's LOS flag (visible in the first-bounce
+range image, the rule evaluate uses for un-refined clouds; bounce-1 points are LOS by
+definition) and bounce index.
 """
 from __future__ import annotations
 
@@ -43,11 +44,12 @@ class Stage2Config:
     """Stage-two settings. Phases: ``epochs_rt`` ray-tracer epochs, then ``epochs_refine``
     refiner epochs (ray tracer frozen). Model: ``channels``/``res_blocks``/``fusion_blocks`` of
     each hybrid block; ``voxel`` (m), ``refine_channels`` (per UNet level), ``refine_blocks``.
-    Augmentation: ``noise_max_m`` (σ of the range noise drawn per frame in [0, noise_max_m]),
-    ``dropout`` (share of pixels dropped), ``p_stage1`` (share of samples whose input is the
+    Augmentation: ``p_clean`` (share of GT-input samples left exact), ``noise_max_m`` (σ of the
+    range noise drawn per frame in [0, noise_max_m]), ``dropout`` (share of pixels dropped), ``p_stage1`` (share of samples whose input is the
     stage-one prediction, when a stage-one model is given), ``flip`` (random y-mirror).
     Loss: eq. 6 weights ``w_sn``, ``w_point`` (+ ``w_normal``), RT loss pixels only where
-    |R_in − R_gt| < ``input_gate_m``; eq. 7 weights ``w_cls``, ``w_reg``, ``w_dist``, class weights
+    |R_in − R_gt| < ``input_gate_m``; eq. 7 weights ``w_cls``, ``w_reg``, ``w_dist`` (+ ``w_los``
+    for the LOS head), class weights
     ``human_weight`` / ``empty_weight``, EDT clipped at ``edt_clip`` voxels."""
 
     epochs_rt: int = 20
@@ -66,7 +68,7 @@ class Stage2Config:
     refine_blocks: int = 1
     noise_max_m: float = 0.03
     dropout: float = 0.05
-    p_stage1: float = 0.5
+    p_stage1: float = 0.3
     flip: bool = True
     input_gate_m: float = 0.3
     w_sn: float = 1.0
@@ -75,6 +77,8 @@ class Stage2Config:
     w_cls: float = 1.0
     w_reg: float = 1.0
     w_dist: float = 0.2
+    w_los: float = 1.0
+    p_clean: float = 0.3
     human_weight: float = 3.0
     empty_weight: float = 1.0
     edt_clip: float = 8.0
@@ -240,6 +244,8 @@ def make_batch(fr: Frames, idx, cfg: Stage2Config, rng: np.random.Generator | No
             if fr.s1_range is not None and rng.random() < cfg.p_stage1:
                 R_in[j], H_in[j] = fr.s1_range[idx[j]], fr.s1_human[idx[j]]
                 continue
+            if rng.random() < cfg.p_clean:
+                continue  # exact GT ranges and human mask (what the oracle_stage1 row feeds)
             sigma = rng.uniform(0, cfg.noise_max_m)
             R_in[j] = R[j] + rng.normal(0, 1, R[j].shape).astype(np.float32) * sigma
             drop = rng.random(R[j].shape) < cfg.dropout
@@ -267,18 +273,21 @@ def make_batch(fr: Frames, idx, cfg: Stage2Config, rng: np.random.Generator | No
 # ----------------------------------------------------------------------------- refiner targets
 
 
-def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, voxel: float, edt_clip: float):
+def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, voxel: float, edt_clip: float,
+                   gt_los: list | None = None):
     """Targets of eq. 7 for the occupied input voxels (M,4) [batch, x, y, z]: class (M,) (empty /
     human / structure of the GT points in the voxel; human when any is human), offset (M,3) m of the
     GT points' mean from the voxel centre, EDT (M,) voxels to the nearest GT-occupied voxel
     (scipy.ndimage.distance_transform_edt on the GT occupancy over the frame's bounding box,
-    clipped at ``edt_clip``). gt_points[j] (Q_j,3) / gt_human[j] (Q_j,) bool per frame j."""
+    clipped at ``edt_clip``), LOS share (M,) of the voxel's GT points (0 where none).
+    gt_points[j] (Q_j,3) / gt_human[j] (Q_j,) / gt_los[j] (Q_j,) bool per frame j."""
     from scipy.ndimage import distance_transform_edt
 
     M = len(vox_coords)
     cls = torch.zeros(M, dtype=torch.long)
     reg = torch.zeros(M, 3)
     edt = torch.full((M,), float(edt_clip))
+    los_t = torch.zeros(M)
     vc = vox_coords.cpu()
     for j, (P, hm) in enumerate(zip(gt_points, gt_human)):
         sel = torch.nonzero(vc[:, 0] == j).squeeze(1)
@@ -292,6 +301,9 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
         G = len(gcoords)
         gmean = torch.zeros(G, 3).index_add_(0, inv, P) / torch.zeros(G).index_add_(0, inv, torch.ones(len(P)))[:, None]
         ghum = torch.zeros(G).index_add_(0, inv, torch.from_numpy(hm.astype(np.float32))) > 0
+        gcount = torch.zeros(G).index_add_(0, inv, torch.ones(len(P)))
+        glos = (torch.zeros(G).index_add_(0, inv, torch.from_numpy(np.asarray(gt_los[j], np.float32))) / gcount
+                if gt_los is not None else torch.zeros(G))
         gk = voxel_keys(gcoords)
         sk, order = torch.sort(gk)
         hit = lookup(sk, order, voxel_keys(vc[sel]), -1)
@@ -300,6 +312,7 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
         cls[sel[ok]] = torch.where(ghum[h], CLASS_HUMAN, CLASS_STRUCTURE)
         centre = (vc[sel[ok], 1:].float() + 0.5) * voxel
         reg[sel[ok]] = gmean[h] - centre
+        los_t[sel[ok]] = glos[h]
         # EDT over the GT voxels' bounding box grown by the clip distance (beyond it: ≥ clip)
         c = int(math.ceil(edt_clip))
         lo = gcoords[:, 1:].min(0).values - c
@@ -314,7 +327,7 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
         e = torch.full((len(sel),), float(edt_clip))
         e[inside] = torch.from_numpy(np.minimum(dist[qi[:, 0], qi[:, 1], qi[:, 2]], edt_clip)).float()
         edt[sel] = e
-    return cls, reg, edt
+    return cls, reg, edt, los_t
 
 
 # ----------------------------------------------------------------------------- inference
@@ -364,14 +377,13 @@ class Stage2:
                 return res
             pts = torch.from_numpy(P[ok]).float().to(dev)
             b = torch.from_numpy(np.nonzero(ok)[0]).to(dev)
+            lf = torch.from_numpy(los[ok].astype(np.float32)).to(dev)
             vox = voxelize(pts, torch.zeros_like(b), b, torch.from_numpy(hp[ok]).to(dev), self.refiner.cfg.voxel,
-                           self.refiner.cfg.max_range)
+                           self.refiner.cfg.max_range, los=lf)
             ro = self.refiner(vox)
             prob = torch.softmax(ro["cls_logit"], -1)
             keep = (prob[:, CLASS_EMPTY] < 0.5).cpu().numpy()
-            lf = torch.from_numpy(los[ok].astype(np.float32)).to(dev)
-            vlos = (torch.zeros(len(vox.coords), device=dev).index_add_(0, vox.point_voxel, lf)
-                    / torch.zeros(len(vox.coords), device=dev).index_add_(0, vox.point_voxel, torch.ones_like(lf))) >= 0.5
+            vlos = ro["los_logit"] > 0
             pts_out = (ro["centre"] + ro["offset"]).cpu().numpy().astype(np.float64)
             hum = (prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE]).cpu().numpy()
             res["refined"] = {"point": pts_out[keep], "los": vlos.cpu().numpy()[keep], "human": hum[keep]}
@@ -417,30 +429,36 @@ def check_stage1(ck: dict, ds, where) -> None:
                          f"{ds.range_bins.to_attrs()}")
 
 
-def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device):
+def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: Grid):
     """Ray-traced points of a batch → (Voxels, targets) for the refiner."""
     with torch.no_grad():
         out = rt(batch["range_in"], batch["directions"], batch["origins"])
     P = out["point"]
     ok = torch.isfinite(P).all(-1)
+    Pn = P.cpu().numpy().astype(np.float64)
+    Rin = batch["range_in"].cpu().numpy()
+    org = batch["origins"].cpu().numpy()
+    los = np.stack([los_flags(Pn[j], Rin[j, 0], grid, org[j]) for j in range(len(Pn))])
     nz = torch.nonzero(ok)
-    pts = P[ok]
-    vox = voxelize(pts.float(), nz[:, 0], nz[:, 1], batch["human_in"][ok], cfg.voxel, rt.cfg.max_range)
-    gpts, ghum = [], []
+    vox = voxelize(P[ok].float(), nz[:, 0], nz[:, 1], batch["human_in"][ok], cfg.voxel, rt.cfg.max_range,
+                   los=torch.from_numpy(los).to(device)[ok])
+    gpts, ghum, glos = [], [], []
     gp = batch["gt_point"].cpu().numpy()
     lab = batch["label"].cpu().numpy()
     for j in range(len(gp)):
         m = np.isfinite(gp[j]).all(-1)
         gpts.append(gp[j][m].astype(np.float64))
         ghum.append(_is_human(lab[j][m]))
-    cls, reg, edt = refine_targets(vox.coords, gpts, ghum, cfg.voxel, cfg.edt_clip)
-    return vox, cls.to(device), reg.to(device), edt.to(device)
+        glos.append((lab[j][m] == 1) | (lab[j][m] == 3))
+    cls, reg, edt, los_t = refine_targets(vox.coords, gpts, ghum, cfg.voxel, cfg.edt_clip, glos)
+    return vox, cls.to(device), reg.to(device), edt.to(device), los_t.to(device)
 
 
-def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, meta: dict | None = None,
+def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, grid: Grid, meta: dict | None = None,
                quiet: bool = False, resume: bool = True) -> dict:
-    """Train stage two on ``frames`` into ``out_dir``/stage2.pt; resumes from it when present
-    (same configuration required). Returns {"checkpoint", "epochs", "resumed_from", "history"}."""
+    """Train stage two on ``frames`` (on the beam ``grid``) into ``out_dir``/stage2.pt; resumes from
+    it when present (same configuration required). Returns {"checkpoint", "epochs",
+    "resumed_from", "history"}."""
     from .train import resolve_device, seed_everything
 
     out = Path(out_dir)
@@ -494,9 +512,9 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, met
                                              cfg.w_sn, cfg.w_point, cfg.w_normal)
                 params = rt.parameters()
             else:
-                vox, cls, reg, edt = _refine_batch(rt, batch, cfg, dev)
+                vox, cls, reg, edt, los_t = _refine_batch(rt, batch, cfg, dev, grid)
                 o = ref(vox)
-                loss, parts = refine_loss(o, cls, reg, edt, cfg.w_cls, cfg.w_reg, cfg.w_dist, cw)
+                loss, parts = refine_loss(o, cls, reg, edt, cfg.w_cls, cfg.w_reg, cfg.w_dist, cw, los_t, cfg.w_los)
                 params = ref.parameters()
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -549,4 +567,4 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
     meta = {"dataset": str(dataset_url), "grid": ds.grid.to_attrs(), "range_bins": ds.range_bins.to_attrs(),
             "downsample": f, "stage1": str(src_file), "stage1_epoch": int(ck1.get("epoch", 0)),
             "train_frames": len(frames)}
-    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), meta=meta, quiet=quiet)
+    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid, meta=meta, quiet=quiet)
