@@ -37,7 +37,8 @@ class DemoConfig:
     ``lidar_shape`` (beams, columns); ``lidar_vertical_fov_deg`` 90 (OS0-like: the SLAM mesh then
     covers the floor and ceiling the radar sees); ``mapping_pass``: each corner is mapped first by a
     LiDAR-only drive through its legs (scene ``<id>_map``, ``mapping_scan_hz`` scans/s) and slam
-    localises the data pass in that map; ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
+    localises the data pass in that map; ``mesh_poisson_depth``: the SLAM mesh's Poisson octree depth
+    (None: from the scene's extent, 8 for a corner); ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
     ``base_channels``, ``max_channels``, ``range_pool``: the model and its training (TrainConfig)."""
 
     corners: tuple[tuple[str, int], ...]
@@ -56,6 +57,7 @@ class DemoConfig:
     range_bins: RangeBins = field(default_factory=RangeBins)
     mapping_pass: bool = True
     mapping_scan_hz: float = 2.0
+    mesh_poisson_depth: int | None = None
 
 
 def demo_config(quick: bool) -> DemoConfig:
@@ -134,7 +136,8 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     warnings: list[str] = []
     for sid in ids:
         if mapping == "slam":
-            note = map_with_slam(str(url), sid, quiet=quiet, map_scene=maps.get(sid))
+            note = map_with_slam(str(url), sid, quiet=quiet, map_scene=maps.get(sid),
+                                 mesh_poisson_depth=cfg.mesh_poisson_depth)
             if note:
                 warnings.append(note)
                 say(f"warning: {note}")
@@ -184,15 +187,18 @@ def resolve_mapping(mapping: str) -> str:
 def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> dict:
     """One MCAP recording per corner under ``rec_dir/<scene id>/`` (with ``cfg.mapping_pass`` also its
     mapping pass, ``mapping/``); existing ones are reused. Returns {scene id: SynthResult-like object
-    with .recording, .truth_dir and .mapping_recording (None without a mapping pass)}."""
-    from .synth import synthesize
+    with .recording, .truth_dir and .mapping_recording (None without a mapping pass)}, in corner
+    order. On two or more CPUs every other corner is synthesised in a forked process (synth is
+    single-threaded; the recordings are the same either way)."""
+    from .parallel import cpus, fork_call
 
-    out = {}
+    out, jobs = {}, []
     for corner, seed in cfg.corners:
         sid = scene_id(corner, seed)
         d = rec_dir / sid
-        if ((d / "truth" / "scene.json").is_file() and (d / "recording").exists()
-                and (d / "mapping").exists() == bool(cfg.mapping_pass)):
+        sj = d / "truth" / "scene.json"
+        if sj.is_file() and (d / "recording").exists() and \
+                ("mapping_pass" in json.loads(sj.read_text())) == bool(cfg.mapping_pass):
             out[sid] = _Existing(recording=d / "recording", truth_dir=d / "truth",
                                  mapping_recording=d / "mapping" if cfg.mapping_pass else None)
             continue
@@ -200,11 +206,28 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> di
             import shutil
 
             shutil.rmtree(d)
-        out[sid] = synthesize(d, corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid,
-                              range_bins=cfg.range_bins, lidar_shape=cfg.lidar_shape,
-                              camera_shape=cfg.camera_shape, lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg,
-                              mapping_pass=cfg.mapping_pass, mapping_scan_hz=cfg.mapping_scan_hz, quiet=quiet)
-    return out
+        jobs.append((sid, d, corner, seed))
+    if len(jobs) > 1 and cpus() >= 2:
+        other = fork_call(_synth_jobs, jobs[1::2], cfg, True, label="demo: synth (second process)")
+        try:
+            out.update(_synth_jobs(jobs[0::2], cfg, quiet))
+        finally:
+            done = other()
+        out.update(done)
+    else:
+        out.update(_synth_jobs(jobs, cfg, quiet))
+    return {scene_id(c, s): out[scene_id(c, s)] for c, s in cfg.corners}
+
+
+def _synth_jobs(jobs: list, cfg: DemoConfig, quiet: bool) -> dict:
+    """{scene id: SynthResult} of ``jobs`` [(scene id, folder, corner, seed)], one after the other."""
+    from .synth import synthesize
+
+    return {sid: synthesize(d, corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid, range_bins=cfg.range_bins,
+                            lidar_shape=cfg.lidar_shape, camera_shape=cfg.camera_shape,
+                            lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg, mapping_pass=cfg.mapping_pass,
+                            mapping_scan_hz=cfg.mapping_scan_hz, quiet=quiet)
+            for sid, d, corner, seed in jobs}
 
 
 @dataclass
@@ -272,15 +295,18 @@ def map_from_truth(sc, truth_dir: Path) -> None:
         hf.write_shard(k, faces)
 
 
-def map_with_slam(url: str, sid: str, quiet: bool = True, map_scene: str | None = None) -> str | None:
+def map_with_slam(url: str, sid: str, quiet: bool = True, map_scene: str | None = None,
+                  mesh_poisson_depth: int | None = None) -> str | None:
     """holodata's own mapping: ``slam`` (LiDAR poses, radar poses, static mesh; with ``map_scene``
     the mesh from that mapping pass and the scene localised in it) then ``register`` (camera
     extrinsic, per-frame human surfaces). When the camera cannot be registered the scene keeps its
-    mesh and poses but has no human: returns that as a warning line (else None)."""
+    mesh and poses but has no human: returns that as a warning line (else None). ``mesh_poisson_depth``:
+    :class:`~holodata.mapping.mesh.MeshConfig` ``poisson_depth``."""
+    from .mapping.mesh import MeshConfig
     from .mapping.register import RegistrationError, register_scene
     from .mapping.slam import slam_scene
 
-    slam_scene(url, sid, quiet=quiet, map_scene=map_scene)
+    slam_scene(url, sid, quiet=quiet, map_scene=map_scene, mesh_config=MeshConfig(poisson_depth=mesh_poisson_depth))
     try:
         register_scene(url, sid, quiet=quiet)
     except RegistrationError as err:
