@@ -13,8 +13,9 @@ Recording layout under ``out_dir``::
 without a person before recording): the *mapping pass* is its own recording of the same corner,
 ``mapping/``, ending :data:`scenario.MAPPING_GAP_S` before the data pass starts. The robot drives the
 empty corner from 1 m short of the approach corridor's end wall to the junction and up the hidden
-branch to 1.5 m short of its end (``scenario.mapping_waypoints``: from the junction the LiDAR looks
-down every other branch of a T or cross), 0.8 m/s, turns rounded to arcs with at most 0.4 rad/s.
+branch to 1.5 m short of its end; in a T or cross it first turns into the opposite branch and backs
+out of it straight through the junction into the hidden one (``scenario.mapping_legs``), 0.8 m/s,
+turns rounded to arcs with at most 0.4 rad/s.
 Topics ``MAPPING_TOPICS``: the LiDAR, throttled to ``mapping_scan_hz`` (2) scans per second, and
 its own drifting odometry (``/tf``, ``/odom``, ``/tf_static`` map→odom and base_link→os_sensor).
 Its truth (``truth/mapping_*.tum``, ``scene.json`` ``mapping_pass``) is in the data pass's world

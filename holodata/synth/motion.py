@@ -155,42 +155,65 @@ def _fillet_path(waypoints: np.ndarray, radius: float, step: float = 0.01) -> np
     return np.concatenate(pieces)
 
 
-def path_trajectory(waypoints, t0_ns: int, rng: np.random.Generator, speed: float = 0.6, accel: float = 0.4,
-                    turn_radius: float = 0.6, max_yaw_rate: float = 0.8, rate_hz: float = 200.0,
-                    t_start: float = 0.3, t_end: float = 0.3) -> tuple[Trajectory, dict]:
-    """True base_link trajectory along the plan-view polyline ``waypoints`` (K,2) m: corners rounded
-    to arcs of ``turn_radius`` m, a trapezoidal speed profile (cruise ``speed`` m/s, ``accel`` m/s²)
-    that slows on the arcs so the yaw rate stays below ``max_yaw_rate`` rad/s, the robot heading
-    along the path (plus a fixed ±2° mounting offset drawn from ``rng``); at rest for ``t_start`` s
-    before and ``t_end`` s after. Returns it and its parameters (length, duration)."""
+def _leg(waypoints: np.ndarray, speed: float, accel: float, turn_radius: float, max_yaw_rate: float):
+    """One leg from rest to rest along ``waypoints``: (t (N,) s from its start, x, y, tangent heading
+    (N,) rad, length m) at the 1 cm path samples."""
     xy = _fillet_path(np.asarray(waypoints, float), turn_radius)
     ds = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-    keep = np.r_[True, ds > 1e-9]
-    xy = xy[keep]
+    xy = xy[np.r_[True, ds > 1e-9]]
     s_pts = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
     head = np.unwrap(np.arctan2(*np.diff(xy, axis=0).T[::-1]))
     head = np.r_[head, head[-1]]
     # curvature -> speed limit along the path, then a forward/backward pass for the acceleration limit
     kappa = np.abs(np.gradient(head, s_pts, edge_order=1)) if len(s_pts) > 2 else np.zeros(len(s_pts))
-    vlim = np.minimum(speed, max_yaw_rate / np.maximum(kappa, 1e-9))
-    vlim[0] = vlim[-1] = 0.0
-    v = vlim.copy()
+    v = np.minimum(speed, max_yaw_rate / np.maximum(kappa, 1e-9))
+    v[0] = v[-1] = 0.0
     dsg = np.diff(s_pts)
     for i in range(1, len(v)):
         v[i] = min(v[i], np.sqrt(v[i - 1] ** 2 + 2 * accel * dsg[i - 1]))
     for i in range(len(v) - 2, -1, -1):
         v[i] = min(v[i], np.sqrt(v[i + 1] ** 2 + 2 * accel * dsg[i]))
-    vm = np.maximum(0.5 * (v[1:] + v[:-1]), 1e-3)
-    t_pts = t_start + np.r_[0.0, np.cumsum(dsg / vm)]
+    t_pts = np.r_[0.0, np.cumsum(dsg / np.maximum(0.5 * (v[1:] + v[:-1]), 1e-3))]
+    return t_pts, xy[:, 0], xy[:, 1], head, float(s_pts[-1])
+
+
+def path_trajectory(waypoints, t0_ns: int, rng: np.random.Generator, speed: float = 0.6, accel: float = 0.4,
+                    turn_radius: float = 0.6, max_yaw_rate: float = 0.8, rate_hz: float = 200.0,
+                    t_start: float = 0.3, t_end: float = 0.3, legs: list | None = None,
+                    pause_s: float = 0.5) -> tuple[Trajectory, dict]:
+    """True base_link trajectory along the plan-view polyline ``waypoints`` (K,2) m: corners rounded
+    to arcs of ``turn_radius`` m, a trapezoidal speed profile (cruise ``speed`` m/s, ``accel`` m/s²)
+    that slows on the arcs so the yaw rate stays below ``max_yaw_rate`` rad/s, the robot heading
+    along the path (plus a fixed ±2° mounting offset drawn from ``rng``); at rest for ``t_start`` s
+    before and ``t_end`` s after. ``legs`` [(waypoints (K,2), reverse bool), ...] instead: driven one
+    after the other, each from rest to rest with ``pause_s`` between them, a ``reverse`` leg backwards
+    (the heading stays that of the leg before: a robot backing out of a branch). Returns it and its
+    parameters (length, duration)."""
+    legs = [(np.asarray(waypoints, float), False)] if legs is None else [(np.asarray(w, float), bool(r)) for w, r in legs]
+    ts, xs, ys, hs, length, t_off = [], [], [], [], 0.0, t_start
+    for k, (wp, rev) in enumerate(legs):
+        t_pts, x, y, h, L = _leg(wp, speed, accel, turn_radius, max_yaw_rate)
+        h = h + (np.pi if rev else 0.0)
+        if hs:   # the heading continues from the leg before (no jump of 2 pi)
+            h = h + 2 * np.pi * np.round((hs[-1][-1] - h[0]) / (2 * np.pi))
+        ts.append(t_off + t_pts)
+        xs.append(x)
+        ys.append(y)
+        hs.append(h)
+        length += L
+        t_off = float(ts[-1][-1]) + (pause_s if k < len(legs) - 1 else 0.0)
+    t_pts, x_pts, y_pts, h_pts = (np.concatenate(a) for a in (ts, xs, ys, hs))
     duration = float(t_pts[-1] + t_end)
     n = int(np.ceil(duration * rate_hz)) + 1
     t = np.arange(n) / rate_hz
-    s = np.interp(t, t_pts, s_pts)
-    x, y = np.interp(s, s_pts, xy[:, 0]), np.interp(s, s_pts, xy[:, 1])
-    yaw = np.interp(s, s_pts, head) + np.deg2rad(float(rng.uniform(-2, 2)))
+    # piecewise-linear in time between the 1 cm samples (at rest before, between legs and after)
+    order = np.argsort(t_pts, kind="stable")
+    t_pts, x_pts, y_pts, h_pts = t_pts[order], x_pts[order], y_pts[order], h_pts[order]
+    x, y = np.interp(t, t_pts, x_pts), np.interp(t, t_pts, y_pts)
+    yaw = np.interp(t, t_pts, h_pts) + np.deg2rad(float(rng.uniform(-2, 2)))
     poses = pose_xy_yaw(x, y, yaw)
     t_ns = t0_ns + np.round(t * 1e9).astype(np.int64)
-    info = {"kind": "waypoints", "waypoints": np.round(np.asarray(waypoints, float), 4).tolist(),
-            "length_m": float(s_pts[-1]), "duration_s": duration, "cruise_speed_mps": float(speed),
+    info = {"kind": "waypoints", "legs": [{"waypoints": np.round(w, 4).tolist(), "reverse": r} for w, r in legs],
+            "length_m": float(length), "duration_s": duration, "cruise_speed_mps": float(speed),
             "turn_radius_m": float(turn_radius), "max_yaw_rate_rps": float(max_yaw_rate)}
     return Trajectory(t_ns, poses), info
