@@ -235,13 +235,14 @@ def run_corner(corner: str, work: Path, args) -> dict:
 def _coverage_cols(acc: dict) -> dict:
     c = acc.get("coverage") or {}
     return {"coverage": c.get("coverage", float("nan")), "coverage_bounce": c.get("coverage_bounce", {}),
+            "coverage_nlos": c.get("coverage_nlos", float("nan")),
             "nlos_est": c.get("nlos_per_frame_est", float("nan")), "nlos_true": c.get("nlos_per_frame_true", float("nan")),
             "nlos_ratio": c.get("nlos_ratio", float("nan"))}
 
 
 def _coverage_text(row: dict) -> str:
     by = "/".join(f"{v:.3f}" for _, v in sorted(row["coverage_bounce"].items()))
-    return (f"coverage {row['coverage']:.3f} (b1/2/3 {by})  NLOS/frame slam {row['nlos_est']:.0f} vs true "
+    return (f"coverage {row['coverage']:.3f} (b1/2/3 {by}, NLOS pts {row['coverage_nlos']:.3f})  NLOS/frame slam {row['nlos_est']:.0f} vs true "
             f"{row['nlos_true']:.0f} ({row['nlos_ratio']:.2f})")
 
 

@@ -78,7 +78,7 @@ def test_coverage_through_slam_mesh_of_the_localised_scene(localised):
                       res.truth_dir)
     c = a["coverage"]
     assert c["coverage"] > 0.9 and c["grid"] == [8, 32] and c["max_bounces"] == 3
-    assert c["nlos_per_frame_true"] > 0
+    assert c["nlos_per_frame_true"] > 0 and c["coverage_nlos"] > 0.8
 
 
 def test_cli_bad_map_scene_one_line_exit_1(localised, tmp_path):
@@ -134,6 +134,7 @@ def test_coverage_analytic_missing_wall():
     full = mesh_coverage(V, F, V, F, pose, grid, max_bounces=3, max_range=9.6)
     assert full["coverage"] == 1.0
     assert full["nlos_per_frame_true"] == full["nlos_per_frame_est"] == 0   # a convex room: every bounce is LOS
+    assert np.isnan(full["coverage_nlos"])
     c3 = mesh_coverage(V, F[keep], V, F, pose, grid, max_bounces=3, max_range=9.6)
     reach = radar_reach(V, F, pose, grid, 3, 9.6)
     assert c3["coverage"] == pytest.approx(1.0 - uncovered(reach["points"]).mean(), abs=1e-6)
