@@ -65,6 +65,12 @@ def test_data_pass_localised_in_the_maps_world_within_a_few_cm(localised):
 
     again = slam_scene(url, "c", map_scene="c_map", quiet=True)
     assert "skipped" in again.summary
+    # slam over every scene keeps the scene localised against its mapping pass (no approach-only map)
+    from holodata.mapping.slam import slam_dataset
+
+    res = {r.scene: r for r in slam_dataset(url, quiet=True)}
+    assert set(res) == {"c", "c_map"} and "skipped" in res["c"].summary
+    assert open_dataset_attrs(url, "c")["mode"] == "localisation"
 
 
 def test_coverage_through_slam_mesh_of_the_localised_scene(localised):
@@ -99,6 +105,12 @@ def test_cli_bad_map_scene_one_line_exit_1(localised, tmp_path):
     r = CliRunner().invoke(cli, ["slam", str(tmp_path / "d.zarr"), "--scene", "s", "--map-scene", "radar_only"], obj={})
     assert r.exit_code == 1 and "radar_only" in r.output and "LiDAR" in r.output
     assert r.output.strip().count("\n") == 0
+
+
+def open_dataset_attrs(url, sid):
+    import holodata
+
+    return holodata.open_dataset(url).scene(sid).attrs["slam"]
 
 
 def _box_room(half=(2.0, 1.5, 1.0)):

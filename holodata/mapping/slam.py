@@ -1561,7 +1561,8 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, map_
     """:func:`slam_scene` for each of ``scene_ids`` (default: every scene with lidar/points).
     ``single_exports``: ``tum``/``ply`` exports are allowed only when one scene is processed.
     ``map_scene``: localise each scene against that mapping pass (:func:`localise_scene`; needs
-    ``scene_ids``)."""
+    ``scene_ids``); without it a scene localised against a mapping pass before is localised against
+    that one again (its ``slam.map_scene``)."""
     from ..dataset import open_dataset
 
     ds = open_dataset(dataset_url)
@@ -1586,7 +1587,10 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, map_
         raise InputError(f"{dataset_url}: no scene has lidar/points (nothing for slam)")
     if single_exports and len(ids) > 1 and (kwargs.get("tum") or kwargs.get("ply")):
         raise InputError(f"{dataset_url}: {len(ids)} scenes; --ply/--tum need one (give --scene)")
-    return [slam_scene(dataset_url, sid, **kwargs) for sid in ids]
+    # a scene localised against a mapping pass before stays localised against it
+    prev = {sid: (ds.scene(sid).attrs.get("slam") or {}).get("map_scene") for sid in ids}
+    return [slam_scene(dataset_url, sid, map_scene=prev[sid] if prev[sid] in ds.scenes else None, **kwargs)
+            for sid in ids]
 
 
 __all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine", "global_refine",
