@@ -45,11 +45,15 @@ def test_sigint_during_ingest_never_leaves_a_dataset_that_validates(recording, t
 
     from holodata.cli.main import cli
 
-    t0 = time.perf_counter()
-    subprocess.run(HOLODATA + ["ingest", str(recording), "--out", str(tmp_path / "full.zarr"), "--quiet"], check=True)
-    full_s = time.perf_counter() - t0
+    runs = []
+    for name in ("full", "again"):   # the second run is warm (page cache, imports): the one to aim at
+        t0 = time.perf_counter()
+        subprocess.run(HOLODATA + ["ingest", str(recording), "--out", str(tmp_path / f"{name}.zarr"), "--quiet"],
+                       check=True)
+        runs.append(time.perf_counter() - t0)
+    full_s = min(runs)
     unfinished = 0
-    for i, frac in enumerate((0.35, 0.5, 0.6, 0.7, 0.8, 0.9)):
+    for i, frac in enumerate((0.2, 0.3, 0.4, 0.5, 0.6, 0.75)):
         url = tmp_path / f"ds{i}.zarr"
         code = _ingest_interrupted(recording, url, frac * full_s)
         if code == 0:
