@@ -1,0 +1,522 @@
+"""Rotating-array beamforming: one rotation of raw FMCW samples → a (n_range, H, W) linear-amplitude heatmap.
+
+The algorithm is PanoRadar's (``panoradar_SP/radar_imaging_3d.py``, MIT licence; summarised in
+``/work/shared/FIELD-NOTES.md`` §"Raw radar"), which HoloRadar (NeurIPS 2025, §3 and appendix A)
+uses for its 64 × 512 × 256 heatmaps. For one rotation of ``N`` chirp frames ``x[n, v, i]``
+(chirp ``n`` facing azimuth ``φ_n = −2πn/N``, virtual antenna ``v``, ADC sample ``i`` at wavelength
+``λ_i``) and every elevation row ``θ`` of the grid:
+
+1. **static reflection removal**: ``x ← x − s`` with ``s[v, i]`` the mean over all chirps of the
+   trajectory (TX→RX leakage and the rig's own reflections; the caller passes it, see
+   :func:`static_reflection`), or of this rotation only, or nothing (``BeamformParams.static_removal``);
+2. **vertical beamforming**: ``X_θ[n, i] = mean_v x[n, v, i] · exp(−j2π d_v / λ_i)``,
+   ``d_v = antenna_spacing · sin θ · (V − 1 − v)``;
+3. **azimuth synthesis**: beam ``b`` (facing ``φ_b = −2πb/N``) sums the ``N_syn`` chirps centred on it
+   (``N_syn`` odd, 90° of the rotation by default):
+   ``y[b, i] = Σ_{m=−h..h} X_θ[b+m, i] · w_c[m] · w_s[i] · exp(j4π r cos(mΔφ) cos θ / λ_i) · M[b, m, i]``
+   with ``Δφ = 2π/N``, Hann windows over chirps ``w_c`` and samples ``w_s``, and for a moving platform
+   ``M = exp(j2π · 2(b+m)·δs / λ_i)``, ``δs = δs0 · cos(φ_b − θ_v) · cos θ`` (``δs0`` the travel per
+   chirp, ``θ_v`` the heading counter-clockwise from beam 0); ``M = 1`` for a platform at rest.
+   Chirps beyond the rotation come from the neighbouring rotations when given, else the rotation
+   is padded circularly (PanoRadar's static case);
+4. **range FFT** over the samples and the magnitude. Range bin ``k`` is evaluated at frequency
+   ``k + 0.5`` (the samples are multiplied by ``exp(−jπ i / n_samples)`` first), so its centre is
+   ``(k + 0.5) · Δr`` as DESIGN §2 has it (PanoRadar's bins sit at ``k · Δr``).
+
+**Where ranges are measured from.** The azimuth term replaces each antenna's path by the path from
+the rotation axis (``r cos(h) cos θ`` is how much closer the antenna is to a far target in beam
+``b``), the vertical term refers the column to antenna ``V − 1``, and the motion term removes the
+platform's travel since chirp ``0`` (PanoRadar's ``b + m``: ``motion_reference="rotation_start"``,
+ranges from where the rotation centre was when the rotation started) or since the beam's own chirp
+(``motion_reference="beam"``, the default: only ``m`` in the motion term, ranges from where the
+centre was when beam ``b`` was formed — the per-column-time centre model holodata's ground truth
+traces with, :mod:`holodata.beams`). Either way the heatmap's ``range_origin`` is
+``"rotation_centre"`` (:data:`holodata.messages.RANGE_ORIGINS`), recorded by :func:`beamform_attrs`.
+The tests check it with point scatterers simulated at known ranges from the centre.
+
+**Columns.** Output column ``j`` (azimuth ``−2πj/W``) is beam ``b_j = round(j·N/W)`` (``"pick"``,
+the default: exact for ``N`` a multiple of ``W``, otherwise within half a chirp spacing), or a
+triangle-weighted mean of the magnitudes of the beams within ``N/W`` of it (``"triangle"``; the
+1024 → 512 resize of PanoRadar's ``process_raw_data.py`` is an antialiased resize of magnitudes).
+
+**How it is computed.** At rest the azimuth sum is a correlation along the chirp axis with a kernel
+that does not depend on ``b`` — circular for a padded-circular rotation — so it runs as FFTs over the
+chirp axis (vertical beamforming is done after that FFT: 8 instead of 64 transforms per sample). A
+moving platform makes the kernel depend on ``b`` through ``cos(φ_b − θ_v)``, so no convolution
+structure is left; that path is the direct sum over the window, vectorised over beams and samples,
+with the motion phase advanced by one complex multiplication per chirp (re-anchored exactly every
+64 chirps) and elevation rows with equal ``cos θ`` (``±θ`` of a symmetric grid) sharing the
+coefficients; beams are split across threads. ``device="cuda"`` (or any torch device) runs the same
+two formulations in torch. Arrays in, arrays out: no I/O here.
+"""
+from __future__ import annotations
+
+import math
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from .chirp import ChirpConfig
+
+WINDOWS = ("hann", "hamming", "blackman", "rect")
+STATIC_REMOVAL = ("trajectory", "rotation", "none")
+DECIMATION = ("pick", "triangle")
+MOTION_REFERENCES = ("beam", "rotation_start")
+RANGE_ORIGIN = "rotation_centre"
+_REANCHOR = 64
+
+
+def window(name: str, n: int) -> np.ndarray:
+    """(n,) float64 window: numpy's ``hanning`` (zero end points, as PanoRadar), ``hamming``,
+    ``blackman`` or ``rect`` (ones)."""
+    if name == "hann":
+        return np.hanning(n)
+    if name == "hamming":
+        return np.hamming(n)
+    if name == "blackman":
+        return np.blackman(n)
+    if name == "rect":
+        return np.ones(n)
+    raise ValueError(f"unknown window {name!r} (have {', '.join(WINDOWS)})")
+
+
+@dataclass(frozen=True)
+class BeamformParams:
+    """Imaging parameters. Angles in degrees here (they are attributes and flags); radians inside.
+
+    ``n_syn``: chirps per beam (odd); ``None`` → PanoRadar's ``int(fov/360 · N)`` made odd, from
+    ``azimuth_fov_deg`` and the rotation's chirp count ``N`` (257 for 1024 chirps and 90°).
+    ``n_range``: range bins kept (the first ``n_range`` of the ``n_samples``-point FFT; ``None`` → all).
+    """
+
+    n_elevation: int = 64
+    n_azimuth: int = 512
+    elevation_max_deg: float = 45.0
+    elevation_min_deg: float = -45.0
+    azimuth_fov_deg: float = 90.0
+    n_syn: int | None = None
+    chirp_window: str = "hann"
+    sample_window: str = "hann"
+    n_range: int | None = None
+    static_removal: str = "trajectory"
+    azimuth_decimation: str = "pick"
+    motion_reference: str = "beam"
+
+    def __post_init__(self) -> None:
+        if self.n_elevation < 2 or self.n_azimuth < 1:
+            raise ValueError(f"beamform grid needs n_elevation >= 2 and n_azimuth >= 1, got "
+                             f"{self.n_elevation}x{self.n_azimuth}")
+        if not self.elevation_max_deg > self.elevation_min_deg:
+            raise ValueError(f"elevation max ({self.elevation_max_deg}) must exceed min ({self.elevation_min_deg})")
+        if not 0 < self.azimuth_fov_deg <= 360:
+            raise ValueError(f"azimuth_fov_deg must be in (0, 360], got {self.azimuth_fov_deg}")
+        if self.n_syn is not None and (self.n_syn < 1 or self.n_syn % 2 == 0):
+            raise ValueError(f"n_syn must be a positive odd number, got {self.n_syn}")
+        for name, ok in (("chirp_window", WINDOWS), ("sample_window", WINDOWS), ("static_removal", STATIC_REMOVAL),
+                         ("azimuth_decimation", DECIMATION), ("motion_reference", MOTION_REFERENCES)):
+            if getattr(self, name) not in ok:
+                raise ValueError(f"{name} must be one of {', '.join(ok)}, got {getattr(self, name)!r}")
+        if self.n_range is not None and self.n_range < 1:
+            raise ValueError(f"n_range must be >= 1, got {self.n_range}")
+
+    def syn_count(self, n_chirps: int) -> int:
+        """Chirps per beam for a rotation of ``n_chirps`` (odd, at most ``n_chirps``)."""
+        if self.n_syn is not None:
+            n = self.n_syn
+        else:
+            n = int(np.deg2rad(self.azimuth_fov_deg) / (2 * np.pi) * n_chirps)
+            n = n if n % 2 == 1 else n + 1
+        if n > n_chirps:
+            raise ValueError(f"n_syn {n} exceeds the rotation's {n_chirps} chirps")
+        return n
+
+    def elevations(self) -> np.ndarray:
+        """(H,) float64 radians, row 0 = max (DESIGN §2)."""
+        hi, lo = np.deg2rad(self.elevation_max_deg), np.deg2rad(self.elevation_min_deg)
+        return hi - np.arange(self.n_elevation) * (hi - lo) / (self.n_elevation - 1)
+
+    def to_attrs(self) -> dict:
+        return {k: v for k, v in asdict(self).items()}
+
+    @classmethod
+    def from_attrs(cls, attrs: dict) -> "BeamformParams":
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in attrs.items() if k in names})
+
+
+def beamform_attrs(chirp: ChirpConfig, params: BeamformParams, n_chirps: int | None = None, **extra) -> dict:
+    """Everything a dataset must say about how its heatmaps were made (scene attrs)."""
+    n = int(n_chirps or chirp.chirps_per_rotation)
+    return {"method": "rotating-array beamforming (PanoRadar panoradar_SP/radar_imaging_3d.py; HoloRadar app. A)",
+            "chirp": chirp.to_attrs(), "params": params.to_attrs(), "n_syn": params.syn_count(n),
+            "range_origin": RANGE_ORIGIN,
+            "range_resolution_m": chirp.range_resolution_m,
+            "range_bin_centre": "(k+0.5)*range_resolution_m (samples x exp(-j*pi*i/n_samples) before the FFT)",
+            "amplitude": "linear |sum|: mean over antennas, sums over chirps and samples with the windows, unnormalised",
+            "columns": "column j = beam round(j*N/W) (pick) or triangle mean of beams within N/W (triangle)",
+            **extra}
+
+
+# -- geometry pieces (numpy, float64) ------------------------------------------------------------------
+def vertical_weights(chirp: ChirpConfig, elev: np.ndarray) -> np.ndarray:
+    """(H, V, S) complex128: ``exp(−j2π d_v/λ_i) / V``, ``d_v = spacing · sin θ · (V−1−v)`` (step 2, the mean)."""
+    V = chirp.n_virtual
+    lam = chirp.wavelengths()
+    d = chirp.antenna_spacing_m * np.sin(elev)[:, None, None] * (V - 1 - np.arange(V))[None, :, None]
+    return np.exp(-2j * np.pi * d / lam[None, None, :]) / V
+
+
+def azimuth_kernel(chirp: ChirpConfig, params: BeamformParams, cos_el: np.ndarray, n_chirps: int) -> np.ndarray:
+    """(E, n_syn, S) complex128 for offsets ``m = −h..h``: ``w_c[m] · exp(j4π r cos(2πm/N) cos θ / λ_i)``
+    (the sample window is applied with the range FFT)."""
+    n_syn = params.syn_count(n_chirps)
+    h = (n_syn - 1) // 2
+    m = np.arange(-h, h + 1)
+    ante = chirp.rotation_radius_m * np.cos(2 * np.pi * m / n_chirps)
+    lam = chirp.wavelengths()
+    ph = 4 * np.pi * np.asarray(cos_el, float)[:, None, None] * ante[None, :, None] / lam[None, None, :]
+    return window(params.chirp_window, n_syn)[None, :, None] * np.exp(1j * ph)
+
+
+def range_weights(chirp: ChirpConfig, params: BeamformParams) -> np.ndarray:
+    """(S,) complex128: sample window × ``exp(−jπ i/S)`` (bin k evaluated at k + 0.5)."""
+    S = chirp.n_samples
+    return window(params.sample_window, S) * np.exp(-1j * np.pi * np.arange(S) / S)
+
+
+def beam_indices(n_chirps: int, n_azimuth: int) -> np.ndarray:
+    """(W,) int64: the beam (chirp position) nearest to each column's azimuth, ``round(j·N/W) mod N``."""
+    return np.floor(np.arange(n_azimuth) * n_chirps / n_azimuth + 0.5).astype(np.int64) % n_chirps
+
+
+def column_weights(n_chirps: int, params: BeamformParams) -> tuple[np.ndarray, np.ndarray]:
+    """(beams, weights): the beams to form and a (W, len(beams)) float64 matrix that maps their
+    magnitudes to the output columns (``pick``: one 1 per row)."""
+    W = params.n_azimuth
+    if params.azimuth_decimation == "pick":
+        b = beam_indices(n_chirps, W)
+        uniq, inv = np.unique(b, return_inverse=True)
+        M = np.zeros((W, uniq.size))
+        M[np.arange(W), inv] = 1.0
+        return uniq, M
+    s = max(n_chirps / W, 1.0)
+    centre = np.arange(W) * n_chirps / W
+    M = np.zeros((W, n_chirps))
+    lo = np.floor(centre - s).astype(int) + 1
+    for j in range(W):
+        for b in range(lo[j], int(np.ceil(centre[j] + s))):
+            wgt = 1.0 - abs(b - centre[j]) / s
+            if wgt > 0:
+                M[j, b % n_chirps] += wgt
+    M /= M.sum(axis=1, keepdims=True)
+    used = np.flatnonzero(M.any(axis=0))
+    return used, M[:, used]
+
+
+def static_reflection(chirps: np.ndarray) -> np.ndarray:
+    """(V, S) complex64: mean over the chirp axis of ``chirps`` (C, V, S) — PanoRadar's
+    ``static_refl``, taken over the whole trajectory. Accumulated in blocks (memory-mapped input)."""
+    acc = np.zeros(chirps.shape[1:], np.complex128)
+    step = 4096
+    for a in range(0, chirps.shape[0], step):
+        acc += np.asarray(chirps[a:a + step]).sum(axis=0, dtype=np.complex128)
+    return (acc / max(chirps.shape[0], 1)).astype(np.complex64)
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Platform motion during one rotation: travel per chirp ``ds0`` (m) and heading ``theta_v``
+    (rad, counter-clockwise from beam 0 = the radar frame's +x at the rotation's start)."""
+
+    ds0: float
+    theta_v: float
+
+    @classmethod
+    def from_velocity(cls, velocity, chirp_period_s: float) -> "Motion | None":
+        """From (vx, vy) m/s in the radar frame at the rotation start; None for a platform at rest."""
+        if velocity is None:
+            return None
+        vx, vy = (float(v) for v in np.asarray(velocity, float).reshape(-1)[:2])
+        speed = math.hypot(vx, vy)
+        if speed == 0.0:
+            return None
+        return cls(speed * float(chirp_period_s), math.atan2(vy, vx))
+
+
+# -- entry point ---------------------------------------------------------------------------------------
+def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: BeamformParams | None = None, *,
+             before: np.ndarray | None = None, after: np.ndarray | None = None, velocity=None,
+             chirp_period_s: float | None = None, static_refl: np.ndarray | None = None,
+             device: str = "cpu", threads: int | None = None) -> np.ndarray:
+    """Beamform one rotation. Returns (n_range, H, W) float32 linear amplitude.
+
+    ``rotation``: (N, V, S) complex, the N chirp frames of one rotation (chirp 0 faces +x);
+    ``before``/``after``: chirps of the previous/next rotation (at least ``n_syn//2`` each; the last
+    ones of ``before`` and the first of ``after`` are used), else circular padding;
+    ``velocity``: (vx, vy) m/s of the platform in the radar frame at the rotation start (None/0 → at
+    rest); ``chirp_period_s``: time between chirps (default ``chirp.chirp_period_s``);
+    ``static_refl``: (V, S) to subtract (``params.static_removal == "trajectory"``; see
+    :func:`static_reflection`); without it "trajectory" falls back to this rotation's mean.
+    ``device``: ``"cpu"`` (numpy/scipy) or a torch device (``"cuda"``, ``"cpu-torch"`` = torch on CPU).
+    """
+    chirp = chirp or ChirpConfig()
+    params = params or BeamformParams()
+    x = np.asarray(rotation)
+    V, S = chirp.n_virtual, chirp.n_samples
+    if x.ndim != 3 or x.shape[1:] != (V, S):
+        raise ValueError(f"rotation must be (chirps, {V}, {S}), got {x.shape}")
+    N = x.shape[0]
+    n_syn = params.syn_count(N)
+    h = (n_syn - 1) // 2
+    if params.n_range is not None and params.n_range > S:
+        raise ValueError(f"n_range {params.n_range} exceeds n_samples {S}")
+    # 1. static reflection
+    if params.static_removal == "none":
+        refl = None
+    elif params.static_removal == "trajectory" and static_refl is not None:
+        refl = np.asarray(static_refl, np.complex64).reshape(V, S)
+    else:
+        refl = static_reflection(x)
+    # padding: neighbours or circular
+    circular = before is None or after is None
+    if circular:
+        xp, off = x, 0
+    else:
+        before, after = np.asarray(before), np.asarray(after)
+        for name, a in (("before", before), ("after", after)):
+            if a.ndim != 3 or a.shape[1:] != (V, S) or a.shape[0] < h:
+                raise ValueError(f"{name} must be (>= {h}, {V}, {S}) chirps, got {a.shape}")
+        xp = np.concatenate([before[before.shape[0] - h:], x, after[:h]], axis=0) if h else x
+        off = h
+    xp = xp.astype(np.complex64, copy=False)
+    if refl is not None:
+        xp = xp - refl[None]
+    motion = Motion.from_velocity(velocity, chirp_period_s or chirp.chirp_period_s)
+    if device != "cpu":
+        from .beamform_torch import beamform_torch
+
+        return beamform_torch(xp, off, circular, N, chirp, params, motion, device)
+    threads = threads or min(os.cpu_count() or 1, 8)
+    if motion is None:
+        return _static_numpy(xp, off, circular, N, chirp, params, threads)
+    if circular and h:
+        xp = np.concatenate([xp[N - h:], xp, xp[:h]], axis=0)
+        off = h
+    return _motion_numpy(xp, off, N, chirp, params, motion, threads)
+
+
+beamform_rotation = beamform
+
+
+# -- static: FFT over the chirp axis -------------------------------------------------------------------
+_KCACHE: dict = {}
+
+
+def _kernel_spectrum(chirp, params, N, Lf, elev, threads=1):
+    """(S, Lf, H) complex64: FFT over the chirp axis of the circularly placed kernel g[(−m) mod Lf] = K[m]."""
+    key = (chirp, params, N, Lf)
+    if key not in _KCACHE:
+        import scipy.fft as sfft
+
+        K = azimuth_kernel(chirp, params, np.cos(elev), N).astype(np.complex64)   # (H, n_syn, S)
+        H, n_syn, S = K.shape
+        h = (n_syn - 1) // 2
+        g = np.zeros((S, Lf, H), np.complex64)
+        g[:, (-np.arange(-h, h + 1)) % Lf, :] = K.transpose(2, 1, 0)
+        out = sfft.fft(g, axis=1, workers=threads, overwrite_x=True)
+        if len(_KCACHE) >= 2:
+            _KCACHE.pop(next(iter(_KCACHE)))
+        _KCACHE[key] = out
+    return _KCACHE[key]
+
+
+def _fold(beams: np.ndarray, off: int, Lf: int) -> int:
+    """Decimation factor q when the beams are exactly every q-th output of the chirp-axis IFFT
+    (then the spectrum is folded q times and a length-Lf/q IFFT gives just those beams), else 1."""
+    nb = beams.size
+    if nb < 2 or off != 0:
+        return 1
+    q = int(beams[1] - beams[0])
+    if q > 1 and Lf % q == 0 and nb == Lf // q and np.array_equal(beams, q * np.arange(nb)):
+        return q
+    return 1
+
+
+def _static_numpy(xp, off, circular, N, chirp, params, threads):
+    import scipy.fft as sfft
+
+    S = chirp.n_samples
+    R = params.n_range or S
+    elev = params.elevations()
+    H = elev.size
+    L = xp.shape[0]
+    Lf = N if circular else sfft.next_fast_len(L)
+    beams, cw = column_weights(N, params)
+    q = _fold(beams, off, Lf)
+    Kf = _kernel_spectrum(chirp, params, N, Lf, elev, threads)        # (S, Lf, H)
+    # vertical weights with the range weights folded in (both are per-sample factors)
+    vw = (vertical_weights(chirp, elev) * range_weights(chirp, params)[None, None, :]).transpose(2, 1, 0)
+    vw = np.ascontiguousarray(vw.astype(np.complex64))                 # (S, V, H)
+    xf = sfft.fft(xp, n=Lf, axis=0, workers=threads)                  # (Lf, V, S)
+    xf = np.ascontiguousarray(xf.transpose(2, 0, 1))                   # (S, Lf, V)
+    mag = np.empty((R, H, beams.size), np.float32)
+    parts = [p for p in np.array_split(np.arange(S), threads) if p.size]
+    blk = 16
+    with _blas_single(), ThreadPoolExecutor(max_workers=len(parts)) as pool:
+        for a in range(0, H, blk):
+            sl = slice(a, min(a + blk, H))
+            hb = sl.stop - sl.start
+            y = np.empty((S, beams.size, hb), np.complex64)
+
+            def part(ss):
+                s0, s1 = int(ss[0]), int(ss[-1]) + 1
+                Y = np.matmul(xf[s0:s1], vw[s0:s1, :, sl])             # vertical beamforming
+                Y *= Kf[s0:s1, :, sl]                                  # × azimuth kernel: correlation over chirps
+                if q > 1:                                              # only every q-th beam: fold the spectrum
+                    Y = Y.reshape(s1 - s0, q, Lf // q, hb).sum(axis=1) * np.float32(1.0 / q)
+                    y[s0:s1] = sfft.ifft(Y, axis=1, overwrite_x=True)
+                else:
+                    y[s0:s1] = sfft.ifft(Y, axis=1, overwrite_x=True)[:, off + beams, :]
+
+            list(pool.map(part, parts))
+            z = sfft.fft(y, axis=0, workers=threads, overwrite_x=True)[:R]  # (R, nb, hb) range FFT
+            mag[:, sl, :] = np.abs(z).transpose(0, 2, 1)
+    return _to_columns(mag, cw)
+
+
+def _blas_single():
+    """BLAS limited to one thread while we thread over samples ourselves (OpenBLAS's own threads on
+    the many small (Lf × V) @ (V × H) products cost more than they give)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scipy's usual installs
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(1, user_api="blas")
+
+
+def _to_columns(mag: np.ndarray, cw: np.ndarray) -> np.ndarray:
+    """(R, H, nb) magnitudes of the formed beams → (R, H, W) float32 columns."""
+    if cw.shape[0] == cw.shape[1] and np.array_equal(cw, np.eye(cw.shape[0])):
+        return np.ascontiguousarray(mag, np.float32)
+    if np.all((cw == 0) | (cw == 1)) and np.all(cw.sum(1) == 1):
+        return np.ascontiguousarray(mag[:, :, cw.argmax(1)], np.float32)
+    return np.ascontiguousarray(mag @ cw.T.astype(np.float32), np.float32)
+
+
+# -- moving platform: direct sum -----------------------------------------------------------------------
+def motion_phase_rate(chirp, params, motion: Motion, cos_el: float, beams: np.ndarray, N: int) -> np.ndarray:
+    """(nb, S) float64: ``4π δs / λ_i`` per chirp of offset, ``δs = δs0 cos(φ_b − θ_v) cos θ``."""
+    phi = -2 * np.pi * beams / N
+    ds = motion.ds0 * np.cos(phi - motion.theta_v) * cos_el
+    return 4 * np.pi * ds[:, None] / chirp.wavelengths()[None, :]
+
+
+def _vertical(xp: np.ndarray, vw: np.ndarray, threads: int) -> np.ndarray:
+    """(H, L, S) complex64 vertical beamforming of chirps ``xp`` (L, V, S) with weights ``vw`` (S, V, H):
+    one small matrix product per sample, spread over threads with single-threaded BLAS."""
+    L, V, S = xp.shape
+    H = vw.shape[2]
+    xt = np.ascontiguousarray(xp.transpose(2, 0, 1))                                # (S, L, V)
+    out = np.empty((H, L, S), np.complex64)
+    parts = [p for p in np.array_split(np.arange(S), threads) if p.size]
+
+    def part(ss):
+        s0, s1 = int(ss[0]), int(ss[-1]) + 1
+        out[:, :, s0:s1] = np.matmul(xt[s0:s1], vw[s0:s1]).transpose(2, 1, 0)
+
+    with _blas_single(), ThreadPoolExecutor(max_workers=len(parts)) as pool:
+        list(pool.map(part, parts))
+    return out
+
+
+def _cis(phase: np.ndarray) -> np.ndarray:
+    """complex64 exp(j·phase): the phase reduced modulo 2π in float64, cos/sin in float32."""
+    ph = np.mod(phase, 2 * np.pi).astype(np.float32)
+    out = np.empty(ph.shape, np.complex64)
+    np.cos(ph, out=out.real)
+    np.sin(ph, out=out.imag)
+    return out
+
+
+_AKCACHE: dict = {}
+
+
+def _azimuth_kernel64(chirp, params, N):
+    key = (chirp, params, N)
+    if key not in _AKCACHE:
+        if len(_AKCACHE) >= 2:
+            _AKCACHE.pop(next(iter(_AKCACHE)))
+        _AKCACHE[key] = azimuth_kernel(chirp, params, np.cos(params.elevations()), N).astype(np.complex64)
+    return _AKCACHE[key]
+
+
+def _elevation_groups(elev: np.ndarray) -> list[list[int]]:
+    """Rows with the same cos θ (±θ of a symmetric grid) share every coefficient but the data."""
+    groups: dict = {}
+    for r, e in enumerate(elev):
+        groups.setdefault(round(float(np.cos(e)), 12), []).append(r)
+    return list(groups.values())
+
+
+def _motion_numpy(xp, off, N, chirp, params, motion, threads):
+    import scipy.fft as sfft
+
+    S = chirp.n_samples
+    R = params.n_range or S
+    elev = params.elevations()
+    H = elev.size
+    n_syn = params.syn_count(N)
+    h = (n_syn - 1) // 2
+    beams, cw = column_weights(N, params)
+    nb = beams.size
+    vw = vertical_weights(chirp, elev).transpose(2, 1, 0).astype(np.complex64)   # (S, V, H)
+    rw = range_weights(chirp, params).astype(np.complex64)
+    # vertical beamforming of every padded chirp: (H, L, S)
+    X = _vertical(xp, vw, threads)                                                # (H, L, S)
+    K = _azimuth_kernel64(chirp, params, N)                                       # (H, n_syn, S)
+    wc = window(params.chirp_window, n_syn)
+    step = int(beams[1] - beams[0]) if nb > 1 else 1
+    uniform = nb == 1 or np.array_equal(beams, beams[0] + step * np.arange(nb))
+    chunks = np.array_split(np.arange(nb), max(1, min(threads, nb)))
+    mag = np.empty((R, H, nb), np.float32)
+
+    def work(rows, gam, sel):
+        b = beams[sel]
+        acc = [np.zeros((sel.size, S), np.complex64) for _ in rows]
+        T = np.empty((sel.size, S), np.complex64)
+        U = np.empty_like(T)
+        Q = _cis(gam)
+        E = None
+        for t, m in enumerate(range(-h, h + 1)):
+            if t % _REANCHOR == 0 or E is None:
+                E = _cis(gam * m)
+            if wc[t] != 0:
+                np.multiply(E, K[rows[0], t][None, :], out=T)
+                for a, r in zip(acc, rows):
+                    if uniform:
+                        s0 = off + int(b[0]) + m
+                        src = X[r, s0:s0 + step * (sel.size - 1) + 1:step]
+                    else:
+                        src = X[r, off + b + m]
+                    np.multiply(src, T, out=U)
+                    a += U
+            E *= Q
+        if params.motion_reference == "rotation_start":
+            post = np.exp(1j * gam * b[:, None]).astype(np.complex64)
+            for a in acc:
+                a *= post
+        return [sfft.fft(a * rw[None, :], axis=1)[:, :R] for a in acc]
+
+    with ThreadPoolExecutor(max_workers=len(chunks)) as pool:
+        for rows in _elevation_groups(elev):
+            ce = float(np.cos(elev[rows[0]]))
+            gam_all = motion_phase_rate(chirp, params, motion, ce, beams, N)
+            futs = [pool.submit(work, rows, gam_all[sel], sel) for sel in chunks]
+            for sel, f in zip(chunks, futs):
+                for r, z in zip(rows, f.result()):
+                    mag[:, r, sel[0]:sel[-1] + 1] = np.abs(z).T
+    return _to_columns(mag, cw)
