@@ -31,7 +31,9 @@ def recording(tmp_path_factory) -> Path:
 
 def _ingest_interrupted(rec: Path, url: Path, delay_s: float) -> int:
     p = subprocess.Popen(HOLODATA + ["ingest", str(rec), "--out", str(url), "--scene-id", "c", "--quiet"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+                         # a test run started in the background (CI) inherits SIGINT ignored: undo that
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(delay_s)
     p.send_signal(signal.SIGINT)
     _, err = p.communicate(timeout=120)
