@@ -22,7 +22,7 @@ import math
 import os
 import shutil
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +32,7 @@ from holodata.conventions import Grid
 from holodata.errors import InputError
 from holodata.progress import track
 
+from .train import check_fields
 from .stage2 import (CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig,
                      VoxelRefiner, lookup, ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
 
@@ -86,10 +87,7 @@ class Stage2Config:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "stage-two config") -> "Stage2Config":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise InputError(f"{source}: unknown stage-two option(s): {', '.join(unknown)}")
+        check_fields(cls, data, source, "stage-two")
         d = dict(data)
         if "refine_channels" in d:
             d["refine_channels"] = tuple(d["refine_channels"])

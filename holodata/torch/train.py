@@ -29,6 +29,13 @@ CHECKPOINT = "checkpoint.pt"
 METRICS_LOG = "metrics.jsonl"
 
 
+def check_fields(cls, data: dict, source: str, what: str) -> None:
+    """InputError naming ``source`` when ``data`` has keys that are not fields of dataclass ``cls``."""
+    unknown = sorted(set(data) - {f.name for f in fields(cls)})
+    if unknown:
+        raise InputError(f"{source}: unknown {what} option(s): {', '.join(unknown)}")
+
+
 @dataclass
 class TrainConfig:
     """Training settings. Model: depth (UNet levels; paper 7), base_channels, max_channels, blocks.
@@ -76,10 +83,7 @@ class TrainConfig:
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "config") -> "TrainConfig":
-        names = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - names)
-        if unknown:
-            raise InputError(f"{source}: unknown training option(s): {', '.join(unknown)}")
+        check_fields(cls, data, source, "training")
         return cls(**data)
 
     def to_dict(self) -> dict:
