@@ -4,7 +4,7 @@ evaluate: model = refined, model_no_refine, model_analytic, baseline, oracle_sta
 (NLOS breakdown of the refined model by corner shape, width and attenuation).
 
     .venv/bin/python benchmarks/nlos.py [--out DIR] [--device cpu|cuda] [--paper]
-        [--grid 32x128] [--frames 16] [--corners 6] [--epochs 20] [--rt-epochs 12] [--refine-epochs 10]
+        [--grid 32x128] [--frames 16] [--corners 6] [--epochs 60] [--rt-epochs 12] [--refine-epochs 10]
 
 The default size trains on a 2-core CPU in under 45 minutes; ``--paper`` (with ``--device
 cuda``) is the paper-size run: 64×512 beams, 8 corners × 40 frames, 30 + 30 + 30 epochs.
@@ -82,7 +82,7 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", default=None, help="beam grid HxW (default 32x128; --paper 64x512)")
     ap.add_argument("--frames", type=int, default=None, help="radar frames per corner (default 16; --paper 40)")
     ap.add_argument("--corners", type=int, default=None, help="corners (the last 1 (2 with --paper) are the test split)")
-    ap.add_argument("--epochs", type=int, default=None, help="stage-one epochs (default 20; --paper 30)")
+    ap.add_argument("--epochs", type=int, default=None, help="stage-one epochs (default 60; --paper 30)")
     ap.add_argument("--rt-epochs", type=int, default=None, help="stage-two ray-tracer epochs (default 12; --paper 30)")
     ap.add_argument("--refine-epochs", type=int, default=None, help="stage-two refiner epochs (default 10; --paper 30)")
     ap.add_argument("--channels", type=int, default=None, help="hybrid-block channels (default 16; --paper 32)")
@@ -97,13 +97,10 @@ def main(argv=None) -> int:
     grid = Grid.parse(pick(a.grid, "32x128", "64x512"))
     n_corners = pick(a.corners, 6, 8)
     over = {"corners": DEMO_CORNERS[:n_corners], "n_test": 2 if a.paper else 1, "frames": pick(a.frames, 16, 40),
-            "grid": grid, "epochs": pick(a.epochs, 20, 30)}
-    if "mapping_pass" in base.__dict__:
-        over["mapping_pass"] = False  # mapping comes from the recordings' truth: no LiDAR mapping drive needed
+            "grid": grid, "epochs": pick(a.epochs, 60, 30),
+            "mapping_pass": False}  # mapping comes from the recordings' truth: no LiDAR mapping drive needed
     s2 = Stage2Config(epochs_rt=pick(a.rt_epochs, 12, 30), epochs_refine=pick(a.refine_epochs, 10, 30),
                       channels=pick(a.channels, 16, 32), device=a.device)
-    if "stage2" in base.__dict__:
-        over["stage2"] = s2.to_dict()  # run_demo trains stage two after stage one
     cfg = base.__class__(**{**base.__dict__, **over})
     print(f"corners {', '.join(f'{k}_{s}' for k, s in cfg.corners)} (test: the last {cfg.n_test}); "
           f"{cfg.frames} frames each; grid {grid.H}x{grid.W}; stage one {cfg.epochs} epochs (depth {cfg.depth}); "
@@ -113,12 +110,9 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     res = run_demo(out, mapping="truth", quiet=True, config=cfg, log=lambda m: print("  " + m, flush=True))
     t1 = time.perf_counter()
-    doc = res.metrics  # the demo's evaluate, every row when it trained stage two
-    if cfg.__dict__.get("stage2") is None:  # a demo that does not train stage two itself
-        train_stage2(res.dataset, res.run_dir, s2, quiet=True)
+    train_stage2(res.dataset, res.run_dir, s2, quiet=True)
     t2 = time.perf_counter()
-    if cfg.__dict__.get("stage2") is None:
-        doc = evaluate(str(res.dataset), res.run_dir, out / "report_nlos", split="test", device=a.device, quiet=True)
+    doc = evaluate(str(res.dataset), res.run_dir, out / "report_nlos", split="test", device=a.device, quiet=True)
     t3 = time.perf_counter()
     print(f"  stage two (outside the demo) {t2 - t1:6.1f} s; evaluate {t3 - t2:6.1f} s   (total {t3 - t0:.0f} s)\n")
     print_tables(doc)

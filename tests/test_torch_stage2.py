@@ -15,9 +15,9 @@ from holodata.evaluate.unmirror import normals_from_range, unmirror  # noqa: E40
 from holodata.torch.stage2 import (  # noqa: E402
     RayTracer, RayTracerConfig, RefinerConfig, SparseConv3, VoxelEncoder, VoxelRefiner, geometry_vector,
     local_frame, mirror_normals, neighbour_table, normals_from_range_t, ray_trace, refine_loss, reflect,
-    to_local, voxelize,
+    to_local, voxel_point_mean, voxelize,
 )
-from holodata.torch.stage2_train import Stage2Config, fit_stage2, load_frames, load_stage2, refine_targets  # noqa: E402
+from holodata.torch.stage2_train import KEEP_CANDIDATES, Stage2Config, fit_stage2, load_frames, load_stage2, refine_targets  # noqa: E402
 
 G = Grid(16, 64)
 
@@ -131,18 +131,42 @@ def test_refine_targets_and_loss():
     gt = [np.array([[0.05, 0.05, 0.05], [0.07, 0.03, 0.05], [0.55, 0.05, 0.05]])]
     hum = [np.array([False, False, True])]
     coords = torch.tensor([[0, 0, 0, 0], [0, 5, 0, 0], [0, 3, 0, 0]])
-    los = [np.array([True, False, False])]
-    cls, reg, edt, los_t = refine_targets(coords, gt, hum, 0.1, 8.0, los)
-    assert cls.tolist() == [2, 1, 0] and los_t.tolist() == [0.5, 0.0, 0.0]
+    cls, reg, edt = refine_targets(coords, gt, hum, 0.1, 8.0)
+    assert cls.tolist() == [2, 1, 0]
     torch.testing.assert_close(reg[0], torch.tensor([0.01, -0.01, 0.0]), atol=1e-6, rtol=0)
     assert edt.tolist() == [0.0, 0.0, 2.0]
+    # the EDT term against scipy's distance transform of the GT occupancy
+    from scipy.ndimage import distance_transform_edt
+
+    rng = np.random.default_rng(1)
+    occ = rng.random((20, 20, 6)) < 0.02
+    gpts = (np.argwhere(occ) + 0.5) * 0.1
+    q = np.argwhere(np.ones_like(occ))
+    _, _, e = refine_targets(torch.from_numpy(np.c_[np.zeros(len(q), int), q]), [gpts], [np.zeros(len(gpts), bool)],
+                             0.1, 3.0)
+    want = np.minimum(distance_transform_edt(~occ), 3.0)[q[:, 0], q[:, 1], q[:, 2]]
+    np.testing.assert_allclose(e.numpy(), want, atol=1e-5)
     ref = VoxelRefiner(RefinerConfig(channels=(8, 8), voxel=0.1))
     pts = torch.tensor(gt[0]).float()
     vox = voxelize(pts, torch.zeros(3, dtype=torch.long), torch.zeros(3, dtype=torch.long), torch.zeros(3), 0.1, 9.6)
     out = ref(vox)
-    c, r, e, lt = refine_targets(vox.coords, gt, hum, 0.1, 8.0, los)
-    loss, parts = refine_loss(out, c, r, e, los_target=lt)
-    assert set(parts) == {"cls", "reg", "dist", "los"} and torch.isfinite(loss)
+    c, r, e = refine_targets(vox.coords, gt, hum, 0.1, 8.0)
+    loss, parts = refine_loss(out, c, r, e)
+    assert set(parts) == {"cls", "reg", "dist"} and torch.isfinite(loss)
+
+
+def test_refined_voxels_inherit_los_and_human_from_their_points():
+    """Two points share voxel 0 (one LOS, one not; human 0.9 / 0.3), one point alone in voxel 1:
+    the voxel means are what Stage2.predict thresholds at 0.5."""
+    pts = torch.tensor([[0.01, 0.01, 0.01], [0.02, 0.02, 0.02], [0.51, 0.01, 0.01]])
+    z = torch.zeros(3, dtype=torch.long)
+    los = torch.tensor([1.0, 0.0, 0.0])
+    hum = torch.tensor([0.9, 0.3, 0.8])
+    vox = voxelize(pts, z, z, hum, 0.1, 9.6, los=los)
+    first = vox.point_voxel[0]
+    torch.testing.assert_close(voxel_point_mean(vox, los)[first], torch.tensor(0.5))
+    torch.testing.assert_close(voxel_point_mean(vox, hum)[vox.point_voxel[2]], torch.tensor(0.8))
+    torch.testing.assert_close(voxel_point_mean(vox, hum)[first], torch.tensor(0.6))
 
 
 @pytest.fixture(scope="module")
@@ -167,10 +191,16 @@ def test_tiny_training_run_decreases_loss_and_resumes(dataset, tmp_path):
     fr = frames
     p = s2.predict(fr.range[0], None, fr.directions[0], fr.origins[0], grid)
     assert p["no_refine"]["point"].shape == fr.gt_point[0].shape and p["refined"]["point"].shape[1] == 3
+    # the keep threshold was calibrated on the training frames and is what predict applies
+    keep = ck["keep"]
+    assert set(keep["scores"]) == set(KEEP_CANDIDATES) and keep["scores"][keep["threshold"]] == max(keep["scores"].values())
+    assert s2.keep_threshold == keep["threshold"]
+    allv = s2.predict(fr.range[0], None, fr.directions[0], fr.origins[0], grid, all_voxels=True)["refined"]
+    assert len(p["refined"]["point"]) == int((allv["p_empty"] < keep["threshold"]).sum())
     # resume: the same config with more refiner epochs continues after epoch 5
     res2 = fit_stage2(frames, tmp_path / "run", Stage2Config(epochs_rt=3, epochs_refine=3, **TINY2), 9.6, grid,
                       quiet=True)
-    assert res2["resumed_from"] == 5 and len(res2["history"]) == 6
+    assert res2["resumed_from"] == 5 and len(res2["history"]) == 6 and res2["keep"] is not None
     lines = (tmp_path / "run" / "stage2_metrics.jsonl").read_text().splitlines()
     assert [json.loads(x)["epoch"] for x in lines] == list(range(1, 7))
 

@@ -323,7 +323,8 @@ def _stage2_settings(ck2) -> str:
     c = ck2["stage2_config"]
     refined = ck2["epoch"] > c["epochs_rt"]
     return (f"learned: hybrid ray tracer ({c['epochs_rt']} epochs)"
-            + (f" + voxel refiner ({ck2['epoch'] - c['epochs_rt']} epochs, {c['voxel'] * 100:.0f} cm voxels)" if refined else ""))
+            + (f" + voxel refiner ({ck2['epoch'] - c['epochs_rt']} epochs, {c['voxel'] * 100:.0f} cm voxels, "
+               f"kept where P(empty) < {(ck2.get('keep') or {}).get('threshold', 0.5):g})" if refined else ""))
 
 
 def _sample(e: np.ndarray) -> np.ndarray:

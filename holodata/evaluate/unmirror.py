@@ -110,26 +110,38 @@ def unmirror(ranges, directions, normals=None, grid: Grid | None = None, origins
     return {"point": pts, "normal": nrm, "direction": dirs}
 
 
-def los_mask(points, first_range, grid: Grid, tolerance: float = 0.15, origins=None) -> np.ndarray:
+def los_mask(points, first_range, grid: Grid, tolerance: float = 0.10, origins=None) -> np.ndarray:
     """(B,H,W) bool: True where point b of a beam is visible in the first-bounce range image
-    ``first_range`` (H,W): the pixel looking at it has R_1 missing or ≥ its distance − tolerance.
-    The pixel is found from the point's direction seen from the radar frame's origin; with beam
-    ``origins`` (H,W,3) the distance is then measured from that pixel's origin. Bounce-1 points
-    are LOS by definition. Missing points are False."""
+    ``first_range`` (H,W) m, i.e. the first bounce shows free space up to it.
+
+    A point's direction, seen from the radar frame's origin, falls between four pixels of the
+    grid; it is visible when any of them has R_1 missing or ≥ its distance (from that pixel's
+    beam origin, ``origins`` (H,W,3), else 0) − ``tolerance`` m. All four, not the nearest one:
+    a pixel's beam is the centre of a footprint ~(180°/H) wide, and a floor or wall point seen at
+    grazing incidence lies well before or beyond where the nearest beam's centre meets that
+    surface. Points outside the elevation field of view are visible (the first bounce says
+    nothing there, as with a missing R_1); the ground truth's label is geometric visibility from
+    the beam origin with no field of view (:mod:`holodata.raytrace.trace`). Bounce-1 points are
+    LOS by definition; missing points are False."""
     P = np.asarray(points, dtype=np.float64)
     R1 = np.asarray(first_range, dtype=np.float64)
-    r = np.linalg.norm(P, axis=-1)
-    th = np.arcsin(np.clip(P[..., 2] / np.where(r > 0, r, 1), -1, 1))
+    r0 = np.linalg.norm(P, axis=-1)
+    ok = np.isfinite(r0)
+    th = np.arcsin(np.clip(P[..., 2] / np.where(r0 > 0, r0, 1), -1, 1))
     ph = np.arctan2(P[..., 1], P[..., 0])
     hi, lo = np.deg2rad(grid.elev_max_deg), np.deg2rad(grid.elev_min_deg)
-    row = np.rint((hi - th) / (hi - lo) * (grid.H - 1))
-    col = np.rint(-ph / (2 * np.pi) * grid.W) % grid.W
-    ok = np.isfinite(r)
-    row = np.clip(np.where(ok, row, 0), 0, grid.H - 1).astype(int)
-    col = np.where(ok, col, 0).astype(int)
-    r1 = R1[row, col]
-    if origins is not None:
-        r = np.linalg.norm(P - np.asarray(origins, np.float64)[row, col], axis=-1)
-    vis = ok & (~np.isfinite(r1) | (r1 >= r - tolerance))
+    rowf = np.where(ok, (hi - th) / (hi - lo) * (grid.H - 1), 0.0)
+    colf = np.where(ok, -ph / (2 * np.pi) * grid.W, 0.0)
+    org = None if origins is None else np.asarray(origins, np.float64)
+    vis = (rowf < -0.5) | (rowf > grid.H - 0.5)  # outside the field of view
+    r0i, c0i = np.floor(rowf).astype(int), np.floor(colf).astype(int)
+    for dr in (0, 1):
+        row = np.clip(r0i + dr, 0, grid.H - 1)
+        for dc in (0, 1):
+            col = (c0i + dc) % grid.W
+            r1 = R1[row, col]
+            r = r0 if org is None else np.linalg.norm(P - org[row, col], axis=-1)
+            vis |= ~np.isfinite(r1) | (r1 >= r - tolerance)
+    vis &= ok
     vis[0] = ok[0]
     return vis

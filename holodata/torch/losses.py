@@ -20,6 +20,7 @@ class LossWeights:
     gradient: float = 0.5
     valid: float = 0.2
     human: float = 0.2
+    human_pos_weight: float = 10.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -50,7 +51,12 @@ def masked_gradient_loss(pred: torch.Tensor, gt: torch.Tensor) -> torch.Tensor:
 def multi_return_loss(out: dict, gt_range: torch.Tensor, gt_label: torch.Tensor | None = None,
                       w: LossWeights = LossWeights()) -> tuple[torch.Tensor, dict]:
     """Total loss and its parts. out: model dict (range, valid_logit, human_logit, each (B,3,H,W));
-    gt_range (B,3,H,W) metres NaN = none; gt_label (B,3,H,W) uint8 (3/4 = human) or None."""
+    gt_range (B,3,H,W) metres NaN = none; gt_label (B,3,H,W) uint8 (3/4 = human) or None.
+
+    The human term is BCE over the pixels with a return, human pixels weighted by
+    ``w.human_pos_weight``: a hidden person is a few dozen of ~10⁴ returns, so unweighted BCE is
+    minimised by never saying "human" (its probability then stays far below 0.5 everywhere).
+    With weight w the head says human (p ≥ 0.5) where the odds of a human are ≥ 1/w."""
     parts = {
         "l1": masked_l1(out["range"], gt_range),
         "grad": masked_gradient_loss(out["range"], gt_range),
@@ -61,6 +67,7 @@ def multi_return_loss(out: dict, gt_range: torch.Tensor, gt_label: torch.Tensor 
         m = torch.isfinite(gt_range)
         if m.any():
             human = ((gt_label == 3) | (gt_label == 4)).float()
-            parts["human"] = F.binary_cross_entropy_with_logits(out["human_logit"][m], human[m])
+            pw = torch.tensor(float(w.human_pos_weight), device=human.device)
+            parts["human"] = F.binary_cross_entropy_with_logits(out["human_logit"][m], human[m], pos_weight=pw)
             total = total + w.human * parts["human"]
     return total, {k: float(v.detach()) for k, v in parts.items()}

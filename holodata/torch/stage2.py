@@ -17,6 +17,8 @@ Shapes: ``R`` (N,3,H,W) accumulated travel distance per bounce (NaN = none), ``o
 * :class:`VoxelRefiner` — volumetric refinement: per-point features → voxel encoder (mean per
   voxel) → sparse 3-D UNet (scatter/gather convolutions on the occupied voxels, plain torch) →
   per-voxel class (empty / human / structure) + offset; loss eq. 7 with the EDT distance term.
+  A refined voxel's LOS flag and human probability are the means over its input points
+  (:func:`voxel_point_mean`): LOS is geometry (visible in the first-bounce image), not learned.
 
 Local beam frame: per pixel ``[d, e_φ, e_θ]`` with ``e_φ = normalize(ẑ × d)`` and
 ``e_θ = d × e_φ`` (the directions of increasing azimuth and elevation of a grid beam). The
@@ -464,6 +466,12 @@ def voxelize(points: torch.Tensor, batch: torch.Tensor, bounce: torch.Tensor, hu
     return Voxels(coords, inv, feat, voxel)
 
 
+def voxel_point_mean(vox: Voxels, values: torch.Tensor) -> torch.Tensor:
+    """(M,) mean of a per-point quantity (P,) over the input points of each voxel (e.g. the LOS
+    flag or the stage-one human probability: what the refined voxel inherits from its points)."""
+    return scatter_mean(values.to(vox.features.dtype)[:, None], vox.point_voxel, len(vox.coords))[:, 0]
+
+
 class VoxelEncoder(nn.Module):
     """Per-point MLP, then the mean over the points of each voxel (paper: "averaged to obtain the
     voxel feature when multiple points fall into the same voxel")."""
@@ -479,12 +487,9 @@ class VoxelEncoder(nn.Module):
 class VoxelRefiner(nn.Module):
     """Sparse 3-D UNet over the occupied voxels (submanifold convolutions; each coarser level is
     the set of parent voxels, features mean-pooled down and gathered back up with a skip
-    concatenation). Heads: class logits (empty, human, structure), offset (voxels, ±max_offset) and
-    a LOS logit (an addition to the paper, which reports LOS and NLOS clouds without saying how it
-    splits its volume).
+    concatenation). Heads: class logits (empty, human, structure) and offset (voxels, ±max_offset).
 
-    forward(Voxels) → dict cls_logit (M,3), los_logit (M,) (LOS vs NLOS of the voxel's surface),
-    offset (M,3) in metres, centre (M,3) metres, voxel (m)."""
+    forward(Voxels) → dict cls_logit (M,3), offset (M,3) in metres, centre (M,3) metres, voxel (m)."""
 
     def __init__(self, cfg: RefinerConfig | None = None):
         super().__init__()
@@ -500,7 +505,6 @@ class VoxelRefiner(nn.Module):
         self.dec = nn.ModuleList([nn.ModuleList([_SparseRes(ch[i]) for _ in range(self.cfg.blocks)])
                                   for i in range(len(ch) - 1)])
         self.cls = nn.Linear(ch[0], 3)
-        self.los = nn.Linear(ch[0], 1)
         self.reg = nn.Linear(ch[0], 3)
         nn.init.zeros_(self.reg.weight)
         nn.init.zeros_(self.reg.bias)
@@ -526,7 +530,7 @@ class VoxelRefiner(nn.Module):
                 x = blk(x, lv["nbr"])
         v = vox.voxel
         centre = (vox.coords[:, 1:].to(x.dtype) + 0.5) * v
-        return {"cls_logit": self.cls(x), "los_logit": self.los(x)[:, 0], "offset": torch.tanh(self.reg(x)) * self.cfg.max_offset * v,
+        return {"cls_logit": self.cls(x), "offset": torch.tanh(self.reg(x)) * self.cfg.max_offset * v,
                 "centre": centre, "voxel": v}
 
 
@@ -535,16 +539,14 @@ CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE = 0, 1, 2
 
 def refine_loss(out: dict, cls_target: torch.Tensor, reg_target: torch.Tensor, edt: torch.Tensor,
                 w_cls: float = 1.0, w_reg: float = 1.0, w_dist: float = 0.2,
-                class_weight: torch.Tensor | None = None, los_target: torch.Tensor | None = None,
-                w_los: float = 1.0) -> tuple[torch.Tensor, dict]:
+                class_weight: torch.Tensor | None = None) -> tuple[torch.Tensor, dict]:
     """Eq. 7: ``λ_cls CE(V̂_cls, V_cls) + λ_reg |V̂_reg − V_reg|_1 + λ_dist |V̂_cls ∗ EDT(V_cls)|_1``.
 
     cls_target (M,) long (0 empty, 1 human, 2 structure) per occupied input voxel; reg_target (M,3)
     metres (offset of the GT points' mean from the voxel centre; used where the class is not
     empty, divided by the voxel size); edt (M,) distance (voxels) from each voxel to the nearest GT
     occupied voxel. The distance term weights the predicted non-empty probability by that distance
-    (the volume V̂_cls read as P(non-empty)). ``los_target`` (M,) float (share of the voxel's GT
-    points that are LOS): BCE of the LOS logit over GT-occupied voxels, weight ``w_los``."""
+    (the volume V̂_cls read as P(non-empty))."""
     logit = out["cls_logit"]
     parts = {"cls": F.cross_entropy(logit, cls_target, weight=class_weight)}
     occ = cls_target != CLASS_EMPTY
@@ -556,8 +558,4 @@ def refine_loss(out: dict, cls_target: torch.Tensor, reg_target: torch.Tensor, e
     p_occ = 1.0 - torch.softmax(logit, -1)[:, CLASS_EMPTY]
     parts["dist"] = (p_occ * edt).mean()
     total = w_cls * parts["cls"] + w_reg * parts["reg"] + w_dist * parts["dist"]
-    if los_target is not None and "los_logit" in out:
-        parts["los"] = (F.binary_cross_entropy_with_logits(out["los_logit"][occ], los_target[occ]) if occ.any()
-                        else logit.sum() * 0.0)
-        total = total + w_los * parts["los"]
     return total, {k: float(v.detach()) for k, v in parts.items()}

@@ -34,7 +34,8 @@ from holodata.progress import track
 
 from .train import check_fields
 from .stage2 import (CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig,
-                     VoxelRefiner, lookup, ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
+                     VoxelRefiner, lookup, ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxel_point_mean,
+                     voxelize)
 
 STAGE2_CHECKPOINT = "stage2.pt"
 STAGE2_LOG = "stage2_metrics.jsonl"
@@ -47,10 +48,10 @@ class Stage2Config:
     each hybrid block; ``voxel`` (m), ``refine_channels`` (per UNet level), ``refine_blocks``.
     Augmentation: ``p_clean`` (share of GT-input samples left exact), ``noise_max_m`` (σ of the
     range noise drawn per frame in [0, noise_max_m]), ``dropout`` (share of pixels dropped), ``p_stage1`` (share of samples whose input is the
-    stage-one prediction, when a stage-one model is given), ``flip`` (random y-mirror).
+    stage-one prediction; default 0: ranges decimetres off teach the ray tracer to distrust exact
+    ones, docs/design/stage2.md), ``flip`` (random y-mirror).
     Loss: eq. 6 weights ``w_sn``, ``w_point`` (+ ``w_normal``), RT loss pixels only where
-    |R_in − R_gt| < ``input_gate_m``; eq. 7 weights ``w_cls``, ``w_reg``, ``w_dist`` (+ ``w_los``
-    for the LOS head), class weights
+    |R_in − R_gt| < ``input_gate_m``; eq. 7 weights ``w_cls``, ``w_reg``, ``w_dist``, class weights
     ``human_weight`` / ``empty_weight``, EDT clipped at ``edt_clip`` voxels."""
 
     epochs_rt: int = 20
@@ -69,7 +70,7 @@ class Stage2Config:
     refine_blocks: int = 1
     noise_max_m: float = 0.03
     dropout: float = 0.05
-    p_stage1: float = 0.3
+    p_stage1: float = 0.0
     flip: bool = True
     input_gate_m: float = 0.3
     w_sn: float = 1.0
@@ -78,7 +79,6 @@ class Stage2Config:
     w_cls: float = 1.0
     w_reg: float = 1.0
     w_dist: float = 0.2
-    w_los: float = 1.0
     p_clean: float = 0.3
     human_weight: float = 3.0
     empty_weight: float = 1.0
@@ -271,21 +271,18 @@ def make_batch(fr: Frames, idx, cfg: Stage2Config, rng: np.random.Generator | No
 # ----------------------------------------------------------------------------- refiner targets
 
 
-def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, voxel: float, edt_clip: float,
-                   gt_los: list | None = None):
+def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, voxel: float, edt_clip: float):
     """Targets of eq. 7 for the occupied input voxels (M,4) [batch, x, y, z]: class (M,) (empty /
     human / structure of the GT points in the voxel; human when any is human), offset (M,3) m of the
     GT points' mean from the voxel centre, EDT (M,) voxels to the nearest GT-occupied voxel
-    (scipy.ndimage.distance_transform_edt on the GT occupancy over the frame's bounding box,
-    clipped at ``edt_clip``), LOS share (M,) of the voxel's GT points (0 where none).
-    gt_points[j] (Q_j,3) / gt_human[j] (Q_j,) / gt_los[j] (Q_j,) bool per frame j."""
-    from scipy.ndimage import distance_transform_edt
+    clipped at ``edt_clip`` (the value scipy.ndimage.distance_transform_edt of the GT occupancy
+    takes at those voxels, from a k-d tree over the occupied ones). gt_points[j] (Q_j,3) / gt_human[j] (Q_j,) bool per frame j."""
+    from scipy.spatial import cKDTree
 
     M = len(vox_coords)
     cls = torch.zeros(M, dtype=torch.long)
     reg = torch.zeros(M, 3)
     edt = torch.full((M,), float(edt_clip))
-    los_t = torch.zeros(M)
     vc = vox_coords.cpu()
     for j, (P, hm) in enumerate(zip(gt_points, gt_human)):
         sel = torch.nonzero(vc[:, 0] == j).squeeze(1)
@@ -299,9 +296,6 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
         G = len(gcoords)
         gmean = torch.zeros(G, 3).index_add_(0, inv, P) / torch.zeros(G).index_add_(0, inv, torch.ones(len(P)))[:, None]
         ghum = torch.zeros(G).index_add_(0, inv, torch.from_numpy(hm.astype(np.float32))) > 0
-        gcount = torch.zeros(G).index_add_(0, inv, torch.ones(len(P)))
-        glos = (torch.zeros(G).index_add_(0, inv, torch.from_numpy(np.asarray(gt_los[j], np.float32))) / gcount
-                if gt_los is not None else torch.zeros(G))
         gk = voxel_keys(gcoords)
         sk, order = torch.sort(gk)
         hit = lookup(sk, order, voxel_keys(vc[sel]), -1)
@@ -310,22 +304,11 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
         cls[sel[ok]] = torch.where(ghum[h], CLASS_HUMAN, CLASS_STRUCTURE)
         centre = (vc[sel[ok], 1:].float() + 0.5) * voxel
         reg[sel[ok]] = gmean[h] - centre
-        los_t[sel[ok]] = glos[h]
-        # EDT over the GT voxels' bounding box grown by the clip distance (beyond it: ≥ clip)
-        c = int(math.ceil(edt_clip))
-        lo = gcoords[:, 1:].min(0).values - c
-        hi = gcoords[:, 1:].max(0).values + c
-        occ = np.zeros(tuple((hi - lo + 1).tolist()), bool)
-        g = (gcoords[:, 1:] - lo).numpy()
-        occ[g[:, 0], g[:, 1], g[:, 2]] = True
-        dist = distance_transform_edt(~occ)
-        q = vc[sel, 1:]
-        inside = ((q >= lo) & (q <= hi)).all(1)
-        qi = (q[inside] - lo).numpy()
-        e = torch.full((len(sel),), float(edt_clip))
-        e[inside] = torch.from_numpy(np.minimum(dist[qi[:, 0], qi[:, 1], qi[:, 2]], edt_clip)).float()
-        edt[sel] = e
-    return cls, reg, edt, los_t
+        # EDT: Euclidean distance (voxels) to the nearest GT-occupied voxel, clipped; a k-d tree over
+        # the occupied voxels gives exactly the distance transform's value at the queried voxels
+        dist, _ = cKDTree(gcoords[:, 1:].numpy()).query(vc[sel, 1:].numpy(), distance_upper_bound=edt_clip)
+        edt[sel] = torch.from_numpy(np.minimum(dist, edt_clip)).float()
+    return cls, reg, edt
 
 
 # ----------------------------------------------------------------------------- inference
@@ -333,31 +316,31 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
 
 def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: np.ndarray | None = None) -> np.ndarray:
     """(3,H,W) LOS flags of ray-traced points (3,H,W,3): visible in the first-bounce range image
-    (:func:`holodata.evaluate.unmirror.los_mask`, with the beams' origins where it takes them)."""
-    import inspect
-
+    (:func:`holodata.evaluate.unmirror.los_mask`, from the beams' origins (H,W,3) when given)."""
     from holodata.evaluate.unmirror import los_mask
 
-    P = np.asarray(points, np.float64)
-    if origins is None:
-        return los_mask(P, first_range, grid)
-    if "origins" in inspect.signature(los_mask).parameters:
-        return los_mask(P, first_range, grid, origins=np.asarray(origins, np.float64))
-    return los_mask(P - np.asarray(origins, np.float64).reshape(-1, 3).mean(0), first_range, grid)
+    return los_mask(np.asarray(points, np.float64), first_range, grid,
+                    origins=None if origins is None else np.asarray(origins, np.float64))
 
 
 class Stage2:
-    """A trained stage two: ``ray_tracer`` (RayTracer) and ``refiner`` (VoxelRefiner or None)."""
+    """A trained stage two: ``ray_tracer`` (RayTracer) and ``refiner`` (VoxelRefiner or None).
+    ``keep_threshold``: a refined voxel is kept when its P(empty) is below it (calibrated on the
+    training frames after training, :func:`calibrate_keep`; 0.5 = the arg-max class)."""
 
-    def __init__(self, ray_tracer: RayTracer, refiner: VoxelRefiner | None, device="cpu"):
+    def __init__(self, ray_tracer: RayTracer, refiner: VoxelRefiner | None, device="cpu", keep_threshold: float = 0.5):
         self.rt, self.refiner, self.device = ray_tracer.eval(), (refiner.eval() if refiner is not None else None), device
+        self.keep_threshold = float(keep_threshold)
 
     @torch.no_grad()
     def predict(self, R: np.ndarray, human: np.ndarray | None, directions: np.ndarray, origins: np.ndarray,
-                grid: Grid) -> dict:
+                grid: Grid, all_voxels: bool = False) -> dict:
         """One frame: R (3,H,W) m NaN = none, human (3,H,W) probability or None, directions/origins
         (H,W,3) → {"no_refine": {point (3,H,W,3), los (3,H,W), human (3,H,W)},
-        "refined": {point (M,3), los (M,), human (M,)} (None without a refiner)}."""
+        "refined": {point (M,3), los (M,), human (M,)} (None without a refiner)}. A refined voxel is
+        LOS when most of its input points are (:func:`los_flags`), human when its input points'
+        mean human probability is ≥ 0.5 or the refiner classes it human. ``all_voxels``: keep every
+        voxel and add ``p_empty`` (M,) (for :func:`calibrate_keep`)."""
         dev = self.device
         Rt = torch.from_numpy(np.asarray(R, np.float32))[None].to(dev)
         d = torch.from_numpy(np.asarray(directions, np.float32)).to(dev)
@@ -367,25 +350,68 @@ class Stage2:
         los = los_flags(P, np.asarray(R)[0], grid, origins)
         hp = np.zeros(R.shape, np.float32) if human is None else np.asarray(human, np.float32)
         res = {"no_refine": {"point": P, "los": los, "human": hp >= 0.5}, "refined": None}
-        if self.refiner is not None:
-            ok = np.isfinite(P).all(-1)
-            if not ok.any():
-                e = np.zeros((0, 3))
-                res["refined"] = {"point": e, "los": np.zeros(0, bool), "human": np.zeros(0, bool)}
-                return res
-            pts = torch.from_numpy(P[ok]).float().to(dev)
-            b = torch.from_numpy(np.nonzero(ok)[0]).to(dev)
-            lf = torch.from_numpy(los[ok].astype(np.float32)).to(dev)
-            vox = voxelize(pts, torch.zeros_like(b), b, torch.from_numpy(hp[ok]).to(dev), self.refiner.cfg.voxel,
-                           self.refiner.cfg.max_range, los=lf)
-            ro = self.refiner(vox)
-            prob = torch.softmax(ro["cls_logit"], -1)
-            keep = (prob[:, CLASS_EMPTY] < 0.5).cpu().numpy()
-            vlos = ro["los_logit"] > 0
-            pts_out = (ro["centre"] + ro["offset"]).cpu().numpy().astype(np.float64)
-            hum = (prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE]).cpu().numpy()
-            res["refined"] = {"point": pts_out[keep], "los": vlos.cpu().numpy()[keep], "human": hum[keep]}
+        if self.refiner is None:
+            return res
+        ok = np.isfinite(P).all(-1)
+        if not ok.any():
+            res["refined"] = {"point": np.zeros((0, 3)), "los": np.zeros(0, bool), "human": np.zeros(0, bool),
+                              "p_empty": np.zeros(0)}
+            return res
+        pts = torch.from_numpy(P[ok]).float().to(dev)
+        b = torch.from_numpy(np.nonzero(ok)[0]).to(dev)
+        lf = torch.from_numpy(los[ok].astype(np.float32)).to(dev)
+        hf = torch.from_numpy(hp[ok]).to(dev)
+        vox = voxelize(pts, torch.zeros_like(b), b, hf, self.refiner.cfg.voxel, self.refiner.cfg.max_range, los=lf)
+        ro = self.refiner(vox)
+        prob = torch.softmax(ro["cls_logit"], -1)
+        p_empty = prob[:, CLASS_EMPTY].cpu().numpy().astype(np.float64)
+        hum = (voxel_point_mean(vox, hf) >= 0.5) | (prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE])
+        ref = {"point": (ro["centre"] + ro["offset"]).cpu().numpy().astype(np.float64),
+               "los": (voxel_point_mean(vox, lf) >= 0.5).cpu().numpy(), "human": hum.cpu().numpy()}
+        if all_voxels:
+            res["refined"] = {**ref, "p_empty": p_empty}
+        else:
+            keep = p_empty < self.keep_threshold
+            res["refined"] = {k: v[keep] for k, v in ref.items()}
         return res
+
+
+KEEP_CANDIDATES = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
+
+
+def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10, max_frames: int = 40,
+                   candidates=KEEP_CANDIDATES) -> dict:
+    """The refiner's keep threshold on P(empty) that maximises the mean of the refined cloud's LOS
+    and NLOS F-scores at ``tau`` m (holodata.metrics, as evaluate scores them) over up to
+    ``max_frames`` evenly spaced training frames, each fed twice when stage-one predictions are
+    present (the GT ranges and human mask, and stage one's): the training objective (eq. 7, class
+    weights) fixes the classes, not the F-optimal operating point of the cloud. Returns
+    {"threshold", "scores": {threshold: mean F}}."""
+    from holodata import metrics as M
+
+    idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
+    sums = {c: [] for c in candidates}
+    for k in idx:
+        gp = frames.gt_point[k].astype(np.float64)
+        lab = frames.label[k]
+        ok = np.isfinite(gp).all(-1)
+        glos = (lab == 1) | (lab == 3)
+        gt = {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}
+        inputs = [(frames.range[k], _is_human(lab).astype(np.float32))]
+        if frames.s1_range is not None:
+            inputs.append((frames.s1_range[k], frames.s1_human[k]))
+        for R, H in inputs:
+            r = stage2.predict(R, H, frames.directions[k], frames.origins[k], grid, all_voxels=True)["refined"]
+            if r is None:
+                return {"threshold": stage2.keep_threshold, "scores": {}}
+            for c in candidates:
+                keep = r["p_empty"] < c
+                f = []
+                for part, sel in (("los", r["los"]), ("nlos", ~r["los"])):
+                    f.append(M.point_cloud_metrics(r["point"][keep & sel], gt[part], tau)["f_score"])
+                sums[c].append(float(np.mean(f)))
+    scores = {float(c): float(np.mean(v)) if v else 0.0 for c, v in sums.items()}
+    return {"threshold": max(scores, key=scores.get), "scores": scores}
 
 
 def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
@@ -404,9 +430,14 @@ def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
     ref = None
     if ck.get("refiner_state") is not None and ck["epoch"] > ck["stage2_config"]["epochs_rt"]:
         ref = VoxelRefiner(RefinerConfig.from_dict(ck["refiner_config"]))
-        ref.load_state_dict(ck["refiner_state"])
+        try:
+            ref.load_state_dict(ck["refiner_state"])
+        except RuntimeError:
+            raise InputError(f"{p}: refiner weights of another holodata version (retrain: holodata train DATASET "
+                             f"--stage 2 --out RUN)") from None
         ref = ref.to(device)
-    return Stage2(rt.to(device), ref, device), ck
+    keep = (ck.get("keep") or {}).get("threshold", 0.5)
+    return Stage2(rt.to(device), ref, device, keep_threshold=keep), ck
 
 
 # ----------------------------------------------------------------------------- training
@@ -440,16 +471,15 @@ def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: G
     nz = torch.nonzero(ok)
     vox = voxelize(P[ok].float(), nz[:, 0], nz[:, 1], batch["human_in"][ok], cfg.voxel, rt.cfg.max_range,
                    los=torch.from_numpy(los).to(device)[ok])
-    gpts, ghum, glos = [], [], []
+    gpts, ghum = [], []
     gp = batch["gt_point"].cpu().numpy()
     lab = batch["label"].cpu().numpy()
     for j in range(len(gp)):
         m = np.isfinite(gp[j]).all(-1)
         gpts.append(gp[j][m].astype(np.float64))
         ghum.append(_is_human(lab[j][m]))
-        glos.append((lab[j][m] == 1) | (lab[j][m] == 3))
-    cls, reg, edt, los_t = refine_targets(vox.coords, gpts, ghum, cfg.voxel, cfg.edt_clip, glos)
-    return vox, cls.to(device), reg.to(device), edt.to(device), los_t.to(device)
+    cls, reg, edt = refine_targets(vox.coords, gpts, ghum, cfg.voxel, cfg.edt_clip)
+    return vox, cls.to(device), reg.to(device), edt.to(device)
 
 
 def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, grid: Grid, meta: dict | None = None,
@@ -510,9 +540,9 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
                                              cfg.w_sn, cfg.w_point, cfg.w_normal)
                 params = rt.parameters()
             else:
-                vox, cls, reg, edt, los_t = _refine_batch(rt, batch, cfg, dev, grid)
+                vox, cls, reg, edt = _refine_batch(rt, batch, cfg, dev, grid)
                 o = ref(vox)
-                loss, parts = refine_loss(o, cls, reg, edt, cfg.w_cls, cfg.w_reg, cfg.w_dist, cw, los_t, cfg.w_los)
+                loss, parts = refine_loss(o, cls, reg, edt, cfg.w_cls, cfg.w_reg, cfg.w_dist, cw)
                 params = ref.parameters()
             opt.zero_grad(set_to_none=True)
             loss.backward()
@@ -533,7 +563,15 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
                       "torch_rng": torch.get_rng_state(), "meta": meta or {}}, ck_path)
         with open(out / STAGE2_LOG, "a") as fh:
             fh.write(json.dumps(row) + "\n")
-    return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history}
+    keep = None
+    if cfg.epochs_refine > 0 and ck_path.exists():
+        ck = torch.load(ck_path, map_location="cpu", weights_only=False)
+        keep = ck.get("keep")
+        if keep is None:  # the operating point of the refined cloud, on the training frames
+            keep = calibrate_keep(Stage2(rt, ref, dev), frames, grid)
+            ck["keep"] = keep
+            _atomic_save(ck, ck_path)
+    return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history, "keep": keep}
 
 
 def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, stage1=None,

@@ -41,7 +41,8 @@ class TrainConfig:
     """Training settings. Model: depth (UNet levels; paper 7), base_channels, max_channels, blocks.
     Data: downsample (H,W stride), range_pool (range-bin max-pool), crop_w (random azimuth
     window), frames_per_scene (cap). Optimiser: AdamW lr / weight_decay, cosine decay to
-    lr·lr_floor over ``epochs``. Loss weights: w_range, w_gradient, w_valid, w_human."""
+    lr·lr_floor over ``epochs``. Loss weights: w_range, w_gradient, w_valid, w_human (and
+    human_pos_weight, the weight of human pixels in that term; :func:`multi_return_loss`)."""
 
     epochs: int = 20
     batch_size: int = 4
@@ -66,6 +67,7 @@ class TrainConfig:
     w_gradient: float = 0.5
     w_valid: float = 0.2
     w_human: float = 0.2
+    human_pos_weight: float = 10.0
 
     @classmethod
     def from_file(cls, path, **overrides) -> "TrainConfig":
@@ -90,7 +92,7 @@ class TrainConfig:
         return asdict(self)
 
     def loss_weights(self) -> LossWeights:
-        return LossWeights(self.w_range, self.w_gradient, self.w_valid, self.w_human)
+        return LossWeights(self.w_range, self.w_gradient, self.w_valid, self.w_human, self.human_pos_weight)
 
     def sample_transform(self, train: bool = True) -> SampleTransform:
         return SampleTransform(self.downsample, self.range_pool, self.crop_w, random_crop=train,
