@@ -89,8 +89,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     from holodata.demo import run_demo
-    from holodata.evaluate import evaluate
-    from holodata.torch.stage2_train import Stage2Config, train_stage2
+    from holodata.torch.stage2_train import Stage2Config
 
     base = demo_config(quick=not a.paper)
     pick = lambda v, cpu, paper: v if v is not None else (paper if a.paper else cpu)  # noqa: E731
@@ -101,6 +100,7 @@ def main(argv=None) -> int:
             "mapping_pass": False}  # mapping comes from the recordings' truth: no LiDAR mapping drive needed
     s2 = Stage2Config(epochs_rt=pick(a.rt_epochs, 12, 30), epochs_refine=pick(a.refine_epochs, 10, 30),
                       channels=pick(a.channels, 16, 32), device=a.device)
+    over["stage2"] = s2.to_dict()  # run_demo trains stage two after stage one, then evaluates every row
     cfg = base.__class__(**{**base.__dict__, **over})
     print(f"corners {', '.join(f'{k}_{s}' for k, s in cfg.corners)} (test: the last {cfg.n_test}); "
           f"{cfg.frames} frames each; grid {grid.H}x{grid.W}; stage one {cfg.epochs} epochs (depth {cfg.depth}); "
@@ -110,16 +110,12 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     res = run_demo(out, mapping="truth", quiet=True, config=cfg, log=lambda m: print("  " + m, flush=True))
     t1 = time.perf_counter()
-    train_stage2(res.dataset, res.run_dir, s2, quiet=True)
-    t2 = time.perf_counter()
-    doc = evaluate(str(res.dataset), res.run_dir, out / "report_nlos", split="test", device=a.device, quiet=True)
-    t3 = time.perf_counter()
-    print(f"  stage two (outside the demo) {t2 - t1:6.1f} s; evaluate {t3 - t2:6.1f} s   (total {t3 - t0:.0f} s)\n")
+    doc = res.metrics
+    print(f"  total        {t1 - t0:6.1f} s\n")
     print_tables(doc)
     print("\nacceptance floors (issue 22):")
     print("\n".join(floors(doc)))
-    (out / "nlos_summary.json").write_text(json.dumps({"seconds": {"demo_stage1": t1 - t0, "stage2": t2 - t1,
-                                                                   "evaluate": t3 - t2}, "rows": {
+    (out / "nlos_summary.json").write_text(json.dumps({"seconds": {**res.timings, "total": t1 - t0}, "rows": {
         m: {"points": doc["methods"][m]["points"], "human_f": doc["methods"][m]["human"]["f_score"]}
         for m in ROWS if m in doc["methods"]}}, indent=2, default=str))
     return 0

@@ -39,7 +39,9 @@ class DemoConfig:
     LiDAR-only drive through its legs (scene ``<id>_map``, ``mapping_scan_hz`` scans/s) and slam
     localises the data pass in that map; ``mesh_poisson_depth``: the SLAM mesh's Poisson octree depth
     (None: from the scene's extent, 8 for a corner); ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
-    ``base_channels``, ``max_channels``, ``range_pool``: the model and its training (TrainConfig)."""
+    ``base_channels``, ``max_channels``, ``range_pool``: the model and its training (TrainConfig);
+    ``stage2``: the learned stage two's settings (holodata.torch.stage2_train.Stage2Config fields;
+    None: the demo stops at stage one and evaluate un-mirrors analytically)."""
 
     corners: tuple[tuple[str, int], ...]
     n_test: int
@@ -58,6 +60,7 @@ class DemoConfig:
     mapping_pass: bool = True
     mapping_scan_hz: float = 2.0
     mesh_poisson_depth: int | None = None
+    stage2: dict | None = None
 
 
 def demo_config(quick: bool) -> DemoConfig:
@@ -68,9 +71,11 @@ def demo_config(quick: bool) -> DemoConfig:
         corners = tuple(("cross", 21) if c == ("cross", 13) else c for c in DEMO_CORNERS[:6])
         return DemoConfig(corners=corners, n_test=1, frames=12, grid=Grid(32, 128),
                           lidar_shape=(32, 512), camera_shape=(376, 672), epochs=15, depth=6,
-                          base_channels=8, max_channels=64, range_pool=2)
+                          base_channels=8, max_channels=64, range_pool=2,
+                          stage2={"epochs_rt": 3, "epochs_refine": 2, "channels": 16})
     return DemoConfig(corners=DEMO_CORNERS, n_test=2, frames=40, grid=Grid(), lidar_shape=(64, 1024),
-                      camera_shape=(376, 672), epochs=30, depth=7)
+                      camera_shape=(376, 672), epochs=30, depth=7,
+                      stage2={"epochs_rt": 12, "epochs_refine": 10, "channels": 32})
 
 
 @dataclass
@@ -167,6 +172,12 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
                                          base_channels=cfg.base_channels, max_channels=cfg.max_channels,
                                          range_pool=cfg.range_pool), quiet=quiet)
     stage("train", t0)
+    if cfg.stage2 is not None:
+        from .torch.stage2_train import Stage2Config, train_stage2
+
+        t0 = time.perf_counter()
+        train_stage2(str(url), run_dir, Stage2Config.from_dict(cfg.stage2), quiet=quiet)
+        stage("train:stage2", t0)
 
     t0 = time.perf_counter()
     report_dir = out / "report"

@@ -12,19 +12,21 @@ from holodata.conventions import Grid
 from holodata.dataset import open_dataset, validate_dataset
 from holodata.demo import DemoConfig, demo_config, resolve_mapping, run_demo
 from holodata.errors import InputError
+from holodata.evaluate.pipeline import STAGE2_ROWS
 
 pytest.importorskip("torch")
 
 TINY = DemoConfig(corners=(("L", 1), ("T", 2), ("oblique", 3)), n_test=1, frames=3, grid=Grid(8, 32),
                   lidar_shape=(16, 128), camera_shape=(24, 32), epochs=1, depth=3, base_channels=4,
-                  max_channels=8)
+                  max_channels=8, stage2=dict(epochs_rt=1, epochs_refine=1, channels=8, res_blocks=1, fusion_blocks=1,
+                                              refine_channels=[8, 8], batch_size=2))
 
 
 def test_demo_runs_every_stage_and_resumes(tmp_path):
     lines = []
     res = run_demo(tmp_path / "demo", mapping="truth", quiet=True, config=TINY, log=lines.append)
     assert [ln.split()[0] for ln in lines] == ["synth", "ingest", "mapping:truth", "raytrace-gt", "validate",
-                                               "train", "evaluate"]
+                                               "train", "train:stage2", "evaluate"]
     assert validate_dataset(str(res.dataset))["ok"]
     ds = open_dataset(str(res.dataset))
     assert ds.splits == {"train": ["L_1", "T_2"], "test": ["oblique_3"]}
@@ -33,7 +35,7 @@ def test_demo_runs_every_stage_and_resumes(tmp_path):
     assert {"gt/range", "gt/label", "mesh/vertices", "human/vertices", "radar/heatmap"} <= set(sc.arrays())
     assert sc.attrs.get("class_names")
     assert res.report.is_file() and (res.report.parent / "metrics.json").is_file()
-    assert set(res.metrics["methods"]) == {"model", "baseline"}
+    assert set(res.metrics["methods"]) == set(STAGE2_ROWS)  # both stages trained: every Table-2 row
     assert json.loads((res.out_dir / "demo.json").read_text())["test"] == ["oblique_3"]
     # a rerun reuses the recordings, shards and checkpoint
     again = run_demo(tmp_path / "demo", mapping="truth", quiet=True, config=TINY)

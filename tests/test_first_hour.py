@@ -108,3 +108,22 @@ def test_a_bad_topics_file_names_line_and_problem(tmp_path):
     r = CliRunner().invoke(cli, ["ingest", "--list", str(FIXTURES / "ros1" / "example.bag"), "--topics", str(bad)])
     assert r.exit_code == 1
     assert f"{bad}: not valid YAML at line 2, column 6: expected ',' or ']', but got ':'" in r.output
+
+
+def test_synth_outputs_ingest_as_scenes_named_after_their_folders(tmp_path):
+    """Every synth output holds OUT/recording (+ OUT/truth/): two of them ingest side by side, the
+    folder itself is accepted as the recording, and each scene is named after its OUT."""
+    from _recordings import write_recording
+
+    from holodata.dataset import open_dataset
+    from holodata.ingest import ingest
+
+    for name in ("L_3", "T_4"):
+        write_recording(tmp_path / name / "recording", "mcap", n_radar=2)
+        (tmp_path / name / "truth").mkdir()
+    url = str(tmp_path / "d.zarr")
+    ingest([tmp_path / "L_3"], url, quiet=True)                       # the synth folder itself
+    ingest([tmp_path / "T_4" / "recording"], url, quiet=True)         # or the recording inside it
+    assert sorted(open_dataset(url).scenes) == ["L_3", "T_4"]
+    r = CliRunner().invoke(cli, ["ingest", "--list", str(tmp_path / "L_3")])
+    assert r.exit_code == 0, r.output

@@ -77,3 +77,32 @@ def test_sigint_during_ingest_never_leaves_a_dataset_that_validates(recording, t
         assert r.returncode == 0, r.stderr
         assert validate_dataset(str(url))["ok"]
     assert unfinished >= 2  # the moments above do interrupt this recording's ingest
+
+
+def test_an_interrupted_synth_leaves_no_recording_and_a_rerun_finishes(tmp_path, monkeypatch):
+    """Interrupted after the data pass was written but before the mapping pass: OUT holds no
+    recording (ingest refuses the folder), and the same synth command then finishes into files
+    identical to an uninterrupted run's."""
+    from holodata.errors import RecordingError
+    from holodata.readers import open_recording
+    from holodata.synth import scenario, synthesize
+
+    kw = dict(corner="L", frames=2, seed=4, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32), quiet=True,
+              mapping_pass=True)
+
+    def boom(*a, **k):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(scenario, "write_mapping_recording", boom)
+        with pytest.raises(KeyboardInterrupt):
+            synthesize(tmp_path / "a", **kw)
+    assert not (tmp_path / "a" / "recording").exists() and not (tmp_path / "a" / "truth").exists()
+    with pytest.raises(RecordingError):
+        open_recording(tmp_path / "a")
+    res = synthesize(tmp_path / "a", **kw)
+    assert res.recording == tmp_path / "a" / "recording" and res.mapping_recording == tmp_path / "a" / "mapping"
+    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == ["mapping", "recording", "truth"]
+    ref = synthesize(tmp_path / "b", **kw)
+    assert res.storage_file.read_bytes() == ref.storage_file.read_bytes()
+    assert open_recording(tmp_path / "a").path == res.recording

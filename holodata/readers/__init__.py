@@ -133,9 +133,24 @@ for _spec in (
     register_reader(_spec)
 
 
-def guess_reader(path) -> str:
-    """Name of the reader for ``path`` (RecordingError if none fits)."""
+SYNTH_RECORDINGS = ("recording", "recording.bag")  # holodata synth: OUT/recording[.bag] beside OUT/truth/
+
+
+def synth_output_recording(path) -> Path:
+    """The data-pass recording inside a ``holodata synth`` output folder (``OUT/truth/`` beside
+    ``OUT/recording/`` or ``OUT/recording.bag``); any other path unchanged."""
     p = Path(path)
+    if p.is_dir() and (p / "truth").is_dir():
+        for name in SYNTH_RECORDINGS:
+            if (p / name).exists():
+                return p / name
+    return p
+
+
+def guess_reader(path) -> str:
+    """Name of the reader for ``path`` (RecordingError if none fits); a synth output folder is read
+    as its recording (:func:`synth_output_recording`)."""
+    p = synth_output_recording(path)
     if not p.exists():
         raise RecordingError(f"{p}: no such file or folder")
     if p.is_file() and p.stat().st_size == 0:
@@ -167,7 +182,7 @@ def guess_reader(path) -> str:
 def open_recording(path, msg_dir=None, meta=None, reader: str | None = None) -> Recording:
     """Open ``path`` with the reader :func:`guess_reader` picks (or ``reader``). ``msg_dir``: folder
     of ``.msg`` files for types the file does not define; ``meta``: Ouster metadata ``.json``."""
-    p = Path(path)
+    p = synth_output_recording(path)
     name = reader or guess_reader(p)
     if name not in READERS:
         raise RecordingError(f"unknown reader {name!r} (have {', '.join(READERS)})")
@@ -180,5 +195,5 @@ def open_recording(path, msg_dir=None, meta=None, reader: str | None = None) -> 
         raise RecordingError(f"{p}: cannot read as {name} ({err.__class__.__name__}: {msg[:200]})") from err
 
 
-__all__ = ["open_recording", "guess_reader", "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",
+__all__ = ["open_recording", "guess_reader", "synth_output_recording", "SYNTH_RECORDINGS", "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",
            "ReaderSpec", "DecodeError", "MessageDecoder"]

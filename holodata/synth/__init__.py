@@ -34,6 +34,8 @@ messages are written in log-time order.
 """
 from __future__ import annotations
 
+import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -54,6 +56,7 @@ TOPICS = {
     "/odom": "nav_msgs/msg/Odometry",
 }
 # the mapping pass's recording (``mapping_pass=True``): LiDAR and odometry only
+PARTIAL = ".synth-partial"  # where synthesize writes until everything is in place
 MAPPING_TOPICS = {t: TOPICS[t] for t in ("/ouster/points", "/ouster/metadata", "/tf", "/tf_static", "/odom")}
 # with ``stereo_images=True``: the rectified pair behind the depth camera (mono8, textured scene)
 STEREO_TOPICS = {
@@ -137,25 +140,45 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         raise InputError(f"robot_stop_x must be within -3..0 m (the junction starts at 0), got {robot_stop_x}")
     if mapping_scan_hz is not None and not 0.1 <= mapping_scan_hz <= 10.0:
         raise InputError(f"mapping_scan_hz must be within 0.1-10 Hz, got {mapping_scan_hz}")
-    if rec.exists() or (out_dir / "truth").exists() or recording_path(out_dir, format, "mapping").exists():
-        raise InputError(f"{out_dir}: already holds a recording or truth/ folder; choose an empty --out")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    if rec.exists():
+        raise InputError(f"{out_dir}: already holds a recording ({rec.name}); choose an empty --out")
+    # everything is written under OUT/.synth-partial and moved into OUT at the end, the recording
+    # last: an interrupted run leaves no recording that looks complete, and a rerun starts over
+    # (same arguments, same files) — also after an interrupt between the moves
+    tmp = out_dir / PARTIAL
+    mp_rec = recording_path(out_dir, format, "mapping")
+    if (out_dir / "truth").is_dir() and not (out_dir / "truth" / "scene.json").exists():
+        raise InputError(f"{out_dir}: holds a truth/ folder that synth did not write; choose an empty --out")
+    for left in (tmp, out_dir / "truth", mp_rec):
+        if left.is_dir():
+            shutil.rmtree(left)
+        elif left.exists():
+            left.unlink()
+    tmp.mkdir(parents=True)
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
                         camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images,
                         visible_walkers=visible_walkers, lidar_vertical_fov_deg=lidar_vertical_fov_deg,
                         robot_stop_x=robot_stop_x)
-    res = write_recording(sc, out_dir, format, quiet=quiet)
+    res = write_recording(sc, tmp, format, quiet=quiet)
     if mapping_pass:
         import json
 
         mp = build_mapping_pass(sc, scan_hz=mapping_scan_hz or MAPPING_SCAN_HZ)
-        entry = write_mapping_recording(sc, mp, out_dir, format, quiet=quiet)
+        entry = write_mapping_recording(sc, mp, tmp, format, quiet=quiet)
         scene = json.loads(res.scene_json.read_text())
         scene["mapping_pass"] = entry
         truthio.write_json(res.scene_json, scene)
-        res.mapping_recording = out_dir / entry["recording"]
+        res.mapping_recording = tmp / entry["recording"]
         res.trajectory_lidar_mapping = res.truth_dir / "mapping_trajectory_lidar.tum"
+    rec_tmp = recording_path(tmp, format)
+    for child in sorted(tmp.iterdir(), key=lambda c: c == rec_tmp):  # the recording last
+        os.replace(child, out_dir / child.name)
+    tmp.rmdir()
+    for k, v in vars(res).items():  # paths into OUT, not the partial folder
+        if isinstance(v, Path) and (v == tmp or tmp in v.parents):
+            setattr(res, k, out_dir / v.relative_to(tmp))
+    res.out_dir = out_dir
     return res
 
 
