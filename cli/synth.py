@@ -47,10 +47,11 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--count", type=click.IntRange(min=1), default=1, show_default=True,
               help="Recordings to write: >1 writes OUT/scene_000, OUT/scene_001, ... with seeds SEED, SEED+1, ...")
 @dask_options("one recording per task (with --count)", "OUT must be a folder the workers share.")
+@click.option("--force", is_flag=True, help="Replace a recording already in OUT (an interrupted run needs no --force).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
-          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, count, workers, scheduler, quiet, as_json) -> None:
+          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, count, workers, scheduler, force, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
@@ -88,7 +89,7 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
                 click.echo(f"recording: {r['recording']} ({r['format']}, {r['n_frames']} radar frames, "
                            f"corner {r['corner']}, width {r['width_m']:.2f} m, seed {r['seed']})")
         return
-    res = synthesize(out, seed=seed, quiet=quiet, **kw)
+    res = synthesize(out, seed=seed, quiet=quiet, force=force, **kw)
     if as_json:
         import json
 

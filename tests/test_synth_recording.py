@@ -131,75 +131,14 @@ def test_no_human_recording(tmp_path):
 def test_refuses_existing_output(recordings):
     from holodata.errors import InputError
 
-    with pytest.raises(InputError, match="already holds"):
+    with pytest.raises(InputError, match="already holds.*--force"):
         synthesize(recordings["mcap"].out_dir, corner="T", seed=7, **SMALL)
 
 
-def test_cli(tmp_path):
-    from click.testing import CliRunner
+def test_force_replaces_a_recording(tmp_path):
+    import json
 
-    from holodata.cli.main import cli
-
-    r = CliRunner().invoke(cli, ["synth", "--help"])
-    assert r.exit_code == 0 and "Example: holodata synth" in r.output
-    r = CliRunner().invoke(cli, ["synth", "--out", str(tmp_path / "c"), "--frames", "1", "--grid", "8x16",
-                                 "--range-bins", "32", "--lidar", "4x32", "--camera", "6x8", "--corner", "cross",
-                                 "--format", "rosbag1", "--quiet", "--json", "--stereo-images"])
-    assert r.exit_code == 0, r.output
-    assert (tmp_path / "c" / "recording.bag").exists()
-    from holodata.synth import STEREO_TOPICS
-
-    with AnyReader([tmp_path / "c" / "recording.bag"]) as rd:
-        types = {c.topic: c.msgtype for c in rd.connections}
-        assert types == dict(TOPICS, **STEREO_TOPICS)
-        conns = [c for c in rd.connections if c.topic == "/zed2i/zed_node/right/camera_info"]
-        info = [rd.deserialize(raw, c.msgtype) for c, _, raw in rd.messages(connections=conns)][0]
-        assert info.P[3] == pytest.approx(-info.P[0] * 0.12)  # ROS 1 CameraInfo: upper-case P
-    r = CliRunner().invoke(cli, ["synth", "--out", str(tmp_path / "d"), "--grid", "oops"])
-    assert r.exit_code == 2
-
-
-def test_heatmap_peaks_agree_with_truth_mesh_and_poses(tmp_path):
-    """Score the recording against its own truth/: ray-trace truth/mesh.ply from truth/trajectory_radar.tum
-    (line k = radar frame k) and compare the first-bounce range with the heatmap's strongest bin."""
-    from holodata.meshio import read_mesh
-    from holodata.raytrace import RayScene
-
-    g = Grid(16, 64)
-    res = synthesize(tmp_path / "s", corner="L", frames=2, seed=4, grid=g, lidar_shape=(4, 32), camera_shape=(6, 8),
-                     quiet=True)
-    mesh, traj = read_mesh(res.mesh), read_tum(res.trajectory_radar)
-    scene = RayScene(mesh.vertices, mesh.faces)
-    with AnyReader([res.recording]) as r:
-        conns = [c for c in r.connections if c.topic == "/radar/heatmap"]
-        hms = [heatmap_from_msg(r.deserialize(raw, c.msgtype)) for c, _, raw in r.messages(connections=conns)]
-    assert len(hms) == len(traj) == 2
-    for k, hm in enumerate(hms):
-        T = traj.poses[k]
-        D = g.directions().reshape(-1, 3) @ T[:3, :3].T
-        tr = scene.trace(np.broadcast_to(T[:3, 3], D.shape), D, max_bounces=1, labels=False)
-        r1 = tr.range[:, 0].reshape(g.H, g.W)
-        ok = np.isfinite(r1)
-        peak = np.argmax(hm[4:], axis=0) + 4  # skip the TX/RX leakage bins
-        err = np.abs(peak - np.floor(r1 / 0.0375))[ok]
-        assert ok.mean() > 0.9 and np.median(err) == 0 and np.mean(err <= 1) > 0.6
-
-
-@pytest.mark.parametrize("corner,width", [("T", 1.3), ("L", 3.0)])
-def test_visible_walkers_never_walk_through_each_other(corner, width):
-    """Five people in the approach corridor: those sharing a side take consecutive stretches, so no two
-    are ever closer than a body width (they passed through each other when two shared a lane)."""
-    from holodata.synth.scenario import _visible_walkers
-    from holodata.synth.worlds import make_world
-
-    walkers = _visible_walkers(make_world(corner, width=width, seed=3), 3, 5, np.array([-6.0, 0.0]),
-                               np.array([-2.0, 0.0]))
-    ts = np.linspace(0.0, 60.0, 601)
-    pos = np.array([[w.state(t)[0] for t in ts] for w in walkers])          # (5, T, 2)
-    gap = np.linalg.norm(pos[:, None] - pos[None, :], axis=-1)
-    gap[np.arange(5), np.arange(5)] = np.inf
-    assert gap.min() > 0.5
-    assert all(w.b[0] - w.a[0] > 0.5 for w in walkers)                       # everyone still walks
-    two = _visible_walkers(make_world(corner, width=width, seed=3), 3, 2, np.array([-6.0, 0.0]), np.array([-2.0, 0.0]))
-    for w in two:  # one per side: the whole stretch, as before (recordings with <= 2 walkers unchanged)
-        assert -8.5 <= w.a[0] <= -7.5 and -0.7 <= w.b[0] <= -0.4
+    synthesize(tmp_path / "f", corner="L", seed=1, **SMALL)
+    again = synthesize(tmp_path / "f", corner="T", seed=7, force=True, **SMALL)
+    assert json.loads(again.scene_json.read_text())["corner_type"] == "T"
+    assert not (tmp_path / "f" / ".synth-partial").exists()

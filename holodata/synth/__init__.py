@@ -108,7 +108,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
                lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
                radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False,
                visible_walkers: int = 0, lidar_vertical_fov_deg: float = 33.2, mapping_pass: bool = False,
-               mapping_scan_hz: float | None = None, robot_stop_x: float | None = None) -> SynthResult:
+               mapping_scan_hz: float | None = None, robot_stop_x: float | None = None,
+               force: bool = False) -> SynthResult:
     """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
@@ -123,7 +124,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     ``mapping_scan_hz`` (default ``scenario.MAPPING_SCAN_HZ``); the data pass is unchanged.
     ``robot_stop_x``: where the data pass's robot stops (m along the approach corridor, the junction
     at 0; None: 0.6-1.2 m short of it, drawn from the seed), moved back if the person could not hide.
-    Same arguments → byte-identical files.
+    Same arguments → byte-identical files. ``force``: replace a recording already in ``out_dir``.
     """
     from .recording import FORMATS, recording_path
     from .scenario import MAPPING_SCAN_HZ, build_mapping_pass, build_scenario, write_mapping_recording, write_recording
@@ -140,8 +141,9 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         raise InputError(f"robot_stop_x must be within -3..0 m (the junction starts at 0), got {robot_stop_x}")
     if mapping_scan_hz is not None and not 0.1 <= mapping_scan_hz <= 10.0:
         raise InputError(f"mapping_scan_hz must be within 0.1-10 Hz, got {mapping_scan_hz}")
-    if rec.exists():
-        raise InputError(f"{out_dir}: already holds a recording ({rec.name}); choose an empty --out")
+    if rec.exists() and not force:
+        raise InputError(f"{out_dir}: already holds a recording ({rec.name}); choose an empty --out, or --force "
+                         f"to replace it")
     # everything is written under OUT/.synth-partial and moved into OUT at the end, the recording
     # last: an interrupted run leaves no recording that looks complete, and a rerun starts over
     # (same arguments, same files) — also after an interrupt between the moves
@@ -149,7 +151,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     mp_rec = recording_path(out_dir, format, "mapping")
     if (out_dir / "truth").is_dir() and not (out_dir / "truth" / "scene.json").exists():
         raise InputError(f"{out_dir}: holds a truth/ folder that synth did not write; choose an empty --out")
-    for left in (tmp, out_dir / "truth", mp_rec):
+    for left in (tmp, out_dir / "truth", mp_rec) + ((rec,) if force else ()):
         if left.is_dir():
             shutil.rmtree(left)
         elif left.exists():
