@@ -7,15 +7,15 @@ import click
 @click.command()
 @click.option("--out", "out", type=click.Path(file_okay=False), default="holodata-demo", show_default=True,
               help="Output folder (recordings/, dataset.zarr, run/, report/); rerunning resumes.")
-@click.option("--quick", is_flag=True, help="Small grids and few frames: under 3 minutes on 2 cores.")
+@click.option("--quick", is_flag=True, help="Small grids and few frames: about 5 minutes on 2 cores.")
 @click.option("--mapping", type=click.Choice(["slam", "truth"]), default="slam", show_default=True,
               help="Poses, mesh and humans from holodata slam + register, or from the synthetic truth (oracle).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def demo(out, quick, mapping, quiet, as_json) -> None:
     """Synthesise train and test corners as MCAP recordings, ingest them, map them, ray-trace the
-    multi-bounce ground truth, validate the dataset, train the bundled model and evaluate it
-    against the strongest-peaks baseline. Prints where the report is.
+    multi-bounce ground truth, validate the dataset, train both stages of the bundled model and
+    evaluate every Table-2 row against the strongest-peaks baseline. Prints where the report is.
 
     Example: holodata demo --quick --out demo_run
     """

@@ -64,7 +64,7 @@ class DemoConfig:
 
 
 def demo_config(quick: bool) -> DemoConfig:
-    """``quick``: small grids and few frames (< 3 min on 2 cores); else the paper's 64×512 grid."""
+    """``quick``: small grids and few frames (about 5 min on 2 cores, README); else the paper's 64×512 grid."""
     if quick:
         # cross_21 (2.4 m wide) for DEMO_CORNERS' cross_13 (4.0 m): at 32x128 beams the radar reaches
         # the hidden side of the 4 m cross with ~80 GT NLOS points per frame, of cross_21 with ~680
