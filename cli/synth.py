@@ -21,7 +21,7 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--corner", type=click.Choice(["T", "L", "cross", "oblique"]), default="L", show_default=True,
               help="Corner shape.")
 @click.option("--width", type=float, default=None, help="Approach-corridor width in metres (default: drawn from the seed, 1.3-4.7).")
-@click.option("--frames", type=click.IntRange(min=1), default=20, show_default=True, help="Radar rotations (2 Hz).")
+@click.option("--frames", type=click.IntRange(min=1), default=20, show_default=True, help="Radar rotations (2 Hz); at the default sizes ~43 MB each (20: ~0.87 GB), printed before writing.")
 @click.option("--format", "fmt", type=click.Choice(["mcap", "rosbag2", "rosbag1"]), default="mcap", show_default=True,
               help="mcap: ROS 2 bag with MCAP storage; rosbag2: sqlite3 storage; rosbag1: ROS 1 .bag.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed: identical files).")
@@ -89,14 +89,22 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
                 click.echo(f"recording: {r['recording']} ({r['format']}, {r['n_frames']} radar frames, "
                            f"corner {r['corner']}, width {r['width_m']:.2f} m, seed {r['seed']})")
         return
+    from holodata.synth import estimate_bytes
+
+    need = estimate_bytes(frames, g, kw["range_bins"], kw["lidar_shape"], kw["camera_shape"],
+                          stereo_images=stereo_images)
+    if not (quiet or as_json):
+        click.echo(f"writing ~{need / 1e6:.0f} MB (data pass; the mapping pass adds LiDAR scans)", err=True)
     res = synthesize(out, seed=seed, quiet=quiet, force=force, **kw)
     if as_json:
         import json
 
         click.echo(json.dumps(res.summary(), indent=2, default=str))
         return
+    size = sum(f.stat().st_size for f in res.recording.rglob("*") if f.is_file()) if res.recording.is_dir() \
+        else res.recording.stat().st_size
     click.echo(f"recording: {res.recording} ({res.format}, {sum(res.counts.values())} messages, "
-               f"{res.n_frames} radar frames)")
+               f"{res.n_frames} radar {'frame' if res.n_frames == 1 else 'frames'}, {size / 1e6:.0f} MB)")
     click.echo(f"truth:     {res.truth_dir} (corner {res.corner}, width {res.width_m:.2f} m, "
                f"human {'yes' if res.human else 'no'})")
     if res.mapping_recording is not None:

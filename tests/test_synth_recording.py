@@ -142,3 +142,22 @@ def test_force_replaces_a_recording(tmp_path):
     again = synthesize(tmp_path / "f", corner="T", seed=7, force=True, **SMALL)
     assert json.loads(again.scene_json.read_text())["corner_type"] == "T"
     assert not (tmp_path / "f" / ".synth-partial").exists()
+
+
+def test_size_estimate_matches_the_files_and_a_full_disk_is_refused(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    from holodata.errors import InputError
+    from holodata.synth import estimate_bytes
+
+    res = synthesize(tmp_path / "s", corner="L", seed=1, **SMALL)
+    kw = {k: SMALL[k] for k in ("grid", "lidar_shape", "camera_shape") if k in SMALL}
+    est = estimate_bytes(res.n_frames, range_bins=SMALL.get("range_bins"), **kw)
+    got = res.storage_file.stat().st_size
+    assert 0.8 * got <= est <= 1.1 * got, (est, got)
+    Usage = namedtuple("Usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**9, 10**9, est // 2))
+    with pytest.raises(InputError, match="GB free"):
+        synthesize(tmp_path / "t", corner="L", seed=1, **SMALL)
+    assert not (tmp_path / "t" / "recording").exists()
