@@ -25,6 +25,6 @@ def small_corner() -> tuple[str, str]:
                      range_bins=RangeBins(n=64), lidar_shape=(32, 512), camera_shape=(188, 336), quiet=True,
                      visible_walkers=2)
     url = str(root / "ds.zarr")
-    ingest([res.recording], url, quiet=True)
+    ingest([res.recording], url, scene_ids=["recording"], quiet=True)
     write_truth_poses(url, "recording", res.truth_dir)
     return url, str(res.truth_dir)

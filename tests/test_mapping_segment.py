@@ -145,7 +145,7 @@ def _os0_corner() -> tuple[str, str]:
                      lidar_shape=(32, 512), camera_shape=(48, 84), quiet=True, visible_walkers=2,
                      lidar_vertical_fov_deg=90.0)
     url = str(root / "ds.zarr")
-    ingest([res.recording], url, quiet=True)
+    ingest([res.recording], url, scene_ids=["recording"], quiet=True)
     write_truth_poses(url, "recording", res.truth_dir)
     return url, str(res.truth_dir)
 
