@@ -72,6 +72,8 @@ def test_sigint_during_ingest_never_leaves_a_dataset_that_validates(recording, t
                 assert "INCOMPLETE" in r.output
                 with pytest.raises(DatasetError, match="not ingested completely"):
                     ds.scene("c").require_complete("slam")
+                r = CliRunner().invoke(cli, ["slam", str(url), "--scene", "c"])   # slam refuses it too
+                assert r.exit_code == 1 and "not ingested completely" in r.output, r.output
         # the rerun finishes what was started
         r = subprocess.run(HOLODATA + ["ingest", str(recording), "--out", str(url), "--scene-id", "c", "--quiet"], capture_output=True, text=True)
         assert r.returncode == 0, r.stderr

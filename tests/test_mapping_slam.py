@@ -671,3 +671,13 @@ def test_mesh_background_worker_death_is_a_one_line_error(slam_run, monkeypatch)
     monkeypatch.setattr(S, "_mesh_background", lambda *a: os.kill(os.getpid(), signal.SIGKILL))
     with pytest.raises(HolodataError, match="mesh background model.*died"):
         S.slam_scene(slam_run["url"], write=False, force=True, quiet=True)
+
+
+def test_slam_refuses_a_scene_ingest_did_not_finish(tmp_path):
+    from holodata.conventions import Grid
+    from holodata.dataset import create_dataset
+
+    url = str(tmp_path / "d.zarr")
+    create_dataset(url, grid=Grid(8, 32)).scene("c", n_frames=2, attrs={"ingest": {"complete": False}})
+    r = CliRunner().invoke(cli, ["slam", url, "--scene", "c"])
+    assert r.exit_code == 1 and "not ingested completely" in r.output and "before slam" in r.output, r.output

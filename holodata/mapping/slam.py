@@ -1223,6 +1223,7 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
             raise InputError(f"{dataset_url}: {len(ds.scenes)} scenes ({', '.join(ds.scenes) or 'none'}); give --scene")
         scene_id = ds.scenes[0]
     scene = ds.scene(scene_id)
+    scene.require_complete("slam")
     fp = _fingerprint(scene, config, mesh_config if config.mesh else None)
     done = scene.attrs.get("slam") or {}
     if (write and not force and done.get("complete") and done.get("fingerprint") == fp
@@ -1402,6 +1403,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     timings["map_scene_s"] = time.perf_counter() - t0
     ds = open_dataset(dataset_url)
     mscene, scene = ds.scene(map_scene), ds.scene(scene_id)
+    scene.require_complete("slam")
     if write:
         for_ = sorted(set((mscene.attrs.get("mapping_for") or [])) | {scene_id})
         if mscene.attrs.get("role") != MAPPING_ROLE or mscene.attrs.get("mapping_for") != for_:
@@ -1490,7 +1492,7 @@ def _stored_result(scene, done: dict) -> SlamResult:
     if "mesh/faces" in names:
         mesh = (np.asarray(scene["mesh/vertices"][...], np.float32), np.asarray(scene["mesh/faces"][...], np.int32))
     summary = dict(done.get("summary") or {})
-    summary["skipped"] = "already done with the same inputs and settings (force to recompute)"
+    summary["skipped"] = "already done with the same inputs and settings (use --force to recompute)"
     points = np.asarray(scene["map/points"][...], np.float64) if "map/points" in names else None
     return SlamResult(scene.id, st[first], Tl[first], None, None, Tl, Tr, mesh, summary, points)
 
