@@ -2,18 +2,18 @@
 
 Stage two trains after stage one, from the dataset's ground truth: its input is either the GT
 range images with augmentation (Gaussian range noise of a random σ ≤ ``noise_max_m`` per frame,
-random pixel dropout, random y-mirroring of the whole frame) or, with probability ``p_stage1``,
-the stage-one model's own prediction of the training frame, so that both GT input (the
-``oracle_stage1`` row of evaluate) and model input work. Phase 1 trains the ray tracer (eq. 6);
-phase 2 freezes it and trains the volumetric refiner on its points (eq. 7), as the paper does.
+random pixel dropout, random y-mirroring of the whole frame) or, with probability ``p_stage1``
+(default 0, docs/design/stage2.md), the stage-one model's own prediction of the training frame.
+Phase 1 trains the ray tracer (eq. 6); phase 2 freezes it and trains the volumetric refiner on
+its points (eq. 7), as the paper does; then :func:`calibrate_keep` picks the refined cloud's
+operating point on the training frames.
 
 Run directory: ``stage2.pt`` (latest epoch of either phase; atomic, resumable),
 ``stage2_config.json``, ``stage2_metrics.jsonl``. The stage-one checkpoint stays ``checkpoint.pt``.
 
-Refined points' LOS/NLOS: the refiner's LOS head (trained on the share of the voxel's GT points
-labelled LOS); its inputs include each ray-traced point's LOS flag (visible in the first-bounce
-range image, the rule evaluate uses for un-refined clouds; bounce-1 points are LOS by
-definition) and bounce index.
+Refined points' LOS/NLOS and human: the means over each voxel's input points of their LOS flags
+(visible in the first-bounce range image, the rule evaluate uses for un-refined clouds;
+bounce-1 points are LOS by definition) and stage-one human probabilities.
 """
 from __future__ import annotations
 
