@@ -39,6 +39,16 @@ class Label(IntEnum):
 LABEL_NAMES = {int(v): v.name.lower() for v in Label}
 
 
+def is_los(label):
+    """Where a label array (numpy or torch) is line-of-sight: LOS structure or LOS human."""
+    return (label == Label.LOS_STRUCTURE) | (label == Label.LOS_HUMAN)
+
+
+def is_human(label):
+    """Where a label array (numpy or torch) is a human surface, LOS or NLOS."""
+    return (label == Label.LOS_HUMAN) | (label == Label.NLOS_HUMAN)
+
+
 @dataclass(frozen=True)
 class Grid:
     """Radar / GT beam grid: ``(H, W)``; row 0 at ``elev_max_deg``, last row at ``elev_min_deg``.

@@ -54,7 +54,7 @@ import numpy as np
 from .conventions import Grid, RangeBins
 from .dataset.validate import frames_not_finite_nonneg
 from .errors import DatasetError, HolodataError, InputError, RecordingError
-from .readers import SYNTH_RECORDINGS, open_recording
+from .readers import open_recording, synth_output_folder
 from .readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, DecodeError, RawMessage, Recording, TopicInfo
 
 RADAR_SUFFIX = "/RadarHeatmap"
@@ -765,9 +765,7 @@ def _reject_reason(rec: Recording, infos: list[TopicInfo], tmap: TopicMap, notes
 def _scene_id(path: Path) -> str:
     """Scene id from a recording's file or folder name; a synth recording (``OUT/recording``
     beside ``OUT/truth/``) or a synth output folder is named after ``OUT``."""
-    p = Path(path)
-    if p.name in SYNTH_RECORDINGS and (p.parent / "truth").is_dir():
-        p = p.parent
+    p = synth_output_folder(path) or Path(path)
     name = p.name if p.is_dir() else p.stem
     sid = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "scene"
     return sid

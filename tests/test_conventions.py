@@ -96,3 +96,14 @@ def test_rotation_angle_deg_analytic():
         T = np.eye(4)
         T[:3, :3] = Rotation.from_rotvec(np.deg2rad(deg) * np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1, 2, -0.5])).as_matrix()
         assert abs(rotation_angle_deg(T) - deg) < 1e-4 and abs(rotation_angle_deg(T[:3, :3]) - deg) < 1e-4
+
+
+def test_label_predicates_follow_the_label_names():
+    import torch
+
+    from holodata.conventions import Label, is_human, is_los
+
+    lab = np.array([int(v) for v in Label], np.uint8)
+    assert is_los(lab).tolist() == [v.name.startswith("LOS") for v in Label]
+    assert is_human(lab).tolist() == [v.name.endswith("HUMAN") for v in Label]
+    assert is_human(torch.from_numpy(lab)).tolist() == is_human(lab).tolist()

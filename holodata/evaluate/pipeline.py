@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from holodata import metrics as M
-from holodata.conventions import Grid, RangeBins
+from holodata.conventions import Grid, RangeBins, is_human, is_los
 from holodata.progress import track
 
 from .baseline import strongest_peaks
@@ -255,12 +255,12 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
             g_nrm, G = geo.gt_normal, geo.gt_point
             if G is None:
                 G = unmirror(g_rng, geo.directions, normals=g_nrm, grid=grid, origins=geo.origins)["point"]
-            g_los = (g_lab == 1) | (g_lab == 3)
+            g_los = is_los(g_lab)
             gc = _clouds(G, g_los)
-            gt_centres.append(M.human_centroids(_human_points(G, (g_lab == 3) | (g_lab == 4))))
+            gt_centres.append(M.human_centroids(_human_points(G, is_human(g_lab))))
             b_rng = strongest_peaks(hm, rb, k=3)
             if model is None:  # oracle: the ground truth is the prediction
-                p_j, h_j = g_rng, ((g_lab == 3) | (g_lab == 4)).astype(np.float32)
+                p_j, h_j = g_rng, is_human(g_lab).astype(np.float32)
                 pcm = score_frame(accs["model"], sid, g_rng, h_j, g_rng, gc, grid, tau, taus, max_range, geo,
                                   normals=g_nrm, los=g_los)
             elif stage2 is None:
@@ -271,7 +271,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                 pcs = {"model_analytic": score_frame(accs["model_analytic"], sid, p_j, p_hum[j], g_rng, gc, grid,
                                                      tau, taus, max_range, geo)}
                 s2m = stage2.predict(p_j, p_hum[j], geo.directions, geo.origins, grid)
-                s2g = stage2.predict(g_rng, ((g_lab == 3) | (g_lab == 4)).astype(np.float32), geo.directions,
+                s2g = stage2.predict(g_rng, is_human(g_lab).astype(np.float32), geo.directions,
                                      geo.origins, grid)
                 pcs["model_no_refine"] = score_points(accs["model_no_refine"], sid, s2m["no_refine"], p_j, g_rng, gc, tau, taus)
                 pcm = score_points(accs["model"], sid, s2m["refined"] or s2m["no_refine"], p_j, g_rng, gc, tau, taus)

@@ -136,15 +136,24 @@ for _spec in (
 SYNTH_RECORDINGS = ("recording", "recording.bag")  # holodata synth: OUT/recording[.bag] beside OUT/truth/
 
 
-def synth_output_recording(path) -> Path:
-    """The data-pass recording inside a ``holodata synth`` output folder (``OUT/truth/`` beside
-    ``OUT/recording/`` or ``OUT/recording.bag``); any other path unchanged."""
+def synth_output_folder(path) -> Path | None:
+    """``OUT`` when ``path`` is a ``holodata synth`` output folder (``OUT/truth/`` beside
+    ``OUT/recording/`` or ``OUT/recording.bag``) or the recording inside one; else None."""
     p = Path(path)
-    if p.is_dir() and (p / "truth").is_dir():
-        for name in SYNTH_RECORDINGS:
-            if (p / name).exists():
-                return p / name
-    return p
+    if p.name in SYNTH_RECORDINGS and (p.parent / "truth").is_dir():
+        return p.parent
+    if p.is_dir() and (p / "truth").is_dir() and any((p / n).exists() for n in SYNTH_RECORDINGS):
+        return p
+    return None
+
+
+def synth_output_recording(path) -> Path:
+    """The data-pass recording of a ``holodata synth`` output folder (:func:`synth_output_folder`);
+    any other path unchanged."""
+    p, out = Path(path), synth_output_folder(path)
+    if out is None or p != out:
+        return p
+    return next(out / n for n in SYNTH_RECORDINGS if (out / n).exists())
 
 
 def guess_reader(path) -> str:
@@ -195,5 +204,5 @@ def open_recording(path, msg_dir=None, meta=None, reader: str | None = None) -> 
         raise RecordingError(f"{p}: cannot read as {name} ({err.__class__.__name__}: {msg[:200]})") from err
 
 
-__all__ = ["open_recording", "guess_reader", "synth_output_recording", "SYNTH_RECORDINGS", "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",
+__all__ = ["open_recording", "guess_reader", "synth_output_folder", "synth_output_recording", "SYNTH_RECORDINGS", "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",
            "ReaderSpec", "DecodeError", "MessageDecoder"]

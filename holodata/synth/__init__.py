@@ -55,8 +55,8 @@ TOPICS = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/odom": "nav_msgs/msg/Odometry",
 }
-# the mapping pass's recording (``mapping_pass=True``): LiDAR and odometry only
 PARTIAL = ".synth-partial"  # where synthesize writes until everything is in place
+# the mapping pass's recording (``mapping_pass=True``): LiDAR and odometry only
 MAPPING_TOPICS = {t: TOPICS[t] for t in ("/ouster/points", "/ouster/metadata", "/tf", "/tf_static", "/odom")}
 # with ``stereo_images=True``: the rectified pair behind the depth camera (mono8, textured scene)
 STEREO_TOPICS = {
@@ -169,12 +169,6 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     # everything is written under OUT/.synth-partial and moved into OUT at the end, the recording
     # last: an interrupted run leaves no recording that looks complete, and a rerun starts over
     # (same arguments, same files) — also after an interrupt between the moves
-    need = estimate_bytes(frames, grid, range_bins, lidar_shape, camera_shape, radar_encoding, stereo_images)
-    probe = next((q for q in (out_dir, *out_dir.parents) if q.exists()), Path("."))
-    free = shutil.disk_usage(probe).free
-    if free < need * 1.1:
-        raise InputError(f"{out_dir}: the recording needs ~{need / 1e9:.2f} GB and {probe} has {free / 1e9:.2f} GB free "
-                         f"(fewer --frames or smaller --grid/--lidar/--camera)")
     tmp = out_dir / PARTIAL
     mp_rec = recording_path(out_dir, format, "mapping")
     if (out_dir / "truth").is_dir() and not (out_dir / "truth" / "scene.json").exists():
@@ -184,6 +178,12 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
             shutil.rmtree(left)
         elif left.exists():
             left.unlink()
+    need = estimate_bytes(frames, grid, range_bins, lidar_shape, camera_shape, radar_encoding, stereo_images)
+    probe = next((q for q in (out_dir, *out_dir.parents) if q.exists()), Path("."))
+    free = shutil.disk_usage(probe).free
+    if free < need * 1.1:
+        raise InputError(f"{out_dir}: the recording needs ~{need / 1e9:.2f} GB and {probe} has {free / 1e9:.2f} GB free "
+                         f"(fewer --frames or smaller --grid/--lidar/--camera)")
     tmp.mkdir(parents=True)
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,

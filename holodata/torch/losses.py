@@ -13,6 +13,8 @@ from dataclasses import asdict, dataclass
 import torch
 import torch.nn.functional as F
 
+from holodata.conventions import is_human
+
 
 @dataclass
 class LossWeights:
@@ -66,7 +68,7 @@ def multi_return_loss(out: dict, gt_range: torch.Tensor, gt_label: torch.Tensor 
     if gt_label is not None and w.human > 0:
         m = torch.isfinite(gt_range)
         if m.any():
-            human = ((gt_label == 3) | (gt_label == 4)).float()
+            human = is_human(gt_label).float()
             pw = torch.tensor(float(w.human_pos_weight), device=human.device)
             parts["human"] = F.binary_cross_entropy_with_logits(out["human_logit"][m], human[m], pos_weight=pw)
             total = total + w.human * parts["human"]

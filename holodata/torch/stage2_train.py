@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from holodata.conventions import Grid
+from holodata.conventions import Grid, is_human, is_los
 from holodata.errors import InputError
 from holodata.progress import track
 
@@ -225,15 +225,11 @@ def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", b
     return np.concatenate(rs), np.concatenate(hs)
 
 
-def _is_human(label):
-    return (label == 3) | (label == 4)
-
-
 def make_batch(fr: Frames, idx, cfg: Stage2Config, rng: np.random.Generator | None, device) -> dict:
     """Tensors of frames ``idx``: input range/human (augmented when ``rng``), GT, geometry."""
     R = fr.range[idx].copy()
     lab = fr.label[idx]
-    hum = _is_human(lab).astype(np.float32)
+    hum = is_human(lab).astype(np.float32)
     gp, gn = fr.gt_point[idx].copy(), fr.gt_normal[idx].copy()
     org, dirs = fr.origins[idx].copy(), fr.directions[idx].copy()
     R_in, H_in = R.copy(), hum.copy()
@@ -389,21 +385,21 @@ def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10
     {"threshold", "scores": {threshold: mean F}}."""
     from holodata import metrics as M
 
+    if stage2.refiner is None:
+        return {"threshold": stage2.keep_threshold, "scores": {}}
     idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
     sums = {c: [] for c in candidates}
     for k in idx:
         gp = frames.gt_point[k].astype(np.float64)
         lab = frames.label[k]
         ok = np.isfinite(gp).all(-1)
-        glos = (lab == 1) | (lab == 3)
+        glos = is_los(lab)
         gt = {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}
-        inputs = [(frames.range[k], _is_human(lab).astype(np.float32))]
+        inputs = [(frames.range[k], is_human(lab).astype(np.float32))]
         if frames.s1_range is not None:
             inputs.append((frames.s1_range[k], frames.s1_human[k]))
         for R, H in inputs:
             r = stage2.predict(R, H, frames.directions[k], frames.origins[k], grid, all_voxels=True)["refined"]
-            if r is None:
-                return {"threshold": stage2.keep_threshold, "scores": {}}
             for c in candidates:
                 keep = r["p_empty"] < c
                 f = []
@@ -477,7 +473,7 @@ def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: G
     for j in range(len(gp)):
         m = np.isfinite(gp[j]).all(-1)
         gpts.append(gp[j][m].astype(np.float64))
-        ghum.append(_is_human(lab[j][m]))
+        ghum.append(is_human(lab[j][m]))
     cls, reg, edt = refine_targets(vox.coords, gpts, ghum, cfg.voxel, cfg.edt_clip)
     return vox, cls.to(device), reg.to(device), edt.to(device)
 
