@@ -17,7 +17,8 @@ from holodata.torch.stage2 import (  # noqa: E402
     local_frame, mirror_normals, neighbour_table, normals_from_range_t, ray_trace, refine_loss, reflect,
     to_local, voxel_point_mean, voxelize,
 )
-from holodata.torch.stage2_train import KEEP_CANDIDATES, Stage2Config, fit_stage2, load_frames, load_stage2, refine_targets  # noqa: E402
+from holodata.torch.stage2_infer import KEEP_CANDIDATES, load_stage2  # noqa: E402
+from holodata.torch.stage2_train import Stage2Config, fit_stage2, load_frames, refine_targets  # noqa: E402
 
 G = Grid(16, 64)
 

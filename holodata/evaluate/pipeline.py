@@ -211,7 +211,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     else:
         ck = load_checkpoint(checkpoint)
         model = model_from_checkpoint(ck, device=str(dev))
-        from holodata.torch.stage2_train import STAGE2_CHECKPOINT, load_stage2
+        from holodata.torch.stage2_infer import STAGE2_CHECKPOINT, load_stage2
 
         s2_path = (Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent) / STAGE2_CHECKPOINT
         if s2_path.exists():

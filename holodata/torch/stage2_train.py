@@ -8,7 +8,8 @@ Phase 1 trains the ray tracer (eq. 6); phase 2 freezes it and trains the volumet
 its points (eq. 7), as the paper does; then :func:`calibrate_keep` picks the refined cloud's
 operating point on the training frames.
 
-Run directory: ``stage2.pt`` (latest epoch of either phase; atomic, resumable),
+Inference (:class:`Stage2`, :func:`load_stage2`, :func:`calibrate_keep`) lives in
+:mod:`holodata.torch.stage2_infer`. Run directory: ``stage2.pt`` (latest epoch of either phase; atomic, resumable),
 ``stage2_config.json``, ``stage2_metrics.jsonl``. The stage-one checkpoint stays ``checkpoint.pt``.
 
 Refined points' LOS/NLOS and human: the means over each voxel's input points of their LOS flags
@@ -28,16 +29,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from holodata.conventions import Grid, is_human, is_los
+from holodata.conventions import Grid, is_human
 from holodata.errors import InputError
 from holodata.progress import track
 
 from .train import check_fields
-from .stage2 import (CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig,
-                     VoxelRefiner, lookup, ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxel_point_mean,
-                     voxelize)
+from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
+                     ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
+from .stage2_infer import STAGE2_CHECKPOINT, Stage2, calibrate_keep, los_flags
 
-STAGE2_CHECKPOINT = "stage2.pt"
 STAGE2_LOG = "stage2_metrics.jsonl"
 
 
@@ -305,135 +305,6 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
         dist, _ = cKDTree(gcoords[:, 1:].numpy()).query(vc[sel, 1:].numpy(), distance_upper_bound=edt_clip)
         edt[sel] = torch.from_numpy(np.minimum(dist, edt_clip)).float()
     return cls, reg, edt
-
-
-# ----------------------------------------------------------------------------- inference
-
-
-def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: np.ndarray | None = None) -> np.ndarray:
-    """(3,H,W) LOS flags of ray-traced points (3,H,W,3): visible in the first-bounce range image
-    (:func:`holodata.evaluate.unmirror.los_mask`, from the beams' origins (H,W,3) when given)."""
-    from holodata.evaluate.unmirror import los_mask
-
-    return los_mask(np.asarray(points, np.float64), first_range, grid,
-                    origins=None if origins is None else np.asarray(origins, np.float64))
-
-
-class Stage2:
-    """A trained stage two: ``ray_tracer`` (RayTracer) and ``refiner`` (VoxelRefiner or None).
-    ``keep_threshold``: a refined voxel is kept when its P(empty) is below it (calibrated on the
-    training frames after training, :func:`calibrate_keep`; 0.5 = the arg-max class)."""
-
-    def __init__(self, ray_tracer: RayTracer, refiner: VoxelRefiner | None, device="cpu", keep_threshold: float = 0.5):
-        self.rt, self.refiner, self.device = ray_tracer.eval(), (refiner.eval() if refiner is not None else None), device
-        self.keep_threshold = float(keep_threshold)
-
-    @torch.no_grad()
-    def predict(self, R: np.ndarray, human: np.ndarray | None, directions: np.ndarray, origins: np.ndarray,
-                grid: Grid, all_voxels: bool = False) -> dict:
-        """One frame: R (3,H,W) m NaN = none, human (3,H,W) probability or None, directions/origins
-        (H,W,3) → {"no_refine": {point (3,H,W,3), los (3,H,W), human (3,H,W)},
-        "refined": {point (M,3), los (M,), human (M,)} (None without a refiner)}. A refined voxel is
-        LOS when most of its input points are (:func:`los_flags`), human when its input points'
-        mean human probability is ≥ 0.5 or the refiner classes it human. ``all_voxels``: keep every
-        voxel and add ``p_empty`` (M,) (for :func:`calibrate_keep`)."""
-        dev = self.device
-        Rt = torch.from_numpy(np.asarray(R, np.float32))[None].to(dev)
-        d = torch.from_numpy(np.asarray(directions, np.float32)).to(dev)
-        o = torch.from_numpy(np.asarray(origins, np.float32)).to(dev)
-        out = self.rt(Rt, d, o)
-        P = out["point"][0].cpu().numpy().astype(np.float64)
-        los = los_flags(P, np.asarray(R)[0], grid, origins)
-        hp = np.zeros(R.shape, np.float32) if human is None else np.asarray(human, np.float32)
-        res = {"no_refine": {"point": P, "los": los, "human": hp >= 0.5}, "refined": None}
-        if self.refiner is None:
-            return res
-        ok = np.isfinite(P).all(-1)
-        if not ok.any():
-            res["refined"] = {"point": np.zeros((0, 3)), "los": np.zeros(0, bool), "human": np.zeros(0, bool),
-                              "p_empty": np.zeros(0)}
-            return res
-        pts = torch.from_numpy(P[ok]).float().to(dev)
-        b = torch.from_numpy(np.nonzero(ok)[0]).to(dev)
-        lf = torch.from_numpy(los[ok].astype(np.float32)).to(dev)
-        hf = torch.from_numpy(hp[ok]).to(dev)
-        vox = voxelize(pts, torch.zeros_like(b), b, hf, self.refiner.cfg.voxel, self.refiner.cfg.max_range, los=lf)
-        ro = self.refiner(vox)
-        prob = torch.softmax(ro["cls_logit"], -1)
-        p_empty = prob[:, CLASS_EMPTY].cpu().numpy().astype(np.float64)
-        hum = (voxel_point_mean(vox, hf) >= 0.5) | (prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE])
-        ref = {"point": (ro["centre"] + ro["offset"]).cpu().numpy().astype(np.float64),
-               "los": (voxel_point_mean(vox, lf) >= 0.5).cpu().numpy(), "human": hum.cpu().numpy()}
-        if all_voxels:
-            res["refined"] = {**ref, "p_empty": p_empty}
-        else:
-            keep = p_empty < self.keep_threshold
-            res["refined"] = {k: v[keep] for k, v in ref.items()}
-        return res
-
-
-KEEP_CANDIDATES = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
-
-
-def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10, max_frames: int = 40,
-                   candidates=KEEP_CANDIDATES) -> dict:
-    """The refiner's keep threshold on P(empty) that maximises the mean of the refined cloud's LOS
-    and NLOS F-scores at ``tau`` m (holodata.metrics, as evaluate scores them) over up to
-    ``max_frames`` evenly spaced training frames, each fed twice when stage-one predictions are
-    present (the GT ranges and human mask, and stage one's): the training objective (eq. 7, class
-    weights) fixes the classes, not the F-optimal operating point of the cloud. Returns
-    {"threshold", "scores": {threshold: mean F}}."""
-    from holodata import metrics as M
-
-    if stage2.refiner is None:
-        return {"threshold": stage2.keep_threshold, "scores": {}}
-    idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
-    sums = {c: [] for c in candidates}
-    for k in idx:
-        gp = frames.gt_point[k].astype(np.float64)
-        lab = frames.label[k]
-        ok = np.isfinite(gp).all(-1)
-        glos = is_los(lab)
-        gt = {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}
-        inputs = [(frames.range[k], is_human(lab).astype(np.float32))]
-        if frames.s1_range is not None:
-            inputs.append((frames.s1_range[k], frames.s1_human[k]))
-        for R, H in inputs:
-            r = stage2.predict(R, H, frames.directions[k], frames.origins[k], grid, all_voxels=True)["refined"]
-            for c in candidates:
-                keep = r["p_empty"] < c
-                f = []
-                for part, sel in (("los", r["los"]), ("nlos", ~r["los"])):
-                    f.append(M.point_cloud_metrics(r["point"][keep & sel], gt[part], tau)["f_score"])
-                sums[c].append(float(np.mean(f)))
-    scores = {float(c): float(np.mean(v)) if v else 0.0 for c, v in sums.items()}
-    return {"threshold": max(scores, key=scores.get), "scores": scores}
-
-
-def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
-    """Stage2 from ``RUN/stage2.pt`` (or the file) and its checkpoint dict; InputError when absent."""
-    p = Path(path)
-    if p.is_dir():
-        p = p / STAGE2_CHECKPOINT
-    if not p.exists():
-        raise InputError(f"{p}: no such stage-two checkpoint (train it: holodata train DATASET --out RUN)")
-    try:
-        ck = torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as err:  # noqa: BLE001
-        raise InputError(f"{p}: not a holodata stage-two checkpoint ({err.__class__.__name__})") from None
-    rt = RayTracer(RayTracerConfig(**ck["rt_config"]))
-    rt.load_state_dict(ck["rt_state"])
-    ref = None
-    if ck.get("refiner_state") is not None and ck["epoch"] > ck["stage2_config"]["epochs_rt"]:
-        ref = VoxelRefiner(RefinerConfig.from_dict(ck["refiner_config"]))
-        try:
-            ref.load_state_dict(ck["refiner_state"])
-        except RuntimeError:
-            raise InputError(f"{p}: refiner weights of another holodata version (retrain: holodata train DATASET "
-                             f"--stage 2 --out RUN)") from None
-        ref = ref.to(device)
-    keep = (ck.get("keep") or {}).get("threshold", 0.5)
-    return Stage2(rt.to(device), ref, device, keep_threshold=keep), ck
 
 
 # ----------------------------------------------------------------------------- training
