@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import shutil
 import time
 from dataclasses import asdict, dataclass, field
@@ -33,7 +32,7 @@ from holodata.conventions import Grid, is_human
 from holodata.errors import InputError
 from holodata.progress import track
 
-from .train import check_fields
+from .train import _atomic_save, check_fields
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
 from .stage2_infer import STAGE2_CHECKPOINT, Stage2, calibrate_keep, los_flags
@@ -308,12 +307,6 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
 
 
 # ----------------------------------------------------------------------------- training
-
-
-def _atomic_save(obj, path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
 
 
 def check_stage1(ck: dict, ds, where) -> None:
