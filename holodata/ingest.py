@@ -30,7 +30,8 @@ ragged (per-point time relative to the scan stamp, when the cloud has a time fie
 (T, Hl, Wl) float32 m, NaN = no return (organised clouds as published; Ouster scans destaggered),
 ``lidar/timestamp_ns``; ``camera/points`` ragged (sensor frame: optical frame for depth images),
 ``camera/timestamp_ns``; ``pose/T_world_radar`` when TF connects the radar frame to the world frame
-at every frame time. Scene attributes: ``frame_sensor``, ``source`` {recording, files, bytes,
+at every frame time; ``tf/T_world_lidar`` when TF connects the LiDAR frame to a world frame (NaN
+where TF does not cover a frame's scan: slam anchors its map to it). Scene attributes: ``frame_sensor``, ``source`` {recording, files, bytes,
 sha256 (written with ``ingest.complete``), reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF), ``sensors`` (topics,
 frames, intrinsics, Ouster metadata), ``ingest`` (mapping, tolerance, counts, drops, warnings).
 
@@ -1364,6 +1365,9 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     pose_note = _write_poses(plan, sc, frame_arr)
     if pose_note:
         warnings.append(pose_note)
+    tf_note = _write_lidar_tf(plan, frame_arr)
+    if tf_note:
+        warnings.append(tf_note)
     sync = {}
     for role in plan.match:
         ok = plan.match[role] >= 0
@@ -1401,6 +1405,38 @@ def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
                   attrs={"world_frame": world, "sensor_frame": radar_frame, "source": "tf"})
     for k in range(w.n_shards):
         w.write_shard(k, poses[w.frames(k)])
+    return None
+
+
+def _write_lidar_tf(plan: Plan, frame_arr) -> str | None:
+    """``tf/T_world_lidar`` (T,4,4): TF's pose of the LiDAR frame in the world frame at each frame's
+    scan stamp, NaN where the frame has no scan or TF does not cover it (drivers start at different
+    times). slam anchors its map to it (the first covered scan), so slam's world is TF's world and a
+    camera TF pose in that world is a guess register can use."""
+    tf = plan.tf
+    if "lidar" not in plan.streams or tf is None or not tf.frames:
+        return None
+    frame = _sensor_frame(plan, "lidar")
+    if not frame:
+        return None
+    world = plan.tmap.world_frame or _world_frame(tf, frame)
+    if world is None or world == frame:
+        return None
+    stamps = plan.frame_stamps if plan.frame_sensor == "lidar" else np.where(
+        plan.match["lidar"] >= 0, plan.match_stamp["lidar"], 0)
+    res = tf.lookup_many(world, frame, stamps)
+    if res is None:
+        return f"TF does not connect LiDAR frame {frame!r} to {world!r}; no tf/T_world_lidar"
+    poses, ok = res
+    ok &= np.asarray(stamps) > 0
+    poses = np.where(ok[:, None, None], poses, np.nan)
+    w = frame_arr("tf/T_world_lidar", (4, 4), "float64", ["frame", "row", "col"], "m", fill_value=float("nan"),
+                  attrs={"world_frame": world, "sensor_frame": frame, "source": "tf",
+                         "covered_frames": int(ok.sum()), "time": "the frame's LiDAR scan stamp"})
+    for k in range(w.n_shards):
+        w.write_shard(k, poses[w.frames(k)])
+    if not ok.any():
+        return f"TF ({world} -> {frame}) covers none of the LiDAR scans; tf/T_world_lidar is NaN"
     return None
 
 

@@ -843,6 +843,40 @@ def frame_candidates(cam: CameraFrames, frames, T: np.ndarray, rays: np.ndarray,
     return out
 
 
+def camera_seen_through(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape: tuple, images,
+                        margin: np.ndarray | float, min_fraction: float = 0.2) -> np.ndarray:
+    """(N,) bool: map ``points`` (N,3, world) the camera at ``T`` (4,4, T_world_camera; pinhole ``K``,
+    image ``shape`` (h, w)) sees *through* — in at least ``min_fraction`` of the depth ``images`` (an
+    iterable of (h, w) float32 m, NaN = none) with a return at the point's pixel, that return lies
+    more than ``margin`` (m, scalar or (h, w)) beyond the point. Free-space carving with the camera's
+    rays: a LiDAR map keeps a person who walks along the LiDAR's line of sight (the scans that would
+    see through the far end of the walk are the ones the person blocks), but from the camera's
+    side those voxels are empty whenever the person is elsewhere; such map points must not explain
+    the person's returns away."""
+    h, w = shape
+    q = transform_points(np.linalg.inv(T), np.asarray(points, np.float64))
+    z = q[:, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.rint(K[0, 0] * q[:, 0] / z + K[0, 2])
+        v = np.rint(K[1, 1] * q[:, 1] / z + K[1, 2])
+    inside = np.flatnonzero((z > 0.1) & (u >= 0) & (u < w) & (v >= 0) & (v < h))
+    out = np.zeros(len(q), bool)
+    if not len(inside):
+        return out
+    pix = v[inside].astype(np.intp) * w + u[inside].astype(np.intp)
+    zi = z[inside]
+    mg = np.broadcast_to(np.asarray(margin, np.float64), (h, w)).reshape(-1)[pix]
+    through = np.zeros(len(inside), np.int32)
+    seen = np.zeros(len(inside), np.int32)
+    for D in images:
+        d = D.reshape(-1)[pix]
+        ok = np.isfinite(d)
+        seen += ok
+        through += ok & (d > zi + mg)
+    out[inside] = (seen > 0) & (through >= np.maximum(1, min_fraction * seen))
+    return out
+
+
 def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
     """Per-pixel depth noise σ (m) from the stereo model σ = a·z² (disparity noise), with ``a`` the
     median of spread/z² over the pixels: smooth in z, unlike the per-pixel spread of a few frames
@@ -1454,9 +1488,13 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         t2 = time.perf_counter()
         from scipy.spatial import cKDTree
 
-        mtree = cKDTree(M)
         eye = T[:3, 3]
         sigma = np.where(np.isfinite(mad), mad, 0.0)
+        # map points the camera sees through (a person the LiDAR map kept) explain nothing away
+        carved = camera_seen_through(M, T, cam.K, cam.shape, images.values(),
+                                     np.maximum(cfg.fg_min_m, cfg.fg_sigma * depth_noise_model(
+                                         np.where(np.isfinite(med), med, 0.0), sigma)))
+        mtree = cKDTree(M[~carved])
         # a person standing still is in the temporal background: static points on no large plane and not
         # explained by the map are candidates in every frame
         still = np.zeros(med.shape, bool)
@@ -1570,7 +1608,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         n_h = int(sum(len(s[1]) > 0 for s in surfaces))
         report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
                   "map": "slam (map/points)" if stored_map is not None else "built from the LiDAR scans",
-                  "frames_with_human": n_h, "frames": n, "frames_repicked": n_repicked, "params": cfg.to_attrs(),
+                  "frames_with_human": n_h, "frames": n, "map_points_seen_through": int(carved.sum()), "frames_repicked": n_repicked, "params": cfg.to_attrs(),
                   "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
                              "visible front (closed)",
                   "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,

@@ -26,11 +26,13 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
    Measured on ``holodata synth`` corners (``benchmarks/slam.py``, 40 radar cycles, 64×1024,
    T/L/cross/oblique): bare kiss-icp ATE 3–12 cm (it lags while the robot accelerates from
    rest), refined ATE 0.3–0.8 cm, also with two people walking in the corridor.
-4. **World frame**: when ingest found TF poses of the radar (``pose/T_world_radar`` with
-   ``source: tf``) and the LiDAR/radar extrinsics, the first scan is anchored at its TF pose, so
-   the map lives in TF's world frame (where static camera TF and odometry live); else the world is
-   the base frame at the first scan (``extrinsics.lidar`` = T_base_lidar), else the first LiDAR
-   pose is the identity.
+4. **World frame**: when TF connects the LiDAR to a world frame (ingest's ``tf/T_world_lidar``;
+   else its TF radar poses ``pose/T_world_radar`` with ``source: tf`` through the extrinsics, or the
+   source recording's TF), the first scan TF covers is anchored at its TF pose, so the map lives in
+   TF's world frame (where static camera TF and odometry live; TF may start after the LiDAR);
+   else the world is the base frame at the first scan (``extrinsics.lidar`` = T_base_lidar), else
+   the first LiDAR pose is the identity. ``pose/T_world_lidar`` says which (``world_frame``,
+   ``anchor``).
 5. **Radar poses**: ``T_world_radar(t) = T_world_lidar(t) · T_base_lidar⁻¹ · T_base_radar`` with
    ``T_world_lidar(t)`` interpolated (SLERP) at each frame time ``time/timestamp_ns``.
 
@@ -992,12 +994,47 @@ def recording_tf_poses(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.nda
     return np.asarray(res[0], np.float64), np.asarray(res[1], bool), str(world)
 
 
-def anchor_pose(scene, first_stamp_ns: int) -> tuple[np.ndarray, dict]:
-    """T_world_lidar of the first scan and how it was chosen (see module doc, 4.)."""
+def tf_lidar_poses(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, str] | None:
+    """TF poses T_world_lidar (S,4,4) at ``stamps_ns`` (S,) from ingest's ``tf/T_world_lidar`` (the
+    LiDAR frame's TF pose at each frame's scan, NaN where TF does not cover it), with (S,) bool
+    "covered" (within the covered frames' time span) and the world frame's name; None without it."""
+    if "tf/T_world_lidar" not in set(scene.arrays()):
+        return None
+    a = scene["tf/T_world_lidar"]
+    P = np.asarray(a[...], np.float64)
+    name = "lidar/timestamp_ns" if "lidar/timestamp_ns" in set(scene.arrays()) else "time/timestamp_ns"
+    t = np.asarray(scene[name][...], np.int64)
+    ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1) & (t > 0)
+    if not ok.any():
+        return None
+    t, P = t[ok], P[ok]
+    order = np.argsort(t, kind="stable")
+    t, P = t[order], P[order]
+    keep = np.r_[True, np.diff(t) > 0]
+    t, P = t[keep], P[keep]
+    s = np.asarray(stamps_ns, np.int64)
+    cov = (s >= t[0]) & (s <= t[-1])
+    out = Trajectory(t, P).interpolate(np.clip(s, t[0], t[-1])) if len(t) > 1 else np.repeat(P[:1], len(s), 0)
+    return out, cov, str(dict(a.attrs).get("world_frame"))
+
+
+def anchor_pose(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, int, dict]:
+    """The world pose T_world_lidar of one scan, that scan's index into ``stamps_ns`` (the scans'
+    stamps, (S,)) and how it was chosen (see module doc, 4.): the first scan TF covers, from ingest's
+    ``tf/T_world_lidar``, else ingest's TF radar poses through the extrinsics, else the source
+    recording's TF; else the base frame (``extrinsics.lidar``) or the LiDAR frame at the first scan."""
+    stamps_ns = np.asarray(stamps_ns, np.int64).reshape(-1)
     ext = scene.attrs.get("extrinsics") or {}
     T_bl, T_br = _attr_T(ext, "lidar"), _attr_T(ext, "radar")
     prev = (scene.attrs.get("slam") or {}).get("anchor")
     names = set(scene.arrays())
+    for src, res in (("tf/T_world_lidar", lambda: tf_lidar_poses(scene, stamps_ns)),
+                     ("TF of the source recording", lambda: None if "pose/T_world_radar" in names
+                      else recording_tf_poses(scene, stamps_ns))):
+        r = res()
+        if r is not None and r[1].any():
+            j = int(np.argmax(r[1]))
+            return r[0][j], j, {"kind": "tf", "world_frame": r[2], "via": src, "scan": j}
     if "pose/T_world_radar" in names and T_bl is not None and T_br is not None:
         pa = scene["pose/T_world_radar"]
         src = dict(pa.attrs).get("source")
@@ -1006,17 +1043,13 @@ def anchor_pose(scene, first_stamp_ns: int) -> tuple[np.ndarray, dict]:
             t = np.asarray(scene["time/timestamp_ns"][...], np.int64)
             ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1)
             if ok.sum() >= 1:
-                T_wr = Trajectory(t[ok], P[ok]).interpolate(np.array([first_stamp_ns]))[0]
-                return T_wr @ np.linalg.inv(T_br) @ T_bl, {"kind": "tf", "world_frame": dict(pa.attrs).get("world_frame")}
-    if "pose/T_world_radar" not in names:
-        rt = recording_tf_poses(scene, np.array([first_stamp_ns], np.int64))
-        if rt is not None and rt[1][0]:
-            return rt[0][0], {"kind": "tf", "world_frame": rt[2], "via": "TF of the source recording"}
+                T_wr = Trajectory(t[ok], P[ok]).interpolate(stamps_ns[:1])[0]
+                return T_wr @ np.linalg.inv(T_br) @ T_bl, 0, {"kind": "tf", "world_frame": dict(pa.attrs).get("world_frame")}
     if prev and prev.get("kind") == "tf" and prev.get("T_world_lidar0") is not None:
-        return np.asarray(prev["T_world_lidar0"], np.float64), {"kind": "tf", "world_frame": prev.get("world_frame")}
+        return np.asarray(prev["T_world_lidar0"], np.float64), 0, {"kind": "tf", "world_frame": prev.get("world_frame")}
     if T_bl is not None:
-        return T_bl, {"kind": "base", "world_frame": "base frame at the first scan"}
-    return np.eye(4), {"kind": "lidar", "world_frame": "LiDAR frame at the first scan"}
+        return T_bl, 0, {"kind": "base", "world_frame": "base frame at the first scan"}
+    return np.eye(4), 0, {"kind": "lidar", "world_frame": "LiDAR frame at the first scan"}
 
 
 def frame_poses(scene, scans: Scans, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, dict]:
@@ -1151,8 +1184,8 @@ def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: di
     if ready is not None:
         ready(min(len(scans), 10) - 1)   # data_max_range
     max_range = float(config.max_range or data_max_range(scans))
-    T0, anchor = anchor_pose(scene, int(scans.stamp_ns[0]))
-    anchor["T_world_lidar0"] = T0.tolist()
+    T_a, j_a, anchor = anchor_pose(scene, scans.stamp_ns)
+    T0 = T_a     # scan 0 seeded at the anchor scan's pose; the trajectory is moved onto it below
     background = None
     guess = None
     if config.refine and len(scans) > 1 and config.seed_poses == "tf":
@@ -1190,6 +1223,11 @@ def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: di
         timings["kiss_icp_s"] = time.perf_counter() - t0
         K = (T0 @ np.linalg.inv(K[0])) @ K  # the world frame (module doc, 4.)
         poses = Trajectory(kref, K).interpolate(scans.stamp_ns) if len(scans) > 1 else K.copy()
+    if j_a:   # anchored at a later scan (the first TF covers): that scan sits at its TF pose
+        A = T_a @ np.linalg.inv(poses[j_a])
+        poses, K = A @ poses, A @ K
+    T0 = poses[0].copy()
+    anchor["T_world_lidar0"] = T0.tolist()
     return max_range, T0, anchor, poses, K, kref, background
 
 
@@ -1334,9 +1372,10 @@ def guess_poses(scene, scans: Scans) -> tuple[np.ndarray | None, str]:
         if ok.sum() >= 2:
             T_rl = np.linalg.inv(T_br) @ (T_bl if T_bl is not None else np.eye(4))
             return Trajectory(t[ok], P[ok]).interpolate(scans.stamp_ns) @ T_rl, "tf (pose/T_world_radar)"
-    rt = recording_tf_poses(scene, scans.stamp_ns)
-    if rt is not None and rt[1].all():
-        return rt[0], "tf (source recording)"
+    for src, rt in (("tf (tf/T_world_lidar)", tf_lidar_poses(scene, scans.stamp_ns)),
+                    ("tf (source recording)", recording_tf_poses(scene, scans.stamp_ns))):
+        if rt is not None and rt[1].all():
+            return rt[0], src
     return None, "none"
 
 
@@ -1436,7 +1475,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
         g0 = guess[0]
         init = _Fixed(guess, seed=True)
     else:
-        g0, _ = anchor_pose(scene, int(scans.stamp_ns[0]))
+        g0 = anchor_pose(scene, scans.stamp_ns[:1])[0]
         init = KissStream(scans, config, max_range) if len(scans) > 1 else _Fixed(np.eye(4)[None].repeat(1, 0))
     T0, fit0, rmse0 = localise_first(scans.points[0], vmap, g0, config, max_range)
     if fit0 < config.min_fitness:
@@ -1596,5 +1635,5 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, map_
 
 
 __all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine", "global_refine",
-           "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "frame_poses",
+           "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "tf_lidar_poses", "frame_poses",
            "localise_scene", "check_map_scene", "recording_tf_poses", "guess_poses", "MAPPING_ROLE"]

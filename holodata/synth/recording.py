@@ -135,6 +135,14 @@ class BagWriter:
             header=self.header(topic, stamp_ns, frame_id), height=int(d.shape[0]), width=int(d.shape[1]),
             encoding="32FC1", is_bigendian=0, step=int(4 * d.shape[1]), data=np.frombuffer(d.tobytes(), np.uint8))
 
+    def image_16uc1(self, topic: str, stamp_ns: int, frame_id: str, depth_m: np.ndarray):
+        """16UC1 depth image in millimetres (RealSense, Kinect): NaN / out of range -> 0 (no return)."""
+        mm = np.where(np.isfinite(depth_m), np.rint(np.nan_to_num(depth_m) * 1000.0), 0.0)
+        d = np.ascontiguousarray(np.clip(mm, 0, 65535), dtype="<u2")
+        return self.types["sensor_msgs/msg/Image"](
+            header=self.header(topic, stamp_ns, frame_id), height=int(d.shape[0]), width=int(d.shape[1]),
+            encoding="16UC1", is_bigendian=0, step=int(2 * d.shape[1]), data=np.frombuffer(d.tobytes(), np.uint8))
+
     def image_mono8(self, topic: str, stamp_ns: int, frame_id: str, img: np.ndarray):
         im = np.ascontiguousarray(img, dtype=np.uint8)
         return self.types["sensor_msgs/msg/Image"](

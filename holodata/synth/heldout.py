@@ -1,0 +1,279 @@
+"""Held-out recordings for ``slam`` and ``register``: a scene family nothing was tuned on.
+
+slam and register were tuned on the demo and benchmark corners (:mod:`holodata.synth.scenario`:
+radar + LiDAR + ZED-like camera, the robot stopping short of the junction, exact TF camera pose).
+This family differs where real recordings do (issue 23):
+
+* **LiDAR only** (no radar), an Ouster-like organised ``PointCloud2`` (ouster_ros point layout) on
+  ``/ouster/points`` in ``os_sensor``; any beam count and vertical field of view;
+* the robot drives **through** an L corridor (into the hidden leg), furniture along both legs;
+* a **standard TF tree**: ``map → odom`` static, ``odom → base_link`` at 50 Hz from odometry that
+  drifts ``odom_scale`` of the distance, ``base_link → os_sensor`` static; the TF stream starts
+  ``tf_late_s`` after the LiDAR (drivers start at different times);
+* a world-fixed **RealSense-like depth camera** facing the corner from the hidden side
+  (``camera="hidden"``: the far end of the hidden leg looking back) or from the robot's side
+  (``camera="robot"``: the junction's far corner looking up the hidden leg), recorded as a 16UC1
+  depth image + CameraInfo (``camera_output="depth16"``) or as an organised ``PointCloud2`` in the
+  optical frame with NaN for no return, CameraInfo beside it (``"cloud"``); its pose in TF
+  (``map → camera_link``) is **hand-measured**: ``guess_cm`` / ``guess_deg`` off the truth;
+* a walking person, human-shaped (:func:`holodata.synth.human.human_mesh`) or a box
+  (``person="box"``), in the camera's view.
+
+Truth (``truth/``): ``extrinsics.json`` (``T_world_camera_optical`` true, ``T_map_camera_link_tf``
+the guess), ``trajectory_lidar.tum`` (true T_world_lidar at each scan's header stamp),
+``human/<k:06d>.ply`` (the person at scan k's stamp: frame k of a LiDAR-framed scene),
+``mesh.ply``, ``scene.json`` (the configuration and derived parameters). The world frame is
+``map``, the true world.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from ..progress import track
+from . import truth as truthio
+from .camera import T_LINK_OPTICAL, CameraConfig, CameraModel, look_at
+from .human import HumanWalk
+from .lidar import LidarConfig, LidarModel, beam_angles
+from .motion import odometry, path_trajectory
+from .worlds import CLASS_ID, MATERIAL_ID, World, box_mesh, make_world
+
+TOPICS_DEPTH = {"/camera/depth/image_rect_raw": "sensor_msgs/msg/Image",
+                "/camera/depth/camera_info": "sensor_msgs/msg/CameraInfo"}
+TOPICS_CLOUD = {"/camera/depth/color/points": "sensor_msgs/msg/PointCloud2",
+                "/camera/depth/camera_info": "sensor_msgs/msg/CameraInfo"}
+TOPICS_BASE = {"/ouster/points": "sensor_msgs/msg/PointCloud2", "/tf": "tf2_msgs/msg/TFMessage",
+               "/tf_static": "tf2_msgs/msg/TFMessage", "/odom": "nav_msgs/msg/Odometry"}
+FRAME_CAM_LINK, FRAME_CAM_OPT = "camera_link", "camera_depth_optical_frame"
+TF_HZ = 50.0
+
+
+@dataclass(frozen=True)
+class HeldOutConfig:
+    """One held-out recording (see the module docstring). Lengths m, angles deg, times s."""
+
+    seed: int = 0
+    width: float | None = None          # approach corridor width (None: drawn by make_world)
+    lidar_rows: int = 64
+    lidar_cols: int = 512
+    lidar_fov_deg: float = 45.0
+    lidar_hz: float = 10.0
+    camera: str = "hidden"              # "hidden" | "robot"
+    camera_output: str = "depth16"      # "depth16" | "cloud"
+    camera_shape: tuple = (240, 320)    # (h, w); hfov 87 deg (D435-like)
+    camera_hz: float = 15.0
+    depth_noise: float = 1.0            # x the D435-like disparity noise (0.08 px at 848 px, 50 mm)
+    person: str = "human"               # "human" | "box"
+    furniture: int = 4                  # boxes / shelves along the walls
+    guess_cm: float = 7.8
+    guess_deg: float = 2.7
+    odom_scale: float = 0.01
+    tf_late_s: float = 0.3
+    start_back_m: float | None = None   # robot start this far behind the junction (None: the corridor's end)
+    into_hidden_m: float = 1.8          # ... driving this far up the hidden leg
+    speed_mps: float = 0.6
+
+    def check(self) -> None:
+        if self.camera not in ("hidden", "robot"):
+            raise InputError(f"camera must be 'hidden' or 'robot', got {self.camera!r}")
+        if self.camera_output not in ("depth16", "cloud"):
+            raise InputError(f"camera_output must be 'depth16' or 'cloud', got {self.camera_output!r}")
+        if self.person not in ("human", "box"):
+            raise InputError(f"person must be 'human' or 'box', got {self.person!r}")
+
+
+def _perturbation(rng: np.random.Generator, cm: float, deg: float) -> np.ndarray:
+    """A rigid motion of exactly ``cm`` and ``deg`` about random axes."""
+    from scipy.spatial.transform import Rotation
+
+    a, t = rng.normal(size=3), rng.normal(size=3)
+    D = np.eye(4)
+    D[:3, :3] = Rotation.from_rotvec(np.deg2rad(deg) * a / np.linalg.norm(a)).as_matrix()
+    D[:3, 3] = cm / 100.0 * t / np.linalg.norm(t)
+    return D
+
+
+def _furnished(world: World, n: int, rng: np.random.Generator) -> tuple[World, list]:
+    """``world`` with ``n`` boxes (tables, shelves, cabinets) against the walls of both legs, leaving
+    0.6 m either side of the corridor axes free for the robot and the person."""
+    V, F, M, C = [world.vertices], [world.faces.astype(np.int64)], [world.face_material], [world.face_class]
+    nv = len(world.vertices)
+    sgn = -1.0 if world.mirrored else 1.0
+    hw, w2 = world.width / 2, world.hidden_width
+    origin, u, L, bw = world.hidden_axis
+    nrm = np.array([-u[1], u[0]])
+    out = []
+    for k in range(n):
+        sz = rng.uniform([0.4, 0.3, 0.5], [1.4, 0.6, 1.9])
+        if k % 2 == 0:     # approach leg, behind the junction
+            side = 1.0 if rng.random() < 0.5 else -1.0
+            depth = min(sz[1], hw - 0.6)
+            if depth < 0.15:
+                continue
+            x = float(rng.uniform(-6.0, -0.8 - sz[0] / 2))
+            c = np.array([x, sgn * side * (hw - depth / 2 - 0.02)])
+            yaw = 0.0
+        else:              # hidden leg
+            side = 1.0 if rng.random() < 0.5 else -1.0
+            depth = min(sz[1], bw / 2 - 0.6)
+            if depth < 0.15:
+                continue
+            s = float(rng.uniform(0.8 + sz[0] / 2, max(1.0 + sz[0] / 2, L - 2.5)))
+            c = origin + u * s + nrm * side * (bw / 2 - depth / 2 - 0.02)
+            yaw = float(np.arctan2(u[1], u[0]))
+        v, f = box_mesh([c[0], c[1], sz[2] / 2], [sz[0], depth, sz[2]], yaw)
+        V.append(v)
+        F.append(f + nv)
+        nv += len(v)
+        M.append(np.full(len(f), MATERIAL_ID["wood" if rng.random() < 0.6 else "metal"], np.uint8))
+        C.append(np.full(len(f), CLASS_ID["box"], np.uint8))
+        out.append({"center": np.round(c, 3).tolist(), "size": np.round([sz[0], depth, sz[2]], 3).tolist()})
+    return replace(world, vertices=np.concatenate(V), faces=np.concatenate(F).astype(np.int32),
+                   face_material=np.concatenate(M), face_class=np.concatenate(C)), out
+
+
+class _BoxPerson:
+    """A 0.45 x 0.3 m box of ``height`` walking like :class:`HumanWalk` (a person a depth camera sees
+    as a slab: no limbs, flat faces)."""
+
+    def __init__(self, walk: HumanWalk):
+        self.walk = walk
+
+    def mesh_at(self, t_s: float):
+        pos, head, _ = self.walk.state(t_s)
+        return box_mesh([pos[0], pos[1], self.walk.height / 2], [0.3, 0.45, self.walk.height], head)
+
+
+def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig(), fmt: str = "mcap",
+                       quiet: bool = True) -> Path:
+    """Write one held-out recording (module docstring) under ``out_dir`` (``recording/`` + ``truth/``);
+    returns the recording's path."""
+    from ..raytrace import RayScene
+    from .recording import BagWriter, recording_path
+
+    cfg.check()
+    out_dir = Path(out_dir)
+    truth_dir = out_dir / "truth"
+    (truth_dir / "human").mkdir(parents=True, exist_ok=False)
+    rng = np.random.default_rng([int(cfg.seed), 23])
+    world, furniture = _furnished(make_world("L", cfg.width, cfg.seed), cfg.furniture, rng)
+    sgn = -1.0 if world.mirrored else 1.0
+    hw, w2 = world.width / 2, world.hidden_width
+    origin, u, L, bw = world.hidden_axis
+    nrm = np.array([-u[1], u[0]])
+    la = -float(world.floor_polygon[:, 0].min())
+    back = min(la - 1.0, cfg.start_back_m if cfg.start_back_m is not None else la - 1.0)
+    path = np.array([[-back, 0.0], [w2 / 2, 0.0], [w2 / 2, sgn * (hw + cfg.into_hidden_m)]])
+    t0 = (1_700_000_000 + int(cfg.seed) * 3600) * 1_000_000_000
+    truth, tinfo = path_trajectory(path, t0, rng, speed=cfg.speed_mps, t_start=0.6, t_end=0.6)
+    odom, oinfo = odometry(truth, rng, rate_hz=TF_HZ, scale_error=float(rng.choice([-1, 1])) * cfg.odom_scale,
+                           yaw_bias_dps=float(rng.uniform(-0.1, 0.1)))
+    T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
+    T_base_lidar = np.eye(4)
+    T_base_lidar[:3, 3] = [float(rng.uniform(-0.1, 0.1)), 0.0, float(rng.uniform(0.45, 0.9))]
+    # the person walks up and down the hidden leg, in the camera's view
+    height = float(rng.uniform(1.55, 1.95))
+    lat = float(rng.uniform(-1, 1)) * max(0.0, bw / 2 - 0.7)
+    s_a = float(rng.uniform(cfg.into_hidden_m + 1.0, cfg.into_hidden_m + 1.6))
+    s_b = min(s_a + float(rng.uniform(1.5, 2.5)), L - 1.6)
+    walk = HumanWalk(origin + u * s_a + nrm * lat, origin + u * max(s_b, s_a + 0.5) + nrm * lat,
+                     float(rng.uniform(0.5, 1.1)), height, float(rng.uniform(0, 1)))
+    person = walk if cfg.person == "human" else _BoxPerson(walk)
+    # the camera
+    if cfg.camera == "hidden":
+        eye = np.r_[origin + u * (L - 0.3) + nrm * float(rng.uniform(-0.25, 0.25)) * bw, float(rng.uniform(1.0, 1.6))]
+        target = np.r_[origin, 0.8]
+    else:
+        eye = np.r_[w2 - 0.25, sgn * (-hw + 0.25), float(rng.uniform(1.2, 1.8))]
+        target = np.r_[origin + u * (0.5 * L), 0.7]
+    T_world_link = look_at(eye, target)
+    T_world_opt = T_world_link @ T_LINK_OPTICAL
+    T_guess_link = T_world_link @ _perturbation(rng, cfg.guess_cm, cfg.guess_deg)
+    h, w = int(cfg.camera_shape[0]), int(cfg.camera_shape[1])
+    fx = 0.5 * w / np.tan(np.deg2rad(87.0) / 2)
+    cam_cfg = CameraConfig(w, h, fx, fx, (w - 1) / 2, (h - 1) / 2, 0.05, cfg.camera_hz,
+                           0.08 * fx / 430.0 * cfg.depth_noise, 0.3, 10.0, 0.02, FRAME_CAM_OPT, FRAME_CAM_LINK)
+    lidar_cfg = LidarConfig(rows=cfg.lidar_rows, cols=cfg.lidar_cols, rate_hz=cfg.lidar_hz,
+                            vertical_fov_deg=cfg.lidar_fov_deg)
+    alt, az = beam_angles(lidar_cfg, rng)
+    scene = RayScene(world.vertices, world.faces, face_class=world.face_class, class_names=world.class_names)
+    lidar = LidarModel(lidar_cfg, alt, az, world.face_material, world.face_class, world.materials,
+                       MATERIAL_ID["human"], CLASS_ID["ceiling"])
+    camera = CameraModel(cam_cfg, T_world_opt)
+
+    # the schedule: LiDAR scans (stamp = scan start), camera frames, TF from tf_late_s on
+    t_first, t_last = int(truth.timestamp_ns[0]), int(truth.timestamp_ns[-1])
+    period = int(1e9 / cfg.lidar_hz)
+    scans = np.arange(t_first, t_last - period, period, dtype=np.int64)
+    cams = np.arange(t_first + int(0.013e9), t_last, int(1e9 / cfg.camera_hz), dtype=np.int64)
+    tf_from = t_first + int(cfg.tf_late_s * 1e9)
+    events = ([(int(t), 0, "static", 0) for t in [tf_from]]
+              + [(int(t), 1, "odom", i) for i, t in enumerate(odom.timestamp_ns) if t >= tf_from]
+              + [(int(t + period + 3_000_000), 2, "lidar", i) for i, t in enumerate(scans)]
+              + [(int(t + 25_000_000), 3, "camera", i) for i, t in enumerate(cams)])
+    events.sort()
+    topics = dict(TOPICS_BASE, **(TOPICS_DEPTH if cfg.camera_output == "depth16" else TOPICS_CLOUD))
+    rec = recording_path(out_dir, fmt)
+    lidar_tum = []
+    t_s = lambda t: (int(t) - t_first) / 1e9   # noqa: E731
+    with BagWriter(rec, fmt) as bw_:
+        for topic, typ in topics.items():
+            bw_.add(topic, typ, latched=topic == "/tf_static")
+        for log_ns, _, kind, i in track(events, len(events), "heldout", quiet):
+            if kind == "static":
+                tfs = [bw_.transform("/tf_static", log_ns, "map", "odom", T_map_odom),
+                       bw_.transform("/tf_static", log_ns, "base_link", lidar_cfg.frame_id, T_base_lidar),
+                       bw_.transform("/tf_static", log_ns, "map", FRAME_CAM_LINK, T_guess_link),
+                       bw_.transform("/tf_static", log_ns, FRAME_CAM_LINK, FRAME_CAM_OPT, T_LINK_OPTICAL)]
+                bw_.write("/tf_static", log_ns, bw_.tf_message(tfs))
+            elif kind == "odom":
+                t = int(odom.timestamp_ns[i])
+                bw_.write("/tf", log_ns, bw_.tf_message([bw_.transform("/tf", t, "odom", "base_link", odom.poses[i])]))
+            elif kind == "lidar":
+                t = int(scans[i])
+                T_cols = truth.interpolate(t + lidar.column_times_ns()) @ T_base_lidar
+                mid = t + period // 2
+                pts, _ = lidar.scan(scene, T_cols, person.mesh_at(t_s(mid)), np.random.default_rng([cfg.seed, 1, i]))
+                bw_.write("/ouster/points", log_ns, bw_.point_cloud("/ouster/points", t, lidar_cfg.frame_id, pts))
+                lidar_tum.append(truth.interpolate(np.array([t]))[0] @ T_base_lidar)
+                hv, hf = person.mesh_at(t_s(t))
+                truthio.write_mesh(truth_dir / "human" / f"{i:06d}.ply", hv, hf,
+                                   np.full(len(hf), CLASS_ID["human"], np.uint8), {CLASS_ID["human"]: "human"})
+            else:
+                t = int(cams[i])
+                depth, _ = camera.frame(scene, person.mesh_at(t_s(t)), np.random.default_rng([cfg.seed, 2, i]))
+                info = bw_.camera_info("/camera/depth/camera_info", t, FRAME_CAM_OPT, cam_cfg)
+                if cfg.camera_output == "depth16":
+                    bw_.write("/camera/depth/image_rect_raw", log_ns,
+                              bw_.image_16uc1("/camera/depth/image_rect_raw", t, FRAME_CAM_OPT, depth))
+                else:
+                    p = camera.rays * depth[..., None]      # optical frame, NaN for no return
+                    xyz = np.zeros((h, w), np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
+                                                     "offsets": [0, 4, 8], "itemsize": 16}))
+                    xyz["x"], xyz["y"], xyz["z"] = p[..., 0], p[..., 1], p[..., 2]
+                    bw_.write("/camera/depth/color/points", log_ns,
+                              bw_.point_cloud("/camera/depth/color/points", t, FRAME_CAM_OPT, xyz))
+                bw_.write("/camera/depth/camera_info", log_ns, info)
+    truthio.write_mesh(truth_dir / "mesh.ply", world.vertices, world.faces, world.face_class, world.class_names)
+    truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", scans, np.stack(lidar_tum))
+    tb = np.arange(t_first, t_last + 1, 10_000_000, dtype=np.int64)
+    truthio.write_trajectory(truth_dir / "trajectory_base.tum", tb, truth.interpolate(tb))
+    truthio.write_json(truth_dir / "extrinsics.json", {
+        "T_world_camera_link": T_world_link, "T_world_camera_optical": T_world_opt,
+        "T_map_camera_link_tf": T_guess_link, "T_base_lidar": T_base_lidar, "T_map_odom": T_map_odom,
+        "frames": {"world": "map", "odom": "odom", "base": "base_link", "lidar": lidar_cfg.frame_id,
+                   "camera_link": FRAME_CAM_LINK, "camera_optical": FRAME_CAM_OPT}})
+    truthio.write_json(truth_dir / "scene.json", {
+        "family": "heldout", "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
+        "world": world.describe(), "furniture": furniture, "trajectory": tinfo, "odometry": oinfo,
+        "human": {"speed_mps": walk.speed, "height_m": height, "a": walk.a, "b": walk.b, "kind": cfg.person},
+        "camera": {"eye": eye, "target": target, "K": cam_cfg.K(), "shape": [h, w]},
+        "lidar": lidar_cfg.describe(), "scans": len(scans), "camera_frames": len(cams)})
+    (out_dir / "README.txt").write_text("holodata held-out recording (holodata.synth.heldout); truth/ is the answer key\n"
+                                        + json.dumps({"seed": cfg.seed, "camera": cfg.camera,
+                                                      "camera_output": cfg.camera_output}) + "\n")
+    return rec
