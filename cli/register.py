@@ -35,9 +35,13 @@ def _init(value: str | None):
 @click.option("--report", type=click.Path(file_okay=False), help="With --truth: folder for register_accuracy.json and a PNG.")
 @click.option("--processes", type=click.IntRange(min=0), default=0, show_default=True,
               help="Processes (0: two on a machine with two or more CPUs; 1: all in this process).")
+@click.option("--guess-std", "guess_std", type=click.FloatRange(min=0.0), default=5.0, show_default=True, metavar="CM",
+              help="How good the guess (TF pose or --init) is along directions the camera's view does not constrain: "
+                   "the result there is the guess, with this uncertainty; accepted only if <= 2 cm.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def register(dataset, scene, init, no_segment, camera_world, truth, report, processes, quiet, as_json) -> None:
+def register(dataset, scene, init, no_segment, camera_world, truth, report, processes, guess_std, quiet,
+             as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
     FPFH+RANSAC fallback accepted only if it passes the fitness/RMSE check; then the human in every
@@ -53,7 +57,8 @@ def register(dataset, scene, init, no_segment, camera_world, truth, report, proc
 
     if report and not truth:
         raise click.UsageError("--report needs --truth")
-    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=camera_world, processes=processes)
+    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=camera_world, processes=processes,
+                         guess_std_m=guess_std / 100.0)
     res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet)
     if truth:
         from holodata.mapping.human_eval import evaluate_register
@@ -63,10 +68,13 @@ def register(dataset, scene, init, no_segment, camera_world, truth, report, proc
         click.echo(json.dumps(res, indent=2, default=str))
         return
     e = res["extrinsic"]
+    chosen = next((a for a in e.get("attempts") or [] if a.get("method") == e["method"]), {})
+    held = chosen.get("held_directions") or []
     click.echo(f"scene {res['scene']}: extrinsic by {e['method']} (init {res['init']}): fitness {e['fitness']:.2f}, "
                f"rmse {e['rmse_m'] * 100:.1f} cm over {e['overlap_points']} overlap points"
-               + (f", pose std {e['attempts'][-1]['pose_std_m'] * 100:.1f} cm" if e.get("attempts") and
-                  "pose_std_m" in e["attempts"][-1] else ""))
+               + (f", pose std {chosen['pose_std_m'] * 100:.1f} cm" if "pose_std_m" in chosen else "")
+               + (f"; held at the guess (+-{cfg.guess_std_m * 100:.1f} cm, not measured): {', '.join(held)}"
+                  if held else ""))
     click.echo(f"human in {res['frames_with_human']}/{res['frames']} frames -> human/vertices, human/faces, human/points"
                f"{', camera/points_world' if camera_world else ''}; {res['seconds']:.1f} s")
     if truth:

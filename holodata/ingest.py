@@ -202,6 +202,7 @@ def map_topics(rec: Recording, override: dict | None = None, topics: list[TopicI
             m.camera = None
     if m.camera is None and cam_clouds:
         m.camera = cam_clouds[0].name
+        m.camera_info = _camera_info_for(cam_clouds[0], infos_ci)   # (used when it fits the cloud's pixels)
     if m.camera is None:  # only images: a rectified stereo pair (left/right + CameraInfo) gives depth
         for t in sorted(images, key=lambda t: t.name):
             right = t.name.replace("left", "right")
@@ -460,6 +461,70 @@ class CloudStream(_Stream):
             r = np.linalg.norm(c.xyz, axis=1).astype(np.float32)
             grid = c.grid(r)
         return Scan(c.xyz, c.time_ns, grid, c.frame_id)
+
+
+class CameraCloudStream(CloudStream):
+    """A camera's organised PointCloud2 (RealSense ``depth/color/points``, ZED ``point_cloud``): its
+    rows and columns are the depth image's pixels. :meth:`load_model` finds the intrinsics (the
+    CameraInfo of the cloud's frame when the recording has one that fits the points, else fitted
+    to the cloud, :func:`holodata.readers.images.fit_pinhole`) and the rotation into the optical
+    frame; points are stored in the optical frame, as a depth image's are, so ``register`` recovers
+    the pixels. An unorganised cloud keeps no model (and its points as published)."""
+
+    MAX_RMS_PX = 0.5
+
+    def __init__(self, rec, topic, time, info_topic: str | None = None):
+        super().__init__(rec, topic, time, "camera")
+        self.info_topic = info_topic
+        self.model = None
+        self.R_opt = None           # (3,3) p_optical = R_opt @ p_cloud
+        self.model_source = None
+
+    def load_model(self) -> str | None:
+        """Fit the model from the first cloud with points; returns a note when none fits."""
+        from .readers.images import camera_model, fit_pinhole, pinhole_residual
+        from .readers.pointcloud2 import decode_pointcloud2
+
+        for i, raw in enumerate(self.rec.raw_messages([self.topic])):
+            if i >= 20:
+                break
+            try:
+                c = decode_pointcloud2(self.rec.decode(raw), self.topic, fields=(), time=False)
+            except HolodataError:
+                continue
+            if not c.organised:
+                return None
+            if len(c.xyz) < 50:
+                continue
+            rows, cols = np.divmod(c.index, c.shape[1])
+            fit = fit_pinhole(c.xyz, rows, cols)
+            if fit is None or fit[2] > self.MAX_RMS_PX:
+                return (f"topic {self.topic}: organised camera cloud is not a pinhole image "
+                        f"(fit {'none' if fit is None else f'{fit[2]:.2f} px'}); no intrinsics")
+            K, R, rms = fit
+            self.R_opt, self.model_source = R, f"fitted to the organised cloud (rms {rms:.3f} px)"
+            if self.info_topic:
+                for raw_i in self.rec.raw_messages([self.info_topic]):
+                    try:
+                        m = camera_model(self.rec.decode(raw_i), self.info_topic)
+                    except HolodataError:
+                        break
+                    q = np.asarray(c.xyz, np.float64) @ R.T
+                    if (m.height, m.width) == tuple(c.shape) and pinhole_residual(q, rows, cols, m.K) <= self.MAX_RMS_PX:
+                        K, self.model_source = m.K, f"CameraInfo {self.info_topic}"
+                    break
+            from .readers.images import CameraModel
+
+            self.model = CameraModel(np.asarray(K, np.float64), int(c.shape[1]), int(c.shape[0]), c.frame_id,
+                                     "none", ())
+            return None
+        return None
+
+    def convert(self, raw, keep):
+        sc = super().convert(raw, keep)
+        if sc is not None and self.R_opt is not None and not np.array_equal(self.R_opt, np.eye(3)):
+            sc = Scan((sc.points @ self.R_opt.T.astype(np.float32)).astype(np.float32), sc.time_ns, sc.grid, sc.frame_id)
+        return sc
 
 
 class GridStream(_Stream):
@@ -889,7 +954,11 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
             except HolodataError as err:
                 warnings.append(f"{_one_line(err)}; camera not used")
         elif ty == PC2:
-            streams["camera"] = CloudStream(rec, tmap.camera, tmap.time, "camera")
+            st = CameraCloudStream(rec, tmap.camera, tmap.time, tmap.camera_info)
+            note = st.load_model()
+            if note:
+                warnings.append(note)
+            streams["camera"] = st
         elif ty == POINTS_TYPE:
             streams["camera"] = PointsStream(rec, tmap.camera, tmap.time, "camera")
         else:
@@ -1521,6 +1590,13 @@ def _sensor_attrs(plan: Plan) -> dict:
             d["intrinsics"] = st.model.to_attrs()
             d["stride"] = st.stride
             d["points_frame"] = "optical (x right, y down, z forward)"
+        T_frame_points = np.eye(4)
+        if isinstance(st, CameraCloudStream) and st.model is not None:
+            d["camera_info_topic"] = st.info_topic
+            d["intrinsics"] = {**st.model.to_attrs(), "source": st.model_source}
+            d["points_frame"] = ("optical (x right, y down, z forward)" + (
+                "" if np.array_equal(st.R_opt, np.eye(3)) else f", rotated from the cloud's frame {d['frame_id']!r}"))
+            T_frame_points[:3, :3] = st.R_opt.T      # the points' optical axes in the cloud's frame
         fr = d.get("frame_id")
         if tf is not None and fr and tf.frames:
             from .readers.tf import WORLD_FRAMES, find_frame
@@ -1529,7 +1605,7 @@ def _sensor_attrs(plan: Plan) -> dict:
             if world:
                 T = tf.lookup(world, fr, None, static_only=True)
                 if T is not None:
-                    d[f"T_{world}_sensor"] = T.tolist()
+                    d[f"T_{world}_sensor"] = (T @ T_frame_points).tolist()   # the frame camera/points are in
         out[role] = d
     return out
 

@@ -82,6 +82,8 @@ class RegisterConfig:
     mesh_degenerate_ratio: float = 0.025
     search_m: float = 0.0
     max_pose_std_m: float = 0.02
+    guess_std_m: float = 0.05   # accuracy of the guess (TF / --init) along directions the data does not
+                                # constrain (held at it): a hand-measured mount is good to a few cm
     hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (docs/design/register.md, 3.)
     anchor_max_deg: float = 0.5    # TF guess, slam map: held directions follow a map turn up to this
                                    # (docs/design/register.md, 3.)
@@ -534,6 +536,22 @@ def pose_uncertainty(points: np.ndarray, sigma: np.ndarray, target: np.ndarray, 
     return {"std_m": sorted(std.tolist(), reverse=True), "n": int(inl.sum())}
 
 
+def held_directions(held: tuple) -> list[str]:
+    """Plain words for the directions :func:`weighted_icp` held at the guess (``info["held"]``: V (6,k)
+    in its update coordinates, rotation × lever arm then translation, world frame): "translation along
+    (x, y, z)" or "rotation about (x, y, z)", whichever part of the direction is larger."""
+    V = held[0]
+    out = []
+    for v in np.asarray(V, float).T:
+        rot, tr = v[:3], v[3:]
+        is_tr = np.linalg.norm(tr) >= np.linalg.norm(rot)
+        a = (tr if is_tr else rot) / max(np.linalg.norm(tr if is_tr else rot), 1e-12)
+        a = a * (1 if a[np.argmax(np.abs(a))] > 0 else -1)
+        what = "translation along" if is_tr else "rotation about"
+        out.append(f"{what} ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})")
+    return out
+
+
 def prior_deviation(T: np.ndarray, init: np.ndarray) -> tuple[float, float]:
     """How far a camera pose ``T`` (4,4) lies from the initial guess ``init``: (metres, degrees)."""
     return float(np.linalg.norm(T[:3, 3] - init[:3, 3])), rotation_angle_deg(np.linalg.inv(init) @ T)
@@ -594,7 +612,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         src, sig, src_n = src[near], sig[near], src_n[near]
     attempts = []
 
-    def check(T, frozen: int = 0):
+    def check(T, frozen: int = 0, held=None):
         # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
         # far stereo points are too noisy to tell a right from a slightly wrong alignment
         p = transform_points(T, full_src)
@@ -612,7 +630,11 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         u = pose_uncertainty(full_src, full_sig, tgt_pts, tgt_n, tgt_tree, T, cfg)
         std = float(u["std_m"][min(frozen, 5)])
         c["pose_std_m"] = std
-        if cfg.max_pose_std_m > 0 and std > cfg.max_pose_std_m:
+        # along the held directions the result is the guess: its uncertainty is the guess's, not a
+        # measurement (never a sub-centimetre figure the data did not give)
+        c["held_directions"] = held_directions(held) if frozen and held is not None else []
+        c["uncertainty_m"] = max(std, cfg.guess_std_m) if frozen else std
+        if cfg.max_pose_std_m > 0 and c["uncertainty_m"] > cfg.max_pose_std_m:
             c["accepted"] = False
         return c
 
@@ -639,7 +661,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         if target is not None:
             T = hold_at(T, target, info["held"])
         anchor_turn["applied"] = target is not None
-    c = check(T, info.get("frozen", 0))
+    c = check(T, info.get("frozen", 0), info.get("held"))
     attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
                      "frozen_directions": info.get("frozen", 0),
                      "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
@@ -649,7 +671,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
         info2: dict = {}
         T2 = refine(Tg, info2)
-        c2 = check(T2, info2.get("frozen", 0))
+        c2 = check(T2, info2.get("frozen", 0), info2.get("held"))
         shift, rot = prior_deviation(T2, init)
         c2 = {**c2, "prior_shift_m": shift, "prior_rot_deg": rot}
         if shift > cfg.fallback_max_shift_m or rot > cfg.fallback_max_rot_deg:
@@ -1403,6 +1425,33 @@ def scene_map(scene) -> np.ndarray | None:
     return np.asarray(scene["map/points"][...], np.float64)
 
 
+def camera_tf_guess(scene) -> tuple[str | None, list | None]:
+    """(world frame, T_world_camera 4x4 nested list) of the camera's static TF pose that ingest stored
+    (``sensors.camera.T_<world>_sensor``); (None, None) without one."""
+    cam = (scene.attrs.get("sensors") or {}).get("camera") or {}
+    for k, v in cam.items():
+        if k.startswith("T_") and k.endswith("_sensor") and v is not None:
+            return k[2:-len("_sensor")], v
+    return None, None
+
+
+def map_frame_problem(scene, world: str) -> str | None:
+    """Why the scene's LiDAR poses (``pose/T_world_lidar``, hence its map) are not in the TF frame
+    ``world``, or None when they are: slam found no TF pose of the LiDAR (its world is then the
+    first scan's frame: ``anchor`` base or lidar), or its poses name another world frame."""
+    nodes = scene.nodes()
+    if "pose/T_world_lidar" not in nodes:
+        return None
+    a = nodes["pose/T_world_lidar"][1].get("attributes") or {}
+    if a.get("source") == "slam" and a.get("anchor") not in (None, "tf"):
+        return (f"the LiDAR map is in the {a.get('world_frame') or 'first scan frame'} (slam found no TF pose of "
+                f"the LiDAR: TF does not connect its frame to {world!r})")
+    wf = a.get("world_frame")
+    if wf and (a.get("source") != "slam" or a.get("anchor") == "tf") and str(wf).lstrip("/") != world.lstrip("/"):
+        return f"the LiDAR map is in {wf!r}"
+    return None
+
+
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
                    quiet: bool = True) -> dict:
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
@@ -1423,10 +1472,14 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     T_init = _parse_init(init)
     init_source = "--init"
     if T_init is None:
-        tf = ((scene.attrs.get("sensors") or {}).get("camera") or {}).get("T_map_sensor")
+        world, tf = camera_tf_guess(scene)
         if tf is None:
-            raise InputError(f"{url}: scene {sid!r}: no TF pose of the camera in the map (sensors.camera.T_map_sensor); "
-                             f"give --init x,y,z,roll,pitch,yaw")
+            raise InputError(f"{url}: scene {sid!r}: no TF pose of the camera in a world frame (sensors.camera."
+                             f"T_<world>_sensor); give --init x,y,z,roll,pitch,yaw")
+        problem = map_frame_problem(scene, world)
+        if problem:
+            raise InputError(f"{url}: scene {sid!r}: the camera's TF pose is in {world!r} but {problem}; register "
+                             f"cannot start from it: give --init x,y,z,roll,pitch,yaw in the map's frame")
         T_init, init_source = np.asarray(tf, float), "tf"
     names = set(scene.arrays())
     n = scene.n_frames
@@ -1476,13 +1529,16 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         if not reg.accepted:
             a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
                           f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
+                          + (f", the data does not constrain {len(x['held_directions'])} direction(s) "
+                             f"({', '.join(x['held_directions'])}): held at the guess, good to "
+                             f"{cfg.guess_std_m * 100:.1f} cm (--guess-std)" if x.get("held_directions") else "")
                           + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
                              if "prior_shift_m" in x else "")
                           for x in reg.attempts)
             raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
                                     f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
                                     f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
-                                    f"give a better --init")
+                                    f"give a better --init (or --guess-std if the guess is that good)")
         T = reg.T
         # 4. humans
         t2 = time.perf_counter()

@@ -99,6 +99,44 @@ def camera_model(msg, topic: str = "") -> CameraModel:
                        tuple(float(x) for x in np.asarray(D).ravel()))
 
 
+# REP-103 camera link (x forward, y left, z up) -> optical (z forward, x right, y down): p_link = R p_opt
+R_LINK_OPTICAL = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+
+
+def pinhole_residual(xyz: np.ndarray, rows: np.ndarray, cols: np.ndarray, K: np.ndarray) -> float:
+    """RMS (pixels) of projecting optical-frame points ``xyz`` (N,3) through ``K`` (3,3) against the
+    pixels (``rows``, ``cols``) (N,) they came from."""
+    z = xyz[:, 2]
+    u = K[0, 0] * xyz[:, 0] / z + K[0, 2]
+    v = K[1, 1] * xyz[:, 1] / z + K[1, 2]
+    return float(np.sqrt(np.mean((u - cols) ** 2 + (v - rows) ** 2)))
+
+
+def fit_pinhole(xyz: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """Intrinsics of an organised camera cloud: its rows and columns are the pixels a pinhole camera
+    projected the points ``xyz`` (N,3, the cloud's frame) from. Tries the cloud in an optical frame
+    (z forward) and in a REP-103 link frame (x forward; ZED / RealSense ``camera_link`` clouds); for
+    each, ``col = fx·x/z + cx`` and ``row = fy·y/z + cy`` by linear least squares. Returns (K (3,3),
+    R (3,3) with p_optical = R · p_cloud, RMS pixels) of the better fit, None when < 50 points lie in
+    front of the camera."""
+    best = None
+    for R in (np.eye(3), R_LINK_OPTICAL.T):
+        q = np.asarray(xyz, np.float64) @ R.T
+        ok = q[:, 2] > 1e-3
+        if ok.sum() < 50:
+            continue
+        a, b = q[ok, 0] / q[ok, 2], q[ok, 1] / q[ok, 2]
+        (fx, cx), *_ = np.linalg.lstsq(np.column_stack([a, np.ones_like(a)]), cols[ok].astype(np.float64), rcond=None)
+        (fy, cy), *_ = np.linalg.lstsq(np.column_stack([b, np.ones_like(b)]), rows[ok].astype(np.float64), rcond=None)
+        if fx <= 0 or fy <= 0:
+            continue
+        K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        rms = pinhole_residual(q[ok], rows[ok], cols[ok], K)
+        if best is None or rms < best[2]:
+            best = (K, R, rms)
+    return best
+
+
 def depth_to_points(depth: np.ndarray, K: np.ndarray, stride: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Unproject a (H, W) metres depth image: (N, 3) float32 optical-frame points of the valid
     pixels (row-major) and their (N,) flat pixel indices. ``stride`` subsamples rows and columns."""
