@@ -1488,9 +1488,11 @@ def _write_lidar_tf(plan: Plan, frame_arr) -> str | None:
     frame = _sensor_frame(plan, "lidar")
     if not frame:
         return None
+    from .readers.tf import BASE_FRAMES
+
     world = plan.tmap.world_frame or _world_frame(tf, frame)
-    if world is None or world == frame:
-        return None
+    if world is None or world == frame or (world in BASE_FRAMES and not plan.tmap.world_frame):
+        return None     # (the robot's own base frame is no world: no odometry/localisation in TF)
     stamps = plan.frame_stamps if plan.frame_sensor == "lidar" else np.where(
         plan.match["lidar"] >= 0, plan.match_stamp["lidar"], 0)
     res = tf.lookup_many(world, frame, stamps)

@@ -546,7 +546,8 @@ def held_directions(held: tuple) -> list[str]:
         rot, tr = v[:3], v[3:]
         is_tr = np.linalg.norm(tr) >= np.linalg.norm(rot)
         a = (tr if is_tr else rot) / max(np.linalg.norm(tr if is_tr else rot), 1e-12)
-        a = a * (1 if a[np.argmax(np.abs(a))] > 0 else -1)
+        a = a * (1 if a[np.argmax(np.abs(a))] > 0 else -1) + 0.0    # (+ 0.0: no "-0.00")
+        a = np.where(np.abs(a) < 0.005, 0.0, a)
         what = "translation along" if is_tr else "rotation about"
         out.append(f"{what} ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})")
     return out
