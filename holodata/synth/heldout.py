@@ -103,7 +103,7 @@ def _furnished(world: World, n: int, rng: np.random.Generator) -> tuple[World, l
     V, F, M, C = [world.vertices], [world.faces.astype(np.int64)], [world.face_material], [world.face_class]
     nv = len(world.vertices)
     sgn = -1.0 if world.mirrored else 1.0
-    hw, w2 = world.width / 2, world.hidden_width
+    hw = world.width / 2
     origin, u, L, bw = world.hidden_axis
     nrm = np.array([-u[1], u[0]])
     out = []
