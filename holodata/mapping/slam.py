@@ -1372,8 +1372,9 @@ def guess_poses(scene, scans: Scans) -> tuple[np.ndarray | None, str]:
         if ok.sum() >= 2:
             T_rl = np.linalg.inv(T_br) @ (T_bl if T_bl is not None else np.eye(4))
             return Trajectory(t[ok], P[ok]).interpolate(scans.stamp_ns) @ T_rl, "tf (pose/T_world_radar)"
-    for src, rt in (("tf (tf/T_world_lidar)", tf_lidar_poses(scene, scans.stamp_ns)),
-                    ("tf (source recording)", recording_tf_poses(scene, scans.stamp_ns))):
+    for src, poses in (("tf (tf/T_world_lidar)", tf_lidar_poses),
+                       ("tf (source recording)", recording_tf_poses)):   # (the recording is read only if needed)
+        rt = poses(scene, scans.stamp_ns)
         if rt is not None and rt[1].all():
             return rt[0], src
     return None, "none"

@@ -211,7 +211,7 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
     scans = np.arange(t_first, t_last - period, period, dtype=np.int64)
     cams = np.arange(t_first + int(0.013e9), t_last, int(1e9 / cfg.camera_hz), dtype=np.int64)
     tf_from = t_first + int(cfg.tf_late_s * 1e9)
-    events = ([(int(t), 0, "static", 0) for t in [tf_from]]
+    events = ([(tf_from, 0, "static", 0)]
               + [(int(t), 1, "odom", i) for i, t in enumerate(odom.timestamp_ns) if t >= tf_from]
               + [(int(t + period + 3_000_000), 2, "lidar", i) for i, t in enumerate(scans)]
               + [(int(t + 25_000_000), 3, "camera", i) for i, t in enumerate(cams)])
