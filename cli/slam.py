@@ -84,6 +84,11 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
             continue
         click.echo(f"{dataset}: scene {s['scene']}: {s['scans']} scans, {s['frames']} frames posed, "
                    f"mesh {m.get('faces', 0)} faces ({s['timings'].get('total_s')} s)", err=quiet)
+        if s.get("tf_agreement"):
+            g = s["tf_agreement"]
+            click.echo(f"  poses vs TF's over {g['scans']} scans: up to {g['position_max_m'] * 100:.1f} cm and "
+                       f"{g['yaw_max_deg']:.2f} deg apart ({g['position_last_m'] * 100:.1f} cm at the last; "
+                       f"TF odometry drifts, and so does slam far from its anchor)", err=quiet)
     if truth:
         a = out["accuracy"]
         t = a["trajectory"]

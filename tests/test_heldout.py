@@ -121,6 +121,13 @@ def test_slam_world_is_the_tf_world_and_register_uses_the_organised_cloud(heldou
     truth = read_tum(root / "h" / "truth" / "trajectory_lidar.tum").poses
     err = np.linalg.norm(np.asarray(sc["pose/T_world_lidar"][...])[:, :3, 3] - truth[:, :3, 3], axis=1)
     assert err[:5].max() < 0.01 and np.median(err) < 0.05, err   # scan 0 was the identity before
+    # the TF tree is planar (wheel odometry on a level floor): height, roll and pitch are TF's
+    assert sc.attrs["slam"]["summary"]["health"]["sequential"]["vertical_from"] == "tf"
+    Pe = np.asarray(sc["pose/T_world_lidar"][...])
+    tilt = np.degrees(np.arccos(np.clip(np.einsum("ki,ki->k", Pe[:, :3, 2], truth[:, :3, 2]), -1, 1)))
+    assert tilt.max() < 0.05 and np.abs(Pe[:, 2, 3] - truth[:, 2, 3]).max() < 0.01
+    g = sc.attrs["slam"]["summary"]["tf_agreement"]            # TF's odometry drifts 1 % of the distance
+    assert g["scans"] >= 0.9 * np.isfinite(P[:, 0, 0]).sum() and 0 < g["position_max_m"] < 0.15, g
     # the camera looks down the hidden leg and sees little across it: that direction is the guess's
     with pytest.raises(RegistrationError, match=r"does not constrain 1 direction\(s\) \(translation along "
                                                 r"\(-?0\.0\d, 1\.00, 0\.00\)\): held at the guess, good to 5\.0 cm"):

@@ -116,6 +116,8 @@ class RegisterConfig:
     min_height_m: float = 0.5
     max_width_m: float = 1.4
     min_points: int = 100
+    min_area_m2: float = 0.1
+    cluster_px: float = 1.5
     track_radius_m: float = 2.0
     track_jump_m: float = 0.4
     walk_speed_mps: float = 1.5
@@ -1006,17 +1008,31 @@ def _robust_plan_extent(xy: np.ndarray) -> float:
     return float((hi - lo).max())
 
 
-def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray | None = None) -> np.ndarray:
+def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray | None = None,
+               footprint: np.ndarray | None = None) -> np.ndarray:
     """Boolean mask of the largest person-like cluster of ``points_world`` (N,3) (z up); with
-    ``centre`` (3,) only clusters whose centroid is within ``track_radius_m`` (plan) of it count."""
+    ``centre`` (3,) only clusters whose centroid is within ``track_radius_m`` (plan) of it count.
+
+    ``footprint`` (N,): each return's pixel footprint in metres (optical depth / focal length in
+    pixels). The camera's resolution then sets two things a fixed number cannot: clusters link points
+    at least ``cluster_px`` footprints (at the candidates' median depth) apart, not only ``cluster_m``
+    (a 160-column camera's pixels are 8 cm apart at 7 m: a person there is dust at 8 cm), and a
+    cluster is evidence enough with ``min_points`` returns *or* ``min_area_m2`` of surface (each
+    return covering footprint²: a sixth of a person's front), whichever the camera can give at that
+    depth. Without it: ``cluster_m`` and ``min_points`` alone."""
     out = np.zeros(len(points_world), bool)
-    if len(points_world) < cfg.min_points:
+    fp2 = None if footprint is None else np.asarray(footprint, np.float64) ** 2
+    if len(points_world) < cfg.min_points and (fp2 is None or fp2.sum() < cfg.min_area_m2):
         return out
-    lab = cluster_points(points_world, cfg.cluster_m)
+    dist = cfg.cluster_m if fp2 is None else max(cfg.cluster_m, cfg.cluster_px * float(np.sqrt(np.median(fp2))))
+    lab = cluster_points(points_world, dist)
     sizes = np.bincount(lab)
+    enough = sizes >= cfg.min_points
+    if fp2 is not None:
+        enough |= np.bincount(lab, weights=fp2, minlength=len(sizes)) >= cfg.min_area_m2
     for c in np.argsort(-sizes):
-        if sizes[c] < cfg.min_points:
-            break
+        if not enough[c]:
+            continue
         m = lab == c
         p = points_world[m]
         if centre is not None and np.linalg.norm(p[:, :2].mean(0) - centre[:2]) > cfg.track_radius_m:
@@ -1128,8 +1144,9 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
     voxel is occupied when the columns fill at least half of it (their volume, sampled every voxel/2
     along the column, summed per voxel): an unbiased voxelisation. Without it every voxel a column
     touches is occupied (each dimension grows by about a voxel: a 15 cm leg became 19 cm wide).
-    ``down_to`` (N,) m, NaN for none: the point's column also fills the vertical strip below its
-    footprint down to that height (feet reaching the floor)."""
+    A footprint wider than the voxel is split into m × m sub-pixels (m = ceil(edge / voxel)) so that
+    its volume spreads over the voxels it covers. ``down_to`` (N,) m, NaN for none: the point's column
+    also fills the vertical strip below its footprint down to that height (feet reaching the floor)."""
     p = np.asarray(points_world, np.float64).reshape(-1, 3)
     if len(p) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
@@ -1149,6 +1166,20 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
         sw = (p[:, None, :] + t * d[:, None, :]).reshape(-1, 3)
         return voxel_boundary(np.floor(sw / voxel).astype(np.int64), voxel)     # repeated voxels are fine
     px = np.broadcast_to(np.asarray(pixel_m, float), (len(p),))
+    m_sub = np.maximum(1, np.ceil(px / voxel - 1e-9).astype(np.int64))
+    if (m_sub > 1).any():
+        # a footprint wider than a voxel (a coarse camera, a far person) is split into m × m sub-pixels
+        # across it (lateral × vertical), else its whole volume lands in the voxels along one line
+        j, k = _repeat_index(m_sub ** 2)
+        mj = m_sub[j]
+        u = ((k % mj) + 0.5) / mj - 0.5
+        v = ((k // mj) + 0.5) / mj - 0.5
+        lat = np.stack([-d[j, 1], d[j, 0], np.zeros(len(j))], 1)
+        lat /= np.maximum(np.linalg.norm(lat, axis=1, keepdims=True), 1e-9)
+        p = p[j] + (u * px[j])[:, None] * lat + np.outer(v * px[j], [0.0, 0.0, 1.0])
+        d, a, b, px = d[j], a[j], b[j], px[j] / mj
+        if down_to is not None:
+            down_to = np.asarray(down_to, float)[j]
     step = voxel / 2
     L = np.maximum(b - a, 0.0)
     ns = np.maximum(1, np.ceil(L / step).astype(np.int64))
@@ -1585,7 +1616,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         timings["candidates_s"] = time.perf_counter() - t2
         # the person of interest: person-like clusters near the track's median (people farther away, e.g.
         # walking past in another corridor, are not it)
-        first = [pick_human(q[0], cfg) for q in cand]
+        f_px = float(cam.K[0, 0])
+        first = [pick_human(q[0], cfg, footprint=q[3] / f_px) for q in cand]
         cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
         centre = np.median(cents, axis=0) if len(cents) else None
         floor_z = None
@@ -1608,7 +1640,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             # the largest person-like cluster already lies near the track: it is also the largest near it
             return m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m
 
-        picks = [finish(qw, m0 if centre is None or near_centre(qw, m0) else pick_human(qw, cfg, centre))
+        picks = [finish(qw, m0 if centre is None or near_centre(qw, m0)
+                        else pick_human(qw, cfg, centre, footprint=dv / f_px))
                  for (qw, vv, uu, dv), m0 in zip(cand, first)]
         ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
         cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
@@ -1622,7 +1655,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         n_repicked = int(jumped.sum())
         for k, ((qw, vv, uu, dv), hm) in enumerate(zip(cand, picks)):
             if jumped[k]:
-                hm = finish(qw, pick_human(qw, jump_cfg, pred[k])) if np.isfinite(pred[k]).all() else np.zeros_like(hm)
+                hm = (finish(qw, pick_human(qw, jump_cfg, pred[k], footprint=dv / f_px)) if np.isfinite(pred[k]).all()
+                      else np.zeros_like(hm))
             human_pts.append(qw[hm].astype(np.float32))
             pixels.append((qw[hm], vv[hm], uu[hm], dv[hm]))
         # velocity compensation: camera stamp -> frame stamp

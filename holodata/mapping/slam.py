@@ -17,7 +17,9 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
    own deskew (constant twist over the scan from the neighbouring refined poses, reference time
    = the scan stamp, so ``pose/T_world_lidar[k]`` is the pose at ``lidar/timestamp_ns[k]``), and
    optionally (``global_pass``) a second pass against the whole map with moving points removed by
-   the voxel background model. kiss-icp and the refinement run in one pass (:class:`KissStream`):
+   the voxel background model. Where TF's LiDAR poses are a ground robot's on a level floor
+   (:func:`level_tf_poses`) or the seeds are (``seed_poses="tf"``), height, roll and pitch are
+   theirs and the ICP sets the other three. kiss-icp and the refinement run in one pass (:class:`KissStream`):
    a scan taken at rest (one point-to-plane Gauss-Newton step from the last refined pose against
    the map below ``still_check_m`` / ``still_check_deg``) holds that pose and is fed to neither
    kiss-icp nor ICP, so a robot that stands for most of a long recording costs little; on organised
@@ -709,23 +711,27 @@ def icp(src_pts: np.ndarray, target, init: np.ndarray, cfg: SlamConfig, distance
 
 
 def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None,
-           ready=None, vmap: "VoxelMap | None" = None, grow_map: bool = True) -> tuple[np.ndarray, dict]:
+           ready=None, vmap: "VoxelMap | None" = None, grow_map: bool = True,
+           vertical: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
     """Scan-to-map refinement (see module doc) of initial poses ``init``: (S,4,4) at the scan stamps,
     or a :class:`KissStream` asked for a scan's kiss-icp pose only when the robot is not at rest (its
     relative motion seeds the ICP; scans at rest are never fed to it). ``T0``: pose of the first scan
     (default ``init``'s); ``ready(i)``: called before scan i is used (scans still being read,
     :func:`stream_scans`); ``vmap``: start from this map (world frame) instead of an empty one, and
-    with ``grow_map`` False never add the scans to it (localisation against a fixed map). Returns the
-    refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
+    with ``grow_map`` False never add the scans to it (localisation against a fixed map);
+    ``vertical``: (S,4,4) world poses of a ground robot's level odometry (:func:`level_seeds`) whose
+    height, roll and pitch the refined poses take (:func:`with_vertical_of`); level seeds give them
+    when None. Returns the refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
     S = len(scans)
     t_s = (scans.stamp_ns - scans.stamp_ns[0]).astype(np.float64) * 1e-9
     stream = _Fixed(np.asarray(init, np.float64)) if isinstance(init, np.ndarray) else init
     # odometry seeds (_Fixed(seed=True)): deskew with their motion about each scan, not the last step's
     seed_twist = twists_central(stream.poses, scans.stamp_ns) if getattr(stream, "seed", False) else None
     # planar seeds (wheel odometry on a level floor): height, roll and pitch follow them, not the ICP
-    vertical = None
-    if seed_twist is not None and level_seeds(stream.poses):
-        vertical = (poses[0] if T0 is None else T0) @ np.linalg.inv(stream.poses[0]) @ stream.poses
+    vertical_from = "tf" if vertical is not None else None
+    if vertical is None and seed_twist is not None and level_seeds(stream.poses):
+        vertical = (stream.poses[0] if T0 is None else T0) @ np.linalg.inv(stream.poses[0]) @ stream.poses
+        vertical_from = "seeds"
     init = stream.poses
     poses = np.zeros((S, 4, 4))
     poses[0] = stream.pose(0)
@@ -816,7 +822,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
             last_key = T
             keyframes += 1
     health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
-              "vertical_from_seeds": vertical is not None,
+              "vertical_from": vertical_from,
               "map_keyframes": keyframes, "still_scans": still, "still_same_beam": same_beam,
               "kiss_scans": int(stream.fed),
               "kiss_s": float(stream.seconds)}
@@ -1018,6 +1024,39 @@ def tf_lidar_poses(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return out, cov, str(dict(a.attrs).get("world_frame"))
 
 
+def level_tf_poses(scene, stamps_ns: np.ndarray) -> np.ndarray | None:
+    """ingest's TF LiDAR poses (:func:`tf_lidar_poses`, (S,4,4) at ``stamps_ns``, held at the first
+    and last covered pose outside TF's span) when they are a ground robot's on a level floor
+    (:func:`level_seeds` over the covered scans), else None. A planar TF tree (``map → odom`` from a
+    2D localiser, ``odom → base_link`` from wheel odometry) fixes the LiDAR's height, roll and pitch
+    without drift — the three degrees of freedom a ground robot's floor fixes (LeGO-LOAM, Shan &
+    Englot, IROS 2018, §III-D, solves them from ground points apart from the other three) — where
+    scan-to-map ICP on a sparse LiDAR drifts in roll and pitch as the map grows (docs/design/slam.md);
+    the kiss-icp-seeded :func:`refine` takes those three from them (``health.sequential.vertical_from``)."""
+    rt = tf_lidar_poses(scene, stamps_ns)
+    if rt is None or rt[1].sum() < 2 or not level_seeds(rt[0][rt[1]]):
+        return None
+    return rt[0]
+
+
+def tf_agreement(scene, stamps_ns: np.ndarray, poses: np.ndarray) -> dict | None:
+    """How far slam's LiDAR poses (S,4,4 at ``stamps_ns``) lie from TF's (:func:`tf_lidar_poses`) over
+    the scans TF covers: {"scans", "position_max_m", "position_last_m", "yaw_max_deg"}; None without TF
+    poses. Both drift away from the anchor scan (odometry in TF; no loop closure in slam), so this
+    bounds neither alone, but a map whose world is TF's world is only as close to TF's as this says,
+    far from the anchor (a camera pose from TF is a guess good to about that much there)."""
+    from ..conventions import yaw_rad
+
+    rt = tf_lidar_poses(scene, stamps_ns)
+    if rt is None or not rt[1].any():
+        return None
+    P, Q = np.asarray(poses, np.float64)[rt[1]], rt[0][rt[1]]
+    gap = np.linalg.norm(P[:, :3, 3] - Q[:, :3, 3], axis=1)
+    dyaw = np.array([np.degrees(abs(np.angle(np.exp(1j * (yaw_rad(a) - yaw_rad(b)))))) for a, b in zip(P, Q)])
+    return {"scans": int(rt[1].sum()), "position_max_m": round(float(gap.max()), 4),
+            "position_last_m": round(float(gap[-1]), 4), "yaw_max_deg": round(float(dyaw.max()), 3)}
+
+
 def anchor_pose(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, int, dict]:
     """The world pose T_world_lidar of one scan, that scan's index into ``stamps_ns`` (the scans'
     stamps, (S,)) and how it was chosen (see module doc, 4.): the first scan TF covers, from ingest's
@@ -1192,18 +1231,19 @@ def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: di
         if ready is not None:
             ready(len(scans) - 1)
         guess, health["seed_poses"] = guess_poses(scene, scans)
+    vertical = level_tf_poses(scene, scans.stamp_ns) if config.refine and guess is None else None
     if config.refine and len(scans) > 1:
         # kiss-icp and the refinement in one pass: kiss-icp is fed only the scans where the robot moves
         t0 = time.perf_counter()
         ks = KissStream(scans, config, max_range) if guess is None else _Fixed(guess, seed=True)
-        poses, h1 = refine(scans, ks, config, max_range, quiet=quiet, T0=T0, ready=ready)
+        poses, h1 = refine(scans, ks, config, max_range, quiet=quiet, T0=T0, ready=ready, vertical=vertical)
         K, kref = ks.poses, (ks.ref if guess is None else scans.stamp_ns.copy())
         timings["kiss_icp_s"] = h1["kiss_s"]
         timings["refine_s"] = time.perf_counter() - t0 - h1["kiss_s"]
         health["sequential"] = {"fitness_min": float(h1["fitness"][1:].min()), "fitness_mean": float(h1["fitness"][1:].mean()),
                                 "rmse_max_m": float(h1["rmse"][1:].max()), "kiss_fallbacks": h1["kiss_fallbacks"],
                                 "still_scans": h1["still_scans"], "still_same_beam": h1["still_same_beam"],
-                                "kiss_scans": h1["kiss_scans"],
+                                "kiss_scans": h1["kiss_scans"], "vertical_from": h1["vertical_from"],
                                 "map_keyframes": h1["map_keyframes"]}
         K = (T0 @ np.linalg.inv(K[0])) @ K  # kiss-icp's poses in the world frame (module doc, 4.)
         if config.global_pass:
@@ -1317,6 +1357,9 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
                "anchor": {k: v for k, v in anchor.items() if k != "T_world_lidar0"}, "health": health,
                "frames_info": {k: v for k, v in finfo.items() if k != "T_lidar_radar"}, "mesh": minfo,
                "timings": timings, "fingerprint": fp}
+    agree = tf_agreement(scene, scans.stamp_ns, poses)
+    if agree is not None:
+        summary["tf_agreement"] = agree
     res = SlamResult(scene_id, scans.stamp_ns.copy(), poses, Kw, kref, Tl, Tr, mesh, summary, map_points)
     if write:
         _write(dataset_url, ds, scene_id, res, config, mesh_config, anchor, finfo, fp)
