@@ -13,8 +13,8 @@ def _init(value: str | None):
         return None
     try:
         vals = [float(v) for v in value.split(",")]
-    except ValueError:
-        raise click.BadParameter(f"must be x,y,z,roll,pitch,yaw (m, degrees), got {value!r}", param_hint="--init") from None
+    except ValueError as err:
+        raise click.BadParameter(f"must be x,y,z,roll,pitch,yaw (m, degrees), got {value!r}", param_hint="--init") from err
     if len(vals) != 6:
         raise click.BadParameter(f"must be 6 numbers x,y,z,roll,pitch,yaw (m, degrees), got {len(vals)}", param_hint="--init")
     return vals

@@ -9,8 +9,8 @@ from holodata.cli.options import dask_options
 def _shape(value: str, flag: str) -> tuple[int, int]:
     try:
         a, b = (int(v) for v in value.lower().split("x"))
-    except ValueError:
-        raise click.BadParameter(f"must look like 64x1024, got {value!r}", param_hint=flag) from None
+    except ValueError as err:
+        raise click.BadParameter(f"must look like 64x1024, got {value!r}", param_hint=flag) from err
     if a < 1 or b < 1:
         raise click.BadParameter(f"must be positive, got {value!r}", param_hint=flag)
     return a, b

@@ -106,14 +106,14 @@ class Grid:
         """Parse CLI strings ``"64x512"`` and ``"-45,45"`` (degrees, min,max in any order)."""
         try:
             h, w = (int(v) for v in grid.lower().split("x"))
-        except ValueError:
-            raise ValueError(f"grid must look like 64x512, got {grid!r}") from None
+        except ValueError as err:
+            raise ValueError(f"grid must look like 64x512, got {grid!r}") from err
         if elevation_fov is None:
             return cls(h, w)
         try:
             a, b = (float(v) for v in elevation_fov.split(","))
-        except ValueError:
-            raise ValueError(f"elevation FOV must look like -45,45, got {elevation_fov!r}") from None
+        except ValueError as err:
+            raise ValueError(f"elevation FOV must look like -45,45, got {elevation_fov!r}") from err
         return cls(h, w, max(a, b), min(a, b))
 
 

@@ -393,11 +393,11 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
                 try:
                     _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label,
                                 first.n_shards, clock)
-                except BrokenProcessPool:
+                except BrokenProcessPool as err:
                     done = sum(first.is_done(k) for k in range(first.n_shards))
                     raise TracingError(f"{label}: a tracing process died (killed by a signal or out of memory); "
                                        f"{done} of {first.n_shards} shards are written and kept — rerun to resume, "
-                                       f"or use --processes 1") from None
+                                       f"or use --processes 1") from err
             del slots
         finally:
             shm.close()

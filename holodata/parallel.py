@@ -68,12 +68,12 @@ class Forked:
             pipe = self._pipes[which]
             try:
                 self._got[which] = pipe.recv()
-            except EOFError:
+            except EOFError as err:
                 if which == "early":
                     self._no_early()
                 self._proc.join()
                 raise WorkerError(f"{self.label}: its worker process died (exit code {self._proc.exitcode}: killed "
-                                  f"by a signal or out of memory); rerun, or use --processes 1") from None
+                                  f"by a signal or out of memory); rerun, or use --processes 1") from err
             finally:
                 pipe.close()
             if which == "result":

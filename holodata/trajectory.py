@@ -89,8 +89,8 @@ def read_tum(path: str | Path) -> Trajectory:
             raise InputError(f"{path}:{lineno}: expected 8 numbers (t tx ty tz qx qy qz qw), got {len(parts)}")
         try:
             vals = [float(p) for p in parts]
-        except ValueError:
-            raise InputError(f"{path}:{lineno}: not a number in {line!r}") from None
+        except ValueError as err:
+            raise InputError(f"{path}:{lineno}: not a number in {line!r}") from err
         if not np.all(np.isfinite(vals)):
             raise InputError(f"{path}:{lineno}: non-finite value")
         q = np.array(vals[4:8])

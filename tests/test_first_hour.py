@@ -127,3 +127,15 @@ def test_synth_outputs_ingest_as_scenes_named_after_their_folders(tmp_path):
     assert sorted(open_dataset(url).scenes) == ["L_3", "T_4"]
     r = CliRunner().invoke(cli, ["ingest", "--list", str(tmp_path / "L_3")])
     assert r.exit_code == 0, r.output
+
+
+def test_errors_keep_their_cause(tmp_path):
+    """One line without --debug; with it, the exception that caused the error is chained (``from err``),
+    so the traceback shows both: a dataset whose zarr.json is not JSON."""
+    bad = tmp_path / "bad.zarr"
+    bad.mkdir()
+    (bad / "zarr.json").write_text("{not json")
+    r = CliRunner().invoke(cli, ["info", str(bad)])
+    assert r.exit_code == 1 and r.output.count("\n") == 1 and "not valid JSON" in r.output, r.output
+    r = CliRunner().invoke(cli, ["--debug", "info", str(bad)])
+    assert isinstance(r.exception, Exception) and isinstance(r.exception.__cause__, ValueError), r.exception

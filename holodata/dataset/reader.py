@@ -17,8 +17,8 @@ def _version(v) -> tuple[int, int]:
     try:
         major, minor = (int(x) for x in str(v).split(".")[:2])
         return major, minor
-    except ValueError:
-        raise DatasetError(f"unreadable format_version {v!r}") from None
+    except ValueError as err:
+        raise DatasetError(f"unreadable format_version {v!r}") from err
 
 
 def check_root(url: str, root: dict) -> dict:
@@ -51,8 +51,8 @@ def _read_json(store: Store, key: str) -> dict | None:
         return None
     try:
         return json.loads(b)
-    except ValueError:
-        raise DatasetError(f"{store.url}: {key} is not valid JSON") from None
+    except ValueError as err:
+        raise DatasetError(f"{store.url}: {key} is not valid JSON") from err
 
 
 def list_nodes(store: Store, path: str) -> dict[str, tuple[str, dict]]:
@@ -101,8 +101,8 @@ class Dataset:
             elif not store.exists(""):
                 raise DatasetError(f"{self.url}: no such dataset (URL does not exist)")
             root = _read_json(store, "zarr.json")
-        except PermissionError:
-            raise DatasetError(f"{self.url}: permission denied") from None
+        except PermissionError as err:
+            raise DatasetError(f"{self.url}: permission denied") from err
         if root is None:
             if not store.is_dir():
                 raise DatasetError(f"{self.url}: is a file, not a dataset folder")

@@ -34,8 +34,8 @@ from .base import (POINTS_TYPE, RADAR_MSG, Header, PointsMsg, RadarHeatmapMsg, R
 def _h5py():
     try:
         import h5py
-    except ImportError:
-        raise RecordingError("reading .h5 recordings needs h5py (pip install h5py)") from None
+    except ImportError as err:
+        raise RecordingError("reading .h5 recordings needs h5py (pip install h5py)") from err
     return h5py
 
 

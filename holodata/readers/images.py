@@ -185,10 +185,10 @@ def stereo_depth(left: np.ndarray, right: np.ndarray, fx: float, baseline_m: flo
     depth = fx * baseline / disparity; NaN where the matcher finds no disparity."""
     try:
         import cv2
-    except ImportError:
+    except ImportError as err:
         from ..errors import RecordingError
 
-        raise RecordingError("stereo depth needs OpenCV (pip install opencv-python-headless)") from None
+        raise RecordingError("stereo depth needs OpenCV (pip install opencv-python-headless)") from err
     max_disp = fx * abs(baseline_m) / min_depth_m
     n = int(min(256, max(16, 16 * np.ceil(max_disp / 16))))
     m = cv2.StereoSGBM_create(minDisparity=0, numDisparities=n, blockSize=block, P1=8 * block * block,

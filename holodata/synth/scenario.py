@@ -124,7 +124,7 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
     try:
         world = make_world(corner, width, seed)
     except ValueError as err:
-        raise InputError(str(err)) from None
+        raise InputError(str(err)) from err
     rng = _rng(seed, "scenario")
     radar_cfg = RadarConfig(grid=grid or Grid(), range_bins=range_bins or RangeBins(), encoding=radar_encoding)
     period_s = 1.0 / radar_cfg.rotation_hz

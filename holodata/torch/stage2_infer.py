@@ -136,7 +136,7 @@ def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
     try:
         ck = torch.load(p, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001
-        raise InputError(f"{p}: not a holodata stage-two checkpoint ({err.__class__.__name__})") from None
+        raise InputError(f"{p}: not a holodata stage-two checkpoint ({err.__class__.__name__})") from err
     rt = RayTracer(RayTracerConfig(**ck["rt_config"]))
     rt.load_state_dict(ck["rt_state"])
     ref = None
@@ -144,9 +144,9 @@ def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
         ref = VoxelRefiner(RefinerConfig.from_dict(ck["refiner_config"]))
         try:
             ref.load_state_dict(ck["refiner_state"])
-        except RuntimeError:
+        except RuntimeError as err:
             raise InputError(f"{p}: refiner weights of another holodata version (retrain: holodata train DATASET "
-                             f"--stage 2 --out RUN)") from None
+                             f"--stage 2 --out RUN)") from err
         ref = ref.to(device)
     keep = (ck.get("keep") or {}).get("threshold", 0.5)
     return Stage2(rt.to(device), ref, device, keep_threshold=keep), ck

@@ -78,7 +78,7 @@ class TrainConfig:
         try:
             data = yaml.safe_load(p.read_text()) or {}
         except (OSError, yaml.YAMLError) as err:
-            raise InputError(f"{p}: cannot read training config ({' '.join(str(err).split())})") from None
+            raise InputError(f"{p}: cannot read training config ({' '.join(str(err).split())})") from err
         if not isinstance(data, dict):
             raise InputError(f"{p}: training config must be a mapping of field: value")
         return cls.from_dict({**data, **{k: v for k, v in overrides.items() if v is not None}}, source=str(p))
@@ -151,7 +151,7 @@ def load_checkpoint(path) -> dict:
     try:
         return torch.load(p, map_location="cpu", weights_only=False)
     except Exception as err:  # noqa: BLE001 - corrupt/truncated file
-        raise InputError(f"{p}: not a holodata checkpoint ({err.__class__.__name__})") from None
+        raise InputError(f"{p}: not a holodata checkpoint ({err.__class__.__name__})") from err
 
 
 def model_from_checkpoint(ck: dict, device: str = "cpu") -> MultiReturnUNet:
