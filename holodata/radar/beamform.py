@@ -58,28 +58,16 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
+from .beam_geometry import (WINDOWS, _REANCHOR, _to_columns, azimuth_kernel, beam_indices,  # noqa: F401
+                            column_weights, motion_phase_rate, range_weights, vertical_weights, window)
 from .chirp import ChirpConfig
 
-WINDOWS = ("hann", "hamming", "blackman", "rect")
 STATIC_REMOVAL = ("trajectory", "rotation", "none")
 DECIMATION = ("pick", "triangle")
 MOTION_REFERENCES = ("beam", "rotation_start")
 RANGE_ORIGIN = "rotation_centre"
-_REANCHOR = 64
 
 
-def window(name: str, n: int) -> np.ndarray:
-    """(n,) float64 window: numpy's ``hanning`` (zero end points, as PanoRadar), ``hamming``,
-    ``blackman`` or ``rect`` (ones)."""
-    if name == "hann":
-        return np.hanning(n)
-    if name == "hamming":
-        return np.hamming(n)
-    if name == "blackman":
-        return np.blackman(n)
-    if name == "rect":
-        return np.ones(n)
-    raise ValueError(f"unknown window {name!r} (have {', '.join(WINDOWS)})")
 
 
 @dataclass(frozen=True)
@@ -160,59 +148,14 @@ def beamform_attrs(chirp: ChirpConfig, params: BeamformParams, n_chirps: int | N
 
 
 # -- geometry pieces (numpy, float64) ------------------------------------------------------------------
-def vertical_weights(chirp: ChirpConfig, elev: np.ndarray) -> np.ndarray:
-    """(H, V, S) complex128: ``exp(−j2π d_v/λ_i) / V``, ``d_v = spacing · sin θ · (V−1−v)`` (step 2, the mean)."""
-    V = chirp.n_virtual
-    lam = chirp.wavelengths()
-    d = chirp.antenna_spacing_m * np.sin(elev)[:, None, None] * (V - 1 - np.arange(V))[None, :, None]
-    return np.exp(-2j * np.pi * d / lam[None, None, :]) / V
 
 
-def azimuth_kernel(chirp: ChirpConfig, params: BeamformParams, cos_el: np.ndarray, n_chirps: int) -> np.ndarray:
-    """(E, n_syn, S) complex128 for offsets ``m = −h..h``: ``w_c[m] · exp(j4π r cos(2πm/N) cos θ / λ_i)``
-    (the sample window is applied with the range FFT)."""
-    n_syn = params.syn_count(n_chirps)
-    h = (n_syn - 1) // 2
-    m = np.arange(-h, h + 1)
-    ante = chirp.rotation_radius_m * np.cos(2 * np.pi * m / n_chirps)
-    lam = chirp.wavelengths()
-    ph = 4 * np.pi * np.asarray(cos_el, float)[:, None, None] * ante[None, :, None] / lam[None, None, :]
-    return window(params.chirp_window, n_syn)[None, :, None] * np.exp(1j * ph)
 
 
-def range_weights(chirp: ChirpConfig, params: BeamformParams) -> np.ndarray:
-    """(S,) complex128: sample window × ``exp(−jπ i/S)`` (bin k evaluated at k + 0.5)."""
-    S = chirp.n_samples
-    return window(params.sample_window, S) * np.exp(-1j * np.pi * np.arange(S) / S)
 
 
-def beam_indices(n_chirps: int, n_azimuth: int) -> np.ndarray:
-    """(W,) int64: the beam (chirp position) nearest to each column's azimuth, ``round(j·N/W) mod N``."""
-    return np.floor(np.arange(n_azimuth) * n_chirps / n_azimuth + 0.5).astype(np.int64) % n_chirps
 
 
-def column_weights(n_chirps: int, params: BeamformParams) -> tuple[np.ndarray, np.ndarray]:
-    """(beams, weights): the beams to form and a (W, len(beams)) float64 matrix that maps their
-    magnitudes to the output columns (``pick``: one 1 per row)."""
-    W = params.n_azimuth
-    if params.azimuth_decimation == "pick":
-        b = beam_indices(n_chirps, W)
-        uniq, inv = np.unique(b, return_inverse=True)
-        M = np.zeros((W, uniq.size))
-        M[np.arange(W), inv] = 1.0
-        return uniq, M
-    s = max(n_chirps / W, 1.0)
-    centre = np.arange(W) * n_chirps / W
-    M = np.zeros((W, n_chirps))
-    lo = np.floor(centre - s).astype(int) + 1
-    for j in range(W):
-        for b in range(lo[j], int(np.ceil(centre[j] + s))):
-            wgt = 1.0 - abs(b - centre[j]) / s
-            if wgt > 0:
-                M[j, b % n_chirps] += wgt
-    M /= M.sum(axis=1, keepdims=True)
-    used = np.flatnonzero(M.any(axis=0))
-    return used, M[:, used]
 
 
 def static_reflection(chirps: np.ndarray) -> np.ndarray:
@@ -398,21 +341,9 @@ def _blas_single():
     return threadpool_limits(1, user_api="blas")
 
 
-def _to_columns(mag: np.ndarray, cw: np.ndarray) -> np.ndarray:
-    """(R, H, nb) magnitudes of the formed beams → (R, H, W) float32 columns."""
-    if cw.shape[0] == cw.shape[1] and np.array_equal(cw, np.eye(cw.shape[0])):
-        return np.ascontiguousarray(mag, np.float32)
-    if np.all((cw == 0) | (cw == 1)) and np.all(cw.sum(1) == 1):
-        return np.ascontiguousarray(mag[:, :, cw.argmax(1)], np.float32)
-    return np.ascontiguousarray(mag @ cw.T.astype(np.float32), np.float32)
 
 
 # -- moving platform: direct sum -----------------------------------------------------------------------
-def motion_phase_rate(chirp, params, motion: Motion, cos_el: float, beams: np.ndarray, N: int) -> np.ndarray:
-    """(nb, S) float64: ``4π δs / λ_i`` per chirp of offset, ``δs = δs0 cos(φ_b − θ_v) cos θ``."""
-    phi = -2 * np.pi * beams / N
-    ds = motion.ds0 * np.cos(phi - motion.theta_v) * cos_el
-    return 4 * np.pi * ds[:, None] / chirp.wavelengths()[None, :]
 
 
 def _vertical(xp: np.ndarray, vw: np.ndarray, threads: int) -> np.ndarray:

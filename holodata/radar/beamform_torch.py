@@ -4,15 +4,15 @@
 Same two formulations: at rest, FFTs along the chirp axis (correlation with the azimuth kernel);
 moving, the direct sum over the window with the motion phase advanced one chirp at a time, here
 batched over every elevation row at once (one kernel launch per chirp of the window, not per row).
-Geometry (windows, compensations, column weights) comes from the numpy module, so both paths form
+Geometry (windows, compensations, column weights) comes from :mod:`.beam_geometry`, so both paths form
 the same beams; complex64 throughout, phases reduced modulo 2π in float64 before they are cast.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .beamform import (_REANCHOR, azimuth_kernel, column_weights, motion_phase_rate, range_weights,
-                       vertical_weights, window, _to_columns)
+from .beam_geometry import (_REANCHOR, _to_columns, azimuth_kernel, column_weights, motion_phase_rate, range_weights,
+                            vertical_weights, window)
 
 
 def _device(torch, device: str):
