@@ -1,9 +1,8 @@
 """No import cycles in holodata/ (issue 25, point 3): every import, at module level or inside a
 function, is an edge; a strongly connected component of more than one module is a cycle.
 
-The cycles still there are listed in KNOWN: each is a dispatch to an optional or heavier part
-written as a lazy import (the Dask executor calling back into the stage it runs, the rosbag and
-MCAP readers opening each other's files). Imports under ``if TYPE_CHECKING:`` (annotations only) never
+The cycle still there is listed in KNOWN: the Dask executor calling back into the stages it runs
+(lazy imports both ways; the generic executor of issue 25 point 3 removes it). Imports under ``if TYPE_CHECKING:`` (annotations only) never
 run and are left out. The test fails on any other cycle, and on a listed one that is gone (delete it here)."""
 from __future__ import annotations
 
@@ -13,7 +12,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1] / "holodata"
 KNOWN = {
     frozenset({"holodata.distributed", "holodata.ingest", "holodata.groundtruth"}),
-    frozenset({"holodata.readers.mcap_file", "holodata.readers.rosbag"}),
 }
 
 

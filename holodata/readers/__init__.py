@@ -91,9 +91,33 @@ def _open_rosbag1(p: Path, msg_dir=None, **_):
 
 
 def _open_mcap(p: Path, msg_dir=None, **_):
-    from .mcap_file import open_mcap
+    """A single ``.mcap``: rosbags for ROS 2 files with a summary (CDR on every channel), the mcap
+    library otherwise (here, not in either reader, so that neither imports the other)."""
+    from ..errors import RecordingError
+    from .mcap_file import McapRecording, _summary
 
-    return open_mcap(p, msg_dir)
+    path = Path(p)
+    with open(path, "rb") as fh:
+        head = fh.read(8)
+        if not head:
+            raise RecordingError(f"{path}: file is empty")
+        if head != b"\x89MCAP0\r\n":
+            raise RecordingError(f"{path}: not an MCAP file (bad magic)")
+        s = _summary(fh)
+    ros2 = s is not None and s.chunk_indexes and s.channels and all(
+        c.message_encoding == "cdr" for c in s.channels.values())
+    if ros2:
+        try:
+            from rosbags.rosbag2 import Reader
+
+            from .rosbag import RosbagsRecording
+
+            reader = Reader(path)
+            reader.open()
+            return RosbagsRecording(path, reader, 2, "mcap", msg_dir)
+        except Exception:  # noqa: BLE001 - e.g. profile not ros2: the mcap library reads it
+            pass
+    return McapRecording(path, [path], msg_dir)
 
 
 def _open_pcap(p: Path, meta=None, **_):

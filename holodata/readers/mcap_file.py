@@ -397,28 +397,3 @@ def _salvage_chunk(body: bytes):
                 stream.read(length)
         except Exception:  # noqa: BLE001
             return
-
-
-def open_mcap(path: Path, msg_dir: Path | None = None) -> Recording:
-    """A single ``.mcap``: rosbags for ROS 2 files with a summary, the mcap library otherwise."""
-    path = Path(path)
-    with open(path, "rb") as fh:
-        head = fh.read(8)
-        if not head:
-            raise RecordingError(f"{path}: file is empty")
-        if head != b"\x89MCAP0\r\n":
-            raise RecordingError(f"{path}: not an MCAP file (bad magic)")
-        s = _summary(fh)
-    ros2 = s is not None and s.chunk_indexes and s.channels and all(
-        c.message_encoding == "cdr" for c in s.channels.values())
-    if ros2:
-        try:
-            from .rosbag import RosbagsRecording
-            from rosbags.rosbag2 import Reader
-
-            reader = Reader(path)
-            reader.open()
-            return RosbagsRecording(path, reader, 2, "mcap", msg_dir)
-        except Exception:  # noqa: BLE001 - e.g. profile not ros2: the mcap library reads it
-            pass
-    return McapRecording(path, [path], msg_dir)
