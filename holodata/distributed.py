@@ -6,7 +6,10 @@ cluster (``tcp://host:8786``, or the path of a ``--scheduler-file`` JSON as writ
 ``dask scheduler`` / dask-jobqueue / dask-kubernetes). Without either flag nothing here is used and
 every stage runs in-process as before.
 
-Tasks (the unit a lost worker loses, and the scheduler reruns elsewhere):
+Tasks (the unit a lost worker loses, and the scheduler reruns elsewhere). This module only runs
+them (:func:`run_tasks` over a function and its calls) and knows no stage; each stage owns its task
+function (``groundtruth._gt_shard_task``, ``ingest._ingest_task``) and imports this module, never
+the other way round:
 
 * ``raytrace-gt``: one task per *shard* of a scene (``shard_frames`` consecutive frames); it
   traces those frames and writes every gt/* array's shard with ``FrameArrayWriter.write_shard``.
@@ -35,8 +38,6 @@ from __future__ import annotations
 
 import logging
 import os
-import threading
-import time
 import uuid
 from contextlib import contextmanager
 from pathlib import Path
@@ -123,7 +124,7 @@ def worker_path(path_or_url) -> str:
     return str(Path(s[len("file://"):] if s.startswith("file://") else s).expanduser().absolute())
 
 
-def _for_workers(human):
+def for_workers(human):
     """A human source whose file paths are absolute (HumanFile keeps its mesh in memory)."""
     import copy
 
@@ -157,116 +158,6 @@ def tune_malloc() -> None:
         libc.mallopt(-1, 64 << 20)  # M_TRIM_THRESHOLD
     except (OSError, AttributeError):
         pass
-
-
-# ---------------------------------------------------------------------------------------- raytrace-gt
-_LOCAL = threading.local()  # per worker thread: (token, FrameTracer)
-
-
-def _tracer(token: str, payload: dict):
-    from .groundtruth import FrameTracer
-
-    cur = getattr(_LOCAL, "tracer", None)
-    if cur is None or cur[0] != token:
-        _LOCAL.tracer = None  # drop the previous scene before building the next
-        _LOCAL.tracer = (token, FrameTracer(payload["mesh"], payload["cfg"], payload["traj"], payload["human"],
-                                                payload.get("cycles")))
-    return _LOCAL.tracer[1]
-
-
-def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: int, stop: int) -> dict:
-    """Worker side: trace frames ``start:stop`` (= shard ``k``) and write shard ``k`` of ``names``."""
-    from .dataset import create_dataset
-    from .groundtruth import gt_array_specs, trace_shard
-
-    tune_malloc()
-    t0 = time.perf_counter()
-    arrays = getattr(_LOCAL, "arrays", None)
-    if arrays is None or arrays[0] != token:  # the scene's array writers, opened once per worker thread
-        cfg = payload["cfg"]
-        w = create_dataset(payload["url"], grid=payload["grid"], range_bins=payload["range_bins"])
-        sc = w.scene(payload["scene_id"])
-        extra = {"codec": cfg.codec} if cfg.codec else {}
-        arrays = _LOCAL.arrays = (token, {name: sc.frame_array(name, **spec, **extra)
-                                          for name, spec in gt_array_specs(cfg.grid, cfg.max_bounces).items()})
-    # a rerun of a task whose shard was committed meanwhile (its worker died after the commit) is
-    # cheap: is_done asks the store for the manifest record, not only this writer's memory
-    todo = [name for name in names if not arrays[1][name].is_done(k)]
-    written = []
-    if todo:
-        out = trace_shard(_tracer(token, payload), range(start, stop), todo)
-        t1 = time.perf_counter()
-        written = [name for name in todo if arrays[1][name].write_shard(k, out[name])]
-    else:
-        t1 = time.perf_counter()
-    try:
-        from distributed import get_worker
-
-        where = get_worker().address
-    except (ImportError, ValueError):
-        where = "local"
-    return {"shard": k, "frames": stop - start, "written": written, "trace_s": t1 - t0,
-            "write_s": time.perf_counter() - t1, "worker": where}
-
-
-def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quiet: bool = True,
-                     label: str = "raytrace-gt", cycles=None) -> dict:
-    """Run a raytrace-gt ``plan`` [(shard, names, frames)] of dataset scene ``sc`` (a SceneWriter)
-    as one Dask task per shard (``cycles``: per-frame rotation start/end, see
-    :class:`holodata.groundtruth.FrameTracer`). Returns {workers, ray_threads, tasks: [...]}."""
-    from dataclasses import replace
-
-    local = getattr(client, "holodata_local_workers", 0)
-    threads = cfg.nthreads or (max(1, cpus() // local) if local else 0)
-    wcfg = replace(cfg, nthreads=threads)
-    payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": _for_workers(human), "url": worker_path(sc.ds.url),
-               "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id, "cycles": cycles}
-    token = uuid.uuid4().hex
-    [fut] = client.scatter([payload], broadcast=True, hash=False)
-    calls = [(token, fut, k, list(names), frames.start, frames.stop) for k, names, frames in plan]
-    keys = [f"raytrace-gt-{sc.id}-shard{k}-{token[:8]}" for k, _, _ in plan]
-    try:
-        tasks = run_tasks(client, _gt_shard_task, calls, keys, description=label, quiet=quiet)
-    finally:
-        client.cancel([fut])
-    return {"workers": n_workers(client), "ray_threads": threads, "tasks": tasks}
-
-
-# ---------------------------------------------------------------------------------------- ingest
-def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dict) -> dict:
-    """Worker side: plan and write one recording as scene ``scene_id`` of dataset ``out`` (which
-    exists). Returns {"scene": summary} or {"failed": {recording, error}}."""
-    from . import ingest as ing
-    from .dataset import create_dataset
-    from .errors import HolodataError, RecordingError
-
-    tune_malloc()
-    p = None
-    try:
-        p = ing.plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
-                               opts["meta"], True)
-        if p.grid is not None and (p.grid, p.range_bins) != (grid, range_bins):
-            raise RecordingError(f"{path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
-                                 f"from the dataset's {grid.to_attrs()} / {range_bins.to_attrs()}")
-        ds = create_dataset(out, grid=grid, range_bins=range_bins)
-        return {"scene": ing.write_plan(p, ds, quiet=True, codec=opts["codec"])}
-    except (HolodataError, OSError) as err:
-        return {"failed": {"recording": str(path), "error": ing._one_line(err)}}
-    finally:
-        if p is not None:
-            p.rec.close()
-
-
-def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, opts: dict, quiet: bool = True
-                ) -> tuple[list[dict], list[dict]]:
-    """One Dask task per recording ``todo`` [(index, path, _)] → scenes ``ids`` of the existing
-    dataset ``out``. Returns (scene summaries, failures) in recording order."""
-    token = uuid.uuid4().hex[:8]
-    opts = {**opts, **{k: worker_path(opts[k]) for k in ("msg_dir", "meta") if opts.get(k)}}
-    calls = [(worker_path(r), sid, worker_path(out), grid, range_bins, opts) for (_, r, _), sid in zip(todo, ids)]
-    keys = [f"ingest-{sid}-{token}" for sid in ids]
-    res = run_tasks(client, _ingest_task, calls, keys, description="ingest", quiet=quiet)
-    return [r["scene"] for r in res if "scene" in r], [r["failed"] for r in res if "failed" in r]
 
 
 # ---------------------------------------------------------------------------------------- synth
@@ -304,4 +195,5 @@ def synth_scenes(out, count: int, seed: int = 0, client=None, quiet: bool = True
             for o, kw in track(jobs, total=len(jobs), description="synth", quiet=quiet)]
 
 
-__all__ = ["cluster", "run_tasks", "n_workers", "trace_scene_dask", "ingest_dask", "synth_dask", "synth_scenes"]
+__all__ = ["cluster", "run_tasks", "n_workers", "worker_path", "for_workers", "tune_malloc", "synth_dask",
+           "synth_scenes"]

@@ -26,7 +26,9 @@ octahedra (3 cm). ``camera/points`` is never used: it is in the camera frame unt
 from __future__ import annotations
 
 import hashlib
+import threading
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 import numpy as np
@@ -363,8 +365,6 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     dask_info = None
     if client is not None:
         if n_traced:
-            from .distributed import trace_scene_dask
-
             dask_info = trace_scene_dask(client, sc, mesh, cfg, traj, human, plan, quiet=quiet, label=label,
                                          cycles=cycles)
         for a in arrays.values():  # fold the workers' manifest records into attrs (idempotent)
@@ -588,6 +588,79 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         out.append({"scene": sid, "origin_model": origin.describe(), "origin_source": origin_source, **summary})
     return {"out": str(url), "scenes": out}
 
+
+
+# -- Dask tasks (holodata.distributed runs them): one per shard / recording ------------------------------
+_LOCAL = threading.local()  # per worker thread: (token, FrameTracer)
+
+
+def _tracer(token: str, payload: dict):
+    cur = getattr(_LOCAL, "tracer", None)
+    if cur is None or cur[0] != token:
+        _LOCAL.tracer = None  # drop the previous scene before building the next
+        _LOCAL.tracer = (token, FrameTracer(payload["mesh"], payload["cfg"], payload["traj"], payload["human"],
+                                                payload.get("cycles")))
+    return _LOCAL.tracer[1]
+
+
+def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: int, stop: int) -> dict:
+    """Worker side: trace frames ``start:stop`` (= shard ``k``) and write shard ``k`` of ``names``."""
+    from .dataset import create_dataset
+    from .distributed import tune_malloc
+
+    tune_malloc()
+    t0 = time.perf_counter()
+    arrays = getattr(_LOCAL, "arrays", None)
+    if arrays is None or arrays[0] != token:  # the scene's array writers, opened once per worker thread
+        cfg = payload["cfg"]
+        w = create_dataset(payload["url"], grid=payload["grid"], range_bins=payload["range_bins"])
+        sc = w.scene(payload["scene_id"])
+        extra = {"codec": cfg.codec} if cfg.codec else {}
+        arrays = _LOCAL.arrays = (token, {name: sc.frame_array(name, **spec, **extra)
+                                          for name, spec in gt_array_specs(cfg.grid, cfg.max_bounces).items()})
+    # a rerun of a task whose shard was committed meanwhile (its worker died after the commit) is
+    # cheap: is_done asks the store for the manifest record, not only this writer's memory
+    todo = [name for name in names if not arrays[1][name].is_done(k)]
+    written = []
+    if todo:
+        out = trace_shard(_tracer(token, payload), range(start, stop), todo)
+        t1 = time.perf_counter()
+        written = [name for name in todo if arrays[1][name].write_shard(k, out[name])]
+    else:
+        t1 = time.perf_counter()
+    try:
+        from distributed import get_worker
+
+        where = get_worker().address
+    except (ImportError, ValueError):
+        where = "local"
+    return {"shard": k, "frames": stop - start, "written": written, "trace_s": t1 - t0,
+            "write_s": time.perf_counter() - t1, "worker": where}
+
+
+def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quiet: bool = True,
+                     label: str = "raytrace-gt", cycles=None) -> dict:
+    """Run a raytrace-gt ``plan`` [(shard, names, frames)] of dataset scene ``sc`` (a SceneWriter)
+    as one Dask task per shard (``cycles``: per-frame rotation start/end, see
+    :class:`holodata.groundtruth.FrameTracer`). Returns {workers, ray_threads, tasks: [...]}."""
+    from dataclasses import replace
+
+    from .distributed import for_workers, n_workers, run_tasks, worker_path
+
+    local = getattr(client, "holodata_local_workers", 0)
+    threads = cfg.nthreads or (max(1, cpus() // local) if local else 0)
+    wcfg = replace(cfg, nthreads=threads)
+    payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": for_workers(human), "url": worker_path(sc.ds.url),
+               "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id, "cycles": cycles}
+    token = uuid.uuid4().hex
+    [fut] = client.scatter([payload], broadcast=True, hash=False)
+    calls = [(token, fut, k, list(names), frames.start, frames.stop) for k, names, frames in plan]
+    keys = [f"raytrace-gt-{sc.id}-shard{k}-{token[:8]}" for k, _, _ in plan]
+    try:
+        tasks = run_tasks(client, _gt_shard_task, calls, keys, description=label, quiet=quiet)
+    finally:
+        client.cancel([fut])
+    return {"workers": n_workers(client), "ray_threads": threads, "tasks": tasks}
 
 __all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "points_to_mesh", "trace_frame",
            "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "raytrace_standalone", "raytrace_dataset", "HumanSource", "HumanDir", "HumanFile",

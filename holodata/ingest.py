@@ -47,6 +47,7 @@ import json
 import math
 import re
 import time
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -1670,8 +1671,6 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     ds = None
     scenes = []
     if client is not None:  # the dataset exists before the workers write their scenes into it
-        from .distributed import ingest_dask
-
         create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
                        provenance={"tool": "holodata ingest", "version": version},
                        **({"shard_frames": shard_frames} if shard_frames else {}))
@@ -1811,3 +1810,41 @@ def format_listing(info: dict) -> str:
         lines.append(f"note: {n}")
     lines.append("Ingest:    " + ("yes" if info["ingestable"] else f"no — {info['reason']}"))
     return "\n".join(lines)
+
+
+# -- Dask tasks (holodata.distributed runs them): one per shard / recording ------------------------------
+def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dict) -> dict:
+    """Worker side: plan and write one recording as scene ``scene_id`` of dataset ``out`` (which
+    exists). Returns {"scene": summary} or {"failed": {recording, error}}."""
+    from .dataset import create_dataset
+    from .distributed import tune_malloc
+
+    tune_malloc()
+    p = None
+    try:
+        p = plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
+                               opts["meta"], True)
+        if p.grid is not None and (p.grid, p.range_bins) != (grid, range_bins):
+            raise RecordingError(f"{path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
+                                 f"from the dataset's {grid.to_attrs()} / {range_bins.to_attrs()}")
+        ds = create_dataset(out, grid=grid, range_bins=range_bins)
+        return {"scene": write_plan(p, ds, quiet=True, codec=opts["codec"])}
+    except (HolodataError, OSError) as err:
+        return {"failed": {"recording": str(path), "error": _one_line(err)}}
+    finally:
+        if p is not None:
+            p.rec.close()
+
+
+def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, opts: dict, quiet: bool = True
+                ) -> tuple[list[dict], list[dict]]:
+    """One Dask task per recording ``todo`` [(index, path, _)] → scenes ``ids`` of the existing
+    dataset ``out``. Returns (scene summaries, failures) in recording order."""
+    from .distributed import run_tasks, worker_path
+
+    token = uuid.uuid4().hex[:8]
+    opts = {**opts, **{k: worker_path(opts[k]) for k in ("msg_dir", "meta") if opts.get(k)}}
+    calls = [(worker_path(r), sid, worker_path(out), grid, range_bins, opts) for (_, r, _), sid in zip(todo, ids)]
+    keys = [f"ingest-{sid}-{token}" for sid in ids]
+    res = run_tasks(client, _ingest_task, calls, keys, description="ingest", quiet=quiet)
+    return [r["scene"] for r in res if "scene" in r], [r["failed"] for r in res if "failed" in r]

@@ -287,7 +287,6 @@ def test_synth_count_on_cluster_matches_in_process(cluster, tmp_path):
 def test_shard_task_rerun_is_idempotent(tmp_path, monkeypatch):
     """A task rerun after its worker died: committed arrays are skipped without tracing, an array
     whose manifest is missing (the worker died between two puts) is traced and rewritten identically."""
-    import holodata.distributed as hd
     import holodata.groundtruth as gtm
     from holodata.conventions import Grid
     from holodata.meshio import read_mesh
@@ -306,11 +305,11 @@ def test_shard_task_rerun_is_idempotent(tmp_path, monkeypatch):
     traced = []
     real = gtm.trace_shard
     monkeypatch.setattr(gtm, "trace_shard", lambda tr, frames, names: traced.append(list(names)) or real(tr, frames, names))
-    res = hd._gt_shard_task("t1", payload, 1, list(gtm.GT_ARRAYS), 2, 4)
+    res = gtm._gt_shard_task("t1", payload, 1, list(gtm.GT_ARRAYS), 2, 4)
     assert res["written"] == [] and traced == []
     (out / "scenes/scene/gt/label/manifest/1.json").unlink()
     (out / "scenes/scene/gt/label/c/1/0/0/0").write_bytes(b"torn")  # an uncommitted object
-    res = hd._gt_shard_task("t2", payload, 1, list(gtm.GT_ARRAYS), 2, 4)
+    res = gtm._gt_shard_task("t2", payload, 1, list(gtm.GT_ARRAYS), 2, 4)
     assert res["written"] == ["gt/label"] and traced == [["gt/label"]]
     assert manifests(out) == before
     assert hds.validate_dataset(str(out))["ok"]

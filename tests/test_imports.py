@@ -1,8 +1,8 @@
 """No import cycles in holodata/ (issue 25, point 3): every import, at module level or inside a
 function, is an edge; a strongly connected component of more than one module is a cycle.
 
-The cycle still there is listed in KNOWN: the Dask executor calling back into the stages it runs
-(lazy imports both ways; the generic executor of issue 25 point 3 removes it). Imports under ``if TYPE_CHECKING:`` (annotations only) never
+KNOWN lists cycles tolerated for a while (none now: the Dask executor called back into the stages it
+ran until each stage owned its task function). Imports under ``if TYPE_CHECKING:`` (annotations only) never
 run and are left out. The test fails on any other cycle, and on a listed one that is gone (delete it here)."""
 from __future__ import annotations
 
@@ -10,9 +10,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "holodata"
-KNOWN = {
-    frozenset({"holodata.distributed", "holodata.ingest", "holodata.groundtruth"}),
-}
+KNOWN: set[frozenset] = set()
 
 
 def import_graph(root: Path = ROOT) -> dict[str, set[str]]:
