@@ -93,16 +93,11 @@ def _open_rosbag1(p: Path, msg_dir=None, **_):
 def _open_mcap(p: Path, msg_dir=None, **_):
     """A single ``.mcap``: rosbags for ROS 2 files with a summary (CDR on every channel), the mcap
     library otherwise (here, not in either reader, so that neither imports the other)."""
-    from ..errors import RecordingError
-    from .mcap_file import McapRecording, _summary
+    from .mcap_file import McapRecording, _summary, check_magic
 
     path = Path(p)
     with open(path, "rb") as fh:
-        head = fh.read(8)
-        if not head:
-            raise RecordingError(f"{path}: file is empty")
-        if head != b"\x89MCAP0\r\n":
-            raise RecordingError(f"{path}: not an MCAP file (bad magic)")
+        check_magic(fh, path)
         s = _summary(fh)
     ros2 = s is not None and s.chunk_indexes and s.channels and all(
         c.message_encoding == "cdr" for c in s.channels.values())

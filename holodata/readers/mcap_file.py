@@ -164,6 +164,16 @@ class McapMessageTable:
         return data
 
 
+def check_magic(fh, path) -> None:
+    """Read the 8 magic bytes from the open binary file ``fh`` (of ``path``); RecordingError when the
+    file is empty or not MCAP."""
+    head = fh.read(8)
+    if not head:
+        raise RecordingError(f"{path}: file is empty")
+    if head != b"\x89MCAP0\r\n":
+        raise RecordingError(f"{path}: not an MCAP file (bad magic)")
+
+
 class McapRecording(Recording):
     kind = "mcap"
 
@@ -234,11 +244,7 @@ class McapRecording(Recording):
 
     def _check_magic(self, f: Path) -> None:
         with open(f, "rb") as fh:
-            head = fh.read(8)
-        if not head:
-            raise RecordingError(f"{f}: file is empty")
-        if head != b"\x89MCAP0\r\n":
-            raise RecordingError(f"{f}: not an MCAP file (bad magic)")
+            check_magic(fh, f)
 
     @staticmethod
     def _typename(name: str) -> str:
