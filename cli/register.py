@@ -38,9 +38,10 @@ def _init(value: str | None):
 @click.option("--guess-std", "guess_std", type=click.FloatRange(min=0.0), default=5.0, show_default=True, metavar="CM",
               help="How good the guess (TF pose or --init) is along directions the camera's view does not constrain: "
                    "the result there is the guess, with this uncertainty; accepted only if <= 2 cm.")
+@click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def register(dataset, scene, init, no_segment, camera_world, truth, report, processes, guess_std, quiet,
+def register(dataset, scene, init, no_segment, camera_world, truth, report, processes, guess_std, force, quiet,
              as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
@@ -59,7 +60,7 @@ def register(dataset, scene, init, no_segment, camera_world, truth, report, proc
         raise click.UsageError("--report needs --truth")
     cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=camera_world, processes=processes,
                          guess_std_m=guess_std / 100.0)
-    res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet)
+    res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet, force=force)
     if truth:
         from holodata.mapping.human_eval import evaluate_register
 
@@ -67,6 +68,8 @@ def register(dataset, scene, init, no_segment, camera_world, truth, report, proc
     if as_json:
         click.echo(json.dumps(res, indent=2, default=str))
         return
+    if res.get("skipped"):
+        click.echo(f"{dataset}: scene {res['scene']}: {res['skipped']}", err=quiet)
     e = res["extrinsic"]
     chosen = next((a for a in e.get("attempts") or [] if a.get("method") == e["method"]), {})
     held = chosen.get("held_directions") or []

@@ -950,3 +950,31 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
                       degenerate_ratio=0.02, info=info)
     target, seen = anchored_guess(T3, T_tf, anchor, info["held"][0][3:, 0], 0.5, 0.1)
     assert target is None and abs(seen["yaw_deg"]) > 0.25 and abs(seen["shift_deg"]) < 0.1, seen
+
+
+def test_register_rerun_skips_unless_inputs_settings_or_force_change(tmp_path):
+    """A second register with the same inputs and settings returns the stored report (``skipped``) and
+    leaves the outputs as they were; ``processes`` changes no result and no fingerprint; another
+    setting, a changed slam map, or ``force`` recomputes."""
+    from holodata import open_dataset
+    from holodata.mapping.register import register_fingerprint, register_scene
+
+    url, sw, _ = _copy_small_corner(tmp_path)
+    cfg = RegisterConfig(segment_lidar=False, processes=1)
+    first = register_scene(url, "recording", cfg=cfg)
+    assert "skipped" not in first
+    sc = open_dataset(url).scene("recording")
+    T = np.asarray(sc["calib/T_world_camera"][...])
+    fp = sc.attrs["register"]["fingerprint"]
+    again = register_scene(url, "recording", cfg=RegisterConfig(segment_lidar=False, processes=2))
+    assert again["skipped"].startswith("already done") and again["frames_with_human"] == first["frames_with_human"]
+    assert np.array_equal(np.asarray(open_dataset(url).scene("recording")["calib/T_world_camera"][...]), T)
+    assert "skipped" not in register_scene(url, "recording", cfg=cfg, force=True)
+    assert register_fingerprint(sc, RegisterConfig(segment_lidar=False, min_points=99), None) != fp
+    assert register_fingerprint(sc, cfg, [0, 0, 1, 0, 0, 0]) != fp
+    P = np.asarray(sc["pose/T_world_lidar"][...]).copy()
+    P[:, 0, 3] += 0.01
+    sw.write_array("pose/T_world_lidar", P, dims=["frame", "row", "col"], units="m",
+                   attrs=dict(sc["pose/T_world_lidar"].attrs))
+    assert register_fingerprint(open_dataset(url).scene("recording"), cfg, None) != fp
+

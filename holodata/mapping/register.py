@@ -1484,21 +1484,54 @@ def map_frame_problem(scene, world: str) -> str | None:
     return None
 
 
+REGISTER_OUTPUTS = ("calib/T_world_camera", "human/vertices", "human/faces", "human/points")
+
+
+def register_fingerprint(scene, cfg: RegisterConfig, init) -> str:
+    """What register's outputs depend on, hashed: the settings (less ``processes``, which changes no
+    result), ``--init``, the camera's TF pose and intrinsics (``sensors.camera``), ingest's
+    fingerprint (the camera and LiDAR arrays) and the bytes of slam's poses, map points and mesh."""
+    import hashlib
+    import json
+
+    h = hashlib.sha256()
+    params = {k: v for k, v in cfg.to_attrs().items() if k != "processes"}
+    head = {"params": params, "init": None if init is None else np.asarray(_parse_init(init), float).tolist(),
+            "camera": (scene.attrs.get("sensors") or {}).get("camera"),
+            "ingest": (scene.attrs.get("ingest") or {}).get("fingerprint")}
+    h.update(json.dumps(head, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)).encode())
+    names = set(scene.arrays())
+    for name in ("pose/T_world_lidar", "map/points", "mesh/vertices", "mesh/faces"):
+        if name in names:
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(scene[name][...]).tobytes())
+    return h.hexdigest()[:16]
+
+
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
-                   quiet: bool = True) -> dict:
+                   quiet: bool = True, force: bool = False) -> dict:
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
-    docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes."""
+    docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes.
+    A scene registered before from the same inputs and settings (:func:`register_fingerprint`, every
+    output present) is not registered again unless ``force``: the stored report comes back with
+    ``skipped`` set, as slam does."""
     from ..dataset import create_dataset, open_dataset
     from .segment import LidarScans, _scene_id, instance_state
 
     cfg = cfg or RegisterConfig()
     t0 = time.perf_counter()
-    release_free_memory()      # (before the forks below)
     timings = {}
     ds = open_dataset(url)
     sid = _scene_id(ds, url, scene_id)
     scene = ds.scene(sid)
     scene.require_complete("register")
+    fingerprint = register_fingerprint(scene, cfg, init)
+    done = scene.attrs.get("register") or {}
+    if (not force and done.get("fingerprint") == fingerprint and set(REGISTER_OUTPUTS) <= set(scene.arrays())
+            and (not cfg.segment_lidar or instance_state(scene) == "current")):
+        return {"scene": sid, **{k: v for k, v in done.items() if k not in ("params", "T_init")},
+                "skipped": "already done with the same inputs and settings (use --force to recompute)"}
+    release_free_memory()      # (before the forks below)
     cam = CameraFrames.open(scene, url)
     LidarScans.open(scene, url)   # checks the LiDAR arrays and poses before any work starts
     T_init = _parse_init(init)
@@ -1703,7 +1736,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                   "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
                              "visible front (closed)",
                   "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
-                  "seconds": time.perf_counter() - t0, "timings": timings}
+                  "seconds": time.perf_counter() - t0, "timings": timings, "fingerprint": fingerprint}
         sw.set_attrs({"register": report})
         out = {"scene": sid, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
         if seg_summary:
