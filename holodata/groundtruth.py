@@ -589,8 +589,7 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
     return {"out": str(url), "scenes": out}
 
 
-
-# -- Dask tasks (holodata.distributed runs them): one per shard / recording ------------------------------
+# -- Dask task (holodata.distributed runs it): one per shard ---------------------------------------------
 _LOCAL = threading.local()  # per worker thread: (token, FrameTracer)
 
 
@@ -661,6 +660,7 @@ def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quie
     finally:
         client.cancel([fut])
     return {"workers": n_workers(client), "ray_threads": threads, "tasks": tasks}
+
 
 __all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "points_to_mesh", "trace_frame",
            "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "raytrace_standalone", "raytrace_dataset", "HumanSource", "HumanDir", "HumanFile",

@@ -1688,9 +1688,8 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
             p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet)
             if p.grid is not None and grid is None:   # the first radar recording sets the dataset's grid
                 grid, rb, ds = p.grid, p.range_bins, None
-            elif p.grid is not None and (p.grid, p.range_bins) != (grid, rb):
-                raise RecordingError(f"{r}: radar grid {p.grid}, {p.range_bins} differs from the dataset's "
-                                     f"{grid}, {rb}")
+            else:
+                check_grid(r, p, grid, rb)
             if ds is None:   # created only once something is ingestable: a failed run leaves no empty dataset
                 kw = {"shard_frames": shard_frames} if shard_frames else {}
                 ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
@@ -1812,7 +1811,15 @@ def format_listing(info: dict) -> str:
     return "\n".join(lines)
 
 
-# -- Dask tasks (holodata.distributed runs them): one per shard / recording ------------------------------
+def check_grid(recording, plan: Plan, grid, range_bins) -> None:
+    """RecordingError unless the radar recording's grid and range bins (``plan``) are the dataset's
+    (``grid``, ``range_bins``); a recording without radar fits any dataset."""
+    if plan.grid is not None and (plan.grid, plan.range_bins) != (grid, range_bins):
+        raise RecordingError(f"{recording}: radar grid {plan.grid}, {plan.range_bins} differs from the dataset's "
+                             f"{grid}, {range_bins}")
+
+
+# -- Dask task (holodata.distributed runs it): one per recording -----------------------------------------
 def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dict) -> dict:
     """Worker side: plan and write one recording as scene ``scene_id`` of dataset ``out`` (which
     exists). Returns {"scene": summary} or {"failed": {recording, error}}."""
@@ -1823,10 +1830,8 @@ def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dic
     p = None
     try:
         p = plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
-                               opts["meta"], True)
-        if p.grid is not None and (p.grid, p.range_bins) != (grid, range_bins):
-            raise RecordingError(f"{path}: radar grid {p.grid.to_attrs()} / {p.range_bins.to_attrs()} differs "
-                                 f"from the dataset's {grid.to_attrs()} / {range_bins.to_attrs()}")
+                           opts["meta"], True)
+        check_grid(path, p, grid, range_bins)
         ds = create_dataset(out, grid=grid, range_bins=range_bins)
         return {"scene": write_plan(p, ds, quiet=True, codec=opts["codec"])}
     except (HolodataError, OSError) as err:

@@ -27,9 +27,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..errors import HolodataError, RecordingError
-from .base import DecodeError, MessageDecoder, RawMessage, ReaderSpec, Recording, TopicInfo
+from .base import MCAP_MAGIC, DecodeError, MessageDecoder, RawMessage, ReaderSpec, Recording, TopicInfo
 
-MCAP_MAGIC = b"\x89MCAP0\r\n"
 PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
 
 
@@ -93,15 +92,10 @@ def _open_rosbag1(p: Path, msg_dir=None, **_):
 def _open_mcap(p: Path, msg_dir=None, **_):
     """A single ``.mcap``: rosbags for ROS 2 files with a summary (CDR on every channel), the mcap
     library otherwise (here, not in either reader, so that neither imports the other)."""
-    from .mcap_file import McapRecording, _summary, check_magic
+    from .mcap_file import McapRecording, ros2_cdr
 
     path = Path(p)
-    with open(path, "rb") as fh:
-        check_magic(fh, path)
-        s = _summary(fh)
-    ros2 = s is not None and s.chunk_indexes and s.channels and all(
-        c.message_encoding == "cdr" for c in s.channels.values())
-    if ros2:
+    if ros2_cdr(path):
         try:
             from rosbags.rosbag2 import Reader
 

@@ -353,6 +353,7 @@ class ReaderSpec:
 # fields ingest reads from the ROS messages they stand in for
 
 RADAR_MSG = "holodata_msgs/msg/RadarHeatmap"
+MCAP_MAGIC = b"\x89MCAP0\r\n"   # the first 8 bytes of every MCAP file
 RANGE_IMAGE_TYPE = "holodata/msg/RangeImage"
 POINTS_TYPE = "holodata/msg/PointCloud"
 

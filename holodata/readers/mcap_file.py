@@ -14,7 +14,7 @@ from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from ..errors import RecordingError
-from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
+from .base import MCAP_MAGIC, MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
 
 _SCHEMA_FMT = {"ros2msg": "msg", "ros2idl": "idl", "ros1msg": "msg"}
 
@@ -170,8 +170,18 @@ def check_magic(fh, path) -> None:
     head = fh.read(8)
     if not head:
         raise RecordingError(f"{path}: file is empty")
-    if head != b"\x89MCAP0\r\n":
+    if head != MCAP_MAGIC:
         raise RecordingError(f"{path}: not an MCAP file (bad magic)")
+
+
+def ros2_cdr(path: Path) -> bool:
+    """True when the MCAP file ``path`` (magic checked: RecordingError) has a summary with chunk
+    indexes and every channel CDR-encoded: a ROS 2 file rosbags can read."""
+    with open(path, "rb") as fh:
+        check_magic(fh, path)
+        s = _summary(fh)
+    return bool(s is not None and s.chunk_indexes and s.channels
+                and all(c.message_encoding == "cdr" for c in s.channels.values()))
 
 
 class McapRecording(Recording):
