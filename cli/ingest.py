@@ -24,13 +24,19 @@ from holodata.cli.options import dask_options
                    "(default per sensor: half its median period, at least 50 ms).")
 @click.option("--codec", type=click.Choice(["zstd", "lz4"]), default=None,
               help="Compression of the new arrays (default: lz4 for bulk arrays, the dataset's zstd for small ones).")
+@click.option("--beamform-grid", default=None, metavar="HxW",
+              help="Raw radar samples (PanoRadar raw trajectories): beams of the heatmaps formed, elevation x "
+                   "azimuth (default 64x512, elevation +45..-45 deg).")
+@click.option("--beamform-fov", type=click.FloatRange(1.0, 360.0), default=None,
+              help="Raw radar samples: azimuth field of view of one beam's synthetic aperture, degrees (default 90).")
 @dask_options("one recording per task", "recordings must be readable at the same paths on the workers.")
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
-def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, workers, scheduler,
-           quiet, as_json):
+def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, beamform_grid,
+           beamform_fov, workers, scheduler, quiet, as_json):
     """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster
-    .pcap (+ .json), .h5 (holodata layout), PanoRadar rf_npy/lidar_npy folder — and write one
+    .pcap (+ .json), .h5 (holodata layout), PanoRadar rf_npy/lidar_npy folder or raw trajectory
+    (radar_data.npy + data_params.npz: beamformed here, parameters in the scene attrs) — and write one
     dataset scene per recording: radar heatmaps, LiDAR scans and camera clouds synced to the radar
     rotation cycles (LiDAR scans are the frames when there is no radar), timestamps, TF poses and
     extrinsics. Rerun the same command to resume. A recording cut short is ingested up to where it
@@ -43,6 +49,8 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
       holodata ingest --list drive.bag
 
       holodata ingest corner_01/ corner_02.mcap --out data.zarr --topics topics.yaml
+
+      holodata ingest panoradar_traj/ --out data.zarr --beamform-grid 64x512
     """
     import json
     import sys
@@ -50,11 +58,13 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     from holodata.dataset.info import plural
     from holodata.ingest import format_listing, ingest as run_ingest, list_recording
 
+    beamform = _beamform_params(beamform_grid, beamform_fov)
+    bf_kw = {"beamform": beamform} if beamform is not None else {}
     if list_only:
         infos, errors = [], []
         for r in recordings:
             try:
-                infos.append(list_recording(r, msg_dir=msg_dir, meta=meta, topics=topics_file))
+                infos.append(list_recording(r, msg_dir=msg_dir, meta=meta, topics=topics_file, **bf_kw))
             except Exception as err:  # noqa: BLE001 - one line per recording
                 from holodata.cli.main import one_line
 
@@ -73,7 +83,7 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     with cluster(workers, scheduler) as client:
         summary = run_ingest(list(recordings), out, topics=topics_file, scene_ids=list(scene_ids) or None,
                              msg_dir=msg_dir, tolerance_ms=tolerance_ms, quiet=quiet or as_json, meta=meta,
-                             codec=codec, client=client)
+                             codec=codec, client=client, beamform=beamform)
     if as_json:
         click.echo(json.dumps(summary, indent=2, default=str))
     else:
@@ -96,3 +106,25 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
 
 
 COMMANDS = [ingest]
+
+
+def _beamform_params(grid: str | None, fov: float | None):
+    """BeamformParams from the --beamform-* flags (None when none was given: the reader's default)."""
+    if grid is None and fov is None:
+        return None
+    from holodata.conventions import Grid
+    from holodata.radar.beamform import BeamformParams
+
+    kw = {}
+    if grid is not None:
+        try:
+            g = Grid.parse(grid)
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--beamform-grid") from err
+        kw.update(n_elevation=g.H, n_azimuth=g.W)
+    if fov is not None:
+        kw["azimuth_fov_deg"] = fov
+    try:
+        return BeamformParams(**kw)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--beamform-grid") from err

@@ -884,14 +884,15 @@ def _nearest(frame_t: np.ndarray, item_t: np.ndarray, tol_ns: int) -> tuple[np.n
 
 
 def plan_recording(path, topics: dict | None = None, scene_id: str | None = None, msg_dir=None,
-                   tolerance_ms: float | None = None, meta=None, quiet: bool = True) -> Plan:
-    """Open, map, index and sync one recording (nothing written). RecordingError if unusable."""
+                   tolerance_ms: float | None = None, meta=None, quiet: bool = True, beamform=None) -> Plan:
+    """Open, map, index and sync one recording (nothing written). RecordingError if unusable.
+    ``beamform``: :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples."""
     from .progress import track
 
     from concurrent.futures import ThreadPoolExecutor
 
     _limit_malloc_arenas()
-    rec = open_recording(path, msg_dir=msg_dir, meta=meta)
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
     pool = ThreadPoolExecutor(1)   # checksums overlap the index pass (hashlib releases the GIL)
     sha = pool.submit(file_sha256, rec.files)
     pool.shutdown(wait=False)
@@ -1513,14 +1514,16 @@ def _write_lidar_tf(plan: Plan, frame_arr) -> str | None:
 
 
 def _world_frame(tf, frame: str) -> str | None:
-    """``map``/``world``/``odom`` if TF connects it to ``frame``, else the root of ``frame``'s tree."""
+    """``map``/``world``/``odom`` if TF connects it to ``frame``, else the root of ``frame``'s tree
+    when a moving (non-static) transform leads from it to ``frame`` — a tree of static transforms only
+    is the rig's own (``base_link → radar``), not a world the sensor moves in."""
     from .readers.tf import WORLD_FRAMES
 
     for cand in WORLD_FRAMES:
         if cand in tf.frames and tf._path(cand, frame, False) is not None:
             return cand
     root = tf.root(frame)
-    return None if root == frame else root
+    return None if root == frame or tf._path(root, frame, True) is not None else root
 
 
 def _sensor_frame(plan: Plan, role: str) -> str | None:
@@ -1618,13 +1621,15 @@ def _sensor_attrs(plan: Plan) -> dict:
 
 def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float | None = None,
            quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None,
-           client=None) -> dict:
+           client=None, beamform=None) -> dict:
     """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
     each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
     {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
     there and the others are still ingested. Raises RecordingError when none could be ingested.
     ``client`` (a ``distributed.Client``): one Dask task per recording (:mod:`holodata.distributed`);
-    the recordings must be readable at the same paths on the workers."""
+    the recordings must be readable at the same paths on the workers. ``beamform``:
+    :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples (PanoRadar raw
+    trajectories), default 64 x 512 beams, all range bins."""
     recordings = [Path(r) for r in recordings]
     if not recordings:
         raise InputError("no recording given")
@@ -1650,7 +1655,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes)
         for i, r in enumerate(recordings):
             try:
-                todo.append((i, r, radar_grid(r, topics, msg_dir, meta)))
+                todo.append((i, r, radar_grid(r, topics, msg_dir, meta, beamform)))
             except (HolodataError, OSError) as err:
                 failed.append({"recording": str(r), "error": _one_line(err)})
         if not todo:
@@ -1674,7 +1679,8 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
                        provenance={"tool": "holodata ingest", "version": version},
                        **({"shard_frames": shard_frames} if shard_frames else {}))
-        opts = {"topics": topics, "msg_dir": msg_dir, "tolerance_ms": tolerance_ms, "meta": meta, "codec": codec}
+        opts = {"topics": topics, "msg_dir": msg_dir, "tolerance_ms": tolerance_ms, "meta": meta, "codec": codec,
+                "beamform": beamform}
         scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
         failed += more
         todo = []
@@ -1685,7 +1691,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     for (i, r, _), sid in zip(todo, ids):
         p = None
         try:
-            p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet)
+            p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet, beamform)
             if p.grid is not None and grid is None:   # the first radar recording sets the dataset's grid
                 grid, rb, ds = p.grid, p.range_bins, None
             else:
@@ -1711,9 +1717,9 @@ def _failures(failed: list[dict]) -> str:
     return f"none of {len(failed)} recordings can be ingested: " + "; ".join(f["error"] for f in failed)
 
 
-def radar_grid(path, topics=None, msg_dir=None, meta=None) -> tuple[Grid, RangeBins] | None:
+def radar_grid(path, topics=None, msg_dir=None, meta=None, beamform=None) -> tuple[Grid, RangeBins] | None:
     """The radar grid of a recording (from its first decodable radar message), None without radar."""
-    rec = open_recording(path, msg_dir=msg_dir, meta=meta)
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
     try:
         infos = rec.topics(frame_ids=False)
         if not any(t.msgtype.endswith(RADAR_SUFFIX) and t.count for t in infos) and not (topics or {}).get("radar"):
@@ -1746,12 +1752,12 @@ def _grid_of(rec, st: RadarStream) -> tuple[Grid, RangeBins]:
         raise RecordingError(f"{rec.path}: radar topic {st.topic} has an unusable grid ({err})") from err
 
 
-def list_recording(path, msg_dir=None, meta=None, topics=None) -> dict:
+def list_recording(path, msg_dir=None, meta=None, topics=None, beamform=None) -> dict:
     """What ``ingest --list`` prints: reader, files, duration, topics (name, type, count, rate,
     frame id) and the role ingest would give each (with ``topics``: dict or YAML path overrides)."""
     if isinstance(topics, (str, Path)):
         topics = load_topics_file(topics)
-    rec = open_recording(path, msg_dir=msg_dir, meta=meta)
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
     try:
         infos = rec.topics(frame_ids=True)
         try:
@@ -1830,7 +1836,7 @@ def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dic
     p = None
     try:
         p = plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
-                           opts["meta"], True)
+                           opts["meta"], True, opts.get("beamform"))
         check_grid(path, p, grid, range_bins)
         ds = create_dataset(out, grid=grid, range_bins=range_bins)
         return {"scene": write_plan(p, ds, quiet=True, codec=opts["codec"])}

@@ -16,6 +16,8 @@ Registered readers (first whose ``detect`` accepts the path wins; see :data:`REA
 ``mcap``           ``.mcap`` (rosbags for ROS 2 files, the ``mcap`` library otherwise)
 ``ouster-pcap``    ``.pcap`` + sensor metadata ``.json`` (ouster-sdk)
 ``hdf5``           ``.h5``/``.hdf5`` in holodata's documented layout (:mod:`.hdf5`)
+``panoradar-raw``  PanoRadar raw trajectory folder (``radar_data.npy`` + ``data_params.npz`` ...): raw
+                   FMCW samples, beamformed into heatmaps on decode (:mod:`.panoradar_raw`)
 ``npy-folder``     PanoRadar-style folder of per-frame ``.npy`` files (:mod:`.npy_folder`)
 =================  =====================================================================
 
@@ -72,6 +74,10 @@ def _is_hdf5(p: Path) -> bool:
     return p.is_file() and (p.suffix in (".h5", ".hdf5") or _head(p, 8) == b"\x89HDF\r\n\x1a\n")
 
 
+def _is_panoradar_raw(p: Path) -> bool:
+    return p.is_dir() and (p / "radar_data.npy").exists()   # the raw layout; its other files are checked on open
+
+
 def _is_npy_folder(p: Path) -> bool:
     return p.is_dir() and ((p / "rf_npy").is_dir() or (p / "lidar_npy").is_dir())
 
@@ -121,6 +127,12 @@ def _open_hdf5(p: Path, **_):
     return Hdf5Recording(p)
 
 
+def _open_panoradar_raw(p: Path, beamform=None, device="cpu", **_):
+    from .panoradar_raw import PanoRadarRawRecording
+
+    return PanoRadarRawRecording(p, beamform, device)
+
+
 def _open_npy(p: Path, **_):
     from .npy_folder import NpyFolderRecording
 
@@ -141,6 +153,7 @@ for _spec in (
     ReaderSpec("mcap", _is_mcap, _open_mcap, "MCAP (rosbags / mcap)", (".mcap",)),
     ReaderSpec("ouster-pcap", _is_pcap, _open_pcap, "Ouster pcap + metadata json (ouster-sdk)", (".pcap",)),
     ReaderSpec("hdf5", _is_hdf5, _open_hdf5, "HDF5, holodata layout (h5py)", (".h5", ".hdf5")),
+    ReaderSpec("panoradar-raw", _is_panoradar_raw, _open_panoradar_raw, "PanoRadar raw trajectory (beamformed)", ()),
     ReaderSpec("npy-folder", _is_npy_folder, _open_npy, "PanoRadar-style .npy folder", ()),
 ):
     register_reader(_spec)
@@ -196,20 +209,24 @@ def guess_reader(path) -> str:
             raise RecordingError(f"{p}: folder holds ROS 1 bags ({', '.join(bags[:3])}{' ...' if len(bags) > 3 else ''}); "
                                  f"pass the .bag files themselves")
         raise RecordingError(f"{p}: folder is not a recording (no metadata.yaml, .db3 or .mcap files, no rf_npy/ or "
-                             f"lidar_npy/ folder)")
+                             f"lidar_npy/ folder, no radar_data.npy)")
     raise RecordingError(f"{p}: unknown recording format (expected .bag, .mcap, .db3, a rosbag2 folder, "
                          f".pcap + .json, .h5 or a folder of .npy files)")
 
 
-def open_recording(path, msg_dir=None, meta=None, reader: str | None = None) -> Recording:
+def open_recording(path, msg_dir=None, meta=None, reader: str | None = None, beamform=None,
+                   device: str = "cpu") -> Recording:
     """Open ``path`` with the reader :func:`guess_reader` picks (or ``reader``). ``msg_dir``: folder
-    of ``.msg`` files for types the file does not define; ``meta``: Ouster metadata ``.json``."""
+    of ``.msg`` files for types the file does not define; ``meta``: Ouster metadata ``.json``;
+    ``beamform``: :class:`~holodata.radar.beamform.BeamformParams` and ``device`` for readers of raw
+    radar samples."""
     p = synth_output_recording(path)
     name = reader or guess_reader(p)
     if name not in READERS:
         raise RecordingError(f"unknown reader {name!r} (have {', '.join(READERS)})")
     try:
-        return READERS[name].open(p, msg_dir=Path(msg_dir) if msg_dir else None, meta=meta)
+        return READERS[name].open(p, msg_dir=Path(msg_dir) if msg_dir else None, meta=meta, beamform=beamform,
+                                  device=device)
     except HolodataError:
         raise
     except Exception as err:  # noqa: BLE001 - library errors become one line naming the file

@@ -1,0 +1,154 @@
+"""Raw trajectory folders in PanoRadar's layout (``panoradar_SP/dataset.py``; FIELD-NOTES §"Raw radar"),
+written from simulated raw FMCW samples — small stand-ins for the 1.3 TB public release, for the
+reader's tests and the README's example.
+
+Layout written by :func:`write_trajectory` (what :mod:`holodata.readers.panoradar_raw` reads)::
+
+    radar_data.npy    (chirp frames, n_tx, n_rx, samples) complex64, int16 scale (x 32768)
+    radar_ts.txt      one stamp per chirp frame, seconds
+    lidar_data.npy    (frames, rows, columns, 3) float32 xyz, LiDAR frame
+    lidar_ts.txt      one stamp per LiDAR frame, seconds
+    imu_data.npy      (samples,) float64 yaw rate, deg/s   + imu_ts.txt
+    data_params.npz   radar_sep, lidar_sep, imu_sep (first index of every rotation), r_radar,
+                      transform (2x2: xy_radar = xy_lidar @ transform)
+    motion_output.npz (moving trajectories, optional) v_esti, theta_v_esti, delta_s0_esti per rotation
+
+:func:`box_room_trajectory` simulates one: a radar on a platform moving at constant velocity through
+a rectangular room holding point reflectors (the radar sees the reflectors; the LiDAR sees the walls).
+"""
+from __future__ import annotations
+
+import os
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..radar.chirp import ChirpConfig
+from ..radar.simulate import simulate_chirps
+
+INT16_SCALE = 32768.0   # PanoRadar divides the stored samples by this
+
+
+def write_trajectory(folder, radar: np.ndarray, radar_ts: np.ndarray, radar_sep, *, chirp: ChirpConfig,
+                     lidar: np.ndarray | None = None, lidar_ts=None, lidar_sep=None, imu=None, imu_ts=None,
+                     imu_sep=None, transform=None, motion: dict | None = None) -> Path:
+    """Write one trajectory folder; returns its path. ``radar``: (C, n_virtual, S) complex samples
+    (unit scale; stored x 32768 as PanoRadar's int16-scaled values, as (C, n_tx, n_rx, S)); stamps in
+    seconds. Written into ``folder.partial`` and renamed, so a folder that exists is complete."""
+    folder = Path(folder)
+    tmp = folder.with_name(folder.name + ".partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    C, V, S = radar.shape
+    np.save(tmp / "radar_data.npy",
+            (np.asarray(radar, np.complex64) * np.float32(INT16_SCALE)).reshape(C, chirp.n_tx, chirp.n_rx, S))
+    np.savetxt(tmp / "radar_ts.txt", np.asarray(radar_ts, np.float64), fmt="%.9f")
+    params = {"radar_sep": np.asarray(radar_sep, np.int64), "r_radar": np.float64(chirp.rotation_radius_m),
+              "transform": np.eye(2) if transform is None else np.asarray(transform, np.float64)}
+    if lidar is not None:
+        np.save(tmp / "lidar_data.npy", np.asarray(lidar, np.float32))
+        np.savetxt(tmp / "lidar_ts.txt", np.asarray(lidar_ts, np.float64), fmt="%.9f")
+        params["lidar_sep"] = np.asarray(lidar_sep, np.int64)
+    if imu is not None:
+        np.save(tmp / "imu_data.npy", np.asarray(imu, np.float64))
+        np.savetxt(tmp / "imu_ts.txt", np.asarray(imu_ts, np.float64), fmt="%.9f")
+        params["imu_sep"] = np.asarray(imu_sep, np.int64)
+    np.savez(tmp / "data_params.npz", **params)
+    if motion is not None:
+        np.savez(tmp / "motion_output.npz", **{k: np.asarray(v, np.float64) for k, v in motion.items()})
+    if folder.exists():
+        shutil.rmtree(folder)
+    os.replace(tmp, folder)
+    return folder
+
+
+@dataclass(frozen=True)
+class BoxRoom:
+    """An axis-aligned room around the platform's start (metres, radar frame at chirp 0: x forward,
+    z up, z = 0 the radar's vertical phase reference) with point reflectors of amplitude 1."""
+
+    x: tuple = (-3.0, 5.0)
+    y: tuple = (-2.5, 3.0)
+    z: tuple = (-0.8, 1.6)
+    reflectors: tuple = ((3.0, 0.6, 0.0), (-1.5, -1.2, 0.3), (1.0, 2.2, -0.2))
+    lidar_shape: tuple = (16, 256)
+    lidar_fov_deg: float = 45.0
+
+
+def _lidar_scan(room: BoxRoom, centre: np.ndarray, rot_lidar: np.ndarray) -> np.ndarray:
+    """(rows, cols, 3) float32: the room's walls seen from ``centre`` (radar frame), in the LiDAR frame."""
+    H, W = room.lidar_shape
+    el = np.deg2rad(np.linspace(room.lidar_fov_deg / 2, -room.lidar_fov_deg / 2, H))
+    az = -2 * np.pi * np.arange(W) / W
+    d = np.stack(np.broadcast_arrays(np.cos(el)[:, None] * np.cos(az)[None], np.cos(el)[:, None] * np.sin(az)[None],
+                                     np.sin(el)[:, None]), -1).reshape(-1, 3)          # LiDAR frame
+    d_r = d @ rot_lidar.T                                                                 # radar frame
+    t = np.full(len(d), np.inf)
+    for axis, (lo, hi) in enumerate((room.x, room.y, room.z)):
+        for wall in (lo, hi):
+            with np.errstate(divide="ignore", invalid="ignore"):
+                s = (wall - centre[axis]) / d_r[:, axis]
+            t = np.where((s > 0) & (s < t), s, t)
+    return (d * t[:, None]).reshape(H, W, 3).astype(np.float32)
+
+
+@dataclass
+class Trajectory:
+    """What :func:`box_room_trajectory` simulated (for tests: the truth to compare with)."""
+
+    folder: Path
+    chirp: ChirpConfig
+    n_rotations: int
+    velocity: tuple
+    room: BoxRoom
+    pad: int
+    extras: dict = field(default_factory=dict)
+
+
+def box_room_trajectory(folder, *, chirp: ChirpConfig | None = None, n_rotations: int = 3, velocity=(0.0, 0.0),
+                        room: BoxRoom | None = None, pad: int | None = None, lidar_yaw_deg: float = 0.0,
+                        lidar_hz: float = 10.0, noise_std: float = 1e-3, leakage: float = 0.05, motion_file: bool = True,
+                        seed: int = 0, t0_s: float = 1000.0) -> Trajectory:
+    """Simulate and write a PanoRadar raw trajectory of ``n_rotations`` rotations through ``room``.
+
+    The platform moves at ``velocity`` (vx, vy) m/s from chirp 0 on (no yaw); ``pad`` chirps (default:
+    half a 90° window) are recorded before the first rotation and after the last, as a moving
+    recording's beams need. ``lidar_yaw_deg``: yaw of the LiDAR frame relative to the radar frame
+    (``transform`` then rotates it back). A moving trajectory gets ``motion_output.npz`` (true
+    velocity) unless ``motion_file`` is False; a folder whose name contains "static" marks a robot at
+    rest for PanoRadar's code.
+    """
+    chirp = chirp or ChirpConfig()
+    room = room or BoxRoom()
+    N = chirp.chirps_per_rotation
+    if pad is None:
+        pad = N // 8 + 1
+    idx = np.arange(-pad, n_rotations * N + pad)
+    T = chirp.chirp_period_s
+    rng = np.random.default_rng(seed)
+    leak = leakage * np.exp(-np.arange(chirp.n_samples) / 4.0)[None, :].repeat(chirp.n_virtual, 0)
+    radar = simulate_chirps(np.asarray(room.reflectors, float), chirp=chirp, chirp_index=idx, n_chirps=N,
+                            velocity=velocity, noise_std=noise_std, leakage=leak, rng=rng)
+    radar_ts = t0_s + idx * T
+    radar_sep = pad + N * np.arange(n_rotations + 1)
+    yaw = np.deg2rad(lidar_yaw_deg)
+    rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])  # lidar -> radar
+    n_lidar = int(np.floor((radar_ts[-1] - radar_ts[0]) * lidar_hz)) + 1
+    lidar_ts = radar_ts[0] + np.arange(n_lidar) / lidar_hz
+    v3 = np.array([velocity[0], velocity[1], 0.0])
+    lidar = np.stack([_lidar_scan(room, (t - t0_s) * v3, rot) for t in lidar_ts])
+    sep_ts = t0_s + (radar_sep - pad) * T          # rotation starts (the last one may lie past the data)
+    lidar_sep = np.searchsorted(lidar_ts, sep_ts)
+    imu_ts = radar_ts[0] + np.arange(int((radar_ts[-1] - radar_ts[0]) * 100) + 1) / 100.0
+    imu_sep = np.searchsorted(imu_ts, sep_ts)
+    speed = float(np.hypot(*velocity))
+    motion = None
+    if speed > 0 and motion_file:
+        motion = {"v_esti": np.full(n_rotations, speed), "theta_v_esti": np.full(n_rotations, np.arctan2(velocity[1], velocity[0])),
+                  "delta_s0_esti": np.full(n_rotations, speed * T)}
+    out = write_trajectory(folder, radar, radar_ts, radar_sep, chirp=chirp, lidar=lidar, lidar_ts=lidar_ts,
+                           lidar_sep=lidar_sep, imu=np.zeros(len(imu_ts)), imu_ts=imu_ts, imu_sep=imu_sep,
+                           transform=rot[:2, :2].T, motion=motion)
+    return Trajectory(out, chirp, n_rotations, tuple(velocity), room, pad)

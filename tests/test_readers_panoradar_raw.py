@@ -1,0 +1,154 @@
+"""PanoRadar raw trajectory folders (raw FMCW samples + LiDAR + data_params.npz): detected from their
+layout, beamformed on ingest with the parameters recorded in the scene, reflectors at the bins the
+geometry predicts, and one-line errors for broken folders."""
+from __future__ import annotations
+
+import math
+import shutil
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from holodata.cli.main import cli
+from holodata.dataset import open_dataset, validate_dataset
+from holodata.errors import RecordingError
+from holodata.radar.beamform import BeamformParams
+from holodata.radar.chirp import ChirpConfig
+from holodata.readers import guess_reader, open_recording
+from holodata.synth.panoradar_raw import BoxRoom, box_room_trajectory
+
+CHIRP = ChirpConfig(chirps_per_rotation=512)   # chirp spacing on the circle 1.3 mm < λ/2: no grating lobes
+PARAMS = BeamformParams(n_elevation=16, n_azimuth=64)
+VELOCITY = (0.3, 0.1)
+ROOM = BoxRoom(reflectors=((3.0, 0.6, 0.0),))
+
+
+@pytest.fixture(scope="module")
+def moving(tmp_path_factory):
+    return box_room_trajectory(tmp_path_factory.mktemp("pr") / "walk_01", chirp=CHIRP, n_rotations=3,
+                               velocity=VELOCITY, room=ROOM, lidar_yaw_deg=30.0)
+
+
+def _heatmaps(rec):
+    out = []
+    for raw in rec.raw_messages(["/panoradar/radar"]):
+        m = rec.decode(raw)
+        out.append((m, np.frombuffer(m.data, "<f4").reshape(m.n_range, m.n_elevation, m.n_azimuth)))
+    return out
+
+
+def _expected_cell(m, k: int, j: int, velocity=VELOCITY):
+    """(range bin, row, column) of the reflector seen from the rotation centre at column j's time of
+    rotation k (the beamformer's motion_reference 'beam'), on the heatmap's grid."""
+    N = CHIRP.chirps_per_rotation
+    n = k * N + j * N / m.n_azimuth                           # chirp index of column j (chirp 0 = first rotation)
+    c = np.array([velocity[0], velocity[1], 0.0]) * n * CHIRP.chirp_period_s
+    d = np.asarray(ROOM.reflectors[0]) - c
+    r = float(np.linalg.norm(d))
+    el = math.asin(d[2] / r)
+    az = math.atan2(d[1], d[0])
+    col = (-az / (2 * math.pi) * m.n_azimuth) % m.n_azimuth
+    row = (math.radians(45.0) - el) / (math.radians(90.0) / (m.n_elevation - 1))
+    return r / m.range_resolution - 0.5, row, col
+
+
+def test_a_raw_trajectory_is_detected_and_its_reflector_lands_at_the_predicted_cell(moving):
+    assert guess_reader(moving.folder) == "panoradar-raw"
+    rec = open_recording(moving.folder, beamform=PARAMS)
+    assert rec.problems == []
+    hms = _heatmaps(rec)
+    assert len(hms) == 3
+    for k, (m, hm) in enumerate(hms):
+        assert hm.shape == (256, 16, 64) and m.range_origin == "rotation_centre"
+        b, row, col = np.unravel_index(np.argmax(hm), hm.shape)
+        eb, erow, ecol = _expected_cell(m, k, int(col))
+        assert abs(b - eb) <= 1.0 and abs(row - erow) <= 1.0, (k, (b, row, col), (eb, erow, ecol))
+        assert min(abs(col - ecol), m.n_azimuth - abs(col - ecol)) <= 1.0, (k, col, ecol)
+
+
+def test_ingest_records_how_the_heatmaps_were_made_and_the_lidar_extrinsic(moving, tmp_path):
+    from holodata.ingest import ingest
+
+    url = str(tmp_path / "ds.zarr")
+    ingest([moving.folder], url, beamform=PARAMS)
+    assert validate_dataset(url)["ok"]
+    sc = open_dataset(url).scene("walk_01")
+    bf = sc.attrs["source"]["beamform"]
+    assert bf["params"]["n_elevation"] == 16 and bf["params"]["n_azimuth"] == 64
+    assert bf["chirp"]["chirps_per_rotation"] == 512 and bf["chirp"]["rotation_radius_m"] == CHIRP.rotation_radius_m
+    assert bf["motion_compensation"] == "motion_output.npz" and bf["range_origin"] == "rotation_centre"
+    assert bf["n_syn"] == PARAMS.syn_count(512)
+    assert sc["radar/heatmap"].shape == (3, 256, 16, 64)
+    # LiDAR frames and the 2x2 transform as the LiDAR's extrinsic (yaw 30 deg, relative to the radar)
+    T = np.asarray(sc.attrs["extrinsics"]["lidar"])
+    assert math.degrees(math.atan2(T[1, 0], T[0, 0])) == pytest.approx(30.0, abs=1e-6)
+    assert np.allclose(sc.attrs["extrinsics"]["radar"], np.eye(4))
+    assert "lidar/points" in sc and "pose/T_world_radar" not in sc   # static TF only: no world to place it in
+
+
+def test_motion_compensation_focuses_a_moving_trajectory(moving, tmp_path):
+    """The same samples without motion_output.npz are imaged as if at rest (and the recording says so):
+    the reflector's peak drops and smears."""
+    bare = tmp_path / "walk_02"
+    shutil.copytree(moving.folder, bare)
+    (bare / "motion_output.npz").unlink()
+    rec = open_recording(bare, beamform=PARAMS)
+    assert any("as if at rest" in p for p in rec.problems)
+    assert rec.attrs["beamform"]["motion_compensation"].startswith("none")
+    still = max(hm.max() for _, hm in _heatmaps(rec))
+    comp = max(hm.max() for _, hm in _heatmaps(open_recording(moving.folder, beamform=PARAMS)))
+    assert comp > 1.5 * still
+
+
+def test_a_static_folder_pads_circularly_and_images_every_rotation(tmp_path):
+    tr = box_room_trajectory(tmp_path / "static_01", chirp=CHIRP, n_rotations=2, room=ROOM, pad=0)
+    rec = open_recording(tr.folder, beamform=PARAMS)
+    assert rec.attrs["beamform"]["padding"] == "circular" and rec.attrs["beamform"]["rotations_imaged"] == 2
+    (m, hm), _ = _heatmaps(rec)
+    b, row, col = np.unravel_index(np.argmax(hm), hm.shape)
+    eb, erow, ecol = _expected_cell(m, 0, int(col), velocity=(0.0, 0.0))
+    assert abs(b - eb) <= 1.0 and abs(row - erow) <= 1.0 and abs(col - ecol) <= 1.0
+
+
+def _break(folder, how: str):
+    if how == "no data_params.npz":
+        (folder / "data_params.npz").unlink()
+    elif how == "float samples":
+        a = np.load(folder / "radar_data.npy")
+        np.save(folder / "radar_data.npy", a.real.astype(np.float32))
+    elif how == "truncated npy":
+        b = (folder / "radar_data.npy").read_bytes()
+        (folder / "radar_data.npy").write_bytes(b[: len(b) // 2])
+    elif how in ("separators out of order", "separators beyond the data"):
+        with np.load(folder / "data_params.npz") as z:
+            d = {k: z[k] for k in z.files}
+        d["radar_sep"] = d["radar_sep"][::-1].copy() if how == "separators out of order" else d["radar_sep"] + 10_000
+        np.savez(folder / "data_params.npz", **d)
+    elif how == "stamps missing":
+        t = np.loadtxt(folder / "radar_ts.txt")
+        np.savetxt(folder / "radar_ts.txt", t[:-5])
+    elif how == "motion file short":
+        np.savez(folder / "motion_output.npz", v_esti=[0.3], theta_v_esti=[0.0], delta_s0_esti=[1e-4])
+
+
+@pytest.mark.parametrize("how, file, words", [
+    ("no data_params.npz", "data_params.npz", "missing"),
+    ("float samples", "radar_data.npy", "complex"),
+    ("truncated npy", "radar_data.npy", "truncated"),
+    ("separators out of order", "data_params.npz", "out of order"),
+    ("separators beyond the data", "data_params.npz", "beyond the data"),
+    ("stamps missing", "radar_ts.txt", "stamps for"),
+    ("motion file short", "motion_output.npz", "rotations"),
+])
+def test_broken_raw_folders_are_one_line_errors_and_leave_nothing_that_validates(moving, tmp_path, how, file, words):
+    bad = tmp_path / "walk_bad"
+    shutil.copytree(moving.folder, bad)
+    _break(bad, how)
+    with pytest.raises(RecordingError, match=words) as e:
+        open_recording(bad, beamform=PARAMS)
+    assert str(bad / file) in str(e.value) and "\n" not in str(e.value)
+    url = tmp_path / "ds.zarr"
+    r = CliRunner().invoke(cli, ["ingest", str(bad), "--out", str(url), "--beamform-grid", "16x64", "--quiet"])
+    assert r.exit_code == 1 and str(bad / file) in r.output and "Traceback" not in r.output, r.output
+    assert not url.exists() or not validate_dataset(str(url))["ok"]
