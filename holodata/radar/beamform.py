@@ -43,10 +43,10 @@ triangle-weighted mean of the magnitudes of the beams within ``N/W`` of it (``"t
 that does not depend on ``b`` — circular for a padded-circular rotation — so it runs as FFTs over the
 chirp axis (vertical beamforming is done after that FFT: 8 instead of 64 transforms per sample). A
 moving platform makes the kernel depend on ``b`` through ``cos(φ_b − θ_v)``, so no convolution
-structure is left; that path is the direct sum over the window, vectorised over beams and samples,
-with the motion phase advanced by one complex multiplication per chirp (re-anchored exactly every
-64 chirps) and elevation rows with equal ``cos θ`` (``±θ`` of a symmetric grid) sharing the
-coefficients; beams are split across threads. ``device="cuda"`` (or any torch device) runs the same
+structure is left; that path is the direct sum over the window, compiled with numba
+(:mod:`holodata.radar._motion_kernel`: samples innermost, beams in parallel), with the motion phase
+advanced by one complex multiplication per chirp (re-anchored exactly every 64 chirps) and
+elevation rows with equal ``cos θ`` (``±θ`` of a symmetric grid) sharing the coefficients. ``device="cuda"`` (or any torch device) runs the same
 two formulations in torch. Arrays in, arrays out: no I/O here.
 """
 from __future__ import annotations
@@ -66,8 +66,6 @@ STATIC_REMOVAL = ("trajectory", "rotation", "none")
 DECIMATION = ("pick", "triangle")
 MOTION_REFERENCES = ("beam", "rotation_start")
 RANGE_ORIGIN = "rotation_centre"
-
-
 
 
 @dataclass(frozen=True)
@@ -145,17 +143,6 @@ def beamform_attrs(chirp: ChirpConfig, params: BeamformParams, n_chirps: int | N
             "amplitude": "linear |sum|: mean over antennas, sums over chirps and samples with the windows, unnormalised",
             "columns": "column j = beam round(j*N/W) (pick) or triangle mean of beams within N/W (triangle)",
             **extra}
-
-
-# -- geometry pieces (numpy, float64) ------------------------------------------------------------------
-
-
-
-
-
-
-
-
 
 
 def static_reflection(chirps: np.ndarray) -> np.ndarray:
@@ -364,15 +351,6 @@ def _vertical(xp: np.ndarray, vw: np.ndarray, threads: int) -> np.ndarray:
     return out
 
 
-def _cis(phase: np.ndarray) -> np.ndarray:
-    """complex64 exp(j·phase): the phase reduced modulo 2π in float64, cos/sin in float32."""
-    ph = np.mod(phase, 2 * np.pi).astype(np.float32)
-    out = np.empty(ph.shape, np.complex64)
-    np.cos(ph, out=out.real)
-    np.sin(ph, out=out.imag)
-    return out
-
-
 _AKCACHE: dict = {}
 
 
@@ -400,54 +378,28 @@ def _motion_numpy(xp, off, N, chirp, params, motion, threads):
     R = params.n_range or S
     elev = params.elevations()
     H = elev.size
-    n_syn = params.syn_count(N)
-    h = (n_syn - 1) // 2
     beams, cw = column_weights(N, params)
-    nb = beams.size
     vw = vertical_weights(chirp, elev).transpose(2, 1, 0).astype(np.complex64)   # (S, V, H)
     rw = range_weights(chirp, params).astype(np.complex64)
     # vertical beamforming of every padded chirp: (H, L, S)
-    X = _vertical(xp, vw, threads)                                                # (H, L, S)
+    X = _vertical(xp, vw, threads)
     K = _azimuth_kernel64(chirp, params, N)                                       # (H, n_syn, S)
-    wc = window(params.chirp_window, n_syn)
-    step = int(beams[1] - beams[0]) if nb > 1 else 1
-    uniform = nb == 1 or np.array_equal(beams, beams[0] + step * np.arange(nb))
-    chunks = np.array_split(np.arange(nb), max(1, min(threads, nb)))
-    mag = np.empty((R, H, nb), np.float32)
+    groups = _elevation_groups(elev)
+    rows = np.array([g[:2] + [-1] * (2 - len(g[:2])) for g in groups], np.int64)
+    extra = [(g[0], r) for g in groups for r in g[2:]]   # a third row with the same cos θ: formed on its own
+    for g0, r in extra:
+        rows = np.vstack([rows, [[r, -1]]])
+    gam = np.stack([motion_phase_rate(chirp, params, motion, float(np.cos(elev[r0])), beams, N)
+                    for r0 in rows[:, 0]])                                        # (G, nb, S)
+    y = np.empty((H, beams.size, S), np.complex64)
+    from ._motion_kernel import motion_sums
 
-    def work(rows, gam, sel):
-        b = beams[sel]
-        acc = [np.zeros((sel.size, S), np.complex64) for _ in rows]
-        T = np.empty((sel.size, S), np.complex64)
-        U = np.empty_like(T)
-        Q = _cis(gam)
-        E = None
-        for t, m in enumerate(range(-h, h + 1)):
-            if t % _REANCHOR == 0 or E is None:
-                E = _cis(gam * m)
-            if wc[t] != 0:
-                np.multiply(E, K[rows[0], t][None, :], out=T)
-                for a, r in zip(acc, rows):
-                    if uniform:
-                        s0 = off + int(b[0]) + m
-                        src = X[r, s0:s0 + step * (sel.size - 1) + 1:step]
-                    else:
-                        src = X[r, off + b + m]
-                    np.multiply(src, T, out=U)
-                    a += U
-            E *= Q
-        if params.motion_reference == "rotation_start":
-            post = np.exp(1j * gam * b[:, None]).astype(np.complex64)
-            for a in acc:
-                a *= post
-        return [sfft.fft(a * rw[None, :], axis=1)[:, :R] for a in acc]
-
-    with ThreadPoolExecutor(max_workers=len(chunks)) as pool:
-        for rows in _elevation_groups(elev):
-            ce = float(np.cos(elev[rows[0]]))
-            gam_all = motion_phase_rate(chirp, params, motion, ce, beams, N)
-            futs = [pool.submit(work, rows, gam_all[sel], sel) for sel in chunks]
-            for sel, f in zip(chunks, futs):
-                for r, z in zip(rows, f.result()):
-                    mag[:, r, sel[0]:sel[-1] + 1] = np.abs(z).T
+    motion_sums(X, rows, off, beams, K, gam, y, threads)
+    if params.motion_reference == "rotation_start":
+        for g, (r0, r1) in enumerate(rows):
+            post = np.exp(1j * gam[g] * beams[:, None]).astype(np.complex64)
+            y[r0] *= post
+            if r1 >= 0:
+                y[r1] *= post
+    mag = np.abs(sfft.fft(y * rw, axis=2, workers=threads)[:, :, :R]).transpose(2, 0, 1)   # (R, H, nb)
     return _to_columns(mag, cw)
