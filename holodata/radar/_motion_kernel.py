@@ -20,6 +20,10 @@ import numpy as np
 
 from .beam_geometry import _REANCHOR as REANCHOR
 
+# OpenMP first: thread-safe when several threads beamform at once (numba's workqueue layer is not),
+# and no warning about an old TBB where one is installed
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
 def _sums(X, rows, off, beams, K, gam, out):   # pragma: no cover - compiled
