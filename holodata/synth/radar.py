@@ -14,11 +14,15 @@ reflection loss (dB) of each earlier surface, paid on the way out and back (henc
 
 Range response: a Hann-windowed 4 GHz chirp FFT (bins of c/2B = 3.75 cm), whose response to a
 target at R is ``h(x) = sinc(x) + (sinc(x-1) + sinc(x+1))/2`` at bin offset x (main lobe ±2 bins,
--31 dB sidelobes), evaluated exactly per path on ±``range_taps`` bins. Angular response: the
-array-factor of a uniform aperture (azimuth: the rotation diameter; elevation: the board's
-vertical aperture), separable, applied to the complex cube (azimuth by circular FFT
-convolution, elevation by a banded matrix), so sidelobes and neighbouring paths interfere
-coherently (speckle that changes with mm-scale motion: λ ≈ 3.9 mm). Thermal noise is circular
+-31 dB sidelobes), evaluated exactly per path on ±``range_taps`` bins. Angular response: the point-
+spread function of the rotating-array beamformer that makes real heatmaps from raw samples
+(:mod:`holodata.radar.psf`: a Hann-windowed 90° synthetic aperture on the rotation circle with
+PanoRadar's far-field compensation — near-field defocus included, so it depends on the range bin —
+and the 8-antenna vertical column), separable, applied to the complex cube (azimuth by circular
+FFT convolution per range bin and row, elevation by one banded matrix per range bin), so sidelobes
+and neighbouring paths interfere coherently (speckle that changes with mm-scale motion:
+λ ≈ 3.9 mm). The kernels are normalised to 1 at their peak (the amplitude model above stays the
+calibration; the beamformer's defocus loss of the peak is not applied). Thermal noise is circular
 complex Gaussian added before the magnitude.
 """
 from __future__ import annotations
@@ -44,8 +48,11 @@ class RadarConfig:
     start_frequency_hz: float = 77e9
     bandwidth_hz: float = 4e9
     max_bounces: int = 3
-    azimuth_aperture_m: float = 2 * RADAR_ROTATION_RADIUS_M
-    elevation_aperture_m: float = 0.031
+    n_virtual: int = 8                 # virtual antennas in the vertical column (2 TX x 4 RX)
+    antenna_spacing_m: float = 1.9e-3  # their spacing (two-way path per element per sin θ)
+    chirps_per_rotation: int = 1024    # chirp positions on the rotation circle
+    azimuth_fov_deg: float = 90.0      # synthetic aperture of one beam (Hann-windowed)
+    azimuth_support_deg: float = 30.0  # half-width of the azimuth kernel applied
     specular_lobe_deg: float = 10.0
     range_taps: int = 3            # half-width (bins) of the exact range response per path
     elevation_taps: int = 12       # half-width (rows) of the elevation kernel
@@ -58,6 +65,20 @@ class RadarConfig:
     def wavelength_m(self) -> float:
         return C_LIGHT / self.start_frequency_hz
 
+    def imaging(self):
+        """(ChirpConfig, n_syn): the raw-radar rig whose beamformer's point-spread function the
+        heatmaps carry (:mod:`holodata.radar.psf`)."""
+        from ..radar.beamform import BeamformParams
+        from ..radar.chirp import ChirpConfig
+
+        n = self.n_virtual
+        chirp = ChirpConfig(start_frequency_hz=self.start_frequency_hz,
+                            slope_hz_per_s=self.bandwidth_hz * 5.12e6 / 256, n_tx=2 if n % 2 == 0 else 1,
+                            n_rx=n // 2 if n % 2 == 0 else n, antenna_spacing_m=self.antenna_spacing_m,
+                            rotation_radius_m=self.rotation_radius_m, chirps_per_rotation=self.chirps_per_rotation,
+                            rotation_hz=self.rotation_hz)
+        return chirp, BeamformParams(azimuth_fov_deg=self.azimuth_fov_deg).syn_count(self.chirps_per_rotation)
+
     def describe(self) -> dict:
         d = asdict(self)
         d["grid"] = self.grid.to_attrs()
@@ -67,14 +88,64 @@ class RadarConfig:
         return d
 
 
+_PSF_CACHE: dict = {}
+
+
+def beamformer_psf(cfg: RadarConfig, n_ranges: int = 32) -> tuple[np.ndarray, np.ndarray]:
+    """The beamformer's angular PSF on ``cfg``'s grid: ``(az_spectrum, el_matrix)``.
+
+    ``az_spectrum`` (n_range, H, W) complex64: FFT along the columns of the circular azimuth kernel
+    of each range bin and row (``A(δ; θ, R) / A(0; θ, R)`` at column offsets δ within
+    ``azimuth_support_deg``); ``el_matrix`` (n_range, H, H) float32: ``K[k, i, i']`` the response of row
+    ``i`` to a path in row ``i'`` at range bin ``k`` (within ``elevation_taps`` rows). Both are
+    computed exactly at ``n_ranges`` ranges evenly spaced in 1/R (the near-field terms go as 1/R)
+    and interpolated linearly in 1/R to the bin centres (error < 0.01 of the peak at 32 ranges)."""
+    from ..radar.psf import azimuth_response, elevation_response
+
+    key = (cfg.grid, cfg.range_bins, cfg.n_virtual, cfg.antenna_spacing_m, cfg.chirps_per_rotation,
+           cfg.azimuth_fov_deg, cfg.azimuth_support_deg, cfg.elevation_taps, cfg.rotation_radius_m,
+           cfg.start_frequency_hz, cfg.bandwidth_hz, n_ranges)
+    if key in _PSF_CACHE:
+        return _PSF_CACHE[key]
+    chirp, n_syn = cfg.imaging()
+    g, rb = cfg.grid, cfg.range_bins
+    H, W, R = g.H, g.W, rb.n
+    elev = g.elevations()
+    r_min = 2 * cfg.rotation_radius_m
+    centres = np.maximum((np.arange(R) + 0.5) * rb.dr, r_min)
+    u = np.linspace(1 / centres.max(), 1 / r_min, n_ranges) if centres.max() > r_min else np.array([1 / r_min] * 2)
+    wgt = np.clip(np.interp(1 / centres, u, np.arange(u.size)), 0, u.size - 1)   # fractional sample index
+    lo = np.minimum(np.floor(wgt).astype(int), u.size - 2)
+    t = (wgt - lo)[:, None]
+
+    def at_bins(samples):    # (n_ranges, ...) -> (R, ...), linear in 1/R
+        s = samples.reshape(samples.shape[0], -1)
+        return ((1 - t) * s[lo] + t * s[lo + 1]).reshape((R,) + samples.shape[1:])
+
+    K = int(min(W // 2, np.ceil(cfg.azimuth_support_deg / (360.0 / W))))
+    offs = np.arange(-K, K + 1)
+    kern = np.zeros((R, H, W), np.complex128)
+    cos_rows = np.round(np.cos(elev), 12)
+    for c in np.unique(cos_rows):
+        A = azimuth_response(chirp, n_syn, 2 * np.pi * offs / W, [c], 1 / u)[0]        # (n_ranges, 2K+1)
+        A = at_bins(A / A[:, K:K + 1])
+        kern[:, cos_rows == c, :] = 0
+        for j, o in enumerate(offs):
+            kern[:, cos_rows == c, o % W] += A[:, None, j]
+    spectrum = sfft.fft(kern, axis=2).astype(np.complex64)
+    el = np.zeros((R, H, H), np.float32)
+    for i in range(H):
+        band = np.arange(max(0, i - cfg.elevation_taps), min(H, i + cfg.elevation_taps + 1))
+        E = elevation_response(chirp, n_syn, elev[i:i + 1], elev[band], 1 / u)[:, 0, :]   # (n_ranges, len(band))
+        el[:, i, band] = at_bins(E)
+    _PSF_CACHE.clear()
+    _PSF_CACHE[key] = (spectrum, el)
+    return spectrum, el
+
+
 def range_response(x: np.ndarray) -> np.ndarray:
     """Hann-windowed FFT response at bin offset ``x`` (bins), normalised to 1 at x = 0."""
     return np.sinc(x) + 0.5 * (np.sinc(x - 1.0) + np.sinc(x + 1.0))
-
-
-def array_factor(delta_rad: np.ndarray, aperture_m: float, wavelength_m: float) -> np.ndarray:
-    """Uniform-aperture amplitude pattern at angular offset ``delta_rad`` (1 at 0, -13 dB sidelobes)."""
-    return np.sinc(aperture_m * np.sin(delta_rad) / wavelength_m)
 
 
 class RadarModel:
@@ -96,17 +167,7 @@ class RadarModel:
         self.kappa = np.array([m.rf_diffuse for m in materials], np.float64)
         self.face_material = np.asarray(face_material, np.int64)
         self.human_material = int(human_material)
-        lam = cfg.wavelength_m
-        # azimuth PSF: circular, spectrum precomputed
-        daz = 2 * np.pi * np.minimum(np.arange(g.W), g.W - np.arange(g.W)) / g.W
-        az = array_factor(daz, cfg.azimuth_aperture_m, lam)
-        self.az_kernel = az
-        self.az_spectrum = sfft.fft(az).astype(np.complex64)
-        # elevation PSF: banded (H,H) matrix, K[i, i'] = AF(θ_i - θ_i')
-        dth = elev[:, None] - elev[None, :]
-        K = array_factor(dth, cfg.elevation_aperture_m, lam)
-        band = np.abs(np.arange(g.H)[:, None] - np.arange(g.H)[None, :]) <= cfg.elevation_taps
-        self.el_matrix = (K * band).astype(np.float32)
+        self.az_spectrum, self.el_matrix = beamformer_psf(cfg)
         taps = np.arange(cfg.range_taps + 1) / 1.0
         lk = np.zeros(self.R)
         if cfg.leakage_amplitude > 0:
