@@ -29,11 +29,14 @@ from holodata.cli.options import dask_options
                    "azimuth (default 64x512, elevation +45..-45 deg).")
 @click.option("--beamform-fov", type=click.FloatRange(1.0, 360.0), default=None,
               help="Raw radar samples: azimuth field of view of one beam's synthetic aperture, degrees (default 90).")
+@click.option("--keep-iq", is_flag=True,
+              help="Raw radar samples: also store them (radar/iq, ~21 MB per full-size rotation) so that "
+                   "`holodata beamform` can re-image them with other parameters.")
 @dask_options("one recording per task", "recordings must be readable at the same paths on the workers.")
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, beamform_grid,
-           beamform_fov, workers, scheduler, quiet, as_json):
+           beamform_fov, keep_iq, workers, scheduler, quiet, as_json):
     """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster
     .pcap (+ .json), .h5 (holodata layout), PanoRadar rf_npy/lidar_npy folder or raw trajectory
     (radar_data.npy + data_params.npz: beamformed here, parameters in the scene attrs) — and write one
@@ -83,7 +86,8 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     with cluster(workers, scheduler) as client:
         summary = run_ingest(list(recordings), out, topics=topics_file, scene_ids=list(scene_ids) or None,
                              msg_dir=msg_dir, tolerance_ms=tolerance_ms, quiet=quiet or as_json, meta=meta,
-                             codec=codec, client=client, beamform=beamform)
+                             codec=codec, client=client, beamform=beamform,
+                             keep_iq=keep_iq)
     if as_json:
         click.echo(json.dumps(summary, indent=2, default=str))
     else:

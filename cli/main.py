@@ -18,6 +18,7 @@ COMMAND_MODULES: list[str] = [
     "demo",
     "info",
     "ingest",
+    "beamform",
     "raytrace",
     "slam",
     "synth",

@@ -384,6 +384,7 @@ def radar_beam_origin(msg, topic: str = "radar"):
 class RadarFrame:
     heatmap: np.ndarray      # (R, H, W) float16|float32
     cycle: tuple[int, int]
+    iq: object = None        # readers of raw samples: the RawRotation (stored with --keep-iq)
 
 
 class RadarStream(_Stream):
@@ -423,7 +424,7 @@ class RadarStream(_Stream):
                               f"amplitudes (damaged message)")
         if not keep:
             return None
-        return RadarFrame(hm, (int(msg.cycle_start_ns), int(msg.cycle_end_ns)))
+        return RadarFrame(hm, (int(msg.cycle_start_ns), int(msg.cycle_end_ns)), getattr(msg, "iq", None))
 
 
 @dataclass
@@ -802,6 +803,7 @@ class Plan:
     sha_future: object = None
     index_seconds: float = 0.0
     tolerance_ns: dict = field(default_factory=dict)
+    keep_iq: bool = False     # also store the raw radar samples (readers of raw radar only)
 
 
 def _reject_reason(rec: Recording, infos: list[TopicInfo], tmap: TopicMap, notes: list[str]) -> str:
@@ -884,9 +886,11 @@ def _nearest(frame_t: np.ndarray, item_t: np.ndarray, tol_ns: int) -> tuple[np.n
 
 
 def plan_recording(path, topics: dict | None = None, scene_id: str | None = None, msg_dir=None,
-                   tolerance_ms: float | None = None, meta=None, quiet: bool = True, beamform=None) -> Plan:
+                   tolerance_ms: float | None = None, meta=None, quiet: bool = True, beamform=None,
+                   keep_iq: bool = False) -> Plan:
     """Open, map, index and sync one recording (nothing written). RecordingError if unusable.
-    ``beamform``: :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples."""
+    ``beamform``: :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples;
+    ``keep_iq``: also store those samples (``radar/iq``, for ``holodata beamform``)."""
     from .progress import track
 
     from concurrent.futures import ThreadPoolExecutor
@@ -903,6 +907,10 @@ def plan_recording(path, topics: dict | None = None, scene_id: str | None = None
         rec.close()
         raise
     plan.sha_future = sha
+    if keep_iq and hasattr(rec, "iq_shape") and "radar" in plan.streams:
+        plan.keep_iq = True
+    elif keep_iq:
+        plan.warnings.append(f"{rec.path}: no raw radar samples in this recording; --keep-iq has nothing to keep")
     return plan
 
 
@@ -1302,6 +1310,9 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         outs["radar/heatmap"] = _Out(hm, False, lambda: np.full(shape, np.nan, rs.dtype), set(range(T)), bg)
         cyc = frame_arr("radar/cycle_ns", (2,), "int64", ["frame", "start_end"], "ns")
         outs["radar/cycle_ns"] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)), bg)
+        if plan.keep_iq:
+            _iq_outputs(plan, sc, frame_arr, outs, T, S, bg)
+            arrays.append("radar/iq_static")
     for role in ("lidar", "camera"):
         if role not in plan.streams:
             continue
@@ -1346,6 +1357,8 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             if role == "radar":
                 outs["radar/heatmap"].put(f, p.heatmap)
                 outs["radar/cycle_ns"].put(f, np.asarray(p.cycle, np.int64))
+                if "radar/iq" in outs:
+                    _put_iq(outs, f, p.iq)
             else:
                 outs[f"{role}/points"].put(f, p.points)
                 n_points[role] += len(p.points)
@@ -1455,6 +1468,39 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             "arrays": sorted(set(arrays)), "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped,
             "sync": sync, "truncated": bool(rec.truncated), "warnings": warnings, "notes": plan.notes,
             "timings": timings}
+
+
+def _iq_outputs(plan: Plan, sc, frame_arr, outs: dict, T: int, S: int, bg) -> None:
+    """``radar/iq`` (T, L, V, S) complex64: each rotation's raw chirp frames, the neighbouring ones its
+    beams use first and last (``radar/iq_span`` (T, 3) int32 = before, rotation, after; zero-padded
+    to L); ``radar/iq_motion`` (T, 2) float64: travel per chirp (m) and heading (rad) it was imaged
+    with; ``radar/iq_static`` (V, S) complex64: the trajectory's static reflection, subtracted before
+    imaging. ``holodata beamform`` re-images them (:mod:`holodata.beamforming`)."""
+    L, V, Sm = plan.rec.iq_shape()
+    sc.write_array("radar/iq_static", np.asarray(plan.rec.static_refl(), np.complex64), ["antenna", "sample"])
+    iq = frame_arr("radar/iq", (L, V, Sm), "complex64", ["frame", "chirp", "antenna", "sample"], "1",
+                   shard_frames=_shard_frames(8 * L * V * Sm, S), fill_value=0, codec=BULK_CODEC,
+                   attrs={"scale": "unit (the recording's int16 scale divided out)",
+                          "layout": "chirp frames [before | rotation | after] as radar/iq_span says, then zeros"})
+    span = frame_arr("radar/iq_span", (3,), "int32", ["frame", "before_rotation_after"], "chirp frames")
+    mot = frame_arr("radar/iq_motion", (2,), "float64", ["frame", "ds0_heading"], "m, rad",
+                    attrs={"columns": "travel per chirp (m), heading counter-clockwise from beam 0 (rad)"})
+    outs["radar/iq"] = _Out(iq, False, lambda: np.zeros((L, V, Sm), np.complex64), set(range(T)), bg)
+    outs["radar/iq_span"] = _Out(span, False, lambda: np.zeros(3, np.int32), set(range(T)), bg)
+    outs["radar/iq_motion"] = _Out(mot, False, lambda: np.zeros(2, np.float64), set(range(T)), bg)
+
+
+def _put_iq(outs: dict, f: int, raw) -> None:
+    L = outs["radar/iq"].w.shape[1]
+    parts = (raw.before, raw.rotation, raw.after)
+    n = [int(len(p)) for p in parts]
+    if sum(n) > L:
+        raise DecodeError(f"rotation {f}: {sum(n)} chirp frames exceed the {L} radar/iq was made for")
+    cube = np.zeros(outs["radar/iq"].w.shape[1:], np.complex64)
+    cube[:sum(n)] = np.concatenate(parts, axis=0)
+    outs["radar/iq"].put(f, cube)
+    outs["radar/iq_span"].put(f, np.asarray(n, np.int32))
+    outs["radar/iq_motion"].put(f, np.asarray(raw.motion, np.float64))
 
 
 def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
@@ -1621,7 +1667,7 @@ def _sensor_attrs(plan: Plan) -> dict:
 
 def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float | None = None,
            quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None,
-           client=None, beamform=None) -> dict:
+           client=None, beamform=None, keep_iq: bool = False) -> dict:
     """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
     each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
     {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
@@ -1629,7 +1675,8 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     ``client`` (a ``distributed.Client``): one Dask task per recording (:mod:`holodata.distributed`);
     the recordings must be readable at the same paths on the workers. ``beamform``:
     :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples (PanoRadar raw
-    trajectories), default 64 x 512 beams, all range bins."""
+    trajectories), default 64 x 512 beams, all range bins; ``keep_iq``: store their raw samples too
+    (``radar/iq``), so that ``holodata beamform`` can re-image them with other parameters."""
     recordings = [Path(r) for r in recordings]
     if not recordings:
         raise InputError("no recording given")
@@ -1680,7 +1727,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
                        provenance={"tool": "holodata ingest", "version": version},
                        **({"shard_frames": shard_frames} if shard_frames else {}))
         opts = {"topics": topics, "msg_dir": msg_dir, "tolerance_ms": tolerance_ms, "meta": meta, "codec": codec,
-                "beamform": beamform}
+                "beamform": beamform, "keep_iq": keep_iq}
         scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
         failed += more
         todo = []
@@ -1691,7 +1738,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     for (i, r, _), sid in zip(todo, ids):
         p = None
         try:
-            p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet, beamform)
+            p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet, beamform, keep_iq)
             if p.grid is not None and grid is None:   # the first radar recording sets the dataset's grid
                 grid, rb, ds = p.grid, p.range_bins, None
             else:
@@ -1836,7 +1883,7 @@ def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dic
     p = None
     try:
         p = plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
-                           opts["meta"], True, opts.get("beamform"))
+                           opts["meta"], True, opts.get("beamform"), opts.get("keep_iq", False))
         check_grid(path, p, grid, range_bins)
         ds = create_dataset(out, grid=grid, range_bins=range_bins)
         return {"scene": write_plan(p, ds, quiet=True, codec=opts["codec"])}

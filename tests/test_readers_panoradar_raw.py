@@ -152,3 +152,65 @@ def test_broken_raw_folders_are_one_line_errors_and_leave_nothing_that_validates
     r = CliRunner().invoke(cli, ["ingest", str(bad), "--out", str(url), "--beamform-grid", "16x64", "--quiet"])
     assert r.exit_code == 1 and str(bad / file) in r.output and "Traceback" not in r.output, r.output
     assert not url.exists() or not validate_dataset(str(url))["ok"]
+
+
+def test_keep_iq_then_beamform_reimages_and_resumes(moving, tmp_path):
+    """ingest --keep-iq stores each rotation's raw samples with their neighbours; `holodata beamform`
+    with the recorded motion reproduces ingest's heatmaps, with --motion none the moving reflector
+    smears (lower peak), with --motion slam it takes the motion from pose/T_world_radar, and every
+    run says so in source.beamform; an interrupted run resumes."""
+    import importlib
+
+    from holodata.beamforming import beamform_scene, motion_from_poses
+    from holodata.dataset import create_dataset
+    from holodata.ingest import ingest
+
+    url = str(tmp_path / "ds.zarr")
+    ingest([moving.folder], url, beamform=PARAMS, keep_iq=True)
+    assert validate_dataset(url)["ok"]
+    sc = open_dataset(url).scene("walk_01")
+    span = sc["radar/iq_span"][...]
+    h = (PARAMS.syn_count(512) - 1) // 2
+    assert span.tolist() == [[h, 512, h]] * 3 and sc["radar/iq"].shape == (3, 512 + 2 * h, 8, 256)
+    first = np.asarray(sc["radar/heatmap"][...])
+    r = CliRunner().invoke(cli, ["beamform", url, "--quiet"])
+    assert r.exit_code == 0, r.output
+    again = open_dataset(url).scene("walk_01")
+    assert again.attrs["source"]["beamform"]["rebeamformed"]["motion"] == "recorded"
+    np.testing.assert_allclose(np.asarray(again["radar/heatmap"][...]), first, rtol=1e-4, atol=1e-3 * first.max())
+    assert "already imaged" in CliRunner().invoke(cli, ["beamform", url]).output
+    beamform_scene(url, "walk_01", motion="none")
+    still = np.asarray(open_dataset(url).scene("walk_01")["radar/heatmap"][...])
+    assert still.max() < first.max() / 1.5
+    # slam's poses: the true trajectory written as pose/T_world_radar gives the recorded motion back
+    t = sc["time/timestamp_ns"][...]
+    P = np.repeat(np.eye(4)[None], 3, axis=0)
+    P[:, :2, 3] = np.asarray(VELOCITY)[None] * ((t - t[0]) * 1e-9 + 0.25)[:, None]
+    w = create_dataset(url).scene("walk_01")
+    pw = w.frame_array("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "m")
+    pw.write_shard(0, P)
+    mot = motion_from_poses(P, t, sc["radar/cycle_ns"][...], span[:, 1])
+    np.testing.assert_allclose(mot, sc["radar/iq_motion"][...], rtol=1e-6, atol=1e-9)
+    # interrupted after the first shard of a new imaging: validate says so, the rerun finishes
+    bf = importlib.import_module("holodata.radar.beamform")
+    calls = {"n": 0}
+    real = bf.beamform
+
+    def boom(*a, **k):
+        calls["n"] += 1
+        if calls["n"] > 1:
+            raise KeyboardInterrupt
+        return real(*a, **k)
+
+    import holodata.beamforming as stage
+    stage.beamform, orig = boom, stage.beamform
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            beamform_scene(url, "walk_01", motion="slam")
+    finally:
+        stage.beamform = orig
+    assert not validate_dataset(url)["ok"]
+    beamform_scene(url, "walk_01", motion="slam")
+    assert validate_dataset(url)["ok"]
+    np.testing.assert_allclose(np.asarray(open_dataset(url).scene("walk_01")["radar/heatmap"][...]), first,
+                               rtol=1e-3, atol=2e-3 * first.max())

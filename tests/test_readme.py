@@ -32,16 +32,17 @@ def test_readme_python_blocks_run_as_written(tmp_path, monkeypatch):
             compile(code, f"README python block {i}", "exec")
             continue
         exec(compile(code, f"README python block {i}", "exec"), {"__name__": f"readme_{i}"})
-    # the bash lines that use what the Python blocks wrote (the raw-radar trajectory) run as written
+    # the bash lines that use what the Python blocks wrote (the raw-radar trajectory: ingest, beamform) run as written
     from click.testing import CliRunner
 
     ran = 0
     for words in _command_lines():
-        if words[:1] == ["ingest"] and len(words) > 1 and (tmp_path / words[-1 if words[1] == "--list" else 1]).exists():
-            r = CliRunner().invoke(cli, words + (["--quiet"] if "--out" in words else []))
+        if words[:1] in (["ingest"], ["beamform"]) and len(words) > 1 and \
+                (tmp_path / words[-1 if words[1] == "--list" else 1]).exists():
+            r = CliRunner().invoke(cli, words + (["--quiet"] if "--out" in words or words[0] == "beamform" else []))
             assert r.exit_code == 0, (words, r.output)
             ran += 1
-    assert ran >= 2
+    assert ran >= 4
 
 
 def _command_lines() -> list[list[str]]:

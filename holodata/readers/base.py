@@ -390,6 +390,20 @@ class RadarHeatmapMsg:
     encoding: str             # float16 | float32
     data: object              # (n_range*n_elevation*n_azimuth*itemsize,) uint8
     range_origin: str = "rotation_centre"  # or "antenna" (holodata.messages.RANGE_ORIGINS)
+    iq: object = None         # readers of raw samples: the RawRotation the heatmap was formed from
+
+
+@dataclass
+class RawRotation:
+    """The raw samples of one radar rotation (readers of raw radar; ``ingest --keep-iq`` stores them):
+    ``before``/``rotation``/``after`` (n, V, S) complex64 unit-scale chirp frames (the rotation's own
+    and the neighbouring ones its beams use; ``before``/``after`` empty when the rotation is padded
+    circularly) and ``motion`` = (travel per chirp m, heading rad) the heatmap was formed with."""
+
+    before: object
+    rotation: object
+    after: object
+    motion: tuple = (0.0, 0.0)
 
 
 @dataclass

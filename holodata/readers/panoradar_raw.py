@@ -37,7 +37,8 @@ import numpy as np
 from ..errors import RecordingError
 from ..radar.beamform import BeamformParams, beamform, beamform_attrs, static_reflection
 from ..radar.chirp import ChirpConfig
-from .base import RADAR_MSG, RANGE_IMAGE_TYPE, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, Recording, TopicInfo, rate_of
+from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, RawRotation,
+                   Recording, TopicInfo, rate_of)
 
 RADAR_TOPIC = "/panoradar/radar"
 LIDAR_TOPIC = "/panoradar/lidar"
@@ -277,7 +278,7 @@ class PanoRadarRawRecording(Recording):
         a, b = int(self.sep[k]), int(self.sep[k + 1])
         t0, t1 = self._rot_stamps(k)
         period = (t1 - t0) / 1e9 / (b - a)
-        velocity = None
+        velocity, ds0, th = None, 0.0, 0.0
         if self.motion is not None:
             ds0, th = float(self.motion["ds0"][k]), float(self.motion["theta_v"][k])
             velocity = (ds0 / period * math.cos(th), ds0 / period * math.sin(th))
@@ -291,7 +292,20 @@ class PanoRadarRawRecording(Recording):
         return RadarHeatmapMsg(Header((t0 + t1) // 2, "radar"), t0, t1, R, H, W, self.chirp.range_resolution_m,
                                math.radians(p.elevation_max_deg), math.radians(p.elevation_min_deg),
                                self.chirp.rotation_radius_m, "float32",
-                               np.ascontiguousarray(hm, "<f4").reshape(-1).view(np.uint8))
+                               np.ascontiguousarray(hm, "<f4").reshape(-1).view(np.uint8),
+                               iq=RawRotation(*self._pads(before, rot, after), motion=(ds0, th)))
+
+    def _pads(self, before, rot, after):
+        empty = np.zeros((0,) + rot.shape[1:], np.complex64)
+        return (empty if before is None else before), rot, (empty if after is None else after)
+
+    def iq_shape(self) -> tuple[int, int, int]:
+        """(chirps, V, S): room for the longest imaged rotation with its neighbouring chirps."""
+        longest = 0
+        for k in self.rotations:
+            n = int(self.sep[k + 1] - self.sep[k])
+            longest = max(longest, n + (0 if self.static else self.params.syn_count(n) - 1))
+        return longest, self.radar.shape[1], self.radar.shape[2]
 
 
 __all__ = ["PanoRadarRawRecording"]
