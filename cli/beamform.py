@@ -5,6 +5,8 @@ import json
 
 import click
 
+from holodata.cli.options import dask_options
+
 
 @click.command("beamform")
 @click.argument("dataset")
@@ -19,9 +21,10 @@ import click
 @click.option("--motion", type=click.Choice(["recorded", "slam", "none"]), default="recorded", show_default=True,
               help="Platform motion per rotation: what ingest imaged with, from slam's pose/T_world_radar, or at rest.")
 @click.option("--device", default="cpu", show_default=True, help="cpu (numpy/numba) or a torch device such as cuda.")
+@dask_options("one task per shard", "the dataset must be reachable from the workers (shared folder or s3://).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def beamform(dataset, scenes, fov, n_syn, window, static_removal, motion, device, quiet, as_json):
+def beamform(dataset, scenes, fov, n_syn, window, static_removal, motion, device, workers, scheduler, quiet, as_json):
     """Re-image the raw radar samples a scene was ingested with (`holodata ingest --keep-iq`) into
     radar/heatmap, on the dataset's grid, with other imaging parameters or the motion slam measured.
     Every parameter goes into the scene attrs (source.beamform). Rerun to resume.
@@ -32,43 +35,51 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, motion, device
       holodata slam raw.zarr && holodata beamform raw.zarr --motion slam
       holodata beamform raw.zarr --fov 60 --window hamming
     """
-    from holodata.beamforming import beamform_scene
     from holodata.dataset import open_dataset
+    from holodata.distributed import cluster
     from holodata.errors import DatasetError
-    from holodata.radar.beamform import BeamformParams
 
     ds = open_dataset(dataset)
     todo = list(scenes) or [s for s in ds.scenes if "radar/iq" in ds.scene(s)]
     if not todo:
         raise DatasetError(f"{ds.url}: no scene holds radar/iq (ingest raw recordings with --keep-iq)")
     out = []
-    for sid in todo:
-        if sid not in ds.scenes:
-            raise DatasetError(f"{ds.url}: no scene {sid!r} (have {', '.join(ds.scenes)})")
-        src = ((ds.scene(sid).attrs.get("source") or {}).get("beamform") or {}).get("params") or {}
-        kw = {**BeamformParams.from_attrs(src).to_attrs()}
-        if fov is not None:
-            kw.update(azimuth_fov_deg=fov, n_syn=None)
-        if n_syn is not None:
-            kw["n_syn"] = n_syn
-        if window is not None:
-            kw.update(chirp_window=window, sample_window=window)
-        if static_removal is not None:
-            kw["static_removal"] = static_removal
-        try:
-            params = BeamformParams(**kw)
-        except ValueError as err:
-            raise click.BadParameter(str(err)) from err
-        r = beamform_scene(dataset, sid, params, motion=motion, device=device, quiet=quiet or as_json)
-        out.append(r)
-        if not as_json:
-            if r.get("skipped"):
-                click.echo(f"{sid}: {r['skipped']}")
-            else:
-                click.echo(f"{sid}: {r['frames']} rotation(s) imaged (n_syn {r['n_syn']}, motion {r['motion']}) "
+    with cluster(workers, scheduler) as client:
+        for sid in todo:
+            out.append(_one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, client,
+                            quiet or as_json))
+            if not as_json:
+                r = out[-1]
+                click.echo(f"{sid}: {r['skipped']}" if r.get("skipped") else
+                           f"{sid}: {r['frames']} rotation(s) imaged (n_syn {r['n_syn']}, motion {r['motion']}) "
                            f"in {r['seconds']} s")
     if as_json:
         click.echo(json.dumps({"dataset": dataset, "scenes": out}, indent=2))
+
+
+def _one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, client, quiet) -> dict:
+    """Imaging parameters of scene ``sid``: as ingested, with the flags given; then beamform it."""
+    from holodata.beamforming import beamform_scene
+    from holodata.errors import DatasetError
+    from holodata.radar.beamform import BeamformParams
+
+    if sid not in ds.scenes:
+        raise DatasetError(f"{ds.url}: no scene {sid!r} (have {', '.join(ds.scenes)})")
+    src = ((ds.scene(sid).attrs.get("source") or {}).get("beamform") or {}).get("params") or {}
+    kw = BeamformParams.from_attrs(src).to_attrs()
+    if fov is not None:
+        kw.update(azimuth_fov_deg=fov, n_syn=None)
+    if n_syn is not None:
+        kw["n_syn"] = n_syn
+    if window is not None:
+        kw.update(chirp_window=window, sample_window=window)
+    if static_removal is not None:
+        kw["static_removal"] = static_removal
+    try:
+        params = BeamformParams(**kw)
+    except ValueError as err:
+        raise click.BadParameter(str(err)) from err
+    return beamform_scene(dataset, sid, params, motion=motion, device=device, quiet=quiet, client=client)
 
 
 COMMANDS = [beamform]

@@ -59,11 +59,12 @@ def _fingerprint(attrs: dict, motion: str) -> str:
 
 
 def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None, motion: str = "recorded",
-                   device: str = "cpu", quiet: bool = True) -> dict:
+                   device: str = "cpu", quiet: bool = True, client=None) -> dict:
     """Re-image scene ``scene_id`` of dataset ``url`` from ``radar/iq``; returns a summary
     {scene, frames, motion, n_syn, seconds, skipped?}. ``params``: grid fields are taken from the
     dataset (pass the others: field of view, n_syn, windows, static removal, decimation, motion
-    reference)."""
+    reference). ``client`` (a ``distributed.Client``): one Dask task per shard (:func:`image_shard`;
+    the dataset must be reachable from the workers)."""
     import time
 
     from .dataset import create_dataset, open_dataset
@@ -116,29 +117,51 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
                          shard_frames=max(1, min(w.shard_frames, (64 << 20) // (4 * R * g.H * g.W))),
                          fill_value=float("nan"), codec="lz4",
                          attrs={"amplitude": "linear", "beamform_fingerprint": fp, "source": "holodata beamform"})
-    iq = sc["radar/iq"]
-    refl = np.asarray(sc["radar/iq_static"][...], np.complex64) if "radar/iq_static" in sc else None
-    for k in track(range(hm.n_shards), total=hm.n_shards, description=f"beamform {scene_id}", quiet=quiet,
-                   unit="shards"):
-        if hm.is_done(k):
-            continue
-        fr = range(*hm.frames(k).indices(T))
-        out = np.empty((len(fr), R, g.H, g.W), np.float32)
-        for j, f in enumerate(fr):
-            b, n, a = (int(v) for v in span[f])
-            cube = np.asarray(iq[f], np.complex64)
-            before = cube[:b] if b else None
-            after = cube[b + n:b + n + a] if a else None
-            period = (cycles[f, 1] - cycles[f, 0]) * 1e-9 / n
-            ds0, th = mot[f]
-            vel = (ds0 / period * math.cos(th), ds0 / period * math.sin(th)) if ds0 > 0 else None
-            if vel is not None and (before is None or after is None):
-                raise DatasetError(f"{ds.url}: scene {scene_id!r} frame {f}: a moving rotation needs the neighbouring "
-                                   f"chirps, and radar/iq holds only the rotation (a static recording)")
-            out[j] = beamform(cube[b:b + n], chirp, params, before=before, after=after, velocity=vel,
-                              chirp_period_s=period, static_refl=refl, device=device)
-        hm.write_shard(k, out)
+    job = {"chirp": chirp.to_attrs(), "params": params.to_attrs(), "motion": mot, "device": device}
+    todo = [k for k in range(hm.n_shards) if not hm.is_done(k)]
+    if client is None:
+        for k in track(todo, total=len(todo), description=f"beamform {scene_id}", quiet=quiet, unit="shards"):
+            image_shard(url, scene_id, k, job)
+    else:
+        from .distributed import run_tasks, worker_path
+
+        run_tasks(client, image_shard, [(worker_path(url), scene_id, k, job) for k in todo],
+                  [f"beamform-{scene_id}-shard{k}-{fp}" for k in todo], description=f"beamform {scene_id}", quiet=quiet)
     src_new = {**attrs, "rebeamformed": {"by": "holodata beamform", "motion": motion, "fingerprint": fp}}
     scw.set_attrs({"source": {**(sc.attrs.get("source") or {}), "beamform": src_new}})
     return {"scene": scene_id, "frames": T, "motion": motion, "n_syn": attrs["n_syn"],
             "seconds": round(time.perf_counter() - t0, 2)}
+
+
+def image_shard(url: str, scene_id: str, k: int, job: dict) -> int:
+    """Beamform and commit shard ``k`` of ``radar/heatmap`` (which exists) from ``radar/iq``; ``job``:
+    {chirp, params (attrs), motion (T, 2), device}. Runs locally or as a Dask task. Returns the frames
+    written."""
+    from .dataset import create_dataset, open_dataset
+
+    sc = open_dataset(url).scene(scene_id)
+    chirp, params = ChirpConfig.from_attrs(job["chirp"]), BeamformParams.from_attrs(job["params"])
+    hm_w = create_dataset(url).scene(scene_id).frame_array(
+        "radar/heatmap", tuple(sc["radar/heatmap"].shape[1:]), "float32")
+    T = sc.n_frames
+    fr = range(*hm_w.frames(k).indices(T))
+    span = np.asarray(sc["radar/iq_span"][fr.start:fr.stop], np.int64)
+    cycles = np.asarray(sc["radar/cycle_ns"][fr.start:fr.stop], np.int64)
+    refl = np.asarray(sc["radar/iq_static"][...], np.complex64) if "radar/iq_static" in sc else None
+    iq = sc["radar/iq"]
+    out = np.empty((len(fr),) + hm_w.shape[1:], np.float32)
+    for j, f in enumerate(fr):
+        b, n, a = (int(v) for v in span[j])
+        cube = np.asarray(iq[f], np.complex64)
+        before = cube[:b] if b else None
+        after = cube[b + n:b + n + a] if a else None
+        period = (cycles[j, 1] - cycles[j, 0]) * 1e-9 / n
+        ds0, th = (float(v) for v in job["motion"][f])
+        vel = (ds0 / period * math.cos(th), ds0 / period * math.sin(th)) if ds0 > 0 else None
+        if vel is not None and (before is None or after is None):
+            raise DatasetError(f"{url}: scene {scene_id!r} frame {f}: a moving rotation needs the neighbouring "
+                               f"chirps, and radar/iq holds only the rotation (a static recording)")
+        out[j] = beamform(cube[b:b + n], chirp, params, before=before, after=after, velocity=vel,
+                          chirp_period_s=period, static_refl=refl, device=job["device"])
+    hm_w.write_shard(k, out)
+    return len(fr)

@@ -214,3 +214,20 @@ def test_keep_iq_then_beamform_reimages_and_resumes(moving, tmp_path):
     assert validate_dataset(url)["ok"]
     np.testing.assert_allclose(np.asarray(open_dataset(url).scene("walk_01")["radar/heatmap"][...]), first,
                                rtol=1e-3, atol=2e-3 * first.max())
+
+
+def test_beamform_runs_as_dask_tasks_per_shard_with_the_local_result(moving, tmp_path):
+    from holodata.beamforming import beamform_scene
+    from holodata.distributed import cluster
+    from holodata.ingest import ingest
+
+    urls = [str(tmp_path / n) for n in ("a.zarr", "b.zarr")]
+    for u in urls:
+        ingest([moving.folder], u, beamform=PARAMS, keep_iq=True, shard_frames=1)
+    wide = BeamformParams(**{**PARAMS.to_attrs(), "azimuth_fov_deg": 60.0})
+    beamform_scene(urls[0], "walk_01", wide)
+    with cluster(2, None) as client:
+        r = beamform_scene(urls[1], "walk_01", wide, client=client)
+    assert r["n_syn"] == wide.syn_count(512) and validate_dataset(urls[1])["ok"]
+    a, b = (np.asarray(open_dataset(u).scene("walk_01")["radar/heatmap"][...]) for u in urls)
+    np.testing.assert_array_equal(a, b)
