@@ -1,0 +1,41 @@
+"""``holodata export``: a dataset's scenes in other tools' layouts (PanoRadar npy folders, HDF5)."""
+from __future__ import annotations
+
+import json
+
+import click
+
+
+@click.command("export")
+@click.argument("dataset")
+@click.option("--format", "fmt", type=click.Choice(["panoradar", "hdf5"]), required=True,
+              help="panoradar: per scene rf_npy/ lidar_npy/ (+ gt_npy/ label_npy/) as PanoRadar's processed data; "
+                   "hdf5: per scene an .h5 in the layout holodata's HDF5 reader reads, every array included.")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
+@click.option("--scene", "scenes", multiple=True, help="Scene id (repeatable; default: every scene, or --split's).")
+@click.option("--split", default=None, help="Only the scenes of this split (train, test, ...).")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+def export(dataset, fmt, out, scenes, split, quiet, as_json):
+    """Write scenes of DATASET for other tools: PanoRadar's processed trajectory folders (which
+    holodata's own npy reader ingests back) or HDF5 files (holodata's HDF5 reader layout). Each scene
+    is written under a .partial name and renamed when complete.
+
+    \b
+    Example:
+      holodata export holodata-demo/dataset.zarr --format panoradar --out panoradar/ --split test
+      holodata export holodata-demo/dataset.zarr --format hdf5 --out h5/
+    """
+    from holodata.export import export_dataset
+
+    r = export_dataset(dataset, fmt, out, scene_ids=list(scenes) or None, split=split, quiet=quiet or as_json)
+    if as_json:
+        click.echo(json.dumps(r, indent=2))
+        return
+    for s in r["scenes"]:
+        click.echo(f"{s['scene']}: {s['frames']} frame(s) -> {s['out']}")
+    for s in r["skipped"]:
+        click.echo(f"{s['scene']}: skipped, {s['why']}")
+
+
+COMMANDS = [export]
