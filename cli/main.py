@@ -26,6 +26,7 @@ COMMAND_MODULES: list[str] = [
     "evaluate",
     "register",
     "export",
+    "view",
 ]
 
 

@@ -21,7 +21,7 @@ PY=${PYTHON:-python3}
 stamp=.venv/.holodata-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e ".[train,dev]"
+    .venv/bin/python -m pip install -q -e ".[train,dev,view]"
     # Ouster's SDK reads Ouster pcap + json; it pins rosbags==0.9.23 (holodata needs >= 0.10 for
     # rosbag2 MCAP), so it goes in without its pins, with the two helpers its readers import. The
     # list lives in holodata.readers.ouster.SDK_REQUIREMENTS (its error message names the same).

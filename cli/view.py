@@ -1,0 +1,59 @@
+"""``holodata view``: a scene in Rerun (desktop or web viewer, or an .rrd file)."""
+from __future__ import annotations
+
+import json
+
+import click
+
+
+@click.command("view")
+@click.argument("dataset")
+@click.option("--scene", default=None, help="Scene id (default: the first scene with a radar).")
+@click.option("--frames", default=None, metavar="A:B", help="Frames A..B-1 (default: all).")
+@click.option("--save", type=click.Path(dir_okay=False), default=None,
+              help="Write an .rrd file (open it later with `rerun FILE.rrd`; needs no display).")
+@click.option("--web", is_flag=True, help="Serve Rerun's web viewer on 127.0.0.1 (offline: it ships with the SDK).")
+@click.option("--port", type=click.IntRange(1024, 65534), default=None,
+              help="Web viewer port (its data server takes the next one; default 9090 / 9876).")
+@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+def view(dataset, scene, frames, save, web, port, as_json):
+    """Look at a scene in Rerun: per frame (timeline `time`) the radar heatmap (range-azimuth slice
+    at 0° elevation, maximum over range), GT range and label images per bounce, the GT returns
+    mirrored (where the radar sees them) and un-mirrored (hit points) coloured by label, the LiDAR
+    scan, the camera cloud, the human surface and the sensor poses; the static mesh once.
+
+    \b
+    Example:
+      holodata view holodata-demo/dataset.zarr --scene L_16 --save L_16.rrd
+      holodata view holodata-demo/dataset.zarr --web --port 9090
+    """
+    import os
+
+    from holodata.errors import InputError
+    from holodata.view import view_scene
+
+    if save and web:
+        raise click.UsageError("--save or --web, not both")
+    if not save and not web and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        raise InputError("no display for the desktop viewer: use --save OUT.rrd or --web")
+    try:
+        import rerun  # noqa: F401
+    except ImportError as err:
+        raise InputError("holodata view needs the Rerun SDK: pip install -e '.[view]' (scripts/setup.sh installs it)") from err
+    r = view_scene(dataset, scene, frames, save=save, web=web, port=port)
+    if as_json:
+        click.echo(json.dumps(r, indent=2))
+    else:
+        where = save or ("the web viewer: http://127.0.0.1:%d" % (port or 9090) if web else "the viewer")
+        click.echo(f"{r['scene']}: {r['frames']} frame(s), {len(r['entities'])} entities -> {where}")
+        for n in r["notes"]:
+            click.echo(f"note: {n}")
+    if web:
+        click.echo("serving; Ctrl-C to stop")
+        import time
+
+        while True:
+            time.sleep(3600)
+
+
+COMMANDS = [view]
