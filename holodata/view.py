@@ -45,7 +45,7 @@ def parse_frames(spec: str | None, n: int) -> range:
     except ValueError as err:
         raise InputError(f"--frames must look like A:B (e.g. 0:40), got {spec!r}") from err
     if not 0 <= lo < hi <= n:
-        raise InputError(f"--frames {spec}: the scene has frames 0..{n - 1}")
+        raise InputError(f"--frames {spec}: {'empty' if hi <= lo else 'out of range'} (the scene has frames 0..{n - 1})")
     return range(lo, hi)
 
 
