@@ -41,6 +41,7 @@ def view(dataset, scene, frames, save, web, port, as_json):
     except ImportError as err:
         raise InputError("holodata view needs the Rerun SDK: pip install -e '.[view]' (scripts/setup.sh installs it)") from err
     r = view_scene(dataset, scene, frames, save=save, web=web, port=port)
+    stream = r.pop("stream", None)   # noqa: F841 - held: the web viewer's data server lives as long as it
     if as_json:
         click.echo(json.dumps(r, indent=2))
     else:

@@ -6,8 +6,8 @@ table as an annotation context, the static mesh, the camera's extrinsic); then f
 the ``time`` timeline (``time/timestamp_ns``), read only that frame's arrays and log
 
 ====================================  ========================================================
-``radar/range_azimuth``               heatmap slice at the row nearest 0° elevation, dB (R, W)
-``radar/elevation_azimuth``           heatmap maximum over range, dB (H, W)
+``radar/range_azimuth``               heatmap slice at the row nearest 0° elevation (R, W), the top 60 dB
+``radar/elevation_azimuth``           heatmap maximum over range beyond the rig (H, W), the top 60 dB
 ``gt/range/b1..b3``                   GT range images per bounce (depth images, metres)
 ``gt/label/b1..b3``                   GT labels per bounce (segmentation images, class table)
 ``world/gt/mirrored``                 GT returns where the radar sees them: beam origin + range ×
@@ -29,9 +29,11 @@ import numpy as np
 from .errors import DatasetError, InputError
 
 
-def _db(a: np.ndarray) -> np.ndarray:
-    a = np.asarray(a, np.float32)
-    return (20 * np.log10(np.maximum(a, 1e-6))).astype(np.float32)
+def _db_image(a: np.ndarray, span_db: float = 60.0) -> np.ndarray:
+    """Linear amplitudes → uint8 image of 20 log10(a) over the top ``span_db`` dB of the frame."""
+    db = 20 * np.log10(np.maximum(np.asarray(a, np.float32), 1e-9))
+    top = float(db.max())
+    return np.round(255 * np.clip((db - (top - span_db)) / span_db, 0, 1)).astype(np.uint8)
 
 
 def parse_frames(spec: str | None, n: int) -> range:
@@ -66,11 +68,12 @@ def _stream(save, web: bool, port: int | None, scene_id: str):
 def view_scene(url: str, scene_id: str | None = None, frames: str | None = None, save=None, web: bool = False,
                port: int | None = None) -> dict:
     """Log scene ``scene_id`` (default: the first with a radar) of dataset ``url`` to Rerun; returns
-    {scene, frames, entities, notes}."""
+    {scene, frames, entities, notes} (and, with ``web``, ``stream``: the recording stream whose
+    gRPC server the web viewer reads from — it stops when the stream is dropped)."""
     import rerun as rr
 
     from .beams import OriginModel, beam_rays, column_poses, scene_origin_model
-    from .conventions import LABEL_NAMES
+    from .conventions import LABEL_NAMES, RADAR_ROTATION_RADIUS_M
     from .dataset import open_dataset
     from .trajectory import Trajectory
 
@@ -115,12 +118,14 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
     origin = OriginModel.from_attrs(gt_attrs) if gt_attrs else scene_origin_model(sc.attrs)[0]
     traj = Trajectory(t, poses) if poses is not None and len(t) > 1 and np.all(np.diff(t) > 0) else None
     el0 = int(np.argmin(np.abs(g.elevations())))
+    # bins inside the rotation circle's diameter hold the rig's own TX->RX leakage: left out of the max
+    beyond_rig = int(np.searchsorted(rb.centres(), 2 * RADAR_ROTATION_RADIUS_M))
     for f in fr:
         rec.set_time("time", timestamp=np.datetime64(int(t[f]), "ns"))
         if "radar/heatmap" in has:
             hm = np.asarray(sc["radar/heatmap"][f], np.float32)
-            log("radar/range_azimuth", rr.Image(_db(hm[:, el0, :])))
-            log("radar/elevation_azimuth", rr.Image(_db(hm.max(axis=0))))
+            log("radar/range_azimuth", rr.Image(_db_image(hm[:, el0, :])))
+            log("radar/elevation_azimuth", rr.Image(_db_image(hm[beyond_rig:].max(axis=0))))
         P = poses[f] if poses is not None else np.eye(4)
         if poses is not None:
             log("world/radar", rr.Transform3D(translation=P[:3, 3], mat3x3=P[:3, :3]))
@@ -154,5 +159,8 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
     rec.flush()
     if save:
         rec.disconnect()
-    return {"scene": scene_id, "frames": len(fr), "entities": sorted(entities), "notes": notes,
-            "grid": f"{g.H}x{g.W}", "range_bins": rb.n}
+    out = {"scene": scene_id, "frames": len(fr), "entities": sorted(entities), "notes": notes,
+           "grid": f"{g.H}x{g.W}", "range_bins": rb.n}
+    if web:
+        out["stream"] = rec   # its gRPC server lives as long as the stream: the caller keeps it while serving
+    return out

@@ -48,3 +48,18 @@ def test_bad_input_is_one_line(traced, tmp_path):
         assert r.exit_code == 1 and words in r.output and "Traceback" not in r.output, r.output
     r = CliRunner(env={"DISPLAY": "", "WAYLAND_DISPLAY": ""}).invoke(cli, ["view", traced])
     assert r.exit_code == 1 and "--save" in r.output
+
+
+def test_web_keeps_its_data_server_alive_while_the_stream_is_held(traced):
+    import socket
+
+    from holodata.view import view_scene
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    r = view_scene(traced, "room_a", "0:2", web=True, port=port)
+    assert r["stream"] is not None
+    with socket.create_connection(("127.0.0.1", port + 1), timeout=5):   # the gRPC data server answers
+        pass
+    r["stream"].disconnect()
