@@ -1,0 +1,236 @@
+"""``holodata ingest``: recordings -> dataset scenes (DESIGN §3), streaming and resumable.
+
+Per recording (one scene each):
+
+1. **Topic mapping** (:func:`map_topics`): radar = ``*/RadarHeatmap`` messages; LiDAR = a
+   ``PointCloud2`` whose topic/frame does not look like a camera, Ouster pcap scans, or
+   ``ouster_ros/PacketMsg`` packets + the driver's metadata ``String``; camera = a depth ``Image``
+   (16UC1 mm / 32FC1 m) + its ``CameraInfo``, else a camera-looking ``PointCloud2``; TF =
+   ``/tf`` and ``/tf_static``. A YAML file (``--topics``, see ``examples/topics.yaml``) overrides
+   any role (``null`` switches a role off) and the options ``time``, ``world_frame``,
+   ``base_frame``, ``camera_stride``.
+2. **Index pass**: every message of the mapped topics is read undecoded; stamps come from the
+   header bytes (``time: header``, default; 0 stamps fall back to the log time) or the log time
+   (``time: log``). Messages of the sensor that defines the frames are decoded and checked here,
+   so a frame exists only for a message that decodes.
+3. **Sync**: frames are radar rotation cycles (radar header stamp), or LiDAR scans when there is
+   no radar (``frame_sensor`` says which). Each frame takes the LiDAR scan and camera frame
+   nearest in time within a tolerance (``--tolerance MS``; default per sensor: half its median period,
+   at least 50 ms, so a sensor that kept publishing fills every frame); frames with none get an empty cloud and
+   ``<sensor>/timestamp_ns`` = 0. Unmatched and failed messages are counted and reported.
+4. **Write pass**: only the matched messages are decoded; shards are written as soon as all their
+   frames have arrived (memory is a few shards, flat in recording size). Rerunning the same command
+   resumes: finished shards are skipped (their messages are not decoded), a finished scene is
+   skipped entirely.
+
+Arrays: ``time/timestamp_ns``; ``radar/heatmap`` (T, R, H, W) as recorded (float16|float32 linear
+amplitude), ``radar/cycle_ns`` (T, 2) [start, end]; ``lidar/points`` ragged (sensor frame; for
+organised clouds the valid pixels of ``lidar/range`` in row-major order), ``lidar/point_time_ns``
+ragged (per-point time relative to the scan stamp, when the cloud has a time field), ``lidar/range``
+(T, Hl, Wl) float32 m, NaN = no return (organised clouds as published; Ouster scans destaggered),
+``lidar/timestamp_ns``; ``camera/points`` ragged (sensor frame: optical frame for depth images),
+``camera/timestamp_ns``; ``pose/T_world_radar`` when TF connects the radar frame to the world frame
+at every frame time; ``tf/T_world_lidar`` when TF connects the LiDAR frame to a world frame (NaN
+where TF does not cover a frame's scan: slam anchors its map to it). Scene attributes: ``frame_sensor``, ``source`` {recording, files, bytes,
+sha256 (written with ``ingest.complete``), reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF), ``sensors`` (topics,
+frames, intrinsics, Ouster metadata), ``ingest`` (mapping, tolerance, counts, drops, warnings).
+
+Modules: :mod:`.roles` (topic mapping), :mod:`.streams` (one decoder per kind of sensor message),
+:mod:`.plan` (index and sync passes), :mod:`.write` (the write pass), :mod:`.listing`
+(``ingest --list``); this module orchestrates them (:func:`ingest`, locally or one Dask task per
+recording).
+
+Truncated recordings (recorder crash, file cut short): the readable prefix is ingested and the
+scene is marked ``source.truncated = true`` with the reason; ``ingest`` warns. Recordings with no
+radar, point cloud, depth or Ouster topic (camera-only, IMU-only, strings, non-ROS MCAP) are
+rejected with a one-line reason.
+"""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+from ..conventions import Grid, RangeBins
+from ..errors import HolodataError, InputError, RecordingError
+from ..readers import open_recording
+from .roles import RADAR_SUFFIX, TopicMap, _one_line, load_topics_file, map_topics
+from .streams import RadarStream
+from .plan import Plan, _grid_of, _scene_id, plan_recording
+from .listing import format_listing, list_recording
+from .write import write_plan
+
+def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float | None = None,
+           quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None,
+
+
+           client=None, beamform=None, keep_iq: bool = False) -> dict:
+    """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
+    each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
+    {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
+    there and the others are still ingested. Raises RecordingError when none could be ingested.
+    ``client`` (a ``distributed.Client``): one Dask task per recording (:mod:`holodata.distributed`);
+    the recordings must be readable at the same paths on the workers. ``beamform``:
+    :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples (PanoRadar raw
+    trajectories), default 64 x 512 beams, all range bins; ``keep_iq``: store their raw samples too
+    (``radar/iq``), so that ``holodata beamform`` can re-image them with other parameters."""
+    recordings = [Path(r) for r in recordings]
+    if not recordings:
+        raise InputError("no recording given")
+    if isinstance(topics, (str, Path)):
+        topics = load_topics_file(topics)
+    if scene_ids is not None:
+        scene_ids = list(scene_ids)
+        if len(scene_ids) != len(recordings):
+            raise InputError(f"{len(scene_ids)} --scene-id for {len(recordings)} recordings (give one per recording)")
+    if tolerance_ms is not None and tolerance_ms <= 0:
+        raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
+    failed: list[dict] = []
+    from ..dataset import create_dataset, open_dataset
+
+    try:
+        existing = open_dataset(out)
+        # a LiDAR-only dataset has no radar grid yet: the first radar recording gives it one
+        grid, rb = (existing.grid, existing.range_bins) if existing.meta.get("grid_source") != "default" else (None, None)
+    except HolodataError:
+        existing, grid, rb = None, None, None
+    todo = []
+    if existing is None and (len(recordings) > 1 or client is not None):
+        # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes)
+        for i, r in enumerate(recordings):
+            try:
+                todo.append((i, r, radar_grid(r, topics, msg_dir, meta, beamform)))
+            except (HolodataError, OSError) as err:
+                failed.append({"recording": str(r), "error": _one_line(err)})
+        if not todo:
+            raise RecordingError(_failures(failed))
+        grids = {g for _, _, g in todo if g is not None}
+        if len(grids) > 1:
+            raise RecordingError(f"recordings have different radar grids ({sorted(str(g[0].to_attrs()) for g in grids)}); "
+                                 f"ingest them into separate datasets")
+        grid, rb = next(iter(grids)) if grids else (None, None)
+    else:
+        todo = [(i, r, None) for i, r in enumerate(recordings)]
+    ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
+    ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
+    try:
+        from . import __version__ as version
+    except ImportError:  # pragma: no cover
+        version = "?"
+    ds = None
+    scenes = []
+    if client is not None:  # the dataset exists before the workers write their scenes into it
+        create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
+                       provenance={"tool": "holodata ingest", "version": version},
+                       **({"shard_frames": shard_frames} if shard_frames else {}))
+        opts = {"topics": topics, "msg_dir": msg_dir, "tolerance_ms": tolerance_ms, "meta": meta, "codec": codec,
+                "beamform": beamform, "keep_iq": keep_iq}
+        scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
+        failed += more
+        todo = []
+        if not scenes and existing is None:   # created for the workers, nothing landed: leave no empty dataset
+            from ..dataset.store import Store
+
+            Store(out).delete_tree("")
+    for (i, r, _), sid in zip(todo, ids):
+        p = None
+        try:
+            p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet, beamform, keep_iq)
+            if p.grid is not None and grid is None:   # the first radar recording sets the dataset's grid
+                grid, rb, ds = p.grid, p.range_bins, None
+            else:
+                check_grid(r, p, grid, rb)
+            if ds is None:   # created only once something is ingestable: a failed run leaves no empty dataset
+                kw = {"shard_frames": shard_frames} if shard_frames else {}
+                ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
+                                    provenance={"tool": "holodata ingest", "version": version}, **kw)
+            scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))   # sha256: waited for at its end
+        except (HolodataError, OSError) as err:
+            failed.append({"recording": str(r), "error": _one_line(err)})
+        finally:
+            if p is not None:
+                p.rec.close()
+    if not scenes:
+        raise RecordingError(_failures(failed))
+    return {"dataset": str(out), "scenes": scenes, "failed": failed, "ok": not failed}
+
+
+def _failures(failed: list[dict]) -> str:
+    if len(failed) == 1:
+        return failed[0]["error"]
+    return f"none of {len(failed)} recordings can be ingested: " + "; ".join(f["error"] for f in failed)
+
+
+def radar_grid(path, topics=None, msg_dir=None, meta=None, beamform=None) -> tuple[Grid, RangeBins] | None:
+    """The radar grid of a recording (from its first decodable radar message), None without radar."""
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
+    try:
+        infos = rec.topics(frame_ids=False)
+        if not any(t.msgtype.endswith(RADAR_SUFFIX) and t.count for t in infos) and not (topics or {}).get("radar"):
+            return None
+        tmap, _ = map_topics(rec, topics, rec.topics(frame_ids=True))
+        if not tmap.radar:
+            return None
+        st = RadarStream(rec, tmap.radar, tmap.time)
+        last = None
+        for n, raw in enumerate(rec.raw_messages([tmap.radar])):
+            try:
+                st.convert(raw, keep=False)
+                return _grid_of(rec, st)
+            except HolodataError as err:
+                last = err
+            if n >= 20:
+                break
+        raise RecordingError(f"{rec.path}: no decodable radar message on {tmap.radar} ({_one_line(last) if last else 'none'})")
+    finally:
+        rec.close()
+
+
+
+
+def check_grid(recording, plan: Plan, grid, range_bins) -> None:
+    """RecordingError unless the radar recording's grid and range bins (``plan``) are the dataset's
+    (``grid``, ``range_bins``); a recording without radar fits any dataset."""
+    if plan.grid is not None and (plan.grid, plan.range_bins) != (grid, range_bins):
+        raise RecordingError(f"{recording}: radar grid {plan.grid}, {plan.range_bins} differs from the dataset's "
+                             f"{grid}, {range_bins}")
+
+
+# -- Dask task (holodata.distributed runs it): one per recording -----------------------------------------
+def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dict) -> dict:
+    """Worker side: plan and write one recording as scene ``scene_id`` of dataset ``out`` (which
+    exists). Returns {"scene": summary} or {"failed": {recording, error}}."""
+    from ..dataset import create_dataset
+    from ..distributed import tune_malloc
+
+    tune_malloc()
+    p = None
+    try:
+        p = plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
+                           opts["meta"], True, opts.get("beamform"), opts.get("keep_iq", False))
+        check_grid(path, p, grid, range_bins)
+        ds = create_dataset(out, grid=grid, range_bins=range_bins)
+        return {"scene": write_plan(p, ds, quiet=True, codec=opts["codec"])}
+    except (HolodataError, OSError) as err:
+        return {"failed": {"recording": str(path), "error": _one_line(err)}}
+    finally:
+        if p is not None:
+            p.rec.close()
+
+
+def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, opts: dict, quiet: bool = True
+                ) -> tuple[list[dict], list[dict]]:
+    """One Dask task per recording ``todo`` [(index, path, _)] → scenes ``ids`` of the existing
+    dataset ``out``. Returns (scene summaries, failures) in recording order."""
+    from ..distributed import run_tasks, worker_path
+
+    token = uuid.uuid4().hex[:8]
+    opts = {**opts, **{k: worker_path(opts[k]) for k in ("msg_dir", "meta") if opts.get(k)}}
+    calls = [(worker_path(r), sid, worker_path(out), grid, range_bins, opts) for (_, r, _), sid in zip(todo, ids)]
+    keys = [f"ingest-{sid}-{token}" for sid in ids]
+    res = run_tasks(client, _ingest_task, calls, keys, description="ingest", quiet=quiet)
+    return [r["scene"] for r in res if "scene" in r], [r["failed"] for r in res if "failed" in r]
+
+
+__all__ = ["ingest", "ingest_dask", "plan_recording", "write_plan", "check_grid", "radar_grid", "list_recording",
+           "format_listing", "map_topics", "load_topics_file", "Plan", "TopicMap"]
