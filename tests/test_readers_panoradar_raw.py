@@ -231,3 +231,24 @@ def test_beamform_runs_as_dask_tasks_per_shard_with_the_local_result(moving, tmp
     assert r["n_syn"] == wide.syn_count(512) and validate_dataset(urls[1])["ok"]
     a, b = (np.asarray(open_dataset(u).scene("walk_01")["radar/heatmap"][...]) for u in urls)
     np.testing.assert_array_equal(a, b)
+
+
+def test_a_turning_robot_s_rotations_end_after_one_turn_relative_to_the_world(moving, tmp_path):
+    """With the IMU's yaw rate ω the radar turns by dθ0 − dt·ω per chirp relative to the world, so one
+    rotation takes round(2π / (dθ0 − dt·ω)) chirps (PanoRadar's rotation ends), not the next radar_sep."""
+    turning = tmp_path / "walk_turn"
+    shutil.copytree(moving.folder, turning)
+    imu = np.load(turning / "imu_data.npy")
+    np.save(turning / "imu_data.npy", np.full_like(imu, 30.0))           # 30 deg/s counter-clockwise
+    rec = open_recording(turning, beamform=PARAMS)
+    dtheta0, dt = 2 * np.pi / 512, CHIRP.chirp_period_s
+    n = int(round(2 * np.pi / (dtheta0 - dt * np.deg2rad(30.0))))
+    assert n == 534
+    assert [int(rec.end[k] - rec.sep[k]) for k in rec.rotations] == [n] * len(rec.rotations)
+    assert rec.attrs["beamform"]["rotation_end"].startswith("one turn relative to the world")
+    h = (PARAMS.syn_count(n) - 1) // 2            # a longer rotation's beams reach further into its neighbours
+    C = rec.radar.shape[0]
+    assert rec.rotations == [k for k in range(3) if rec.sep[k] - h >= 0 and rec.end[k] + h <= C] == [1]
+    assert any("left out" in p for p in rec.problems)
+    m = rec.heatmap(1)
+    assert m.cycle_end_ns - m.cycle_start_ns == pytest.approx(n * dt * 1e9, rel=1e-6)

@@ -142,11 +142,19 @@ class PanoRadarRawRecording(Recording):
             self.motion = self._motion(p / "motion_output.npz", len(lens))
         elif not self.static:
             self.problems.append(f"{p}: moving trajectory without motion_output.npz: rotations imaged as if at rest")
+        # where each rotation ends: the next start, or (moving, with an IMU) one turn of the radar
+        # relative to the world, from the platform's yaw rate (PanoRadar's __find_radar_end_frame_sep)
+        self.end = self.sep[1:].copy()
+        self.yaw_source = "none"
+        if not self.static and (p / "imu_data.npy").exists() and "imu_sep" in params:
+            self.end = self._ends_from_imu(p, params, C)
+            self.yaw_source = "imu_data.npy"
+        lens = self.end - self.sep[:-1]
         # which rotations can be imaged: a moving one needs n_syn//2 chirps on either side
         self.rotations = list(range(len(lens)))
         if not self.static:
             half = [(self.params.syn_count(int(n)) - 1) // 2 for n in lens]
-            keep = [k for k in self.rotations if self.sep[k] - half[k] >= 0 and self.sep[k + 1] + half[k] <= C]
+            keep = [k for k in self.rotations if self.sep[k] - half[k] >= 0 and self.end[k] + half[k] <= C]
             if len(keep) < len(self.rotations):
                 self.problems.append(f"{p}: {len(self.rotations) - len(keep)} rotation(s) at the ends lack the "
                                      f"neighbouring chirps their beams need; left out")
@@ -173,11 +181,41 @@ class PanoRadarRawRecording(Recording):
             "radar_scaling": f"stored int16-scaled I/Q; divided by {INT16_SCALE:g}",
             "beamform": beamform_attrs(self.chirp, self.params, n_chirps, motion_compensation=mode,
                                        padding="circular" if self.static else "neighbouring rotations",
+                                       rotation_end="next radar_sep" if self.yaw_source == "none" else
+                                       "one turn relative to the world: radar_sep + round(2*pi / (dtheta0 - dt*omega)), "
+                                       "omega the mean yaw rate of imu_data.npy over the rotation",
                                        static_reflection="mean over every chirp of the trajectory",
                                        rotations_imaged=len(self.rotations), rotations_in_file=len(lens),
                                        frequency_note="PanoRadar's imaging uses linspace(77, 81 GHz, n_samples)"),
             "lidar_to_radar_transform": transform.tolist(),
         }
+
+    def _ends_from_imu(self, p: Path, params: dict, C: int) -> np.ndarray:
+        """Rotation ends from the IMU yaw rate (deg/s, counter-clockwise +): the radar turns at
+        ``dtheta0`` per chirp relative to the robot, so relative to the world a full turn takes
+        ``round(2π / (dtheta0 − dt·ω))`` chirps (PanoRadar's ``RadarFrames.__find_radar_end_frame_sep``,
+        with its outlier filter and Gaussian smoothing of the yaw rate)."""
+        from scipy.ndimage import gaussian_filter1d
+
+        imu = _load_npy(p / "imu_data.npy", mmap=False)
+        if imu.ndim != 1 or imu.dtype.kind not in "fiu":
+            raise RecordingError(f"{p / 'imu_data.npy'}: expected (samples,) yaw rates in deg/s, got {imu.shape} {imu.dtype}")
+        isep = _separators(p / "data_params.npz", params, "imu_sep", imu.size, "IMU sample", True)
+        if isep.size < self.sep.size:
+            raise RecordingError(f"{p / 'data_params.npz'}: imu_sep has {isep.size} entries for {self.sep.size} radar_sep")
+        w = np.asarray(imu, np.float64).copy()
+        jump = np.flatnonzero(np.abs(np.r_[np.diff(w), 0.0]) > 20.0)      # PanoRadar: jitter > 20 deg/s ...
+        jump = np.maximum(jump, 2)
+        w[jump] = w[jump - 2]                                              # ... takes the value 2 samples back
+        w = np.deg2rad(gaussian_filter1d(w, sigma=2.0, truncate=6.0))
+        dtheta0 = float(np.mean(2 * np.pi / np.diff(self.sep)))
+        stamps = self.radar_ts[np.minimum(self.sep, C - 1)]
+        dt = float(np.mean(np.diff(stamps) / np.diff(self.sep)))
+        ends = []
+        for k in range(self.sep.size - 1):
+            omega = float(np.mean(w[isep[k]:max(isep[k + 1], isep[k] + 1)]))
+            ends.append(int(self.sep[k]) + int(round(2 * np.pi / (dtheta0 - dt * omega))))
+        return np.asarray(ends, np.int64)
 
     # -- motion -------------------------------------------------------------------------------------
     def _motion(self, path: Path, n_rot: int) -> dict:
@@ -204,7 +242,7 @@ class PanoRadarRawRecording(Recording):
         return np.where(i < C, self.radar_ts[np.minimum(i, C - 1)], self.radar_ts[-1] + (i - C + 1) * self._dt)
 
     def _rot_stamps(self, k: int) -> tuple[int, int]:
-        t0, t1 = self._stamp_at([self.sep[k], self.sep[k + 1]])
+        t0, t1 = self._stamp_at([self.sep[k], self.end[k]])
         return int(round(t0 * 1e9)), int(round(t1 * 1e9))
 
     def _topics(self) -> list[TopicInfo]:
@@ -263,7 +301,7 @@ class PanoRadarRawRecording(Recording):
 
     def rotation_iq(self, k: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
         """(rotation, before, after) of rotation ``k``, unit scale (before/after None when static)."""
-        a, b = int(self.sep[k]), int(self.sep[k + 1])
+        a, b = int(self.sep[k]), int(self.end[k])
         rot = np.asarray(self.radar[a:b], np.complex64) / np.complex64(INT16_SCALE)
         if self.static:
             return rot, None, None
@@ -275,7 +313,7 @@ class PanoRadarRawRecording(Recording):
     def heatmap(self, k: int) -> RadarHeatmapMsg:
         """Rotation ``k`` beamformed: a RadarHeatmap (float32, linear amplitude, ranges from the rotation centre)."""
         rot, before, after = self.rotation_iq(k)
-        a, b = int(self.sep[k]), int(self.sep[k + 1])
+        a, b = int(self.sep[k]), int(self.end[k])
         t0, t1 = self._rot_stamps(k)
         period = (t1 - t0) / 1e9 / (b - a)
         velocity, ds0, th = None, 0.0, 0.0
@@ -303,7 +341,7 @@ class PanoRadarRawRecording(Recording):
         """(chirps, V, S): room for the longest imaged rotation with its neighbouring chirps."""
         longest = 0
         for k in self.rotations:
-            n = int(self.sep[k + 1] - self.sep[k])
+            n = int(self.end[k] - self.sep[k])
             longest = max(longest, n + (0 if self.static else self.params.syn_count(n) - 1))
         return longest, self.radar.shape[1], self.radar.shape[2]
 
