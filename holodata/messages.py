@@ -1,8 +1,9 @@
-"""holodata's own ROS message type for radar heatmaps, and typestores that know it.
+"""holodata's own ROS message types — radar heatmaps and raw radar rotations — and typestores that know them.
 
 ``holodata_msgs/msg/RadarHeatmap`` carries one rotation cycle: a linear-amplitude heatmap
 ``(n_range, n_elevation, n_azimuth)`` in C order, little-endian, ``encoding`` "float16" or
-"float32". Recordings written by holodata embed this definition (rosbag2 ``message_definitions``,
+"float32"; ``holodata_msgs/msg/RadarRawRotation`` carries one rotation of raw FMCW samples
+(:data:`RADAR_RAW_MSGDEF`), which ingest beamforms. Recordings written by holodata embed these definitions (rosbag2 ``message_definitions``,
 MCAP schemas, ROS1 connection headers), so rosbags and mcap decode it without extra files.
 """
 from __future__ import annotations
@@ -36,12 +37,47 @@ uint8[] data
 """
 
 
+RADAR_RAW_TYPE = "holodata_msgs/msg/RadarRawRotation"
+
+RADAR_RAW_MSGDEF = """\
+# One rotation of a rotating FMCW radar as raw samples, for holodata's beamformer (holodata.radar.beamform;
+# PanoRadar's imaging). Chirp frames in time order: n_before of the previous rotation (the outer chirps of
+# the first beams of a moving platform), the n_rotation of this one (chirp n faces -2*pi*n/n_rotation in
+# the radar frame, chirp 0 along +x), n_after of the next. Each chirp frame holds n_tx*n_rx virtual
+# antennas (a vertical column: antenna v sits antenna_spacing*(n_tx*n_rx-1-v) below the phase reference
+# in two-way path per sin(elevation)) x n_samples ADC samples, sample i at
+# start_frequency + slope*i/sample_rate. encoding "complex64": little-endian float32 I/Q pairs, C order
+# (chirp, antenna, sample). travel_per_chirp (m) and heading (rad, counter-clockwise from chirp 0's
+# facing) describe the platform's motion during the rotation (0: at rest or unknown).
+std_msgs/Header header
+uint64 cycle_start_ns
+uint64 cycle_end_ns
+float64 start_frequency
+float64 slope
+float64 sample_rate
+uint32 n_samples
+uint32 n_tx
+uint32 n_rx
+float64 antenna_spacing
+float64 rotation_radius
+uint32 n_before
+uint32 n_rotation
+uint32 n_after
+float64 travel_per_chirp
+float64 heading
+string encoding
+uint8[] data
+"""
+
+
 def register_holodata_types(typestore) -> None:
     """Add holodata's message types to a rosbags typestore (idempotent)."""
     from rosbags.typesys import get_types_from_msg
 
     if RADAR_HEATMAP_TYPE not in typestore.fielddefs:
         typestore.register(get_types_from_msg(RADAR_HEATMAP_MSGDEF, RADAR_HEATMAP_TYPE))
+    if RADAR_RAW_TYPE not in typestore.fielddefs:
+        typestore.register(get_types_from_msg(RADAR_RAW_MSGDEF, RADAR_RAW_TYPE))
 
 
 def typestore_for(ros_version: int = 2):

@@ -252,3 +252,42 @@ def test_a_turning_robot_s_rotations_end_after_one_turn_relative_to_the_world(mo
     assert any("left out" in p for p in rec.problems)
     m = rec.heatmap(1)
     assert m.cycle_end_ns - m.cycle_start_ns == pytest.approx(n * dt * 1e9, rel=1e-6)
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "rosbag1"])
+def test_raw_rotations_in_a_bag_are_beamformed_by_ingest_like_the_folder(moving, tmp_path, fmt):
+    """The same rotations as holodata_msgs/msg/RadarRawRotation messages (definition embedded) ingest to
+    the heatmaps the folder reader makes (both with each rotation's own static reflection), keep their
+    samples with --keep-iq, and say how they were imaged."""
+    from holodata.ingest import ingest
+    from holodata.synth.panoradar_raw import write_raw_bag
+
+    bag = write_raw_bag(moving.folder, tmp_path / "walk_bag", fmt=fmt)
+    params = BeamformParams(**{**PARAMS.to_attrs(), "static_removal": "rotation"})
+    a, b = str(tmp_path / "bag.zarr"), str(tmp_path / "dir.zarr")
+    ingest([bag], a, beamform=params, keep_iq=True, scene_ids=["bag"])
+    ingest([moving.folder], b, beamform=params, scene_ids=["dir"])
+    assert validate_dataset(a)["ok"]
+    sa, sb = open_dataset(a).scene("bag"), open_dataset(b).scene("dir")
+    np.testing.assert_allclose(np.asarray(sa["radar/heatmap"][...]), np.asarray(sb["radar/heatmap"][...]),
+                               rtol=1e-5, atol=1e-6 * float(np.asarray(sb["radar/heatmap"][...]).max()))
+    bf = sa.attrs["source"]["beamform"]
+    assert bf["params"]["static_removal"] == "rotation" and bf["chirp"]["n_samples"] == 256
+    assert "radar/iq" in sa and "radar/iq_static" not in sa
+    from holodata.beamforming import beamform_scene
+
+    beamform_scene(a, "bag", motion="recorded")                        # re-imaged from the kept samples
+    np.testing.assert_allclose(np.asarray(open_dataset(a).scene("bag")["radar/heatmap"][...]),
+                               np.asarray(sb["radar/heatmap"][...]), rtol=1e-4,
+                               atol=1e-5 * float(np.asarray(sb["radar/heatmap"][...]).max()))
+
+
+def test_a_bag_without_its_chirp_configuration_is_a_one_line_error(moving, tmp_path):
+    from holodata.synth.panoradar_raw import write_raw_bag
+
+    bag = write_raw_bag(moving.folder, tmp_path / "nochirp", chirp_config=False)
+    url = tmp_path / "ds.zarr"
+    r = CliRunner().invoke(cli, ["ingest", str(bag), "--out", str(url), "--quiet"])
+    assert r.exit_code == 1 and "/radar/raw" in r.output and "chirp configuration" in r.output, r.output
+    assert "Traceback" not in r.output
+    assert not url.exists() or not validate_dataset(str(url))["ok"]

@@ -55,7 +55,7 @@ from ..conventions import Grid, RangeBins
 from ..errors import HolodataError, InputError, RecordingError
 from ..readers import open_recording
 from .roles import RADAR_SUFFIX, TopicMap, _one_line, load_topics_file, map_topics
-from .streams import RadarStream
+from .streams import radar_stream
 from .plan import Plan, _grid_of, _scene_id, plan_recording
 from .listing import format_listing, list_recording
 from .write import write_plan
@@ -171,7 +171,7 @@ def radar_grid(path, topics=None, msg_dir=None, meta=None, beamform=None) -> tup
         tmap, _ = map_topics(rec, topics, rec.topics(frame_ids=True))
         if not tmap.radar:
             return None
-        st = RadarStream(rec, tmap.radar, tmap.time)
+        st = radar_stream(rec, tmap.radar, tmap.time, next(t.msgtype for t in infos if t.name == tmap.radar), beamform)
         last = None
         for n, raw in enumerate(rec.raw_messages([tmap.radar])):
             try:

@@ -17,7 +17,7 @@ from ..readers import open_recording, synth_output_folder
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
 from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, _one_line, map_topics
 from .streams import (CameraCloudStream, CloudStream, DepthStream, GridStream, OusterPacketStream, OusterScanStream,
-                      PointsStream, RadarStream, StereoStream, _Stream)
+                      PointsStream, RadarStream, RawRadarStream, StereoStream, _Stream, radar_stream)
 
 
 @dataclass
@@ -141,20 +141,20 @@ def plan_recording(path, topics: dict | None = None, scene_id: str | None = None
     sha = pool.submit(file_sha256, rec.files)
     pool.shutdown(wait=False)
     try:
-        plan = _plan(rec, topics, scene_id, tolerance_ms, quiet, track)
+        plan = _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform)
     except BaseException:
         sha.cancel()
         rec.close()
         raise
     plan.sha_future = sha
-    if keep_iq and hasattr(rec, "iq_shape") and "radar" in plan.streams:
+    if keep_iq and "radar" in plan.streams and (hasattr(rec, "iq_shape") or hasattr(plan.streams["radar"], "iq_shape")):
         plan.keep_iq = True
     elif keep_iq:
         plan.warnings.append(f"{rec.path}: no raw radar samples in this recording; --keep-iq has nothing to keep")
     return plan
 
 
-def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
+def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> Plan:
     infos = rec.topics(frame_ids=True)
     tmap, notes = map_topics(rec, topics, infos)
     by = {t.name: t for t in infos}
@@ -163,7 +163,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track) -> Plan:
         raise RecordingError(_reject_reason(rec, infos, tmap, notes))
     streams: dict[str, _Stream] = {}
     if tmap.radar:
-        streams["radar"] = RadarStream(rec, tmap.radar, tmap.time)
+        streams["radar"] = radar_stream(rec, tmap.radar, tmap.time, by[tmap.radar].msgtype, beamform)
     if tmap.lidar:
         ty = by[tmap.lidar].msgtype
         if ty == OUSTER_SCAN:
@@ -308,7 +308,7 @@ def _head_topics(streams: dict) -> set[str]:
     message = one item, stamped from its header; ``Recording.decode`` reads the rest of a message
     that is decoded after all (the frame sensor's check, a matched scan or image, a layout probe).
     Unmatched LiDAR scans and camera images are then never read whole."""
-    return {st.topic for st in streams.values() if type(st) in (RadarStream, CloudStream, DepthStream)}
+    return {st.topic for st in streams.values() if type(st) in (RadarStream, RawRadarStream, CloudStream, DepthStream)}
 
 
 def _first_string(rec: Recording, topic: str | None) -> str:

@@ -9,7 +9,8 @@ from ..errors import HolodataError, InputError
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
 
 
-RADAR_SUFFIX = "/RadarHeatmap"
+RADAR_SUFFIX = ("/RadarHeatmap", "/RadarRawRotation")   # heatmaps, raw rotations (beamformed by ingest)
+RAW_SUFFIX = "/RadarRawRotation"
 PC2 = "sensor_msgs/msg/PointCloud2"
 IMAGE = "sensor_msgs/msg/Image"
 CAMINFO = "sensor_msgs/msg/CameraInfo"

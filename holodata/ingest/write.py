@@ -164,7 +164,8 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     # scene from another recording's before then
     source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "bytes": sizes,
               "reader": rec.kind, "truncated": bool(rec.truncated), **(getattr(rec, "attrs", None) or {}),
-              **({"problems": rec.problems[:20]} if rec.problems else {})}
+              **({"problems": rec.problems[:20]} if rec.problems else {}),
+              **({"beamform": plan.streams["radar"].attrs} if getattr(plan.streams.get("radar"), "attrs", None) else {})}
     # what the frames and their contents depend on: a resumed run must agree
     fingerprint = hashlib.sha256(json.dumps(
         {"topics": plan.tmap.to_dict(), "tolerance_ns": plan.tolerance_ns, "frames": plan.frame_stamps.tolist(),
@@ -222,7 +223,8 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         outs["radar/cycle_ns"] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)), bg)
         if plan.keep_iq:
             _iq_outputs(plan, sc, frame_arr, outs, T, S, bg)
-            arrays.append("radar/iq_static")
+            if "radar/iq_static" in sc.arrays():
+                arrays.append("radar/iq_static")
     for role in ("lidar", "camera"):
         if role not in plan.streams:
             continue
@@ -386,8 +388,10 @@ def _iq_outputs(plan: Plan, sc, frame_arr, outs: dict, T: int, S: int, bg) -> No
     to L); ``radar/iq_motion`` (T, 2) float64: travel per chirp (m) and heading (rad) it was imaged
     with; ``radar/iq_static`` (V, S) complex64: the trajectory's static reflection, subtracted before
     imaging. ``holodata beamform`` re-images them (:mod:`holodata.beamforming`)."""
-    L, V, Sm = plan.rec.iq_shape()
-    sc.write_array("radar/iq_static", np.asarray(plan.rec.static_refl(), np.complex64), ["antenna", "sample"])
+    src = plan.rec if hasattr(plan.rec, "iq_shape") else plan.streams["radar"]   # a raw reader, or raw messages
+    L, V, Sm = src.iq_shape()
+    if hasattr(src, "static_refl"):    # a trajectory mean exists only where the reader sees every chirp
+        sc.write_array("radar/iq_static", np.asarray(src.static_refl(), np.complex64), ["antenna", "sample"])
     iq = frame_arr("radar/iq", (L, V, Sm), "complex64", ["frame", "chirp", "antenna", "sample"], "1",
                    shard_frames=_shard_frames(8 * L * V * Sm, S), fill_value=0, codec=BULK_CODEC,
                    attrs={"scale": "unit (the recording's int16 scale divided out)",

@@ -152,3 +152,44 @@ def box_room_trajectory(folder, *, chirp: ChirpConfig | None = None, n_rotations
                            lidar_sep=lidar_sep, imu=np.zeros(len(imu_ts)), imu_ts=imu_ts, imu_sep=imu_sep,
                            transform=rot[:2, :2].T, motion=motion)
     return Trajectory(out, chirp, n_rotations, tuple(velocity), room, pad)
+
+
+def write_raw_bag(folder, out, fmt: str = "mcap", topic: str = "/radar/raw", chirp_config: bool = True) -> Path:
+    """Copy the rotations of a PanoRadar raw trajectory ``folder`` into a ROS bag of
+    ``holodata_msgs/msg/RadarRawRotation`` messages (:mod:`holodata.messages`; definition embedded),
+    one per rotation with its neighbouring chirps and recorded motion, plus ``/tf_static``
+    (``base_link → radar``); ``fmt`` "mcap" | "rosbag2" | "rosbag1". ``chirp_config=False`` leaves the
+    chirp fields zero (a bag that lacks its chirp configuration, for the error path's test).
+    Returns the recording's path."""
+    from ..readers.panoradar_raw import PanoRadarRawRecording
+    from .recording import BagWriter, recording_path
+
+    rec = PanoRadarRawRecording(Path(folder))
+    path = recording_path(Path(out).parent, fmt, Path(out).name)
+    if path.exists():
+        shutil.rmtree(path) if path.is_dir() else path.unlink()
+    with BagWriter(path, fmt) as w:
+        w.add("/tf_static", "tf2_msgs/msg/TFMessage", latched=True)
+        w.add(topic, "holodata_msgs/msg/RadarRawRotation")
+        t0 = int(rec.radar_ts[0] * 1e9)
+        w.write("/tf_static", t0, w.tf_message([w.transform("/tf_static", t0, "base_link", "radar", np.eye(4))]))
+        chirp = rec.chirp if chirp_config else _zero_chirp(rec.chirp)
+        for k in rec.rotations:
+            rot, before, after = rec.rotation_iq(k)
+            parts = [p for p in (before, rot, after) if p is not None]
+            c0, c1 = rec._rot_stamps(k)
+            ds0, th = ((float(rec.motion["ds0"][k]), float(rec.motion["theta_v"][k])) if rec.motion is not None
+                       else (0.0, 0.0))
+            msg = w.radar_raw_rotation(topic, (c0 + c1) // 2, "radar", np.concatenate(parts, axis=0),
+                                       0 if before is None else len(before), len(rot), 0 if after is None else len(after),
+                                       chirp, c0, c1, ds0, th)
+            w.write(topic, (c0 + c1) // 2, msg)
+    return path
+
+
+def _zero_chirp(chirp: ChirpConfig):
+    """A stand-in with the chirp fields zeroed (what a recorder that forgot them writes)."""
+    from types import SimpleNamespace
+
+    return SimpleNamespace(start_frequency_hz=0.0, slope_hz_per_s=0.0, sample_rate_hz=0.0, n_samples=chirp.n_samples,
+                           n_tx=chirp.n_tx, n_rx=chirp.n_rx, antenna_spacing_m=0.0, rotation_radius_m=0.0)

@@ -190,3 +190,20 @@ class BagWriter:
             n_azimuth=int(shape[2]), range_resolution=float(rb.dr), elevation_max=float(np.deg2rad(g.elev_max_deg)),
             elevation_min=float(np.deg2rad(g.elev_min_deg)), rotation_radius=float(cfg.rotation_radius_m),
             range_origin="rotation_centre", encoding=cfg.encoding, data=np.frombuffer(heatmap_bytes, np.uint8))
+
+    def radar_raw_rotation(self, topic: str, stamp_ns: int, frame_id: str, chirps, n_before: int, n_rotation: int,
+                           n_after: int, chirp, cycle_start_ns: int, cycle_end_ns: int, travel_per_chirp: float = 0.0,
+                           heading: float = 0.0):
+        """A ``holodata_msgs/msg/RadarRawRotation`` (:mod:`holodata.messages`): ``chirps`` (n_before +
+        n_rotation + n_after, V, S) complex samples, ``chirp`` a :class:`holodata.radar.chirp.ChirpConfig`."""
+        from ..messages import RADAR_RAW_TYPE
+
+        data = np.ascontiguousarray(chirps, np.complex64).view(np.uint8).reshape(-1)
+        return self.types[RADAR_RAW_TYPE](
+            header=self.header(topic, stamp_ns, frame_id), cycle_start_ns=int(cycle_start_ns),
+            cycle_end_ns=int(cycle_end_ns), start_frequency=float(chirp.start_frequency_hz),
+            slope=float(chirp.slope_hz_per_s), sample_rate=float(chirp.sample_rate_hz), n_samples=int(chirp.n_samples),
+            n_tx=int(chirp.n_tx), n_rx=int(chirp.n_rx), antenna_spacing=float(chirp.antenna_spacing_m),
+            rotation_radius=float(chirp.rotation_radius_m), n_before=int(n_before), n_rotation=int(n_rotation),
+            n_after=int(n_after), travel_per_chirp=float(travel_per_chirp), heading=float(heading),
+            encoding="complex64", data=data)
