@@ -69,8 +69,10 @@ def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
     med, mad, cnt = R.static_depth(cam, frames)
     ok = np.isfinite(med) & (cnt > 0)
     S = cam.rays()[ok] * med[ok][:, None]
-    src = R._pcd(S, cfg.cam_voxel)
-    tgt = R._pcd(M, cfg.map_voxel, 3 * cfg.map_voxel)
+    from holodata.mapping.register.extrinsic import _pcd
+
+    src = _pcd(S, cfg.cam_voxel)
+    tgt = _pcd(M, cfg.map_voxel, 3 * cfg.map_voxel)
     reg = o3d.pipelines.registration
     t0 = time.perf_counter()
     res = reg.registration_icp(src, tgt, cfg.icp_distances[0], init, reg.TransformationEstimationPointToPlane(),

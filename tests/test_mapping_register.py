@@ -75,7 +75,7 @@ def test_sparse_ring_map_normals_check_and_icp():
     cam = (seen - T_true[:3, 3]) @ T_true[:3, :3] + rng.normal(0, 0.003, seen.shape)
     # at the exact pose most camera points lie between the lines: far from every map point, on its surface
     from holodata.conventions import transform_points
-    from holodata.mapping.register import _nn_distances
+    from holodata.mapping.register.extrinsic import _nn_distances
 
     d = _nn_distances(transform_points(T_true, cam), ring_map)
     assert np.mean(d[d < cfg.overlap_m] < cfg.inlier_m) < 0.6        # the old point-distance fitness
@@ -556,7 +556,7 @@ def nan_quantile(stack, q):
     """``np.nanquantile(stack, q, axis=0)`` of a (F,H,W) stack through register's ``_sorted_quantile``
     (one sort; ``q`` a number, or a tuple of numbers for a tuple of results): what static_depth_of
     used until 2026-12-02, checked against numpy below."""
-    from holodata.mapping.register import _sorted_quantile
+    from holodata.mapping.register.camera import _sorted_quantile
 
     s = np.sort(stack, axis=0)                               # NaN sort last
     n = np.isfinite(stack).sum(0)
@@ -877,7 +877,7 @@ def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path)
 
 
 def test_centred_offset_is_the_motion_of_the_centre_and_the_scaled_rotation():
-    from holodata.mapping.register import _centred_offset
+    from holodata.mapping.register.extrinsic import _centred_offset
 
     T0 = _pose([1.0, 2.0, 0.5], [0.0, 0.0, 30.0])
     D = _pose([0.02, -0.01, 0.03], [0.2, -0.1, 0.3])

@@ -1,0 +1,546 @@
+"""``holodata register``: the depth camera's one-time extrinsic in the map, and per-frame human
+points and closed human surfaces in the map frame. Why each step is done as it is, and what was
+measured on the way: ``docs/design/register.md``.
+
+Inputs (a dataset scene): ``camera/points`` (ragged, camera frame; for depth images the optical
+frame, with the intrinsics in ``sensors.camera.intrinsics``), the LiDAR map (``map/points`` of
+``holodata slam``, or ``lidar/points`` + ``pose/T_world_lidar``), ``camera/timestamp_ns`` and
+``time/timestamp_ns``.
+
+1. **Static camera cloud** (:func:`static_depth`): the camera does not move, so per pixel the
+   depth over up to ``median_frames`` frames, averaged over its background samples (a moving person
+   is only ever in front of the static scene), is a denoised picture of the static scene.
+2. **Map** (:func:`scene_map`): slam's static point map when it was built from the scene's poses;
+   else every scan in the world frame minus the LiDAR foreground and the segmented people
+   (:func:`map_cloud`).
+3. **Extrinsic** ``T_world_camera`` (:func:`register_extrinsic`): point-to-plane Gauss-Newton ICP
+   with a Tukey loss, coarse to fine (``icp_distances``), of the static camera cloud onto the map
+   (denoised onto local planes, :func:`local_plane_projection`) and slam's mesh near the camera
+   (:func:`mesh_surface_samples`), from ``--init`` or the TF pose. Directions the overlap does not
+   pin down are held at the guess (or where the SLAM map's own turn puts it, :func:`anchored_guess`)
+   instead of sliding. Accepted only when overlap, fitness, RMSE and the pose's standard deviation
+   (:func:`pose_uncertainty`) pass; else FPFH + RANSAC then the same ICP and check; else register
+   fails with the numbers.
+4. **Human points per frame** (:func:`frame_candidates`, :func:`pick_human`): returns in front of
+   the static depth (a moving person) or on no large plane of the static cloud (a person standing
+   still), not explained by the map; the largest person-like cluster near the track, outliers
+   removed; picks that jump are picked again near the track's prediction (:func:`track_jumps`).
+5. **Closed surface per radar frame** (:func:`body_columns`, :func:`closed_surface`): each
+   horizontal run of human pixels is an elliptic cross-section of the body behind the visible front
+   (deeper behind a person walking along the view, whose far leg is hidden); the columns are
+   voxelised and the boundary of the half-filled voxels is a closed, outward-oriented surface; it
+   is shifted by the human's velocity from the camera stamp to the radar frame's stamp.
+
+Outputs (scene): ``human/vertices`` + ``human/faces`` ragged per frame (world frame, float32 /
+int32; what ``holodata raytrace-gt`` reads), ``human/points`` ragged (world frame),
+``calib/T_world_camera`` (4,4), ``lidar/instance`` (the segmentation, :mod:`.segment`) and the
+report in the scene attrs ``register``. :func:`camera_points_world` gives any frame's camera cloud
+in the map frame; ``write_camera_world`` (``--camera-world``) also stores that copy
+(``camera/points_world``, as large as ``camera/points``).
+
+Modules: :mod:`.config` (settings and results), :mod:`.extrinsic` (step 3), :mod:`.camera` (step 1,
+the camera's frames and candidate returns), :mod:`.humans` (steps 4–5 and the track checks); this
+module holds the pipeline (:func:`register_scene`, the LiDAR map, fingerprints, outputs).
+
+**Processes** (``processes``, default two on a two-CPU machine; :mod:`holodata.parallel`): the LiDAR
+half (background model, map unless slam's is used, segmentation of every scan) runs in a forked
+process beside the camera half; after the extrinsic, the human candidates of the later half of the
+frames and every other frame's surface are made in another one. The results are the same as in
+one process (test).
+"""
+from __future__ import annotations
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+
+import numpy as np
+
+from ...conventions import transform_points
+from ...errors import InputError
+from ...parallel import cpus, fork_call, release_free_memory
+from .config import RegisterConfig, Registration, RegistrationError
+from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, hold_at, icp,
+                        local_plane_projection, map_normals, mesh_surface_samples, pose_uncertainty,
+                        register_extrinsic, voxel_average, weighted_icp)
+from .camera import (_camera_points_through, camera_points_world, camera_seen_through, CameraFrames,
+                     depth_noise_model, frame_candidates, static_depth, static_depth_of)
+from .humans import (body_columns, closed_surface, cluster_points, pick_human, pixel_runs, radial_speed, ransac_plane,
+                     static_residual, track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
+
+
+# ------------------------------------------------------------------------------------ pipeline
+def _parse_init(init) -> np.ndarray | None:
+    if init is None:
+        return None
+    a = np.asarray(init, float)
+    if a.shape == (4, 4):
+        return a
+    if a.shape == (6,):
+        from scipy.spatial.transform import Rotation
+
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("xyz", np.deg2rad(a[3:])).as_matrix()
+        T[:3, 3] = a[:3]
+        return T
+    raise InputError(f"--init needs x,y,z,roll,pitch,yaw (m, degrees), got {init!r}")
+
+
+def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, margin_m: float = 0.25,
+              max_scans: int = 0, world_points: dict | None = None) -> np.ndarray:
+    """World-frame static map: every scan's returns inside the background model and farther than
+    ``margin_m`` from the scan's segmented instances ``instances`` (lazy (T,H,W) array or None),
+    voxel-thinned; at most ``max_scans`` scans (0: all): motion keyframes plus scans spread in time,
+    as for slam's mesh (a 400-cycle corner has 400 scans, most taken at rest). The instance margin
+    removes the parts of people that fall into static voxels (a hand near a wall, feet on the
+    floor), which would otherwise bias the registration. ``world_points``: {frame: world points of
+    the valid returns (N,3)} already de-skewed with ``traj`` (the segmentation's background pass);
+    scans in it without instances are taken from it instead of being read and de-skewed again."""
+    from scipy.spatial import cKDTree
+
+    from ..segment import in_background
+
+    pts = []
+    ks = list(range(len(scans.stamps)))
+    if max_scans and len(ks) > max_scans:  # long recordings: motion keyframes + scans evenly spread in time
+        from ..slam import mesh_scan_subset
+
+        ks = [k for k in ks if scans.usable(k)]
+        ks = [ks[i] for i in mesh_scan_subset(np.asarray(scans.poses)[ks], max_scans)]
+    for k in ks:
+        inst = np.asarray(instances[k]) > 0 if instances is not None else None
+        if world_points is not None and k in world_points and (inst is None or not inst.any()):
+            p = np.asarray(world_points[k], np.float64)
+        else:
+            valid, _, Pw = scans.scan(k, traj, deskew)
+            if inst is not None and (inst & valid).any():
+                d, _ = cKDTree(Pw[inst & valid]).query(Pw[valid], k=1, distance_upper_bound=margin_m, workers=-1)
+                keep = np.zeros_like(valid)
+                keep[valid] = ~np.isfinite(d)
+                valid = keep
+            p = Pw[valid]
+        if bg is not None and len(p):
+            p = p[in_background(bg, p, 0)]
+        if len(p):
+            pts.append(voxel_average(p, voxel))
+    if not pts:
+        return np.zeros((0, 3))
+    return voxel_average(np.concatenate(pts), voxel)
+
+
+def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True, build_map: bool = True,
+              early=None) -> tuple[np.ndarray | None, dict | None, dict]:
+    """The LiDAR half of :func:`register_scene` (step 2 and the segmentation): background model,
+    the static map (when ``build_map``) and, when ``segment``, ``lidar/instance``. The map is built
+    first, with the instance masks of the few map scans that have foreground computed on the spot,
+    and handed to ``early`` (a callback, or None) before the segmentation of every scan starts.
+    Returns (map points (M,3) float64 world or None, segmentation summary or None, timings
+    {background_s, map_s, segment_s})."""
+    from ...dataset import open_dataset
+    from ..segment import InstanceMasks, LidarScans, SegmentConfig, background_and_segment, segment_scene
+
+    t0 = time.perf_counter()
+    scene = open_dataset(url).scene(sid)
+    scans = LidarScans.open(scene, url)
+    traj = scans.trajectory()
+    scfg = SegmentConfig()
+    bg, _, world_points = background_and_segment(url, sid, scfg, quiet, segment=False, scans=scans, traj=traj)
+    t1 = time.perf_counter()
+    if segment:
+        inst = InstanceMasks(scans, bg, scfg, traj, world_points)
+    else:
+        inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
+    M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans,
+                  world_points=world_points) if build_map else None
+    t2 = time.perf_counter()
+    if early is not None:
+        early(M)
+    seg_summary = (segment_scene(url, sid, scfg, quiet, background=bg, world_points=world_points, masks=inst)
+                   if segment else None)         # the masks the map asked for are not computed again
+    return M, seg_summary, {"background_s": t1 - t0, "map_s": t2 - t1, "segment_s": time.perf_counter() - t2}
+
+
+def camera_world(url: str, sid: str, T: np.ndarray) -> None:
+    """Write ``camera/points_world`` of scene ``sid`` (made by the caller): every camera point in the
+    map frame through ``T`` (4,4) T_world_camera, float32, shard by shard (the recording's clouds
+    never sit in memory together)."""
+    from ...dataset import create_dataset, open_dataset
+
+    ds = open_dataset(url)
+    scene = ds.scene(sid)
+    arr = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid).ragged_array(
+        "camera/points_world", 3, "float32", "m", ["point", "xyz"])
+    for s in range(arr.n_shards):
+        sl = arr.frames(s)
+        arr.write_shard(s, [_camera_points_through(scene, T, k) for k in range(sl.start, sl.stop)])
+
+
+def human_surfaces(points: list, columns: list, shift: np.ndarray, eye: np.ndarray, voxel: float) -> list:
+    """:func:`closed_surface` per frame: (vertices (V,3) float32, faces (F,3) int32) of each frame's
+    human points (N,3) moved by its velocity ``shift`` (3,) m, seen from ``eye`` (3,), with its
+    :func:`body_columns` (span (N,2), pixel_m (N,), down_to (N,)); empty for a frame without points."""
+    out = []
+    for p, (span, px, down), d in zip(points, columns, shift):
+        if len(p) == 0:
+            out.append((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
+            continue
+        down = down + d[2] if down is not None else None
+        v, f = closed_surface(np.asarray(p, np.float64) + d, eye + d, span, voxel, pixel_m=px, down_to=down)
+        out.append((v.astype(np.float32), f.astype(np.int32)))
+    return out
+
+
+def register_processes(cfg: RegisterConfig) -> int:
+    """Processes :func:`register_scene` uses: ``cfg.processes``, or with 0 two when the machine has two
+    CPUs for it (one otherwise)."""
+    if cfg.processes:
+        return max(1, int(cfg.processes))
+    return 2 if cpus() >= 2 else 1
+
+
+def _built_from_the_poses(scene, names: tuple) -> bool:
+    """True when the scene holds the arrays ``names`` and each one's ``source`` attribute equals
+    ``pose/T_world_lidar``'s (``holodata slam`` writes "slam" on its poses, mesh and map; poses
+    replaced afterwards, e.g. by the true ones, leave products that no longer match them)."""
+    nodes = scene.nodes()
+    names = names + ("pose/T_world_lidar",)
+    if not all(n in nodes for n in names):
+        return False
+    src = [(nodes[n][1].get("attributes") or {}).get("source") for n in names]
+    return src[0] is not None and len(set(src)) == 1
+
+
+def slam_anchor(scene) -> np.ndarray | None:
+    """(3,) m: the LiDAR position at the first scan when the scene's poses are ``holodata slam``'s,
+    anchored at the TF pose of that scan (their world is the TF world, off by the odometry's error
+    there); None otherwise."""
+    nodes = scene.nodes()
+    if "pose/T_world_lidar" not in nodes:
+        return None
+    if (nodes["pose/T_world_lidar"][1].get("attributes") or {}).get("source") != "slam":
+        return None
+    anchor = (scene.attrs.get("slam") or {}).get("anchor") or {}
+    T0 = anchor.get("T_world_lidar0")
+    if anchor.get("kind") != "tf" or T0 is None:
+        return None
+    return np.asarray(T0, np.float64)[:3, 3]
+
+
+def scene_mesh(scene) -> tuple[np.ndarray, np.ndarray] | None:
+    """The scene's static mesh (``mesh/vertices`` (V,3), ``mesh/faces`` (F,3)) when it was built from
+    the poses the scene holds now (:func:`_built_from_the_poses`); None otherwise."""
+    if not _built_from_the_poses(scene, ("mesh/vertices", "mesh/faces")):
+        return None
+    return np.asarray(scene["mesh/vertices"][...], np.float64), np.asarray(scene["mesh/faces"][...], np.int64)
+
+
+def scene_map(scene) -> np.ndarray | None:
+    """slam's static map ``map/points`` (M,3) float64 world when it was built from the poses the scene
+    holds now (:func:`_built_from_the_poses`); None otherwise."""
+    if not _built_from_the_poses(scene, ("map/points",)):
+        return None
+    return np.asarray(scene["map/points"][...], np.float64)
+
+
+def camera_tf_guess(scene) -> tuple[str | None, list | None]:
+    """(world frame, T_world_camera 4x4 nested list) of the camera's static TF pose that ingest stored
+    (``sensors.camera.T_<world>_sensor``); (None, None) without one."""
+    cam = (scene.attrs.get("sensors") or {}).get("camera") or {}
+    for k, v in cam.items():
+        if k.startswith("T_") and k.endswith("_sensor") and v is not None:
+            return k[2:-len("_sensor")], v
+    return None, None
+
+
+def map_frame_problem(scene, world: str) -> str | None:
+    """Why the scene's LiDAR poses (``pose/T_world_lidar``, hence its map) are not in the TF frame
+    ``world``, or None when they are: slam found no TF pose of the LiDAR (its world is then the
+    first scan's frame: ``anchor`` base or lidar), or its poses name another world frame."""
+    nodes = scene.nodes()
+    if "pose/T_world_lidar" not in nodes:
+        return None
+    a = nodes["pose/T_world_lidar"][1].get("attributes") or {}
+    if a.get("source") == "slam" and a.get("anchor") not in (None, "tf"):
+        return (f"the LiDAR map is in the {a.get('world_frame') or 'first scan frame'} (slam found no TF pose of "
+                f"the LiDAR: TF does not connect its frame to {world!r})")
+    wf = a.get("world_frame")
+    if wf and (a.get("source") != "slam" or a.get("anchor") == "tf") and str(wf).lstrip("/") != world.lstrip("/"):
+        return f"the LiDAR map is in {wf!r}"
+    return None
+
+
+REGISTER_OUTPUTS = ("calib/T_world_camera", "human/vertices", "human/faces", "human/points")
+
+
+def register_fingerprint(scene, cfg: RegisterConfig, init) -> str:
+    """What register's outputs depend on, hashed: the settings (less ``processes``, which changes no
+    result), ``--init``, the camera's TF pose and intrinsics (``sensors.camera``), ingest's
+    fingerprint (the camera and LiDAR arrays) and the bytes of slam's poses, map points and mesh."""
+    import hashlib
+    import json
+
+    h = hashlib.sha256()
+    params = {k: v for k, v in cfg.to_attrs().items() if k != "processes"}
+    head = {"params": params, "init": None if init is None else np.asarray(_parse_init(init), float).tolist(),
+            "camera": (scene.attrs.get("sensors") or {}).get("camera"),
+            "ingest": (scene.attrs.get("ingest") or {}).get("fingerprint")}
+    h.update(json.dumps(head, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)).encode())
+    names = set(scene.arrays())
+    for name in ("pose/T_world_lidar", "map/points", "mesh/vertices", "mesh/faces"):
+        if name in names:
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(scene[name][...]).tobytes())
+    return h.hexdigest()[:16]
+
+
+def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
+                   quiet: bool = True, force: bool = False) -> dict:
+    """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
+    docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes.
+    A scene registered before from the same inputs and settings (:func:`register_fingerprint`, every
+    output present) is not registered again unless ``force``: the stored report comes back with
+    ``skipped`` set, as slam does."""
+    from ...dataset import create_dataset, open_dataset
+    from ..segment import LidarScans, _scene_id, instance_state
+
+    cfg = cfg or RegisterConfig()
+    t0 = time.perf_counter()
+    timings = {}
+    ds = open_dataset(url)
+    sid = _scene_id(ds, url, scene_id)
+    scene = ds.scene(sid)
+    scene.require_complete("register")
+    fingerprint = register_fingerprint(scene, cfg, init)
+    done = scene.attrs.get("register") or {}
+    if (not force and done.get("fingerprint") == fingerprint and set(REGISTER_OUTPUTS) <= set(scene.arrays())
+            and (not cfg.segment_lidar or instance_state(scene) == "current")):
+        return {"scene": sid, **{k: v for k, v in done.items() if k not in ("params", "T_init")},
+                "skipped": "already done with the same inputs and settings (use --force to recompute)"}
+    release_free_memory()      # (before the forks below)
+    cam = CameraFrames.open(scene, url)
+    LidarScans.open(scene, url)   # checks the LiDAR arrays and poses before any work starts
+    T_init = _parse_init(init)
+    init_source = "--init"
+    if T_init is None:
+        world, tf = camera_tf_guess(scene)
+        if tf is None:
+            raise InputError(f"{url}: scene {sid!r}: no TF pose of the camera in a world frame (sensors.camera."
+                             f"T_<world>_sensor); give --init x,y,z,roll,pitch,yaw")
+        problem = map_frame_problem(scene, world)
+        if problem:
+            raise InputError(f"{url}: scene {sid!r}: the camera's TF pose is in {world!r} but {problem}; register "
+                             f"cannot start from it: give --init x,y,z,roll,pitch,yaw in the map's frame")
+        T_init, init_source = np.asarray(tf, float), "tf"
+    names = set(scene.arrays())
+    n = scene.n_frames
+    processes = register_processes(cfg)
+    # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
+    # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
+    # (lidar/instance made with other poses is made again; one left unfinished is resumed)
+    segment = cfg.segment_lidar and instance_state(scene) != "current"
+    stored_map = scene_map(scene) if cfg.slam_map else None
+    lidar = None
+    if segment or stored_map is None:
+        lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1, stored_map is None,
+                          label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1, early=stored_map is None)
+    try:
+        t1 = time.perf_counter()
+        # the static depth from an evenly spread subset of the frames with points; every frame's depth
+        # image is made again in the humans loop (a recording's images never sit in memory together)
+        cam_frames = [int(k) for k in np.flatnonzero(cam.counts() > 0)]
+        if len(cam_frames) > cfg.median_frames:
+            cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
+        images = {}          # the depth images made for the static depth, used again for the humans
+        static = static_depth(cam, cam_frames, quiet, images=images)
+        if static is None:
+            if stored_map is None:
+                lidar.early()
+            raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
+        med, mad, cnt = static
+        rays = cam.rays()
+        okm = np.isfinite(med) & (cnt > 0)
+        static_cam = rays[okm] * med[okm][:, None]
+        sig_mean = depth_noise_model(med[okm], mad[okm]) / np.sqrt(cnt[okm])
+        resid = static_residual(static_cam, cfg)
+        timings["camera_s"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        # (the LiDAR process goes on with the segmentation of every scan)
+        M = stored_map if stored_map is not None else lidar.early()
+        timings["map_wait_s"] = time.perf_counter() - t1
+        if len(M) < 100:
+            raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
+        # 3. extrinsic
+        t1 = time.perf_counter()
+        # (onto slam's mesh near the camera where it was built from these poses)
+        reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean,
+                                 mesh=scene_mesh(scene) if cfg.mesh_target else None,
+                                 anchor=slam_anchor(scene) if init_source == "tf" else None)
+        timings["extrinsic_s"] = time.perf_counter() - t1
+        if not reg.accepted:
+            a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
+                          f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
+                          + (f", the data does not constrain {len(x['held_directions'])} direction(s) "
+                             f"({', '.join(x['held_directions'])}): held at the guess, good to "
+                             f"{cfg.guess_std_m * 100:.1f} cm (--guess-std)" if x.get("held_directions") else "")
+                          + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
+                             if "prior_shift_m" in x else "")
+                          for x in reg.attempts)
+            raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
+                                    f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
+                                    f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
+                                    f"give a better --init (or --guess-std if the guess is that good)")
+        T = reg.T
+        # 4. humans
+        t2 = time.perf_counter()
+        from scipy.spatial import cKDTree
+
+        eye = T[:3, 3]
+        sigma = np.where(np.isfinite(mad), mad, 0.0)
+        # map points the camera sees through (a person the LiDAR map kept) explain nothing away
+        carved = camera_seen_through(M, T, cam.K, cam.shape, images.values(),
+                                     np.maximum(cfg.fg_min_m, cfg.fg_sigma * depth_noise_model(
+                                         np.where(np.isfinite(med), med, 0.0), sigma)))
+        mtree = cKDTree(M[~carved])
+        # a person standing still is in the temporal background: static points on no large plane and not
+        # explained by the map are candidates in every frame
+        still = np.zeros(med.shape, bool)
+        if resid.any():
+            sw_ = transform_points(T, static_cam[resid])
+            dmap_ = mtree.query(sw_, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)[0]
+            rr = np.zeros(len(static_cam), bool)
+            rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
+            still[okm] = rr
+        human_pts, columns, pixels = [], [], []
+        w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
+        sw = w.scene(sid)
+        for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
+            if name in sw.arrays():
+                sw.remove(name)
+        cam_world = lambda: None  # noqa: E731
+        if cfg.write_camera_world:  # made here, written by a second process while this one finds the humans
+            sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
+            cam_world = fork_call(camera_world, url, sid, T, label=f"{url}: scene {sid!r}: camera/points_world",
+                                  enabled=processes > 1)
+        front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
+        always = ~np.isfinite(med) | still
+        # the later half of the frames in a second process (numpy and scipy only: it may fork after
+        # open3d's OpenMP), once the LiDAR half has had most of the time before the extrinsic
+        half = n // 2 if processes > 1 else n
+        later = fork_call(frame_candidates, cam, range(half, n), T, rays, front, always, mtree, cfg, images,
+                          label=f"{url}: scene {sid!r}: human candidates", enabled=half < n)
+        cand = frame_candidates(cam, range(half), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
+        cand += later()
+        del images
+        timings["candidates_s"] = time.perf_counter() - t2
+        # the person of interest: person-like clusters near the track's median (people farther away, e.g.
+        # walking past in another corridor, are not it)
+        f_px = float(cam.K[0, 0])
+        first = [pick_human(q[0], cfg, footprint=q[3] / f_px) for q in cand]
+        cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
+        centre = np.median(cents, axis=0) if len(cents) else None
+        floor_z = None
+        if centre is not None:  # the floor under the person: low percentile of the map's nearby heights
+            near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
+            if near.sum() > 50:
+                floor_z = float(np.percentile(M[near, 2], 2))
+        def finish(qw, hm):
+            if hm.any():
+                # a body is at most ~0.5 m deep along the view and stands on the floor: stereo streaks
+                # along the rays and floor returns at the feet go
+                rng_ = np.linalg.norm(qw - eye, axis=1)
+                mid = np.median(rng_[hm])
+                hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
+                if floor_z is not None:
+                    hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
+            return hm
+
+        def near_centre(qw, m0):
+            # the largest person-like cluster already lies near the track: it is also the largest near it
+            return m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m
+
+        picks = [finish(qw, m0 if centre is None or near_centre(qw, m0)
+                        else pick_human(qw, cfg, centre, footprint=dv / f_px))
+                 for (qw, vv, uu, dv), m0 in zip(cand, first)]
+        ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+        cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
+        # track continuity: a pick far from where its neighbours put the person (a wall fragment while
+        # the person is lost in far stereo noise) is picked again near that prediction, or dropped
+        cen0 = np.array([c[0][m].mean(0) if m.any() else np.full(3, np.nan) for c, m in zip(cand, picks)])
+        t_cam = np.where(cts != 0, cts, ts)
+        jumped = track_jumps(cen0, t_cam, cfg.track_jump_m, cfg.walk_speed_mps)
+        pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
+        jump_cfg = replace(cfg, track_radius_m=2 * cfg.track_jump_m)
+        n_repicked = int(jumped.sum())
+        for k, ((qw, vv, uu, dv), hm) in enumerate(zip(cand, picks)):
+            if jumped[k]:
+                hm = (finish(qw, pick_human(qw, jump_cfg, pred[k], footprint=dv / f_px)) if np.isfinite(pred[k]).all()
+                      else np.zeros_like(hm))
+            human_pts.append(qw[hm].astype(np.float32))
+            pixels.append((qw[hm], vv[hm], uu[hm], dv[hm]))
+        # velocity compensation: camera stamp -> frame stamp
+        cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
+        shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
+        # the solid behind the visible front (deeper behind a person walking along the view: the far leg)
+        walk = cfg.walk_back_frac * np.minimum(
+            1.0, radial_speed(cen, cts, eye, cfg.max_speed_mps) / cfg.walk_back_speed_mps)
+        for k, (qh, vh, uh, dh) in enumerate(pixels):
+            back = float(walk[k])
+            columns.append(body_columns(qh, vh, uh, dh, eye, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m,
+                                        cfg.surface_gap_px, floor_z, cfg.floor_reach_m, back))
+        del pixels
+        timings["picks_s"] = time.perf_counter() - t2 - timings["candidates_s"]
+        cam_world()
+        # every other frame's surface in a second process
+        odd = fork_call(human_surfaces, human_pts[1::2], columns[1::2], shift[1::2], eye, cfg.surface_voxel,
+                        label=f"{url}: scene {sid!r}: human surfaces", enabled=processes > 1)
+        even = human_surfaces(human_pts[0::2], columns[0::2], shift[0::2], eye, cfg.surface_voxel)
+        surfaces = [None] * n
+        surfaces[0::2], surfaces[1::2] = even, odd()
+        timings["humans_s"] = time.perf_counter() - t2
+        # 5. write
+        specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
+                 "human/faces": (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
+                 "human/points": (3, "float32", "m", ["point", "xyz"], human_pts)}
+        for name, (width, dt, units, dims, per_frame) in specs.items():
+            r = sw.ragged_array(name, width, dt, units, dims)
+            for s in range(r.n_shards):
+                sl = r.frames(s)
+                r.write_shard(s, per_frame[sl])
+        sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
+                       attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
+        t1 = time.perf_counter()
+        seg_summary = None
+        if lidar is not None:
+            _, seg_summary, lidar_timings = lidar()   # the segmentation of every scan (lidar/instance)
+            timings.update(lidar_timings)
+        timings["segment_wait_s"] = time.perf_counter() - t1
+        n_h = int(sum(len(s[1]) > 0 for s in surfaces))
+        report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
+                  "map": "slam (map/points)" if stored_map is not None else "built from the LiDAR scans",
+                  "frames_with_human": n_h, "frames": n, "map_points_seen_through": int(carved.sum()), "frames_repicked": n_repicked, "params": cfg.to_attrs(),
+                  "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
+                             "visible front (closed)",
+                  "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
+                  "seconds": time.perf_counter() - t0, "timings": timings, "fingerprint": fingerprint}
+        sw.set_attrs({"register": report})
+        out = {"scene": sid, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
+        if seg_summary:
+            out["segment"] = seg_summary
+    except BaseException:
+        if lidar is not None:
+            lidar.join()   # it must not write on after register has failed
+        raise
+    return out
+
+
+
+
+__all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
+           "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth", "camera_points_world",
+           "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual",
+           "body_columns", "pixel_runs",
+           "weighted_icp", "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
+           "track_jumps", "local_plane_projection", "track_velocity", "radial_speed", "mesh_surface_samples",
+           "scene_mesh", "held_directions", "anchored_guess", "hold_at", "static_depth_of", "ransac_plane",
+           "register_fingerprint", "scene_map", "slam_anchor"]

@@ -1,0 +1,531 @@
+"""The depth camera's extrinsic in the map: point-to-plane Gauss-Newton ICP with directions the
+overlap does not pin down held at the guess, the FPFH + RANSAC fallback, the pose's
+uncertainty and the acceptance check (:func:`register_extrinsic`), and the open3d helpers."""
+from __future__ import annotations
+
+
+import numpy as np
+
+from ...conventions import rotation_angle_deg, transform_points, yaw_rad
+from .config import RegisterConfig, Registration
+
+
+# ------------------------------------------------------------------------------------ open3d helpers
+def voxel_average(points: np.ndarray, voxel: float) -> np.ndarray:
+    """(V,3) float64 mean of the points (N,3) in each occupied voxel of edge ``voxel`` (m): open3d's
+    ``voxel_down_sample`` (same grid, anchored half a voxel below the points' minimum; same means up to
+    rounding) in voxel-key order instead of hash order, ~3x faster on LiDAR scans."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return p.copy()
+    lo = p.min(0) - voxel * 0.5
+    ijk = np.floor((p - lo) / voxel).astype(np.int64)
+    dims = ijk.max(0) + 1
+    key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
+    count = np.diff(np.r_[start, len(ks)])
+    return np.add.reduceat(p[order], start, axis=0) / count[:, None]
+
+
+def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float | None = None, max_nn: int = 30):
+    import open3d as o3d
+
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    p = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(voxel_average(p, voxel) if voxel else p))
+    if normals_radius:
+        p.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=normals_radius, max_nn=max_nn))
+    return p
+
+
+def _nn_distances(src: np.ndarray, tgt: np.ndarray, within: float = np.inf) -> np.ndarray:
+    """(N,) distance from each ``src`` point to its nearest ``tgt`` point; with ``within`` (m) exact
+    only up to ``within`` and inf beyond (the search stops there: nearest-neighbour queries far from
+    the data — a camera's view of the branch the LiDAR never saw — are the slow ones)."""
+    from scipy.spatial import cKDTree
+
+    if len(tgt) == 0:
+        return np.full(len(src), np.inf)
+    return cKDTree(tgt).query(src, k=1, distance_upper_bound=np.nextafter(within, np.inf), workers=-1)[0]
+
+
+def _check_from_distances(d: np.ndarray, cfg: RegisterConfig, r: np.ndarray | None = None) -> dict:
+    """Overlap = points whose nearest map point is within ``overlap_m`` (``d`` (N,)); inliers = those
+    within ``inlier_m`` of the map's surface: |point-to-plane residual| ``r`` (N,) when given (a sparse
+    map has its points centimetres apart: the point distance is no measure of alignment), else ``d``."""
+    ov = d < cfg.overlap_m
+    n = int(ov.sum())
+    r = d if r is None else np.abs(r)
+    inl = ov & (r < cfg.inlier_m)
+    d = r
+    fit = float(inl.sum() / n) if n else 0.0
+    rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("inf")
+    ok = n >= cfg.min_overlap_points and fit >= cfg.min_fitness and rmse <= cfg.max_rmse_m
+    return {"overlap": n, "fitness": fit, "rmse": rmse, "accepted": bool(ok)}
+
+
+def icp(source: np.ndarray, target_pcd, init: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
+    """Coarse-to-fine point-to-plane ICP (open3d, Tukey loss with k = the stage's distance / 2) of
+    ``source`` (N,3) onto ``target_pcd`` (with normals) from ``init``; returns the (4,4) transform."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    src = _pcd(source)
+    T = np.asarray(init, np.float64).copy()
+    for dist in cfg.icp_distances:
+        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=dist / 2))
+        res = reg.registration_icp(src, target_pcd, dist, T, est,
+                                   reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7,
+                                                              max_iteration=cfg.icp_iterations))
+        T = np.asarray(res.transformation)
+    return T
+
+
+def _centred_offset(T: np.ndarray, T0: np.ndarray, c: np.ndarray, Lc: float) -> np.ndarray:
+    """(6,) the motion from pose ``T0`` to ``T`` (4,4; ``T = D @ T0``) in :func:`weighted_icp`'s update
+    coordinates: rotation vector × ``Lc`` (m), then the translation of the point ``c`` (3,) (m)."""
+    from scipy.spatial.transform import Rotation
+
+    D = T @ np.linalg.inv(T0)
+    om = Rotation.from_matrix(D[:3, :3]).as_rotvec()
+    return np.concatenate([om * Lc, D[:3, :3] @ c + D[:3, 3] - c])
+
+
+def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
+                 init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
+                 degenerate_ratio: float = 0.0, info: dict | None = None, source_normals: np.ndarray | None = None,
+                 min_normal_cos: float = 0.8, search_m: float = 0.0, max_std_m: float = 0.0,
+                 hold_m: float = 0.05) -> np.ndarray:
+    """Noise-weighted point-to-plane ICP (Gauss-Newton on the linearised rotation, numpy/scipy):
+    ``source`` (N,3) with ``weights`` (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``;
+    per stage a nearest-neighbour correspondence within ``max(d, 3σ)`` of the stage distance d and a
+    Tukey weight with that same scale (σ = 1/sqrt(weight): noisy far points keep their unbiased
+    residuals instead of being truncated). ``degenerate_ratio`` > 0: degeneracy-aware updates (Zhang
+    et al., ICRA 2016): the normal matrix, with rotations scaled by the median point distance (so both
+    blocks are in metres), is eigen-decomposed and the update is zeroed along eigenvectors whose
+    eigenvalue is below ``degenerate_ratio`` × the largest — directions the overlap does not pin
+    down keep the initial guess instead of sliding (a corridor seen end-on); a coarser stage may
+    have moved along them, and the update takes the pose back to within ``hold_m`` (m; rotations
+    scaled as above) of ``init`` along them. ``info`` receives the number of frozen directions, the
+    eigenvalues and the held directions (``held``, for :func:`hold_at`). ``source_normals`` (N,3):
+    correspondences whose normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge
+    the nearest map point can belong to the other wall, whose normal biases a point-to-plane fit by
+    centimetres.
+    ``search_m`` > 0: nearest map points up to that far (tangentially) are used, gated on the
+    residual only (measured worse on the sparse demo map: 0 by default). ``max_std_m`` > 0 (weights
+    must then be inverse variances): directions whose standard deviation 1/sqrt(eigenvalue) exceeds it
+    are held too. Returns T (4,4)."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(target)
+    T0 = np.asarray(init, np.float64)
+    T = T0.copy()
+    src = np.asarray(source, np.float64)
+    w0 = np.asarray(weights, np.float64)
+    sig = 1.0 / np.sqrt(w0)
+    for d in distances:
+        scale = np.clip(3 * sig, d, max_scale)
+        for _ in range(iterations):
+            p = transform_points(T, src)
+            reach = np.maximum(scale, search_m)
+            dist, j = tree.query(p, k=1, distance_upper_bound=float(reach.max()), workers=-1)
+            ok = np.isfinite(dist) & (dist <= reach)
+            jj = np.where(ok, j, 0)
+            r_all = np.einsum("ij,ij->i", p - target[jj], target_normals[jj])
+            ok &= np.abs(r_all) <= scale     # gated on the distance to the map's surface, not to its points
+            if source_normals is not None:
+                cosn = np.abs(np.einsum("ij,ij->i", source_normals @ T[:3, :3].T, target_normals[jj]))
+                ok &= cosn >= min_normal_cos
+            if ok.sum() < 6:
+                return T
+            pp, nn = p[ok], target_normals[j[ok]]
+            r = r_all[ok]
+            u = r / scale[ok]
+            w = w0[ok] * np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
+            J = np.concatenate([np.cross(pp, nn), nn], axis=1)        # d r / d (omega, t)
+            H = (J * w[:, None]).T @ J + 1e-9 * np.eye(6) * w.sum()
+            g = (J * w[:, None]).T @ r
+            if degenerate_ratio > 0:
+                # rotations about the cloud's centroid, scaled to metres
+                c = np.average(pp, axis=0, weights=np.maximum(w, 1e-12))
+                Lc = float(np.median(np.linalg.norm(pp - c, axis=1))) or 1.0
+                Jc = np.concatenate([np.cross(pp - c, nn) / Lc, nn], axis=1)
+                Hc = (Jc * w[:, None]).T @ Jc
+                gc = (Jc * w[:, None]).T @ r
+                ev, V = np.linalg.eigh(Hc)
+                keep = ev >= degenerate_ratio * ev.max()
+                if max_std_m > 0:  # weights are inverse variances: 1/sqrt(ev) is the direction's std (m)
+                    keep &= ev >= 1.0 / max_std_m ** 2
+                y = -(V[:, keep] @ ((V[:, keep].T @ gc) / ev[keep]))
+                if not keep.all():
+                    # held directions stay within hold_m of the guess: an earlier (coarser) stage may have
+                    # moved along them, rightly (edges within its reach) or not (wrong correspondences)
+                    dev = V[:, ~keep].T @ _centred_offset(T, T0, c, Lc)
+                    y -= V[:, ~keep] @ (np.sign(dev) * np.maximum(np.abs(dev) - hold_m, 0.0))
+                x = _about_origin(y, c, Lc)
+                if info is not None:
+                    info.update(frozen=int((~keep).sum()), eigenvalues=(ev / ev.max()).round(4).tolist(),
+                                held=(V[:, ~keep], c, Lc))
+            else:
+                x = -np.linalg.solve(H, g)
+            T = _moved_by(T, x)
+            if np.linalg.norm(x[3:]) < 1e-5 and np.linalg.norm(x[:3]) < 1e-6:
+                break
+    return T
+
+
+def _about_origin(y: np.ndarray, c: np.ndarray, Lc: float) -> np.ndarray:
+    """A motion (6,) in :func:`weighted_icp`'s update coordinates (rotation vector × ``Lc``, motion of
+    the centre ``c``) as (rotation vector, translation) about the origin: t = t_c - ω × c."""
+    om = y[:3] / Lc
+    return np.concatenate([om, y[3:] - np.cross(om, c)])
+
+
+def _moved_by(T: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``D @ T`` with D the motion (6,) ``x`` = (rotation vector, translation), about the origin."""
+    from scipy.spatial.transform import Rotation
+
+    D = np.eye(4)
+    D[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
+    D[:3, 3] = x[3:]
+    return D @ T
+
+
+def hold_at(T: np.ndarray, target: np.ndarray, held: tuple) -> np.ndarray:
+    """``T`` (4,4) moved along the directions :func:`weighted_icp` held (``info["held"]``: (V (6,k),
+    centre c (3,), scale Lc) in its update coordinates) to where ``target`` (4,4) lies along them;
+    the other directions keep ``T``'s values (to first order)."""
+    V, c, Lc = held
+    return _moved_by(T, _about_origin(-V @ (V.T @ _centred_offset(T, target, c, Lc)), c, Lc))
+
+
+def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, held_dir: np.ndarray, max_deg: float,
+                   agree_deg: float) -> tuple[np.ndarray | None, dict]:
+    """The guess ``init`` (4,4) turned about the vertical through ``anchor`` (3,) m by the map offset
+    the registration ``T`` (4,4) shows, or None where it shows none; and what was measured.
+
+    A SLAM map anchored at the TF pose of its first scan sits off the TF world by the odometry's
+    drift there, a turn δ about that scan's position. It moves the camera by δ·u (u = z × (camera -
+    anchor)): along a held direction (``held_dir`` (3,), world) the data cannot tell how far, but a
+    turn shows twice where it can, in the camera's yaw correction and in its position correction
+    across ``held_dir`` (horizontal). Both must give the same δ within ``agree_deg`` (a TF pose
+    that is itself off in yaw turns the camera without moving it) and |δ| <= ``max_deg``; δ is then
+    the yaw correction. Returns (target or None, {"yaw_deg", "shift_deg"}: the two estimates)."""
+    from scipy.spatial.transform import Rotation
+
+    D = T[:3, :3] @ init[:3, :3].T
+    yaw = float(np.degrees(yaw_rad(D)))
+    a = np.asarray(anchor, np.float64)
+    u = np.cross([0.0, 0.0, 1.0], init[:3, 3] - a)              # m per radian of turn
+    h = np.asarray(held_dir, np.float64)
+    across = np.array([-h[1], h[0], 0.0])
+    across /= max(np.linalg.norm(across), 1e-12)
+    lever = float(u @ across)
+    shift = (float(np.degrees((T[:3, 3] - init[:3, 3]) @ across / lever))
+             if abs(lever) >= 0.3 * np.linalg.norm(u) else None)   # None: the turn moves it along held_dir only
+    out = {"yaw_deg": round(yaw, 4), "shift_deg": None if shift is None else round(shift, 4)}
+    if shift is None or not (abs(yaw) <= max_deg and abs(shift - yaw) <= agree_deg):
+        return None, out
+    R = np.eye(4)
+    R[:3, :3] = Rotation.from_euler("z", yaw, degrees=True).as_matrix()
+    R[:3, 3] = a - R[:3, :3] @ a
+    return R @ init, out
+
+
+def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int = 0) -> np.ndarray:
+    """Global alignment of two clouds (N,3)/(M,3) by FPFH features + RANSAC (open3d); returns T."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    o3d.utility.random.seed(seed)
+    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # no "too few correspondences" chatter
+    feats = []
+    for pts in (source, target):
+        p = _pcd(pts, voxel, 2 * voxel)
+        f = reg.compute_fpfh_feature(p, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+        feats.append((p, f))
+    (ps, fs), (pt, ft) = feats
+    res = reg.registration_ransac_based_on_feature_matching(
+        ps, pt, fs, ft, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+        reg.RANSACConvergenceCriteria(100000, 0.999))
+    return np.asarray(res.transformation)
+
+
+def map_normals(map_points: np.ndarray, cfg: RegisterConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The registration target: map points voxel-thinned to ``map_voxel`` (M,3) and unit normals (M,3)
+    estimated on a coarser copy (``map_normal_voxel``, neighbours within ``map_normal_m``) and given
+    to each point by its nearest coarse point. A sparse map (32 beams over 90 deg: rings 25-40 cm
+    apart on a wall 5-8 m away) has fine neighbourhoods that hold one ring, a line whose PCA normal
+    is arbitrary about it (walls got vertical normals); the coarse neighbourhood spans rings."""
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(_pcd(map_points, cfg.map_voxel).points)
+    coarse = _pcd(map_points, cfg.map_normal_voxel, cfg.map_normal_m, cfg.map_normal_nn)
+    cp = np.asarray(coarse.points)
+    if len(cp) < 3:
+        return pts, np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    return pts, np.asarray(coarse.normals)[cKDTree(cp).query(pts, k=1, workers=-1)[1]]
+
+
+def local_plane_projection(points: np.ndarray, radius: float, ratio: float = 0.1, min_nn: int = 6,
+                           only: np.ndarray | None = None, chunk: int = 4096) -> np.ndarray:
+    """Denoised copy of a point cloud (N,3): each point moved along the normal of the plane fitted
+    (PCA) to its neighbours within ``radius`` onto that plane, where the neighbourhood is planar (smallest
+    covariance eigenvalue < ``ratio`` × the middle one) and holds >= ``min_nn`` points; other points
+    (edges, corners, clutter) stay. ``only`` (N,) bool: project just those (their neighbourhoods still
+    span every point). Vectorised: neighbour pairs (scipy ``sparse_distance_matrix``), first and second
+    moments by a sparse product, batched 3×3 eigen-decompositions."""
+    from scipy.sparse import csr_matrix
+    from scipy.spatial import cKDTree
+
+    X = np.asarray(points, np.float64).reshape(-1, 3)
+    idx = np.arange(len(X)) if only is None else np.flatnonzero(only)
+    if len(idx) == 0 or radius <= 0:
+        return X.copy()
+    # neighbours (itself included) of just the projected points, a chunk at a time: a 0.3 m ball on
+    # a 4 cm map holds ~400 points (17 M pairs for 41 k points; 1.5 GB at once)
+    tree = cKDTree(X)
+    XX = (X[:, :, None] * X[:, None, :]).reshape(-1, 9)
+    cnt, mu, C = np.empty(len(idx)), np.empty((len(idx), 3)), np.empty((len(idx), 9))
+    for s in range(0, len(idx), chunk):
+        q = idx[s:s + chunk]
+        nb = cKDTree(X[q]).sparse_distance_matrix(tree, radius, output_type="ndarray")
+        A = csr_matrix((np.ones(len(nb)), (nb["i"], nb["j"])), shape=(len(q), len(X)))
+        cnt[s:s + len(q)] = np.asarray(A.sum(1)).ravel()
+        mu[s:s + len(q)] = A @ X
+        C[s:s + len(q)] = A @ XX
+    mu /= cnt[:, None]
+    C = (C / cnt[:, None]).reshape(-1, 3, 3) - mu[:, :, None] * mu[:, None, :]
+    w, V = np.linalg.eigh(C)
+    n = V[:, :, 0]
+    ok = (cnt >= min_nn) & (w[:, 0] < ratio * w[:, 1])
+    out = X.copy()
+    d = np.einsum("ij,ij->i", X[idx] - mu, n)
+    out[idx[ok]] -= d[ok, None] * n[ok]
+    return out
+
+
+def mesh_surface_samples(vertices: np.ndarray, faces: np.ndarray, near: np.ndarray | None = None,
+                         reach: float = np.inf, spacing: float = 0.02, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Points (P,3) spread over a triangle mesh (``vertices`` (V,3), ``faces`` (F,3) int) about
+    ``spacing`` apart (per face round(area / spacing²) uniform barycentric samples, at least its
+    centroid) with their faces' unit normals (P,3); with ``near`` (K,3) only the samples within
+    ``reach`` of one of its points (faces whose bounding sphere is out of reach are not sampled).
+    A denoised registration target: point-to-plane residuals against a sample are residuals
+    against the face it lies on. Deterministic for a given ``seed``."""
+    from scipy.spatial import cKDTree
+
+    V = np.asarray(vertices, np.float64).reshape(-1, 3)
+    F = np.asarray(faces, np.int64).reshape(-1, 3)
+    crop = near is not None and np.isfinite(reach)
+    tree = None
+    if len(F) and crop:
+        if len(near) == 0:
+            F = F[:0]
+        else:
+            # faces whose bounding sphere (about the centroid) comes within reach of a near point
+            tree = cKDTree(np.asarray(near, np.float64))
+            cen = V[F].mean(1)
+            rad = np.linalg.norm(V[F] - cen[:, None], axis=2).max(1)
+            d, _ = tree.query(cen, k=1, distance_upper_bound=np.nextafter(reach + rad.max(), np.inf), workers=-1)
+            F = F[d <= reach + rad]
+    if len(F) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    cr = np.cross(b - a, c - a)
+    area2 = np.linalg.norm(cr, axis=1)
+    good = area2 > 1e-12
+    a, b, c, cr, area2 = a[good], b[good], c[good], cr[good], area2[good]
+    n = cr / area2[:, None]
+    k = np.maximum(np.rint(0.5 * area2 / spacing ** 2).astype(np.int64), 1)
+    face = np.repeat(np.arange(len(a)), k)
+    rng = np.random.default_rng(seed)
+    u, v = rng.random(len(face)), rng.random(len(face))
+    flip = u + v > 1
+    u, v = np.where(flip, 1 - u, u), np.where(flip, 1 - v, v)
+    first = np.r_[0, np.cumsum(k)[:-1]]
+    u[first], v[first] = 1 / 3, 1 / 3          # every face keeps its centroid
+    p = a[face] + u[:, None] * (b - a)[face] + v[:, None] * (c - a)[face]
+    if tree is not None:
+        d, _ = tree.query(p, k=1, distance_upper_bound=np.nextafter(reach, np.inf), workers=-1)
+        return p[d <= reach], n[face][d <= reach]
+    return p, n[face]
+
+
+def pose_uncertainty(points: np.ndarray, sigma: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
+                     tree, T: np.ndarray, cfg: RegisterConfig) -> dict:
+    """Standard deviations (m) of the point-to-plane pose estimate ``T`` along the eigen-directions of
+    its information matrix (rotations scaled by the median lever arm, as in :func:`weighted_icp`):
+    correspondences within ``overlap_m`` whose residual is within max(``inlier_m``, 3 sigma), each
+    weighted by 1/(sigma_i^2 + map_sigma_m^2) with ``sigma`` (N,) the camera point's depth noise (m).
+    Noisy far points (a low-resolution stereo camera: 5-15 cm at 6-10 m) carry little information;
+    a pose they alone pin down is uncertain by centimetres even when its fitness looks good.
+    Returns {"std_m": sorted (6,) largest first, "n": correspondences}."""
+    p = transform_points(T, points)
+    d, j = tree.query(p, k=1, distance_upper_bound=cfg.overlap_m, workers=-1)   # (bounded: far points end early)
+    ok = d < cfg.overlap_m
+    if ok.sum() < 6:
+        return {"std_m": [float("inf")] * 6, "n": int(ok.sum())}
+    j = j[ok]
+    pp, nn = p[ok], target_normals[j]
+    r = np.einsum("ij,ij->i", pp - target[j], nn)
+    s2 = sigma[ok] ** 2 + cfg.map_sigma_m ** 2
+    inl = np.abs(r) <= np.maximum(cfg.inlier_m, 3 * np.sqrt(s2))
+    pp, nn, w = pp[inl], nn[inl], 1.0 / s2[inl]
+    c = np.average(pp, axis=0, weights=w)
+    Lc = float(np.median(np.linalg.norm(pp - c, axis=1))) or 1.0
+    J = np.concatenate([np.cross(pp - c, nn) / Lc, nn], axis=1)
+    ev = np.linalg.eigvalsh((J * w[:, None]).T @ J)
+    std = 1.0 / np.sqrt(np.maximum(ev, 1e-12))
+    return {"std_m": sorted(std.tolist(), reverse=True), "n": int(inl.sum())}
+
+
+def held_directions(held: tuple) -> list[str]:
+    """Plain words for the directions :func:`weighted_icp` held at the guess (``info["held"]``: V (6,k)
+    in its update coordinates, rotation × lever arm then translation, world frame): "translation along
+    (x, y, z)" or "rotation about (x, y, z)", whichever part of the direction is larger."""
+    V = held[0]
+    out = []
+    for v in np.asarray(V, float).T:
+        rot, tr = v[:3], v[3:]
+        is_tr = np.linalg.norm(tr) >= np.linalg.norm(rot)
+        a = (tr if is_tr else rot) / max(np.linalg.norm(tr if is_tr else rot), 1e-12)
+        a = a * (1 if a[np.argmax(np.abs(a))] > 0 else -1) + 0.0    # (+ 0.0: no "-0.00")
+        a = np.where(np.abs(a) < 0.005, 0.0, a)
+        what = "translation along" if is_tr else "rotation about"
+        out.append(f"{what} ({a[0]:.2f}, {a[1]:.2f}, {a[2]:.2f})")
+    return out
+
+
+def prior_deviation(T: np.ndarray, init: np.ndarray) -> tuple[float, float]:
+    """How far a camera pose ``T`` (4,4) lies from the initial guess ``init``: (metres, degrees)."""
+    return float(np.linalg.norm(T[:3, 3] - init[:3, 3])), rotation_angle_deg(np.linalg.inv(init) @ T)
+
+
+def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray,
+                       cfg: RegisterConfig | None = None, allow_fallback: bool = True,
+                       sigma: np.ndarray | None = None, mesh: tuple | None = None,
+                       anchor: np.ndarray | None = None) -> Registration:
+    """``T_world_camera`` from the static camera cloud ``static_cam`` (N,3, camera frame) and the map
+    ``map_points`` (M,3, world) from ``init`` (4,4): open3d point-to-plane ICP then, with per-point
+    depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`weighted_icp`); checked;
+    FPFH+RANSAC+ICP fallback, checked. ``mesh`` (vertices (V,3), faces (F,3)): a static mesh of the
+    scene in the map's frame (:func:`scene_mesh`) whose surface near the camera cloud joins the
+    target (docs/design/register.md, 3.). ``anchor`` (3,) m: ``init`` is a TF pose and the map a SLAM map
+    anchored at the TF pose of a scan taken there; directions the ICP holds then go where the map's
+    offset puts the guess (:func:`anchored_guess`) instead of staying at it. Never returns an
+    unchecked transform: ``accepted`` False means both failed (the caller raises)."""
+    from scipy.spatial import cKDTree
+
+    cfg = cfg or RegisterConfig()
+    src_all = np.asarray(static_cam, np.float64)
+    sig = np.full(len(src_all), 0.01) if sigma is None else np.maximum(np.asarray(sigma, np.float64), 0.003)
+    keep = np.linalg.norm(src_all, axis=1) <= cfg.max_range_m
+    src_all, sig = src_all[keep], sig[keep]
+    # voxel-thin (one point per cam_voxel cell, the least noisy)
+    cell = np.floor(src_all / cfg.cam_voxel).astype(np.int64)
+    order = np.argsort(sig, kind="stable")
+    _, first = np.unique(cell[order], axis=0, return_index=True)
+    sel = order[first]
+    src, sig = src_all[sel], sig[sel]
+    src_n = np.asarray(_pcd(src, None, 3 * cfg.cam_voxel).normals)   # same order (no thinning)
+    mesh_pts = None
+    if mesh is not None and cfg.mesh_target and len(mesh[1]):
+        mesh_pts, mesh_n = mesh_surface_samples(mesh[0], mesh[1], transform_points(init, src),
+                                                cfg.crop_m + cfg.max_scale_m, cfg.mesh_sample_m)
+        if len(mesh_pts) < cfg.min_overlap_points:
+            mesh_pts = None
+    if cfg.map_plane_m > 0 and (mesh_pts is None or cfg.mesh_keep_map_m <= 0):
+        # denoise the target: map points near the camera cloud (under the guess) onto their local planes
+        mp = voxel_average(map_points, cfg.map_voxel)
+        reach = cfg.crop_m + cfg.max_scale_m + cfg.map_plane_m
+        near_cam = _nn_distances(mp, transform_points(init, src), reach) <= reach
+        map_points = local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
+    tgt_pts, tgt_n = map_normals(map_points, cfg)
+    if mesh_pts is not None:
+        # the mesh's surface near the camera cloud joins the (denoised) map; with mesh_keep_map_m > 0
+        # it replaces the map points within that distance instead (measured a little worse)
+        far = (_nn_distances(tgt_pts, mesh_pts, cfg.mesh_keep_map_m) > cfg.mesh_keep_map_m if cfg.mesh_keep_map_m > 0
+               else np.ones(len(tgt_pts), bool))
+        tgt_pts, tgt_n = np.concatenate([mesh_pts, tgt_pts[far]]), np.concatenate([mesh_n, tgt_n[far]])
+    tgt_tree = cKDTree(tgt_pts)
+    # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
+    # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
+    full_src, full_sig, full_n = src, sig, src_n
+    near = _nn_distances(transform_points(init, src), tgt_pts, cfg.crop_m) <= cfg.crop_m
+    if near.sum() >= cfg.min_overlap_points:
+        src, sig, src_n = src[near], sig[near], src_n[near]
+    attempts = []
+
+    def check(T, frozen: int = 0, held=None):
+        # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
+        # far stereo points are too noisy to tell a right from a slightly wrong alignment
+        p = transform_points(T, full_src)
+        # only points within overlap_m count: the bounded search ends early for the far ones (the
+        # camera's view of what the LiDAR never saw), which an unbounded one searched the whole map for
+        d, j = tgt_tree.query(p, k=1, distance_upper_bound=cfg.overlap_m, workers=-1)
+        j = np.minimum(j, len(tgt_pts) - 1)
+        r = np.einsum("ij,ij->i", p - tgt_pts[j], tgt_n[j])
+        precise = full_sig <= cfg.check_sigma_m
+        if int((precise & (d < cfg.overlap_m)).sum()) >= cfg.min_overlap_points:
+            d, r = d[precise], r[precise]
+        c = _check_from_distances(d, cfg, r)
+        # and the pose must be determined by the data: directions held at the guess (frozen) aside,
+        # the estimate's standard deviation along every direction <= max_pose_std_m
+        u = pose_uncertainty(full_src, full_sig, tgt_pts, tgt_n, tgt_tree, T, cfg)
+        std = float(u["std_m"][min(frozen, 5)])
+        c["pose_std_m"] = std
+        # along the held directions the result is the guess: its uncertainty is the guess's, not a
+        # measurement (never a sub-centimetre figure the data did not give)
+        c["held_directions"] = held_directions(held) if frozen and held is not None else []
+        c["uncertainty_m"] = max(std, cfg.guess_std_m) if frozen else std
+        if cfg.max_pose_std_m > 0 and c["uncertainty_m"] > cfg.max_pose_std_m:
+            c["accepted"] = False
+        return c
+
+    def refine(T0, info):
+        # Gauss-Newton point-to-plane with Tukey loss and degeneracy-aware updates. Not open3d's
+        # registration_icp: from the exact pose it slid 43 cm along a corridor the overlap sees
+        # end-on (T corner, 1.5 m wide), and it has no way to hold such directions. Uniform weights:
+        # per-point camera noise weights were measured worse (the map's own error is not modelled).
+        return weighted_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4), tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
+                            degenerate_ratio=ratio, info=info, source_normals=src_n,
+                            min_normal_cos=cfg.min_normal_cos, search_m=cfg.search_m,
+                            max_std_m=cfg.max_std_m if cfg.noise_weights else 0.0, max_scale=cfg.max_scale_m,
+                            hold_m=cfg.hold_m)
+
+    # against the mesh's smooth surface a weak direction (a T corner's corridor seen end-on) is
+    # determined by the data; against the noisy points it was held at the guess
+    ratio = cfg.mesh_degenerate_ratio if mesh_pts is not None else cfg.degenerate_ratio
+    info: dict = {}
+    T = refine(init, info)
+    anchor_turn = None
+    if anchor is not None and info.get("frozen") and cfg.anchor_max_deg > 0:
+        V = info["held"][0]
+        target, anchor_turn = anchored_guess(T, init, anchor, V[3:, 0], cfg.anchor_max_deg, cfg.anchor_agree_deg)
+        if target is not None:
+            T = hold_at(T, target, info["held"])
+        anchor_turn["applied"] = target is not None
+    c = check(T, info.get("frozen", 0), info.get("held"))
+    attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
+                     "frozen_directions": info.get("frozen", 0),
+                     "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
+    best = ("icp", T, c)
+    if not c["accepted"] and allow_fallback:
+        src, sig, src_n = full_src, full_sig, full_n
+        Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
+        info2: dict = {}
+        T2 = refine(Tg, info2)
+        c2 = check(T2, info2.get("frozen", 0), info2.get("held"))
+        shift, rot = prior_deviation(T2, init)
+        c2 = {**c2, "prior_shift_m": shift, "prior_rot_deg": rot}
+        if shift > cfg.fallback_max_shift_m or rot > cfg.fallback_max_rot_deg:
+            c2["accepted"] = False
+        attempts.append({"method": "fpfh+icp", **c2, "frozen_directions": info2.get("frozen", 0),
+                         "eigenvalues_rel": info2.get("eigenvalues")})
+        if c2["accepted"]:
+            best = ("fpfh+icp", T2, c2)
+    m, T, c = best
+    return Registration(T, m, c["fitness"], c["rmse"], c["overlap"], c["accepted"], attempts)

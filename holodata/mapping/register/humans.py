@@ -1,0 +1,445 @@
+"""Human points and closed surfaces: clustering, RANSAC planes, picking the person
+(:func:`pick_human`), body columns and closed surfaces (:func:`closed_surface`), and the
+track checks (:func:`track_jumps`, :func:`track_velocity`)."""
+from __future__ import annotations
+
+
+import numpy as np
+
+from .config import RegisterConfig
+from .extrinsic import _pcd
+
+
+# ------------------------------------------------------------------------------------ humans
+def cluster_points(points: np.ndarray, dist: float) -> np.ndarray:
+    """Connected components of points (N,3) whose voxels (edge ``dist``) touch (26-neighbourhood):
+    labels (N,) int64 0..n-1 (vectorised: packed voxel keys, sorted, neighbour lookup by searchsorted)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from ..background import _keys
+
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    ijk = np.floor(np.asarray(points) / dist).astype(np.int64)
+    keys = _keys(ijk)
+    uniq, inv = np.unique(keys, return_inverse=True)
+    inv = inv.reshape(-1)
+    cells = ijk[np.unique(inv, return_index=True)[1]]
+    rows, cols = [], []
+    for o in [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) > (0, 0, 0)]:
+        nk = _keys(cells + np.array(o))
+        pos = np.minimum(np.searchsorted(uniq, nk), len(uniq) - 1)
+        hit = uniq[pos] == nk
+        rows.append(np.flatnonzero(hit))
+        cols.append(pos[hit])
+    r, c = np.concatenate(rows), np.concatenate(cols)
+    g = coo_matrix((np.ones(len(r), np.int8), (r, c)), shape=(len(uniq), len(uniq)))
+    _, comp = connected_components(g, directed=False)
+    return comp[inv]
+
+
+def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) -> np.ndarray:
+    """(N,) bool: points of the static camera cloud (N,3, any frame) that are on none of the large
+    planes (floor, ceiling, walls: RANSAC planes, :func:`ransac_plane`, each holding at least
+    ``plane_min_fraction`` of the points, up to ``max_planes``). Catches a person who stands still
+    (and is therefore part of the temporal background)."""
+    pts = np.asarray(points, np.float64)
+    keep = np.ones(len(pts), bool)
+    if len(pts) < 100:
+        return keep
+    rng = np.random.default_rng(seed)
+    vox = np.floor(pts / cfg.cam_voxel).astype(np.int64)
+    _, first, inv = np.unique(vox, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    sub = pts[first]
+    alive = np.ones(len(sub), bool)
+    for _ in range(cfg.max_planes):
+        idx = np.flatnonzero(alive)
+        if len(idx) < 100:
+            break
+        normal, offset, n_in = ransac_plane(sub[idx], cfg.plane_dist_m, 400, rng)
+        if n_in < cfg.plane_min_fraction * len(sub):
+            break
+        alive &= ~(np.abs(sub @ normal + offset) < cfg.plane_dist_m)
+    return alive[inv]
+
+
+def ransac_plane(points: np.ndarray, dist: float, iterations: int, rng) -> tuple[np.ndarray, float, int]:
+    """Plane with the most points (N,3) within ``dist`` (m) among ``iterations`` planes through three
+    random points (numpy ``rng``), refitted by least squares to its inliers: (unit normal (3,), offset,
+    inlier count) with ``normal · p + offset = 0``. Deterministic for a given ``rng`` state (open3d's
+    multithreaded ``segment_plane`` is not, even seeded: its result depended on thread timing)."""
+    p = np.asarray(points, np.float64)
+    i = rng.integers(0, len(p), (iterations, 3))
+    n = np.cross(p[i[:, 1]] - p[i[:, 0]], p[i[:, 2]] - p[i[:, 0]])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-12
+    n, a = n[ok] / norm[ok, None], p[i[ok, 0]]
+    d = -np.einsum("ij,ij->i", n, a)
+    counts = np.zeros(len(n), np.int64)
+    step = max(1, 4_000_000 // max(len(p), 1))          # (N, step) distances at a time
+    for s in range(0, len(n), step):
+        counts[s:s + step] = (np.abs(p @ n[s:s + step].T + d[s:s + step]) < dist).sum(0)
+    if not len(counts):
+        return np.array([0.0, 0.0, 1.0]), 0.0, 0
+    b = int(np.argmax(counts))
+    q = p[np.abs(p @ n[b] + d[b]) < dist]
+    c = q.mean(0)
+    normal = np.linalg.svd(q - c, full_matrices=False)[2][-1]     # least-squares plane of the inliers
+    offset = -float(normal @ c)
+    return normal, offset, int((np.abs(p @ normal + offset) < dist).sum())
+
+
+def _robust_plan_extent(xy: np.ndarray) -> float:
+    """Plan extent (m) along the principal axes, 2-98 % spread (stereo noise sprays a few points far
+    behind a person)."""
+    if len(xy) < 4:
+        return 0.0
+    c = xy - xy.mean(0)
+    _, vec = np.linalg.eigh(c.T @ c)
+    q = c @ vec
+    lo, hi = np.percentile(q, [2, 98], axis=0)
+    return float((hi - lo).max())
+
+
+def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray | None = None,
+               footprint: np.ndarray | None = None) -> np.ndarray:
+    """Boolean mask of the largest person-like cluster of ``points_world`` (N,3) (z up); with
+    ``centre`` (3,) only clusters whose centroid is within ``track_radius_m`` (plan) of it count.
+
+    ``footprint`` (N,): each return's pixel footprint in metres (optical depth / focal length in
+    pixels). The camera's resolution then sets two things a fixed number cannot: clusters link points
+    at least ``cluster_px`` footprints (at the candidates' median depth) apart, not only ``cluster_m``
+    (a 160-column camera's pixels are 8 cm apart at 7 m: a person there is dust at 8 cm), and a
+    cluster is evidence enough with ``min_points`` returns *or* ``min_area_m2`` of surface (each
+    return covering footprint²: a sixth of a person's front), whichever the camera can give at that
+    depth. Without it: ``cluster_m`` and ``min_points`` alone."""
+    out = np.zeros(len(points_world), bool)
+    fp2 = None if footprint is None else np.asarray(footprint, np.float64) ** 2
+    if len(points_world) < cfg.min_points and (fp2 is None or fp2.sum() < cfg.min_area_m2):
+        return out
+    dist = cfg.cluster_m if fp2 is None else max(cfg.cluster_m, cfg.cluster_px * float(np.sqrt(np.median(fp2))))
+    lab = cluster_points(points_world, dist)
+    sizes = np.bincount(lab)
+    enough = sizes >= cfg.min_points
+    if fp2 is not None:
+        enough |= np.bincount(lab, weights=fp2, minlength=len(sizes)) >= cfg.min_area_m2
+    for c in np.argsort(-sizes):
+        if not enough[c]:
+            continue
+        m = lab == c
+        p = points_world[m]
+        if centre is not None and np.linalg.norm(p[:, :2].mean(0) - centre[:2]) > cfg.track_radius_m:
+            continue
+        if np.ptp(p[:, 2]) >= cfg.min_height_m and _robust_plan_extent(p[:, :2]) <= cfg.max_width_m:
+            # stereo noise sprays single points behind/in front of the body: statistical outlier removal
+            _, keep = _pcd(p).remove_statistical_outlier(nb_neighbors=20, std_ratio=2.0)
+            idx = np.flatnonzero(m)
+            m[:] = False
+            m[idx[np.asarray(keep, np.int64)]] = True
+            return m
+    return out
+
+
+def pixel_runs(rows: np.ndarray, cols: np.ndarray, gap: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal runs of pixels (``rows``, ``cols`` (N,) int): ``order`` (N,) the row-major sort of the
+    pixels and ``run`` (N,) the run id of each sorted pixel (0..R-1). A run continues across fewer than
+    ``gap`` missing pixels (``gap`` 1: strictly adjacent; 2 bridges the single stereo holes that split a
+    torso into two narrow runs)."""
+    order = np.lexsort((cols, rows))
+    r, c = rows[order], cols[order]
+    new = np.ones(len(r), bool)
+    new[1:] = (r[1:] != r[:-1]) | (c[1:] - c[:-1] > gap)
+    return order, np.cumsum(new) - 1
+
+
+def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, eye: np.ndarray,
+                 fx: float, lo: float, hi: float, gap: int = 2, floor_z: float | None = None,
+                 floor_reach_m: float = 0.35, back_frac: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The solid behind a person's visible front, one horizontal column per human pixel.
+
+    ``points_world`` (N,3) the pixels' points (map frame), ``rows``/``cols`` (N,) their pixels,
+    ``depth`` (N,) their optical depths (m), ``eye`` (3,) the camera centre, ``fx`` px. Each horizontal
+    run of pixels (:func:`pixel_runs`, bridging ``gap``) is a cross-section of width w (run length ·
+    mean depth / fx) and depth D = clip(w, ``lo``, ``hi``) m (limbs about as deep as wide, the torso
+    capped), modelled as an ellipse with axes w and D: the pixel at lateral position s in (-1, 1) of its
+    run spans ± h = D/2 · sqrt(1 - s²) around the run's centre range c, and c is the mean over the run of
+    each pixel's estimate (its measured plan range + h; values more than ``hi`` from the run's median are
+    left out). The measured front only places the centre: stereo noise (σ ~5 cm at 3.6 m on the synthetic
+    ZED) no longer scatters the surface, the back is the front mirrored through the centre, and a round
+    limb is an ellipse of area π w D / 4 rather than a w × D box pushed a whole D back.
+
+    Returns ``span`` (N,2): the column's near and far ends as offsets (m) along the horizontal viewing
+    direction from the pixel's point (negative: toward the camera), ``pixel_m`` (N,) the pixel's footprint
+    edge (depth / fx, m) and ``down_to`` (N,) heights (m) the column reaches down to, NaN for none: with
+    ``floor_z`` given, the lowest human pixel of each image column lying within ``floor_reach_m`` above
+    it reaches the floor (the foreground test loses the feet, whose background — the floor just
+    behind them — is too near: 1-2 l of the body missing, the centroid 2 cm too high; and a walking
+    person's far foot, hidden behind the near one in stride). ``back_frac``:
+    every column's far end goes ``back_frac`` · D further back (the front stays): a person walking along
+    the view hides the far leg and arm behind the near ones (register: ``walk_back_frac`` scaled by
+    :func:`radial_speed`)."""
+    p = np.asarray(points_world, np.float64).reshape(-1, 3)
+    n = len(p)
+    z = np.asarray(depth, np.float64)
+    if n == 0:
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0)
+    rows, cols = np.asarray(rows, np.int64), np.asarray(cols, np.int64)
+    order, rid = pixel_runs(rows, cols, gap)
+    nr = int(rid[-1]) + 1
+    c, zs = cols[order], z[order]
+    cmin = np.full(nr, np.iinfo(np.int64).max)
+    np.minimum.at(cmin, rid, c)
+    cmax = np.full(nr, -1, np.int64)
+    np.maximum.at(cmax, rid, c)
+    npx = cmax - cmin + 1
+    cnt = np.bincount(rid, minlength=nr)
+    w = npx * (np.bincount(rid, zs, minlength=nr) / cnt) / fx
+    D = np.clip(w, lo, hi)[rid]
+    s = (c - cmin[rid] + 0.5) / npx[rid] * 2.0 - 1.0
+    h = 0.5 * D * np.sqrt(np.clip(1.0 - s * s, 0.0, 1.0))
+    d = p[order] - np.asarray(eye, float)
+    rho = np.linalg.norm(d[:, :2], axis=1)
+    est = rho + h
+    o = np.lexsort((est, rid))                       # per-run median, then the mean of the values near it
+    start = np.cumsum(cnt) - cnt
+    srt = est[o]
+    med = 0.5 * (srt[start + (cnt - 1) // 2] + srt[start + cnt // 2])
+    near = np.abs(est - med[rid]) <= hi
+    centre = np.bincount(rid, est * near, minlength=nr) / np.maximum(np.bincount(rid, near, minlength=nr), 1)
+    off = centre[rid] - rho
+    span = np.empty((n, 2))
+    span[order] = np.stack([off - h, off + h + back_frac * D], 1)
+    down = np.full(n, np.nan)
+    if floor_z is not None and np.isfinite(floor_z):
+        oc = np.lexsort((-rows, cols))              # per image column, the lowest pixel (largest row) first
+        low = oc[np.r_[True, cols[oc][1:] != cols[oc][:-1]]]
+        low = low[p[low, 2] < floor_z + floor_reach_m]
+        down[low] = floor_z
+    return span, z / fx, down
+
+
+def _repeat_index(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Item i repeated ``counts[i]`` times: (owner (sum,) item index, (sum,) index within its repeats)."""
+    owner = np.repeat(np.arange(len(counts)), counts)
+    return owner, np.arange(len(owner)) - np.repeat(np.cumsum(counts) - counts, counts)
+
+
+def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: float,
+                   horizontal: bool = True, pixel_m=None, down_to=None) -> tuple[np.ndarray, np.ndarray]:
+    """Closed triangle surface around the volume swept by the points (N,3) along their viewing rays
+    from ``eye`` (3,) (their horizontal part when ``horizontal``: a body's depth is horizontal),
+    voxelised at ``voxel`` m: vertices (V,3) float64, faces (F,3) int32, outward (counter-clockwise seen
+    from outside).
+
+    ``thickness``: scalar or (N,) m — each point extruded away from the camera over it; or (N,2) — the
+    column from the first to the second offset (m, negative toward the camera; :func:`body_columns`).
+    ``pixel_m`` (scalar or (N,), m): each point stands for a square pixel footprint of that edge; then a
+    voxel is occupied when the columns fill at least half of it (their volume, sampled every voxel/2
+    along the column, summed per voxel): an unbiased voxelisation. Without it every voxel a column
+    touches is occupied (each dimension grows by about a voxel: a 15 cm leg became 19 cm wide).
+    A footprint wider than the voxel is split into m × m sub-pixels (m = ceil(edge / voxel)) so that
+    its volume spreads over the voxels it covers. ``down_to`` (N,) m, NaN for none: the point's column
+    also fills the vertical strip below its footprint down to that height (feet reaching the floor)."""
+    p = np.asarray(points_world, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    d = p - np.asarray(eye, float)
+    if horizontal:  # a body's depth is horizontal: extrude along the ray's plan direction
+        d[:, 2] = 0.0
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    th = np.asarray(thickness, float)
+    if th.ndim == 2:
+        a, b = th[:, 0], th[:, 1]
+    else:
+        a, b = np.zeros(len(p)), np.broadcast_to(th, (len(p),)).astype(float)
+    if pixel_m is None:
+        L = b - a
+        frac = np.linspace(0.0, 1.0, max(2, int(np.ceil(max(L.max(), 0.0) / (voxel / 2))) + 1))
+        t = a[:, None, None] + frac[None, :, None] * L[:, None, None]
+        sw = (p[:, None, :] + t * d[:, None, :]).reshape(-1, 3)
+        return voxel_boundary(np.floor(sw / voxel).astype(np.int64), voxel)     # repeated voxels are fine
+    px = np.broadcast_to(np.asarray(pixel_m, float), (len(p),))
+    m_sub = np.maximum(1, np.ceil(px / voxel - 1e-9).astype(np.int64))
+    if (m_sub > 1).any():
+        # a footprint wider than a voxel (a coarse camera, a far person) is split into m × m sub-pixels
+        # across it (lateral × vertical), else its whole volume lands in the voxels along one line
+        j, k = _repeat_index(m_sub ** 2)
+        mj = m_sub[j]
+        u = ((k % mj) + 0.5) / mj - 0.5
+        v = ((k // mj) + 0.5) / mj - 0.5
+        lat = np.stack([-d[j, 1], d[j, 0], np.zeros(len(j))], 1)
+        lat /= np.maximum(np.linalg.norm(lat, axis=1, keepdims=True), 1e-9)
+        p = p[j] + (u * px[j])[:, None] * lat + np.outer(v * px[j], [0.0, 0.0, 1.0])
+        d, a, b, px = d[j], a[j], b[j], px[j] / mj
+        if down_to is not None:
+            down_to = np.asarray(down_to, float)[j]
+    step = voxel / 2
+    L = np.maximum(b - a, 0.0)
+    ns = np.maximum(1, np.ceil(L / step).astype(np.int64))
+    idx, k = _repeat_index(ns)
+    t = a[idx] + (k + 0.5) / ns[idx] * L[idx]
+    q = p[idx] + t[:, None] * d[idx]
+    wgt = px[idx] ** 2 * (L / ns)[idx]
+    if down_to is not None:
+        dz = np.asarray(down_to, float)
+        sel = np.isfinite(dz[idx])
+        if sel.any():                                # strips below the footprint, down to ``down_to``
+            qs, ws, j0 = q[sel], wgt[sel], idx[sel]
+            ext = np.maximum(qs[:, 2] - px[j0] / 2 - dz[j0], 0.0)
+            m = np.maximum(1, np.ceil(ext / step).astype(np.int64))
+            j, kk = _repeat_index(m)
+            qq = qs[j].copy()
+            qq[:, 2] -= px[j0][j] / 2 + (kk + 0.5) / m[j] * ext[j]
+            q = np.concatenate([q, qq])
+            wgt = np.concatenate([wgt, ws[j] / px[j0][j] * ext[j] / m[j]])
+    ijk = np.floor(q / voxel).astype(np.int64)
+    lo = ijk.min(0)
+    ijk -= lo
+    dims = ijk.max(0) + 1
+    key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
+    full = np.flatnonzero(np.bincount(key, wgt, minlength=int(np.prod(dims))) >= 0.5 * voxel ** 3)
+    if not len(full):
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    occ = np.stack(np.unravel_index(full, tuple(dims)), 1) + lo
+    return voxel_boundary(occ, voxel)
+
+
+def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Boundary surface of a set of occupied voxels ``occ`` (N,3) int (repeats allowed): two triangles
+    per voxel face not shared with another occupied voxel; shared vertices (a closed mesh), outward
+    orientation; vertices in lexicographic lattice order."""
+    occ = np.asarray(occ, np.int64).reshape(-1, 3)
+    if len(occ) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    lo = occ.min(0) - 1
+    o = occ - lo
+    dims = o.max(0) + 2
+    grid = np.zeros(dims, bool)
+    grid[o[:, 0], o[:, 1], o[:, 2]] = True
+    quads = []
+    # for each axis and direction: faces where occupied voxel meets empty neighbour
+    for ax in range(3):
+        for sgn in (1, -1):
+            nb = np.roll(grid, -sgn, axis=ax)
+            face = grid & ~nb
+            idx = np.argwhere(face)
+            if not len(idx):
+                continue
+            # face plane at coordinate idx[ax] + (1 if sgn > 0 else 0); the other two axes span it
+            a1, a2 = [a for a in range(3) if a != ax]
+            base = idx.copy()
+            base[:, ax] += 1 if sgn > 0 else 0
+            c = np.zeros((len(idx), 4, 3), np.int64)
+            for q, (da, db) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
+                c[:, q] = base
+                c[:, q, a1] += da
+                c[:, q, a2] += db
+            # orientation: (a1, a2, ax) right-handed for ax = 0 -> (1,2), 1 -> (2,0), 2 -> (0,1)
+            right = (a1, a2) in ((1, 2), (2, 0), (0, 1))
+            if right != (sgn > 0):
+                c = c[:, ::-1]
+            quads.append(c)
+    q = np.concatenate(quads)                      # (Q,4,3) corner lattice coordinates, in 0..dims
+    # vertex ids on a dense lattice of the box (C order: lexicographic, as a sort would number them)
+    flat = np.ravel_multi_index((q[..., 0], q[..., 1], q[..., 2]), tuple(dims + 1))
+    used = np.zeros(int(np.prod(dims + 1)), bool)
+    used[flat] = True
+    cells = np.flatnonzero(used)
+    ids = np.zeros(len(used), np.int64)
+    ids[cells] = np.arange(len(cells))
+    inv = ids[flat]
+    faces = np.concatenate([inv[:, [0, 1, 2]], inv[:, [0, 2, 3]]]).astype(np.int32)
+    corners = np.stack(np.unravel_index(cells, tuple(dims + 1)), 1)
+    verts = (corners + lo).astype(np.float64) * voxel
+    return verts, faces
+
+
+# ------------------------------------------------------------------------------------ tracks
+def track_jumps(centroids: np.ndarray, t_ns: np.ndarray, jump_m: float = 0.6, speed_mps: float = 1.5) -> np.ndarray:
+    """(T,) bool: frames whose centroid (``centroids`` (T,3), NaN = none) is farther (plan) from the
+    centroid of *each* nearest frame with one, before and after, than ``jump_m`` + ``speed_mps`` ×
+    the time between them (``t_ns`` (T,)): a person cannot have walked there."""
+    c = np.asarray(centroids, float)
+    t = np.asarray(t_ns, np.int64).astype(np.float64) / 1e9
+    ok = np.flatnonzero(np.isfinite(c).all(1))
+    out = np.zeros(len(c), bool)
+    for i, k in enumerate(ok):
+        nb = [ok[j] for j in (i - 1, i + 1) if 0 <= j < len(ok)]
+        out[k] = bool(nb) and all(np.linalg.norm(c[k, :2] - c[j, :2]) > jump_m + speed_mps * abs(t[k] - t[j]) for j in nb)
+    return out
+
+
+def track_prediction(centroids: np.ndarray, t_ns: np.ndarray, max_gap_s: float = 2.0) -> np.ndarray:
+    """(T,3) where each frame's centroid is expected from its neighbours: the nearest frame with a
+    centroid on each side (within ``max_gap_s``), linearly interpolated in time (``t_ns`` (T,)), or
+    the one side's centroid when only one exists; NaN when none. ``centroids`` (T,3), NaN = none."""
+    c = np.asarray(centroids, float)
+    t = np.asarray(t_ns, np.int64).astype(np.float64) / 1e9
+    ok = np.flatnonzero(np.isfinite(c).all(1))
+    out = np.full_like(c, np.nan)
+    for k in range(len(c)):
+        before = ok[(ok < k) & (t[k] - t[ok] <= max_gap_s)]
+        after = ok[(ok > k) & (t[ok] - t[k] <= max_gap_s)]
+        a = before[-1] if len(before) else None
+        b = after[0] if len(after) else None
+        if a is not None and b is not None and t[b] > t[a]:
+            out[k] = c[a] + (c[b] - c[a]) * (t[k] - t[a]) / (t[b] - t[a])
+        elif a is not None or b is not None:
+            out[k] = c[a if a is not None else b]
+    return out
+
+
+def track_velocity(centroids: np.ndarray, cam_ts: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
+    """(T,3) plan velocity (m/s, z = 0) of the centroid track ``centroids`` (T,3) (NaN: no detection) by
+    central differences over the frames with a detection and a camera stamp ``cam_ts`` (T,) ns (zero
+    where it cannot be estimated: a single detection, neighbours more than 2 s apart, or faster than
+    ``max_speed``, a wrong detection next door rather than a walking person)."""
+    n = len(centroids)
+    out = np.zeros((n, 3))
+    ok = np.isfinite(centroids).all(1) & (cam_ts != 0)
+    idx = np.flatnonzero(ok)
+    if len(idx) < 2:
+        return out
+    t = cam_ts[idx].astype(np.float64) / 1e9
+    c = centroids[idx]
+    for j, k in enumerate(idx):
+        a, b = max(j - 1, 0), min(j + 1, len(idx) - 1)
+        if t[b] - t[a] <= 0 or t[b] - t[a] > 2.0:
+            continue
+        v = (c[b] - c[a]) / (t[b] - t[a])
+        v[2] = 0.0
+        if np.linalg.norm(v) > max_speed:
+            continue
+        out[k] = v
+    return out
+
+
+def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
+    """(T,3) shifts = velocity (:func:`track_velocity`) · (frame time − camera time)."""
+    v = track_velocity(centroids, cam_ts, max_speed)
+    return v * ((np.asarray(frame_ts, np.int64) - np.asarray(cam_ts, np.int64)) / 1e9)[:, None]
+
+
+def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
+    """(T,) m/s: how fast the person walks along the camera's view in each frame — the larger of the
+    one-sided plan speeds toward the previous and the next detection (within 2 s, at most ``max_speed``)
+    along the plan direction from ``eye`` (3,) to the frame's centroid (``centroids`` (T,3), NaN: no
+    detection; ``cam_ts`` (T,) ns, 0: none). One-sided: at a turn the central difference is near zero
+    while the legs are still in stride. 0 without a neighbour."""
+    c = np.asarray(centroids, float)
+    out = np.zeros(len(c))
+    idx = np.flatnonzero(np.isfinite(c).all(1) & (np.asarray(cam_ts) != 0))
+    t = np.asarray(cam_ts, np.int64)[idx] / 1e9
+    for j, k in enumerate(idx):
+        u = c[k, :2] - np.asarray(eye, float)[:2]
+        nu = np.linalg.norm(u)
+        if nu < 1e-9:
+            continue
+        for m in (j - 1, j + 1):
+            if 0 <= m < len(idx) and 0 < abs(t[m] - t[j]) <= 2.0:
+                v = (c[idx[m], :2] - c[k, :2]) / (t[m] - t[j])
+                if np.linalg.norm(v) <= max_speed:
+                    out[k] = max(out[k], abs(float(v @ u)) / nu)
+    return out
