@@ -288,7 +288,8 @@ def test_rest_check_sees_a_few_millimetres():
     held pose and rejects one taken 5 mm / 0.15 deg away: kiss-icp alone misses such start-up creep."""
     from scipy.spatial import cKDTree
 
-    from holodata.mapping.slam import SlamConfig, _at_rest
+    from holodata.mapping.slam import SlamConfig
+    from holodata.mapping.slam.refine import _at_rest
 
     rng = np.random.default_rng(3)
     # a room's three walls, floor and ceiling around the sensor (world = sensor frame at rest)
@@ -479,7 +480,8 @@ def test_same_beam_rest_check_never_holds_a_scan_that_moved():
     passed the map check) holds new scans at the same pose (range noise, a person on 5 % of the beams)
     and rejects scans taken 5 mm / 2 cm / 20 cm / 1 m further on, sideways or up, or turned 0.15 deg —
     the same bounds as the map check (_at_rest), which it agrees with on every case."""
-    from holodata.mapping.slam import SlamConfig, _at_rest, _SameBeam
+    from holodata.mapping.slam import SlamConfig
+    from holodata.mapping.slam.refine import _at_rest, _SameBeam
 
     rng = np.random.default_rng(5)
     cfg = SlamConfig()
@@ -533,7 +535,7 @@ def test_scan_pixels_are_the_range_image_pixels_of_the_points(slam_run):
 
 
 def test_return_mask_matches_the_four_pass_mask():
-    from holodata.mapping.slam import _returns
+    from holodata.mapping.slam.scans import _returns
 
     rng = np.random.default_rng(2)
     for dt in (np.float32, np.float64):
@@ -602,7 +604,9 @@ def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
     from holodata.errors import DatasetError, HolodataError
     from holodata.mapping import slam as S
 
-    read = S._ScanSource.read
+    from holodata.mapping.slam.scans import _ScanSource
+
+    read = _ScanSource.read
     skip = int(slam_run["res"].summary["scans"]) // 2
 
     def without_one(self, quiet=True, stop=None):
@@ -610,7 +614,7 @@ def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
             if k != skip:
                 yield row
 
-    monkeypatch.setattr(S._ScanSource, "read", without_one)
+    monkeypatch.setattr(_ScanSource, "read", without_one)
     res = S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
     assert res.summary["scans"] == slam_run["res"].summary["scans"] - 1
     monkeypatch.setattr(S, "stream_scans", lambda scene: None)
@@ -624,7 +628,7 @@ def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
                 raise DatasetError("ds.zarr: lidar/points shard 1 is corrupt")
             yield row
 
-    monkeypatch.setattr(S._ScanSource, "read", broken)
+    monkeypatch.setattr(_ScanSource, "read", broken)
     with pytest.raises(HolodataError, match="shard 1 is corrupt"):
         S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
     assert not any(t.name == "holodata-slam-read" for t in __import__("threading").enumerate())
@@ -668,7 +672,9 @@ def test_mesh_background_worker_death_is_a_one_line_error(slam_run, monkeypatch)
     import holodata.parallel
 
     monkeypatch.setattr(holodata.parallel, "cpus", lambda: 2)    # forked also where fewer CPUs are free
-    monkeypatch.setattr(S, "_mesh_background", lambda *a: os.kill(os.getpid(), signal.SIGKILL))
+    from holodata.mapping.slam import world
+
+    monkeypatch.setattr(world, "_mesh_background", lambda *a: os.kill(os.getpid(), signal.SIGKILL))
     with pytest.raises(HolodataError, match="mesh background model.*died"):
         S.slam_scene(slam_run["url"], write=False, force=True, quiet=True)
 

@@ -1,0 +1,39 @@
+"""Point-cloud helpers shared by odometry, refinement and meshing: voxel downsampling, normals,
+open3d clouds."""
+from __future__ import annotations
+
+import numpy as np
+
+
+def _o3d_cloud(points, normals=None):
+    import open3d as o3d
+
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.ascontiguousarray(points, np.float64)))
+    if normals is not None:
+        pc.normals = o3d.utility.Vector3dVector(np.ascontiguousarray(normals, np.float64))
+    return pc
+
+
+def scan_normals(points: np.ndarray, radius: float = 0.3, max_nn: int = 20):
+    """Downsampled sensor-frame points → (points, normals facing the sensor) via open3d."""
+    import open3d as o3d
+
+    pc = _o3d_cloud(points)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=max_nn))
+    pc.orient_normals_towards_camera_location(np.zeros(3))
+    return np.asarray(pc.points), np.asarray(pc.normals)
+
+
+def _downsample_index(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Sorted indices of one point per occupied ``voxel`` (the first)."""
+    if len(points) == 0:
+        return np.zeros(0, np.int64)
+    from ..background import _keys, voxel_index
+
+    _, idx = np.unique(_keys(voxel_index(points, voxel)), return_index=True)
+    return np.sort(idx)
+
+
+def downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Voxel-grid downsampling (one point per occupied voxel: the first)."""
+    return points[_downsample_index(points, voxel)] if len(points) else points

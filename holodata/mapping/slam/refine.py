@@ -1,0 +1,419 @@
+"""Scan-to-map point-to-plane ICP (open3d targets, a Gauss-Newton step) refining the odometry
+(:func:`refine`, :func:`global_refine`), with the vertical taken from level seeds where given."""
+from __future__ import annotations
+
+
+import numpy as np
+
+from ...conventions import rotation_angle_deg, transform_directions, transform_points
+from ...progress import track
+from .config import Scans, SlamConfig
+from .points import _downsample_index, _o3d_cloud, downsample, scan_normals
+from .odometry import _Fixed, deskew, twist
+
+
+class VoxelMap:
+    """Point-to-plane target map: one point (+ normal) per ``voxel``, first come first kept."""
+
+    def __init__(self, voxel: float):
+        self.voxel = voxel
+        self.keys = np.zeros(0, np.int64)
+        self.points = np.zeros((0, 3))
+        self.normals = np.zeros((0, 3))
+
+    def _k(self, p):
+        from ..background import _keys, voxel_index
+
+        return _keys(voxel_index(p, self.voxel))
+
+    def add(self, points: np.ndarray, normals: np.ndarray) -> None:
+        k = self._k(points)
+        k, idx = np.unique(k, return_index=True)
+        new = ~np.isin(k, self.keys, assume_unique=True)
+        if not new.any():
+            return
+        idx = idx[new]
+        self.keys = np.concatenate([self.keys, k[new]])
+        self.points = np.concatenate([self.points, points[idx]])
+        self.normals = np.concatenate([self.normals, normals[idx]])
+        o = np.argsort(self.keys)
+        self.keys, self.points, self.normals = self.keys[o], self.points[o], self.normals[o]
+
+    def crop(self, center: np.ndarray, radius: float):
+        m = np.einsum("ij,ij->i", self.points - center, self.points - center) <= radius * radius
+        return self.points[m], self.normals[m]
+
+
+class _TargetCache:
+    """The refinement map cropped around a position (``radius``), as an open3d cloud (ICP target) and a
+    scipy KD-tree (rest check), rebuilt only when the map grew or the position moved > 1 m."""
+
+    def __init__(self, radius: float):
+        self.radius = radius
+        self.key = None
+        self.pts = self.nrm = None
+        self._cloud = self._tree = None
+
+    def _crop(self, vmap: VoxelMap, center: np.ndarray) -> None:
+        if self.key is not None and self.key[0] == len(vmap.points) and np.linalg.norm(center - self.key[1]) < 1.0:
+            return
+        self.pts, self.nrm = vmap.crop(center, self.radius)
+        self.key = (len(vmap.points), np.array(center, np.float64))
+        self._cloud = self._tree = None
+
+    def cloud(self, vmap: VoxelMap, center: np.ndarray):
+        self._crop(vmap, center)
+        if self._cloud is None:
+            self._cloud = _o3d_cloud(self.pts, self.nrm)
+        return self._cloud
+
+    def tree(self, vmap: VoxelMap, center: np.ndarray):
+        from scipy.spatial import cKDTree
+
+        self._crop(vmap, center)
+        if self._tree is None:
+            self._tree = cKDTree(self.pts)
+        return self._tree, self.pts, self.nrm
+
+
+def _at_rest(src: np.ndarray, target, T: np.ndarray, cfg: SlamConfig) -> bool:
+    """One point-to-plane Gauss-Newton step (Tukey weights, correspondences within the finest ICP
+    distance) of ``src`` (sensor frame) at pose ``T`` against ``target`` (tree, points, normals): True
+    when the step is below ``still_check_m`` and ``still_check_deg`` and enough points correspond."""
+    tree, tp, tn = target
+    d = float(min(cfg.icp_distances))
+    p = transform_points(T, src)
+    dist, j = tree.query(p, k=1, distance_upper_bound=d)  # single thread: a few thousand points
+    ok = np.isfinite(dist)
+    if ok.mean() < cfg.min_fitness or ok.sum() < 30:
+        return False
+    dx = _gn_step(p[ok], tp[j[ok]], tn[j[ok]], T[:3, 3], d * cfg.tukey_k)
+    return dx is not None and _small(dx, cfg.still_check_m, cfg.still_check_deg)
+
+
+def _gn_step(p: np.ndarray, q: np.ndarray, n: np.ndarray, centre: np.ndarray, k: float) -> np.ndarray | None:
+    """One point-to-plane Gauss-Newton step (6,) [rotation vector (rad), translation (m)] moving points
+    ``p`` (M,3) onto the planes through ``q`` (M,3) with unit normals ``n`` (M,3), rotation about
+    ``centre`` (3,) (the sensor: the translation is its shift), Tukey weights of width ``k`` (m).
+    None when the system is ill-conditioned (cond > 1e8)."""
+    r = np.einsum("ij,ij->i", p - q, n)
+    w = np.where(np.abs(r) < k, (1 - (r / k) ** 2) ** 2, 0.0)
+    J = np.concatenate([np.cross(p - centre, n), n], axis=1)
+    H = (J * w[:, None]).T @ J
+    if np.linalg.cond(H) > 1e8:
+        return None
+    return -np.linalg.solve(H, (J * (w * r)[:, None]).sum(0))
+
+
+def _small(dx: np.ndarray, m: float, deg: float) -> bool:
+    return bool(np.linalg.norm(dx[3:]) < m and np.degrees(np.linalg.norm(dx[:3])) < deg)
+
+
+class _SameBeam:
+    """The map rest check (:func:`_at_rest`) with its correspondences cached per beam (organised scans,
+    :attr:`Scans.pixels`).
+
+    Built from a scan ``a`` that passed the map check at the held pose ``T``: for at most
+    ``max_points`` of its returns (evenly spread in row-major order) the map point nearest to the
+    return (within the finest ICP distance) and its normal, in the sensor frame at ``T``, are kept per
+    pixel. While the robot stands, a pixel keeps seeing the same surface, so a later scan ``i`` needs
+    no nearest-neighbour search and no downsampling: its return in the same pixel goes with that
+    pixel's map plane, and one point-to-plane Gauss-Newton step (Tukey width as in the map check) is
+    its motion from ``T``. Scan ``i`` is at rest when that step is below ``scale`` ×
+    ``still_check_m`` / ``still_check_deg`` (the map check's bounds by default), at least
+    ``min_fitness`` of the cached pixels have a return in scan ``i`` and at least ``min_share`` of
+    those returns lie within half the finest ICP distance of their plane; anything else goes to the
+    map check. The share guards against a motion beyond the Tukey width: along a corridor only the
+    walls facing the motion see it, their residuals drop out of the kernel and the step alone would
+    look small (the map check relies on the previous scans not having moved for that); at rest
+    94-96 % of the returns lie that close (400-cycle L corner), so ``min_share`` 0.9 sends any
+    motion seen by more than ~5 % of the beams to the map check. Measured there: 339 of 373 scans at
+    rest decided this way, the step's size distribution as the map check's (median 1.4 vs 1.5 mm)."""
+
+    def __init__(self, points: np.ndarray, pixels: np.ndarray, target, T: np.ndarray, cfg: SlamConfig,
+                 n_pixels: int, max_points: int, scale: float, min_share: float):
+        tree, tp, tn = target
+        self.d = float(min(cfg.icp_distances))
+        self.k = self.d * cfg.tukey_k
+        self.min_share, self.min_fitness = min_share, cfg.min_fitness
+        self.m, self.deg = scale * cfg.still_check_m, scale * cfg.still_check_deg
+        pick = np.unique(np.linspace(0, len(points) - 1, min(len(points), max_points)).round().astype(np.int64))
+        dist, j = tree.query(transform_points(T, points[pick]), k=1, distance_upper_bound=self.d)
+        ok = np.isfinite(dist)
+        j = j[ok]
+        R, t = T[:3, :3], T[:3, 3]
+        self.q = (tp[j] - t) @ R                 # the map point and normal found for the beam, sensor frame
+        self.n = tn[j] @ R
+        self.pix = pixels[pick[ok]]
+        self.slot = np.full(n_pixels, -1, np.int32)   # scratch: pixel -> row of the scan under test
+
+    def __len__(self) -> int:
+        return len(self.q)
+
+    def at_rest(self, points: np.ndarray, pixels: np.ndarray, keep: np.ndarray) -> bool:
+        """Scan ``points`` (N,3) sensor frame, their ``pixels`` (N,), ``keep`` (N,) in the range limits."""
+        if len(self.q) < 30:
+            return False
+        self.slot[pixels[keep]] = np.flatnonzero(keep)
+        row = self.slot[self.pix]
+        self.slot[pixels[keep]] = -1
+        has = row >= 0
+        if has.sum() < max(30, self.min_fitness * len(self.q)):
+            return False
+        p = np.asarray(points[row[has]], np.float64)
+        q, n = self.q[has], self.n[has]
+        near = np.abs(np.einsum("ij,ij->i", p - q, n)) < 0.5 * self.d
+        if near.sum() < self.min_share * len(p):
+            return False
+        dx = _gn_step(p, q, n, np.zeros(3), self.k)
+        return dx is not None and _small(dx, self.m, self.deg)
+
+
+def icp(src_pts: np.ndarray, target, init: np.ndarray, cfg: SlamConfig, distances=None):
+    """Coarse-to-fine point-to-plane ICP of ``src_pts`` (sensor frame) onto ``target`` (open3d
+    cloud with normals). Returns (T, fitness, inlier rmse) of the finest stage."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    src = _o3d_cloud(src_pts)
+    T = init.copy()
+    res = None
+    for d in (distances or cfg.icp_distances):
+        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(d * cfg.tukey_k)))
+        res = reg.registration_icp(src, target, float(d), T, est,
+                                   reg.ICPConvergenceCriteria(1e-7, max(cfg.icp_converged_m, 1e-7), int(cfg.icp_iterations)))
+        if len(res.correspondence_set) >= 30:
+            T = np.asarray(res.transformation)
+    return T, float(res.fitness), float(res.inlier_rmse)
+
+
+def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None,
+           ready=None, vmap: "VoxelMap | None" = None, grow_map: bool = True,
+           vertical: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """Scan-to-map refinement (see module doc) of initial poses ``init``: (S,4,4) at the scan stamps,
+    or a :class:`KissStream` asked for a scan's kiss-icp pose only when the robot is not at rest (its
+    relative motion seeds the ICP; scans at rest are never fed to it). ``T0``: pose of the first scan
+    (default ``init``'s); ``ready(i)``: called before scan i is used (scans still being read,
+    :func:`stream_scans`); ``vmap``: start from this map (world frame) instead of an empty one, and
+    with ``grow_map`` False never add the scans to it (localisation against a fixed map);
+    ``vertical``: (S,4,4) world poses of a ground robot's level odometry (:func:`level_seeds`) whose
+    height, roll and pitch the refined poses take (:func:`with_vertical_of`); level seeds give them
+    when None. Returns the refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
+    S = len(scans)
+    t_s = (scans.stamp_ns - scans.stamp_ns[0]).astype(np.float64) * 1e-9
+    stream = _Fixed(np.asarray(init, np.float64)) if isinstance(init, np.ndarray) else init
+    # odometry seeds (_Fixed(seed=True)): deskew with their motion about each scan, not the last step's
+    seed_twist = twists_central(stream.poses, scans.stamp_ns) if getattr(stream, "seed", False) else None
+    # planar seeds (wheel odometry on a level floor): height, roll and pitch follow them, not the ICP
+    vertical_from = "tf" if vertical is not None else None
+    if vertical is None and seed_twist is not None and level_seeds(stream.poses):
+        vertical = (stream.poses[0] if T0 is None else T0) @ np.linalg.inv(stream.poses[0]) @ stream.poses
+        vertical_from = "seeds"
+    init = stream.poses
+    poses = np.zeros((S, 4, 4))
+    poses[0] = stream.pose(0)
+    if T0 is not None:
+        poses[0] = T0
+    use_t = cfg.deskew and scans.times is not None
+    vmap = vmap if vmap is not None else VoxelMap(cfg.map_voxel)
+    fit = np.zeros(S)
+    rmse = np.zeros(S)
+    xi_prev = np.zeros(6)
+    fallbacks = 0
+    last_key, keyframes, still, anchor = None, 0, 0, 0
+    beams = cfg.same_beam and scans.pixels is not None and scans.grid is not None
+    n_pix = int(np.prod(scans.grid)) if beams else 0
+    same, same_beam = None, 0   # _SameBeam reference of the current anchor pose, scans it found at rest
+    target = _TargetCache(max_range + 1.0)
+    def in_range(p):   # (N,) bool: returns within [min_range, max_range] of the sensor
+        r2 = np.einsum("ij,ij->i", p, p)
+        return (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)
+
+    def ranged(p, t):
+        p = np.asarray(p, np.float64)
+        keep = in_range(p)
+        return p[keep], (t[keep] if t is not None else None)
+
+    for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
+        if ready is not None:
+            ready(i)
+        xi = xi_prev if i > 0 else np.zeros(6)
+        if seed_twist is not None:
+            xi = seed_twist[i]
+        raw_t = scans.times[i] if use_t else None
+        if (i > 0 and not _moved(poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5)
+                and (not isinstance(stream, _Fixed) or not _moved(init[anchor], init[i], cfg.still_m, cfg.still_deg))):
+            at_rest = False
+            pix = scans.pixels[i] if beams else None
+            if same is not None and pix is not None:
+                # beam by beam against the last scan that passed the map check at this pose (_SameBeam)
+                at_rest = same.at_rest(scans.points[i], pix, in_range(scans.points[i]))
+                same_beam += at_rest
+            if not at_rest:
+                # rest check on the ICP source voxels (no deskew: the robot was at rest or nearly)
+                rest, _ = ranged(scans.points[i][_downsample_index(scans.points[i], cfg.source_voxel)], None)
+                tgt_tree = target.tree(vmap, poses[anchor][:3, 3])
+                at_rest = _at_rest(rest, tgt_tree, poses[anchor], cfg)
+                if at_rest and pix is not None:
+                    p = np.asarray(scans.points[i], np.float64)
+                    keep = in_range(p)
+                    same = _SameBeam(p[keep], pix[keep], tgt_tree, poses[anchor], cfg, n_pix, cfg.same_beam_points,
+                                     cfg.same_beam_scale, cfg.same_beam_share)
+        else:
+            at_rest = False
+        if not at_rest:
+            pts, tm = ranged(scans.points[i], raw_t)
+            # deskew only the downsampled points that are used (ICP source, map keyframe)
+            i_src = _downsample_index(pts, cfg.source_voxel)
+            src = deskew(pts[i_src], tm[i_src], xi) if use_t else pts[i_src]
+        if i == 0:
+            T = poses[0]
+            f, e = 1.0, 0.0
+        elif at_rest:
+            # at rest: the last step was small, one point-to-plane Gauss-Newton step of this scan from the
+            # last refined pose against the map is below still_check_m / still_check_deg (and, with given
+            # initial poses, they moved less than still_m since) -> hold that pose; no ICP, no kiss-icp
+            stream.hold(i)
+            T, f, e = poses[anchor].copy(), float(fit[anchor]), float(rmse[anchor])
+            still += 1
+            xi = np.zeros(6)
+        else:
+            guess = poses[i - 1] @ (np.linalg.inv(init[i - 1]) @ stream.pose(i))
+            tgt = target.cloud(vmap, guess[:3, 3])
+            T, f, e = icp(src, tgt, guess, cfg)
+            if f < cfg.min_fitness:  # too few scan points near the map (sparse, far, outdoor): trust kiss-icp
+                T = guess
+                fallbacks += 1
+            if vertical is not None:
+                T = with_vertical_of(T, vertical[i])
+            xi = twist(poses[i - 1], T, t_s[i] - t_s[i - 1]) if seed_twist is None else seed_twist[i]
+            anchor = i
+            same = None
+        poses[i] = T
+        fit[i], rmse[i] = f, e
+        xi_prev = xi
+        if grow_map and not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
+            i_map = _downsample_index(pts, cfg.map_voxel)
+            dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map])
+            vmap.add(transform_points(T, dp), transform_directions(T, dn))
+            last_key = T
+            keyframes += 1
+    health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
+              "vertical_from": vertical_from,
+              "map_keyframes": keyframes, "still_scans": still, "still_same_beam": same_beam,
+              "kiss_scans": int(stream.fed),
+              "kiss_s": float(stream.seconds)}
+    return poses, health
+
+
+def level_seeds(poses: np.ndarray, height_m: float = 0.01, tilt_deg: float = 0.2) -> bool:
+    """True when seed poses (S,4,4) are those of a ground robot's odometry on a level floor: their
+    height varies by less than ``height_m`` and every tilt (roll/pitch) relative to the first is below
+    ``tilt_deg``. Such odometry pins height, roll and pitch better than scan-to-map ICP on a sparse,
+    throttled LiDAR (a synth mapping pass at 2 scans/s drifted 5 cm in height over 6 m), so
+    :func:`refine` then takes those three from the seeds (:func:`with_vertical_of`)."""
+    P = np.asarray(poses, np.float64)
+    if len(P) < 2 or np.ptp(P[:, 2, 3]) >= height_m:
+        return False
+    z0 = P[0, :3, 2]
+    return bool(np.degrees(np.arccos(np.clip(P[:, :3, 2] @ z0, -1, 1))).max() < tilt_deg)
+
+
+def with_vertical_of(T: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """``T`` (4,4) with the height, roll and pitch of ``G`` (4,4): the heading (yaw) and the planar
+    position of ``T``, the rest of ``G``."""
+    from ...conventions import yaw_rad
+
+    def rz(a):
+        c, s_ = np.cos(a), np.sin(a)
+        return np.array([[c, -s_, 0.0], [s_, c, 0.0], [0.0, 0.0, 1.0]])
+
+    out = G.copy()
+    out[:3, :3] = rz(yaw_rad(T) - yaw_rad(G)) @ G[:3, :3]
+    out[:2, 3] = T[:2, 3]
+    return out
+
+
+def _moved(Ta: np.ndarray, Tb: np.ndarray, dist_m: float, angle_deg: float) -> bool:
+    D = np.linalg.inv(Ta) @ Tb
+    return bool(np.linalg.norm(D[:3, 3]) >= dist_m or rotation_angle_deg(D) >= angle_deg)
+
+
+def mesh_scan_subset(poses: np.ndarray, max_n: int, dist_m: float = 0.05, angle_deg: float = 2.0) -> np.ndarray:
+    """Indices of at most ``max_n`` scans: keyframes by motion plus scans evenly spread in time."""
+    S = len(poses)
+    if S <= max_n:
+        return np.arange(S)
+    key, last = [0], poses[0]
+    for i in range(1, S):
+        if _moved(last, poses[i], dist_m, angle_deg):
+            key.append(i)
+            last = poses[i]
+    idx = np.union1d(np.asarray(key), np.linspace(0, S - 1, max(2, max_n // 2)).round().astype(int))
+    if len(idx) > max_n:
+        idx = idx[np.linspace(0, len(idx) - 1, max_n).round().astype(int)]
+    return np.unique(idx)
+
+
+def twists_central(poses: np.ndarray, stamp_ns: np.ndarray) -> np.ndarray:
+    """(S,6) body twists per scan from the neighbouring poses (central difference)."""
+    S = len(poses)
+    t = (stamp_ns - stamp_ns[0]).astype(np.float64) * 1e-9
+    out = np.zeros((S, 6))
+    for i in range(S):
+        a, b = max(0, i - 1), min(S - 1, i + 1)
+        if b > a:
+            out[i] = twist(poses[a], poses[b], t[b] - t[a])
+    return out
+
+
+def deskewed_scans(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: float, indices=None
+                   ) -> list[np.ndarray]:
+    """Per scan (or per scan of ``indices``): range-filtered points deskewed to the scan stamp with
+    central-difference twists."""
+    xis = twists_central(poses, scans.stamp_ns)
+    use_t = cfg.deskew and scans.times is not None
+    out = []
+    for i in (range(len(scans)) if indices is None else indices):
+        pts = np.asarray(scans.points[i], np.float64)
+        r = np.linalg.norm(pts, axis=1)
+        keep = (r >= cfg.min_range) & (r <= max_range)
+        out.append(deskew(pts[keep], scans.times[i][keep] if use_t else None, xis[i]))
+    return out
+
+
+def global_refine(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: float, quiet: bool = True,
+                  background=None) -> tuple[np.ndarray, dict]:
+    """Second pass: every scan (deskewed with central-difference twists) against the whole map built
+    from all scans at ``poses``, moving points removed by ``background`` (a VoxelBackground; built here
+    when None). Returns refined poses and health figures."""
+    import open3d as o3d
+
+    from ..background import VoxelBackground
+
+    desk = deskewed_scans(scans, poses, cfg, max_range)
+    ds = [downsample(p, cfg.fine_map_voxel) for p in desk]
+    world = [transform_points(T, p) for T, p in zip(poses, ds)]
+    if background is None:
+        background = VoxelBackground.build(world, voxel=cfg.background_voxel, min_fraction=cfg.background_min_fraction,
+                                           origins=poses[:, :3, 3])
+    allp = np.concatenate([w[background.contains(w, tolerance=0)] for w in world])
+    allp = downsample(allp, cfg.fine_map_voxel)
+    pc = _o3d_cloud(allp)
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.25, max_nn=30))
+    # orient normals towards the nearest sensor position
+    centers = poses[:, :3, 3]
+    from scipy.spatial import cKDTree
+
+    _, ci = cKDTree(centers).query(allp)
+    nrm = np.asarray(pc.normals)
+    flip = np.einsum("ij,ij->i", nrm, centers[ci] - allp) < 0
+    nrm[flip] *= -1
+    pc.normals = o3d.utility.Vector3dVector(nrm)
+    out = poses.copy()
+    fit = np.zeros(len(poses))
+    rmse = np.zeros(len(poses))
+    for i in track(range(len(poses)), total=len(poses), description="slam: refine (global map)", quiet=quiet):
+        src = downsample(desk[i], cfg.fine_source_voxel)
+        out[i], fit[i], rmse[i] = icp(src, pc, poses[i], cfg, cfg.fine_distances)
+    return out, {"fitness": fit, "rmse": rmse, "map_points": int(len(allp)), "background": background}
