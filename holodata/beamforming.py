@@ -22,7 +22,7 @@ import math
 import numpy as np
 
 from .errors import DatasetError, InputError
-from .radar.beamform import BeamformParams, beamform, beamform_attrs
+from .radar.beamform import BeamformParams, Motion, beamform, beamform_attrs
 from .radar.chirp import ChirpConfig
 
 MOTIONS = ("recorded", "slam", "none")
@@ -157,7 +157,7 @@ def image_shard(url: str, scene_id: str, k: int, job: dict) -> int:
         after = cube[b + n:b + n + a] if a else None
         period = (cycles[j, 1] - cycles[j, 0]) * 1e-9 / n
         ds0, th = (float(v) for v in job["motion"][f])
-        vel = (ds0 / period * math.cos(th), ds0 / period * math.sin(th)) if ds0 > 0 else None
+        vel = Motion(ds0, th).velocity(period)
         if vel is not None and (before is None or after is None):
             raise DatasetError(f"{url}: scene {scene_id!r} frame {f}: a moving rotation needs the neighbouring "
                                f"chirps, and radar/iq holds only the rotation (a static recording)")

@@ -184,7 +184,7 @@ class RawRadarStream(RadarStream):
     def convert(self, raw, keep):
         from types import SimpleNamespace
 
-        from ..radar.beamform import beamform, beamform_attrs
+        from ..radar.beamform import Motion, beamform, beamform_attrs
         from ..readers.base import RawRotation
 
         msg = self.rec.decode(raw)
@@ -228,7 +228,7 @@ class RawRadarStream(RadarStream):
         before, rot, after = cube[:nb], cube[nb:nb + nr], cube[nb + nr:]
         ds0, th = float(msg.travel_per_chirp), float(msg.heading)
         period = (int(msg.cycle_end_ns) - int(msg.cycle_start_ns)) * 1e-9 / nr
-        vel = (ds0 / period * math.cos(th), ds0 / period * math.sin(th)) if ds0 > 0 and period > 0 else None
+        vel = Motion(ds0, th).velocity(period)
         if vel is not None and (nb < n_syn // 2 or na < n_syn // 2):
             raise DecodeError(f"topic {self.topic}: RadarRawRotation at {raw.log_ns} ns moves but carries {nb}/{na} "
                               f"neighbouring chirps, its beams need {n_syn // 2}")

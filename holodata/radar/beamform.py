@@ -174,6 +174,14 @@ class Motion:
             return None
         return cls(speed * float(chirp_period_s), math.atan2(vy, vx))
 
+    def velocity(self, chirp_period_s: float) -> tuple[float, float] | None:
+        """(vx, vy) m/s for chirps ``chirp_period_s`` apart (the inverse of :meth:`from_velocity`);
+        None at rest (``ds0`` 0) or without a period — what :func:`beamform` takes."""
+        if not self.ds0 > 0 or not chirp_period_s > 0:
+            return None
+        speed = self.ds0 / chirp_period_s
+        return speed * math.cos(self.theta_v), speed * math.sin(self.theta_v)
+
 
 # -- entry point ---------------------------------------------------------------------------------------
 def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: BeamformParams | None = None, *,

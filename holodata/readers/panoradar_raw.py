@@ -35,7 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import RecordingError
-from ..radar.beamform import BeamformParams, beamform, beamform_attrs, static_reflection
+from ..radar.beamform import BeamformParams, Motion, beamform, beamform_attrs, static_reflection
 from ..radar.chirp import ChirpConfig
 from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, RawRotation,
                    Recording, TopicInfo, rate_of)
@@ -319,7 +319,7 @@ class PanoRadarRawRecording(Recording):
         velocity, ds0, th = None, 0.0, 0.0
         if self.motion is not None:
             ds0, th = float(self.motion["ds0"][k]), float(self.motion["theta_v"][k])
-            velocity = (ds0 / period * math.cos(th), ds0 / period * math.sin(th))
+            velocity = Motion(ds0, th).velocity(period)
         try:
             hm = beamform(rot, self.chirp, self.params, before=before, after=after, velocity=velocity,
                           chirp_period_s=period, static_refl=self.static_refl(), device=self.device)
