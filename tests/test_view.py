@@ -55,9 +55,21 @@ def test_web_keeps_its_data_server_alive_while_the_stream_is_held(traced):
 
     from holodata.view import view_scene
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    def free_pair() -> int:
+        """A port P with P + 1 free too (the web viewer takes P, its data server P + 1)."""
+        for _ in range(50):
+            with socket.socket() as a:
+                a.bind(("0.0.0.0", 0))
+                port = a.getsockname()[1]
+                try:
+                    with socket.socket() as b:
+                        b.bind(("0.0.0.0", port + 1))
+                except OSError:
+                    continue
+            return port
+        raise AssertionError("no two consecutive free ports")
+
+    port = free_pair()
     r = view_scene(traced, "room_a", "0:2", web=True, port=port)
     assert r["stream"] is not None
     with socket.create_connection(("127.0.0.1", port + 1), timeout=5):   # the gRPC data server answers
