@@ -15,17 +15,24 @@ import click
 @click.option("--web", is_flag=True, help="Serve Rerun's web viewer on 127.0.0.1 (offline: it ships with the SDK).")
 @click.option("--port", type=click.IntRange(1024, 65534), default=None,
               help="Web viewer port (its data server takes the next one; default 9090 / 9876).")
+@click.option("--checkpoint", type=click.Path(exists=True), default=None,
+              help="A trained run (RUN or RUN/checkpoint.pt): draw its predicted points per frame.")
+@click.option("--report", type=click.Path(exists=True, file_okay=False), default=None,
+              help="An evaluation's --out directory: draw the predicted points of the run it scored.")
+@click.option("--device", default="cpu", show_default=True, help="Torch device for --checkpoint/--report.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def view(dataset, scene, frames, save, web, port, as_json):
+def view(dataset, scene, frames, save, web, port, checkpoint, report, device, as_json):
     """Look at a scene in Rerun: per frame (timeline `time`) the radar heatmap (range-azimuth slice
     at 0° elevation, maximum over range), GT range and label images per bounce, the GT returns
     mirrored (where the radar sees them) and un-mirrored (hit points) coloured by label, the LiDAR
-    scan, the camera cloud, the human surface and the sensor poses; the static mesh once.
+    scan, the camera cloud, the human surface and the sensor poses; the static mesh once. With
+    --checkpoint or --report, the run's predicted points too (world/pred/points).
 
     \b
     Example:
       holodata view holodata-demo/dataset.zarr --scene L_16 --save L_16.rrd
       holodata view holodata-demo/dataset.zarr --web --port 9090
+      holodata view holodata-demo/dataset.zarr --report holodata-demo/report --save pred.rrd
     """
     import os
 
@@ -34,13 +41,16 @@ def view(dataset, scene, frames, save, web, port, as_json):
 
     if save and web:
         raise click.UsageError("--save or --web, not both")
+    if checkpoint and report:
+        raise click.UsageError("--checkpoint or --report, not both")
     if not save and not web and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
         raise InputError("no display for the desktop viewer: use --save OUT.rrd or --web")
     try:
         import rerun  # noqa: F401
     except ImportError as err:
         raise InputError("holodata view needs the Rerun SDK: pip install -e '.[view]' (scripts/setup.sh installs it)") from err
-    r = view_scene(dataset, scene, frames, save=save, web=web, port=port)
+    r = view_scene(dataset, scene, frames, save=save, web=web, port=port, checkpoint=checkpoint, report=report,
+                   device=device)
     stream = r.pop("stream", None)   # noqa: F841 - held: the web viewer's data server lives as long as it
     if as_json:
         click.echo(json.dumps(r, indent=2))

@@ -17,6 +17,9 @@ the ``time`` timeline (``time/timestamp_ns``), read only that frame's arrays and
                                       the LiDAR scan in its sensor frame under that transform
 ``world/camera/points``               the depth camera's cloud under ``calib/T_world_camera``
 ``world/human``                       the registered human surface (``human/vertices``, ``human/faces``)
+``world/pred/points``                 with a run (``checkpoint`` or an evaluation ``report``): the
+                                      run's predicted points (stage one + its stage two, as
+                                      ``holodata evaluate`` scores them), coloured by predicted label
 ====================================  ========================================================
 
 Arrays a scene lacks are left out and listed in the returned ``notes``. Memory stays flat in the
@@ -65,11 +68,59 @@ def _stream(save, web: bool, port: int | None, scene_id: str):
     return rec
 
 
+def run_of_report(report_dir) -> tuple[str | None, bool, str]:
+    """(checkpoint, oracle, estimator) an evaluation report (``DIR/metrics.json``) was made with."""
+    import json
+    from pathlib import Path
+
+    p = Path(report_dir) / "metrics.json"
+    if not p.exists():
+        raise InputError(f"{p}: no such file (--report takes the --out directory of holodata evaluate)")
+    try:
+        doc = json.loads(p.read_text())
+        ck, est = doc["checkpoint"], doc["settings"].get("estimator", "mean")
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"{p}: not a holodata metrics document ({err.__class__.__name__})") from err
+    return (None, True, est) if ck == "oracle" else (ck, False, est)
+
+
+class _Predictions:
+    """A run's predicted points per frame, in the world frame (see :mod:`holodata.evaluate.predict`)."""
+
+    def __init__(self, checkpoint, oracle: bool, estimator: str, ds, sc, device: str = "cpu"):
+        from .evaluate.frames import SceneBeams
+        from .evaluate.pipeline import reduced_grid
+        from .evaluate.predict import Predictor
+
+        self.run = Predictor.load(checkpoint, device=device, estimator=estimator, oracle=oracle)
+        self.f = self.run.downsample
+        self.grid = reduced_grid(ds.grid, self.f)
+        self.beams, self.sc = SceneBeams(sc, ds.grid), sc
+
+    def frame(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        """Frame k → (points (N,3) float32 world frame, class ids (N,) uint8)."""
+        from .evaluate.predict import label_of, oracle_points
+
+        geo, f = self.beams.frame(k, self.f), self.f
+        if self.run.model is None:
+            rng = np.asarray(self.sc["gt/range"][k], np.float32)[:, ::f, ::f]
+            p = oracle_points(rng, np.asarray(self.sc["gt/label"][k], np.uint8)[:, ::f, ::f], geo, self.grid)
+        else:
+            rng, hum = self.run.ranges([np.asarray(self.sc["radar/heatmap"][k], np.float32)])
+            p = self.run.points(rng[0], hum[0], geo, self.grid)
+        P = np.asarray(p["point"], np.float64).reshape(-1, 3)
+        ok = np.isfinite(P).all(-1)
+        ids = label_of(np.asarray(p["los"], bool).reshape(-1), np.asarray(p["human"], bool).reshape(-1))
+        return geo.to_world(P[ok]).astype(np.float32), ids[ok]
+
+
 def view_scene(url: str, scene_id: str | None = None, frames: str | None = None, save=None, web: bool = False,
-               port: int | None = None) -> dict:
+               port: int | None = None, checkpoint=None, report=None, device: str = "cpu") -> dict:
     """Log scene ``scene_id`` (default: the first with a radar) of dataset ``url`` to Rerun; returns
     {scene, frames, entities, notes} (and, with ``web``, ``stream``: the recording stream whose
-    gRPC server the web viewer reads from — it stops when the stream is dropped)."""
+    gRPC server the web viewer reads from — it stops when the stream is dropped). ``checkpoint``
+    (a run) or ``report`` (an evaluation's ``--out`` directory, whose run is used) adds the run's
+    predicted points per frame."""
     import rerun as rr
 
     from .beams import OriginModel, beam_rays, column_poses, scene_origin_model
@@ -92,6 +143,14 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
                        ("human/vertices", "the human surface")):
         if name not in has:
             notes.append(f"no {name}: {what} left out")
+    pred = None
+    if checkpoint is not None or report is not None:
+        ck, oracle, est = run_of_report(report) if report is not None else (checkpoint, False, "mean")
+        need = [n for n in (("gt/range", "gt/label") if oracle else ("radar/heatmap",)) if n not in has]
+        if need:
+            notes.append(f"no {need[0]}: the run's predicted points left out")
+        else:
+            pred = _Predictions(ck, oracle, est, ds, sc, device)
     rec = _stream(save, web, port, scene_id)
     entities: set[str] = set()
 
@@ -156,6 +215,9 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
             if "gt/point" in has:
                 pts = np.asarray(sc["gt/point"][f], np.float32).reshape(R.shape[0], -1, 3)[ok]
                 log("world/gt/unmirrored", rr.Points3D(pts, class_ids=ids, radii=0.02))
+        if pred is not None:
+            pts, ids = pred.frame(f)
+            log("world/pred/points", rr.Points3D(pts, class_ids=ids, radii=0.02))
     rec.flush()
     if save:
         rec.disconnect()

@@ -75,3 +75,50 @@ def test_web_keeps_its_data_server_alive_while_the_stream_is_held(traced):
     with socket.create_connection(("127.0.0.1", port + 1), timeout=5):   # the gRPC data server answers
         pass
     r["stream"].disconnect()
+
+
+def test_an_oracle_report_draws_the_gt_hit_points_as_predictions(traced, tmp_path):
+    """A perfect prediction (an oracle evaluation's report) must land exactly on the traced hit
+    points, with the GT labels: the view runs the same stage two as evaluate, in the world frame."""
+    pytest.importorskip("torch")
+    import numpy as np
+
+    from holodata.dataset import open_dataset
+    from holodata.evaluate import evaluate
+    from holodata.view import _Predictions, run_of_report
+
+    rep = tmp_path / "oracle"
+    evaluate(traced, None, rep, split="all", oracle=True, report=False, quiet=True)
+    ck, oracle, est = run_of_report(rep)
+    assert oracle and ck is None
+    ds = open_dataset(traced)
+    sc = ds.scene("room_b")
+    pred = _Predictions(ck, oracle, est, ds, sc)
+    for k in (0, 2):
+        pts, ids = pred.frame(k)
+        gp = np.asarray(sc["gt/point"][k], np.float64).reshape(-1, 3)
+        ok = np.isfinite(gp).all(-1)
+        assert len(pts) == ok.sum() > 100
+        np.testing.assert_allclose(pts, gp[ok], atol=1e-3)
+        np.testing.assert_array_equal(ids, np.asarray(sc["gt/label"][k]).reshape(-1)[ok])
+    out = tmp_path / "p.rrd"
+    r = CliRunner().invoke(cli, ["view", traced, "--scene", "room_b", "--frames", "0:2", "--report", str(rep),
+                                 "--save", str(out)])
+    assert r.exit_code == 0, r.output
+    assert _rows(out).get("/world/pred/points") == 2
+
+
+def test_a_checkpoint_draws_its_predicted_points(traced, tmp_path):
+    pytest.importorskip("torch")
+    from holodata.torch import TrainConfig, train
+
+    run = tmp_path / "run"
+    train(traced, run, TrainConfig(epochs=1, depth=3, base_channels=8, max_channels=16, blocks=1, batch_size=2),
+          quiet=True)
+    out = tmp_path / "c.rrd"
+    r = CliRunner().invoke(cli, ["view", traced, "--scene", "room_b", "--frames", "0:3", "--checkpoint", str(run),
+                                 "--save", str(out)])
+    assert r.exit_code == 0, r.output
+    assert _rows(out).get("/world/pred/points") == 3
+    r = CliRunner().invoke(cli, ["view", traced, "--report", str(tmp_path), "--save", str(out)])
+    assert r.exit_code == 1 and "metrics.json: no such file" in r.output and "Traceback" not in r.output, r.output

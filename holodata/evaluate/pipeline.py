@@ -195,34 +195,19 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     (``checkpoint`` may then be None): a check of the metric plumbing, which must give perfect
     scores. ``estimator``: the model's point estimate per beam ("mean", "median", "mode"; see
     :meth:`holodata.torch.model.MultiReturnUNet.predict`)."""
-    import torch
-
     from holodata.dataset import open_dataset
-    from holodata.torch.data import HeatmapDataset, HeatmapNorm, SampleTransform, apply_transform
-    from holodata.torch.train import load_checkpoint, model_from_checkpoint, resolve_device
+    from holodata.torch.data import HeatmapDataset, apply_transform
+
+    from .predict import Predictor
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    dev = resolve_device(device)
-    stage2, ck2 = None, None
-    if oracle:
-        ck = {"norm": HeatmapNorm().to_dict(), "transform": {}, "epoch": 0}
-        model = None
-    else:
-        ck = load_checkpoint(checkpoint)
-        model = model_from_checkpoint(ck, device=str(dev))
-        from holodata.torch.stage2_infer import STAGE2_CHECKPOINT, load_stage2
-
-        s2_path = (Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent) / STAGE2_CHECKPOINT
-        if s2_path.exists():
-            stage2, ck2 = load_stage2(s2_path, device=str(dev))
+    run = Predictor.load(checkpoint, device=device, estimator=estimator, oracle=oracle)
+    model, stage2, ck, ck2 = run.model, run.stage2, run.checkpoint, run.stage2_checkpoint
     rows = STAGE2_ROWS if stage2 is not None else METHODS
-    norm = HeatmapNorm.from_dict(ck["norm"])
-    tf = ck.get("transform") or {}
-    f = int(tf.get("downsample", 1))
-    pool = int(tf.get("range_pool", 1))
-    model_tf = SampleTransform(downsample=f, range_pool=pool)
-    base_tf = SampleTransform(downsample=f, range_pool=1)
+    norm = run.norm
+    f = run.downsample
+    model_tf, base_tf = run.transforms()
     ds = open_dataset(str(dataset_url))
     data = HeatmapDataset(str(dataset_url), split=split, norm=norm, transform=model_tf)
     grid = reduced_grid(ds.grid, f)
@@ -239,11 +224,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
         items = list(range(i0, min(i0 + batch_size, len(index))))
         raws = [data.read(i) for i in items]
         if model is not None:
-            x = np.stack([norm(apply_transform(hm, r, lab, model_tf)[0]) for hm, r, lab in raws])
-            with torch.no_grad():
-                pred = model.predict(torch.from_numpy(x).to(dev), estimator=estimator)
-            p_rng = pred["range"].float().cpu().numpy()
-            p_hum = pred["human_prob"].float().cpu().numpy()
+            p_rng, p_hum = run.ranges([hm for hm, _, _ in raws])
         for j, i in enumerate(items):
             sid, k = index[i]
             hm, g_rng, g_lab = apply_transform(*raws[j], base_tf)
