@@ -5,10 +5,15 @@
    encoding), with a per-step breakdown and the peak traced memory of one frame (tracemalloc).
 2. The same frames' ray batches replayed through bare open3d ``RaycastingScene.cast_rays`` in this
    run: ratio  synth time / bare casting time  (how much the physics costs on top of the casts).
-3. A whole default recording (``synthesize``: radar + 64x1024 LiDAR at 10 Hz + VGA depth camera at
+3. Raw I/Q (``synth --radar-output iq``): rotations/s of every chirp position (1024 + the 2x128 the
+   first and last beams need) x 8 antennas x 256 samples from the same frames' paths (Gaussian-
+   gridded beat samples, :mod:`holodata.radar._iq_kernel`), next to the plain direct sum
+   (:func:`holodata.radar.simulate.simulate_chirps`, numpy) of the same scatterers on every 128th
+   chirp in the same run, extrapolated to the rotation: ratio.
+4. A whole default recording (``synthesize``: radar + 64x1024 LiDAR at 10 Hz + VGA depth camera at
    5 Hz + odometry, MCAP writing) for --record-frames frames: wall time, size, peak RSS.
 
-    .venv/bin/python benchmarks/synth.py [--frames 10] [--record-frames 6] [--skip-record]
+    .venv/bin/python benchmarks/synth.py [--frames 10] [--iq-frames 3] [--record-frames 6] [--skip-record]
 """
 from __future__ import annotations
 
@@ -47,10 +52,52 @@ def bare_replay(log) -> float:
 _scene_cache: dict = {}
 
 
+def iq_rotations(s, sc, n: int) -> None:
+    """Section 3 of the module docstring."""
+    from holodata.radar.simulate import simulate_chirps
+
+    cfg = sc.radar_cfg
+    chirp, n_syn = cfg.imaging()
+    N, pad = cfg.chirps_per_rotation, n_syn // 2
+    idx = np.arange(-pad, N + pad)
+    t_iq = t_direct = 0.0
+    n_direct = 0
+    for k in range(n + 1):          # rotation 0 warms up (numba's compiled code, FFT plans)
+        paths, O, D = s._radar_paths(k)
+        start, end = sc.radar_cycle(k)
+        t = start + np.round((idx + 0.5) / N * (end - start)).astype(np.int64)
+        poses = sc.truth.interpolate(t) @ sc.T_base_radar
+        t0 = time.perf_counter()
+        out = s.radar.iq(paths, O, D, poses, idx, np.random.default_rng(k))
+        if k:
+            t_iq += time.perf_counter() - t0
+        if k == n:                  # the direct sum of the same scatterers, every 128th chirp
+            sub = idx[::128]
+            X = O[paths["pix"]] + paths["range"][:, None] * D[paths["pix"]]
+            a = np.abs(paths["amp"]) * s.radar.raw_scale()[0]
+            T0 = np.linalg.inv(poses[pad])           # scatterers in the radar frame at chirp 0
+            Xr = X @ T0[:3, :3].T + T0[:3, 3]
+            reach = np.deg2rad(cfg.azimuth_fov_deg / 2 + cfg.azimuth_support_deg)
+            t0 = time.perf_counter()
+            for c in sub:                    # the scatterers within the same reach of each chirp's facing
+                off = np.angle(np.exp(1j * (np.arctan2(Xr[:, 1], Xr[:, 0]) + 2 * np.pi * c / N)))
+                m = np.abs(off) <= reach
+                simulate_chirps(Xr[m], a[m], chirp, chirp_index=np.array([c]), n_chirps=N)
+            t_direct, n_direct = time.perf_counter() - t0, sub.size
+    per_rot = t_iq / n
+    direct_rot = t_direct / n_direct * idx.size
+    print(f"raw I/Q rotations ({idx.size} chirps x {chirp.n_virtual} antennas x {chirp.n_samples} samples, "
+          f"{len(paths['pix'])} paths as scatterers), {n} rotations:")
+    print(f"  rotations/s: {1 / per_rot:.2f}   ({1000 * per_rot:.0f} ms/rotation, {out.nbytes / 2**20:.0f} MiB each)")
+    print(f"  plain numpy direct sum of the same scatterers: {direct_rot:.0f} s/rotation "
+          f"(timed on {n_direct} chirps)   ratio: {direct_rot / per_rot:.0f}x")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--record-frames", type=int, default=6)
+    ap.add_argument("--iq-frames", type=int, default=3)
     ap.add_argument("--skip-record", action="store_true")
     args = ap.parse_args()
     import open3d as o3d
@@ -109,6 +156,8 @@ def main() -> None:
     print(f"  peak traced memory of one frame: {peak / 2**20:.0f} MiB (heatmap float32 = {256 * 64 * 512 * 4 / 2**20:.0f} MiB)")
     print(f"  process peak RSS so far: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MiB")
 
+    if args.iq_frames > 0:
+        iq_rotations(s, sc, args.iq_frames)
     if args.skip_record:
         return
     from holodata.synth import synthesize

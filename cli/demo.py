@@ -10,20 +10,26 @@ import click
 @click.option("--quick", is_flag=True, help="Small grids and few frames: about 5 minutes on 2 cores.")
 @click.option("--mapping", type=click.Choice(["slam", "truth"]), default="slam", show_default=True,
               help="Poses, mesh and humans from holodata slam + register, or from the synthetic truth (oracle).")
+@click.option("--radar-output", "radar_output", type=click.Choice(["heatmap", "iq"]), default="heatmap", show_default=True,
+              help="iq: synth records raw radar samples and ingest beamforms them (as a real rig's data goes; slower).")
 @click.option("--quiet", is_flag=True, help="No progress bars.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def demo(out, quick, mapping, quiet, as_json) -> None:
+def demo(out, quick, mapping, radar_output, quiet, as_json) -> None:
     """Synthesise train and test corners as MCAP recordings, ingest them, map them, ray-trace the
     multi-bounce ground truth, validate the dataset, train both stages of the bundled model and
     evaluate every Table-2 row against the strongest-peaks baseline. Prints where the report is.
 
     Example: holodata demo --quick --out demo_run
+             holodata demo --quick --radar-output iq --out demo_iq
     """
-    from holodata.demo import run_demo
+    import dataclasses
+
+    from holodata.demo import demo_config, run_demo
     from holodata.evaluate import format_tables
 
     log = None if as_json else (lambda line: click.echo(line, err=True))
-    res = run_demo(out, quick=quick, mapping=mapping, quiet=quiet, log=log)
+    cfg = dataclasses.replace(demo_config(quick), radar_output=radar_output)
+    res = run_demo(out, quick=quick, mapping=mapping, quiet=quiet, log=log, config=cfg)
     if as_json:
         import json
 

@@ -44,6 +44,12 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--robot-stop-x", type=click.FloatRange(-3.0, 0.0), default=None,
               help="Where the data pass's robot stops, metres along the approach corridor (junction at 0; default: "
               "0.6-1.2 m short of it, drawn from the seed).")
+@click.option("--radar-output", "radar_output", type=click.Choice(["heatmap", "iq"]), default="heatmap", show_default=True,
+              help="heatmap: beamformed RadarHeatmap messages (the beamformer's point-spread function, fast); iq: every "
+                   "rotation's raw FMCW samples (RadarRawRotation on /radar/raw), which ingest beamforms like a real rig's.")
+@click.option("--radar-chirps", "radar_chirps", type=click.IntRange(min=16), default=None,
+              help="Chirp positions per rotation (default 1024, PanoRadar's; ~500 or more keep a 90° synthetic aperture free "
+                   "of grating lobes).")
 @click.option("--count", type=click.IntRange(min=1), default=1, show_default=True,
               help="Recordings to write: >1 writes OUT/scene_000, OUT/scene_001, ... with seeds SEED, SEED+1, ...")
 @dask_options("one recording per task (with --count)", "OUT must be a folder the workers share.")
@@ -51,7 +57,7 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
-          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, count, workers, scheduler, force, quiet, as_json) -> None:
+          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, radar_output, radar_chirps, count, workers, scheduler, force, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
@@ -60,6 +66,9 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
 
     With the mapping pass (default): holodata ingest synth_L/recording synth_L/mapping --out d.zarr
     --scene-id L --scene-id L_map; holodata slam d.zarr --scene L --map-scene L_map
+
+    Raw radar samples instead of heatmaps (ingest beamforms them): holodata synth --out synth_L
+    --radar-output iq --grid 32x128; holodata ingest synth_L/recording --out d.zarr --beamform-grid 32x128
 
     Many recordings on a Dask cluster: holodata synth --out corners/ --count 32 --workers 2
     """
@@ -74,7 +83,7 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
               range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
               camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers,
               lidar_vertical_fov_deg=lidar_fov, mapping_pass=mapping_pass, mapping_scan_hz=mapping_scan_hz,
-              robot_stop_x=robot_stop_x)
+              robot_stop_x=robot_stop_x, radar_output=radar_output, radar_chirps=radar_chirps)
     if count > 1 or workers or scheduler:
         import json
 
@@ -92,7 +101,7 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     from holodata.synth import estimate_bytes
 
     need = estimate_bytes(frames, g, kw["range_bins"], kw["lidar_shape"], kw["camera_shape"],
-                          stereo_images=stereo_images)
+                          stereo_images=stereo_images, radar_output=radar_output, radar_chirps=radar_chirps)
     if not (quiet or as_json):
         click.echo(f"writing ~{need / 1e6:.0f} MB (data pass; the mapping pass adds LiDAR scans)", err=True)
     res = synthesize(out, seed=seed, quiet=quiet, force=force, **kw)

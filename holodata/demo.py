@@ -41,7 +41,9 @@ class DemoConfig:
     (None: from the scene's extent, 8 for a corner); ``camera_shape`` (rows, cols); ``epochs``, ``depth``,
     ``base_channels``, ``max_channels``, ``range_pool``: the model and its training (TrainConfig);
     ``stage2``: the learned stage two's settings (holodata.torch.stage2_train.Stage2Config fields;
-    None: the demo stops at stage one and evaluate un-mirrors analytically)."""
+    None: the demo stops at stage one and evaluate un-mirrors analytically); ``radar_output``:
+    "heatmap" records the direct heatmaps; "iq" every rotation's raw samples (``radar_chirps`` chirp
+    positions, default 1024) which ingest beamforms onto ``grid``, as a real rig's data goes."""
 
     corners: tuple[tuple[str, int], ...]
     n_test: int
@@ -61,6 +63,19 @@ class DemoConfig:
     mapping_scan_hz: float = 2.0
     mesh_poisson_depth: int | None = None
     stage2: dict | None = None
+    radar_output: str = "heatmap"
+    radar_chirps: int | None = None
+
+    def beamform(self):
+        """The ingest beamformer's parameters for ``radar_output="iq"`` (None otherwise): the grid's rows,
+        columns and elevations, the range bins kept."""
+        if self.radar_output != "iq":
+            return None
+        from .radar.beamform import BeamformParams
+
+        g = self.grid
+        return BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,
+                              elevation_min_deg=g.elev_min_deg, n_range=self.range_bins.n)
 
 
 def demo_config(quick: bool) -> DemoConfig:
@@ -72,7 +87,7 @@ def demo_config(quick: bool) -> DemoConfig:
         return DemoConfig(corners=corners, n_test=1, frames=12, grid=Grid(32, 128),
                           lidar_shape=(32, 512), camera_shape=(376, 672), epochs=15, depth=6,
                           base_channels=8, max_channels=64, range_pool=2,
-                          stage2={"epochs_rt": 3, "epochs_refine": 2, "channels": 16})
+                          stage2={"epochs_rt": 3, "epochs_refine": 2, "channels": 16}, radar_chirps=512)
     return DemoConfig(corners=DEMO_CORNERS, n_test=2, frames=40, grid=Grid(), lidar_shape=(64, 1024),
                       camera_shape=(376, 672), epochs=30, depth=7,
                       stage2={"epochs_rt": 12, "epochs_refine": 10, "channels": 32})
@@ -134,7 +149,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     ids = list(recs)
     maps = {s: map_scene_id(s) for s in ids if getattr(recs[s], "mapping_recording", None) is not None}
     ingest([str(recs[s].recording) for s in ids] + [str(recs[s].mapping_recording) for s in maps], str(url),
-           scene_ids=ids + list(maps.values()), quiet=quiet)
+           scene_ids=ids + list(maps.values()), quiet=quiet, beamform=cfg.beamform())
     w = create_dataset(str(url), grid=cfg.grid, range_bins=cfg.range_bins, created_by="holodata demo")
     for sid in ids:
         w.scene(sid).set_attrs(truth_scene_attrs(recs[sid].truth_dir))
@@ -240,7 +255,8 @@ def _synth_jobs(jobs: list, cfg: DemoConfig, quiet: bool) -> dict:
     return {sid: synthesize(d, corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid, range_bins=cfg.range_bins,
                             lidar_shape=cfg.lidar_shape, camera_shape=cfg.camera_shape,
                             lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg, mapping_pass=cfg.mapping_pass,
-                            mapping_scan_hz=cfg.mapping_scan_hz, quiet=quiet)
+                            mapping_scan_hz=cfg.mapping_scan_hz, radar_output=cfg.radar_output,
+                            radar_chirps=cfg.radar_chirps, quiet=quiet)
             for sid, d, corner, seed in jobs}
 
 

@@ -55,6 +55,9 @@ TOPICS = {
     "/tf_static": "tf2_msgs/msg/TFMessage",
     "/odom": "nav_msgs/msg/Odometry",
 }
+# ``radar_output="iq"``: raw samples of every rotation instead of the heatmaps
+RAW_TOPIC = "/radar/raw"
+RADAR_OUTPUTS = ("heatmap", "iq")
 PARTIAL = ".synth-partial"  # where synthesize writes until everything is in place
 # the mapping pass's recording (``mapping_pass=True``): LiDAR and odometry only
 MAPPING_TOPICS = {t: TOPICS[t] for t in ("/ouster/points", "/ouster/metadata", "/tf", "/tf_static", "/odom")}
@@ -105,12 +108,15 @@ class SynthResult:
 
 def estimate_bytes(frames: int, grid: Grid | None = None, range_bins: RangeBins | None = None,
                    lidar_shape: tuple[int, int] = (64, 1024), camera_shape: tuple[int, int] = (376, 672),
-                   radar_encoding: str = "float16", stereo_images: bool = False) -> int:
+                   radar_encoding: str = "float16", stereo_images: bool = False, radar_output: str = "heatmap",
+                   radar_chirps: int | None = None) -> int:
     """Expected size (bytes) of the data-pass recording: one heatmap per radar rotation (H·W·bins
     values, 2 bytes for float16 else 4); over the recording's span (0.3 s + 0.5 s per rotation)
     LiDAR scans at 10 Hz (beams·columns points of 48 bytes), camera frames at 5 Hz (a float32 depth
     image, an xyz float32 cloud, and with ``stereo_images`` two mono8 images) and odometry + TF at
     30 Hz (~0.8 kB). The mapping pass (LiDAR scans at 2 Hz while it drives the legs) comes on top.
+    With ``radar_output="iq"`` a rotation is its chirps (plus the n_syn/2 on either side) × 8
+    antennas × 256 samples of complex64 instead of the heatmap.
     Measured: 267 MB estimated for a 268 MB recording (16 rotations at 32×128, 32×512, 376×672)."""
     from .camera import CameraConfig
     from .lidar import OUSTER_DTYPE, LidarConfig
@@ -118,6 +124,12 @@ def estimate_bytes(frames: int, grid: Grid | None = None, range_bins: RangeBins 
 
     g, rb = grid or Grid(), range_bins or RangeBins()
     radar = g.H * g.W * rb.n * (2 if radar_encoding == "float16" else 4)
+    if radar_output == "iq":
+        from .radar import RadarConfig
+
+        rc = RadarConfig(grid=g, range_bins=rb, **({"chirps_per_rotation": radar_chirps} if radar_chirps else {}))
+        chirp, n_syn = rc.imaging()
+        radar = (rc.chirps_per_rotation + 2 * (n_syn // 2)) * chirp.n_virtual * chirp.n_samples * 8
     span_s = RADAR_START_S + 0.5 * frames
     lidar = lidar_shape[0] * lidar_shape[1] * OUSTER_DTYPE.itemsize * LidarConfig.rate_hz
     px = camera_shape[0] * camera_shape[1]
@@ -131,7 +143,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
                radar_encoding: str = "float16", stereo_images: bool = False, quiet: bool = False,
                visible_walkers: int = 0, lidar_vertical_fov_deg: float = 33.2, mapping_pass: bool = False,
                mapping_scan_hz: float | None = None, robot_stop_x: float | None = None,
-               force: bool = False) -> SynthResult:
+               force: bool = False, radar_output: str = "heatmap", radar_chirps: int | None = None) -> SynthResult:
     """Synthesise one corner recording into ``out_dir`` (created; must not hold a previous recording).
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
@@ -146,6 +158,11 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     ``mapping_scan_hz`` (default ``scenario.MAPPING_SCAN_HZ``); the data pass is unchanged.
     ``robot_stop_x``: where the data pass's robot stops (m along the approach corridor, the junction
     at 0; None: 0.6-1.2 m short of it, drawn from the seed), moved back if the person could not hide.
+    ``radar_output``: "heatmap" (``/radar/heatmap``, the radar model with the beamformer's point-spread
+    function) or "iq" (``/radar/raw``: every rotation's raw FMCW samples from the same paths, which
+    ingest beamforms like a real rig's; :meth:`holodata.synth.radar.RadarModel.iq`);
+    ``radar_chirps``: chirp positions per rotation (default 1024; at least ~500 keep a 90°
+    synthetic aperture free of grating lobes at 77 GHz).
     Same arguments → byte-identical files. ``force``: replace a recording already in ``out_dir``.
     """
     from .recording import FORMATS, recording_path
@@ -157,6 +174,10 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         raise InputError(f"frames must be >= 1, got {frames}")
     if visible_walkers < 0:
         raise InputError(f"visible_walkers must be >= 0, got {visible_walkers}")
+    if radar_output not in RADAR_OUTPUTS:
+        raise InputError(f"unknown radar output {radar_output!r} (choose from {', '.join(RADAR_OUTPUTS)})")
+    if radar_chirps is not None and radar_chirps < 16:
+        raise InputError(f"radar_chirps must be >= 16, got {radar_chirps}")
     out_dir = Path(out_dir)
     rec = recording_path(out_dir, format)
     if robot_stop_x is not None and not -3.0 <= robot_stop_x <= 0.0:
@@ -178,7 +199,8 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
             shutil.rmtree(left)
         elif left.exists():
             left.unlink()
-    need = estimate_bytes(frames, grid, range_bins, lidar_shape, camera_shape, radar_encoding, stereo_images)
+    need = estimate_bytes(frames, grid, range_bins, lidar_shape, camera_shape, radar_encoding, stereo_images,
+                          radar_output, radar_chirps)
     probe = next((q for q in (out_dir, *out_dir.parents) if q.exists()), Path("."))
     free = shutil.disk_usage(probe).free
     if free < need * 1.1:
@@ -189,7 +211,11 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
                         camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images,
                         visible_walkers=visible_walkers, lidar_vertical_fov_deg=lidar_vertical_fov_deg,
-                        robot_stop_x=robot_stop_x)
+                        robot_stop_x=robot_stop_x, radar_chirps=radar_chirps)
+    if radar_output != "heatmap":
+        import dataclasses
+
+        sc = dataclasses.replace(sc, radar_output=radar_output)
     res = write_recording(sc, tmp, format, quiet=quiet)
     if mapping_pass:
         import json
@@ -212,4 +238,5 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     return res
 
 
-__all__ = ["synthesize", "estimate_bytes", "SynthResult", "TOPICS", "STEREO_TOPICS", "MAPPING_TOPICS"]
+__all__ = ["synthesize", "estimate_bytes", "SynthResult", "TOPICS", "STEREO_TOPICS", "MAPPING_TOPICS", "RAW_TOPIC",
+           "RADAR_OUTPUTS"]

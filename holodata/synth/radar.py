@@ -53,6 +53,7 @@ class RadarConfig:
     chirps_per_rotation: int = 1024    # chirp positions on the rotation circle
     azimuth_fov_deg: float = 90.0      # synthetic aperture of one beam (Hann-windowed)
     azimuth_support_deg: float = 30.0  # half-width of the azimuth kernel applied
+    element_beamwidth_deg: float | None = 100.0  # antennas' azimuth pattern (amplitude half at ±50°); None: isotropic
     specular_lobe_deg: float = 10.0
     range_taps: int = 3            # half-width (bins) of the exact range response per path
     elevation_taps: int = 12       # half-width (rows) of the elevation kernel
@@ -67,16 +68,18 @@ class RadarConfig:
 
     def imaging(self):
         """(ChirpConfig, n_syn): the raw-radar rig whose beamformer's point-spread function the
-        heatmaps carry (:mod:`holodata.radar.psf`)."""
+        heatmaps carry (:mod:`holodata.radar.psf`) and whose samples ``radar_output="iq"`` writes.
+        Its sweep is the one whose range bins are ``range_bins.dr`` (c / 2B, B = slope·S/fs; 3.997 GHz
+        for 3.75 cm, as PanoRadar's 3.9975 GHz), so a beamformed rotation lands on the same bins."""
         from ..radar.beamform import BeamformParams
         from ..radar.chirp import ChirpConfig
 
-        n = self.n_virtual
+        n, S, fs = self.n_virtual, max(256, self.range_bins.n), 5.12e6
         chirp = ChirpConfig(start_frequency_hz=self.start_frequency_hz,
-                            slope_hz_per_s=self.bandwidth_hz * 5.12e6 / 256, n_tx=2 if n % 2 == 0 else 1,
-                            n_rx=n // 2 if n % 2 == 0 else n, antenna_spacing_m=self.antenna_spacing_m,
-                            rotation_radius_m=self.rotation_radius_m, chirps_per_rotation=self.chirps_per_rotation,
-                            rotation_hz=self.rotation_hz)
+                            slope_hz_per_s=C_LIGHT / (2 * self.range_bins.dr) * fs / S, n_samples=S, sample_rate_hz=fs,
+                            n_tx=2 if n % 2 == 0 else 1, n_rx=n // 2 if n % 2 == 0 else n,
+                            antenna_spacing_m=self.antenna_spacing_m, rotation_radius_m=self.rotation_radius_m,
+                            chirps_per_rotation=self.chirps_per_rotation, rotation_hz=self.rotation_hz)
         return chirp, BeamformParams(azimuth_fov_deg=self.azimuth_fov_deg).syn_count(self.chirps_per_rotation)
 
     def describe(self) -> dict:
@@ -253,6 +256,60 @@ class RadarModel:
             flat[: cube.size - o] += bank[o:]
             flat[cube.size - o:] += bank[:o]
         return np.abs(cube)
+
+    # ------------------------------------------------------------------ raw samples
+    def raw_scale(self) -> tuple[float, float]:
+        """(amplitude scale, noise std per sample) of raw samples: a path of amplitude ``a`` (the
+        model above) is sent as ``a · scale`` so that the beamformer (Hann windows over the n_syn
+        chirps of a beam and the samples, mean over antennas, unnormalised sums) images it at ``a``
+        again; the complex noise per sample gives ``noise_amplitude`` per heatmap cell after the
+        same sums (σ · sqrt(Σw_c² Σw_s² / V))."""
+        from ..radar.beam_geometry import window
+
+        chirp, n_syn = self.cfg.imaging()
+        wc, ws = window("hann", n_syn), window("hann", chirp.n_samples)
+        gain = float(wc.sum() * ws.sum())
+        noise = self.cfg.noise_amplitude * np.sqrt(chirp.n_virtual / float((wc ** 2).sum() * (ws ** 2).sum()))
+        return 1.0 / gain, float(noise)
+
+    def iq(self, paths: dict, origins: np.ndarray, directions: np.ndarray, chirp_poses: np.ndarray,
+           chirp_index: np.ndarray, rng: np.random.Generator | None) -> np.ndarray:
+        """(C, V, S) complex64 raw FMCW samples of the chirps ``chirp_index`` (C,) of one rotation
+        (``0..N−1`` this rotation, negative / ``>= N`` its neighbours), sent from ``chirp_poses``
+        (C, 4, 4) T_world_radar at each chirp's time (the rotation centre; chirp ``n`` faces
+        ``−2πn/N`` in that frame, its antennas on the circle of ``rotation_radius_m``,
+        :mod:`holodata.radar.simulate`'s geometry). Every path of :meth:`paths` is a point scatterer
+        at its image source: ``origins[pix] + range · directions[pix]`` (world frame; the point a
+        specular chain is seen at), amplitude ``|amp|`` (the propagation phase comes from the
+        geometry) times the antennas' azimuth pattern (``element_beamwidth_deg``) at its angle off
+        each chirp's facing, seen by the chirps that face its half-space. Plus thermal noise and the TX→RX leakage (a return at zero range, the
+        same in every chirp: what static-reflection removal takes out)."""
+        from ..radar._iq_kernel import beat_samples
+
+        cfg = self.cfg
+        chirp, _ = cfg.imaging()
+        N = cfg.chirps_per_rotation
+        n = np.asarray(chirp_index, np.float64)
+        phi = -2 * np.pi * n / N
+        face = np.stack([np.cos(phi), np.sin(phi), np.zeros_like(phi)], axis=1)           # (C,3) radar frame
+        z = chirp.antenna_heights()
+        local = cfg.rotation_radius_m * face[:, None, :] + np.stack([0 * z, 0 * z, z], axis=1)[None]   # (C,V,3)
+        Rw, tw = chirp_poses[:, :3, :3], chirp_poses[:, :3, 3]
+        ant = np.einsum("cij,cvj->cvi", Rw, local) + tw[:, None, :]
+        fw = np.einsum("cij,cj->ci", Rw, face)[:, :2]
+        fw /= np.maximum(np.linalg.norm(fw, axis=1, keepdims=True), 1e-12)
+        pix = paths["pix"]
+        X = np.asarray(origins, np.float64)[pix] + paths["range"][:, None] * np.asarray(directions, np.float64)[pix]
+        scale, noise = self.raw_scale()
+        out = beat_samples(ant, tw, fw, X, np.abs(paths["amp"]) * scale, start_frequency_hz=chirp.start_frequency_hz,
+                           slope_hz_per_s=chirp.slope_hz_per_s, sample_rate_hz=chirp.sample_rate_hz,
+                           n_samples=chirp.n_samples, cos_cut=0.0, beamwidth_deg=cfg.element_beamwidth_deg)
+        if cfg.leakage_amplitude > 0:
+            out += np.complex64(cfg.leakage_amplitude * scale)
+        if rng is not None and noise > 0:
+            w = rng.standard_normal(2 * out.size, dtype=np.float32) * np.float32(noise / np.sqrt(2))
+            out += w.view(np.complex64).reshape(out.shape)
+        return out
 
     def _noise_bank(self, n: int) -> np.ndarray:
         """Thermal noise: a bank of n independent circular complex Gaussian samples (drawn once per

@@ -73,6 +73,7 @@ class Scenario:
     latency_ns: dict
     stereo: bool = False
     walkers: list = field(default_factory=list)  # HumanWalk people visible to every sensor (``visible_walkers``)
+    radar_output: str = "heatmap"   # "heatmap" (RadarHeatmap) | "iq" (RadarRawRotation, raw samples)
 
     def t_s(self, t_ns) -> float:
         """Seconds since the start of the recording (true time)."""
@@ -110,7 +111,7 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
                    lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16",
                    stereo_images: bool = False, visible_walkers: int = 0,
                    lidar_vertical_fov_deg: float = LidarConfig.vertical_fov_deg,
-                   robot_stop_x: float | None = None) -> Scenario:
+                   robot_stop_x: float | None = None, radar_chirps: int | None = None) -> Scenario:
     """Everything about one recording except the sensor data itself.
 
     ``visible_walkers`` N > 0 adds N people walking back and forth along the approach corridor (the
@@ -126,7 +127,8 @@ def build_scenario(corner: str = "L", width: float | None = None, frames: int = 
     except ValueError as err:
         raise InputError(str(err)) from err
     rng = _rng(seed, "scenario")
-    radar_cfg = RadarConfig(grid=grid or Grid(), range_bins=range_bins or RangeBins(), encoding=radar_encoding)
+    radar_cfg = RadarConfig(grid=grid or Grid(), range_bins=range_bins or RangeBins(), encoding=radar_encoding,
+                            **({"chirps_per_rotation": int(radar_chirps)} if radar_chirps else {}))
     period_s = 1.0 / radar_cfg.rotation_hz
     duration = RADAR_START_S + frames * period_s + 0.3
     t0 = (EPOCH_S + (int(seed) % 100_000) * 3600) * 1_000_000_000
@@ -247,8 +249,9 @@ class Sensors:
                                   [m.lidar_reflectivity for m in w.materials], w.face_material,
                                   w.materials[MATERIAL_ID["human"]].lidar_reflectivity) if sc.stereo else None
 
-    def radar_frame(self, k: int) -> tuple[np.ndarray, dict]:
-        """(n_range, H, W) float32 heatmap of cycle k and per-frame stats."""
+    def _radar_paths(self, k: int) -> tuple[dict, np.ndarray, np.ndarray]:
+        """The specular paths of cycle k's beams (:meth:`RadarModel.paths`) and the beams' world-frame
+        origins and directions (H*W, 3): column j from the rotation centre at its time."""
         sc, cfg = self.sc, self.sc.radar_cfg
         g = cfg.grid
         start, end = sc.radar_cycle(k)
@@ -258,9 +261,34 @@ class Sensors:
         O = np.broadcast_to(T_cols[None, :, :3, 3], (g.H, g.W, 3)).reshape(-1, 3)
         human = sc.dynamic_mesh((start + end) // 2)[0]
         tr = self.trace(O, D, human, cfg.max_bounces, cfg.range_bins.max_range)
-        paths = self.radar.paths(tr, O, D)
-        hm = self.radar.cube(paths, _rng(sc.seed, "radar", k))
+        return self.radar.paths(tr, O, D), O, D
+
+    def radar_frame(self, k: int) -> tuple[np.ndarray, dict]:
+        """(n_range, H, W) float32 heatmap of cycle k and per-frame stats."""
+        paths, _, _ = self._radar_paths(k)
+        hm = self.radar.cube(paths, _rng(self.sc.seed, "radar", k))
         return hm, path_stats(paths)
+
+    def radar_rotation(self, k: int) -> tuple[dict, dict]:
+        """Raw samples of cycle k (``radar_output="iq"``) and per-frame stats: {chirps (nb+N+na, V, S)
+        complex64, n_before, n_rotation, n_after, travel_per_chirp m, heading rad}. The rotation's N
+        chirps (chirp n at ``start + (n + ½)/N`` of the cycle) come with the n_syn/2 chirps before and
+        after it that its first and last beams need; the motion fields are the odometry's (what the
+        robot knows): its displacement over the cycle, in the radar frame at the cycle start."""
+        sc, cfg = self.sc, self.sc.radar_cfg
+        paths, O, D = self._radar_paths(k)
+        start, end = sc.radar_cycle(k)
+        _, n_syn = cfg.imaging()
+        N, pad = cfg.chirps_per_rotation, n_syn // 2
+        n = np.arange(-pad, N + pad)
+        t = start + np.round((n + 0.5) / N * (end - start)).astype(np.int64)
+        poses = sc.truth.interpolate(t) @ sc.T_base_radar
+        chirps = self.radar.iq(paths, O, D, poses, n, _rng(sc.seed, "radar", k))
+        a, b = sc.odom.interpolate(np.array([start, end])) @ sc.T_base_radar
+        d = a[:3, :3].T @ (b[:3, 3] - a[:3, 3])
+        return {"chirps": chirps, "n_before": pad, "n_rotation": N, "n_after": pad,
+                "travel_per_chirp": float(np.hypot(d[0], d[1]) / N), "heading": float(np.arctan2(d[1], d[0]))}, \
+            path_stats(paths)
 
     def trace(self, O, D, human, max_bounces: int, max_range: float):
         """Multi-bounce trace through the static world plus this frame's human. The human is merged
@@ -345,7 +373,8 @@ def _schedule(sc: Scenario) -> list[tuple[int, int, str, int, int]]:
 
 
 def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
-    from . import STEREO_TOPICS, TOPICS, SynthResult
+    from ..messages import RADAR_RAW_TYPE as RAW_TYPE
+    from . import RAW_TOPIC, STEREO_TOPICS, TOPICS, SynthResult
     from .recording import BagWriter, recording_path
 
     out_dir = Path(out_dir)
@@ -357,6 +386,9 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
         human_dir.mkdir()
     rec = recording_path(out_dir, fmt)
     topics = dict(TOPICS, **(STEREO_TOPICS if sc.stereo else {}))
+    if sc.radar_output == "iq":
+        topics = {(RAW_TOPIC if t == "/radar/heatmap" else t): (RAW_TYPE if t == "/radar/heatmap" else v)
+                  for t, v in topics.items()}
     counts = {t: 0 for t in topics}
     frame_rows, radar_tum, lidar_tum = [], [], []
     lidar_human_hits, camera_human_pixels = 0, 0
@@ -393,12 +425,19 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
                 put("/odom", log_ns, _odometry_msg(bw, sc, idx, t_ns))
             elif kind == "radar":
                 s, e = sc.radar_cycle(idx)
-                hm, st = sensors.radar_frame(idx)
                 off = sc.clock_offset_ns["radar"]
                 stamp = (s + e) // 2 + off
-                msg = bw.radar_heatmap("/radar/heatmap", stamp, FRAME_RADAR, encode_heatmap(hm, rcfg.encoding),
-                                       hm.shape, rcfg, s + off, e + off)
-                put("/radar/heatmap", log_ns, msg)
+                if sc.radar_output == "iq":
+                    r, st = sensors.radar_rotation(idx)
+                    msg = bw.radar_raw_rotation(RAW_TOPIC, stamp, FRAME_RADAR, r["chirps"], r["n_before"], r["n_rotation"],
+                                                r["n_after"], rcfg.imaging()[0], s + off, e + off, r["travel_per_chirp"],
+                                                r["heading"])
+                    put(RAW_TOPIC, log_ns, msg)
+                else:
+                    hm, st = sensors.radar_frame(idx)
+                    msg = bw.radar_heatmap("/radar/heatmap", stamp, FRAME_RADAR, encode_heatmap(hm, rcfg.encoding),
+                                           hm.shape, rcfg, s + off, e + off)
+                    put("/radar/heatmap", log_ns, msg)
                 mid = (s + e) // 2
                 radar_tum.append((stamp, sc.truth.interpolate(np.array([mid]))[0] @ sc.T_base_radar))
                 hc = sc.walk.center_at(float(sc.t_s(mid))) if sc.walk is not None else np.full(3, np.nan)
@@ -495,6 +534,14 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
             "radar_beam_origin": "rotation centre, moving with the robot during the cycle (per-column pose)",
         },
     })
+    if sc.radar_output == "iq":
+        chirp, n_syn = rcfg.imaging()
+        scale, noise = sensors.radar.raw_scale()
+        scene["radar_output"] = {"kind": "iq", "topic": RAW_TOPIC, "chirp": chirp.to_attrs(), "n_syn": n_syn,
+                                 "chirps_around_rotation": n_syn // 2, "amplitude_scale": scale,
+                                 "noise_std_per_sample": noise,
+                                 "scatterers": "every specular path at its image source (beam origin + range x "
+                                               "first direction), amplitude |a| x amplitude_scale"}
     if sc.walkers:
         scene["visible_walkers"] = [{"a": w.a, "b": w.b, "speed_mps": w.speed, "height_m": w.height,
                                      "phase0": w.phase0, "instance": i + 1} for i, w in enumerate(sc.walkers)]
