@@ -67,12 +67,18 @@ def test_a_raw_trajectory_is_detected_and_its_reflector_lands_at_the_predicted_c
         assert min(abs(col - ecol), m.n_azimuth - abs(col - ecol)) <= 1.0, (k, col, ecol)
 
 
-def test_ingest_records_how_the_heatmaps_were_made_and_the_lidar_extrinsic(moving, tmp_path):
+def test_ingest_records_how_the_heatmaps_were_made_and_the_lidar_extrinsic(moving, tmp_path, monkeypatch):
     from holodata.ingest import ingest
+    from holodata.readers import panoradar_raw
 
+    calls = []
+    real = panoradar_raw.beamform
+    monkeypatch.setattr(panoradar_raw, "beamform", lambda *a, **k: calls.append(1) or real(*a, **k))
     url = str(tmp_path / "ds.zarr")
     ingest([moving.folder], url, beamform=PARAMS)
     assert validate_dataset(url)["ok"]
+    # each rotation is imaged once (the index pass checks raw samples), plus one for the grid
+    assert len(calls) <= 3 + 1, len(calls)
     sc = open_dataset(url).scene("walk_01")
     bf = sc.attrs["source"]["beamform"]
     assert bf["params"]["n_elevation"] == 16 and bf["params"]["n_azimuth"] == 64

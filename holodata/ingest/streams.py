@@ -126,8 +126,14 @@ class RadarStream(_Stream):
             raise DecodeError(f"topic {self.topic}: RadarHeatmap encoding {enc!r} is not float16/float32")
         shape = (int(msg.n_range), int(msg.n_elevation), int(msg.n_azimuth))
         n = int(np.prod(shape)) * dt.itemsize
-        data = msg.data
-        size = data.size if isinstance(data, np.ndarray) else len(data)
+        lazy = hasattr(msg, "check")   # a reader's heatmap imaged on access (PanoRadar raw): check its raw samples
+        if lazy and not keep:
+            msg.check()
+            data = None
+            size = msg.nbytes
+        else:
+            data = msg.data
+            size = data.size if isinstance(data, np.ndarray) else len(data)
         if size != n:
             raise DecodeError(f"topic {self.topic}: RadarHeatmap payload is {size} bytes, {shape} {enc} needs {n}")
         if self.first is None:
@@ -137,6 +143,8 @@ class RadarStream(_Stream):
         elif shape != self.shape:
             raise DecodeError(f"topic {self.topic}: RadarHeatmap shape {shape} differs from the first message's "
                               f"{self.shape}")
+        if data is None:
+            return None
         buf = data if isinstance(data, np.ndarray) else np.frombuffer(bytes(data), np.uint8)
         hm = buf.view(dt).reshape(shape)
         # the layout's value rule (validate's): a heatmap with NaN/inf or negative amplitudes is a

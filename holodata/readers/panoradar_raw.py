@@ -37,7 +37,7 @@ import numpy as np
 from ..errors import RecordingError
 from ..radar.beamform import BeamformParams, Motion, beamform, beamform_attrs, static_reflection
 from ..radar.chirp import ChirpConfig
-from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, RawRotation,
+from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, DecodeError, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, RawRotation,
                    Recording, TopicInfo, rate_of)
 
 RADAR_TOPIC = "/panoradar/radar"
@@ -310,8 +310,19 @@ class PanoRadarRawRecording(Recording):
         after = np.asarray(self.radar[b:b + h], np.complex64) / np.complex64(INT16_SCALE)
         return rot, before, after
 
-    def heatmap(self, k: int) -> RadarHeatmapMsg:
-        """Rotation ``k`` beamformed: a RadarHeatmap (float32, linear amplitude, ranges from the rotation centre)."""
+    def heatmap(self, k: int) -> "RotationHeatmap":
+        """Rotation ``k`` as a RadarHeatmap (float32, linear amplitude, ranges from the rotation
+        centre) that is beamformed when its ``data`` is first read: ingest's index pass only checks
+        the rotation's raw samples (:meth:`RotationHeatmap.check`), so each rotation is imaged once."""
+        t0, t1 = self._rot_stamps(k)
+        p = self.params
+        return RotationHeatmap(Header((t0 + t1) // 2, "radar"), t0, t1, p.n_range or self.chirp.n_samples,
+                               p.n_elevation, p.n_azimuth, self.chirp.range_resolution_m,
+                               math.radians(p.elevation_max_deg), math.radians(p.elevation_min_deg),
+                               self.chirp.rotation_radius_m, "float32", None, rec=self, k=k)
+
+    def image(self, k: int) -> tuple[np.ndarray, RawRotation]:
+        """Rotation ``k`` beamformed: ((n_range, H, W) float32, the RawRotation it was formed from)."""
         rot, before, after = self.rotation_iq(k)
         a, b = int(self.sep[k]), int(self.end[k])
         t0, t1 = self._rot_stamps(k)
@@ -325,13 +336,14 @@ class PanoRadarRawRecording(Recording):
                           chirp_period_s=period, static_refl=self.static_refl(), device=self.device)
         except ValueError as err:
             raise RecordingError(f"{self.path / 'radar_data.npy'}: rotation {k}: {err}") from err
-        R, H, W = hm.shape
-        p = self.params
-        return RadarHeatmapMsg(Header((t0 + t1) // 2, "radar"), t0, t1, R, H, W, self.chirp.range_resolution_m,
-                               math.radians(p.elevation_max_deg), math.radians(p.elevation_min_deg),
-                               self.chirp.rotation_radius_m, "float32",
-                               np.ascontiguousarray(hm, "<f4").reshape(-1).view(np.uint8),
-                               iq=RawRotation(*self._pads(before, rot, after), motion=(ds0, th)))
+        return hm, RawRotation(*self._pads(before, rot, after), motion=(ds0, th))
+
+    def check_rotation(self, k: int) -> None:
+        """The index pass's check of rotation ``k`` without imaging it: finite raw samples (a
+        beamformed magnitude of finite samples is finite and non-negative)."""
+        for part in self.rotation_iq(k):
+            if part is not None and not np.isfinite(part.view(np.float32)).all():
+                raise DecodeError(f"{self.path / 'radar_data.npy'}: rotation {k} holds NaN/inf samples")
 
     def _pads(self, before, rot, after):
         empty = np.zeros((0,) + rot.shape[1:], np.complex64)
@@ -347,3 +359,28 @@ class PanoRadarRawRecording(Recording):
 
 
 __all__ = ["PanoRadarRawRecording"]
+
+
+class RotationHeatmap(RadarHeatmapMsg):
+    """A RadarHeatmap of one PanoRadar rotation, beamformed on first access to ``data`` (or ``iq``);
+    ``check()`` validates its raw samples without imaging. ``nbytes``: the payload's size."""
+
+    def __init__(self, *fields, rec: PanoRadarRawRecording, k: int):
+        super().__init__(*fields)
+        self._rec, self._k, self._img = rec, k, None
+
+    def _imaged(self):
+        if self._img is None:
+            hm, iq = self._rec.image(self._k)
+            self._img = (np.ascontiguousarray(hm, "<f4").reshape(-1).view(np.uint8), iq)
+        return self._img
+
+    @property
+    def nbytes(self) -> int:
+        return self.n_range * self.n_elevation * self.n_azimuth * 4
+
+    def check(self) -> None:
+        self._rec.check_rotation(self._k)
+
+    data = property(lambda self: self._imaged()[0], lambda self, v: None)
+    iq = property(lambda self: self._imaged()[1], lambda self, v: None)
