@@ -215,8 +215,9 @@ def resolve_mapping(mapping: str) -> str:
 
 def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> dict:
     """One MCAP recording per corner under ``rec_dir/<scene id>/`` (with ``cfg.mapping_pass`` also its
-    mapping pass, ``mapping/``); existing ones are reused. Returns {scene id: SynthResult-like object
-    with .recording, .truth_dir and .mapping_recording (None without a mapping pass)}, in corner
+    mapping pass, ``mapping/``); existing ones of the same kind (mapping pass, radar output) are
+    reused. Returns {scene id: SynthResult-like object with .recording, .truth_dir and
+    .mapping_recording (None without a mapping pass)}, in corner
     order. On two or more CPUs every other corner is synthesised in a forked process (synth is
     single-threaded; the recordings are the same either way)."""
     from .parallel import cpus, fork_call
@@ -226,8 +227,9 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> di
         sid = scene_id(corner, seed)
         d = rec_dir / sid
         sj = d / "truth" / "scene.json"
-        if sj.is_file() and (d / "recording").exists() and \
-                ("mapping_pass" in json.loads(sj.read_text())) == bool(cfg.mapping_pass):
+        scene = json.loads(sj.read_text()) if sj.is_file() else None
+        if scene is not None and (d / "recording").exists() and ("mapping_pass" in scene) == bool(cfg.mapping_pass) \
+                and ("radar_output" in scene) == (cfg.radar_output == "iq"):   # synth records it for raw I/Q only
             out[sid] = _Existing(recording=d / "recording", truth_dir=d / "truth",
                                  mapping_recording=d / "mapping" if cfg.mapping_pass else None)
             continue
