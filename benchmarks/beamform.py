@@ -79,7 +79,7 @@ def main(argv=None) -> dict:
     beams = beam_indices(N, params.n_azimuth)
     pick = beams[np.linspace(0, beams.size - 1, a.reference_beams).round().astype(int)]
     for name, kw in cases.items():
-        fast = timed(lambda: beamform(rot, chirp, params, static_refl=refl, **kw), a.repeat)
+        fast = timed(lambda kw=kw: beamform(rot, chirp, params, static_refl=refl, **kw), a.repeat)
         t0 = time.perf_counter()
         beamform_direct(rot, chirp, params, static_refl=refl, beams=pick, **kw)
         ref = (time.perf_counter() - t0) * beams.size / pick.size
@@ -89,7 +89,8 @@ def main(argv=None) -> dict:
                 f"rotations/s ({ref:7.1f} s, from {pick.size} beams)   ratio {ref / fast:7.1f}x")
         if a.device != "cpu":
             try:
-                dev = timed(lambda: beamform(rot, chirp, params, static_refl=refl, device=a.device, **kw), a.repeat)
+                dev = timed(lambda kw=kw: beamform(rot, chirp, params, static_refl=refl, device=a.device, **kw),
+                            a.repeat)
             except Exception as err:  # noqa: BLE001 - no torch / no GPU: say so, keep the CPU numbers
                 line += f"   {a.device}: unavailable ({' '.join(str(err).split())[:80]})"
             else:

@@ -41,8 +41,10 @@ def main() -> None:
     url = str(tmp / "ds.zarr")
     w = create_dataset(url, grid=grid, range_bins=bins, created_by="benchmarks/loader.py", shard_frames=8)
     sc = w.scene("bench", n_frames=T, attrs={"corner_type": "L", "width_m": 2.0})
-    hm_arr = sc.frame_array("radar/heatmap", (bins.n, grid.H, grid.W), a.dtype, ["frame", "range", "elevation", "azimuth"], "1", 0.0)
-    r_arr = sc.frame_array("gt/range", (3, grid.H, grid.W), "float32", ["frame", "bounce", "elevation", "azimuth"], "m", float("nan"))
+    hm_arr = sc.frame_array("radar/heatmap", (bins.n, grid.H, grid.W), a.dtype, ["frame", "range", "elevation", "azimuth"], "1",
+                            0.0)
+    r_arr = sc.frame_array("gt/range", (3, grid.H, grid.W), "float32", ["frame", "bounce", "elevation", "azimuth"], "m",
+                           float("nan"))
     npy = tmp / "npy"
     npy.mkdir()
     # realistic-ish content: noise floor + a few peaks per beam (compresses like real heatmaps)
@@ -89,7 +91,8 @@ def main() -> None:
     size_ds = sum(p.stat().st_size for p in Path(url).rglob("*") if p.is_file())
     size_np = sum(p.stat().st_size for p in npy.iterdir())
     print(f"{T} frames of {bins.n}x{grid.H}x{grid.W} {a.dtype}: HeatmapDataset.read {T / t_ds:.1f} frames/s, "
-          f"np.load {T / t_np:.1f} frames/s; ratio {t_np / t_ds:.2f} (dataset {size_ds / 2**20:.0f} MiB, npy {size_np / 2**20:.0f} MiB)")
+          f"np.load {T / t_np:.1f} frames/s; ratio {t_np / t_ds:.2f} (dataset {size_ds / 2**20:.0f} MiB, npy "
+          f"{size_np / 2**20:.0f} MiB)")
     print(f"full samples (read + normalise): {T / t_full:.1f} frames/s")
 
     import torch

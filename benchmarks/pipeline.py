@@ -399,13 +399,12 @@ def main() -> None:
               f"{cpus['slam'] / cpus['raytrace-gt']:.2f}x CPU)", flush=True)
         if many:
             ratios = [(p[0]["slam"] + p[0]["register"]) / p[0]["raytrace-gt"] for p in passes]
-            print(f"  (slam+register) / raytrace-gt per pass: " + ", ".join(f"{r:.2f}x" for r in ratios))
+            print("  (slam+register) / raytrace-gt per pass: " + ", ".join(f"{r:.2f}x" for r in ratios))
         total = sum(rows.values())
         print(f"  slam+register = {100 * sr / total:.0f} % of the pipeline's wall time (ingest + slam + register + "
               f"raytrace-gt = {total:.1f} s); largest stage: {max(rows, key=rows.get)}", flush=True)
         if args.gt_diff:
             from holodata.meshio import read_mesh
-            from holodata.trajectory import read_tum
 
             tm = read_mesh(truth_dir / "mesh.ply")
             hum = [k for k, n in tm.class_names.items() if str(n) == "human"]

@@ -263,7 +263,8 @@ def _row(r: dict, args) -> str:
                      + (f"aligned {ty['aligned']['trans_cm']:.2f} cm {ty['aligned']['rot_deg']:.2f} deg"
                         if "failed" not in ty else "FAILED"))
     line += (f" | centroid mean {h['mean_cm']:.1f} med {h['median_cm']:.1f} max {h['max_cm']:.1f} cm "
-             f"(aligned {tf['human_aligned']['mean_cm']:.1f}, radar frame {hr['mean_cm']:.1f}) in {h['frames']}/{h['frames'] + h['missing']} "
+             f"(aligned {tf['human_aligned']['mean_cm']:.1f}, radar frame {hr['mean_cm']:.1f}) in "
+             f"{h['frames']}/{h['frames'] + h['missing']} "
              f"| speed {r['human_speed_mps']:.2f} m/s | register {tf['seconds']:.1f} s ("
              + ", ".join(f"{k[:-2]} {v:.1f}" for k, v in tf["timings"].items()) + ")")
     if "slam_s" in r:
@@ -416,7 +417,8 @@ def main() -> int:
     ap.add_argument("--corners", default=None, help="T,L,cross,oblique (default all four)")
     ap.add_argument("--walkers", type=int, default=None, help="people walking in the corridor (default 2; 0 with --demo-config)")
     ap.add_argument("--lidar", default=None, help="beams x columns (default 64x1024; the demo's with --demo-config)")
-    ap.add_argument("--lidar-fov", type=float, default=None, help="vertical FOV deg (default 33.2; the demo's with --demo-config)")
+    ap.add_argument("--lidar-fov", type=float, default=None,
+                    help="vertical FOV deg (default 33.2; the demo's with --demo-config)")
     ap.add_argument("--camera", default=None, help="rows x cols (default 376x672; the demo's with --demo-config)")
     ap.add_argument("--demo-config", choices=("quick", "full"), default=None,
                     help="the frames, LiDAR, camera and corners (kind, seed) of holodata demo [--quick]")

@@ -216,7 +216,7 @@ def run_corner(corner: str, work: Path, args) -> dict:
             t0 = time.perf_counter()
             try:
                 sm = S.static_mesh(scans, res.scan_poses, S.SlamConfig(), mr, MeshConfig(method=meth))
-                v, f, info = sm.vertices, sm.faces, sm.info
+                v, f = sm.vertices, sm.faces
             except Exception as err:  # noqa: BLE001 - report and go on
                 row["methods"][meth] = {"error": str(err)[:120]}
                 continue
@@ -242,7 +242,8 @@ def _coverage_cols(acc: dict) -> dict:
 
 def _coverage_text(row: dict) -> str:
     by = "/".join(f"{v:.3f}" for _, v in sorted(row["coverage_bounce"].items()))
-    return (f"coverage {row['coverage']:.3f} (b1/2/3 {by}, NLOS pts {row['coverage_nlos']:.3f})  NLOS/frame slam {row['nlos_est']:.0f} vs true "
+    return (f"coverage {row['coverage']:.3f} (b1/2/3 {by}, NLOS pts {row['coverage_nlos']:.3f})  NLOS/frame slam "
+            f"{row['nlos_est']:.0f} vs true "
             f"{row['nlos_true']:.0f} ({row['nlos_ratio']:.2f})")
 
 
@@ -344,7 +345,8 @@ def main() -> None:
         for corner in args.corners.split(","):
             row = run_corner(corner, work, args)
             rows.append(row)
-            print(f"{corner:8s} scans {row['scans']:4d} (at rest {row['still_scans']}, fed to kiss-icp {row['kiss_scans']})  ATE {row['ate_cm']:.2f} cm  RPE {row['rpe_cm']:.2f} cm/frame "
+            print(f"{corner:8s} scans {row['scans']:4d} (at rest {row['still_scans']}, fed to kiss-icp {row['kiss_scans']})  "
+                  f"ATE {row['ate_cm']:.2f} cm  RPE {row['rpe_cm']:.2f} cm/frame "
                   f"({row['rpe1m_cm']:.2f} cm/m)  | kiss-icp ATE {row['kiss_ate_cm']:.2f} cm RPE {row['kiss_rpe_cm']:.2f}"
                   f"  | mesh F@2/5/10 {row['f2']:.3f}/{row['f5']:.3f}/{row['f10']:.3f} CD {row['chamfer_cm']:.2f} cm"
                   f" (obs {row['observed']:.2f})  | radar pose err {row.get('radar_pose_err_cm', float('nan')):.2f} cm"

@@ -83,7 +83,7 @@ def main():
         net = DenseUNet()
         xin = torch.zeros(1, 12, *shape)
 
-        def dense():
+        def dense(net=net, xin=xin):
             net(xin).sum().backward()
 
         print(f"dense 3-D UNet, {vs * 100:.0f} cm voxels, grid {shape[0]}x{shape[1]}x{shape[2]} "

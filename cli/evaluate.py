@@ -7,8 +7,11 @@ import click
 @click.command()
 @click.argument("dataset")
 @click.option("--checkpoint", type=click.Path(exists=True), help="RUN directory or RUN/checkpoint.pt (not with --oracle).")
-@click.option("--oracle", is_flag=True, help="Score the ground truth itself (GT ranges, normals, labels) through the same stage-two un-mirroring: a perfect prediction, which must score perfectly.")
-@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Report directory (metrics.json, report.html, PNGs).")
+@click.option("--oracle", is_flag=True,
+              help="Score the ground truth itself (GT ranges, normals, labels) through the same stage-two un-mirroring: a "
+                   "perfect prediction, which must score perfectly.")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False),
+              help="Report directory (metrics.json, report.html, PNGs).")
 @click.option("--split", default="test", show_default=True, help="Dataset split to evaluate.")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Evaluate only the first N frames of the split.")

@@ -82,7 +82,7 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 for _name in COMMAND_MODULES:
     _mod = importlib.import_module(f"holodata.cli.{_name}")
-    for _cmd in getattr(_mod, "COMMANDS"):
+    for _cmd in _mod.COMMANDS:
         cli.add_command(_cmd)
 
 

@@ -1,4 +1,4 @@
-"""``holodata raytrace-gt``: multi-bounce ground truth per radar beam (DESIGN §4)."""
+"""``holodata raytrace-gt``: multi-bounce ground truth per radar beam (docs/format.md §4)."""
 from __future__ import annotations
 
 import json
@@ -11,29 +11,47 @@ from holodata.cli.options import dask_options
 @click.command("raytrace-gt")
 @click.argument("dataset", required=False)
 @click.option("--scene", "scenes", multiple=True, help="Scene id to trace (dataset form; repeatable; default: all with a mesh).")
-@click.option("--mesh", type=click.Path(), help="Standalone: scene mesh without human (.ply/.obj/.stl; a PLY face property 'label' gives semantic classes), or a directory with one mesh per class (floor.ply, wall.ply, ...).")
-@click.option("--poses", type=click.Path(dir_okay=False), help="Standalone: radar trajectory T_world_radar as TUM text; one frame per line.")
+@click.option("--mesh", type=click.Path(),
+              help="Standalone: scene mesh without human (.ply/.obj/.stl; a PLY face property 'label' gives semantic "
+                   "classes), or a directory with one mesh per class (floor.ply, wall.ply, ...).")
+@click.option("--poses", type=click.Path(dir_okay=False),
+              help="Standalone: radar trajectory T_world_radar as TUM text; one frame per line.")
 @click.option("--human", type=click.Path(dir_okay=False), help="Standalone: one human mesh (world frame) for all frames.")
-@click.option("--human-dir", type=click.Path(file_okay=False), help="Standalone: one human mesh per frame index, named 000000.ply, 000001.ply, ... (k = 0-based TUM row; .obj/.stl also accepted).")
+@click.option("--human-dir", type=click.Path(file_okay=False),
+              help="Standalone: one human mesh per frame index, named 000000.ply, 000001.ply, ... (k = 0-based TUM row; "
+                   ".obj/.stl also accepted).")
 @click.option("--out", help="Standalone: output dataset (local path or fsspec URL).")
 @click.option("--scene-id", default="scene", show_default=True, help="Standalone: scene id in the output.")
 @click.option("--grid", default="64x512", show_default=True, help="Standalone: beam grid HxW.")
 @click.option("--elevation-fov", default="-45,45", show_default=True, help="Standalone: elevation range in degrees (min,max).")
 @click.option("--max-bounces", default=3, show_default=True, type=click.IntRange(1, 16))
-@click.option("--max-range", default=9.6, show_default=True, type=click.FloatRange(min=0, min_open=True), help="Metres of accumulated travel distance.")
+@click.option("--max-range", default=9.6, show_default=True, type=click.FloatRange(min=0, min_open=True),
+              help="Metres of accumulated travel distance.")
 @click.option("--backend", type=click.Choice(["open3d", "embreex"]), default="open3d", show_default=True)
-@click.option("--rotation-radius", default=None, type=click.FloatRange(min=0), help="Beam origin on the rotation circle of this radius (m) per column; 0 = rotation centre. Default: the model the recording states (DESIGN: the rotation centre).")
-@click.option("--column-time/--no-column-time", default=None, help="Each column at its own time within the rotation (pose SLERP between trajectory samples; rotation cycles from radar/cycle_ns). Default: the recording's model (on).")
-@click.option("--rotation-hz", default=None, type=click.FloatRange(min=0, min_open=True), help="Rotation rate for column times of frames without a stored rotation cycle (default 2).")
-@click.option("--codec", type=click.Choice(["lz4", "zstd"]), default="lz4", show_default=True, help="Blosc codec (with shuffle) of the gt arrays: lz4 encodes ~2x faster, zstd files are ~25% smaller.")
-@click.option("--shard-frames", default=None, type=click.IntRange(1), help="Frames per shard of the gt arrays (default: the dataset's; 32 for a new one).")
-@click.option("--threads", default=0, show_default=True, type=click.IntRange(0), help="Ray-casting threads per process (0 = cores / processes).")
-@click.option("--processes", default=0, show_default=True, type=click.IntRange(0), help="Local tracing processes (0 = one per core, max 4, for >= 64 frames; 1 = in-process).")
-@dask_options("one task per shard", "the dataset and inputs must be reachable from the workers (shared folder or s3://; credentials from the workers' environment).")
+@click.option("--rotation-radius", default=None, type=click.FloatRange(min=0),
+              help="Beam origin on the rotation circle of this radius (m) per column; 0 = rotation centre. Default: the model "
+                   "the recording states (docs/format.md §2: the rotation centre).")
+@click.option("--column-time/--no-column-time", default=None,
+              help="Each column at its own time within the rotation (pose SLERP between trajectory samples; rotation cycles "
+                   "from radar/cycle_ns). Default: the recording's model (on).")
+@click.option("--rotation-hz", default=None, type=click.FloatRange(min=0, min_open=True),
+              help="Rotation rate for column times of frames without a stored rotation cycle (default 2).")
+@click.option("--codec", type=click.Choice(["lz4", "zstd"]), default="lz4", show_default=True,
+              help="Blosc codec (with shuffle) of the gt arrays: lz4 encodes ~2x faster, zstd files are ~25% smaller.")
+@click.option("--shard-frames", default=None, type=click.IntRange(1),
+              help="Frames per shard of the gt arrays (default: the dataset's; 32 for a new one).")
+@click.option("--threads", default=0, show_default=True, type=click.IntRange(0),
+              help="Ray-casting threads per process (0 = cores / processes).")
+@click.option("--processes", default=0, show_default=True, type=click.IntRange(0),
+              help="Local tracing processes (0 = one per core, max 4, for >= 64 frames; 1 = in-process).")
+@dask_options("one task per shard",
+              "the dataset and inputs must be reachable from the workers (shared folder or s3://; credentials from the "
+              "workers' environment).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
-                max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, workers, scheduler, quiet, as_json):
+                max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, workers,
+                scheduler, quiet, as_json):
     """Ray-trace multi-bounce ground truth (gt/range, gt/normal, gt/point, gt/label, gt/semantic,
     gt/human_center) for every frame, shard by shard (an interrupted run resumes).
 
@@ -67,7 +85,7 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
         g = Grid.parse(grid, elevation_fov)
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="--grid/--elevation-fov") from err
-    origin = None  # the recording's model; any origin flag replaces it (unset ones at DESIGN's defaults)
+    origin = None  # the recording's model; any origin flag replaces it (unset ones at the defaults of docs/format.md §2)
     if (rotation_radius, column_time, rotation_hz) != (None, None, None):
         d = OriginModel()
         origin = OriginModel(d.rotation_radius if rotation_radius is None else rotation_radius,

@@ -1,4 +1,4 @@
-"""``holodata slam``: LiDAR poses, radar poses and the static mesh of a scene (DESIGN §4)."""
+"""``holodata slam``: LiDAR poses, radar poses and the static mesh of a scene (docs/format.md §4)."""
 from __future__ import annotations
 
 import json
@@ -103,7 +103,8 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
             by = "/".join(f"{v:.3f}" for _, v in sorted(c["coverage_bounce"].items()))
             click.echo(f"mesh coverage of the true surface within radar reach (tau {c['tau_m'] * 100:.0f} cm, "
                        f"{c['grid'][0]}x{c['grid'][1]} beams, {c['max_bounces']} bounces): {c['coverage']:.3f} "
-                       f"(bounce 1/2/3 {by}; NLOS points {c.get('coverage_nlos', float('nan')):.3f}); GT NLOS points per frame: {c['nlos_per_frame_est']:.0f} through the "
+                       f"(bounce 1/2/3 {by}; NLOS points {c.get('coverage_nlos', float('nan')):.3f}); GT NLOS points per "
+                       f"frame: {c['nlos_per_frame_est']:.0f} through the "
                        f"SLAM mesh, {c['nlos_per_frame_true']:.0f} through the true mesh "
                        f"(ratio {c['nlos_ratio']:.2f})")
 

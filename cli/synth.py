@@ -20,8 +20,10 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Output folder (recording + truth/).")
 @click.option("--corner", type=click.Choice(["T", "L", "cross", "oblique"]), default="L", show_default=True,
               help="Corner shape.")
-@click.option("--width", type=float, default=None, help="Approach-corridor width in metres (default: drawn from the seed, 1.3-4.7).")
-@click.option("--frames", type=click.IntRange(min=1), default=20, show_default=True, help="Radar rotations (2 Hz); at the default sizes ~43 MB each (20: ~0.87 GB), printed before writing.")
+@click.option("--width", type=float, default=None,
+              help="Approach-corridor width in metres (default: drawn from the seed, 1.3-4.7).")
+@click.option("--frames", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Radar rotations (2 Hz); at the default sizes ~43 MB each (20: ~0.87 GB), printed before writing.")
 @click.option("--format", "fmt", type=click.Choice(["mcap", "rosbag2", "rosbag1"]), default="mcap", show_default=True,
               help="mcap: ROS 2 bag with MCAP storage; rosbag2: sqlite3 storage; rosbag1: ROS 1 .bag.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed: identical files).")
@@ -57,7 +59,8 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
-          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, radar_output, radar_chirps, count, workers, scheduler, force, quiet, as_json) -> None:
+          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, radar_output, radar_chirps, count, workers, scheduler,
+          force, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).

@@ -7,19 +7,25 @@ import click
 
 @click.command()
 @click.argument("dataset")
-@click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Run directory (checkpoint.pt, stage2.pt, config.json, metrics.jsonl). An existing run resumes.")
-@click.option("--epochs", type=click.IntRange(min=1), default=None, help="Total stage-one epochs (default 20, or the config file's).")
+@click.option("--out", "out", required=True, type=click.Path(file_okay=False),
+              help="Run directory (checkpoint.pt, stage2.pt, config.json, metrics.jsonl). An existing run resumes.")
+@click.option("--epochs", type=click.IntRange(min=1), default=None,
+              help="Total stage-one epochs (default 20, or the config file's).")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None, help="Training device (default cpu).")
-@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None, help="YAML/JSON file of TrainConfig fields (flags win).")
+@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="YAML/JSON file of TrainConfig fields (flags win).")
 @click.option("--batch-size", type=click.IntRange(min=1), default=None)
 @click.option("--lr", type=float, default=None, help="AdamW learning rate.")
 @click.option("--seed", type=int, default=None)
 @click.option("--workers", "num_workers", type=click.IntRange(min=0), default=None, help="DataLoader worker processes.")
 @click.option("--stage", type=click.Choice(["1", "2", "all"]), default="all", show_default=True,
               help="1: stage one only; 2: stage two only (from --stage1 or RUN/checkpoint.pt); all: stage one, then stage two.")
-@click.option("--stage1", "stage1", type=click.Path(), default=None, help="Stage-one checkpoint (file or run directory) for --stage 2; must match DATASET's grid and range bins.")
-@click.option("--stage2-config", "stage2_file", type=click.Path(exists=True, dir_okay=False), default=None, help="YAML/JSON file of Stage2Config fields (flags win).")
-@click.option("--stage2-epochs", type=click.IntRange(min=0), default=None, help="Epochs of each stage-two phase (ray tracer, then refiner; default 20 each).")
+@click.option("--stage1", "stage1", type=click.Path(), default=None,
+              help="Stage-one checkpoint (file or run directory) for --stage 2; must match DATASET's grid and range bins.")
+@click.option("--stage2-config", "stage2_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="YAML/JSON file of Stage2Config fields (flags win).")
+@click.option("--stage2-epochs", type=click.IntRange(min=0), default=None,
+              help="Epochs of each stage-two phase (ray tracer, then refiner; default 20 each).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, stage, stage1, stage2_file,

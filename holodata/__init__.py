@@ -1,6 +1,6 @@
 """holodata: multi-bounce radar ground truth datasets.
 
-Public API (DESIGN.md §6): :func:`open_dataset`, :mod:`holodata.metrics`,
+Public API (docs/format.md §6): :func:`open_dataset`, :mod:`holodata.metrics`,
 :func:`holodata.raytrace.trace`, :mod:`holodata.torch`. Subpackages are imported on first use
 (``holodata.raytrace`` works after a plain ``import holodata``), so ``import holodata`` stays fast and
 ``holodata.torch`` needs the ``train`` extra only when it is touched.

@@ -1,11 +1,11 @@
 """Where each radar beam of a frame starts and which way it looks: the beam-origin model.
 
 A rotating-array radar (PanoRadar/HoloRadar, paper §3 and appendix A) forms one heatmap per
-rotation. Column ``j`` (azimuth ``φ_j = −2πj/W``, DESIGN §2) is formed while the radar faces
+rotation. Column ``j`` (azimuth ``φ_j = −2πj/W``, docs/format.md §2) is formed while the radar faces
 ``φ_j``, i.e. at its own time within the rotation, and its ranges are measured from the **beam
 origin**:
 
-* ``rotation_centre`` (the default, DESIGN §2): rotating-array beamforming aligns every chirp to
+* ``rotation_centre`` (the default, docs/format.md §2): rotating-array beamforming aligns every chirp to
   the rotation centre, so ranges are measured from the centre — the pose's translation at the
   column's time;
 * ``rotation_circle``: a radar whose ranges are measured from the antenna, which sits at
@@ -146,7 +146,7 @@ def recorded_origin_model(scene_attrs: dict) -> OriginModel | None:
 
 def scene_origin_model(scene_attrs: dict, override: OriginModel | None = None) -> tuple[OriginModel, str]:
     """The model raytrace-gt traces a scene with, and where it came from: ``override`` ("flags"),
-    else the recording's (:func:`recorded_origin_model`, "recording"), else DESIGN §2's default
+    else the recording's (:func:`recorded_origin_model`, "recording"), else docs/format.md §2's default
     ("default": the rotation centre with per-column times)."""
     if override is not None:
         return override, "flags"
@@ -169,7 +169,7 @@ def origin_summary(scene_attrs: dict) -> dict | None:
     if rec is None and gt is None:
         return None
     radar = rec or OriginModel()
-    out = {"radar": radar.describe() + ("" if rec else " (not recorded: DESIGN default)"),
+    out = {"radar": radar.describe() + ("" if rec else " (not recorded: the default of docs/format.md §2)"),
            "gt": gt.describe() if gt else None, "note": None}
     if gt is not None and gt != radar:
         out["note"] = ("ground truth traced with another beam-origin model than the radar's; evaluation follows "

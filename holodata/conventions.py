@@ -1,4 +1,4 @@
-"""The one place for holodata's conventions (DESIGN.md §2).
+"""The one place for holodata's conventions (docs/format.md §2).
 
 Units: metres, radians, int64 nanoseconds. Frames: REP-103 (x forward, y left, z up).
 Poses are ``T_world_sensor`` 4x4 float64. Nothing here imports the rest of holodata.

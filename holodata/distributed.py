@@ -43,7 +43,6 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import InputError
-from .parallel import cpus
 
 CONNECT_TIMEOUT_S = 30  # to an existing scheduler
 TASK_RETRIES = 2  # reruns of a task that *raised* (lost workers are rescheduled by Dask itself)

@@ -1,4 +1,4 @@
-"""raytrace-gt stage: per-frame multi-bounce ground truth written shard by shard (DESIGN §2-§4).
+"""raytrace-gt stage: per-frame multi-bounce ground truth written shard by shard (docs/format.md §2-§4).
 
 For frame ``k`` with radar pose ``T_world_radar[k]`` the beams of the grid (``Grid.directions()``)
 start at the beam origin and are traced through the static scene mesh plus the human of that
@@ -10,7 +10,7 @@ frame (:class:`holodata.raytrace.RayScene`). Outputs per scene (T frames, B boun
 
 Beam origins (:mod:`holodata.beams`, recorded in scene attrs ``gt.origin_model``): by default the
 model the recording states (scene attrs ``sensors.radar.beam_origin``, written by ingest), else
-DESIGN §2's default — the rotation centre, each column at its own time within the rotation (from
+docs/format.md §2's default — the rotation centre, each column at its own time within the rotation (from
 ``radar/cycle_ns`` when stored) with the pose SLERP-interpolated from the trajectory. A
 ``GTConfig.origin`` (the CLI's ``--rotation-radius``/``--column-time``) overrides it.
 
@@ -37,7 +37,6 @@ from .conventions import (
     DEFAULT_MAX_BOUNCES,
     DEFAULT_MAX_RANGE_M,
     LOS_TOLERANCE_M,
-    RADAR_ROTATION_HZ,
     Grid,
     RangeBins,
 )
@@ -235,12 +234,18 @@ def gt_array_specs(grid: Grid, B: int) -> dict:
     H, W = grid.H, grid.W
     nan = float("nan")
     return {
-        "gt/range": dict(per_frame_shape=(B, H, W), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth"], units="m", fill_value=nan),
-        "gt/normal": dict(per_frame_shape=(B, H, W, 3), dtype="float16", dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="1", fill_value=nan),
-        "gt/point": dict(per_frame_shape=(B, H, W, 3), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="m", fill_value=nan),
-        "gt/label": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"], units="1", fill_value=0),
-        "gt/semantic": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"], units="1", fill_value=0),
-        "gt/human_center": dict(per_frame_shape=(1, 3), dtype="float32", dims=["frame", "human", "xyz"], units="m", fill_value=nan),
+        "gt/range": dict(per_frame_shape=(B, H, W), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth"],
+                         units="m", fill_value=nan),
+        "gt/normal": dict(per_frame_shape=(B, H, W, 3), dtype="float16",
+                          dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="1", fill_value=nan),
+        "gt/point": dict(per_frame_shape=(B, H, W, 3), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth", "xyz"],
+                         units="m", fill_value=nan),
+        "gt/label": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"], units="1",
+                         fill_value=0),
+        "gt/semantic": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"],
+                            units="1", fill_value=0),
+        "gt/human_center": dict(per_frame_shape=(1, 3), dtype="float32", dims=["frame", "human", "xyz"], units="m",
+                                fill_value=nan),
     }
 
 
@@ -469,7 +474,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
                         human: str | Path | HumanSource | None = None, human_dir: str | Path | None = None,
                         scene_id: str = "scene", cfg: GTConfig | None = None, quiet: bool = True, processes: int = 0,
                         client=None) -> dict:
-    """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a DESIGN §3 dataset
+    """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a docs/format.md §3 dataset
     (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards.
     ``human``: one mesh file for every frame, or (Python API) any :class:`HumanSource`, e.g. a
     dataset scene's per-frame surfaces (:class:`HumanDataset`) indexed by the TUM rows."""
@@ -663,5 +668,6 @@ def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quie
 
 
 __all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "points_to_mesh", "trace_frame",
-           "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "raytrace_standalone", "raytrace_dataset", "HumanSource", "HumanDir", "HumanFile",
+           "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "raytrace_standalone", "raytrace_dataset",
+           "HumanSource", "HumanDir", "HumanFile",
            "HumanDataset", "GT_ARRAYS"]

@@ -160,7 +160,8 @@ def _read_ply(data: bytes) -> Mesh:
                 elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(f"unsupported PLY format {fmt!r}")
-    values = _ply_ascii(body, elements) if fmt == "ascii" else _ply_binary(body, elements, "<" if fmt.endswith("little_endian") else ">")
+    endian = "<" if fmt.endswith("little_endian") else ">"
+    values = _ply_ascii(body, elements) if fmt == "ascii" else _ply_binary(body, elements, endian)
     if "vertex" not in values:
         raise InputError("PLY has no vertex element")
     vert = values["vertex"]

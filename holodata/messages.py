@@ -3,7 +3,8 @@
 ``holodata_msgs/msg/RadarHeatmap`` carries one rotation cycle: a linear-amplitude heatmap
 ``(n_range, n_elevation, n_azimuth)`` in C order, little-endian, ``encoding`` "float16" or
 "float32"; ``holodata_msgs/msg/RadarRawRotation`` carries one rotation of raw FMCW samples
-(:data:`RADAR_RAW_MSGDEF`), which ingest beamforms. Recordings written by holodata embed these definitions (rosbag2 ``message_definitions``,
+(:data:`RADAR_RAW_MSGDEF`), which ingest beamforms. Recordings written by holodata embed these definitions (rosbag2
+``message_definitions``,
 MCAP schemas, ROS1 connection headers), so rosbags and mcap decode it without extra files.
 """
 from __future__ import annotations

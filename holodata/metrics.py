@@ -1,4 +1,4 @@
-"""The reference paper's metrics (DESIGN.md §5), pure numpy/scipy — no torch.
+"""The reference paper's metrics (docs/format.md §5), pure numpy/scipy — no torch.
 
 Range images: mean / median / 90th-percentile absolute error (cm) and PSNR (dB, peak = max range)
 over pixels where the ground truth is finite. Point clouds (metres): Chamfer distance as the SUM of
@@ -117,7 +117,7 @@ def point_cloud_metrics(P, G, tau: float = DEFAULT_TAU_M, cd_mode: str = "sum", 
                         max_dist: float | None = None, workers: int = -1) -> dict:
     """Compare predicted cloud ``P`` (N,3) with ground truth ``G`` (M,3), metres.
 
-    Default (DESIGN §5): ``cd = mean_p min_g |p−g| + mean_g min_p |g−p|``, ``mhd = max`` of the two
+    Default (docs/format.md §5): ``cd = mean_p min_g |p−g| + mean_g min_p |g−p|``, ``mhd = max`` of the two
     directed means, precision = fraction of P within ``tau`` of G, recall = fraction of G within
     ``tau`` of P, f_score their harmonic mean. Options for other tools' conventions:
     ``cd_mode="mean"`` averages the two terms instead of summing; ``squared=True`` uses squared

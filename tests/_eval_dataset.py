@@ -47,18 +47,23 @@ def build(url, frames=4, seed=0):
         sc = w.scene(sid, n_frames=frames, attrs={"corner_type": corner, "width_m": width,
                                                   "gt": {"origin_model": OriginModel(column_time=False).to_attrs()}})
         arrs = {
-            "gt/range": sc.frame_array("gt/range", (B, H, W), "float32", ["frame", "bounce", "elevation", "azimuth"], "m", float("nan")),
-            "gt/normal": sc.frame_array("gt/normal", (B, H, W, 3), "float32", ["frame", "bounce", "elevation", "azimuth", "xyz"], "1", float("nan")),
-            "gt/point": sc.frame_array("gt/point", (B, H, W, 3), "float32", ["frame", "bounce", "elevation", "azimuth", "xyz"], "m", float("nan")),
+            "gt/range": sc.frame_array("gt/range", (B, H, W), "float32", ["frame", "bounce", "elevation", "azimuth"], "m",
+                                       float("nan")),
+            "gt/normal": sc.frame_array("gt/normal", (B, H, W, 3), "float32",
+                                        ["frame", "bounce", "elevation", "azimuth", "xyz"], "1", float("nan")),
+            "gt/point": sc.frame_array("gt/point", (B, H, W, 3), "float32", ["frame", "bounce", "elevation", "azimuth", "xyz"],
+                                       "m", float("nan")),
             "gt/label": sc.frame_array("gt/label", (B, H, W), "uint8", ["frame", "bounce", "elevation", "azimuth"], "1", 0),
-            "pose/T_world_radar": sc.frame_array("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "1", float("nan")),
-            "radar/heatmap": sc.frame_array("radar/heatmap", (BINS.n, H, W), "float32", ["frame", "range", "elevation", "azimuth"], "1", 0.0),
+            "pose/T_world_radar": sc.frame_array("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "1",
+                                                 float("nan")),
+            "radar/heatmap": sc.frame_array("radar/heatmap", (BINS.n, H, W), "float32",
+                                            ["frame", "range", "elevation", "azimuth"], "1", 0.0),
         }
         out = {k: [] for k in arrs}
         for t in range(frames):
             c = np.array([half * 0.5, width * 0.5 * (1 - 2 * (t % 2)), 0.0]) + rng.uniform(-0.2, 0.2, 3)
             hv, hf = box(c - [0.2, 0.2, 1.0], c + [0.2, 0.2, 0.8])
-            # the radar sits at o with a yaw: GT normals/points are in the world frame (DESIGN §3)
+            # the radar sits at o with a yaw: GT normals/points are in the world frame (docs/format.md §3)
             yaw, o = 0.3 * t, np.array([0.1 * t, -0.05 * t, 0.0])
             T = np.eye(4)
             T[:3, :3] = [[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1]]

@@ -99,6 +99,7 @@ def synth_dir(tmp_path_factory):
 
 @pytest.mark.parametrize("grid", [Grid(32, 128), Grid(64, 512)], ids=["quick", "full"])
 @pytest.mark.parametrize("origin", [None, OriginModel(rotation_radius=0.105)], ids=["recorded-centre", "circle"])
+@pytest.mark.slow
 def test_oracle_scores_perfectly_for_both_origin_models(synth_dir, grid, origin):
     pytest.importorskip("torch")
     from holodata.evaluate import evaluate

@@ -56,6 +56,7 @@ def _cases(synth: Path) -> list[tuple[Path, Path]]:
     return out
 
 
+@pytest.mark.slow
 def test_mutants_ingest_into_valid_datasets_or_fail_in_one_line(synth_mcap, tmp_path):
     rng = np.random.default_rng(2026)
     n_ok = n_failed = 0

@@ -22,6 +22,7 @@ TINY = DemoConfig(corners=(("L", 1), ("T", 2), ("oblique", 3)), n_test=1, frames
                                               refine_channels=[8, 8], batch_size=2))
 
 
+@pytest.mark.slow
 def test_demo_runs_every_stage_and_resumes(tmp_path):
     lines = []
     res = run_demo(tmp_path / "demo", mapping="truth", quiet=True, config=TINY, log=lines.append)

@@ -29,6 +29,8 @@ from _recordings import write_recording
 from test_groundtruth import pose
 from test_raytrace import HUMAN, l_corridor
 
+pytestmark = pytest.mark.slow   # Dask clusters / a moto S3 server / whole recordings: the full tier
+
 BIN = Path(sys.executable).parent
 START_TIMEOUT_S = 60
 
@@ -90,9 +92,9 @@ def dask_cluster(tmp: Path, n_workers: int = 2):
                 with Client(addr, timeout="5s") as c:
                     c.wait_for_workers(n_workers, timeout=max(1.0, deadline - time.monotonic()))
                 break
-            except (OSError, TimeoutError):
+            except (OSError, TimeoutError) as err:
                 if time.monotonic() > deadline or procs[0].poll() is not None:
-                    raise RuntimeError("dask cluster did not start: " + (tmp / "scheduler.log").read_text()[-2000:])
+                    raise RuntimeError("dask cluster did not start: " + (tmp / "scheduler.log").read_text()[-2000:]) from err
                 time.sleep(0.5)
         yield addr, workers
     finally:

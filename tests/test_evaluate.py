@@ -45,6 +45,7 @@ def test_ground_truth_as_prediction_scores_perfectly(dataset, tmp_path):
     assert json.loads((tmp_path / "rep" / "metrics.json").read_text()) == doc
 
 
+@pytest.mark.slow
 def test_train_then_evaluate_writes_valid_report(dataset, tmp_path):
     from click.testing import CliRunner
 

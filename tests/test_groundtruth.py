@@ -189,7 +189,8 @@ def test_interrupted_run_resumes_only_missing_shards(inputs, monkeypatch):
         raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg)
     calls.clear()
     crash[0] = False
-    summary = raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg)
+    summary = raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply",
+                                  cfg=cfg)
     assert calls == [6, 7, 8, 9]  # shards 0 and 1 (frames 0-5) were already written
     assert summary["scenes"][0]["shards_skipped"] == 2
     rng = np.asarray(hds.open_dataset(out).scene("scene")["gt/range"][...])
@@ -328,6 +329,7 @@ if __name__ == "__main__":
 '''
 
 
+@pytest.mark.slow
 def test_process_pool_dead_worker_raises_instead_of_hanging(tmp_path):
     """A tracing worker killed mid-run (SIGKILL, as by the OOM killer) stops the run with a
     TracingError naming the problem — multiprocessing.Pool would wait forever for its task — and the

@@ -9,6 +9,8 @@ import pytest
 from holodata.errors import InputError
 from holodata.readers.images import R_LINK_OPTICAL, fit_pinhole
 
+pytestmark = pytest.mark.slow   # Dask clusters / a moto S3 server / whole recordings: the full tier
+
 
 def _grid_cloud(K, h, w, depth):
     v, u = np.mgrid[0:h, 0:w]

@@ -55,6 +55,7 @@ def _assert_same_scene(a, b) -> None:
             np.testing.assert_array_equal(u, v, err_msg=name)
 
 
+@pytest.mark.slow
 def test_sigint_during_ingest_never_leaves_a_dataset_that_validates(recording, tmp_path):
     from click.testing import CliRunner
 
@@ -92,7 +93,8 @@ def test_sigint_during_ingest_never_leaves_a_dataset_that_validates(recording, t
                 r = CliRunner().invoke(cli, ["slam", str(url), "--scene", "c"])   # slam refuses it too
                 assert r.exit_code == 1 and "not ingested completely" in r.output, r.output
         # the rerun finishes what was started
-        r = subprocess.run(HOLODATA + ["ingest", str(recording), "--out", str(url), "--scene-id", "c", "--quiet"], capture_output=True, text=True)
+        r = subprocess.run(HOLODATA + ["ingest", str(recording), "--out", str(url), "--scene-id", "c", "--quiet"],
+                           capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
         assert validate_dataset(str(url))["ok"]
     assert unfinished >= 2  # the moments above do interrupt this recording's ingest

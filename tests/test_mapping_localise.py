@@ -25,6 +25,7 @@ def localised(tmp_path_factory):
     return url, res, r
 
 
+@pytest.mark.slow
 def test_data_pass_localised_in_the_maps_world_within_a_few_cm(localised):
     import holodata
     from holodata.trajectory import read_tum
@@ -73,10 +74,10 @@ def test_data_pass_localised_in_the_maps_world_within_a_few_cm(localised):
     assert open_dataset_attrs(url, "c")["mode"] == "localisation"
 
 
+@pytest.mark.slow
 def test_coverage_through_slam_mesh_of_the_localised_scene(localised):
     import holodata
     from holodata.mapping.accuracy import evaluate_slam
-    from holodata.trajectory import Trajectory
 
     url, res, r = localised
     sc = holodata.open_dataset(url).scene("c")

@@ -379,6 +379,7 @@ def test_track_jumps_and_prediction():
     assert not track_jumps(c[:1], t[:1]).any()
 
 
+@pytest.mark.slow
 def test_register_scene_end_to_end_and_raytrace_reads_the_human():
     from _mapping_synth import small_corner
 
@@ -429,6 +430,7 @@ def _copy_small_corner(tmp_path):
     return url, sw, truth
 
 
+@pytest.mark.slow
 def test_cli_truth_report(tmp_path):
     """``holodata register --truth --report``: one line of accuracy, register_accuracy.json with the
     same numbers as the evaluation functions give, and the centroid PNG."""
@@ -661,6 +663,7 @@ def test_voxel_average_is_open3d_voxel_down_sample():
     assert voxel_average(np.zeros((0, 3)), 0.1).shape == (0, 3)
 
 
+@pytest.mark.slow
 def test_register_in_two_processes_writes_what_one_process_writes(tmp_path):
     """processes=2 (LiDAR half, camera/points_world and half the surfaces in forked processes) gives
     the same extrinsic, humans, surfaces, camera cloud and LiDAR segmentation as processes=1; the
@@ -719,7 +722,8 @@ def test_ransac_plane_finds_the_largest_plane_and_is_deterministic():
     rng = np.random.default_rng(0)
     nrm = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0])
     uv = rng.uniform(-3, 3, (6000, 2))
-    e1 = np.cross(nrm, [1.0, 0, 0]); e1 /= np.linalg.norm(e1)
+    e1 = np.cross(nrm, [1.0, 0, 0])
+    e1 /= np.linalg.norm(e1)
     e2 = np.cross(nrm, e1)
     on = uv[:, :1] * e1 + uv[:, 1:] * e2 + 0.7 * nrm + rng.normal(0, 0.002, (6000, 1)) * nrm
     pts = np.concatenate([on, rng.uniform(-3, 3, (4000, 3))])
@@ -787,6 +791,7 @@ def test_mesh_surface_samples_lie_on_their_faces_and_cover_them():
     assert len(mesh_surface_samples(V, F, near=c[None] + 10, reach=0.3)[0]) == 0
 
 
+@pytest.mark.slow
 def test_mesh_target_recovers_the_pose_where_a_biased_map_does_not():
     rng = np.random.default_rng(5)
     world = _room(rng, 60000)
@@ -839,6 +844,7 @@ def test_scene_mesh_only_when_built_from_the_scene_poses():
     assert scene_map(FakeScene({"mesh/vertices": "slam", "pose/T_world_lidar": "slam"})) is None
 
 
+@pytest.mark.slow
 def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path):
     """With ``map/points`` + ``mesh/*`` written by slam's static-map step from the poses the scene holds
     (same ``source``), register registers onto that map (its LiDAR process only segments), in one
@@ -952,6 +958,7 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     assert target is None and abs(seen["yaw_deg"]) > 0.25 and abs(seen["shift_deg"]) < 0.1, seen
 
 
+@pytest.mark.slow
 def test_register_rerun_skips_unless_inputs_settings_or_force_change(tmp_path):
     """A second register with the same inputs and settings returns the stored report (``skipped``) and
     leaves the outputs as they were; ``processes`` changes no result and no fingerprint; another

@@ -276,7 +276,10 @@ def _deskew_reference(scans, traj, k, P, valid, tt):
 
 def test_deskew_fast_paths_match_the_point_by_point_poses():
     scans, traj, P, valid, tt = _moving_scans()
-    rigid = lambda k: np.where(valid[..., None], P @ scans.poses[k][:3, :3].T + scans.poses[k][:3, 3], np.nan)
+
+    def rigid(k):
+        return np.where(valid[..., None], P @ scans.poses[k][:3, :3].T + scans.poses[k][:3, 3], np.nan)
+
     for k in (1, 6):                       # at rest (constant pose over the scan), moving
         ref = _deskew_reference(scans, traj, k, P, valid, tt)
         got = scans.deskew_points(k, P, valid, tt, traj)              # one pose per column

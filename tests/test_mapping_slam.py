@@ -144,6 +144,7 @@ def slam_run(tmp_path_factory):
             "person_masks": np.stack(person_masks)}
 
 
+@pytest.mark.slow
 def test_ouster_layout_lidar_only_slam_poses(slam_run):
     from holodata.dataset import open_dataset
     from holodata.mapping.accuracy import trajectory_errors
@@ -196,6 +197,7 @@ def test_person_segmented_on_the_ouster_driver_grid(slam_run):
     assert r["n_truth"] >= SCANS // 2 and r["ap"] >= 0.9, r
 
 
+@pytest.mark.slow
 def test_static_mesh_against_analytic_scene_without_the_person(slam_run):
     from holodata.dataset import open_dataset
     from holodata.mapping.accuracy import mesh_errors, pose_alignment
@@ -417,6 +419,7 @@ def test_floor_fill_closes_the_blind_disc_but_not_behind_walls():
 
 
 @pytest.mark.parametrize("name", ["ros1/luminar-test.bag", "ros1/512x10_raw.bag"])
+@pytest.mark.slow
 def test_slam_runs_on_real_recordings(tmp_path, name):
     """Recordings written by other tools (a Luminar sensor's ROS 1 bag, an Ouster driver's raw-packet
     bag): ingest → slam through the CLI without a crash; short recordings give few poses, reported."""
@@ -493,7 +496,7 @@ def test_same_beam_rest_check_never_holds_a_scan_that_moved():
     sb = _SameBeam(ref, pix, target, T, cfg, len(ref), cfg.same_beam_points, cfg.same_beam_scale, cfg.same_beam_share)
     assert len(sb) > 0.9 * min(len(ref), cfg.same_beam_points)
     keep = np.ones(len(ref), bool)
-    for k in range(5):                                           # at rest: new range noise each time
+    for _ in range(5):                                           # at rest: new range noise each time
         s = _room_scan(T, rng)
         assert sb.at_rest(s, pix, keep)
         assert _at_rest(s[::4], target, T, cfg)
@@ -598,6 +601,7 @@ def test_streamed_scans_equal_loaded_scans(slam_run):
     assert scans.grid == want.grid
 
 
+@pytest.mark.slow
 def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
     """A scan that turns out empty (its frame is dropped) sends slam back to the whole read, with the same
     poses as without streaming; a read error in the thread ends slam with that one-line error."""

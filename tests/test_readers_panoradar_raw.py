@@ -222,6 +222,7 @@ def test_keep_iq_then_beamform_reimages_and_resumes(moving, tmp_path):
                                rtol=1e-3, atol=2e-3 * first.max())
 
 
+@pytest.mark.slow
 def test_beamform_runs_as_dask_tasks_per_shard_with_the_local_result(moving, tmp_path):
     from holodata.beamforming import beamform_scene
     from holodata.distributed import cluster

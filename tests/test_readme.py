@@ -19,6 +19,7 @@ def _blocks(lang: str) -> list[str]:
     return re.findall(rf"```{lang}\n(.*?)```", README.read_text(), flags=re.S)
 
 
+@pytest.mark.slow
 def test_readme_python_blocks_run_as_written(tmp_path, monkeypatch):
     pytest.importorskip("torch")
     import _eval_dataset as E

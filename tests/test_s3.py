@@ -21,6 +21,8 @@ from holodata.cli.main import cli
 from _recordings import write_recording
 from test_distributed import free_port, gt_args, make_inputs, manifests
 
+pytestmark = pytest.mark.slow   # Dask clusters / a moto S3 server / whole recordings: the full tier
+
 BUCKET = "holodata-test"
 
 

@@ -145,6 +145,7 @@ def _sidelobe_db(cut: np.ndarray, step_deg: float, width_deg: float, out_to_deg:
 
 
 @pytest.mark.parametrize("range_m, row, col", [(3.0, 32, 40), (1.5, 20, 300), (6.0, 44, 128)])
+@pytest.mark.slow
 def test_direct_heatmaps_carry_the_beamformer_psf(range_m, row, col):
     """One path through synth's direct heatmap model and the same point scatterer through raw FMCW
     samples and the beamformer (PanoRadar's rig, 64 x 512): the same bin, row and column, -3 dB widths

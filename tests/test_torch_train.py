@@ -89,6 +89,7 @@ def test_config_file_and_flags(tmp_path):
         TrainConfig.from_file(f)
 
 
+@pytest.mark.slow
 def test_overfits_tiny_dataset(tmp_path):
     torch.set_num_threads(2)
     hm, R, L = synth_frames(T=8)

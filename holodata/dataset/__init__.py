@@ -1,4 +1,4 @@
-"""Dataset format v1 (DESIGN §3): sharded Zarr v3, one frame per chunk, whole-shard atomic writes
+"""Dataset format v1 (docs/format.md §3): sharded Zarr v3, one frame per chunk, whole-shard atomic writes
 with a sha256 commit record per shard, resume, ragged arrays, lazy reader, validate, info.
 
 Layout: ``<root>/zarr.json`` (attrs ``holodata``: format_version, created_by, grid, range_bins,

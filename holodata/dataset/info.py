@@ -104,8 +104,9 @@ def format_info(summary: dict) -> str:
     lines = [f"{summary['dataset']}  (holodata format {summary['format_version']}, created by {summary.get('created_by')})",
              (f"grid {g.get('H')}×{g.get('W')} beams, elevation {g.get('elev_deg')} deg; {rb.get('n')} range bins of "
               f"{rb.get('dr')} m" if summary.get("grid_source") != "default" else
-              "grid: no radar yet (DESIGN's default 64×512 until a radar recording is ingested)"),
-             f"{plural(len(summary['scenes']), 'scene')}, {plural(summary['frames'], 'frame')}; stored {_mb(summary['stored_bytes'])} "
+              "grid: no radar yet (the default 64×512 of docs/format.md §2 until a radar recording is ingested)"),
+             f"{plural(len(summary['scenes']), 'scene')}, {plural(summary['frames'], 'frame')}; stored "
+             f"{_mb(summary['stored_bytes'])} "
              f"of {_mb(summary['raw_bytes'])} raw (ratio {summary['compression_ratio']})"]
     for s in summary["scenes"]:
         extra = ", ".join(f"{k}={v}" for k, v in s["attrs"].items() if k != "n_frames" and not isinstance(v, (dict, list)))

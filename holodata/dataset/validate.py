@@ -2,7 +2,7 @@
 grid attributes, every shard read once (sha256 against its commit record, decoded, value rules),
 ragged offsets, splits. Streams shard by shard: memory is a few shards, flat in dataset size.
 
-Value rules (DESIGN §2/§3): gt/range finite >= 0 or NaN, R1 < R2 < R3 where finite (and no return
+Value rules (docs/format.md §2/§3): gt/range finite >= 0 or NaN, R1 < R2 < R3 where finite (and no return
 after a missing one); gt/label in 0..4 and 0 exactly where gt/range is NaN; gt/normal unit length
 (±1e-3; ±2e-3 when stored as float16) where gt/range is finite; time/timestamp_ns int64 strictly
 increasing; pose/* rigid and NaN-free; radar/heatmap finite >= 0 (linear amplitude); ragged offsets
@@ -45,7 +45,7 @@ class Problem:
 
 
 def expected_spec(name: str, T: int, grid, rb) -> tuple[tuple | None, tuple[str, ...] | None]:
-    """(shape pattern with None = any, allowed dtypes) of a DESIGN §3 array; (None, None) if unknown."""
+    """(shape pattern with None = any, allowed dtypes) of a docs/format.md §3 array; (None, None) if unknown."""
     H, W = grid.H, grid.W
     table = {
         "time/timestamp_ns": ((T,), ("int64",)),
@@ -450,7 +450,8 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
             return
         ok = is_rigid(a)
         for i in np.flatnonzero(~ok):
-            what = "has NaN/inf" if not np.isfinite(a[i]).all() else "is not rigid (rotation not orthonormal or last row not 0 0 0 1)"
+            what = ("has NaN/inf" if not np.isfinite(a[i]).all()
+                    else "is not rigid (rotation not orthonormal or last row not 0 0 0 1)")
             rep.add(sid, name, fr.start + i, "pose", f"pose {what}")
     elif name == "radar/heatmap":
         if a.dtype.kind != "f" or a.dtype.itemsize not in _EXP_BITS:

@@ -1,6 +1,6 @@
 """Dataset writer: whole shards, written atomically, with a sha256 commit record per shard; resume.
 
-Commit protocol of a frame array shard ``k`` (DESIGN §3):
+Commit protocol of a frame array shard ``k`` (docs/format.md §3):
 1. encode the whole shard in memory (:func:`shards.encode_shard`), put it under ``c/k/0/...`` in
    one atomic step (temp file + rename locally; one PUT on object stores);
 2. put ``<array>/manifest/<k>.json`` = {shard, frames, sha256, nbytes, shape, dtype}.
@@ -67,7 +67,7 @@ def create_dataset(url, grid: Grid | None = None, range_bins: RangeBins | None =
                    ) -> "DatasetWriter":
     """Create a dataset at ``url`` (local path or fsspec URL), or reopen it for resuming.
 
-    ``grid=None``: no radar grid is known yet (a LiDAR-only dataset): the root records DESIGN's
+    ``grid=None``: no radar grid is known yet (a LiDAR-only dataset): the root records the conventions'
     default grid with ``grid_source: "default"``, and the first writer that gives a grid while no
     scene holds radar or gt arrays replaces it. Otherwise reopening needs the same grid and range
     bins (else :class:`DatasetError`), and ``grid=None`` takes the dataset's. ``shard_frames`` and

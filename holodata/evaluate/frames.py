@@ -37,7 +37,7 @@ class FrameGeometry:
 class SceneBeams:
     """Beam geometry of the frames of one dataset scene (poses, times and rotation cycles read
     once). ``grid``: the dataset's full beam grid; ``origin``: the beam-origin model (default: the
-    one the scene's GT was traced with, else the recording's, else DESIGN's default; a scene
+    one the scene's GT was traced with, else the recording's, else the default of docs/format.md §2; a scene
     without frame times has no column times, so one pose per frame)."""
 
     def __init__(self, scene, grid: Grid, origin: OriginModel | None = None):

@@ -142,7 +142,8 @@ def summarise(acc: _Acc, gt_centres: list, scene_info: dict, max_range: float) -
         per_scene.append({
             "scene": sid, "n_frames": nl["n_frames"], "bands": scene_info[sid]["bands"],
             "attenuation_db": scene_info[sid]["attenuation_db"],
-            "range_mean_cm": [M.range_metrics_from_errors(np.concatenate(r["errors"][b]), max_range)["mean_cm"] for b in range(3)],
+            "range_mean_cm": [M.range_metrics_from_errors(np.concatenate(r["errors"][b]),
+                                                          max_range)["mean_cm"] for b in range(3)],
             "cd": nl["cd"], "mhd": nl["mhd"], "f_score": nl["f_score"],
             "los_cd": lo["cd"], "los_f_score": lo["f_score"],
         })

@@ -172,7 +172,8 @@ def _tables(doc: dict) -> str:
             h.append(f"<tr><td>{group}</td><td>{html.escape(band)}</td><td>{cell['n_scenes']}</td><td>{cell['n_frames']}</td>")
             for m in M:
                 c = M[m]["breakdown"][group].get(band, {})
-                h.append(f"<td>{_f(c.get('cd'), 1, 100)}</td><td>{_f(c.get('mhd'), 1, 100)}</td><td>{_f(c.get('f_score'), 1, 100)}</td>")
+                h.append(f"<td>{_f(c.get('cd'), 1, 100)}</td><td>{_f(c.get('mhd'), 1, 100)}</td>"
+                         f"<td>{_f(c.get('f_score'), 1, 100)}</td>")
             h.append("</tr>")
     h.append("</table>")
     return "\n".join(h)
@@ -209,12 +210,14 @@ def write_report(out: Path, doc: dict, example: dict | None, errs: dict, train_l
         + (" (rows: model = refined, model_no_refine = the learned ray tracer's points, model_analytic = eq. 2–5 "
            "on the model's ranges, oracle_stage1 = GT range images through the learned stage two)"
            if "oracle_stage1" in doc["methods"] else "")
-        + (f". GT NLOS points per frame: {s['gt_nlos_points_per_frame']:.0f}" if s.get("gt_nlos_points_per_frame") is not None else "")
+        + (f". GT NLOS points per frame: "
+           f"{s['gt_nlos_points_per_frame']:.0f}" if s.get("gt_nlos_points_per_frame") is not None else "")
         + ".</p>",
         _tables(doc),
     ]
     for name, cap in figs:
-        body.append(f"<figure><img src=\"{name}\" alt=\"{html.escape(cap)}\"><figcaption>{html.escape(cap)}</figcaption></figure>")
+        body.append(f"<figure><img src=\"{name}\" "
+                    f"alt=\"{html.escape(cap)}\"><figcaption>{html.escape(cap)}</figcaption></figure>")
     body.append("<p>Machine-readable numbers: <a href=\"metrics.json\">metrics.json</a>.</p>")
     # marks the page once every figure decoded: <body data-images-ok="yes|no"> (checked headless)
     body.append("<script>window.addEventListener('load',function(){var bad=0;for(var i=0;i<document.images.length;i++)"
@@ -242,7 +245,8 @@ def _chromium_cmd(html_path: Path, *extra: str) -> list[str]:
 
     exe = find_chromium()
     if exe is None:
-        raise HolodataError("headless Chromium not found (install Debian's `chromium-headless-shell` package; scripts/setup.sh does) — needed for --screenshot")
+        raise HolodataError("headless Chromium not found (install Debian's `chromium-headless-shell` package; "
+                            "scripts/setup.sh does) — needed for --screenshot")
     return [exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", "--allow-file-access-from-files",
             "--virtual-time-budget=5000", *extra, Path(html_path).resolve().as_uri()]
 
@@ -277,7 +281,8 @@ def format_tables(doc: dict) -> str:
              + ("" if nl is None else f"; GT NLOS points per frame {nl:.0f}"),
              "range error (cm)         b1 mean/med/p90          b2 mean/med/p90          b3 mean/med/p90"]
     for m, r in doc["methods"].items():
-        cells = "   ".join(" ".join(f(r["range"][f"bounce_{b}"][k]) for k in ("mean_cm", "median_cm", "p90_cm")) for b in (1, 2, 3))
+        keys = ("mean_cm", "median_cm", "p90_cm")
+        cells = "   ".join(" ".join(f(r["range"][f"bounce_{b}"][k]) for k in keys) for b in (1, 2, 3))
         lines.append(f"  {m:<15} {cells}")
     lines.append("point clouds             LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F %")
     for m, r in doc["methods"].items():

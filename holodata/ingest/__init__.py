@@ -1,4 +1,4 @@
-"""``holodata ingest``: recordings -> dataset scenes (DESIGN §3), streaming and resumable.
+"""``holodata ingest``: recordings -> dataset scenes (docs/format.md §3), streaming and resumable.
 
 Per recording (one scene each):
 
@@ -31,8 +31,10 @@ ragged (per-point time relative to the scan stamp, when the cloud has a time fie
 ``lidar/timestamp_ns``; ``camera/points`` ragged (sensor frame: optical frame for depth images),
 ``camera/timestamp_ns``; ``pose/T_world_radar`` when TF connects the radar frame to the world frame
 at every frame time; ``tf/T_world_lidar`` when TF connects the LiDAR frame to a world frame (NaN
-where TF does not cover a frame's scan: slam anchors its map to it). Scene attributes: ``frame_sensor``, ``source`` {recording, files, bytes,
-sha256 (written with ``ingest.complete``), reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF), ``sensors`` (topics,
+where TF does not cover a frame's scan: slam anchors its map to it). Scene attributes: ``frame_sensor``, ``source`` {recording,
+files, bytes,
+sha256 (written with ``ingest.complete``), reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF),
+``sensors`` (topics,
 frames, intrinsics, Ouster metadata), ``ingest`` (mapping, tolerance, counts, drops, warnings).
 
 Modules: :mod:`.roles` (topic mapping), :mod:`.streams` (one decoder per kind of sensor message),
@@ -132,7 +134,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
             from ..dataset.store import Store
 
             Store(out).delete_tree("")
-    for (i, r, _), sid in zip(todo, ids):
+    for (_, r, _), sid in zip(todo, ids):
         p = None
         try:
             p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet, beamform, keep_iq)

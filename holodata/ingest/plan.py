@@ -226,7 +226,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
     stamps: dict[str, list[tuple[int, int]]] = {r: [] for r in streams}
     failed: dict[str, dict[int, str]] = {r: {} for r in streams}
     by_topic = {}
-    for role, st in streams.items():
+    for st in streams.values():
         for tp in st.topics:
             by_topic[tp] = st
     topics_read = list(by_topic) + sorted(tf_topics - set(by_topic))

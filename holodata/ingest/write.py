@@ -242,7 +242,7 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             gshape = tuple(pr["grid"])
             lr = frame_arr("lidar/range", gshape, "float32", ["frame", "beam", "column"], "m",
                            shard_frames=_shard_frames(4 * int(np.prod(gshape)), S), codec=bulk)
-            outs["lidar/range"] = _Out(lr, False, lambda: np.full(gshape, np.nan, np.float32), set(frames_with), bg)
+            outs["lidar/range"] = _Out(lr, False, lambda g=gshape: np.full(g, np.nan, np.float32), set(frames_with), bg)
     # which items to decode: frames of unfinished shards only (resume)
     want: dict[str, set[int]] = {}
     for role, d in exp.items():

@@ -19,7 +19,7 @@ precision(τ) = share of estimated samples within τ of the true mesh (estimated
 true sample is an unobserved one are ignored — surface the LiDAR never saw cannot be judged — while
 samples in free space still count), recall(τ) = share of observed
 true samples within τ of the estimate, F = 2PR/(P+R), at τ = 2, 5, 10 cm. Chamfer distance =
-mean(acc) + mean(comp) (sum, DESIGN §5).
+mean(acc) + mean(comp) (sum, docs/format.md §5).
 
 Coverage (:func:`mesh_coverage`): the share of the true surface *within the radar's multi-bounce
 reach* that the estimated mesh covers — the radar's beams (the recording's grid, up to 3 bounces,
@@ -76,7 +76,8 @@ def trajectory_errors(estimate: Trajectory, truth: Trajectory, max_diff_s: float
     ape = metrics.APE(metrics.PoseRelation.translation_part)
     ape.process_data((ref, est))
     st = metrics.StatisticsType
-    out = {"n_matched": n, "alignment": how, "ate_rmse_m": float(ape.get_statistic(st.rmse)), "ate_mean_m": float(ape.get_statistic(st.mean)),
+    out = {"n_matched": n, "alignment": how, "ate_rmse_m": float(ape.get_statistic(st.rmse)),
+           "ate_mean_m": float(ape.get_statistic(st.mean)),
            "ate_median_m": float(ape.get_statistic(st.median)), "ate_max_m": float(ape.get_statistic(st.max)),
            "ape_m": [float(x) for x in ape.error]}
     rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=1, delta_unit=metrics.Unit.frames, all_pairs=False)
@@ -242,7 +243,9 @@ def radar_reach(vertices, faces, radar_poses: np.ndarray, grid, max_bounces: int
         frm.append(np.full(len(b[0]), k))
         lab.append(np.asarray(tr.label)[ok])
         nlos.append(int(np.isin(tr.label, nlos_labels).sum()))
-    cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))
+    def cat(xs, shape):
+        return np.concatenate(xs) if xs else np.zeros(shape)
+
     return {"points": cat(pts, (0, 3)), "bounce": cat(bnc, (0,)).astype(int), "frame": cat(frm, (0,)).astype(int),
             "label": cat(lab, (0,)).astype(np.uint8), "nlos_per_frame": np.asarray(nlos, np.int64), "frames": idx}
 
@@ -446,5 +449,6 @@ def umeyama_transform(estimate: Trajectory, truth: Trajectory, max_diff_s: float
     return T
 
 
-__all__ = ["trajectory_errors", "mesh_errors", "mesh_coverage", "radar_reach", "grid_from_scene_json", "COVERAGE_TAU", "observed_mask", "sample_mesh", "mesh_distance", "evaluate_slam",
+__all__ = ["trajectory_errors", "mesh_errors", "mesh_coverage", "radar_reach", "grid_from_scene_json", "COVERAGE_TAU",
+           "observed_mask", "sample_mesh", "mesh_distance", "evaluate_slam",
            "plot_cumulative", "umeyama_transform", "pose_alignment", "TAUS"]

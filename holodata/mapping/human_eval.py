@@ -182,7 +182,8 @@ def solid_centroid(vertices: np.ndarray, faces: np.ndarray, voxel: float = 0.01)
 
 def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame: str = "world") -> dict:
     """Per-frame distance (cm) between the centre of mass (:func:`solid_centroid`) of the solid
-    enclosed by ``human/vertices``+``human/faces`` and that of ``truth/human/<frame:06d>.ply``: {"per_frame_cm", "mean_cm", "median_cm", "max_cm", "frames",
+    enclosed by ``human/vertices``+``human/faces`` and that of ``truth/human/<frame:06d>.ply``: {"per_frame_cm", "mean_cm",
+    "median_cm", "max_cm", "frames",
     "missing"} (frames without an estimate count as missing, not as errors). ``frame="radar"``: both
     centroids in the radar frame of their frame (estimate through the scene's ``pose/T_world_radar``,
     truth through ``truth/trajectory_radar.tum``): what the radar ground truth sees, free of a

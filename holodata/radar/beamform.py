@@ -21,7 +21,7 @@ uses for its 64 × 512 × 256 heatmaps. For one rotation of ``N`` chirp frames `
    is padded circularly (PanoRadar's static case);
 4. **range FFT** over the samples and the magnitude. Range bin ``k`` is evaluated at frequency
    ``k + 0.5`` (the samples are multiplied by ``exp(−jπ i / n_samples)`` first), so its centre is
-   ``(k + 0.5) · Δr`` as DESIGN §2 has it (PanoRadar's bins sit at ``k · Δr``).
+   ``(k + 0.5) · Δr`` as docs/format.md §2 has it (PanoRadar's bins sit at ``k · Δr``).
 
 **Where ranges are measured from.** The azimuth term replaces each antenna's path by the path from
 the rotation axis (``r cos(h) cos θ`` is how much closer the antenna is to a far target in beam
@@ -46,7 +46,8 @@ moving platform makes the kernel depend on ``b`` through ``cos(φ_b − θ_v)``,
 structure is left; that path is the direct sum over the window, compiled with numba
 (:mod:`holodata.radar._motion_kernel`: samples innermost, beams in parallel), with the motion phase
 advanced by one complex multiplication per chirp (re-anchored exactly every 64 chirps) and
-elevation rows with equal ``cos θ`` (``±θ`` of a symmetric grid) sharing the coefficients. ``device="cuda"`` (or any torch device) runs the same
+elevation rows with equal ``cos θ`` (``±θ`` of a symmetric grid) sharing the coefficients. ``device="cuda"`` (or any torch
+device) runs the same
 two formulations in torch. Arrays in, arrays out: no I/O here.
 """
 from __future__ import annotations
@@ -119,7 +120,7 @@ class BeamformParams:
         return n
 
     def elevations(self) -> np.ndarray:
-        """(H,) float64 radians, row 0 = max (DESIGN §2)."""
+        """(H,) float64 radians, row 0 = max (docs/format.md §2)."""
         hi, lo = np.deg2rad(self.elevation_max_deg), np.deg2rad(self.elevation_min_deg)
         return hi - np.arange(self.n_elevation) * (hi - lo) / (self.n_elevation - 1)
 
@@ -308,7 +309,7 @@ def _static_numpy(xp, off, circular, N, chirp, params, threads):
             hb = sl.stop - sl.start
             y = np.empty((S, beams.size, hb), np.complex64)
 
-            def part(ss):
+            def part(ss, sl=sl, hb=hb, y=y):
                 s0, s1 = int(ss[0]), int(ss[-1]) + 1
                 Y = np.matmul(xf[s0:s1], vw[s0:s1, :, sl])             # vertical beamforming
                 Y *= Kf[s0:s1, :, sl]                                  # × azimuth kernel: correlation over chirps
@@ -395,7 +396,7 @@ def _motion_numpy(xp, off, N, chirp, params, motion, threads):
     groups = _elevation_groups(elev)
     rows = np.array([g[:2] + [-1] * (2 - len(g[:2])) for g in groups], np.int64)
     extra = [(g[0], r) for g in groups for r in g[2:]]   # a third row with the same cos θ: formed on its own
-    for g0, r in extra:
+    for _, r in extra:
         rows = np.vstack([rows, [[r, -1]]])
     gam = np.stack([motion_phase_rate(chirp, params, motion, float(np.cos(elev[r0])), beams, N)
                     for r0 in rows[:, 0]])                                        # (G, nb, S)

@@ -14,7 +14,7 @@ and the others sit below it. A monostatic model with the same phases puts virtua
 at height ``(v − 7) · antenna_spacing_m / 2`` (:meth:`ChirpConfig.antenna_heights`), which is what
 :mod:`holodata.radar.simulate` uses. Every antenna faces outwards on the rotation circle of
 ``rotation_radius_m``; chirp ``n`` of a rotation faces azimuth ``−2πn/N`` (clockwise seen from above,
-chirp 0 along the radar frame's +x, DESIGN §2).
+chirp 0 along the radar frame's +x, docs/format.md §2).
 
 Per-sample frequency: sample ``i`` is taken ``i / sample_rate_hz`` after the ramp starts, at
 ``f_i = start_frequency_hz + slope · i / sample_rate_hz`` (PanoRadar uses ``linspace(77, 81 GHz,

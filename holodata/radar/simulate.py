@@ -99,6 +99,6 @@ def simulate_rotation(points, amplitudes=None, chirp: ChirpConfig | None = None,
 
 
 def point_at(range_m: float, azimuth_rad: float, elevation_rad: float) -> np.ndarray:
-    """(3,) position at ``range_m`` from the origin along (azimuth, elevation) (DESIGN §2 directions)."""
+    """(3,) position at ``range_m`` from the origin along (azimuth, elevation) (docs/format.md §2 directions)."""
     ce = np.cos(elevation_rad)
     return range_m * np.array([ce * np.cos(azimuth_rad), ce * np.sin(azimuth_rad), np.sin(elevation_rad)])

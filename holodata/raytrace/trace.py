@@ -1,4 +1,4 @@
-"""Multi-bounce specular ray tracing (DESIGN §2).
+"""Multi-bounce specular ray tracing (docs/format.md §2).
 
 ``R_b`` is the accumulated travel distance from the beam origin to the b-th bounce point;
 ``d_b = d_{b-1} - 2 (d_{b-1}·n) n`` with ``n`` the unit geometric (per-triangle) normal flipped
@@ -217,7 +217,8 @@ class RayScene:
               max_range: float = DEFAULT_MAX_RANGE_M, dynamic=None, labels: bool = True) -> TraceResult:
         """Trace ``origins`` (N,3) m along ``directions`` (N,3) with up to ``max_bounces`` specular
         bounces; returns a :class:`TraceResult` (arrays are (N,B,...) views of bounce-major storage:
-        ``res.range.T`` is a contiguous (B,N) array, ``res.point.transpose(1,2,0)`` a contiguous (B,3,N)). ``dynamic`` = (vertices, faces) considered at
+        ``res.range.T`` is a contiguous (B,N) array, ``res.point.transpose(1,2,0)`` a contiguous (B,3,N)). ``dynamic`` =
+        (vertices, faces) considered at
         every bounce and in the LOS checks. ``labels=False`` skips the LOS casts (all LOS).
 
         Works in float32 structure-of-arrays (3,n) form: hit distances are refined against the hit
@@ -283,7 +284,8 @@ class RayScene:
             if b:
                 spur = np.flatnonzero(hit & (t < 0.5 * off))
                 if len(spur):  # rare: grazing float32 self-hits; recast those exactly
-                    ts, fs, ds, ns = self._first_hit(o[:, spur].T.astype(np.float64), d[:, spur].T.astype(np.float64), dyn, float(off))
+                    ts, fs, ds, ns = self._first_hit(o[:, spur].T.astype(np.float64), d[:, spur].T.astype(np.float64), dyn,
+                                                     float(off))
                     t[spur], f[spur], nx[:, spur] = ts, np.maximum(fs, 0), ns.T
                     hit[spur] = fs >= 0
                     nd[spur] = np.einsum("ij,ji->i", ns, d[:, spur])
@@ -376,7 +378,7 @@ def _unit(d: np.ndarray) -> np.ndarray:
 def trace(vertices, faces, origins, directions, max_bounces: int = DEFAULT_MAX_BOUNCES,
           max_range: float = DEFAULT_MAX_RANGE_M, backend: str = DEFAULT_BACKEND, dynamic=None,
           face_class=None) -> dict:
-    """One-shot multi-bounce trace (DESIGN §6). Returns a dict: ``range`` (N,B) float32 accumulated
+    """One-shot multi-bounce trace (docs/format.md §6). Returns a dict: ``range`` (N,B) float32 accumulated
     travel distance m (NaN none), ``normal`` (N,B,3), ``point`` (N,B,3), ``face`` (N,B) int64 (-1 none),
     plus ``hit_dynamic``, ``label``, ``semantic`` (see :class:`TraceResult`)."""
     scene = RayScene(vertices, faces, backend=backend, face_class=face_class)

@@ -234,5 +234,6 @@ def open_recording(path, msg_dir=None, meta=None, reader: str | None = None, bea
         raise RecordingError(f"{p}: cannot read as {name} ({err.__class__.__name__}: {msg[:200]})") from err
 
 
-__all__ = ["open_recording", "guess_reader", "synth_output_folder", "synth_output_recording", "SYNTH_RECORDINGS", "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",
+__all__ = ["open_recording", "guess_reader", "synth_output_folder", "synth_output_recording", "SYNTH_RECORDINGS",
+           "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",
            "ReaderSpec", "DecodeError", "MessageDecoder"]

@@ -172,7 +172,7 @@ def stereo_baseline(right_info_msg) -> float:
     """Baseline (m) of a rectified pair from the right CameraInfo projection: P[0,3] = -fx * B."""
     P = getattr(right_info_msg, "p", None)
     if P is None:
-        P = getattr(right_info_msg, "P")
+        P = right_info_msg.P
     P = np.asarray(P, np.float64).reshape(3, 4)
     if not P[0, 0] > 0 or P[0, 3] == 0:
         raise DecodeError("right CameraInfo has no stereo baseline (P[0,3] = -fx*baseline is 0)")

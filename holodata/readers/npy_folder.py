@@ -7,9 +7,10 @@
     (seg_npy/, glass_npy/, obj_json/ are listed, not read)
 
 The log scaling is undone here and recorded in :attr:`NpyFolderRecording.attrs`: radar amplitude
-``a = 10**(3 x) - 1e-3`` clipped at 0 (linear amplitude, DESIGN §2), LiDAR ``range = 10 x`` m
+``a = 10**(3 x) - 1e-3`` clipped at 0 (linear amplitude, docs/format.md §2), LiDAR ``range = 10 x`` m
 with non-positive values NaN. The folders carry no timestamps: frame ``i`` is stamped ``i x 0.5 s``
-(the 2 Hz rotation) from 0 plus half a cycle (mid-cycle stamps), marked as synthesised. Elevation rows are linspace(+45°, -45°, 64) as in
+(the 2 Hz rotation) from 0 plus half a cycle (mid-cycle stamps), marked as synthesised. Elevation rows are linspace(+45°, -45°,
+64) as in
 PanoRadar; LiDAR points are the range image along the same beam grid (:class:`~holodata.conventions.Grid`),
 so they sit in the radar frame. Frames are paired by file name.
 """

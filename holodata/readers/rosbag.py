@@ -245,7 +245,8 @@ class Ros1ScanRecording(Recording):
                     elif op == RecordType.MSGDATA:
                         yield header.get_uint32("conn"), header.get_time("time"), (None if count_only else data)
                     if cut:
-                        raise ReaderError(f"record of {want} bytes cut short at {len(data) if op != RecordType.CHUNK else 'its end'}")
+                        raise ReaderError(f"record of {want} bytes cut short at "
+                                          f"{len(data) if op != RecordType.CHUNK else 'its end'}")
             except RecordingError:
                 raise
             except (ReaderError, KeyError, OSError, ValueError, EOFError) as err:

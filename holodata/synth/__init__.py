@@ -148,7 +148,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
 
     ``corner`` T|L|cross|oblique; ``width`` approach-corridor width m (None: drawn from ``seed``);
     ``frames`` radar rotations (2 Hz); ``format`` mcap|rosbag2|rosbag1; ``grid``/``range_bins`` the
-    radar heatmap axes (DESIGN §2); ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols);
+    radar heatmap axes (docs/format.md §2); ``lidar_shape`` (beams, columns); ``camera_shape`` (rows, cols);
     ``stereo_images`` adds the rectified left/right mono8 pair (``STEREO_TOPICS``) for OpenCV stereo.
     ``visible_walkers`` N adds N people walking in the approach corridor, seen by every sensor, with
     per-scan LiDAR truth instance masks in ``truth/lidar_instances.npz`` (0: none, outputs unchanged).

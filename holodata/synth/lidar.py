@@ -74,7 +74,7 @@ class LidarModel:
     def __init__(self, cfg: LidarConfig, alt_deg: np.ndarray, az_deg: np.ndarray, face_material, face_class,
                  materials, human_material: int, ceiling_class: int):
         self.cfg = cfg
-        H, W = cfg.rows, cfg.cols
+        W = cfg.cols
         enc = -2 * np.pi * np.arange(W) / W
         th = np.deg2rad(alt_deg)[:, None]
         ph = enc[None, :] - np.deg2rad(az_deg)[:, None]
@@ -129,7 +129,8 @@ class LidarModel:
         out["x"], out["y"], out["z"] = p[..., 0], p[..., 1], p[..., 2]
         out["range"] = np.where(valid, np.rint(r * 1000.0), 0).astype(np.uint32)
         out["intensity"] = np.where(valid, signal * (1 + 0.05 * rng.normal(size=(H, W))), 0).astype(np.float32)
-        out["reflectivity"] = np.where(valid, np.clip(rho * 255 * (1 + 0.03 * rng.normal(size=(H, W))), 0, 255), 0).astype(np.uint16)
+        out["reflectivity"] = np.where(valid, np.clip(rho * 255 * (1 + 0.03 * rng.normal(size=(H, W))), 0, 255),
+                                       0).astype(np.uint16)
         amb = 40.0 + 600.0 * (cls == self.ceiling_class) * np.exp(-((np.arange(W) % 256 - 128) / 60.0) ** 2)[None, :]
         out["ambient"] = np.clip(rng.poisson(amb), 0, 65535).astype(np.uint16)
         out["t"] = self.column_times_ns()[None, :].astype(np.uint32)

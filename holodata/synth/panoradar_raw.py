@@ -146,7 +146,8 @@ def box_room_trajectory(folder, *, chirp: ChirpConfig | None = None, n_rotations
     speed = float(np.hypot(*velocity))
     motion = None
     if speed > 0 and motion_file:
-        motion = {"v_esti": np.full(n_rotations, speed), "theta_v_esti": np.full(n_rotations, np.arctan2(velocity[1], velocity[0])),
+        motion = {"v_esti": np.full(n_rotations, speed),
+                  "theta_v_esti": np.full(n_rotations, np.arctan2(velocity[1], velocity[0])),
                   "delta_s0_esti": np.full(n_rotations, speed * T)}
     out = write_trajectory(folder, radar, radar_ts, radar_sep, chirp=chirp, lidar=lidar, lidar_ts=lidar_ts,
                            lidar_sep=lidar_sep, imu=np.zeros(len(imu_ts)), imu_ts=imu_ts, imu_sep=imu_sep,

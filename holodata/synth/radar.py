@@ -282,7 +282,8 @@ class RadarModel:
         at its image source: ``origins[pix] + range · directions[pix]`` (world frame; the point a
         specular chain is seen at), amplitude ``|amp|`` (the propagation phase comes from the
         geometry) times the antennas' azimuth pattern (``element_beamwidth_deg``) at its angle off
-        each chirp's facing, seen by the chirps that face its half-space. Plus thermal noise and the TX→RX leakage (a return at zero range, the
+        each chirp's facing, seen by the chirps that face its half-space. Plus thermal noise and the TX→RX leakage (a return at
+        zero range, the
         same in every chirp: what static-reflection removal takes out)."""
         from ..radar._iq_kernel import beat_samples
 

@@ -490,7 +490,8 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
     truthio.write_trajectory(truth_dir / "trajectory_base.tum", tb, sc.truth.interpolate(tb))
     truthio.write_trajectory(truth_dir / "trajectory_radar.tum", [r[0] for r in radar_tum], np.stack([r[1] for r in radar_tum]))
     if lidar_tum:
-        truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", [r[0] for r in lidar_tum], np.stack([r[1] for r in lidar_tum]))
+        truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", [r[0] for r in lidar_tum],
+                                 np.stack([r[1] for r in lidar_tum]))
     truthio.write_trajectory(truth_dir / "odometry.tum", sc.odom.timestamp_ns, sc.odom.poses)
     truthio.write_frames_csv(truth_dir / "radar_frames.csv", frame_rows)
     if sc.walkers:
@@ -567,7 +568,8 @@ def _odometry_msg(bw, sc: Scenario, i: int, t_ns: int):
     q = Rotation.from_matrix(P[:3, :3]).as_quat()
     V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
     pose = T["geometry_msgs/msg/PoseWithCovariance"](
-        pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(P[0, 3]), y=float(P[1, 3]), z=float(P[2, 3])),
+        pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=float(P[0, 3]), y=float(P[1, 3]),
+                                                                                z=float(P[2, 3])),
                                          orientation=Q(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3]))),
         covariance=np.diag([0.01, 0.01, 1e-6, 1e-6, 1e-6, 0.02]).ravel())
     twist = T["geometry_msgs/msg/TwistWithCovariance"](

@@ -93,7 +93,9 @@ def write_lidar_instances(path: Path, rows: list, n_walkers: int, hidden_human: 
         scan.append(np.full(len(nz), i, np.int32))
         pixel.append(nz.astype(np.int32))
         inst.append(flat[nz])
-    cat = (lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt))
+    def cat(xs, dt):
+        return np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt)
+
     with open(path, "wb") as fh:  # a file handle: np.savez_compressed would append ".npz" to odd names
         np.savez_compressed(fh, stamp_ns=np.array([r[0] for r in rows], np.int64), shape=np.array(shape, np.int64),
                             scan=cat(scan, np.int32), pixel=cat(pixel, np.int32), instance=cat(inst, np.uint16),

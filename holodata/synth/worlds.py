@@ -1,4 +1,5 @@
-"""Procedural indoor corners (T, L, cross, oblique: branch at 45° to the approach corridor) as closed triangle meshes with materials.
+"""Procedural indoor corners (T, L, cross, oblique: branch at 45° to the approach corridor) as closed triangle meshes with
+materials.
 
 World frame (REP-103): the robot's *approach corridor* runs along +x with its axis on y = 0
 and its walls at y = ±width/2; the junction starts at x = 0. The *hidden branch* (where the
@@ -295,7 +296,6 @@ def make_world(corner: str = "L", width: float | None = None, seed: int = 0, fea
         for edge in (n_edges - 2, 0):  # the approach corridor's side walls (y = +w/2, y = -w/2)
             if rng.random() < 0.5:
                 a, b = poly[edge], poly[(edge + 1) % len(poly)]
-                L = float(np.linalg.norm(b - a))
                 wid, depth = float(rng.uniform(0.85, 1.1)), float(rng.uniform(0.08, 0.25))
                 # keep the recess in the far part of the approach corridor (x < -2.5)
                 if edge == 0:

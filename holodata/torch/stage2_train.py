@@ -46,7 +46,8 @@ class Stage2Config:
     refiner epochs (ray tracer frozen). Model: ``channels``/``res_blocks``/``fusion_blocks`` of
     each hybrid block; ``voxel`` (m), ``refine_channels`` (per UNet level), ``refine_blocks``.
     Augmentation: ``p_clean`` (share of GT-input samples left exact), ``noise_max_m`` (σ of the
-    range noise drawn per frame in [0, noise_max_m]), ``dropout`` (share of pixels dropped), ``p_stage1`` (share of samples whose input is the
+    range noise drawn per frame in [0, noise_max_m]), ``dropout`` (share of pixels dropped), ``p_stage1`` (share of samples
+    whose input is the
     stage-one prediction; default 0: ranges decimetres off teach the ray tracer to distrust exact
     ones, docs/design/stage2.md), ``flip`` (random y-mirror).
     Loss: eq. 6 weights ``w_sn``, ``w_point`` (+ ``w_normal``), RT loss pixels only where

@@ -378,7 +378,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                                  anchor=slam_anchor(scene) if init_source == "tf" else None)
         timings["extrinsic_s"] = time.perf_counter() - t1
         if not reg.accepted:
-            a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, rmse {x['rmse'] * 100:.1f} cm, "
+            a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, "
+                          f"rmse {x['rmse'] * 100:.1f} cm, "
                           f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
                           + (f", the data does not constrain {len(x['held_directions'])} direction(s) "
                              f"({', '.join(x['held_directions'])}): held at the guess, good to "
@@ -518,7 +519,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         n_h = int(sum(len(s[1]) > 0 for s in surfaces))
         report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
                   "map": "slam (map/points)" if stored_map is not None else "built from the LiDAR scans",
-                  "frames_with_human": n_h, "frames": n, "map_points_seen_through": int(carved.sum()), "frames_repicked": n_repicked, "params": cfg.to_attrs(),
+                  "frames_with_human": n_h, "frames": n, "map_points_seen_through": int(carved.sum()),
+                  "frames_repicked": n_repicked, "params": cfg.to_attrs(),
                   "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
                              "visible front (closed)",
                   "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,

@@ -490,7 +490,8 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         # registration_icp: from the exact pose it slid 43 cm along a corridor the overlap sees
         # end-on (T corner, 1.5 m wide), and it has no way to hold such directions. Uniform weights:
         # per-point camera noise weights were measured worse (the map's own error is not modelled).
-        return weighted_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4), tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
+        return weighted_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4),
+                            tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
                             degenerate_ratio=ratio, info=info, source_normals=src_n,
                             min_normal_cos=cfg.min_normal_cos, search_m=cfg.search_m,
                             max_std_m=cfg.max_std_m if cfg.noise_weights else 0.0, max_scale=cfg.max_scale_m,

@@ -568,7 +568,8 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, map_
             for sid in ids]
 
 
-__all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine", "global_refine",
+__all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine",
+           "global_refine",
            "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "tf_lidar_poses", "frame_poses",
            "localise_scene", "check_map_scene", "recording_tf_poses", "guess_poses", "MAPPING_ROLE", "stream_scans",
            "data_max_range", "mesh_scan_subset"]

@@ -21,7 +21,8 @@ class SlamConfig:
     ``refine``: open3d scan-to-map refinement after kiss-icp (False = bare kiss-icp poses);
     ``source_voxel``: scan downsampling for refinement ICP; ``map_voxel``: refinement map
     resolution (a scan adds to it only when the sensor moved ``map_keyframe_m`` or turned
-    ``map_keyframe_deg`` since the last scan that did); ``icp_distances``: coarse-to-fine max correspondence distances; ``tukey_k``:
+    ``map_keyframe_deg`` since the last scan that did); ``icp_distances``: coarse-to-fine max correspondence distances;
+    ``tukey_k``:
     robust kernel width as a multiple of each stage's distance; ``min_fitness``: a refined scan
     pose whose share of source points with a map correspondence (finest stage) is below this keeps
     kiss-icp's relative motion instead (counted in the health figures); ``global_pass``: second
