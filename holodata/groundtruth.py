@@ -41,6 +41,7 @@ from .conventions import (
     RangeBins,
 )
 from .beams import OriginModel, beam_rays, column_poses, column_times, scene_origin_model
+from .dataset.layout import GT_ARRAYS
 from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .parallel import cpus
@@ -49,7 +50,6 @@ from .trajectory import Trajectory, read_tum
 
 MESH_EXTS = (".ply", ".obj", ".stl")
 HUMAN_SPLAT_RADIUS_M = 0.03
-GT_ARRAYS = ("gt/range", "gt/normal", "gt/point", "gt/label", "gt/semantic", "gt/human_center")
 
 
 class TracingError(HolodataError, RuntimeError):
@@ -231,22 +231,16 @@ def trace_frame(scene, cfg: GTConfig, traj: Trajectory, k: int, human, human_ver
 
 
 def gt_array_specs(grid: Grid, B: int) -> dict:
-    H, W = grid.H, grid.W
-    nan = float("nan")
-    return {
-        "gt/range": dict(per_frame_shape=(B, H, W), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth"],
-                         units="m", fill_value=nan),
-        "gt/normal": dict(per_frame_shape=(B, H, W, 3), dtype="float16",
-                          dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="1", fill_value=nan),
-        "gt/point": dict(per_frame_shape=(B, H, W, 3), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth", "xyz"],
-                         units="m", fill_value=nan),
-        "gt/label": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"], units="1",
-                         fill_value=0),
-        "gt/semantic": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"],
-                            units="1", fill_value=0),
-        "gt/human_center": dict(per_frame_shape=(1, 3), dtype="float32", dims=["frame", "human", "xyz"], units="m",
-                                fill_value=nan),
-    }
+    """{name: frame_array arguments} of the gt arrays (:data:`holodata.dataset.layout.GT_ARRAYS`) for
+    ``B`` bounces on ``grid``; one human centre per frame."""
+    from .dataset.layout import LAYOUT
+
+    out = {}
+    for name in GT_ARRAYS:
+        s = LAYOUT[name]
+        out[name] = dict(per_frame_shape=s.per_frame(B=B, H=grid.H, W=grid.W, K=1), dtype=s.dtype, dims=list(s.dims),
+                         units=s.units, fill_value=s.fill)
+    return out
 
 
 def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource, origin_source: str | None = None,

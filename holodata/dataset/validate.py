@@ -18,6 +18,7 @@ import numpy as np
 from ..conventions import Label, is_rigid
 from . import shards as sh
 from .info import stored_bytes
+from .layout import spec
 from .reader import Dataset, list_nodes, open_dataset
 from .schemas import schema_errors
 from .writer import ragged_digest
@@ -45,28 +46,22 @@ class Problem:
 
 
 def expected_spec(name: str, T: int, grid, rb) -> tuple[tuple | None, tuple[str, ...] | None]:
-    """(shape pattern with None = any, allowed dtypes) of a docs/format.md §3 array; (None, None) if unknown."""
-    H, W = grid.H, grid.W
-    table = {
-        "time/timestamp_ns": ((T,), ("int64",)),
-        "pose/T_world_radar": ((T, 4, 4), ("float64",)),
-        "pose/T_world_lidar": ((T, 4, 4), ("float64",)),
-        "radar/heatmap": ((T, rb.n, H, W), ("float16", "float32")),
-        "lidar/range": ((T, None, None), ("float32",)),
-        "gt/range": ((T, None, H, W), ("float32",)),
-        "gt/normal": ((T, None, H, W, 3), ("float16", "float32")),
-        "gt/point": ((T, None, H, W, 3), ("float32",)),
-        "gt/label": ((T, None, H, W), ("uint8",)),
-        "gt/human_center": ((T, None, 3), ("float32",)),
-        "mesh/vertices": ((None, 3), ("float32", "float64")),
-        "mesh/faces": ((None, 3), ("int32", "int64", "uint32")),
-        "map/points": ((None, 3), ("float32", "float64")),
-    }
-    if name in table:
-        return table[name]
-    if name.startswith("pose/T_world_"):
-        return (T, 4, 4), ("float64",)
-    return None, None
+    """(shape pattern with None = any, allowed dtypes) of a frame or static array of the layout
+    (:mod:`holodata.dataset.layout`); (None, None) for names it does not know and ragged arrays."""
+    s = spec(name)
+    if s is None or s.kind == "ragged":
+        return None, None
+    return s.resolve(T=T, R=rb.n, H=grid.H, W=grid.W), s.dtypes
+
+
+def _check_layout(rep, sid, name: str, attrs: dict) -> None:
+    """An array the layout knows carries the layout's dimension names and units."""
+    s = spec(name)
+    if s is None:
+        return
+    if list(attrs.get("dims") or []) != list(s.dims) or attrs.get("units") != s.units:
+        rep.add(sid, name, None, "attrs", f"dims {attrs.get('dims')} units {attrs.get('units')!r}, the layout has "
+                                          f"{list(s.dims)} {s.units!r} (holodata.dataset.layout)")
 
 
 def _shape_ok(shape, pattern) -> bool:
@@ -164,6 +159,7 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report):
             rep.add(sid, name, None, "attrs", f"attrs['dims'] missing or not {len(shape)} names")
         if not isinstance(a.get("units"), str):
             rep.add(sid, name, None, "attrs", "attrs['units'] missing")
+        _check_layout(rep, sid, name, a)
         pat, dts = expected_spec(name, T, ds.grid, ds.range_bins)
         if pat is not None:
             if not _shape_ok(shape, pat):
@@ -192,6 +188,8 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report):
             a = m.get("attributes", {})
             if "dims" not in a or "units" not in a:
                 rep.add(sid, name, None, "attrs", "attrs['dims'] or attrs['units'] missing")
+            else:
+                _check_layout(rep, sid, name, a)
     work = sum(_n_shards(m) for kind, m in nodes.values() if kind in ("frame", "ragged"))
     return sid, nodes, work
 

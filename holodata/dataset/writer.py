@@ -33,6 +33,16 @@ RAGGED_CHUNK_BYTES = 1 << 20
 SMALL_CHUNK_BYTES = 8 << 20
 
 
+def _layout_defaults(name: str, dims, units) -> tuple:
+    """(dims, units) with the layout's filled in where the caller gave none (units "1" otherwise)."""
+    from .layout import spec
+
+    s = spec(name)
+    if dims is None and s is not None:
+        dims = list(s.dims)
+    return dims, units if units is not None else (s.units if s is not None else "1")
+
+
 def _json(store: Store, key: str) -> dict | None:
     b = store.get(key)
     return None if b is None else json.loads(b)
@@ -244,11 +254,12 @@ class SceneWriter:
                                                                          for p in name.split("/")):
             raise DatasetError(f"{self.ds.url}: scene {self.id!r}: bad array name {name!r}")
 
-    def frame_array(self, name: str, per_frame_shape=(), dtype="float32", dims=None, units="1",
+    def frame_array(self, name: str, per_frame_shape=(), dtype="float32", dims=None, units=None,
                     fill_value=None, shard_frames: int | None = None, codec: str | None = None,
                     attrs: dict | None = None) -> "FrameArrayWriter":
         """Create (or reopen, same shape/dtype) a frame array (T,) + per_frame_shape: one frame per
-        chunk, ``shard_frames`` frames per shard."""
+        chunk, ``shard_frames`` frames per shard. ``dims``/``units`` default to the layout's
+        (:mod:`holodata.dataset.layout`) for the arrays it knows."""
         self._check_name(name)
         path = f"{self.path}/{name}"
         per_frame_shape = tuple(int(s) for s in per_frame_shape)
@@ -260,6 +271,7 @@ class SceneWriter:
                 raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r} exists as "
                                    f"{tuple(cur.get('shape', ()))} {cur.get('data_type')}, asked for {shape} {dtype}")
             return FrameArrayWriter(self, name, cur)
+        dims, units = _layout_defaults(name, dims, units)
         dims = list(dims) if dims is not None else ["frame"] + [f"dim_{i}" for i in range(1, len(shape))]
         if len(dims) != len(shape):
             raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r}: {len(dims)} dims for a "
@@ -278,12 +290,13 @@ class SceneWriter:
                                             "shape": list(shape), "dtype": str(dtype)}})
         return FrameArrayWriter(self, name, _json(self.ds.store, f"{path}/zarr.json"))
 
-    def write_array(self, name: str, data, dims, units: str = "1", attrs: dict | None = None) -> None:
+    def write_array(self, name: str, data, dims, units: str | None = None, attrs: dict | None = None) -> None:
         """Write a small non-frame array (mesh, calibration) whole; replaces an existing one. Its
         sha256 (of the C-order bytes) goes into attrs after the data, so validate sees a torn write."""
         import zarr
 
         self._check_name(name)
+        dims, units = _layout_defaults(name, dims, units)
         data = np.ascontiguousarray(data)
         if len(dims) != data.ndim:
             raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r}: {len(dims)} dims for a "
@@ -303,10 +316,10 @@ class SceneWriter:
         a.attrs.update({"holodata": {"kind": "array", "sha256": sh.sha256(data.tobytes()),
                                      "shape": list(data.shape), "dtype": str(data.dtype)}})
 
-    def ragged_array(self, name: str, width: int, dtype="float32", units: str = "1", dims=None,
+    def ragged_array(self, name: str, width: int, dtype="float32", units: str | None = None, dims=None,
                      shard_frames: int | None = None, codec: str | None = None) -> "RaggedWriter":
         """Create (or reopen) ragged array ``name``: values (N, width) + offsets (T+1,) int64.
-        ``codec``: of the values (default: the dataset's)."""
+        ``codec``: of the values (default: the dataset's); ``dims``/``units``: the layout's by default."""
         self._check_name(name)
         path = f"{self.path}/{name}"
         dtype = np.dtype(dtype)
@@ -319,6 +332,7 @@ class SceneWriter:
                                    f"(asked for ragged width {width} {dtype})")
             return RaggedWriter(self, name, cur)
         S = int(shard_frames or self.ds.shard_frames)
+        dims, units = _layout_defaults(name, dims, units)
         dims = list(dims) if dims is not None else ["point", "xyz" if width == 3 else "component"]
         self._parents(name)
         hd = {"kind": "ragged", "width": int(width), "shard_frames": S, "n_shards": math.ceil(self.n_frames / S),

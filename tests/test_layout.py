@@ -1,0 +1,59 @@
+"""The layout table (holodata.dataset.layout): consistent entries, validate checks against it
+(shape, dtype, dims, units), and raytrace-gt creates its arrays from it."""
+from __future__ import annotations
+
+import numpy as np
+
+from holodata.conventions import Grid, RangeBins
+from holodata.dataset import create_dataset
+from holodata.dataset.layout import GT_ARRAYS, LAYOUT, spec
+from holodata.dataset.validate import expected_spec, validate_dataset
+
+
+def test_every_entry_is_consistent():
+    for name, s in LAYOUT.items():
+        assert s.name == name and s.kind in ("frame", "static", "ragged"), name
+        assert s.dtype in s.dtypes and s.units and s.producer, name
+        if s.kind == "frame":
+            assert s.shape[0] == "T" and s.dims[0] == "frame" and len(s.dims) == len(s.shape), name
+        elif s.kind == "static":
+            assert len(s.dims) == len(s.shape), name
+        else:                       # a row of values: (point, xyz) dims for width-w rows
+            assert len(s.dims) == 2 and len(s.shape) == 1, name
+    assert GT_ARRAYS == ("gt/range", "gt/normal", "gt/point", "gt/label", "gt/semantic", "gt/human_center")
+    assert spec("pose/T_world_camera").shape == ("T", 4, 4) and spec("nope/x") is None
+
+
+def test_expected_shapes_follow_the_grid_and_range_bins():
+    g, rb = Grid(8, 32), RangeBins(128, 0.05)
+    assert expected_spec("radar/heatmap", 5, g, rb) == ((5, 128, 8, 32), ("float16", "float32"))
+    assert expected_spec("gt/normal", 5, g, rb) == ((5, None, 8, 32, 3), ("float16", "float32"))
+    assert expected_spec("gt/semantic", 5, g, rb) == ((5, None, 8, 32), ("uint8",))
+    assert expected_spec("mesh/faces", 5, g, rb)[0] == (None, 3)
+    assert expected_spec("camera/points", 5, g, rb) == (None, None)      # ragged: checked by its offsets
+
+
+def test_raytrace_gt_creates_the_layout_s_arrays():
+    from holodata.groundtruth import gt_array_specs
+
+    specs = gt_array_specs(Grid(8, 32), 3)
+    assert tuple(specs) == GT_ARRAYS
+    for name, kw in specs.items():
+        s = LAYOUT[name]
+        assert kw["dtype"] == s.dtype and kw["dims"] == list(s.dims) and kw["units"] == s.units
+    assert specs["gt/normal"]["per_frame_shape"] == (3, 8, 32, 3) and specs["gt/human_center"]["per_frame_shape"] == (1, 3)
+
+
+def test_validate_names_an_array_whose_dims_or_units_are_not_the_layout_s(tmp_path):
+    url = str(tmp_path / "d.zarr")
+    g = Grid(8, 32)
+    sc = create_dataset(url, grid=g, range_bins=RangeBins()).scene("s", n_frames=2)
+    t = sc.frame_array("time/timestamp_ns", (), "int64", ["frame"], "ns")
+    t.write_shard(0, np.array([1, 2], np.int64))
+    r = sc.frame_array("gt/range", (3, 8, 32), "float32", ["frame", "bounce", "row", "col"], "cm")
+    r.write_shard(0, np.full((2, 3, 8, 32), np.nan, np.float32))
+    lab = sc.frame_array("gt/label", (3, 8, 32), "uint8", ["frame", "bounce", "elevation", "azimuth"], "1")
+    lab.write_shard(0, np.zeros((2, 3, 8, 32), np.uint8))
+    rep = validate_dataset(url)
+    bad = [p for p in rep["problems"] if p["rule"] == "attrs"]
+    assert [p["array"] for p in bad] == ["gt/range"] and "the layout has" in bad[0]["message"], rep["problems"]
