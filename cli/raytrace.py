@@ -47,11 +47,15 @@ from holodata.cli.options import dask_options
 @dask_options("one task per shard",
               "the dataset and inputs must be reachable from the workers (shared folder or s3://; credentials from the "
               "workers' environment).")
+@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="YAML/JSON file of stage settings (section gt; examples/holodata.yaml); flags "
+                   "given here win.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
+@click.pass_context
+def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
                 max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, workers,
-                scheduler, quiet, as_json):
+                scheduler, config_file, quiet, as_json):
     """Ray-trace multi-bounce ground truth (gt/range, gt/normal, gt/point, gt/label, gt/semantic,
     gt/human_center) for every frame, shard by shard (an interrupted run resumes).
 
@@ -66,7 +70,7 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
     """
     from holodata.conventions import Grid
     from holodata.dataset.info import plural
-    from holodata.groundtruth import GTConfig, OriginModel, raytrace_dataset, raytrace_standalone
+    from holodata.groundtruth import OriginModel, raytrace_dataset, raytrace_standalone
 
     standalone = mesh is not None
     if standalone:
@@ -91,9 +95,13 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
         origin = OriginModel(d.rotation_radius if rotation_radius is None else rotation_radius,
                              d.column_time if column_time is None else column_time,
                              d.rotation_hz if rotation_hz is None else rotation_hz)
-    cfg = GTConfig(grid=g, max_bounces=max_bounces, max_range=max_range, backend=backend,
-                   origin=origin, shard_frames=shard_frames,
-                   nthreads=threads, codec=codec)
+    from holodata.config_file import build, explicit_flags
+
+    cfg = build("gt", config_file, dict(grid=g, max_bounces=max_bounces, max_range=max_range, backend=backend,
+                                        origin=origin, shard_frames=shard_frames, nthreads=threads, codec=codec),
+                explicit_flags(ctx, {"grid": "grid", "max_bounces": "max_bounces", "max_range": "max_range",
+                                     "backend": "backend", "shard_frames": "shard_frames", "nthreads": "threads",
+                                     "codec": "codec"}))
     from holodata.distributed import cluster
 
     with cluster(workers, scheduler) as client:

@@ -38,11 +38,15 @@ def _init(value: str | None):
 @click.option("--guess-std", "guess_std", type=click.FloatRange(min=0.0), default=5.0, show_default=True, metavar="CM",
               help="How good the guess (TF pose or --init) is along directions the camera's view does not constrain: "
                    "the result there is the guess, with this uncertainty; accepted only if <= 2 cm.")
+@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="YAML/JSON file of stage settings (sections register, segment, ...; examples/holodata.yaml); flags "
+                   "given here win.")
 @click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def register(dataset, scene, init, no_segment, camera_world, truth, report, processes, guess_std, force, quiet,
-             as_json) -> None:
+@click.pass_context
+def register(ctx, dataset, scene, init, no_segment, camera_world, truth, report, processes, guess_std, config_file, force,
+             quiet, as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
     FPFH+RANSAC fallback accepted only if it passes the fitness/RMSE check; then the human in every
@@ -54,13 +58,19 @@ def register(dataset, scene, init, no_segment, camera_world, truth, report, proc
       holodata register data.zarr --init 0.7,-8.1,1.2,-95,0,-9.5 --json
       holodata register data.zarr --truth synth_T/truth --report register_report/
     """
-    from holodata.mapping.register import RegisterConfig, register_scene
+    from holodata.config_file import build, explicit_flags, read
+    from holodata.mapping.register import register_scene
 
     if report and not truth:
         raise click.UsageError("--report needs --truth")
-    cfg = RegisterConfig(segment_lidar=not no_segment, write_camera_world=camera_world, processes=processes,
-                         guess_std_m=guess_std / 100.0)
-    res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet, force=force)
+    flags = {"segment_lidar": "no_segment", "write_camera_world": "camera_world", "processes": "processes",
+             "guess_std_m": "guess_std"}
+    cfg = build("register", config_file, dict(segment_lidar=not no_segment, write_camera_world=camera_world,
+                                              processes=processes, guess_std_m=guess_std / 100.0),
+                explicit_flags(ctx, flags))
+    seg = build("segment", config_file) if config_file and "segment" in read(config_file) else None
+    seg = None if seg is None or seg == type(seg)() else seg     # the defaults: the same fingerprint as without a file
+    res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet, force=force, segment_cfg=seg)
     if truth:
         from holodata.mapping.human_eval import evaluate_register
 

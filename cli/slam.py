@@ -31,11 +31,15 @@ import click
               help="Localisation mode: a mapping pass of the same corner (its own LiDAR-only scene, e.g. ingested "
               "from a separate recording) is slammed first; the --scene scans are localised against its map and "
               "get its mesh. The map scene is marked role=mapping (no train/test split, no raytrace-gt).")
+@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
+              help="YAML/JSON file of stage settings (sections slam, mesh, ...; examples/holodata.yaml); flags given "
+                   "here win.")
 @click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method, mesh_voxel, no_mesh, ply, tum, truth, report,
-         map_scene, force, quiet, as_json):
+@click.pass_context
+def slam(ctx, dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method, mesh_voxel, no_mesh, ply, tum, truth,
+         report, map_scene, config_file, force, quiet, as_json):
     """Estimate the LiDAR pose of every scan (kiss-icp, refined by scan-to-map point-to-plane ICP),
     the radar poses through the extrinsic, and a mesh of the static scene (moving points removed);
     writes pose/T_world_lidar, pose/T_world_radar, mesh/vertices, mesh/faces into the scene.
@@ -46,8 +50,8 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
       holodata slam data.zarr --truth synth_L/truth --report slam_report/
       holodata slam data.zarr --scene corner_03 --map-scene corner_03_map
     """
-    from holodata.mapping.mesh import MeshConfig
-    from holodata.mapping.slam import SlamConfig, slam_dataset
+    from holodata.config_file import build, explicit_flags
+    from holodata.mapping.slam import slam_dataset
 
     if (ply or tum or truth) and len(scenes) > 1:
         raise click.UsageError("--ply/--tum/--truth need a single --scene")
@@ -55,11 +59,15 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
         raise click.UsageError("--report needs --truth")
     if map_scene is not None and not scenes:
         raise click.UsageError("--map-scene needs --scene (the scenes to localise against it)")
-    if map_scene is not None and (no_refine or no_mesh):
+    flags = {"voxel": "voxel", "max_range": "max_range", "refine": "no_refine", "global_pass": "global_pass",
+             "mesh": "no_mesh"}
+    cfg = build("slam", config_file, dict(voxel=voxel, max_range=max_range, refine=not no_refine,
+                                          global_pass=global_pass, mesh=not no_mesh), explicit_flags(ctx, flags))
+    mcfg = build("mesh", config_file, dict(method=mesh_method, voxel=mesh_voxel),
+                 explicit_flags(ctx, {"method": "mesh_method", "voxel": "mesh_voxel"}))
+    if map_scene is not None and (not cfg.refine or not cfg.mesh):
         raise click.UsageError("--map-scene localises by scan-to-map ICP against the map scene's mesh map: "
                                "no --no-refine / --no-mesh")
-    cfg = SlamConfig(voxel=voxel, max_range=max_range, refine=not no_refine, global_pass=global_pass, mesh=not no_mesh)
-    mcfg = MeshConfig(method=mesh_method, voxel=mesh_voxel)
     results = slam_dataset(dataset, list(scenes) or None, config=cfg, mesh_config=mcfg, quiet=quiet, ply=ply, tum=tum,
                            force=force, single_exports=True, map_scene=map_scene)
     out = {"dataset": dataset, "scenes": [r.summary for r in results]}

@@ -71,7 +71,8 @@ class TrainConfig:
 
     @classmethod
     def from_file(cls, path, **overrides) -> "TrainConfig":
-        """Read a YAML or JSON mapping of TrainConfig fields; ``overrides`` (non-None) win."""
+        """Read a YAML or JSON mapping of TrainConfig fields, or the ``train`` section of a stage-settings
+        file (:mod:`holodata.config_file`, e.g. ``examples/holodata.yaml``); ``overrides`` (non-None) win."""
         import yaml
 
         p = Path(path)
@@ -81,6 +82,10 @@ class TrainConfig:
             raise InputError(f"{p}: cannot read training config ({' '.join(str(err).split())})") from err
         if not isinstance(data, dict):
             raise InputError(f"{p}: training config must be a mapping of field: value")
+        from ..config_file import SECTIONS, read
+
+        if data and set(data) <= set(SECTIONS) and not set(data) & {f.name for f in fields(cls)}:
+            data = read(p).get("train", {})        # a stage-settings file: its train section
         return cls.from_dict({**data, **{k: v for k, v in overrides.items() if v is not None}}, source=str(p))
 
     @classmethod

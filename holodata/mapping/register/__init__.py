@@ -130,7 +130,7 @@ def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None
 
 
 def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True, build_map: bool = True,
-              early=None) -> tuple[np.ndarray | None, dict | None, dict]:
+              segment_cfg=None, early=None) -> tuple[np.ndarray | None, dict | None, dict]:
     """The LiDAR half of :func:`register_scene` (step 2 and the segmentation): background model,
     the static map (when ``build_map``) and, when ``segment``, ``lidar/instance``. The map is built
     first, with the instance masks of the few map scans that have foreground computed on the spot,
@@ -144,7 +144,7 @@ def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: boo
     scene = open_dataset(url).scene(sid)
     scans = LidarScans.open(scene, url)
     traj = scans.trajectory()
-    scfg = SegmentConfig()
+    scfg = segment_cfg or SegmentConfig()
     bg, _, world_points = background_and_segment(url, sid, scfg, quiet, segment=False, scans=scans, traj=traj)
     t1 = time.perf_counter()
     if segment:
@@ -273,7 +273,7 @@ def map_frame_problem(scene, world: str) -> str | None:
 REGISTER_OUTPUTS = ("calib/T_world_camera", "human/vertices", "human/faces", "human/points")
 
 
-def register_fingerprint(scene, cfg: RegisterConfig, init) -> str:
+def register_fingerprint(scene, cfg: RegisterConfig, init, segment_cfg=None) -> str:
     """What register's outputs depend on, hashed: the settings (less ``processes``, which changes no
     result), ``--init``, the camera's TF pose and intrinsics (``sensors.camera``), ingest's
     fingerprint (the camera and LiDAR arrays) and the bytes of slam's poses, map points and mesh."""
@@ -285,6 +285,8 @@ def register_fingerprint(scene, cfg: RegisterConfig, init) -> str:
     head = {"params": params, "init": None if init is None else np.asarray(_parse_init(init), float).tolist(),
             "camera": (scene.attrs.get("sensors") or {}).get("camera"),
             "ingest": (scene.attrs.get("ingest") or {}).get("fingerprint")}
+    if segment_cfg is not None:                      # a segmentation other than the default's
+        head["segment"] = segment_cfg.to_attrs()
     h.update(json.dumps(head, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)).encode())
     names = set(scene.arrays())
     for name in ("pose/T_world_lidar", "map/points", "mesh/vertices", "mesh/faces"):
@@ -295,9 +297,10 @@ def register_fingerprint(scene, cfg: RegisterConfig, init) -> str:
 
 
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
-                   quiet: bool = True, force: bool = False) -> dict:
+                   quiet: bool = True, force: bool = False, segment_cfg=None) -> dict:
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
-    docstring). Returns a summary dict; raises :class:`RegistrationError` if no registration passes.
+    docstring); ``segment_cfg``: the LiDAR segmentation's :class:`~holodata.mapping.segment.SegmentConfig`
+    (None: its defaults). Returns a summary dict; raises :class:`RegistrationError` if no registration passes.
     A scene registered before from the same inputs and settings (:func:`register_fingerprint`, every
     output present) is not registered again unless ``force``: the stored report comes back with
     ``skipped`` set, as slam does."""
@@ -311,7 +314,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     sid = _scene_id(ds, url, scene_id)
     scene = ds.scene(sid)
     scene.require_complete("register")
-    fingerprint = register_fingerprint(scene, cfg, init)
+    fingerprint = register_fingerprint(scene, cfg, init, segment_cfg)
     done = scene.attrs.get("register") or {}
     if (not force and done.get("fingerprint") == fingerprint and set(REGISTER_OUTPUTS) <= set(scene.arrays())
             and (not cfg.segment_lidar or instance_state(scene) == "current")):
@@ -342,7 +345,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     stored_map = scene_map(scene) if cfg.slam_map else None
     lidar = None
     if segment or stored_map is None:
-        lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1, stored_map is None,
+        lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1, stored_map is None, segment_cfg,
                           label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1, early=stored_map is None)
     try:
         t1 = time.perf_counter()

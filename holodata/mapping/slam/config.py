@@ -16,40 +16,38 @@ SEED_POSES = ("kiss-icp", "tf")
 class SlamConfig:
     """SLAM settings (metres, seconds).
 
-    ``voxel``: kiss-icp map voxel (indoor: 0.1–0.2); ``max_range``: None = from the data;
-    ``min_range``: drop returns closer than this (robot body); ``deskew``: use per-point times;
-    ``refine``: open3d scan-to-map refinement after kiss-icp (False = bare kiss-icp poses);
-    ``source_voxel``: scan downsampling for refinement ICP; ``map_voxel``: refinement map
-    resolution (a scan adds to it only when the sensor moved ``map_keyframe_m`` or turned
-    ``map_keyframe_deg`` since the last scan that did); ``icp_distances``: coarse-to-fine max correspondence distances;
-    ``tukey_k``:
-    robust kernel width as a multiple of each stage's distance; ``min_fitness``: a refined scan
-    pose whose share of source points with a map correspondence (finest stage) is below this keeps
-    kiss-icp's relative motion instead (counted in the health figures); ``global_pass``: second
-    refinement pass against the whole (background-filtered) map (measured on a synth L corner:
-    ATE 0.45 → 0.35 cm, mesh F unchanged, about the cost of the first pass; off by default); ``background_voxel`` /
-    ``background_min_fraction``: the voxel background model (moving points out of the map
-    and mesh); ``mesh``: build and store the static mesh from at most ``mesh_max_scans`` scans
-    (every scan that moved a keyframe distance plus scans evenly spread in time, so that people
-    walking while the robot stands still are still seen moving); ``still_m`` / ``still_deg``:
-    when kiss-icp says the sensor moved less than this since the last ICP-refined scan, and one
-    point-to-plane Gauss-Newton step of the scan from that scan's pose against the map is below
-    ``still_check_m`` / ``still_check_deg`` (kiss-icp alone lags when the robot starts from rest),
-    the robot is at rest: the scan holds that refined pose without ICP; ``same_beam``: on organised
-    scans (``lidar/range``) that check reuses, beam by beam, the map planes found for the last scan
-    that passed it (:class:`_SameBeam`: at most ``same_beam_points`` beams, bounds ``same_beam_scale``
-    × the check's, at least ``same_beam_share`` of the returns near their plane; else the full check
-    runs); ``icp_converged_m``: ICP
-    stages stop when the inlier RMSE changes less than this between iterations; kiss-icp runs on the
-    scan downsampled to ``kiss_input_voxel`` (its own first voxelisation is at voxel/2) with ICP
-    convergence ``kiss_convergence`` (norm of the pose update) and at most ``kiss_max_iterations``
-    (the kiss-icp defaults 1e-4 / 500 cost 4x more time on a robot at rest for a worse ATE: it
-    only seeds the refinement). Measured on a 400-cycle L corner (64x512, robot at rest after 10
-    s; ``benchmarks/slam.py``): slam 84 s -> 35 s at the same load, refined ATE 0.24 -> 0.21 cm.
+    ``voxel``: kiss-icp map voxel (indoor: 0.1–0.2); ``max_range``: None = from the data; ``min_range``:
+    drop returns closer than this (robot body); ``deskew``: use per-point times; ``refine``: open3d
+    scan-to-map refinement after kiss-icp (False = bare kiss-icp poses); ``source_voxel``: scan
+    downsampling for refinement ICP; ``map_voxel``: refinement map resolution (a scan adds to it only
+    when the sensor moved ``map_keyframe_m`` or turned ``map_keyframe_deg`` since the last scan that
+    did); ``icp_distances``: coarse-to-fine max correspondence distances; ``tukey_k``: robust kernel
+    width as a multiple of each stage's distance; ``min_fitness``: a refined scan pose whose share of
+    source points with a map correspondence (finest stage) is below this keeps kiss-icp's relative
+    motion instead (counted in the health figures); ``global_pass``: second refinement pass against the
+    whole (background-filtered) map (measured on a synth L corner: ATE 0.45 → 0.35 cm, mesh F unchanged,
+    about the cost of the first pass; off by default); ``background_voxel`` /
+    ``background_min_fraction``: the voxel background model (moving points out of the map and mesh);
+    ``mesh``: build and store the static mesh from at most ``mesh_max_scans`` scans (every scan that
+    moved a keyframe distance plus scans evenly spread in time, so that people walking while the robot
+    stands still are still seen moving); ``still_m`` / ``still_deg``: when kiss-icp says the sensor
+    moved less than this since the last ICP-refined scan, and one point-to-plane Gauss-Newton step of
+    the scan from that scan's pose against the map is below ``still_check_m`` / ``still_check_deg``
+    (kiss-icp alone lags when the robot starts from rest), the robot is at rest: the scan holds that
+    refined pose without ICP; ``same_beam``: on organised scans (``lidar/range``) that check reuses,
+    beam by beam, the map planes found for the last scan that passed it (:class:`_SameBeam`: at most
+    ``same_beam_points`` beams, bounds ``same_beam_scale`` × the check's, at least ``same_beam_share``
+    of the returns near their plane; else the full check runs); ``icp_converged_m``: ICP stages stop
+    when the inlier RMSE changes less than this between iterations; kiss-icp runs on the scan
+    downsampled to ``kiss_input_voxel`` (its own first voxelisation is at voxel/2) with ICP convergence
+    ``kiss_convergence`` (norm of the pose update) and at most ``kiss_max_iterations`` (the kiss-icp
+    defaults 1e-4 / 500 cost 4x more time on a robot at rest for a worse ATE: it only seeds the
+    refinement). Measured on a 400-cycle L corner (64x512, robot at rest after 10 s;
+    ``benchmarks/slam.py``): slam 84 s -> 35 s at the same load, refined ATE 0.24 -> 0.21 cm.
     ``seed_poses``: what seeds the refinement's relative motion: "kiss-icp" (default) or "tf" — the
     recording's odometry/TF poses (:func:`guess_poses`) where the scene has them for every scan
-    (kiss-icp otherwise); a mapping pass throttled to a few scans per second (0.3-0.4 m apart) is
-    seeded better and cheaper by its wheel odometry than by kiss-icp's constant-velocity model.
+    (kiss-icp otherwise); a mapping pass throttled to a few scans per second (0.3-0.4 m apart) is seeded
+    better and cheaper by its wheel odometry than by kiss-icp's constant-velocity model.
     """
 
     voxel: float = 0.15
