@@ -369,3 +369,17 @@ def test_ragged_rows_written_chunk_by_chunk_match_zarr(tmp_path, monkeypatch):
         for i in (0, 5, 12):
             assert np.array_equal(rd.ragged("p", i), frames[i])
     assert np.array_equal(got[True], got[False])
+
+
+def test_open_for_update_keeps_the_dataset_s_grid_and_range_bins(tmp_path):
+    from holodata.dataset import DatasetWriter
+
+    url = str(tmp_path / "u.zarr")
+    create_dataset(url, grid=Grid(4, 16), range_bins=RangeBins(64, 0.05)).scene("s", n_frames=2)
+    w = open_dataset(url, "r+", created_by="test")
+    assert isinstance(w, DatasetWriter) and w.grid == Grid(4, 16) and w.range_bins == RangeBins(64, 0.05)
+    w.scene("s").write_array("mesh/vertices", np.zeros((3, 3), np.float32), ["vertex", "xyz"])
+    sc = open_dataset(url).scene("s")
+    assert sc["mesh/vertices"].attrs["units"] == "m"           # the layout's units, the caller gave none
+    with pytest.raises(ValueError, match="mode"):
+        open_dataset(url, "w")

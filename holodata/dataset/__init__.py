@@ -9,9 +9,24 @@ Ragged arrays are groups with ``values`` (N, width) and ``offsets`` (T+1,) int64
 """
 from __future__ import annotations
 
-from .reader import Dataset, Ragged, Scene, open_dataset
+from .reader import Dataset, Ragged, Scene
+from .reader import open_dataset as _open_read
 from .writer import (DEFAULT_SHARD_FRAMES, DatasetWriter, FrameArrayWriter, RaggedWriter, SceneWriter,
                      create_dataset)
+
+
+def open_dataset(path_or_url, mode: str = "r", created_by: str = "holodata", **writer_options):
+    """``mode="r"``: the dataset read-only and lazily (:class:`Dataset`). ``mode="r+"``: a
+    :class:`DatasetWriter` on an existing dataset, with its own grid and range bins, for a stage
+    that adds or replaces arrays of its scenes (``created_by`` and ``writer_options`` as
+    :func:`create_dataset`'s)."""
+    if mode == "r":
+        return _open_read(path_or_url)
+    if mode == "r+":
+        ds = _open_read(path_or_url)
+        return create_dataset(path_or_url, grid=ds.grid, range_bins=ds.range_bins, created_by=created_by,
+                              **writer_options)
+    raise ValueError(f"open_dataset: mode must be 'r' or 'r+', got {mode!r}")
 
 
 def dataset_info(path_or_url) -> dict:

@@ -350,7 +350,7 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
     """Write the true ``pose/T_world_lidar`` (scan poses matched by ``lidar/timestamp_ns``) and
     ``pose/T_world_radar`` (``truth/trajectory_radar.tum`` line k = frame k) into a scene, replacing
     existing ones. For development and scoring without SLAM error."""
-    from ..dataset import create_dataset, open_dataset
+    from ..dataset import open_dataset
     from ..trajectory import read_tum
 
     truth_dir = Path(truth_dir)
@@ -358,7 +358,7 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
     sc = ds.scene(scene_id)
     P = true_lidar_poses(sc, truth_dir)
     rad = read_tum(truth_dir / "trajectory_radar.tum")
-    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
+    w = open_dataset(url, "r+")
     sw = w.scene(scene_id)
     for name, poses in (("pose/T_world_lidar", P), ("pose/T_world_radar", rad.poses if len(rad) == sc.n_frames else None)):
         if poses is None:

@@ -165,11 +165,11 @@ def camera_world(url: str, sid: str, T: np.ndarray) -> None:
     """Write ``camera/points_world`` of scene ``sid`` (made by the caller): every camera point in the
     map frame through ``T`` (4,4) T_world_camera, float32, shard by shard (the recording's clouds
     never sit in memory together)."""
-    from ...dataset import create_dataset, open_dataset
+    from ...dataset import open_dataset
 
     ds = open_dataset(url)
     scene = ds.scene(sid)
-    arr = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid).ragged_array(
+    arr = open_dataset(url, "r+").scene(sid).ragged_array(
         "camera/points_world", 3, "float32", "m", ["point", "xyz"])
     for s in range(arr.n_shards):
         sl = arr.frames(s)
@@ -304,7 +304,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     A scene registered before from the same inputs and settings (:func:`register_fingerprint`, every
     output present) is not registered again unless ``force``: the stored report comes back with
     ``skipped`` set, as slam does."""
-    from ...dataset import create_dataset, open_dataset
+    from ...dataset import open_dataset
     from ..segment import LidarScans, _scene_id, instance_state
 
     cfg = cfg or RegisterConfig()
@@ -416,7 +416,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
             still[okm] = rr
         human_pts, columns, pixels = [], [], []
-        w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
+        w = open_dataset(url, "r+")
         sw = w.scene(sid)
         for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
             if name in sw.arrays():

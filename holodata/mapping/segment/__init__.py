@@ -220,7 +220,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
     Returns a summary {scene, frames, instances_per_scan, ...}."""
     import time
 
-    from ...dataset import create_dataset, open_dataset
+    from ...dataset import open_dataset
 
     cfg = cfg or SegmentConfig()
     t0 = time.perf_counter()
@@ -233,7 +233,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
         background, world_points = _background_pass(scans, cfg, traj, quiet, keep=True)
     bg = background
     world_points = world_points or {}
-    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
+    w = open_dataset(url, "r+")
     sw = w.scene(sid)
     poses = pose_fingerprint(scene)
     if INSTANCE_ARRAY in sw.arrays() and (overwrite or instance_state(scene) == "stale"):

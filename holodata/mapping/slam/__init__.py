@@ -353,7 +353,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
        health (fitness per scan, the first scan's correction from its guess).
     Raises InputError for an unknown map scene or one without LiDAR, DatasetError when the first scan
     does not localise (fitness below ``config.min_fitness``)."""
-    from ...dataset import create_dataset, open_dataset
+    from ...dataset import open_dataset
     from ...parallel import release_free_memory
     from ..mesh import MeshConfig
 
@@ -380,8 +380,8 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     if write:
         for_ = sorted(set((mscene.attrs.get("mapping_for") or [])) | {scene_id})
         if mscene.attrs.get("role") != MAPPING_ROLE or mscene.attrs.get("mapping_for") != for_:
-            create_dataset(dataset_url, grid=ds.grid, range_bins=ds.range_bins, created_by="holodata slam").scene(
-                map_scene).set_attrs({"role": MAPPING_ROLE, "mapping_for": for_})
+            w = open_dataset(dataset_url, "r+", created_by="holodata slam")
+            w.scene(map_scene).set_attrs({"role": MAPPING_ROLE, "mapping_for": for_})
     if mres.map_points is None or mres.mesh is None:
         raise DatasetError(f"{dataset_url}: map scene {map_scene!r} has no static map (run slam with a mesh)")
     manchor = dict((mscene.attrs.get("slam") or {}).get("anchor") or {})
@@ -471,11 +471,10 @@ def _stored_result(scene, done: dict) -> SlamResult:
 
 
 def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor, finfo, fp, mode=None) -> None:
-    from ...dataset import create_dataset
+    from ...dataset import open_dataset
 
     meta = ds.meta
-    w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins, created_by="holodata slam",
-                       shard_frames=int(meta.get("shard_frames") or 32))
+    w = open_dataset(url, "r+", created_by="holodata slam", shard_frames=int(meta.get("shard_frames") or 32))
     sc = w.scene(scene_id)
     if (sc.attrs.get("slam") or {}).get("complete"):
         sc.set_attrs({"slam": {**sc.attrs["slam"], "complete": False}})  # a crash below must not look done
