@@ -16,21 +16,14 @@
      with invented surface; the distance trim takes it away).
    - ``bpa``: ball pivoting with radii ``(2, 4)·voxel``.
 
-   Measured on a ``holodata synth`` L corner (40 scans, 64×1024, true poses, ``benchmarks/slam.py
-   --mesh-methods poisson,bpa``): Poisson (voxel 4 cm) F@2/5/10 cm 0.977/0.994/0.998 in 19 s;
-   ball pivoting 0.639/0.943/0.997 in 46 s (it keeps the range noise: precision at 2 cm 0.65).
-   TSDF was tried too (scans rendered into 6 cube-map pinhole depth images per scan, open3d
-   ScalableTSDFVolume and the tensor VoxelBlockGrid): with open3d 0.20 here both extracted no
-   surface even from a flat synthetic depth image, so it is not offered. Poisson with trimming is
-   the default: it averages the range noise into smooth planes and closes the gaps between rings.
+   Poisson with trimming is the default: it averages the range noise into smooth planes and
+   closes the gaps between rings, where ball pivoting keeps the noise (the comparison, and why
+   TSDF is not offered: ``docs/design/slam.md``).
 4. Optional quadric decimation to ``max_faces``; then ``snap_planes`` (:func:`snap_to_planes`): the
    large planes (walls, floor, ceiling: RANSAC, >= ``snap_min_vertices`` vertices within
    ``snap_distance``) are flattened — Poisson leaves centimetre bumps whose tilted face normals
-   send reflected rays off at twice the tilt. Measured on a synth L corner (60 cycles, 64x512,
-   ``/tmp``-only script comparing ray-traced GT through the SLAM mesh and the true mesh at the true
-   radar poses, ``benchmarks/pipeline.py --gt-diff`` does the same): median |range difference|
-   bounce 1/2/3 0.6/6.3/27.8 cm -> 0.3/0.7/1.1 cm (p90 2/89/225 -> 1/5/32 cm), F@2/5cm
-   0.966/0.985 -> 0.968/0.985.
+   send reflected rays off at twice the tilt, which matters most for bounces 2 and 3
+   (``docs/design/slam.md``; ``benchmarks/pipeline.py --gt-diff`` measures it).
 5. ``fill_planes``: holes in the floor and the ceiling that are enclosed by observed structure
    (in plan view, ``fill_cell`` grid) are closed with flat quads at the plane's height. A LiDAR
    with a narrow vertical field of view never sees the floor around the robot nor most of the

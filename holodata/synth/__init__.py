@@ -116,8 +116,8 @@ def estimate_bytes(frames: int, grid: Grid | None = None, range_bins: RangeBins 
     image, an xyz float32 cloud, and with ``stereo_images`` two mono8 images) and odometry + TF at
     30 Hz (~0.8 kB). The mapping pass (LiDAR scans at 2 Hz while it drives the legs) comes on top.
     With ``radar_output="iq"`` a rotation is its chirps (plus the n_syn/2 on either side) × 8
-    antennas × 256 samples of complex64 instead of the heatmap.
-    Measured: 267 MB estimated for a 268 MB recording (16 rotations at 32×128, 32×512, 376×672)."""
+    antennas × 256 samples of complex64 instead of the heatmap. (How close it comes:
+    ``docs/design/synth.md``.)"""
     from .camera import CameraConfig
     from .lidar import OUSTER_DTYPE, LidarConfig
     from .scenario import ODOM_HZ, RADAR_START_S

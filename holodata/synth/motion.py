@@ -49,10 +49,8 @@ def weave(s: np.ndarray, amp: float, omega: float, ramp_m: float = 1.0) -> tuple
     """Lateral offset (m) of the robot's path at arc length ``s`` (m) and its slope d(offset)/ds: a
     sine of amplitude ``amp`` (m) and spatial frequency ``omega`` (rad/m), faded in over the first
     ``ramp_m`` with a smoothstep, so that the heading (the slope's arctan) is smooth everywhere: at
-    most ~10 deg/s of yaw rate on seeds 1-29. (The linear fade-in over 0.3 m before 2026-12-02 put a
-    kink in the path: a heading step of up to ~4 deg within one 200 Hz sample, which no robot drives
-    and which a LiDAR scan taken across it cannot be de-skewed for; SLAM maps came out up to 0.5 deg
-    rotated.)"""
+    most ~10 deg/s of yaw rate (a linear fade-in would put a heading step in the path that no robot
+    drives and no LiDAR scan across it can be de-skewed for: ``docs/design/synth.md``)."""
     x = np.clip(np.asarray(s, float) / ramp_m, 0.0, 1.0)
     ramp = x * x * (3.0 - 2.0 * x)
     dramp = 6.0 * x * (1.0 - x) / ramp_m

@@ -40,8 +40,7 @@ class RegisterConfig:
     anchor_max_deg: float = 0.5    # TF guess, slam map: held directions follow a map turn up to this
                                    # (docs/design/register.md, 3.)
     anchor_agree_deg: float = 0.1  # ... that the camera's yaw and position corrections show alike
-    # measured on the quick-demo corners (noisy 188x336 stereo, 12 frames): inverse-variance weights
-    # and variance-based freezing were no better than uniform weights; kept as options
+    # inverse-variance weights and variance-based freezing: options, off (docs/design/register.md)
     noise_weights: bool = False
     max_std_m: float = 0.0
     max_scale_m: float = 0.25

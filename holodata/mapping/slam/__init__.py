@@ -25,9 +25,8 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
    kiss-icp nor ICP, so a robot that stands for most of a long recording costs little; on organised
    scans the check reuses the map correspondences of the last scan that passed it, pixel by pixel
    (:class:`_SameBeam`: no downsampling, no nearest-neighbour search).
-   Measured on ``holodata synth`` corners (``benchmarks/slam.py``, 40 radar cycles, 64×1024,
-   T/L/cross/oblique): bare kiss-icp ATE 3–12 cm (it lags while the robot accelerates from
-   rest), refined ATE 0.3–0.8 cm, also with two people walking in the corridor.
+   (Bare kiss-icp lags while the robot accelerates from rest; the refinement is what makes the
+   poses centimetre-accurate: ``docs/design/slam.md``.)
 4. **World frame**: when TF connects the LiDAR to a world frame (ingest's ``tf/T_world_lidar``;
    else its TF radar poses ``pose/T_world_radar`` with ``source: tf`` through the extrinsics, or the
    source recording's TF), the first scan TF covers is anchored at its TF pose, so the map lives in

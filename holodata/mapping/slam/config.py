@@ -25,8 +25,8 @@ class SlamConfig:
     width as a multiple of each stage's distance; ``min_fitness``: a refined scan pose whose share of
     source points with a map correspondence (finest stage) is below this keeps kiss-icp's relative
     motion instead (counted in the health figures); ``global_pass``: second refinement pass against the
-    whole (background-filtered) map (measured on a synth L corner: ATE 0.45 → 0.35 cm, mesh F unchanged,
-    about the cost of the first pass; off by default); ``background_voxel`` /
+    whole (background-filtered) map (about the cost of the first pass; off by default;
+    ``docs/design/slam.md``); ``background_voxel`` /
     ``background_min_fraction``: the voxel background model (moving points out of the map and mesh);
     ``mesh``: build and store the static mesh from at most ``mesh_max_scans`` scans (every scan that
     moved a keyframe distance plus scans evenly spread in time, so that people walking while the robot
@@ -41,9 +41,8 @@ class SlamConfig:
     when the inlier RMSE changes less than this between iterations; kiss-icp runs on the scan
     downsampled to ``kiss_input_voxel`` (its own first voxelisation is at voxel/2) with ICP convergence
     ``kiss_convergence`` (norm of the pose update) and at most ``kiss_max_iterations`` (the kiss-icp
-    defaults 1e-4 / 500 cost 4x more time on a robot at rest for a worse ATE: it only seeds the
-    refinement). Measured on a 400-cycle L corner (64x512, robot at rest after 10 s;
-    ``benchmarks/slam.py``): slam 84 s -> 35 s at the same load, refined ATE 0.24 -> 0.21 cm.
+    defaults 1e-4 / 500 cost several times more on a robot at rest for no better ATE: it only seeds
+    the refinement; ``docs/design/slam.md``).
     ``seed_poses``: what seeds the refinement's relative motion: "kiss-icp" (default) or "tf" — the
     recording's odometry/TF poses (:func:`guess_poses`) where the scene has them for every scan
     (kiss-icp otherwise); a mapping pass throttled to a few scans per second (0.3-0.4 m apart) is seeded

@@ -125,10 +125,9 @@ class _SameBeam:
     those returns lie within half the finest ICP distance of their plane; anything else goes to the
     map check. The share guards against a motion beyond the Tukey width: along a corridor only the
     walls facing the motion see it, their residuals drop out of the kernel and the step alone would
-    look small (the map check relies on the previous scans not having moved for that); at rest
-    94-96 % of the returns lie that close (400-cycle L corner), so ``min_share`` 0.9 sends any
-    motion seen by more than ~5 % of the beams to the map check. Measured there: 339 of 373 scans at
-    rest decided this way, the step's size distribution as the map check's (median 1.4 vs 1.5 mm)."""
+    look small (the map check relies on the previous scans not having moved for that). At rest
+    nearly every return lies that close, so ``min_share`` 0.9 sends any motion seen by a tenth of
+    the beams to the map check (``docs/design/slam.md``: how many scans it decides, and how well)."""
 
     def __init__(self, points: np.ndarray, pixels: np.ndarray, target, T: np.ndarray, cfg: SlamConfig,
                  n_pixels: int, max_points: int, scale: float, min_share: float):
