@@ -6,10 +6,26 @@ property named ``label``, ``class``, ``semantic``, ``face_class`` or ``category`
 ``Mesh.face_class``. Class names come from ``comment class <id> <name>`` header lines (what
 :func:`write_ply` writes). OBJ: ``v`` and ``f`` records (``f a/b/c ...``, negative indices),
 ``usemtl``/``g`` names become face classes when present. STL: ascii or binary.
+
+What trimesh does and what stays here (docs/design/meshio.md has the checks behind each point):
+
+- PLY reading: trimesh (``trimesh.exchange.ply.load_ply``) parses the header and the element data
+  of all three formats; holodata takes the face property from its ``metadata['_ply_raw']``. Kept
+  here: the ``comment class`` lines (trimesh's header parser drops comments), the polygon fan with
+  the source polygon of each triangle (trimesh's ``triangulate_quads`` does not say it, so a face
+  label could not follow), a row count check (trimesh accepts a truncated ascii PLY silently) and
+  :func:`_ply_binary_records` for binary faces of mixed polygon sizes (trimesh sizes a list from the
+  first record and rejects the file).
+- STL reading: trimesh; the shared vertices of its triangle soup are merged here.
+- OBJ reading stays here: trimesh splits an OBJ by material into a scene, drops the ``g``/``usemtl``
+  names and reorders fan triangles, so face classes would not survive.
+- PLY writing stays here: trimesh's ``export_ply`` writes another header (its own comment, no class
+  comments, other property types), so the files holodata has written would change bytes.
 """
 from __future__ import annotations
 
-import re
+import io
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -136,46 +152,61 @@ def write_ply(path: str | Path, mesh: Mesh, binary: bool = True) -> None:
 
 # ---------------------------------------------------------------- PLY
 def _read_ply(data: bytes) -> Mesh:
+    """PLY via trimesh's parser (header, ascii and binary element data of either byte order), then
+    holodata's part: class comments, the face class property and the polygon fan (module docstring)."""
+    from trimesh.exchange.ply import load_ply
+
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
         raise InputError("not a PLY file (missing 'ply' magic or 'end_header')")
-    nl = data.find(b"\n", end)
     header = data[:end].decode("ascii", "replace").splitlines()
-    body = data[nl + 1:]
-    fmt, elements, class_names = None, [], {}
-    for line in header:
-        tok = line.split()
-        if not tok:
-            continue
-        if tok[0] == "format":
-            fmt = tok[1]
-        elif tok[0] == "comment" and len(tok) >= 4 and tok[1] == "class":
-            class_names[int(tok[2])] = " ".join(tok[3:])
-        elif tok[0] == "element":
-            elements.append((tok[1], int(tok[2]), []))
-        elif tok[0] == "property":
-            if tok[1] == "list":
-                elements[-1][2].append((tok[4], "list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]]))
-            else:
-                elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
+    fmt = next((t[1] for t in (line.split() for line in header) if len(t) > 1 and t[0] == "format"), None)
     if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
         raise InputError(f"unsupported PLY format {fmt!r}")
-    endian = "<" if fmt.endswith("little_endian") else ">"
-    values = _ply_ascii(body, elements) if fmt == "ascii" else _ply_binary(body, elements, endian)
-    if "vertex" not in values:
+    class_names = {int(t[2]): " ".join(t[3:]) for t in (line.split() for line in header)
+                   if len(t) >= 4 and t[0] == "comment" and t[1] == "class"}
+    try:
+        elements = load_ply(io.BytesIO(data), fix_texture=False, skip_materials=True)["metadata"]["_ply_raw"]
+    except ValueError as err:
+        # trimesh sizes a binary list element from its first record: faces of mixed sizes end here
+        if fmt == "ascii" or "list" not in data[:end].decode("ascii", "replace"):
+            raise
+        body = data[data.find(b"\n", end) + 1:]
+        elements = _ply_binary_records(body, header, "<" if fmt.endswith("little_endian") else ">")
+        if elements is None:
+            raise InputError(f"binary PLY body does not match its header ({err})") from err
+    cols = {name: _ply_columns(el) for name, el in elements.items()}
+    for name, el in elements.items():
+        n = {len(c) for c in cols[name].values()}
+        if el["length"] and n != {el["length"]}:
+            raise InputError(f"PLY element {name!r} truncated ({min(n, default=0)} of {el['length']} rows)")
+    if "vertex" not in cols:
         raise InputError("PLY has no vertex element")
-    vert = values["vertex"]
-    vertices = np.stack([np.asarray(vert[c], dtype=np.float64) for c in ("x", "y", "z")], axis=1)
-    face = values.get("face", {})
+    vert = cols["vertex"]
+    vertices = np.stack([np.asarray(vert[c], dtype=np.float64).reshape(-1) for c in ("x", "y", "z")], axis=1)
+    face = cols.get("face", {})
     lists = face.get("vertex_indices", face.get("vertex_index"))
     if lists is None:
         return Mesh(vertices, np.zeros((0, 3), np.int32))
     cls = next((face[p] for p in FACE_CLASS_PROPERTIES if p in face), None)
     tris, owner = _fan(lists)
-    face_class = None if cls is None else np.asarray(cls)[owner].astype(np.uint8)
+    face_class = None if cls is None else np.asarray(cls).reshape(-1)[owner].astype(np.uint8)
     if face_class is not None and not class_names:
         class_names = {int(k): f"class_{int(k)}" for k in np.unique(face_class)}
     return Mesh(vertices, tris, face_class, class_names)
+
+
+def _ply_columns(element: dict) -> dict:
+    """One element of trimesh's ``_ply_raw`` -> {property: column}: scalars (N,) arrays, lists an
+    (N,k) array or a list of N index arrays. trimesh gives binary data as a structured array (a list
+    as a (count, values) pair) and ascii data as a dict with scalars as (N,1) columns."""
+    data = element.get("data")
+    if data is None:
+        return {name: np.zeros(0) for name in element["properties"]}
+    if isinstance(data, dict):
+        return {k: (v if "$LIST" in str(element["properties"][k]) else np.asarray(v).reshape(-1))
+                for k, v in data.items()}
+    return {k: (data[k]["f1"] if data.dtype[k].names else data[k]) for k in data.dtype.names}
 
 
 def _fan(lists) -> tuple[np.ndarray, np.ndarray]:
@@ -195,85 +226,45 @@ def _fan(lists) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(tris, dtype=np.int32).reshape(-1, 3), np.asarray(owner, dtype=np.int64)
 
 
-def _ply_binary(body: bytes, elements, order: str) -> dict:
+def _ply_binary_records(body: bytes, header: list[str], order: str) -> dict | None:
+    """Binary PLY elements read record by record, for the one layout trimesh's reader cannot size:
+    list properties whose length changes from record to record (faces mixing triangles, quads and
+    other polygons). Elements without lists are read whole. Returns trimesh's ``_ply_raw`` shape
+    ({name: {"length", "properties", "data"}}), or None if the body is shorter or longer than the
+    header says."""
+    elements: list[tuple[str, int, list[tuple]]] = []
+    for tok in (line.split() for line in header):
+        if tok and tok[0] == "element":
+            elements.append((tok[1], int(tok[2]), []))
+        elif tok and tok[0] == "property" and elements:
+            prop = (tok[4], "list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]]) if tok[1] == "list" else (tok[2], _PLY_TYPES[tok[1]])
+            elements[-1][2].append(prop)
     out, pos = {}, 0
-    for name, count, props in elements:
-        if not any(p[1] == "list" for p in props):
-            dt = np.dtype([(p[0], order + p[1]) for p in props])
-            arr = np.frombuffer(body, dtype=dt, count=count, offset=pos)
-            pos += dt.itemsize * count
-            out[name] = {p[0]: arr[p[0]] for p in props}
-            continue
-        # fast path: one list whose count is constant (triangle meshes), scalars around it
-        cols = _ply_binary_lists(body, pos, count, props, order)
-        pos = cols.pop("__end__")
-        out[name] = cols
-    return out
-
-
-def _ply_binary_lists(body: bytes, pos: int, count: int, props, order: str) -> dict:
-    if count == 0:
-        return {"__end__": pos, **{p[0]: np.zeros((0, 3) if p[1] == "list" else 0) for p in props}}
-    # try constant list length, read the first record's count
-    off, lens = pos, None
-    first = props[[p[1] for p in props].index("list")]
-    for p in props:
-        if p[1] == "list":
-            lens = int(np.frombuffer(body, order + p[2], 1, off)[0])
-            break
-        off += np.dtype(p[1]).itemsize
-    fields = []
-    for p in props:
-        if p[1] == "list":
-            fields += [(p[0] + "__n", order + p[2]), (p[0], order + p[3], (lens,))]
-        else:
-            fields.append((p[0], order + p[1]))
-    dt = np.dtype(fields)
-    if sum(p[1] == "list" for p in props) == 1 and pos + dt.itemsize * count <= len(body):
-        arr = np.frombuffer(body, dtype=dt, count=count, offset=pos)
-        if np.all(arr[first[0] + "__n"] == lens):
-            res = {p[0]: arr[p[0]] for p in props}
-            res["__end__"] = pos + dt.itemsize * count
-            return res
-    # general (slow) path: variable-length polygons
-    res = {p[0]: [] for p in props}
-    for _ in range(count):
-        for p in props:
-            if p[1] == "list":
-                n = int(np.frombuffer(body, order + p[2], 1, pos)[0])
-                pos += np.dtype(p[2]).itemsize
-                res[p[0]].append(np.frombuffer(body, order + p[3], n, pos))
-                pos += np.dtype(p[3]).itemsize * n
+    try:
+        for name, count, props in elements:
+            if not any(p[1] == "list" for p in props):
+                dt = np.dtype([(p[0], order + p[1]) for p in props])
+                arr = np.frombuffer(body, dt, count, pos)
+                data = {p[0]: arr[p[0]] for p in props}
+                pos += dt.itemsize * count
             else:
-                res[p[0]].append(np.frombuffer(body, order + p[1], 1, pos)[0])
-                pos += np.dtype(p[1]).itemsize
-    res = {k: (v if k == first[0] else np.asarray(v)) for k, v in res.items()}
-    res["__end__"] = pos
-    return res
-
-
-def _ply_ascii(body: bytes, elements) -> dict:
-    lines = body.decode("ascii", "replace").splitlines()
-    out, i = {}, 0
-    for name, count, props in elements:
-        rows = lines[i:i + count]
-        if len(rows) < count:
-            raise InputError(f"PLY element {name!r} truncated ({len(rows)} of {count} rows)")
-        i += count
-        cols = {p[0]: [] for p in props}
-        for row in rows:
-            tok = row.split()
-            j = 0
-            for p in props:
-                if p[1] == "list":
-                    n = int(tok[j])
-                    cols[p[0]].append(np.asarray(tok[j + 1:j + 1 + n], dtype=np.int64))
-                    j += 1 + n
-                else:
-                    cols[p[0]].append(float(tok[j]))
-                    j += 1
-        out[name] = {k: (v if any(p[0] == k and p[1] == "list" for p in props) else np.asarray(v)) for k, v in cols.items()}
-    return out
+                data = {p[0]: [] for p in props}
+                for _ in range(count):
+                    for p in props:
+                        if p[1] == "list":
+                            n = int(np.frombuffer(body, order + p[2], 1, pos)[0])
+                            pos += np.dtype(p[2]).itemsize
+                            data[p[0]].append(np.frombuffer(body, order + p[3], n, pos))
+                            pos += np.dtype(p[3]).itemsize * n
+                        else:
+                            data[p[0]].append(np.frombuffer(body, order + p[1], 1, pos)[0])
+                            pos += np.dtype(p[1]).itemsize
+                data = {p[0]: (data[p[0]] if p[1] == "list" else np.asarray(data[p[0]])) for p in props}
+            out[name] = {"length": count, "properties": {p[0]: "$LIST" if p[1] == "list" else p[1] for p in props},
+                         "data": data}
+    except ValueError:
+        return None
+    return out if pos == len(body) else None
 
 
 # ---------------------------------------------------------------- OBJ
@@ -306,17 +297,15 @@ def _read_obj(data: bytes) -> Mesh:
 
 # ---------------------------------------------------------------- STL
 def _read_stl(data: bytes) -> Mesh:
-    if len(data) >= 84:
-        n = int(np.frombuffer(data, "<u4", 1, 80)[0])
-        if 84 + 50 * n == len(data):
-            rec = np.frombuffer(data, np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]), n, 84)
-            return _soup(rec["v"].astype(np.float64))
-    text = data.decode("ascii", "replace")
-    if not text.lstrip().startswith("solid"):
-        raise InputError("not an ASCII or binary STL file")
-    nums = re.findall(r"vertex\s+(\S+)\s+(\S+)\s+(\S+)", text)
-    v = np.asarray(nums, dtype=np.float64).reshape(-1, 3, 3)
-    return _soup(v)
+    """ASCII or binary STL via trimesh; its triangle soup gets shared vertices here (:func:`_soup`)."""
+    from trimesh.exchange.stl import load_stl
+
+    try:
+        kw = load_stl(io.BytesIO(data))
+        tri = np.asarray(kw["vertices"], dtype=np.float64)[np.asarray(kw["faces"])]
+    except (KeyError, ValueError, IndexError, struct.error) as err:  # trimesh: no 'faces' when nothing parses
+        raise InputError("not an ASCII or binary STL file") from err
+    return _soup(tri)
 
 
 def _soup(tri: np.ndarray) -> Mesh:

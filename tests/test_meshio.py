@@ -28,6 +28,55 @@ def test_ply_round_trip_with_face_class(tmp_path, binary):
     assert r.class_names == {1: "floor", 3: "wall", 7: "door_frame"}
 
 
+@pytest.mark.parametrize("binary", [True, False])
+def test_holodata_ply_reads_in_trimesh(tmp_path, binary):
+    # holodata writes, trimesh reads: same vertices, faces and the uchar label face property
+    trimesh = pytest.importorskip("trimesh")
+    v, f = tetra()
+    write_ply(tmp_path / "m.ply", Mesh(v, f, np.array([2, 0, 9, 4], np.uint8), {2: "wall"}), binary=binary)
+    t = trimesh.load(tmp_path / "m.ply", process=False)
+    np.testing.assert_array_equal(t.vertices, v)
+    np.testing.assert_array_equal(t.faces, f)
+    face = t.metadata["_ply_raw"]["face"]["data"]
+    assert np.asarray(face["label"]).reshape(-1).tolist() == [2, 0, 9, 4]
+
+
+@pytest.mark.parametrize("encoding", ["binary", "ascii"])
+def test_trimesh_ply_reads_in_holodata(tmp_path, encoding):
+    # trimesh writes (float vertices, a face attribute), holodata reads the label as face_class
+    trimesh = pytest.importorskip("trimesh")
+    v, f = tetra()
+    label = np.array([5, 1, 1, 200], np.uint8)
+    t = trimesh.Trimesh(v, f, process=False, face_attributes={"label": label})
+    (tmp_path / "t.ply").write_bytes(trimesh.exchange.ply.export_ply(t, encoding=encoding, include_attributes=True))
+    r = read_mesh(tmp_path / "t.ply")
+    np.testing.assert_array_equal(r.vertices, v.astype(np.float32))  # trimesh writes float32 vertices
+    np.testing.assert_array_equal(r.faces, f)
+    assert r.face_class.tolist() == label.tolist()
+    assert r.class_names == {int(k): f"class_{k}" for k in np.unique(label)}
+
+
+@pytest.mark.parametrize("order", ["<", ">"])
+def test_ply_binary_mixed_polygons_either_byte_order(tmp_path, order):
+    # the layout trimesh's binary reader cannot size (list length changes per record)
+    fmt = "binary_little_endian" if order == "<" else "binary_big_endian"
+    head = (f"ply\nformat {fmt} 1.0\nelement vertex 6\nproperty double x\nproperty double y\nproperty double z\n"
+            "element face 3\nproperty list uchar int vertex_indices\nproperty uchar label\nend_header\n").encode()
+    verts = np.arange(18, dtype=float).reshape(6, 3)
+    polys, labels = [[0, 1, 2], [1, 2, 3, 4, 5], [5, 4, 3, 2]], [7, 8, 9]
+    body = verts.astype(order + "f8").tobytes()
+    for p, lab in zip(polys, labels):
+        body += struct.pack(f"{order}B{len(p)}iB", len(p), *p, lab)
+    (tmp_path / "m.ply").write_bytes(head + body)
+    r = read_mesh(tmp_path / "m.ply")
+    np.testing.assert_array_equal(r.vertices, verts)
+    assert r.faces.tolist() == [[0, 1, 2], [1, 2, 3], [1, 3, 4], [1, 4, 5], [5, 4, 3], [5, 3, 2]]
+    assert r.face_class.tolist() == [7, 8, 8, 8, 9, 9]
+    (tmp_path / "short.ply").write_bytes(head + body[:-1])
+    with pytest.raises(InputError, match="does not match its header"):
+        read_mesh(tmp_path / "short.ply")
+
+
 def test_ply_foreign_layout_quads_and_label_property(tmp_path):
     # vertex with extra properties, a quad and a triangle, int label after the list, ushort counts
     head = ("ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
@@ -62,7 +111,7 @@ def test_obj_with_groups(tmp_path):
 def test_stl_binary_and_ascii(tmp_path):
     v, f = tetra()
     tri = v[f].astype(np.float32)
-    data = b"\0" * 80 + struct.pack("<I", len(f))
+    data = b"solid exported by a CAD tool".ljust(80, b"\0") + struct.pack("<I", len(f))
     for t in tri:
         data += struct.pack("<3f", 0, 0, 0) + t.tobytes() + b"\0\0"
     (tmp_path / "b.stl").write_bytes(data)
@@ -85,6 +134,9 @@ def test_stl_binary_and_ascii(tmp_path):
                   b"property float z\nend_header\n0 0 0\n", "truncated"),
     ("trunc_bin.ply", b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
                       b"property float y\nproperty float z\nend_header\n\0\0\0\0", "malformed"),
+    ("trunc_face.ply", b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                       b"property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n"
+                       b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "truncated"),
     ("bad.obj", b"v 0 0 0\nf 1 2 3\n", "out of range"),
     ("x.stl", b"hello", "not an ASCII or binary STL"),
     ("m.off", b"OFF", "unsupported"),
