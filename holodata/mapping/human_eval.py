@@ -187,7 +187,9 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
     "missing"} (frames without an estimate count as missing, not as errors). ``frame="radar"``: both
     centroids in the radar frame of their frame (estimate through the scene's ``pose/T_world_radar``,
     truth through ``truth/trajectory_radar.tum``): what the radar ground truth sees, free of a
-    common offset of the SLAM map and its poses against the true world. ``frame="aligned"``: the
+    common offset of the SLAM map and its poses against the true world. ``frame="lidar"``: the same
+    in the LiDAR frame of each frame's scan (estimate through ``pose/T_world_lidar``, truth through
+    ``truth/trajectory_lidar.tum``), for recordings without a radar. ``frame="aligned"``: the
     estimate moved by the alignment of the estimated LiDAR trajectory to the true one that
     :func:`aligned_extrinsic_error` uses (identity with true poses)."""
     from ..dataset import open_dataset
@@ -196,8 +198,8 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
 
     sc = open_dataset(url).scene(scene_id)
     hd = Path(truth_dir) / "human"
-    if frame not in ("world", "radar", "aligned"):
-        raise InputError(f"frame must be world, radar or aligned, got {frame!r}")
+    if frame not in ("world", "radar", "lidar", "aligned"):
+        raise InputError(f"frame must be world, radar, lidar or aligned, got {frame!r}")
     A = np.eye(4)
     if frame == "aligned":  # the estimate through the alignment of aligned_extrinsic_error
         pair = _matched_trajectories(np.asarray(sc["lidar/timestamp_ns"][...], np.int64),
@@ -211,6 +213,8 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
         P_true = read_tum(Path(truth_dir) / "trajectory_radar.tum").poses
         if len(P_true) != sc.n_frames:
             raise InputError(f"{truth_dir}: trajectory_radar.tum has {len(P_true)} poses for {sc.n_frames} frames")
+    if frame == "lidar":
+        P_est, P_true = np.asarray(sc["pose/T_world_lidar"][...], float), true_lidar_poses(sc, truth_dir)
     errs, missing = [], 0
     for k in range(sc.n_frames):
         p = hd / f"{k:06d}.ply"
@@ -225,7 +229,7 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
             continue
         ce, ct = solid_centroid(v, f), solid_centroid(m.vertices, m.faces)
         ce = A[:3, :3] @ ce + A[:3, 3]
-        if frame == "radar":
+        if frame in ("radar", "lidar"):
             ce = np.linalg.solve(P_est[k], np.append(ce, 1.0))[:3]
             ct = np.linalg.solve(P_true[k], np.append(ct, 1.0))[:3]
         errs.append(float(np.linalg.norm(ce - ct) * 100.0))
