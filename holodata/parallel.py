@@ -46,6 +46,20 @@ def release_free_memory() -> None:
             pass
 
 
+def _recv_or_died(pipe, proc, poll_s: float = 0.2):
+    """``pipe.recv()``, or EOFError as soon as ``proc`` has ended without sending. The process is
+    polled (``waitpid``) beside the pipe: a child killed while processes it forked still run would
+    otherwise go unnoticed, as they inherited the pipe's write end (and the process sentinel's) and
+    keep both open until they finish."""
+    while True:
+        if pipe.poll(poll_s):
+            return pipe.recv()      # data (or EOF) is there: a child that sent and exited is not an error
+        if proc.exitcode is not None:
+            if pipe.poll(0.05):     # sent right before it ended
+                return pipe.recv()
+            raise EOFError(f"worker ended with exit code {proc.exitcode}")
+
+
 class Forked:
     """A call started by :func:`fork_call`: ``forked()`` waits for its result (re-raising the call's
     exception); ``forked.early()`` for the value the call handed to its ``early`` callback before
@@ -67,7 +81,7 @@ class Forked:
                 self._no_early()
             pipe = self._pipes[which]
             try:
-                self._got[which] = pipe.recv()
+                self._got[which] = _recv_or_died(pipe, self._proc)
             except EOFError as err:
                 if which == "early":
                     self._no_early()

@@ -394,3 +394,33 @@ def test_custom_types_without_definitions_warn_or_ask_for_msg_dir(tmp_path):
     assert "warning: mixed: topic /acme/scan: acme_radar/msg/Scan x3 skipped (no message definition (pass --msg-dir))" in err
     code, out, err = run("ingest", bag("only", False), "--out", tmp_path / "b.zarr")
     assert code == 1 and "pass --msg-dir with their .msg files" in err and "/acme/scan (acme_radar/msg/Scan)" in err
+
+
+@pytest.mark.parametrize("array", ["radar/heatmap", "lidar/points"])
+def test_a_failing_writer_thread_is_a_one_line_error_not_a_hang(tmp_path, monkeypatch, array):
+    """A shard write that fails on one of ingest's writer threads (here: the disk fills up) stops the
+    run within seconds with one error line naming the recording, whether the main thread is then
+    decoding, waiting for queue room or joining the writers; the dataset left behind does not validate."""
+    import time
+
+    from holodata.dataset import writer as W
+    from holodata.errors import HolodataError
+
+    rec = tmp_path / "rec"
+    write_recording(rec, "mcap", n_radar=8)
+    cls = W.RaggedWriter if array == "lidar/points" else W.FrameArrayWriter
+    orig = cls.write_shard
+
+    def full_disk(self, k, data):
+        if self.name == array and k >= 1:
+            raise OSError(28, "No space left on device")
+        return orig(self, k, data)
+
+    monkeypatch.setattr(cls, "write_shard", full_disk)
+    t = time.monotonic()
+    with pytest.raises(HolodataError) as e:
+        ingest([rec], tmp_path / "ds.zarr", shard_frames=2, quiet=True)
+    assert time.monotonic() - t < 60
+    msg = str(e.value)
+    assert "\n" not in msg and "No space left on device" in msg and str(rec) in msg, msg
+    assert not validate_dataset(tmp_path / "ds.zarr")["ok"]

@@ -39,3 +39,82 @@ def test_fork_call_returns_the_result_and_raises_the_error():
     assert fork_call(np.sum, a, label="sum")() == 45.0
     with pytest.raises(ZeroDivisionError):
         fork_call(lambda: 1 / 0, label="divide")()
+
+
+def _die():
+    import os
+    import signal
+
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def _die_leaving_a_grandchild(pid_file):
+    """Fork a long-running grandchild (it inherits the result pipe's write end), then die."""
+    import os
+    import time
+
+    from holodata.parallel import fork_call
+
+    fork_call(time.sleep, 60, label="grandchild")
+    for _ in range(200):      # the grandchild is running (its pipe ends are open) before this one dies
+        if len(os.listdir(f"/proc/{os.getpid()}/task")) >= 1 and _children(os.getpid()):
+            break
+        time.sleep(0.01)
+    with open(pid_file, "w") as f:
+        f.write(" ".join(map(str, _children(os.getpid()))))
+    _die()
+
+
+def _children(pid: int) -> list[int]:
+    import os
+
+    out = []
+    for task in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{task}/children") as f:
+                out += [int(x) for x in f.read().split()]
+        except FileNotFoundError:
+            pass
+    return out
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and /proc are Linux's")
+@pytest.mark.parametrize("early", [False, True])
+def test_sigkilled_worker_is_a_one_line_error_within_seconds(early):
+    """A forked worker killed by SIGKILL (as by the OOM killer) raises WorkerError naming the step,
+    for its result and for its early value, instead of waiting."""
+    import time
+
+    from holodata.parallel import WorkerError, fork_call
+
+    t = time.monotonic()
+    f = fork_call((lambda early: _die()) if early else _die, label="step x", early=early)
+    with pytest.raises(WorkerError, match="step x: its worker process died") as e:
+        f.early() if early else f()
+    assert "\n" not in str(e.value) and "killed by a signal" in str(e.value)
+    assert time.monotonic() - t < 10
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork and /proc are Linux's")
+def test_sigkilled_worker_whose_own_fork_lives_on_is_still_an_error_within_seconds(tmp_path):
+    """The killed worker's own forked child still holds the result pipe open (it was forked with it):
+    the parent must notice the death itself, not wait 60 s for the pipe to close."""
+    import os
+    import signal
+    import time
+
+    from holodata.parallel import WorkerError, fork_call
+
+    pid_file = tmp_path / "grandchild"
+    t = time.monotonic()
+    try:
+        with pytest.raises(WorkerError, match="nested step: its worker process died"):
+            fork_call(_die_leaving_a_grandchild, str(pid_file), label="nested step")()
+        assert time.monotonic() - t < 10
+        assert pid_file.read_text().split(), "the worker forked no grandchild: the test proves nothing"
+    finally:
+        for pid in pid_file.read_text().split() if pid_file.exists() else []:
+            try:
+                os.kill(int(pid), signal.SIGKILL)
+            except ProcessLookupError:
+                pass

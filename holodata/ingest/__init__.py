@@ -148,13 +148,22 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
                                     provenance={"tool": "holodata ingest", "version": version}, **kw)
             scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))   # sha256: waited for at its end
         except (HolodataError, OSError) as err:
-            failed.append({"recording": str(r), "error": _one_line(err)})
+            failed.append({"recording": str(r), "error": _error_line(r, out, err)})
         finally:
             if p is not None:
                 p.rec.close()
     if not scenes:
         raise RecordingError(_failures(failed))
     return {"dataset": str(out), "scenes": scenes, "failed": failed, "ok": not failed}
+
+
+def _error_line(recording, out, err: BaseException) -> str:
+    """One line for a recording that failed: holodata's own errors name their file already; a bare
+    OSError (the disk filled up under a writer thread, a permission) gets the recording and dataset."""
+    if isinstance(err, OSError) and not isinstance(err, HolodataError):
+        where = f" ({err.filename})" if getattr(err, "filename", None) else ""
+        return f"{recording}: ingest into {out} failed{where}: {err.strerror or _one_line(err)}"
+    return _one_line(err)
 
 
 def _failures(failed: list[dict]) -> str:
@@ -214,7 +223,7 @@ def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dic
         ds = create_dataset(out, grid=grid, range_bins=range_bins)
         return {"scene": write_plan(p, ds, quiet=True, codec=opts["codec"])}
     except (HolodataError, OSError) as err:
-        return {"failed": {"recording": str(path), "error": _one_line(err)}}
+        return {"failed": {"recording": str(path), "error": _error_line(path, out, err)}}
     finally:
         if p is not None:
             p.rec.close()
