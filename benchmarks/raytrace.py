@@ -107,11 +107,12 @@ def make_inputs(d: Path, frames: int) -> None:
         write_ply(hd / f"{k:06d}.ply", Mesh(hv, hf))
 
 
-def run_pipeline(d: Path, grid: str, out: Path, quiet=True, codec=None) -> dict:
+def run_pipeline(d: Path, grid: str, out: Path, quiet=True, codec=None, processes: int = 0) -> dict:
     from holodata.groundtruth import GTConfig, raytrace_standalone
 
     cfg = GTConfig(grid=Grid.parse(grid, "-45,45"), codec=codec)
-    return raytrace_standalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg, quiet=quiet)
+    return raytrace_standalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg, quiet=quiet,
+                                processes=processes)
 
 
 def bare_replay(d: Path, grid: str, sample: list[int]) -> tuple[float, float, int]:
@@ -127,6 +128,7 @@ def bare_replay(d: Path, grid: str, sample: list[int]) -> tuple[float, float, in
     traj = read_tum(d / "radar.tum")
     cfg = GTConfig(grid=Grid.parse(grid, "-45,45"))
     sc = RayScene(m.vertices, m.faces)
+    sc.cull_dynamic = False  # the straightforward ray set: every ray also against the human (see main's note)
     static = o3d.t.geometry.RaycastingScene()
     static.add_triangles(o3d.core.Tensor(m.vertices.astype(np.float32)), o3d.core.Tensor(m.faces.astype(np.uint32)))
     total, cpu, n_rays = 0.0, 0.0, 0
@@ -178,6 +180,7 @@ def main() -> None:
     ap.add_argument("--rss-grid", default="64x512", help="grid of the 100/1000-frame RSS runs")
     ap.add_argument("--skip-rss", action="store_true")
     ap.add_argument("--codec", choices=["lz4", "zstd"], default="lz4", help="gt codec (raytrace-gt's default: lz4)")
+    ap.add_argument("--processes", type=int, default=0, help="raytrace-gt --processes (0: its automatic choice)")
     ap.add_argument("--rss-child", type=int, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.rss_child:
@@ -193,7 +196,7 @@ def main() -> None:
         sample = list(np.linspace(0, a.frames - 1, min(a.sample, a.frames)).astype(int))
         b1, c1, n_rays = bare_replay(d, a.grid, sample[0::2])
         cpu0, t0 = cpu_seconds(), time.perf_counter()
-        summary = run_pipeline(d, a.grid, d / "out.zarr", codec=a.codec)
+        summary = run_pipeline(d, a.grid, d / "out.zarr", codec=a.codec, processes=a.processes)
         dt = time.perf_counter() - t0
         cpu = cpu_seconds() - cpu0
         b2, c2, _ = bare_replay(d, a.grid, sample[1::2])

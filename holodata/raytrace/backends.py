@@ -11,7 +11,9 @@ every backend yields the same geometry.
 """
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
 from typing import Callable
 
 import numpy as np
@@ -50,6 +52,32 @@ def _default_threads(nthreads: int) -> int:
     return nthreads if nthreads > 0 else (len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 0)
 
 
+def open3d_module():
+    """open3d's compiled module (``core``, ``t.geometry``): ``open3d`` when imported already, else
+    its extension ``open3d.pybind`` loaded on its own — ``import open3d`` also imports its
+    visualisation and ML packages (dash, plotly), which costs a tracing process more start-up time
+    than loading the extension; a later ``import open3d`` reuses the loaded extension. Falls back
+    to ``import open3d`` when the extension is not where the wheel puts it."""
+    for name in ("open3d", "open3d.pybind"):
+        if name in sys.modules and hasattr(sys.modules[name], "t"):
+            return sys.modules[name]
+    spec = importlib.util.find_spec("open3d")
+    if spec is None:
+        raise ImportError("open3d is not installed")
+    try:
+        folder = (spec.submodule_search_locations or [])[0]
+        so = next(f for f in sorted(os.listdir(folder)) if f.startswith("pybind.") and f.endswith(".so"))
+        ext = importlib.util.spec_from_file_location("open3d.pybind", os.path.join(folder, so))
+        mod = importlib.util.module_from_spec(ext)
+        ext.loader.exec_module(mod)
+        sys.modules["open3d.pybind"] = mod
+        return mod
+    except (IndexError, StopIteration, OSError, ImportError, AttributeError):
+        import open3d
+
+        return open3d
+
+
 @register_backend("open3d")
 class Open3DBackend:
     """open3d ``t.geometry.RaycastingScene`` (Embree 3/4 underneath)."""
@@ -58,11 +86,10 @@ class Open3DBackend:
 
     @staticmethod
     def check() -> None:
-        import open3d  # noqa: F401
+        open3d_module()
 
     def __init__(self, vertices: np.ndarray, faces: np.ndarray, nthreads: int = 0):
-        import open3d as o3d
-
+        o3d = open3d_module()
         self._o3d = o3d
         self.nthreads = _default_threads(nthreads)
         self.scene = o3d.t.geometry.RaycastingScene(nthreads=self.nthreads)

@@ -23,6 +23,7 @@ from .labels import class_table, combine_label, face_normals, geometric_classes
 
 SELF_HIT_OFFSET_M = 1e-4
 _MAX_RECASTS = 4
+BOX_MARGIN_M = 0.01  # the dynamic mesh's bounding box is grown by this before culling rays against it
 
 
 @dataclass
@@ -70,6 +71,11 @@ class _Geometry:
         self.v0 = self.vertices[self.faces[:, 0]] if len(self.faces) else np.zeros((0, 3))
         self.n32 = np.ascontiguousarray(self.normals.T, dtype=np.float32)
         self.c32 = np.einsum("ij,ij->i", self.normals, self.v0).astype(np.float32)
+        if len(self.faces):  # float32 box of the faces' vertices, grown by BOX_MARGIN_M (culling, see _meets_box)
+            used = self.vertices[self.faces.ravel()]
+            self.box = np.stack([used.min(axis=0) - BOX_MARGIN_M, used.max(axis=0) + BOX_MARGIN_M]).astype(np.float32)
+        else:
+            self.box = None
         keep = np.flatnonzero(np.any(self.normals != 0, axis=1))  # zero-area faces are never hit
         if len(keep) == 0:
             self.backend = None
@@ -120,6 +126,7 @@ class RayScene:
             self.class_source = "geometric"
         self.class_names, self.human_class = class_table(face_class, class_names)
         self.cast_log: list | None = None
+        self.cull_dynamic = True
 
     # ------------------------------------------------------------------ casting
     def prepare_dynamic(self, vertices, faces):
@@ -143,9 +150,19 @@ class RayScene:
         ts, fs = self.static.backend.cast6(rays)
         if dyn is None:
             return ts, fs, None
-        if self.cast_log is not None:
-            self.cast_log.append(("dynamic", rays.copy()))
-        td, fd = dyn.backend.cast6(rays)
+        sub = _meets_box(rays, ts, dyn.box) if self.cull_dynamic else None
+        if sub is None:
+            if self.cast_log is not None:
+                self.cast_log.append(("dynamic", rays.copy()))
+            td, fd = dyn.backend.cast6(rays)
+        else:  # only rays whose segment [0, t_static] meets the dynamic mesh's box can hit it first
+            part = rays[sub]
+            if self.cast_log is not None:
+                self.cast_log.append(("dynamic", part))
+            td = np.full(len(rays), np.inf, dtype=np.float32)
+            fd = np.zeros(len(rays), dtype=np.int64)
+            if len(sub):
+                td[sub], fd[sub] = dyn.backend.cast6(part)
         isd = td < ts
         return np.minimum(ts, td), np.where(isd, fd.astype(np.int64), fs.astype(np.int64)), isd
 
@@ -360,14 +377,42 @@ class RayScene:
             self.cast_log.append(("static:occluded", rays.copy()))
         blocked = self.static.backend.occluded6(rays)
         if dyn is not None:
+            sub = _meets_box(rays, np.float32(1), dyn.box) if self.cull_dynamic else None
+            part = rays if sub is None else rays[sub]
             if self.cast_log is not None:
-                self.cast_log.append(("dynamic:occluded", rays.copy()))
-            blocked |= dyn.backend.occluded6(rays)
+                self.cast_log.append(("dynamic:occluded", part.copy() if sub is None else part))
+            if sub is None:
+                blocked |= dyn.backend.occluded6(rays)
+            elif len(sub):
+                blocked[sub] |= dyn.backend.occluded6(part)
         return near | ~blocked
 
     def _visible(self, O: np.ndarray, P: np.ndarray, dyn) -> np.ndarray:
         """(n,) bool for (n,3) origins and points: P visible from O along the straight segment."""
         return self._visible32(np.asarray(O, np.float32).T, np.asarray(P, np.float32).T, self._dynamic(dyn))
+
+
+def _meets_box(rays: np.ndarray, tmax, box: np.ndarray) -> np.ndarray:
+    """Indices of the rays (n,6) float32 whose segment ``o + s d``, s in [0, ``tmax``] (scalar or (n,),
+    inf allowed), meets the axis-aligned ``box`` (2,3) float32 [lo, hi] (slab test).
+
+    Conservative, so culling never changes a result: ``box`` is the mesh's box grown by
+    BOX_MARGIN_M, which moves each slab's entry at least that far (|d| <= 1 m per unit s for the
+    unit directions of casts; ``tmax`` = 1 segments of the LOS checks are shorter than the scene)
+    ahead of float32 rounding (~1e-6 m at 10 m). A hit of the mesh lies in its box, so a ray left
+    out would have missed the mesh or hit it beyond ``tmax``, where the static hit wins."""
+    enter = leave = None
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        for k in range(3):  # per axis on (n,) columns: numpy is slow on (n,3) arrays with their 3-long inner loops
+            inv = np.float32(1) / rays[:, 3 + k]  # d = 0: both slab ends -inf/+inf (origin inside) or same-signed
+            a = (box[0, k] - rays[:, k]) * inv
+            b = (box[1, k] - rays[:, k]) * inv
+            # fmin/fmax ignore the NaN of 0 * inf (d = 0 with the origin on the grown box's face:
+            # >= BOX_MARGIN_M from the mesh, so left out either way)
+            lo, hi = np.fmin(a, b), np.fmax(a, b)
+            enter = lo if enter is None else np.fmax(enter, lo, out=enter)
+            leave = hi if leave is None else np.fmin(leave, hi, out=leave)
+    return np.flatnonzero((enter <= leave) & (leave >= 0) & (enter <= tmax))
 
 
 def _unit(d: np.ndarray) -> np.ndarray:
