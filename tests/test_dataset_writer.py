@@ -383,3 +383,81 @@ def test_open_for_update_keeps_the_dataset_s_grid_and_range_bins(tmp_path):
     assert sc["mesh/vertices"].attrs["units"] == "m"           # the layout's units, the caller gave none
     with pytest.raises(ValueError, match="mode"):
         open_dataset(url, "w")
+
+
+def test_next_writer_sweeps_stale_partials_but_not_a_concurrent_writers(tmp_path, monkeypatch):
+    """Like two Dask tasks on one array: writer A is inside a shard put (its temp object written, the
+    rename pending) when writer B opens the array and writes other shards. B's sweep removes a
+    temp object older than the threshold (left by a writer killed hours ago) but not A's, so A's
+    put still lands and every shard is committed with the right data."""
+    import threading
+
+    from holodata.dataset import store as st
+
+    T, S = 8, 2
+    url = str(tmp_path / "d.zarr")
+    data = toy_frames(np.random.default_rng(4), range(T), G)["gt/range"]
+
+    def array():
+        w = create_dataset(url, grid=G, range_bins=RangeBins(), created_by="test", provenance={"x": 1}, shard_frames=S)
+        sc = w.scene("c1", n_frames=T, attrs={"corner_type": "L", "width_m": 2.0})
+        return sc.frame_array("gt/range", per_frame_shape=(3, 8, 32), dtype="float32",
+                              dims=["frame", "bounce", "elevation", "azimuth"], units="m", fill_value=float("nan"))
+
+    a0 = array()
+    assert a0.write_shard(0, data[a0.frames(0)])
+    folder = tmp_path / "d.zarr" / "scenes" / "c1" / "gt" / "range"
+    shard0 = next(p for p in folder.rglob("*") if p.is_file() and "/c/0" in str(p))
+    stale = shard0.parent / f".{shard0.name}.{'f' * 32}.partial"      # a writer killed two hours ago
+    stale.write_bytes(b"half a shard")
+    os.utime(stale, (time.time() - 7200, time.time() - 7200))
+
+    in_put, go, seen = threading.Event(), threading.Event(), []
+
+    def paused(move):
+        def run(*args, **kw):
+            src, dst = str(args[-2]), str(args[-1])
+            if "/gt/range/c/1/" in dst and not in_put.is_set():
+                seen.append(src)
+                in_put.set()
+                assert go.wait(60)
+            return move(*args, **kw)
+        return run
+
+    monkeypatch.setattr(st.os, "replace", paused(os.replace))
+    result = {}
+    a = threading.Thread(target=lambda: result.setdefault("a", (w := array()).write_shard(1, data[w.frames(1)])))
+    a.start()
+    try:
+        assert in_put.wait(60), "writer A never reached its rename"
+        a_tmp = Path(seen[0])
+        assert a_tmp.exists() and a_tmp.name.endswith(".partial")
+        b = array()                       # the next writer: opening the array sweeps
+        assert not stale.exists(), "a temp object older than the threshold was left"
+        assert a_tmp.exists(), "the sweep removed a live writer's temp object"
+        assert b.write_shard(2, data[b.frames(2)]) and b.write_shard(3, data[b.frames(3)])
+    finally:
+        go.set()
+        a.join(60)
+    assert result.get("a") is True
+    sc = open_dataset(url).scene("c1")
+    assert all(sc.is_done("gt/range", k) for k in range(T // S))
+    np.testing.assert_array_equal(sc["gt/range"][...], data)
+    assert not list(folder.rglob("*.partial"))
+
+
+def test_sweep_on_a_non_object_store_filesystem_keeps_young_partials(tmp_path):
+    """fsspec filesystems that write in place (puts go through ``.partial`` objects): the sweep
+    goes by the objects' modification time as on local folders."""
+    from holodata.dataset.store import Store
+
+    st = Store(f"local://{tmp_path}/ds")
+    assert not st.local and not st.atomic_put
+    st.put("a/c/0", b"shard")
+    old, young = tmp_path / "ds/a/c/.1.{}.partial".format("e" * 32), tmp_path / "ds/a/c/.2.{}.partial".format("d" * 32)
+    old.write_bytes(b"x")
+    young.write_bytes(b"y")
+    os.utime(old, (time.time() - 7200, time.time() - 7200))
+    assert st.sweep_partials("a", older_than_s=3600) == 1
+    assert not old.exists() and young.exists() and st.get("a/c/0") == b"shard"
+    assert Store(str(tmp_path / "ds")).sweep_partials("a", older_than_s=0) == 1 and not young.exists()

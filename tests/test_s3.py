@@ -152,6 +152,16 @@ def test_cli_ingest_out_s3_and_missing_dataset(s3, tmp_path):
     assert hds.validate_dataset(url)["ok"]
     r = CliRunner().invoke(cli, ["validate", f"s3://{BUCKET}/nothing.zarr"])
     assert r.exit_code == 1 and "nothing.zarr" in r.output
+    # fresh processes (as a user runs them): nothing on stderr after the result, no "Unclosed client
+    # session" from aiohttp or any other warning, for a write, a read and a one-line error alike
+    holo = str(Path(sys.executable).parent / "holodata")
+    for cmd, code in ((["ingest", str(tmp_path / "rec"), "--out", f"s3://{BUCKET}/fresh.zarr", "--quiet"], 0),
+                      (["info", f"s3://{BUCKET}/fresh.zarr"], 0), (["validate", f"s3://{BUCKET}/fresh.zarr"], 0),
+                      (["validate", f"s3://{BUCKET}/nothing.zarr"], 1)):
+        p = subprocess.run([holo, *cmd], capture_output=True, text=True, timeout=300)
+        assert p.returncode == code, p.stderr
+        expect = [ln for ln in p.stderr.splitlines() if ln.startswith("error:")] if code else []
+        assert p.stderr.splitlines() == expect and len(expect) == code, (cmd, p.stderr)
 
 
 def test_training_reader_on_s3(s3, tmp_path):
