@@ -310,7 +310,7 @@ def breakdown(per_scene: Sequence[Mapping], keys: Sequence[str] = ("cd", "mhd", 
                 buckets.setdefault(str(band), []).append(row)
         for band, rows in sorted(buckets.items()):
             wts = np.array([max(int(r.get("n_frames", 1)), 1) for r in rows], float)
-            cell = {"n_scenes": len(rows), "n_frames": int(wts.sum())}
+            cell: dict[str, float] = {"n_scenes": len(rows), "n_frames": int(wts.sum())}
             for k in keys:
                 v = np.array([r.get(k, np.nan) for r in rows], float)
                 ok = np.isfinite(v)

@@ -147,7 +147,7 @@ class Scene:
         self.path = f"scenes/{scene_id}"
         self.attrs = meta.get("attributes", {})
         self.n_frames = int(self.attrs.get("n_frames", 0))
-        self._nodes = None
+        self._nodes: dict[str, tuple[str, dict]] | None = None
         self._ragged: dict[str, Ragged] = {}
 
     def nodes(self) -> dict[str, tuple[str, dict]]:

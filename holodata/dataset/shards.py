@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+from typing import Any
 
 import numpy as np
 
@@ -148,7 +149,7 @@ def _encode_shard_zarr(meta: dict, data: np.ndarray) -> bytes:
     return ms._store_dict[shard_key("", 0, data.ndim).lstrip("/")].to_bytes()
 
 
-def _fast_chunks(meta: dict, n: int, blob: bytes):
+def _fast_chunks(meta: dict, n: int, blob: bytes | memoryview) -> tuple[Any, Any, np.dtype, Any, np.ndarray] | None:
     """(codec, per-frame shape, dtype, fill, (n, 2) offsets/sizes) of a fast-layout shard, or None;
     raises ValueError on a damaged index (bad crc32c, chunk outside the object)."""
     fast = _fast_layout(meta)
@@ -243,4 +244,4 @@ def compressor(codec: str = "zstd", clevel: int | None = None):
 
         raise DatasetError(f"unknown codec {codec!r} (use zstd or lz4)")
     level = clevel if clevel is not None else (3 if codec == "zstd" else 5)
-    return BloscCodec(cname=codec, clevel=level, shuffle="shuffle")
+    return BloscCodec(cname=codec, clevel=level, shuffle="shuffle")  # type: ignore[arg-type]  # a checked name

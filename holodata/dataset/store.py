@@ -20,6 +20,7 @@ from __future__ import annotations
 import os
 import uuid
 from pathlib import Path
+from typing import Any
 
 from ..errors import DatasetError
 
@@ -42,6 +43,8 @@ class Store:
             s = s[len("file://"):]
         self.url = s
         self.local = not is_url(s)
+        self.fs: Any        # the fsspec filesystem of a URL, None for a local root
+        self.root: Any      # a Path (local) or the fsspec path str (URL)
         if self.local:
             self.root = Path(s).expanduser()
             self.fs = None

@@ -126,7 +126,7 @@ def validate_dataset(path_or_url, quiet: bool = True) -> dict:
     }
 
 
-def _scene_plan(ds: Dataset, sid: str, rep: _Report):
+def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> tuple[str, dict, int] | None:
     store = ds.store
     path = f"scenes/{sid}"
     meta = sh_json(store, f"{path}/zarr.json")
@@ -161,7 +161,7 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report):
             rep.add(sid, name, None, "attrs", "attrs['units'] missing")
         _check_layout(rep, sid, name, a)
         pat, dts = expected_spec(name, T, ds.grid, ds.range_bins)
-        if pat is not None:
+        if pat is not None and dts is not None:
             if not _shape_ok(shape, pat):
                 want = "(" + ", ".join("*" if p is None else str(p) for p in pat) + ")"
                 rep.add(sid, name, None, "shape", f"shape {shape}, expected {want} from n_frames and the grid")
@@ -245,7 +245,7 @@ def _check_scene(ds: Dataset, sid: str, nodes: dict, rep: _Report, bar) -> None:
     groups: dict[int, list[str]] = {}
     for n, m in frame_arrays.items():
         groups.setdefault(int(m["chunk_grid"]["configuration"]["chunk_shape"][0]), []).append(n)
-    tasks = []
+    tasks: list = []
     for S, names in groups.items():
         order = sorted(names, key=lambda n: (n not in ("gt/range",), n))
         for k in range(-(-T // S)):

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import numpy as np
 
@@ -43,7 +44,8 @@ def _layout_defaults(name: str, dims, units) -> tuple:
     return dims, units if units is not None else (s.units if s is not None else "1")
 
 
-def _json(store: Store, key: str) -> dict | None:
+def _json(store: Store, key: str) -> Any:
+    """``key``'s parsed JSON (a dict: zarr.json, a manifest record), None if there is no such key."""
     b = store.get(key)
     return None if b is None else json.loads(b)
 
@@ -308,7 +310,7 @@ class SceneWriter:
         self._parents(name)
         base = {"dims": list(dims), "units": units, **(attrs or {})}
         a = zarr.create_array(self.ds.zstore, name=path, shape=data.shape, dtype=data.dtype,
-                              chunks=chunks if data.ndim and data.size else None,
+                              chunks=chunks if data.ndim and data.size else None,  # type: ignore[arg-type]
                               compressors=sh.compressor(self.ds.codec, self.ds.clevel), attributes=base,
                               fill_value=0, overwrite=True)
         if data.size:
@@ -394,7 +396,8 @@ class _Sharded:
     def complete(self) -> bool:
         return all(self.is_done(k) for k in range(self.n_shards))
 
-    def record(self, k: int) -> dict | None:
+    def record(self, k: int) -> Any:
+        """Shard ``k``'s manifest record (a dict), None while it is not written."""
         return _json(self.store, sh.manifest_key(self.path, k))
 
     def _consolidate(self) -> None:
@@ -557,7 +560,7 @@ class RaggedWriter(_Sharded):
                 np.frombuffer(ocodec.decode(old), "<i8").copy()
         else:
             oa = zarr.open_array(zs, path=f"{self.path}/offsets", mode="r+")
-            off = oa[...]
+            off = np.asarray(oa[...])
         off[sl.start:sl.stop + 1] = seg
         off[sl.stop + 1:] = 0
         if oa is None:
