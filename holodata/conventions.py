@@ -173,8 +173,8 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Points (..., 3) through the 4x4 transform ``T`` (or a stack (..., 4, 4) broadcast against the
     points' leading axes, e.g. (1,C,4,4) with (H,C,3): one pose per column): ``R @ p + t``, float64.
     Computed as three scaled-column sums, in blocks of rows, without BLAS: ``points @ R.T`` goes to
-    OpenBLAS, whose threads on a busy 2-core machine took 42-54 ms for 100k-250k points (3-6 ms with
-    one thread) against 0.8-2.9 ms here. Same values up to rounding (~1e-16 m)."""
+    OpenBLAS, whose threads contend on a busy machine and made it many times slower (timings in
+    docs/design/performance.md). Same values up to rounding (~1e-16 m)."""
     T = np.asarray(T, np.float64)
     P = np.asarray(points)
     out = np.empty(np.broadcast_shapes(P.shape, T.shape[:-2] + (3,)), np.float64)

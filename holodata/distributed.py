@@ -143,9 +143,9 @@ _TUNED: list = []
 def tune_malloc() -> None:
     """Undo, in this worker process, the cost of Dask's ``MALLOC_TRIM_THRESHOLD_=65536`` (set by the
     nanny): with it glibc serves every allocation above 128 KiB by mmap and unmaps it on free, so
-    the per-frame arrays (hundreds of KiB to MiB) are page-faulted in again on every frame — ~40% more
-    CPU for raytrace-gt. Large allocations come from the heap again (below 32 MiB) and the heap is
-    trimmed only above 64 MiB of free memory. glibc only; a no-op elsewhere."""
+    the per-frame arrays (hundreds of KiB to MiB) are page-faulted in again on every frame, which
+    costs raytrace-gt much CPU (docs/design/performance.md). Large allocations come from the heap
+    again (below 32 MiB) and the heap is trimmed only above 64 MiB of free memory. glibc only; a no-op elsewhere."""
     if _TUNED or not os.environ.get("MALLOC_TRIM_THRESHOLD_"):
         return
     _TUNED.append(True)

@@ -55,7 +55,7 @@ def mapping_legs(world: World, start_x: float) -> list:
     that axis, and up the hidden branch to 1.5 m short of its end. A T or cross first turns into the
     branch opposite the hidden one (3 m, or to 1.5 m short of its end) and backs out of it straight
     through J into the hidden branch: from J alone the LiDAR sees that branch's walls only at grazing
-    angles, and the radar's bounces reach them (T_11 lost 4 % of its NLOS ground truth there). From
+    angles, and the radar's bounces reach them (docs/design/synth.md). From
     J the LiDAR looks down the cross's continuation head-on."""
     origin, u, L, _ = world.hidden_axis
     s_j = -float(origin[1]) / float(u[1])
