@@ -218,12 +218,13 @@ def _fan(lists) -> tuple[np.ndarray, np.ndarray]:
         tri = np.concatenate([np.stack([lists[:, 0], lists[:, i], lists[:, i + 1]], 1) for i in range(1, k - 1)])
         owner = np.concatenate([np.arange(len(lists))] * (k - 2))
         return tri.astype(np.int32), owner
-    tris, owner = [], []
+    tris: list[tuple] = []
+    owners: list[int] = []
     for n, poly in enumerate(lists):
         for i in range(1, len(poly) - 1):
             tris.append((poly[0], poly[i], poly[i + 1]))
-            owner.append(n)
-    return np.asarray(tris, dtype=np.int32).reshape(-1, 3), np.asarray(owner, dtype=np.int64)
+            owners.append(n)
+    return np.asarray(tris, dtype=np.int32).reshape(-1, 3), np.asarray(owners, dtype=np.int64)
 
 
 def _ply_binary_records(body: bytes, header: list[str], order: str) -> dict | None:
@@ -269,8 +270,10 @@ def _ply_binary_records(body: bytes, header: list[str], order: str) -> dict | No
 
 # ---------------------------------------------------------------- OBJ
 def _read_obj(data: bytes) -> Mesh:
-    verts, polys, owner_names = [], [], []
-    current = None
+    verts: list[list[float]] = []
+    polys: list[list[int]] = []
+    owner_names: list[str | None] = []
+    current: str | None = None
     for line in data.decode("utf-8", "replace").splitlines():
         tok = line.split()
         if not tok:
