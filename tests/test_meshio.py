@@ -31,7 +31,7 @@ def test_ply_round_trip_with_face_class(tmp_path, binary):
 @pytest.mark.parametrize("binary", [True, False])
 def test_holodata_ply_reads_in_trimesh(tmp_path, binary):
     # holodata writes, trimesh reads: same vertices, faces and the uchar label face property
-    trimesh = pytest.importorskip("trimesh")
+    import trimesh
     v, f = tetra()
     write_ply(tmp_path / "m.ply", Mesh(v, f, np.array([2, 0, 9, 4], np.uint8), {2: "wall"}), binary=binary)
     t = trimesh.load(tmp_path / "m.ply", process=False)
@@ -44,7 +44,7 @@ def test_holodata_ply_reads_in_trimesh(tmp_path, binary):
 @pytest.mark.parametrize("encoding", ["binary", "ascii"])
 def test_trimesh_ply_reads_in_holodata(tmp_path, encoding):
     # trimesh writes (float vertices, a face attribute), holodata reads the label as face_class
-    trimesh = pytest.importorskip("trimesh")
+    import trimesh
     v, f = tetra()
     label = np.array([5, 1, 1, 200], np.uint8)
     t = trimesh.Trimesh(v, f, process=False, face_attributes={"label": label})
