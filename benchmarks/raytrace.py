@@ -179,6 +179,7 @@ def main() -> None:
     ap.add_argument("--sample", type=int, default=20, help="frames replayed through bare cast_rays")
     ap.add_argument("--rss-grid", default="64x512", help="grid of the 100/1000-frame RSS runs")
     ap.add_argument("--skip-rss", action="store_true")
+    ap.add_argument("--skip-cli", action="store_true", help="skip the run of the holodata raytrace-gt command itself")
     ap.add_argument("--codec", choices=["lz4", "zstd"], default="lz4", help="gt codec (raytrace-gt's default: lz4)")
     ap.add_argument("--processes", type=int, default=0, help="raytrace-gt --processes (0: its automatic choice)")
     ap.add_argument("--rss-child", type=int, help=argparse.SUPPRESS)
@@ -216,6 +217,19 @@ def main() -> None:
               f"-> steady-state ratio {bare / steady:.2f}")
         print(f"extrapolated to 28000 frames: {(dt + 27999 * steady) / 60:.1f} min "
               f"(start-up + steady state; {28000 / fps / 60:.1f} min at this run's average)")
+        if not a.skip_cli:  # the command itself: interpreter start-up and imports included
+            r0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+            subprocess.run([str(Path(sys.executable).with_name("holodata")), "raytrace-gt", "--mesh", str(d / "scene.ply"),
+                            "--poses", str(d / "radar.tum"), "--human-dir", str(d / "humans"), "--out",
+                            str(d / "cli.zarr"), "--grid", a.grid, "--processes", str(a.processes)],
+                           check=True, capture_output=True)
+            cdt = time.perf_counter() - t0
+            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+            ccpu = r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
+            print(f"holodata raytrace-gt command (subprocess, start-up and imports included): {cdt:.2f} s, "
+                  f"{1e3 * cdt / a.frames:.1f} ms/frame -> ratio {bare / (cdt / a.frames):.2f}; CPU "
+                  f"{1e3 * ccpu / a.frames:.1f} ms/frame -> CPU ratio {bare_cpu / (ccpu / a.frames):.2f}")
+            shutil.rmtree(d / "cli.zarr", ignore_errors=True)
         if not a.skip_rss:
             for n in (100, 1000):
                 r = subprocess.run([sys.executable, __file__, "--rss-child", str(n), "--rss-grid", a.rss_grid],

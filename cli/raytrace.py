@@ -43,7 +43,7 @@ from holodata.cli.options import dask_options
 @click.option("--threads", default=0, show_default=True, type=click.IntRange(0),
               help="Ray-casting threads per process (0 = cores / processes).")
 @click.option("--processes", default=0, show_default=True, type=click.IntRange(0),
-              help="Local tracing processes (0 = one per core, max 4, for >= 64 frames; 1 = in-process).")
+              help="Local tracing processes (0 = one per core, max 4, for >= 1000 frames; 1 = in-process).")
 @dask_options("one task per shard",
               "the dataset and inputs must be reachable from the workers (shared folder or s3://; credentials from the "
               "workers' environment).")

@@ -358,10 +358,16 @@ def trace_shard(tracer: FrameTracer, frames, names=GT_ARRAYS) -> dict:
     return out
 
 
+POOL_MIN_FRAMES = 1000
+
+
 def auto_processes(n_frames: int) -> int:
-    """Tracing processes for ``n_frames``: one per core (max 4) for long runs, else in-process."""
+    """Tracing processes for ``n_frames``: one per core (max 4) from POOL_MIN_FRAMES frames on, else
+    in-process (open3d's casts use every core in-process too). A worker costs an interpreter, the
+    imports and the static scene (~1.5 s of CPU each, docs/design/raytrace.md), which shorter runs
+    do not earn back."""
     n_cpus = cpus()
-    return 1 if n_frames < 64 or n_cpus < 2 else min(n_cpus, 4)
+    return 1 if n_frames < POOL_MIN_FRAMES or n_cpus < 2 else min(n_cpus, 4)
 
 
 def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,

@@ -71,11 +71,11 @@ class _Geometry:
         self.v0 = self.vertices[self.faces[:, 0]] if len(self.faces) else np.zeros((0, 3))
         self.n32 = np.ascontiguousarray(self.normals.T, dtype=np.float32)
         self.c32 = np.einsum("ij,ij->i", self.normals, self.v0).astype(np.float32)
-        if len(self.faces):  # float32 box of the faces' vertices, grown by BOX_MARGIN_M (culling, see _meets_box)
-            used = self.vertices[self.faces.ravel()]
-            self.box = np.stack([used.min(axis=0) - BOX_MARGIN_M, used.max(axis=0) + BOX_MARGIN_M]).astype(np.float32)
-        else:
-            self.box = None
+        # float32 box of the vertices grown by BOX_MARGIN_M (culling, see _meets_box); per column, as numpy
+        # reduces an (n,3) array along axis 0 ~10x slower
+        v = self.vertices
+        self.box = np.array([[v[:, k].min() - BOX_MARGIN_M for k in range(3)], [v[:, k].max() + BOX_MARGIN_M for k in range(3)]],
+                            dtype=np.float32) if len(v) else None
         keep = np.flatnonzero(np.any(self.normals != 0, axis=1))  # zero-area faces are never hit
         if len(keep) == 0:
             self.backend = None
