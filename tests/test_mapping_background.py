@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from holodata.geometry import voxels as V
 from holodata.mapping import background as B
 from holodata.mapping.background import VoxelBackground
 
@@ -31,7 +32,7 @@ def test_dense_occupancy_equals_sorted_keys(monkeypatch):
     scans, _ = _scene()
     pts = [p[np.isfinite(p).all(1)] for p in scans]
     dense = B._occupancy(pts, 0.15, need_inverse=True, need_per_scan=True)
-    monkeypatch.setattr(B, "_DENSE_MAX_CELLS", 0)
+    monkeypatch.setattr(V, "DENSE_MAX_CELLS", 0)
     ref = B._occupancy(pts, 0.15, need_inverse=True, need_per_scan=True)
     for a, b in zip(dense[:2], ref[:2]):
         assert np.array_equal(a, b)
@@ -44,7 +45,7 @@ def test_dense_occupancy_equals_sorted_keys(monkeypatch):
     allv = sorted(set().union(*sets))
     keys, occ = dense[0], dense[1]
     assert len(keys) == len(allv)
-    want = dict(zip(map(tuple, B._unkeys(keys)), occ))
+    want = dict(zip(map(tuple, V.unpack_keys(keys)), occ))
     assert all(want[v] == sum(v in s for s in sets) for v in allv[::37])
 
 
@@ -53,7 +54,7 @@ def test_build_is_the_same_on_the_dense_grid_and_with_sorted_keys(monkeypatch, w
     scans, origins = _scene()
     kw = dict(voxel=0.15, min_fraction=0.6, min_hits=2, origins=origins if with_origins else None)
     dense = VoxelBackground.build(scans, **kw)
-    monkeypatch.setattr(B, "_DENSE_MAX_CELLS", 0)
+    monkeypatch.setattr(V, "DENSE_MAX_CELLS", 0)
     ref = VoxelBackground.build(scans, **kw)
     assert len(dense) > 100
     assert np.array_equal(dense.keys, ref.keys) and np.array_equal(dense.hits, ref.hits)
@@ -66,8 +67,8 @@ def test_member_dense_grid_equals_sorted_keys_and_sets(monkeypatch):
     rng = np.random.default_rng(1)
     q = np.concatenate([rng.uniform(-5, 5, (4000, 3)), scans[0][:2000].astype(np.float64),
                         [[np.nan, 0, 0], [1e5, 0, 0], [-1e5, 3, 1]]])   # inside, on, far outside the box
-    static = set(map(tuple, B._unkeys(bg.keys)))
-    grown = set(map(tuple, B._unkeys(bg.dilated)))
+    static = set(map(tuple, V.unpack_keys(bg.keys)))
+    grown = set(map(tuple, V.unpack_keys(bg.dilated)))
     for tol, table in ((0, static), (1, grown)):
         got = bg.contains(q, tol)
         fin = np.isfinite(q).all(1)
@@ -77,7 +78,7 @@ def test_member_dense_grid_equals_sorted_keys_and_sets(monkeypatch):
         assert np.array_equal(got, want)
         assert got.sum() > 100
     assert bg._grids[False] is not False          # the dense grids were used
-    monkeypatch.setattr(B, "_DENSE_MAX_CELLS", 0)
+    monkeypatch.setattr(V, "DENSE_MAX_CELLS", 0)
     bg2 = VoxelBackground.build(scans, voxel=0.15, min_fraction=0.6, origins=origins)
     assert np.array_equal(bg2.contains(q, 0), bg.contains(q, 0)) and np.array_equal(bg2.contains(q), bg.contains(q))
     assert bg2._grids[False] is False and bg2._grids[True] is False   # large models: sorted keys

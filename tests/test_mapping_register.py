@@ -8,8 +8,9 @@ from scipy.spatial.transform import Rotation
 
 from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
                                          solid_centroid)
+from holodata.geometry import local_plane_projection
 from holodata.mapping.register import (RegisterConfig, body_columns, camera_points_world, closed_surface,
-                                       local_plane_projection, map_normals, pick_human, radial_speed,
+                                       map_normals, pick_human, radial_speed,
                                        register_extrinsic,
                                        track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
 
@@ -377,6 +378,13 @@ def test_track_jumps_and_prediction():
     np.testing.assert_allclose(pred[6], [0.7, -6.0 + 0.55 * 6, 1.0])
     np.testing.assert_allclose(pred[7], c[5])                           # one side only: its centroid
     assert not track_jumps(c[:1], t[:1]).any()
+    # one value per concept: the function's defaults are the settings register passes it
+    import inspect
+
+    par = inspect.signature(track_jumps).parameters
+    assert (par["jump_m"].default, par["speed_mps"].default) == (RegisterConfig().track_jump_m,
+                                                                 RegisterConfig().walk_speed_mps)
+    assert np.array_equal(track_jumps(c, t), jumped)
 
 
 @pytest.mark.slow
@@ -636,8 +644,6 @@ def test_nan_quantile_matches_numpy():
 
 
 def test_local_plane_projection_chunks_give_the_same_cloud():
-    from holodata.mapping.register import local_plane_projection
-
     rng = np.random.default_rng(5)
     X = np.c_[rng.uniform(0, 2, 3000), rng.uniform(0, 2, 3000), rng.normal(0, 0.005, 3000)]
     only = X[:, 0] > 0.7
@@ -651,7 +657,7 @@ def test_voxel_average_is_open3d_voxel_down_sample():
     """Independent check: the same voxel means as open3d's voxel_down_sample (order aside)."""
     import open3d as o3d
 
-    from holodata.mapping.register import voxel_average
+    from holodata.geometry import voxel_average
 
     rng = np.random.default_rng(3)
     p = np.concatenate([rng.uniform(-5, 5, (20000, 3)), rng.normal(1.0, 0.02, (5000, 3))])   # sparse + dense voxels
@@ -717,7 +723,8 @@ def test_ransac_plane_finds_the_largest_plane_and_is_deterministic():
     """Analytic check: a tilted plane holding 60 % of the points (2 mm noise) among uniform outliers is
     recovered (normal within 0.5 deg, offset within 5 mm); the same seed gives the same plane; and
     static_residual keeps only a standing person's box between a floor and a wall."""
-    from holodata.mapping.register import ransac_plane, static_residual
+    from holodata.geometry import ransac_plane
+    from holodata.mapping.register import static_residual
 
     rng = np.random.default_rng(0)
     nrm = np.array([0.2, -0.1, 1.0]) / np.linalg.norm([0.2, -0.1, 1.0])
@@ -883,7 +890,7 @@ def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path)
 
 
 def test_centred_offset_is_the_motion_of_the_centre_and_the_scaled_rotation():
-    from holodata.mapping.register.extrinsic import _centred_offset
+    from holodata.geometry import centred_offset as _centred_offset
 
     T0 = _pose([1.0, 2.0, 0.5], [0.0, 0.0, 30.0])
     D = _pose([0.02, -0.01, 0.03], [0.2, -0.1, 0.3])
@@ -907,8 +914,8 @@ def _corridor(seed: int):
     return world, normals, T_true, (world - T_true[:3, 3]) @ T_true[:3, :3]
 
 
-def test_weighted_icp_holds_a_corridor_seen_end_on_at_the_guess():
-    from holodata.mapping.register import weighted_icp
+def test_point_to_plane_icp_holds_a_corridor_seen_end_on_at_the_guess():
+    from holodata.geometry import point_to_plane_icp as weighted_icp
 
     world, normals, T_true, cam = _corridor(2)
     guess = _pose([0.03, 0.05, -0.02], [0.0, 0.0, 0.0]) @ T_true
@@ -927,7 +934,8 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     show the turn; anchored_guess + hold_at put the held direction where the turned map has it
     (without them it stays at the TF guess). A TF pose off in yaw alone turns the camera without
     moving it: no turn is read from that."""
-    from holodata.mapping.register import anchored_guess, hold_at, weighted_icp
+    from holodata.geometry import hold_at, point_to_plane_icp as weighted_icp
+    from holodata.mapping.register import anchored_guess
 
     world, normals, T_true, cam = _corridor(4)
     anchor = np.array([-8.0, -5.0, 0.5])

@@ -336,11 +336,12 @@ def test_segment_scan_without_enough_foreground_is_empty():
 def test_surely_without_foreground_allows_for_the_float32_rounding():
     """Returns just below a voxel face whose float32 rounding lands on the face: float32 says
     background, the float64 points (what background_masks decides on) are foreground."""
-    from holodata.mapping.background import VoxelBackground, _dilate, _keys
+    from holodata.geometry.voxels import voxel_keys
+    from holodata.mapping.background import VoxelBackground, _dilate
     from holodata.mapping.segment import background_masks, surely_without_foreground
 
     v = 0.15
-    keys = np.unique(_keys(np.array([[n, j, 3] for n in range(20, 40) for j in range(-3, 4)])))
+    keys = np.unique(voxel_keys(np.array([[n, j, 3] for n in range(20, 40) for j in range(-3, 4)])))
     keys = keys[_all_but_x29(keys)]
     bg = VoxelBackground(v, keys, _dilate(keys), np.ones(len(keys), np.int64), 2)
     cfg = SegmentConfig(floor_margin_m=0.0)
@@ -369,9 +370,9 @@ def test_surely_without_foreground_allows_for_the_float32_rounding():
 
 def _all_but_x29(keys):
     """Background voxels of the test above: every voxel of the block except x index 29."""
-    from holodata.mapping.background import _unkeys
+    from holodata.geometry.voxels import unpack_keys
 
-    return _unkeys(keys)[:, 0] != 29
+    return unpack_keys(keys)[:, 0] != 29
 
 
 def test_background_and_segment_reads_scans_once_with_the_same_masks(monkeypatch):

@@ -552,18 +552,6 @@ def test_return_mask_matches_the_four_pass_mask():
         assert np.array_equal(_returns(p), old)
 
 
-def test_unique_voxels_equals_np_unique_of_the_keys():
-    from holodata.mapping.background import _keys, voxel_index
-    from holodata.mapping.mesh import _unique_voxels
-
-    rng = np.random.default_rng(4)
-    for n, scale in ((0, 1.0), (1, 1.0), (50, 0.1), (20000, 3.0), (3000, 2e4)):   # the last: sorted fallback
-        ijk = voxel_index(rng.normal(size=(n, 3)) * scale, 0.04)
-        a, ai = np.unique(_keys(ijk), return_inverse=True)
-        b, bi = _unique_voxels(ijk)
-        assert np.array_equal(a, b) and np.array_equal(ai.reshape(-1), bi)
-
-
 def test_deskew_any_axis_and_held_pose():
     """deskew (Rodrigues per point) equals the rotation matrices of scipy for a twist about a tilted
     axis; a held pose's rounding-noise twist returns the points themselves (no copy, no change)."""

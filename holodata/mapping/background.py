@@ -14,8 +14,8 @@ sees *through* a voxel observed it empty); without them, by the scans whose retu
 Used by :mod:`holodata.mapping.mesh` (remove dynamic points before meshing) and by the human
 segmentation (foreground = returns outside the background).
 
-Indoor scenes fit a dense grid of voxels (at most ``_DENSE_MAX_CELLS``, 16.8 M: a 60×60×7 m box at
-15 cm): the occupancy count is one ``count[cells] += 1`` per scan (a cell counts once per scan) and
+Indoor scenes fit a dense grid of voxels (at most ``DENSE_MAX_CELLS`` of :mod:`holodata.geometry.voxels`,
+16.8 M: a 60×60×7 m box at 15 cm): the occupancy count is one ``count[cells] += 1`` per scan (a cell counts once per scan) and
 lookups index a boolean grid, instead of sorting keys per scan and binary searches (400 scans of
 64×512: build 8.7 → 2.6 s, the same model); larger boxes use the sorted keys.
 """
@@ -26,29 +26,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
+from ..geometry.voxels import cell_keys, dense_box, flat_index, unpack_keys, voxel_index, voxel_keys
 
 _OFFS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], np.int64)
-_BIAS = 1 << 20        # voxel indices shifted to be non-negative (|index| < 2^20 voxels ≈ 157 km at 15 cm)
-_BITS = 21
-_DENSE_MAX_CELLS = 1 << 24   # dense voxel grids (build's occupancy count, lookups) up to this many cells
-
-
-def _keys(ijk: np.ndarray) -> np.ndarray:
-    """Pack (N,3) int voxel indices into (N,) int64 keys (21 bits per axis)."""
-    u = (np.asarray(ijk, np.int64) + _BIAS)
-    return (u[:, 0] << (2 * _BITS)) | (u[:, 1] << _BITS) | u[:, 2]
-
-
-def _unkeys(keys: np.ndarray) -> np.ndarray:
-    m = (1 << _BITS) - 1
-    k = np.asarray(keys, np.int64)
-    return np.stack([(k >> (2 * _BITS)) & m, (k >> _BITS) & m, k & m], 1) - _BIAS
-
-
-def voxel_index(points: np.ndarray, voxel: float) -> np.ndarray:
-    """(N,3) float points (m) → (N,3) int64 voxel indices ``floor(p / voxel)`` (computed in float64)."""
-    q = np.divide(points, voxel, dtype=np.float64)
-    return np.floor(q, out=q).astype(np.int64)
 
 
 def _finite_rows(p: np.ndarray) -> np.ndarray:
@@ -57,38 +37,18 @@ def _finite_rows(p: np.ndarray) -> np.ndarray:
     return f[:, 0] & f[:, 1] & f[:, 2]
 
 
-def _dense_box(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """(lo, dims) of the box of voxel indices ``lo`` .. ``hi`` (3,) int64 when a dense grid of it has at
-    most ``_DENSE_MAX_CELLS`` cells; None when it is larger (then sorted keys are used)."""
-    dims = hi - lo + 1
-    return (lo, dims) if float(np.prod(dims.astype(np.float64))) <= _DENSE_MAX_CELLS else None
-
-
-def _flat_index(ijk: np.ndarray, lo: np.ndarray, dims: np.ndarray) -> np.ndarray:
-    """(N,) C-order flat cell index of voxel indices ``ijk`` (N,3) inside the box ``lo``, ``dims``; it
-    sorts like :func:`_keys`."""
-    rel = ijk - lo
-    return (rel[:, 0] * dims[1] + rel[:, 1]) * dims[2] + rel[:, 2]
-
-
-def _cell_keys(cells: np.ndarray, lo: np.ndarray, dims: np.ndarray) -> np.ndarray:
-    """:func:`_keys` of flat C-order cell indices ``cells`` of the box ``lo``, ``dims`` (sorted cells
-    give sorted keys)."""
-    return _keys(np.stack(np.unravel_index(cells, tuple(dims)), 1) + lo)
-
-
 def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_scan: bool = False):
     """Voxels occupied by finite point sets ``pts`` (list of (Ni,3) float, m): (sorted unique keys (V,)
     int64, occ (V,) int64 = in how many sets each voxel has points, per-point position in ``keys`` per
     set (list of (Ni,) int arrays, or None), sorted unique keys per set (list, or None)). The same as
     ``np.unique`` over the sets' unique keys, computed on a dense grid of the points' bounding box
     (``occ[cells] += 1`` counts a cell once per set, no sort) when it has at most
-    ``_DENSE_MAX_CELLS`` cells, else with sorted keys."""
+    ``DENSE_MAX_CELLS`` (:mod:`holodata.geometry.voxels`) cells, else with sorted keys."""
     nz = [p for p in pts if len(p)]
     # per column: (N,3).min(0) is ~20x slower
     lo = np.floor(np.divide([min(p[:, j].min() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
     hi = np.floor(np.divide([max(p[:, j].max() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
-    box = _dense_box(lo, hi)
+    box = dense_box(lo, hi)
     if box is not None:
         dims = box[1]
         cnt = np.zeros(int(np.prod(dims)), np.int32)
@@ -103,14 +63,14 @@ def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_sca
             flats.append(f if (need_inverse or need_per_scan) else None)
         cells = np.flatnonzero(cnt)
         occ = cnt[cells].astype(np.int64)
-        keys = _cell_keys(cells, lo, dims)
+        keys = cell_keys(cells, lo, dims)
         per_scan = [keys[np.searchsorted(cells, np.unique(f))] for f in flats] if need_per_scan else None
         inv = None
         if need_inverse:
             cnt[cells] = np.arange(len(cells), dtype=np.int32)
             inv = [cnt[f] for f in flats]
         return keys, occ, inv, per_scan
-    pk = [_keys(voxel_index(p, voxel)) for p in pts]
+    pk = [voxel_keys(voxel_index(p, voxel)) for p in pts]
     per_scan = [np.unique(k) for k in pk]
     keys, occ = np.unique(np.concatenate(per_scan), return_counts=True)
     inv = [np.searchsorted(keys, k) for k in pk] if need_inverse else None
@@ -195,10 +155,10 @@ class VoxelBackground:
         elif n >= 2 and min_fraction > 0:
             r = max(1, int(np.ceil((observe_radius if observe_radius is not None else 3 * voxel) / voxel)))
             coarse_obs = np.zeros(len(keys), np.int64)
-            ckeys = _keys(_unkeys(keys) // (r + 1))
+            ckeys = voxel_keys(unpack_keys(keys) // (r + 1))
             for k in per_scan:
-                c = _unkeys(np.unique(_keys(_unkeys(k) // (r + 1))))
-                grown = np.unique(_keys((c[:, None, :] + _OFFS[None, :, :]).reshape(-1, 3)))
+                c = unpack_keys(np.unique(voxel_keys(unpack_keys(k) // (r + 1))))
+                grown = np.unique(voxel_keys((c[:, None, :] + _OFFS[None, :, :]).reshape(-1, 3)))
                 coarse_obs += np.isin(ckeys, grown)
             frac = occ / np.maximum(coarse_obs, 1)
             static = (occ >= need_hits) & (frac >= min_fraction)
@@ -227,7 +187,7 @@ class VoxelBackground:
     def _lookup(self, q: np.ndarray, dilated: bool) -> np.ndarray:
         """(N,) bool: voxel indices given as float64 integer values ``q`` (N,3) that are background
         voxels (``dilated``: within one voxel of one). A dense boolean grid of the model's bounding box
-        (built at the first call, at most ``_DENSE_MAX_CELLS`` cells) answers without hashing or
+        (built at the first call, at most ``DENSE_MAX_CELLS`` cells) answers without hashing or
         sorting; larger models use the sorted keys."""
         table = self.dilated if dilated else self.keys
         out = np.zeros(len(q), bool)
@@ -235,13 +195,13 @@ class VoxelBackground:
             return out
         grid = self._grids.get(dilated)
         if grid is None:
-            cells = _unkeys(table)
-            box = _dense_box(cells.min(0), cells.max(0))
+            cells = unpack_keys(table)
+            box = dense_box(cells.min(0), cells.max(0))
             grid = False
             if box is not None:
                 lo, dims = box
                 occ = np.zeros(int(np.prod(dims)), bool)
-                occ[_flat_index(cells, lo, dims)] = True
+                occ[flat_index(cells, lo, dims)] = True
                 grid = (lo.astype(np.float64), dims.astype(np.float64), occ,
                         np.array([dims[1] * dims[2], dims[2], 1], np.float64))
             self._grids[dilated] = grid
@@ -254,13 +214,13 @@ class VoxelBackground:
                 return occ[(r @ step).astype(np.int64)]
             out[inside] = occ[(r[inside] @ step).astype(np.int64)]
             return out
-        k = _keys(q.astype(np.int64))
+        k = voxel_keys(q.astype(np.int64))
         pos = np.minimum(np.searchsorted(table, k), len(table) - 1)
         return table[pos] == k
 
     def centers(self) -> np.ndarray:
         """(V,3) float64 centres (m) of the background voxels."""
-        return (_unkeys(self.keys) + 0.5) * self.voxel
+        return (unpack_keys(self.keys) + 0.5) * self.voxel
 
     def __len__(self) -> int:
         return len(self.keys)
@@ -304,8 +264,8 @@ def _free_space(pts: list, origins: np.ndarray, centers: np.ndarray, voxel: floa
 def _dilate(keys: np.ndarray) -> np.ndarray:
     if len(keys) == 0:
         return keys
-    ijk = _unkeys(keys)
-    out = [np.unique(_keys(ijk + o)) for o in _OFFS]
+    ijk = unpack_keys(keys)
+    out = [np.unique(voxel_keys(ijk + o)) for o in _OFFS]
     return np.unique(np.concatenate(out))
 
 

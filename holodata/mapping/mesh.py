@@ -39,7 +39,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..meshio import merge_meshes
-from .background import _cell_keys, _dense_box, _flat_index, _keys, _unkeys
+from ..geometry.voxels import unique_voxels, unpack_keys
 
 METHODS = ("poisson", "bpa")
 
@@ -71,26 +71,6 @@ class MeshConfig:
 
     def to_attrs(self) -> dict:
         return asdict(self)
-
-
-def _unique_voxels(ijk: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(_keys(ijk), return_inverse=True)`` of (N,3) int voxel indices: sorted unique keys
-    (V,) int64 and each row's position (N,) in them. On a dense grid of the indices' bounding box
-    when it has at most ``_DENSE_MAX_CELLS`` cells (a C-order flat cell index sorts like the key;
-    ``bincount`` instead of sorting the N keys: a 400-scan corner's 2.5 M points 0.25 -> 0.1 s per
-    flush), else by sorting."""
-    if len(ijk) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    box = _dense_box(ijk.min(0), ijk.max(0))
-    if box is None:
-        return np.unique(_keys(ijk), return_inverse=True)
-    lo, dims = box
-    flat = _flat_index(ijk, lo, dims)
-    occ = np.bincount(flat, minlength=int(np.prod(dims)))
-    cells = np.flatnonzero(occ)
-    rank = np.zeros(len(occ), np.int32)
-    rank[cells] = np.arange(len(cells))
-    return _cell_keys(cells, lo, dims), rank[flat]
 
 
 class PointAccumulator:
@@ -130,11 +110,11 @@ class PointAccumulator:
         d = np.concatenate([b for _, b in self._pend])
         self._pend, self._pend_n = [], 0
         q = np.floor(np.divide(p, self.voxel, dtype=np.float64))   # voxel_index, still float64
-        ijk = np.concatenate([_unkeys(self.keys), q.astype(np.int64)])
+        ijk = np.concatenate([unpack_keys(self.keys), q.astype(np.int64)])
         s = np.concatenate([self.sums, p])
         v = np.concatenate([self.view, d])
         c = np.concatenate([self.counts, np.ones(len(p), np.int64)])
-        uk, inv = _unique_voxels(ijk)
+        uk, inv = unique_voxels(ijk)
         if self.split is not None:
             # a point's split cell is its voxel corner's or one more/less per axis: code (d+1)·(9,3,1)
             off = np.floor(np.divide(p, self.split, dtype=np.float64)) - np.floor(q * (self.voxel / self.split)) + 1
@@ -160,7 +140,7 @@ class PointAccumulator:
         if self.split is None:
             raise ValueError("drop_split_cells needs a PointAccumulator made with split")
         off = np.stack([self.codes // 9, self.codes // 3 % 3, self.codes % 3], 1) - 1
-        cells = np.floor(_unkeys(self.keys) * (self.voxel / self.split)) + off   # the split cell of each row
+        cells = np.floor(unpack_keys(self.keys) * (self.voxel / self.split)) + off   # the split cell of each row
         gone = np.asarray(drop((cells + 0.5) * self.split), bool)
         removed = int(self.counts[gone].sum())
         keys = self.keys[~gone]                  # sorted: rows are ordered by (voxel, split cell)

@@ -15,7 +15,7 @@ frame, with the intrinsics in ``sensors.camera.intrinsics``), the LiDAR map (``m
    (:func:`map_cloud`).
 3. **Extrinsic** ``T_world_camera`` (:func:`register_extrinsic`): point-to-plane Gauss-Newton ICP
    with a Tukey loss, coarse to fine (``icp_distances``), of the static camera cloud onto the map
-   (denoised onto local planes, :func:`local_plane_projection`) and slam's mesh near the camera
+   (denoised onto local planes, :func:`holodata.geometry.local_plane_projection`) and slam's mesh near the camera
    (:func:`mesh_surface_samples`), from ``--init`` or the TF pose. Directions the overlap does not
    pin down are held at the guess (or where the SLAM map's own turn puts it, :func:`anchored_guess`)
    instead of sliding. Accepted only when overlap, fitness, RMSE and the pose's standard deviation
@@ -50,8 +50,6 @@ one process (test).
 """
 from __future__ import annotations
 
-from __future__ import annotations
-
 import time
 from dataclasses import replace
 
@@ -61,12 +59,12 @@ from ...conventions import transform_points
 from ...errors import InputError
 from ...parallel import cpus, fork_call, release_free_memory
 from .config import RegisterConfig, Registration, RegistrationError
-from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, hold_at, icp,
-                        local_plane_projection, map_normals, mesh_surface_samples, pose_uncertainty,
-                        register_extrinsic, voxel_average, weighted_icp)
+from ...geometry.voxels import voxel_average
+from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, icp, map_normals, mesh_surface_samples,
+                        pose_uncertainty, register_extrinsic)
 from .camera import (_camera_points_through, camera_points_world, camera_seen_through, CameraFrames,
                      depth_noise_model, frame_candidates, static_depth, static_depth_of)
-from .humans import (body_columns, closed_surface, cluster_points, pick_human, pixel_runs, radial_speed, ransac_plane,
+from .humans import (body_columns, closed_surface, cluster_points, pick_human, pixel_runs, radial_speed,
                      static_residual, track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
 
 
@@ -545,7 +543,7 @@ __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extr
            "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth", "camera_points_world",
            "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual",
            "body_columns", "pixel_runs",
-           "weighted_icp", "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
-           "track_jumps", "local_plane_projection", "track_velocity", "radial_speed", "mesh_surface_samples",
-           "scene_mesh", "held_directions", "anchored_guess", "hold_at", "static_depth_of", "ransac_plane",
+           "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
+           "track_jumps", "track_velocity", "radial_speed", "mesh_surface_samples",
+           "scene_mesh", "held_directions", "anchored_guess", "static_depth_of",
            "register_fingerprint", "scene_map", "slam_anchor"]

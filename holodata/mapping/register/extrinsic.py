@@ -1,34 +1,20 @@
 """The depth camera's extrinsic in the map: point-to-plane Gauss-Newton ICP with directions the
 overlap does not pin down held at the guess, the FPFH + RANSAC fallback, the pose's
-uncertainty and the acceptance check (:func:`register_extrinsic`), and the open3d helpers."""
+uncertainty and the acceptance check (:func:`register_extrinsic`), and the open3d helpers. The ICP
+solvers, voxel means and plane fits are :mod:`holodata.geometry`'s."""
 from __future__ import annotations
 
 
 import numpy as np
 
 from ...conventions import rotation_angle_deg, transform_points, yaw_rad
+from ...geometry.icp import hold_at, open3d_icp, point_to_plane_icp
+from ...geometry.planes import local_plane_projection
+from ...geometry.voxels import voxel_average
 from .config import RegisterConfig, Registration
 
 
 # ------------------------------------------------------------------------------------ open3d helpers
-def voxel_average(points: np.ndarray, voxel: float) -> np.ndarray:
-    """(V,3) float64 mean of the points (N,3) in each occupied voxel of edge ``voxel`` (m): open3d's
-    ``voxel_down_sample`` (same grid, anchored half a voxel below the points' minimum; same means up to
-    rounding) in voxel-key order instead of hash order, ~3x faster on LiDAR scans."""
-    p = np.asarray(points, np.float64).reshape(-1, 3)
-    if len(p) == 0:
-        return p.copy()
-    lo = p.min(0) - voxel * 0.5
-    ijk = np.floor((p - lo) / voxel).astype(np.int64)
-    dims = ijk.max(0) + 1
-    key = (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
-    order = np.argsort(key, kind="stable")
-    ks = key[order]
-    start = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]])
-    count = np.diff(np.r_[start, len(ks)])
-    return np.add.reduceat(p[order], start, axis=0) / count[:, None]
-
-
 def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float | None = None, max_nn: int = 30):
     import open3d as o3d
 
@@ -66,138 +52,10 @@ def _check_from_distances(d: np.ndarray, cfg: RegisterConfig, r: np.ndarray | No
 
 
 def icp(source: np.ndarray, target_pcd, init: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
-    """Coarse-to-fine point-to-plane ICP (open3d, Tukey loss with k = the stage's distance / 2) of
-    ``source`` (N,3) onto ``target_pcd`` (with normals) from ``init``; returns the (4,4) transform."""
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    src = _pcd(source)
-    T = np.asarray(init, np.float64).copy()
-    for dist in cfg.icp_distances:
-        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=dist / 2))
-        res = reg.registration_icp(src, target_pcd, dist, T, est,
-                                   reg.ICPConvergenceCriteria(relative_fitness=1e-7, relative_rmse=1e-7,
-                                                              max_iteration=cfg.icp_iterations))
-        T = np.asarray(res.transformation)
-    return T
-
-
-def _centred_offset(T: np.ndarray, T0: np.ndarray, c: np.ndarray, Lc: float) -> np.ndarray:
-    """(6,) the motion from pose ``T0`` to ``T`` (4,4; ``T = D @ T0``) in :func:`weighted_icp`'s update
-    coordinates: rotation vector × ``Lc`` (m), then the translation of the point ``c`` (3,) (m)."""
-    from scipy.spatial.transform import Rotation
-
-    D = T @ np.linalg.inv(T0)
-    om = Rotation.from_matrix(D[:3, :3]).as_rotvec()
-    return np.concatenate([om * Lc, D[:3, :3] @ c + D[:3, 3] - c])
-
-
-def weighted_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
-                 init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
-                 degenerate_ratio: float = 0.0, info: dict | None = None, source_normals: np.ndarray | None = None,
-                 min_normal_cos: float = 0.8, search_m: float = 0.0, max_std_m: float = 0.0,
-                 hold_m: float = 0.05) -> np.ndarray:
-    """Noise-weighted point-to-plane ICP (Gauss-Newton on the linearised rotation, numpy/scipy):
-    ``source`` (N,3) with ``weights`` (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``;
-    per stage a nearest-neighbour correspondence within ``max(d, 3σ)`` of the stage distance d and a
-    Tukey weight with that same scale (σ = 1/sqrt(weight): noisy far points keep their unbiased
-    residuals instead of being truncated). ``degenerate_ratio`` > 0: degeneracy-aware updates (Zhang
-    et al., ICRA 2016): the normal matrix, with rotations scaled by the median point distance (so both
-    blocks are in metres), is eigen-decomposed and the update is zeroed along eigenvectors whose
-    eigenvalue is below ``degenerate_ratio`` × the largest — directions the overlap does not pin
-    down keep the initial guess instead of sliding (a corridor seen end-on); a coarser stage may
-    have moved along them, and the update takes the pose back to within ``hold_m`` (m; rotations
-    scaled as above) of ``init`` along them. ``info`` receives the number of frozen directions, the
-    eigenvalues and the held directions (``held``, for :func:`hold_at`). ``source_normals`` (N,3):
-    correspondences whose normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge
-    the nearest map point can belong to the other wall, whose normal biases a point-to-plane fit by
-    centimetres.
-    ``search_m`` > 0: nearest map points up to that far (tangentially) are used, gated on the
-    residual only (measured worse on the sparse demo map: 0 by default). ``max_std_m`` > 0 (weights
-    must then be inverse variances): directions whose standard deviation 1/sqrt(eigenvalue) exceeds it
-    are held too. Returns T (4,4)."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(target)
-    T0 = np.asarray(init, np.float64)
-    T = T0.copy()
-    src = np.asarray(source, np.float64)
-    w0 = np.asarray(weights, np.float64)
-    sig = 1.0 / np.sqrt(w0)
-    for d in distances:
-        scale = np.clip(3 * sig, d, max_scale)
-        for _ in range(iterations):
-            p = transform_points(T, src)
-            reach = np.maximum(scale, search_m)
-            dist, j = tree.query(p, k=1, distance_upper_bound=float(reach.max()), workers=-1)
-            ok = np.isfinite(dist) & (dist <= reach)
-            jj = np.where(ok, j, 0)
-            r_all = np.einsum("ij,ij->i", p - target[jj], target_normals[jj])
-            ok &= np.abs(r_all) <= scale     # gated on the distance to the map's surface, not to its points
-            if source_normals is not None:
-                cosn = np.abs(np.einsum("ij,ij->i", source_normals @ T[:3, :3].T, target_normals[jj]))
-                ok &= cosn >= min_normal_cos
-            if ok.sum() < 6:
-                return T
-            pp, nn = p[ok], target_normals[j[ok]]
-            r = r_all[ok]
-            u = r / scale[ok]
-            w = w0[ok] * np.where(np.abs(u) < 1, (1 - u ** 2) ** 2, 0.0)
-            J = np.concatenate([np.cross(pp, nn), nn], axis=1)        # d r / d (omega, t)
-            H = (J * w[:, None]).T @ J + 1e-9 * np.eye(6) * w.sum()
-            g = (J * w[:, None]).T @ r
-            if degenerate_ratio > 0:
-                # rotations about the cloud's centroid, scaled to metres
-                c = np.average(pp, axis=0, weights=np.maximum(w, 1e-12))
-                Lc = float(np.median(np.linalg.norm(pp - c, axis=1))) or 1.0
-                Jc = np.concatenate([np.cross(pp - c, nn) / Lc, nn], axis=1)
-                Hc = (Jc * w[:, None]).T @ Jc
-                gc = (Jc * w[:, None]).T @ r
-                ev, V = np.linalg.eigh(Hc)
-                keep = ev >= degenerate_ratio * ev.max()
-                if max_std_m > 0:  # weights are inverse variances: 1/sqrt(ev) is the direction's std (m)
-                    keep &= ev >= 1.0 / max_std_m ** 2
-                y = -(V[:, keep] @ ((V[:, keep].T @ gc) / ev[keep]))
-                if not keep.all():
-                    # held directions stay within hold_m of the guess: an earlier (coarser) stage may have
-                    # moved along them, rightly (edges within its reach) or not (wrong correspondences)
-                    dev = V[:, ~keep].T @ _centred_offset(T, T0, c, Lc)
-                    y -= V[:, ~keep] @ (np.sign(dev) * np.maximum(np.abs(dev) - hold_m, 0.0))
-                x = _about_origin(y, c, Lc)
-                if info is not None:
-                    info.update(frozen=int((~keep).sum()), eigenvalues=(ev / ev.max()).round(4).tolist(),
-                                held=(V[:, ~keep], c, Lc))
-            else:
-                x = -np.linalg.solve(H, g)
-            T = _moved_by(T, x)
-            if np.linalg.norm(x[3:]) < 1e-5 and np.linalg.norm(x[:3]) < 1e-6:
-                break
-    return T
-
-
-def _about_origin(y: np.ndarray, c: np.ndarray, Lc: float) -> np.ndarray:
-    """A motion (6,) in :func:`weighted_icp`'s update coordinates (rotation vector × ``Lc``, motion of
-    the centre ``c``) as (rotation vector, translation) about the origin: t = t_c - ω × c."""
-    om = y[:3] / Lc
-    return np.concatenate([om, y[3:] - np.cross(om, c)])
-
-
-def _moved_by(T: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``D @ T`` with D the motion (6,) ``x`` = (rotation vector, translation), about the origin."""
-    from scipy.spatial.transform import Rotation
-
-    D = np.eye(4)
-    D[:3, :3] = Rotation.from_rotvec(x[:3]).as_matrix()
-    D[:3, 3] = x[3:]
-    return D @ T
-
-
-def hold_at(T: np.ndarray, target: np.ndarray, held: tuple) -> np.ndarray:
-    """``T`` (4,4) moved along the directions :func:`weighted_icp` held (``info["held"]``: (V (6,k),
-    centre c (3,), scale Lc) in its update coordinates) to where ``target`` (4,4) lies along them;
-    the other directions keep ``T``'s values (to first order)."""
-    V, c, Lc = held
-    return _moved_by(T, _about_origin(-V @ (V.T @ _centred_offset(T, target, c, Lc)), c, Lc))
+    """Coarse-to-fine point-to-plane ICP (:func:`holodata.geometry.open3d_icp`, Tukey loss with k = the
+    stage's distance / 2) of ``source`` (N,3) onto ``target_pcd`` (with normals) from ``init``; returns
+    the (4,4) transform."""
+    return open3d_icp(source, target_pcd, init, cfg.icp_distances, 0.5, cfg.icp_iterations)[0]
 
 
 def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, held_dir: np.ndarray, max_deg: float,
@@ -269,44 +127,6 @@ def map_normals(map_points: np.ndarray, cfg: RegisterConfig) -> tuple[np.ndarray
     return pts, np.asarray(coarse.normals)[cKDTree(cp).query(pts, k=1, workers=-1)[1]]
 
 
-def local_plane_projection(points: np.ndarray, radius: float, ratio: float = 0.1, min_nn: int = 6,
-                           only: np.ndarray | None = None, chunk: int = 4096) -> np.ndarray:
-    """Denoised copy of a point cloud (N,3): each point moved along the normal of the plane fitted
-    (PCA) to its neighbours within ``radius`` onto that plane, where the neighbourhood is planar (smallest
-    covariance eigenvalue < ``ratio`` × the middle one) and holds >= ``min_nn`` points; other points
-    (edges, corners, clutter) stay. ``only`` (N,) bool: project just those (their neighbourhoods still
-    span every point). Vectorised: neighbour pairs (scipy ``sparse_distance_matrix``), first and second
-    moments by a sparse product, batched 3×3 eigen-decompositions."""
-    from scipy.sparse import csr_matrix
-    from scipy.spatial import cKDTree
-
-    X = np.asarray(points, np.float64).reshape(-1, 3)
-    idx = np.arange(len(X)) if only is None else np.flatnonzero(only)
-    if len(idx) == 0 or radius <= 0:
-        return X.copy()
-    # neighbours (itself included) of just the projected points, a chunk at a time: a 0.3 m ball on
-    # a 4 cm map holds ~400 points (17 M pairs for 41 k points; 1.5 GB at once)
-    tree = cKDTree(X)
-    XX = (X[:, :, None] * X[:, None, :]).reshape(-1, 9)
-    cnt, mu, C = np.empty(len(idx)), np.empty((len(idx), 3)), np.empty((len(idx), 9))
-    for s in range(0, len(idx), chunk):
-        q = idx[s:s + chunk]
-        nb = cKDTree(X[q]).sparse_distance_matrix(tree, radius, output_type="ndarray")
-        A = csr_matrix((np.ones(len(nb)), (nb["i"], nb["j"])), shape=(len(q), len(X)))
-        cnt[s:s + len(q)] = np.asarray(A.sum(1)).ravel()
-        mu[s:s + len(q)] = A @ X
-        C[s:s + len(q)] = A @ XX
-    mu /= cnt[:, None]
-    C = (C / cnt[:, None]).reshape(-1, 3, 3) - mu[:, :, None] * mu[:, None, :]
-    w, V = np.linalg.eigh(C)
-    n = V[:, :, 0]
-    ok = (cnt >= min_nn) & (w[:, 0] < ratio * w[:, 1])
-    out = X.copy()
-    d = np.einsum("ij,ij->i", X[idx] - mu, n)
-    out[idx[ok]] -= d[ok, None] * n[ok]
-    return out
-
-
 def mesh_surface_samples(vertices: np.ndarray, faces: np.ndarray, near: np.ndarray | None = None,
                          reach: float = np.inf, spacing: float = 0.02, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Points (P,3) spread over a triangle mesh (``vertices`` (V,3), ``faces`` (F,3) int) about
@@ -357,7 +177,7 @@ def mesh_surface_samples(vertices: np.ndarray, faces: np.ndarray, near: np.ndarr
 def pose_uncertainty(points: np.ndarray, sigma: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
                      tree, T: np.ndarray, cfg: RegisterConfig) -> dict:
     """Standard deviations (m) of the point-to-plane pose estimate ``T`` along the eigen-directions of
-    its information matrix (rotations scaled by the median lever arm, as in :func:`weighted_icp`):
+    its information matrix (rotations scaled by the median lever arm, as in :func:`~holodata.geometry.point_to_plane_icp`):
     correspondences within ``overlap_m`` whose residual is within max(``inlier_m``, 3 sigma), each
     weighted by 1/(sigma_i^2 + map_sigma_m^2) with ``sigma`` (N,) the camera point's depth noise (m).
     Noisy far points (a low-resolution stereo camera: 5-15 cm at 6-10 m) carry little information;
@@ -383,7 +203,7 @@ def pose_uncertainty(points: np.ndarray, sigma: np.ndarray, target: np.ndarray, 
 
 
 def held_directions(held: tuple) -> list[str]:
-    """Plain words for the directions :func:`weighted_icp` held at the guess (``info["held"]``: V (6,k)
+    """Plain words for the directions :func:`~holodata.geometry.point_to_plane_icp` held at the guess (``info["held"]``: V (6,k)
     in its update coordinates, rotation × lever arm then translation, world frame): "translation along
     (x, y, z)" or "rotation about (x, y, z)", whichever part of the direction is larger."""
     V = held[0]
@@ -410,7 +230,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
                        anchor: np.ndarray | None = None) -> Registration:
     """``T_world_camera`` from the static camera cloud ``static_cam`` (N,3, camera frame) and the map
     ``map_points`` (M,3, world) from ``init`` (4,4): open3d point-to-plane ICP then, with per-point
-    depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`weighted_icp`); checked;
+    depth noise ``sigma`` (N,) m, a noise-weighted refinement (:func:`~holodata.geometry.point_to_plane_icp`); checked;
     FPFH+RANSAC+ICP fallback, checked. ``mesh`` (vertices (V,3), faces (F,3)): a static mesh of the
     scene in the map's frame (:func:`scene_mesh`) whose surface near the camera cloud joins the
     target (docs/design/register.md, 3.). ``anchor`` (3,) m: ``init`` is a TF pose and the map a SLAM map
@@ -490,7 +310,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         # registration_icp: from the exact pose it slid 43 cm along a corridor the overlap sees
         # end-on (T corner, 1.5 m wide), and it has no way to hold such directions. Uniform weights:
         # per-point camera noise weights were measured worse (the map's own error is not modelled).
-        return weighted_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4),
+        return point_to_plane_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4),
                             tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
                             degenerate_ratio=ratio, info=info, source_normals=src_n,
                             min_normal_cos=cfg.min_normal_cos, search_m=cfg.search_m,

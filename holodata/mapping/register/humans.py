@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...geometry.planes import ransac_plane
+from ...geometry.voxels import voxel_keys
 from .config import RegisterConfig
 from .extrinsic import _pcd
 
@@ -17,18 +19,16 @@ def cluster_points(points: np.ndarray, dist: float) -> np.ndarray:
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from ..background import _keys
-
     if len(points) == 0:
         return np.zeros(0, np.int64)
     ijk = np.floor(np.asarray(points) / dist).astype(np.int64)
-    keys = _keys(ijk)
+    keys = voxel_keys(ijk)
     uniq, inv = np.unique(keys, return_inverse=True)
     inv = inv.reshape(-1)
     cells = ijk[np.unique(inv, return_index=True)[1]]
     rows, cols = [], []
     for o in [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1) if (a, b, c) > (0, 0, 0)]:
-        nk = _keys(cells + np.array(o))
+        nk = voxel_keys(cells + np.array(o))
         pos = np.minimum(np.searchsorted(uniq, nk), len(uniq) - 1)
         hit = uniq[pos] == nk
         rows.append(np.flatnonzero(hit))
@@ -63,32 +63,6 @@ def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) ->
             break
         alive &= ~(np.abs(sub @ normal + offset) < cfg.plane_dist_m)
     return alive[inv]
-
-
-def ransac_plane(points: np.ndarray, dist: float, iterations: int, rng) -> tuple[np.ndarray, float, int]:
-    """Plane with the most points (N,3) within ``dist`` (m) among ``iterations`` planes through three
-    random points (numpy ``rng``), refitted by least squares to its inliers: (unit normal (3,), offset,
-    inlier count) with ``normal · p + offset = 0``. Deterministic for a given ``rng`` state (open3d's
-    multithreaded ``segment_plane`` is not, even seeded: its result depended on thread timing)."""
-    p = np.asarray(points, np.float64)
-    i = rng.integers(0, len(p), (iterations, 3))
-    n = np.cross(p[i[:, 1]] - p[i[:, 0]], p[i[:, 2]] - p[i[:, 0]])
-    norm = np.linalg.norm(n, axis=1)
-    ok = norm > 1e-12
-    n, a = n[ok] / norm[ok, None], p[i[ok, 0]]
-    d = -np.einsum("ij,ij->i", n, a)
-    counts = np.zeros(len(n), np.int64)
-    step = max(1, 4_000_000 // max(len(p), 1))          # (N, step) distances at a time
-    for s in range(0, len(n), step):
-        counts[s:s + step] = (np.abs(p @ n[s:s + step].T + d[s:s + step]) < dist).sum(0)
-    if not len(counts):
-        return np.array([0.0, 0.0, 1.0]), 0.0, 0
-    b = int(np.argmax(counts))
-    q = p[np.abs(p @ n[b] + d[b]) < dist]
-    c = q.mean(0)
-    normal = np.linalg.svd(q - c, full_matrices=False)[2][-1]     # least-squares plane of the inliers
-    offset = -float(normal @ c)
-    return normal, offset, int((np.abs(p @ normal + offset) < dist).sum())
 
 
 def _robust_plan_extent(xy: np.ndarray) -> float:
@@ -357,10 +331,12 @@ def voxel_boundary(occ: np.ndarray, voxel: float) -> tuple[np.ndarray, np.ndarra
 
 
 # ------------------------------------------------------------------------------------ tracks
-def track_jumps(centroids: np.ndarray, t_ns: np.ndarray, jump_m: float = 0.6, speed_mps: float = 1.5) -> np.ndarray:
+def track_jumps(centroids: np.ndarray, t_ns: np.ndarray, jump_m: float = RegisterConfig.track_jump_m,
+                speed_mps: float = RegisterConfig.walk_speed_mps) -> np.ndarray:
     """(T,) bool: frames whose centroid (``centroids`` (T,3), NaN = none) is farther (plan) from the
-    centroid of *each* nearest frame with one, before and after, than ``jump_m`` + ``speed_mps`` ×
-    the time between them (``t_ns`` (T,)): a person cannot have walked there."""
+    centroid of *each* nearest frame with one, before and after, than ``jump_m`` (m) + ``speed_mps``
+    (m/s) × the time between them (``t_ns`` (T,)): a person cannot have walked there. The defaults are
+    :class:`RegisterConfig`'s ``track_jump_m`` and ``walk_speed_mps`` (what register passes)."""
     c = np.asarray(centroids, float)
     t = np.asarray(t_ns, np.int64).astype(np.float64) / 1e9
     ok = np.flatnonzero(np.isfinite(c).all(1))
@@ -391,7 +367,7 @@ def track_prediction(centroids: np.ndarray, t_ns: np.ndarray, max_gap_s: float =
     return out
 
 
-def track_velocity(centroids: np.ndarray, cam_ts: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
+def track_velocity(centroids: np.ndarray, cam_ts: np.ndarray, max_speed: float = RegisterConfig.max_speed_mps) -> np.ndarray:
     """(T,3) plan velocity (m/s, z = 0) of the centroid track ``centroids`` (T,3) (NaN: no detection) by
     central differences over the frames with a detection and a camera stamp ``cam_ts`` (T,) ns (zero
     where it cannot be estimated: a single detection, neighbours more than 2 s apart, or faster than
@@ -416,13 +392,15 @@ def track_velocity(centroids: np.ndarray, cam_ts: np.ndarray, max_speed: float =
     return out
 
 
-def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
+def velocity_shift(centroids: np.ndarray, cam_ts: np.ndarray, frame_ts: np.ndarray,
+                   max_speed: float = RegisterConfig.max_speed_mps) -> np.ndarray:
     """(T,3) shifts = velocity (:func:`track_velocity`) · (frame time − camera time)."""
     v = track_velocity(centroids, cam_ts, max_speed)
     return v * ((np.asarray(frame_ts, np.int64) - np.asarray(cam_ts, np.int64)) / 1e9)[:, None]
 
 
-def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray, max_speed: float = 2.5) -> np.ndarray:
+def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray,
+                 max_speed: float = RegisterConfig.max_speed_mps) -> np.ndarray:
     """(T,) m/s: how fast the person walks along the camera's view in each frame — the larger of the
     one-sided plan speeds toward the previous and the next detection (within 2 s, at most ``max_speed``)
     along the plan direction from ``eye`` (3,) to the frame's centroid (``centroids`` (T,3), NaN: no

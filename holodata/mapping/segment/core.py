@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...geometry.planes import fit_height_plane
 from .config import NEIGHBOURS, SegmentConfig
 
 
@@ -426,9 +427,8 @@ def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: i
         q = p[np.abs(res) < band]
         if len(q) < min_points:
             return None
-        A = np.c_[q[:, :2], np.ones(len(q))]
-        coef = np.linalg.lstsq(A, q[:, 2], rcond=None)[0]
-        band = max(3.0 * float((q[:, 2] - A @ coef).std()), 0.03)
+        coef = fit_height_plane(q)
+        band = max(3.0 * float((q[:, 2] - np.c_[q[:, :2], np.ones(len(q))] @ coef).std()), 0.03)
     return coef
 
 

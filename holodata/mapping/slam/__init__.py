@@ -64,7 +64,8 @@ from ...errors import DatasetError, InputError
 from ...trajectory import Trajectory, write_tum
 from .config import Scans, SlamConfig, SlamResult
 from .scans import _StreamBroken, data_max_range, load_scans, stream_scans
-from .points import _downsample_index, _o3d_cloud
+from ...geometry.voxels import first_per_voxel
+from .points import _o3d_cloud
 from .odometry import KissStream, _Fixed, deskew, kiss_odometry, twist
 from .refine import VoxelMap, _TargetCache, global_refine, icp, mesh_scan_subset, refine
 from .world import (StaticMap, _attr_T, anchor_pose, frame_poses, level_tf_poses, recording_tf_poses, static_mesh,
@@ -320,7 +321,7 @@ def localise_first(points: np.ndarray, vmap: VoxelMap, guess: np.ndarray, cfg: S
     p = np.asarray(points, np.float64)
     r2 = np.einsum("ij,ij->i", p, p)
     p = p[(r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)]
-    src = p[_downsample_index(p, cfg.source_voxel)]
+    src = p[first_per_voxel(p, cfg.source_voxel)]
     tgt = _TargetCache(max_range + 1.5).cloud(vmap, guess[:3, 3])
     return icp(src, tgt, guess, replace_cfg(cfg, icp_iterations=30), distances)
 

@@ -8,9 +8,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ...conventions import transform_points
+from ...geometry.voxels import first_per_voxel
 from ...progress import track
 from .config import Scans, SlamConfig
-from .points import _downsample_index
 
 
 class KissStream:
@@ -45,7 +45,7 @@ class KissStream:
         t0 = time.perf_counter()
         sc, cfg = self.scans, self.cfg
         p = sc.points[i]
-        sel = _downsample_index(p, cfg.kiss_input_voxel) if cfg.kiss_input_voxel > 0 else slice(None)
+        sel = first_per_voxel(p, cfg.kiss_input_voxel) if cfg.kiss_input_voxel > 0 else slice(None)
         p = np.ascontiguousarray(p[sel], np.float64)
         if self.use_t:
             t = np.ascontiguousarray(sc.times[i][sel], np.float64)

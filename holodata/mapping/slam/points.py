@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...geometry.voxels import first_per_voxel
+
 
 def _o3d_cloud(points, normals=None):
     import open3d as o3d
@@ -24,16 +26,6 @@ def scan_normals(points: np.ndarray, radius: float = 0.3, max_nn: int = 20):
     return np.asarray(pc.points), np.asarray(pc.normals)
 
 
-def _downsample_index(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Sorted indices of one point per occupied ``voxel`` (the first)."""
-    if len(points) == 0:
-        return np.zeros(0, np.int64)
-    from ..background import _keys, voxel_index
-
-    _, idx = np.unique(_keys(voxel_index(points, voxel)), return_index=True)
-    return np.sort(idx)
-
-
 def downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     """Voxel-grid downsampling (one point per occupied voxel: the first)."""
-    return points[_downsample_index(points, voxel)] if len(points) else points
+    return points[first_per_voxel(points, voxel)] if len(points) else points

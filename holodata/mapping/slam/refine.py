@@ -6,9 +6,11 @@ from __future__ import annotations
 import numpy as np
 
 from ...conventions import rotation_angle_deg, transform_directions, transform_points
+from ...geometry.icp import gauss_newton_step, open3d_icp, tukey_weights
+from ...geometry.voxels import first_per_voxel, voxel_index, voxel_keys
 from ...progress import track
 from .config import Scans, SlamConfig
-from .points import _downsample_index, _o3d_cloud, downsample, scan_normals
+from .points import _o3d_cloud, downsample, scan_normals
 from .odometry import _Fixed, deskew, twist
 
 
@@ -22,9 +24,7 @@ class VoxelMap:
         self.normals = np.zeros((0, 3))
 
     def _k(self, p):
-        from ..background import _keys, voxel_index
-
-        return _keys(voxel_index(p, self.voxel))
+        return voxel_keys(voxel_index(p, self.voxel))
 
     def add(self, points: np.ndarray, normals: np.ndarray) -> None:
         k = self._k(points)
@@ -94,15 +94,11 @@ def _at_rest(src: np.ndarray, target, T: np.ndarray, cfg: SlamConfig) -> bool:
 def _gn_step(p: np.ndarray, q: np.ndarray, n: np.ndarray, centre: np.ndarray, k: float) -> np.ndarray | None:
     """One point-to-plane Gauss-Newton step (6,) [rotation vector (rad), translation (m)] moving points
     ``p`` (M,3) onto the planes through ``q`` (M,3) with unit normals ``n`` (M,3), rotation about
-    ``centre`` (3,) (the sensor: the translation is its shift), Tukey weights of width ``k`` (m).
-    None when the system is ill-conditioned (cond > 1e8)."""
+    ``centre`` (3,) (the sensor: the translation is its shift), Tukey weights of width ``k`` (m)
+    (:func:`holodata.geometry.gauss_newton_step`). None when the system is ill-conditioned (cond > 1e8)."""
     r = np.einsum("ij,ij->i", p - q, n)
-    w = np.where(np.abs(r) < k, (1 - (r / k) ** 2) ** 2, 0.0)
-    J = np.concatenate([np.cross(p - centre, n), n], axis=1)
-    H = (J * w[:, None]).T @ J
-    if np.linalg.cond(H) > 1e8:
-        return None
-    return -np.linalg.solve(H, (J * (w * r)[:, None]).sum(0))
+    step = gauss_newton_step(p, n, r, tukey_weights(r, k), centre, max_cond=1e8)
+    return None if step is None else step.y
 
 
 def _small(dx: np.ndarray, m: float, deg: float) -> bool:
@@ -170,20 +166,11 @@ class _SameBeam:
 
 def icp(src_pts: np.ndarray, target, init: np.ndarray, cfg: SlamConfig, distances=None):
     """Coarse-to-fine point-to-plane ICP of ``src_pts`` (sensor frame) onto ``target`` (open3d
-    cloud with normals). Returns (T, fitness, inlier rmse) of the finest stage."""
-    import open3d as o3d
-
-    reg = o3d.pipelines.registration
-    src = _o3d_cloud(src_pts)
-    T = init.copy()
-    res = None
-    for d in (distances or cfg.icp_distances):
-        est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(d * cfg.tukey_k)))
-        res = reg.registration_icp(src, target, float(d), T, est,
-                                   reg.ICPConvergenceCriteria(1e-7, max(cfg.icp_converged_m, 1e-7), int(cfg.icp_iterations)))
-        if len(res.correspondence_set) >= 30:
-            T = np.asarray(res.transformation)
-    return T, float(res.fitness), float(res.inlier_rmse)
+    cloud with normals) (:func:`holodata.geometry.open3d_icp`: Tukey width ``tukey_k`` × the stage's
+    distance; a stage with fewer than 30 correspondences leaves the pose). Returns (T, fitness, inlier
+    rmse) of the finest stage."""
+    return open3d_icp(src_pts, target, init, distances or cfg.icp_distances, cfg.tukey_k, cfg.icp_iterations,
+                      relative_rmse=max(cfg.icp_converged_m, 1e-7), min_correspondences=30)
 
 
 def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None,
@@ -250,7 +237,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
                 same_beam += at_rest
             if not at_rest:
                 # rest check on the ICP source voxels (no deskew: the robot was at rest or nearly)
-                rest, _ = ranged(scans.points[i][_downsample_index(scans.points[i], cfg.source_voxel)], None)
+                rest, _ = ranged(scans.points[i][first_per_voxel(scans.points[i], cfg.source_voxel)], None)
                 tgt_tree = target.tree(vmap, poses[anchor][:3, 3])
                 at_rest = _at_rest(rest, tgt_tree, poses[anchor], cfg)
                 if at_rest and pix is not None:
@@ -263,7 +250,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
         if not at_rest:
             pts, tm = ranged(scans.points[i], raw_t)
             # deskew only the downsampled points that are used (ICP source, map keyframe)
-            i_src = _downsample_index(pts, cfg.source_voxel)
+            i_src = first_per_voxel(pts, cfg.source_voxel)
             src = deskew(pts[i_src], tm[i_src], xi) if use_t else pts[i_src]
         if i == 0:
             T = poses[0]
@@ -292,7 +279,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
         fit[i], rmse[i] = f, e
         xi_prev = xi
         if grow_map and not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
-            i_map = _downsample_index(pts, cfg.map_voxel)
+            i_map = first_per_voxel(pts, cfg.map_voxel)
             dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map])
             vmap.add(transform_points(T, dp), transform_directions(T, dn))
             last_key = T

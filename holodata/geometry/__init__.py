@@ -1,0 +1,16 @@
+"""holodata's geometry core, shared by slam, register, the mesh and the background model: voxel keys,
+one point per voxel and voxel means (:mod:`.voxels`), point-to-plane Gauss-Newton ICP with robust
+weights and held directions (:mod:`.icp`), plane fits (:mod:`.planes`). Arrays in, arrays out: no I/O,
+no dataset types."""
+from __future__ import annotations
+
+from .icp import (Step, about_origin, centred_offset, gauss_newton_step, hold_at, moved_by, open3d_icp,
+                  point_to_plane_icp, tukey_weights)
+from .planes import fit_height_plane, fit_plane, local_plane_projection, ransac_plane
+from .voxels import (cell_keys, dense_box, first_per_voxel, flat_index, unique_voxels, unpack_keys, voxel_average,
+                     voxel_index, voxel_keys)
+
+__all__ = ["Step", "about_origin", "centred_offset", "gauss_newton_step", "hold_at", "moved_by", "open3d_icp",
+           "point_to_plane_icp", "tukey_weights", "fit_height_plane", "fit_plane", "local_plane_projection",
+           "ransac_plane", "cell_keys", "dense_box", "first_per_voxel", "flat_index", "unique_voxels", "unpack_keys",
+           "voxel_average", "voxel_index", "voxel_keys"]
