@@ -17,345 +17,54 @@ docs/format.md §2's default — the rotation centre, each column at its own tim
 Arrays are Blosc lz4 + shuffle by default (this stage is CPU-bound; ``codec="zstd"`` gives ~25%
 smaller files at ~2x the encoding time).
 
-Human sources: none; one mesh for all frames (``--human``); a directory with one mesh per frame
-*index* ``{k:06d}.ply`` (``.obj``/``.stl`` also accepted; k = 0-based row of the TUM file);
-in a dataset, ragged ``human/vertices`` + ``human/faces`` (per frame, world frame) or, failing
-that, the registered human cloud ``human/points`` (map frame, from ``register``) turned into small
-octahedra (3 cm). ``camera/points`` is never used: it is in the camera frame until registered.
+Human sources (:mod:`holodata.raytrace.humans`): none, one mesh for all frames, one per frame, or a
+dataset's human. This module runs the stage: inputs, the executors (in-process, the local process
+pool of :mod:`holodata.raytrace.pool`, one Dask task per shard) and writing; the per-frame trace is
+:mod:`holodata.raytrace.frames`. Its names are re-exported here.
 """
 from __future__ import annotations
 
-import hashlib
 import threading
 import time
 import uuid
-from dataclasses import dataclass, field
 from pathlib import Path
+
 import numpy as np
 
-from .conventions import (
-    DEFAULT_MAX_BOUNCES,
-    DEFAULT_MAX_RANGE_M,
-    LOS_TOLERANCE_M,
-    Grid,
-    RangeBins,
-)
-from .beams import OriginModel, beam_rays, column_poses, column_times, local_origins, scene_origin_model
+from .beams import OriginModel, beam_rays, column_times, scene_origin_model
+from .conventions import RangeBins
 from .dataset.layout import GT_ARRAYS
 from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .parallel import cpus
 from .progress import track
+from .raytrace.frames import (
+    FrameTracer,
+    GTConfig,
+    _make_scene,
+    column_rays_soa,
+    gt_array_specs,
+    gt_attrs,
+    trace_frame,
+    trace_shard,
+)
+from .raytrace.humans import (
+    HUMAN_SPLAT_RADIUS_M,
+    MESH_EXTS,
+    HumanDataset,
+    HumanDir,
+    HumanFile,
+    HumanSource,
+    file_sha256,
+    mesh_sha256,
+    points_to_mesh,
+)
+from .raytrace.pool import _bounded_imap, _slot_bytes, _slot_views, _worker_init
 from .trajectory import Trajectory, read_tum
-
-MESH_EXTS = (".ply", ".obj", ".stl")
-HUMAN_SPLAT_RADIUS_M = 0.03
 
 
 class TracingError(HolodataError, RuntimeError):
     """Tracing stopped part-way (a worker process died); written shards are kept for a resume."""
-
-
-@dataclass
-class GTConfig:
-    grid: Grid = field(default_factory=Grid)
-    max_bounces: int = DEFAULT_MAX_BOUNCES
-    max_range: float = DEFAULT_MAX_RANGE_M
-    backend: str = "open3d"
-    origin: OriginModel | None = None  # None: the scene's recorded model (ingest), else the default
-    shard_frames: int | None = None  # frames per shard of new arrays (None: the dataset's, 32 when new)
-    nthreads: int = 0
-    codec: str | None = "lz4"  # Blosc codec of the gt arrays: lz4 encodes ~2x faster than zstd, ~30% larger
-                               # (raytrace-gt is CPU-bound; None = the dataset's default, zstd)
-
-
-# ---------------------------------------------------------------------------- beams
-_GRID_SOA: dict = {}
-_GRID_DIRS: dict = {}
-
-
-def _grid_soa(grid: Grid) -> np.ndarray:
-    """(3, H*W) float32 radar-frame beam directions (cached per grid)."""
-    if grid not in _GRID_SOA:
-        _GRID_SOA[grid] = np.ascontiguousarray(grid.directions().reshape(-1, 3).T, dtype=np.float32)
-    return _GRID_SOA[grid]
-
-
-def _grid_dirs(grid: Grid) -> np.ndarray:
-    """(H, W, 3) float64 radar-frame beam directions (cached per grid)."""
-    if grid not in _GRID_DIRS:
-        _GRID_DIRS[grid] = grid.directions()
-    return _GRID_DIRS[grid]
-
-
-def column_rays_soa(grid: Grid, origin: OriginModel, col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`holodata.beams.beam_rays` with ``column_poses`` = ``col`` (W,4,4), as (3, H*W) float32
-    origins and directions, equal to the bit to ``beam_rays``'s float64 arrays cast to float32.
-
-    beam_rays's ``einsum("wij,hwj->hwi")`` costs a frame ~7 ms; the same float64 products summed
-    in the same order, ``(R_i0 d_0 + R_i2 d_2) + R_i1 d_1`` (numpy's einsum order for this
-    contraction; tests/test_groundtruth.py checks it), cost ~1 ms."""
-    H, W = grid.H, grid.W
-    R, t = col[:, :3, :3], col[:, :3, 3]
-    o = np.einsum("wij,wj->wi", R, local_origins(grid, origin)) + t  # (W,3), as beam_rays
-    dirs = _grid_dirs(grid)
-    d = np.empty((3, H, W), dtype=np.float32)
-    for i in range(3):
-        d[i] = (R[None, :, i, 0] * dirs[..., 0] + R[None, :, i, 2] * dirs[..., 2]) + R[None, :, i, 1] * dirs[..., 1]
-    o32 = np.ascontiguousarray(np.broadcast_to(o.T.astype(np.float32)[:, None, :], (3, H, W)))
-    return o32.reshape(3, H * W), d.reshape(3, H * W)
-
-
-# ---------------------------------------------------------------------------- humans
-def points_to_mesh(points: np.ndarray, radius: float = HUMAN_SPLAT_RADIUS_M) -> tuple[np.ndarray, np.ndarray]:
-    """A surface for a human point cloud: one octahedron of ``radius`` per (voxel-thinned) point."""
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
-    if len(pts) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
-    _, keep = np.unique(np.floor(pts / radius).astype(np.int64), axis=0, return_index=True)
-    pts = pts[np.sort(keep)]
-    ov = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float) * radius
-    of = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
-    v = (pts[:, None, :] + ov[None]).reshape(-1, 3)
-    f = (of[None] + 6 * np.arange(len(pts))[:, None, None]).reshape(-1, 3)
-    return v, f.astype(np.int32)
-
-
-class HumanSource:
-    """Per-frame human mesh (world frame) or None: ``source(k) -> (vertices, faces) | None``."""
-
-    kind = "none"
-
-    def __call__(self, k: int):
-        return None
-
-    def describe(self) -> dict:
-        return {"kind": self.kind}
-
-
-class HumanFile(HumanSource):
-    kind = "file"
-
-    def __init__(self, path: str | Path):
-        self.path = Path(path)
-        m = read_mesh(self.path)
-        self.mesh = (m.vertices, m.faces)
-
-    def __call__(self, k: int):
-        return self.mesh
-
-    def describe(self) -> dict:
-        return {"kind": self.kind, "path": str(self.path), "sha256": file_sha256(self.path)}
-
-
-class HumanDir(HumanSource):
-    """``DIR/{k:06d}.(ply|obj|stl)`` for every frame index k (checked up front)."""
-
-    kind = "dir"
-
-    def __init__(self, path: str | Path, n_frames: int):
-        self.path = Path(path)
-        if not self.path.is_dir():
-            raise InputError(f"{self.path}: human directory does not exist")
-        present = {p.stem: p for p in self.path.iterdir() if p.suffix.lower() in MESH_EXTS}
-        self.files = []
-        for k in range(n_frames):
-            p = present.get(f"{k:06d}")
-            if p is None:
-                raise InputError(f"{self.path / f'{k:06d}.ply'}: human mesh for frame {k} is missing "
-                                 f"(--human-dir needs one mesh per frame index, {n_frames} frames)")
-            self.files.append(p)
-
-    def __call__(self, k: int):
-        m = read_mesh(self.files[k])
-        return (m.vertices, m.faces)
-
-    def describe(self) -> dict:
-        return {"kind": self.kind, "path": str(self.path), "naming": "{frame_index:06d}.ply|obj|stl"}
-
-
-class HumanDataset(HumanSource):
-    """Ragged ``human/vertices`` + ``human/faces`` of a dataset scene, else ``human/points`` splats."""
-
-    def __init__(self, url: str, scene_id: str, scene=None):
-        self.url, self.scene_id = url, scene_id
-        if scene is None:
-            from .dataset import open_dataset
-
-            scene = open_dataset(url).scene(scene_id)
-        self.scene = scene
-        names = set(scene.arrays())
-        if {"human/vertices", "human/faces"} <= names:
-            self.kind = "dataset:human/vertices+faces"
-        elif "human/points" in names:
-            self.kind = "dataset:human/points"
-        else:
-            self.kind = "none"
-
-    def __getstate__(self):  # worker processes reopen the dataset read-only
-        return {**self.__dict__, "scene": None}
-
-    def __call__(self, k: int):
-        if self.scene is None and self.kind != "none":
-            from .dataset import open_dataset
-
-            self.scene = open_dataset(self.url).scene(self.scene_id)
-        if self.kind == "dataset:human/vertices+faces":
-            v = np.asarray(self.scene.ragged("human/vertices", k), dtype=np.float64)
-            f = np.asarray(self.scene.ragged("human/faces", k), dtype=np.int64)
-            return (v, f) if len(f) else None
-        if self.kind == "dataset:human/points":
-            v, f = points_to_mesh(self.scene.ragged("human/points", k))
-            return (v, f) if len(f) else None
-        return None
-
-
-# ---------------------------------------------------------------------------- core
-def file_sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def mesh_sha256(vertices: np.ndarray, faces: np.ndarray) -> str:
-    h = hashlib.sha256(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
-    h.update(np.ascontiguousarray(faces, dtype="<i8").tobytes())
-    return h.hexdigest()
-
-
-def trace_frame(scene, cfg: GTConfig, traj: Trajectory, k: int, human, human_vertices=None, cycles=None) -> dict:
-    """Ground truth of frame ``k``: dict of per-frame arrays in the gt/* layout (B-major). ``human``:
-    (vertices, faces) world frame, or ``scene.prepare_dynamic(...)``, or None. ``cycles`` (T,2) int64
-    rotation start/end per frame (radar/cycle_ns) for per-column times, or None."""
-    grid, B = cfg.grid, cfg.max_bounces
-    origin = cfg.origin or OriginModel()
-    pose = traj.poses[k]
-    col = column_poses(traj, k, grid, origin, None if cycles is None else cycles[k])
-    if col is None and origin.rotation_radius == 0:  # fast path: one origin, rotated grid
-        d = pose[:3, :3].astype(np.float32) @ _grid_soa(grid)
-        res = scene.trace_soa(pose[:3, 3:4].astype(np.float32), d, max_bounces=B, max_range=cfg.max_range,
-                              dynamic=human)
-    elif col is not None:  # one pose per column: beam_rays's rays, built straight into (3,N) float32
-        o, d = column_rays_soa(grid, origin, col)
-        res = scene.trace_soa(o, d, max_bounces=B, max_range=cfg.max_range, dynamic=human)
-    else:
-        o, d = beam_rays(grid, pose, origin, col)
-        res = scene.trace(o, d, max_bounces=B, max_range=cfg.max_range, dynamic=human)
-    H, W = grid.H, grid.W
-    center = np.full((1, 3), np.nan, dtype=np.float32)
-    hv = human_vertices if human_vertices is not None else (human[0] if isinstance(human, tuple) else None)
-    if hv is not None and len(hv):
-        center[0] = np.asarray(hv, dtype=np.float64).mean(axis=0)
-    return {
-        "gt/range": res.range.T.reshape(B, H, W),
-        "gt/normal": res.normal.transpose(1, 0, 2).reshape(B, H, W, 3).astype(np.float16),
-        "gt/point": res.point.transpose(1, 0, 2).reshape(B, H, W, 3),
-        "gt/label": res.label.T.reshape(B, H, W),
-        "gt/semantic": res.semantic.T.reshape(B, H, W),
-        "gt/human_center": center,
-    }
-
-
-def gt_array_specs(grid: Grid, B: int) -> dict:
-    """{name: frame_array arguments} of the gt arrays (:data:`holodata.dataset.layout.GT_ARRAYS`) for
-    ``B`` bounces on ``grid``; one human centre per frame."""
-    from .dataset.layout import LAYOUT
-
-    out = {}
-    for name in GT_ARRAYS:
-        s = LAYOUT[name]
-        out[name] = dict(per_frame_shape=s.per_frame(B=B, H=grid.H, W=grid.W, K=1), dtype=s.dtype, dims=list(s.dims),
-                         units=s.units, fill_value=s.fill)
-    return out
-
-
-def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource, origin_source: str | None = None,
-             cycles: bool = False) -> dict:
-    """Scene attrs ``gt``: how the ground truth was traced. ``origin_source``: where the beam-origin
-    model came from ("flags", "recording" or "default"; :func:`holodata.beams.scene_origin_model`);
-    ``cycles``: column times were taken from radar/cycle_ns."""
-    origin = cfg.origin or OriginModel()
-    return {
-        "backend": cfg.backend, "max_bounces": int(cfg.max_bounces), "max_range_m": float(cfg.max_range),
-        "origin_model": origin.to_attrs(),
-        "origin_source": origin_source or ("flags" if cfg.origin is not None else "default"),
-        "column_times_from": ("radar/cycle_ns" if cycles else "frame stamps") if origin.column_time else None,
-        "mesh_sha256": mesh_hash, "human": human.describe(),
-        "los_tolerance_m": LOS_TOLERANCE_M, "class_source": scene.class_source,
-        "class_table": {str(k): v for k, v in scene.class_names.items()}, "human_class": int(scene.human_class),
-        "grid": cfg.grid.to_attrs(), "normal_dtype": "float16", "codec": cfg.codec or "dataset default (zstd)",
-    }
-
-
-class FrameTracer:
-    """Traces frames of one scene; built in this process or once per worker process.
-    ``mesh`` = (vertices, faces, face_class | None, class_names | None); ``cycles`` (T,2) int64
-    rotation start/end per frame, or None (see :func:`trace_frame`)."""
-
-    def __init__(self, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, cycles=None):
-        self.scene = _make_scene(*mesh, cfg)
-        self.cfg, self.traj, self.human, self.cycles = cfg, traj, human, cycles
-        self._last = (None, None)
-
-    def __call__(self, f: int) -> dict:
-        h = self.human(f)
-        if h is None:
-            return trace_frame(self.scene, self.cfg, self.traj, f, None, cycles=self.cycles)
-        if h is not self._last[0]:  # build the human BVH once per distinct mesh
-            self._last = (h, self.scene.prepare_dynamic(*h))
-        return trace_frame(self.scene, self.cfg, self.traj, f, self._last[1], human_vertices=h[0], cycles=self.cycles)
-
-
-_WORKER: dict = {}
-
-
-def _slot_views(buf, specs: dict) -> dict:
-    """Numpy views of one frame's gt arrays laid out back to back in ``buf``."""
-    out, off = {}, 0
-    for name, spec in specs.items():
-        shape, dt = tuple(spec["per_frame_shape"]), np.dtype(spec["dtype"])
-        n = int(np.prod(shape, dtype=np.int64)) * dt.itemsize
-        out[name] = np.ndarray(shape, dtype=dt, buffer=buf, offset=off)
-        off += (n + 63) // 64 * 64
-    return out
-
-
-def _slot_bytes(specs: dict) -> int:
-    return sum((int(np.prod(s["per_frame_shape"], dtype=np.int64)) * np.dtype(s["dtype"]).itemsize + 63) // 64 * 64
-               for s in specs.values())
-
-
-def _worker_init(mesh, cfg, traj, human, shm_name, n_slots, cycles=None) -> None:
-    from multiprocessing import shared_memory
-
-    specs = gt_array_specs(cfg.grid, cfg.max_bounces)
-    shm = shared_memory.SharedMemory(name=shm_name)
-    size = _slot_bytes(specs)
-    _WORKER.update(tracer=FrameTracer(mesh, cfg, traj, human, cycles), shm=shm,
-                   slots=[_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)])
-
-
-def _worker_frame(f: int, slot: int) -> int:
-    """Trace frame ``f`` into shared-memory slot ``slot`` (results do not travel through pipes)."""
-    out = _WORKER["tracer"](f)
-    for name, view in _WORKER["slots"][slot].items():
-        view[...] = out[name]
-    return slot
-
-
-def trace_shard(tracer: FrameTracer, frames, names=GT_ARRAYS) -> dict:
-    """All gt arrays of ``frames`` (one shard): {name: (n_frames,) + per-frame shape} — the unit of
-    work for distributed runs (a task traces one shard, then ``write_shard`` writes it idempotently)."""
-    specs = gt_array_specs(tracer.cfg.grid, tracer.cfg.max_bounces)
-    out = {n: np.empty((len(frames),) + tuple(specs[n]["per_frame_shape"]), dtype=specs[n]["dtype"]) for n in names}
-    for i, f in enumerate(frames):
-        res = tracer(f)
-        for n in names:
-            out[n][i] = res[n]
-    return out
 
 
 POOL_MIN_FRAMES = 1000
@@ -448,32 +157,6 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             "first_frame_s": round(clock["first"] - t0, 3) if "first" in clock else None}
 
 
-def _bounded_imap(pool, frames: list, slots: list):
-    """Ordered per-frame results (views into shared-memory ``slots``, valid until the next item)
-    with at most ``len(slots)`` frames in flight; ``pool`` a ``ProcessPoolExecutor`` whose workers ran
-    :func:`_worker_init`."""
-    from collections import deque
-
-    pending: deque = deque()
-    free = list(range(len(slots)))
-    it = iter(frames)
-
-    def submit():
-        f = next(it, None)
-        if f is not None:
-            slot = free.pop()
-            pending.append(pool.submit(_worker_frame, f, slot))
-        return f is not None
-
-    while free and submit():
-        pass
-    while pending:
-        slot = pending.popleft().result()
-        yield slots[slot]
-        free.append(slot)
-        submit()
-
-
 def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dict | None = None) -> None:
     results = iter(results)
     for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet, unit="shards"):
@@ -487,16 +170,6 @@ def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dic
                 bufs[name][i] = out[name]
         for name in todo:
             arrays[name].write_shard(k, bufs[name])
-
-
-def _make_scene(vertices, faces, face_class, class_names, cfg: GTConfig):
-    from .raytrace import RayScene
-
-    try:
-        return RayScene(vertices, faces, backend=cfg.backend, face_class=face_class, class_names=class_names,
-                        nthreads=cfg.nthreads)
-    except ValueError as err:
-        raise InputError(f"scene mesh: {err}") from err
 
 
 def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *,
@@ -696,7 +369,7 @@ def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quie
     return {"workers": n_workers(client), "ray_threads": threads, "tasks": tasks}
 
 
-__all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "points_to_mesh", "trace_frame",
-           "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "raytrace_standalone", "raytrace_dataset",
-           "HumanSource", "HumanDir", "HumanFile",
-           "HumanDataset", "GT_ARRAYS"]
+__all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "column_rays_soa", "points_to_mesh", "trace_frame",
+           "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "gt_attrs", "raytrace_standalone",
+           "raytrace_dataset", "HumanSource", "HumanDir", "HumanFile", "HumanDataset", "GT_ARRAYS", "TracingError",
+           "MESH_EXTS", "HUMAN_SPLAT_RADIUS_M", "file_sha256", "mesh_sha256", "auto_processes", "POOL_MIN_FRAMES"]

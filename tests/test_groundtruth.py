@@ -170,7 +170,7 @@ def test_standalone_end_to_end_matches_direct_trace_and_resumes(inputs):
 
 @needs_dataset
 def test_interrupted_run_resumes_only_missing_shards(inputs, monkeypatch):
-    import holodata.groundtruth as gtm
+    import holodata.raytrace.frames as gtm  # FrameTracer calls trace_frame from there
 
     out = str(inputs / "out.zarr")
     cfg = GTConfig(grid=Grid(4, 16), shard_frames=3)
