@@ -39,7 +39,7 @@ class Plan:
     range_bins: RangeBins | None = None
     tf: object = None
     probe: dict = field(default_factory=dict)
-    sha256: list = field(default_factory=list)
+    digests: list = field(default_factory=list)    # SOURCE_HASH of each file
     sha_future: object = None
     index_seconds: float = 0.0
     tolerance_ns: dict = field(default_factory=dict)
@@ -80,10 +80,27 @@ def _scene_id(path: Path) -> str:
     return sid
 
 
+SOURCE_HASH = "blake3"   # the digest ingest writes into a scene's source attrs (source.blake3)
+
+
 def file_sha256(paths: list[Path]) -> list[str]:
+    """sha256 (hex) of each file: the source digest of scenes ingested before BLAKE3 (source.sha256),
+    still computed to compare a recording with such a scene."""
+    return file_digests(paths, "sha256")
+
+
+def file_digests(paths: list[Path], algo: str = SOURCE_HASH) -> list[str]:
+    """Hex digest of each file, read in 4 MB blocks: ``blake3`` (the BLAKE3 reference hash,
+    multi-threaded within each block; less CPU than sha256 even with SHA-NI, measured in
+    benchmarks/results/ingest.md) or ``sha256``."""
     out = []
     for p in paths:
-        h = hashlib.sha256()
+        if algo == "blake3":
+            import blake3
+
+            h = blake3.blake3(max_threads=blake3.blake3.AUTO)
+        else:
+            h = hashlib.new(algo)
         with open(p, "rb") as f:
             for block in iter(lambda: f.read(4 << 20), b""):
                 h.update(block)
@@ -138,7 +155,7 @@ def plan_recording(path, topics: dict | None = None, scene_id: str | None = None
     _limit_malloc_arenas()
     rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
     pool = ThreadPoolExecutor(1)   # checksums overlap the index pass (hashlib releases the GIL)
-    sha = pool.submit(file_sha256, rec.files)
+    sha = pool.submit(file_digests, rec.files)
     pool.shutdown(wait=False)
     try:
         plan = _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform)
@@ -260,6 +277,11 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
 
     counts = {r: len(v) + len(failed[r]) for r, v in stamps.items()}
     dropped: dict[str, dict] = {r: {} for r in streams}
+    warnings += [p for p in rec.problems if p not in warnings]      # met during the index pass
+    lost = rec.dropped_by_container()       # messages in damaged container blocks (MCAP chunk CRC)
+    for role, st in streams.items():
+        if n := sum(lost.get(t, 0) for t in st.topics):
+            dropped[role]["damaged_chunk"] = n
     for role, f in failed.items():
         if f:
             dropped[role]["undecodable"] = len(f)

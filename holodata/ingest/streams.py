@@ -60,8 +60,9 @@ class _Stream:
             err.item = i
             raise
         except Exception as err:  # noqa: BLE001 - damaged bytes deserialise into garbage of any shape
-            bad = DecodeError(f"topic {self.topic}: message at {raw.log_ns} ns does not decode "
-                              f"({err.__class__.__name__}: {' '.join(str(err).split())[:100]}; damaged message?)")
+            # the Python exception (kept as the cause, for --debug) says nothing to the user
+            bad = DecodeError(f"topic {self.topic}: {raw.msgtype.rsplit('/', 1)[-1]} message at {raw.log_ns} ns "
+                              f"does not decode: its fields do not form a valid message (damaged bytes?)")
             bad.item = i
             raise bad from err
         return [Item(i, st, payload if decode else None)]

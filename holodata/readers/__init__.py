@@ -230,8 +230,8 @@ def open_recording(path, msg_dir=None, meta=None, reader: str | None = None, bea
     except HolodataError:
         raise
     except Exception as err:  # noqa: BLE001 - library errors become one line naming the file
-        msg = " ".join(str(err).split()) or err.__class__.__name__
-        raise RecordingError(f"{p}: cannot read as {name} ({err.__class__.__name__}: {msg[:200]})") from err
+        msg = " ".join(str(err).split()) or "unreadable"     # the exception class stays in the cause (--debug)
+        raise RecordingError(f"{p}: cannot read as {name} ({msg[:200]})") from err
 
 
 __all__ = ["open_recording", "guess_reader", "synth_output_folder", "synth_output_recording", "SYNTH_RECORDINGS",

@@ -107,6 +107,11 @@ class Recording:
         """``raw`` with its whole payload (itself unless it came header-only from :meth:`raw_heads`)."""
         return raw
 
+    def dropped_by_container(self) -> dict[str, int]:
+        """{topic: messages} the reader left out because the container's own checks failed (an MCAP
+        chunk's CRC); counted by ingest in the scene's ``ingest.dropped``."""
+        return {}
+
     def mark_truncated(self, problem: str) -> None:
         """The recording breaks off here: ``truncated`` set, ``problem`` (one line) noted once."""
         self.truncated = True
@@ -301,8 +306,9 @@ class MessageDecoder:
             if raw.encoding == "cdr":
                 return self.store.deserialize_cdr(raw.data, raw.msgtype)
         except Exception as err:  # noqa: BLE001 - rosbags raises SerdeError, struct/index/value errors
-            raise DecodeError(f"topic {raw.topic}: {raw.msgtype} message of {len(raw.data)} bytes does not "
-                              f"decode ({err.__class__.__name__}: {' '.join(str(err).split())[:100]})") from err
+            why = " ".join(str(err).split())[:100]     # the exception class stays in the cause (--debug)
+            raise DecodeError(f"topic {raw.topic}: {raw.msgtype} message at {raw.log_ns} ns ({len(raw.data)} bytes) "
+                              f"does not decode (damaged bytes?{': ' + why if why else ''})") from err
 
     # header fields straight from the bytes (no full decode): ROS 1 = seq u32, sec u32, nsec u32,
     # frame_id (u32 length + chars); CDR = 4-byte encapsulation, sec i32, nanosec u32, frame_id

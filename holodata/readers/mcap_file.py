@@ -69,8 +69,11 @@ class McapMessageTable:
 
     HEAD = 256   # bytes read for a header-only message: CDR/ROS 1 header with a frame id < ~230 chars
 
-    def __init__(self, path: Path, log_ns, offsets, channels, topics: dict[int, str]):
+    def __init__(self, path: Path, log_ns, offsets, channels, topics: dict[int, str], chunk_of=None, chunks=()):
         self.path, self.log_ns, self.offsets, self.channels, self.topics = path, log_ns, offsets, channels, topics
+        self.chunk_of = chunk_of            # per message: index into ``chunks``
+        self.chunks = list(chunks)          # (chunk record offset, records offset, records length)
+        self._chunk_bad: dict[int, str | None] = {}
 
     @classmethod
     def build(cls, path: Path, counts: dict[str, int] | None = None) -> "McapMessageTable | None":
@@ -83,9 +86,10 @@ class McapMessageTable:
                 s = _summary(f)
                 if s is None or not s.chunk_indexes or any(ci.compression for ci in s.chunk_indexes):
                     return None
-                logs, offs, chans = [], [], []
-                for ci in s.chunk_indexes:
+                logs, offs, chans, cks, chunks = [], [], [], [], []
+                for c_i, ci in enumerate(s.chunk_indexes):
                     base = ci.chunk_start_offset + 9 + 40 + len(ci.compression)   # chunk records start
+                    chunks.append((ci.chunk_start_offset, base, ci.uncompressed_size))
                     # the chunk's MessageIndex records (opcode 0x07, u64 length, u16 channel, u32 bytes,
                     # (u64 log time, u64 offset) pairs) follow it in one block of message_index_length
                     start = ci.chunk_start_offset + ci.chunk_length
@@ -100,6 +104,7 @@ class McapMessageTable:
                         logs.append(pairs[:, 0])
                         offs.append(pairs[:, 1] + base)
                         chans.append(np.full(len(pairs), ch_id, np.int64))
+                        cks.append(np.full(len(pairs), c_i, np.int64))
             topics = {i: c.topic for i, c in s.channels.items()}
         except Exception:  # noqa: BLE001 - anything odd: read the file the usual way
             return None
@@ -107,7 +112,7 @@ class McapMessageTable:
             return None
         log_ns, offsets, channels = np.concatenate(logs), np.concatenate(offs), np.concatenate(chans)
         order = np.lexsort((offsets, log_ns))
-        table = cls(path, log_ns[order], offsets[order], channels[order], topics)
+        table = cls(path, log_ns[order], offsets[order], channels[order], topics, np.concatenate(cks)[order], chunks)
         if counts is not None:
             have: dict[str, int] = {}
             for ch, n in zip(*np.unique(channels, return_counts=True)):
@@ -118,8 +123,9 @@ class McapMessageTable:
 
     def messages(self, topics: Iterable[str], heads: set[str] | frozenset = frozenset()):
         """(topic, log_ns, payload, ref) of ``topics`` in log-time order; for a topic in ``heads``
-        the payload is its first :attr:`HEAD` bytes and ``ref`` = (offset, size) to read the rest
-        with :meth:`payload` (else ref is None). Raises ValueError where a record is not the
+        the payload is its first :attr:`HEAD` bytes and ``ref`` = (offset, size, chunk) to read the
+        rest with :meth:`payload` (else ref is None). A message read whole whose chunk fails its CRC
+        comes header-only too, so that :meth:`payload` refuses it when it is decoded. Raises ValueError where a record is not the
         message its index says."""
         import os
         import struct
@@ -130,7 +136,8 @@ class McapMessageTable:
         sel = np.isin(self.channels, list(want))
         fd = os.open(self.path, os.O_RDONLY)
         try:
-            for log, off, ch in zip(self.log_ns[sel].tolist(), self.offsets[sel].tolist(), self.channels[sel].tolist()):
+            for log, off, ch, ck in zip(self.log_ns[sel].tolist(), self.offsets[sel].tolist(),
+                                        self.channels[sel].tolist(), self.chunk_of[sel].tolist()):
                 topic = self.topics[ch]
                 head = topic in heads
                 b = os.pread(fd, 31 + (self.HEAD if head else 0), off)
@@ -140,8 +147,11 @@ class McapMessageTable:
                 if op != 0x05 or cid != ch or t != log or length < 22:
                     raise ValueError(f"record at byte {off} is not the indexed message (opcode {op:#x})")
                 size = length - 22
+                if not head and self._damaged(fd, ck):      # its payload is refused when it is asked for
+                    yield topic, log, os.pread(fd, min(size, self.HEAD), off + 31), (off + 31, size, ck)
+                    continue
                 if head and size > self.HEAD:
-                    yield topic, log, b[31:], (off + 31, size)
+                    yield topic, log, b[31:], (off + 31, size, ck)
                     continue
                 data = b[31:31 + size] if head else os.pread(fd, size, off + 31)
                 if len(data) != size:
@@ -150,12 +160,38 @@ class McapMessageTable:
         finally:
             os.close(fd)
 
+    def _damaged(self, fd: int, ck: int) -> str | None:
+        """Why chunk ``ck`` is damaged (its records' CRC-32 differs from the one the chunk carries),
+        else None; checked once per chunk. A chunk written without a CRC (0: rosbags' writer) passes."""
+        if ck not in self._chunk_bad:
+            import os
+            import struct
+            import zlib
+
+            start, base, n = self.chunks[ck]
+            head = os.pread(fd, 37, start)
+            crc = struct.unpack_from("<I", head, 33)[0] if len(head) == 37 else 0
+            why = None
+            if crc:
+                got = zlib.crc32(os.pread(fd, n, base))
+                if got != crc:
+                    why = f"{self.path}: chunk at byte {start} fails its CRC check (damaged bytes)"
+            self._chunk_bad[ck] = why
+        return self._chunk_bad[ck]
+
     def payload(self, ref) -> bytes:
+        """The whole payload of a message :meth:`messages` gave header-only; DecodeError when its
+        chunk fails its CRC check."""
         import os
 
-        off, size = ref
+        from .base import DecodeError
+
+        off, size, ck = ref
         fd = os.open(self.path, os.O_RDONLY)
         try:
+            why = self._damaged(fd, ck)
+            if why:
+                raise DecodeError(f"{why}; message at byte {off} dropped")
             data = os.pread(fd, size, off)
         finally:
             os.close(fd)
@@ -193,6 +229,7 @@ class McapRecording(Recording):
         self.channels: dict[tuple[int, int], tuple[str, str, str]] = {}   # (file, channel id) -> topic, type, encoding
         self.summaries = []
         self._cut: dict[Path, str] = {}
+        self.bad_chunks: dict[tuple[Path, int], dict[int, int]] = {}   # (file, byte) -> {channel id: messages}
         self.profile = ""
         defs: list[tuple[str, str | None, str]] = []
         counts: dict[str, int] = {}
@@ -300,7 +337,7 @@ class McapRecording(Recording):
         import struct as st
 
         from mcap.records import Chunk, Footer
-        from mcap.stream_reader import StreamReader, breakup_chunk
+        from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
         size = f.stat().st_size
         with open(f, "rb") as fh:
@@ -330,7 +367,9 @@ class McapRecording(Recording):
                     break
                 if isinstance(rec, Chunk):
                     try:
-                        yield from breakup_chunk(rec)
+                        yield from breakup_chunk(rec, validate_crc=True)
+                    except CRCValidationError:    # damaged bytes inside: its messages are dropped, counted
+                        self._skip_chunk(f, pos, rec)
                     except Exception as err:  # noqa: BLE001 - corrupt chunk: keep its readable records
                         yield from _salvage_chunk(body)
                         reason = f"damaged chunk at byte {pos} ({_one_line(err)[:80]})"
@@ -340,6 +379,38 @@ class McapRecording(Recording):
                 else:
                     yield rec
         self._cut[f] = reason
+
+    def _skip_chunk(self, f: Path, pos: int, chunk) -> None:
+        """A chunk whose records fail its CRC: its messages are left out (every pass the same way),
+        counted by channel in :attr:`bad_chunks` and noted in one problem line per file."""
+        from collections import Counter
+
+        from mcap.records import Message
+        from mcap.stream_reader import breakup_chunk
+
+        if (f, pos) in self.bad_chunks:
+            return
+        try:
+            recs = breakup_chunk(chunk)
+        except Exception:  # noqa: BLE001 - framing damaged too: the messages cannot even be counted
+            recs = []
+        self.bad_chunks[(f, pos)] = Counter(r.channel_id for r in recs if isinstance(r, Message))
+        mine = [c for (g, _), c in self.bad_chunks.items() if g == f]
+        line = (f"{f}: {len(mine)} chunk(s) fail their CRC check (damaged bytes; first at byte "
+                f"{min(p for g, p in self.bad_chunks if g == f)}): their {sum(sum(c.values()) for c in mine)} "
+                f"messages dropped")
+        self.problems = [p for p in self.problems if not p.startswith(f"{f}: ") or "fail their CRC" not in p] + [line]
+
+    def dropped_by_container(self) -> dict[str, int]:
+        """{topic: messages} left out because their chunk failed its CRC check."""
+        out: dict[str, int] = {}
+        for (f, _), counts in self.bad_chunks.items():
+            i = self.files.index(f)
+            for cid, n in counts.items():
+                if (i, cid) in self.channels:
+                    t = self.channels[(i, cid)][0]
+                    out[t] = out.get(t, 0) + n
+        return out
 
     def _topics(self) -> list[TopicInfo]:
         return [TopicInfo(**vars(t)) for t in self._infos]
@@ -355,7 +426,7 @@ class McapRecording(Recording):
                     continue
                 with open(f, "rb") as fh:
                     try:
-                        for _, ch, msg in SeekingReader(fh).iter_messages(topics=names):
+                        for _, ch, msg in SeekingReader(fh, validate_crcs=True).iter_messages(topics=names):
                             topic, ty, enc = self.channels[(i, ch.id)]
                             yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
                     except Exception as err:  # noqa: BLE001

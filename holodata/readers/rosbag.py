@@ -224,6 +224,9 @@ class Ros1ScanRecording(Recording):
                             data = _partial_decompress(comp, data)
                         else:
                             data = decompressors[comp](data)
+                            if "size" in header and len(data) != header.get_uint32("size"):
+                                raise ReaderError(f"chunk holds {len(data)} bytes, its header says "
+                                                  f"{header.get_uint32('size')}")
                         inner = BytesIO(data)
                         n_inner = len(data)
                         try:
