@@ -86,7 +86,10 @@ def test_radar_lidar_camera_tf_recording(tmp_path, fmt):
     np.testing.assert_allclose(ext["radar"], truth["T_base_radar"], atol=1e-12)
     np.testing.assert_allclose(ext["camera"], truth["T_base_cam"], atol=1e-9)
     src = sc.attrs["source"]
-    assert src["truncated"] is False and len(src["sha256"][0]) == 64
+    import blake3
+
+    assert src["truncated"] is False and "sha256" not in src
+    assert src["blake3"] == [blake3.blake3(open(f, "rb").read()).hexdigest() for f in src["files"]]
     sens = sc.attrs["sensors"]
     assert sens["camera"]["intrinsics"]["K"] == K.tolist() and sens["lidar"]["time_field"] == "t"
     ing = sc.attrs["ingest"]
@@ -424,3 +427,27 @@ def test_a_failing_writer_thread_is_a_one_line_error_not_a_hang(tmp_path, monkey
     msg = str(e.value)
     assert "\n" not in msg and "No space left on device" in msg and str(rec) in msg, msg
     assert not validate_dataset(tmp_path / "ds.zarr")["ok"]
+
+
+def test_scenes_with_a_sha256_source_digest_still_compare(tmp_path):
+    """Datasets ingested before BLAKE3 carry source.sha256: re-ingesting the same recording into them
+    is still 'already ingested', and another recording under the scene's name is still refused."""
+    import hashlib
+
+    from holodata.dataset import open_dataset as od
+    from holodata.errors import HolodataError
+
+    rec, other = tmp_path / "rec", tmp_path / "other" / "rec"
+    write_recording(rec, "mcap", n_radar=3)
+    write_recording(other, "mcap", n_radar=4)
+    url = tmp_path / "ds.zarr"
+    ingest([rec], url, quiet=True)
+    sc = od(url, "r+").scene("rec")
+    src = dict(sc.attrs["source"])
+    del src["blake3"]
+    src["sha256"] = [hashlib.sha256(open(f, "rb").read()).hexdigest() for f in src["files"]]
+    sc.set_attrs({"source": src})
+    assert "blake3" not in od(url).scene("rec").attrs["source"]
+    assert ingest([rec], url, quiet=True)["scenes"][0]["skipped"] == "already ingested"
+    with pytest.raises(HolodataError, match="was ingested from another recording"):
+        ingest([other], url, quiet=True)

@@ -32,8 +32,8 @@ ragged (per-point time relative to the scan stamp, when the cloud has a time fie
 ``camera/timestamp_ns``; ``pose/T_world_radar`` when TF connects the radar frame to the world frame
 at every frame time; ``tf/T_world_lidar`` when TF connects the LiDAR frame to a world frame (NaN
 where TF does not cover a frame's scan: slam anchors its map to it). Scene attributes: ``frame_sensor``, ``source`` {recording,
-files, bytes,
-sha256 (written with ``ingest.complete``), reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF),
+files, bytes, blake3 (BLAKE3 of each file, written with ``ingest.complete``; scenes ingested
+before it carry sha256 instead), reader, truncated, problems}, ``extrinsics`` (T_base_sensor from static TF),
 ``sensors`` (topics,
 frames, intrinsics, Ouster metadata), ``ingest`` (mapping, tolerance, counts, drops, warnings).
 
@@ -146,7 +146,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
                 kw = {"shard_frames": shard_frames} if shard_frames else {}
                 ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
                                     provenance={"tool": "holodata ingest", "version": version}, **kw)
-            scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))   # sha256: waited for at its end
+            scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))   # source digest: waited for at its end
         except (HolodataError, OSError) as err:
             failed.append({"recording": str(r), "error": _error_line(r, out, err)})
         finally:

@@ -14,7 +14,7 @@ from ..readers.base import DecodeError
 from .roles import BULK_CODEC, SHARD_TARGET_BYTES, _one_line
 from .streams import (CameraCloudStream, CloudStream, DepthStream, OusterPacketStream, OusterScanStream, StereoStream,
                       radar_beam_origin)
-from .plan import Plan, _head_topics, _limit_malloc_arenas, file_sha256
+from .plan import SOURCE_HASH, Plan, _head_topics, _limit_malloc_arenas, file_digests, file_sha256
 
 
 class _Background:
@@ -147,12 +147,21 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     rec, T = plan.rec, len(plan.frame_stamps)
     fs = plan.frame_sensor
 
-    def sha256() -> list[str]:
-        """The recording files' sha256, hashed on a thread since plan_recording: waited for only
-        when a resumed scene must be compared, else at the end (overlapping the write pass)."""
-        if not plan.sha256:
-            plan.sha256 = plan.sha_future.result() if plan.sha_future is not None else file_sha256(rec.files)
-        return plan.sha256
+    def digests() -> list[str]:
+        """The recording files' BLAKE3 digests, hashed on a thread since plan_recording: waited for
+        only when a resumed scene must be compared, else at the end (overlapping the write pass)."""
+        if not plan.digests:
+            plan.digests = plan.sha_future.result() if plan.sha_future is not None else file_digests(rec.files)
+        return plan.digests
+
+    def same_source(src: dict) -> bool | None:
+        """Whether the scene's recorded digest (BLAKE3, or sha256 for scenes ingested before) is this
+        recording's; None when it has none (an interrupted run: ``bytes`` decides)."""
+        if src.get(SOURCE_HASH):
+            return src[SOURCE_HASH] == digests()
+        if src.get("sha256"):
+            return src["sha256"] == file_sha256(rec.files)
+        return None
 
     sizes = []
     for f in rec.files:
@@ -160,7 +169,7 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             sizes.append(Path(f).stat().st_size)
         except OSError:
             sizes.append(None)
-    # sha256 goes in with the final attributes (ingest.complete); "bytes" tells an interrupted run's
+    # the digest goes in with the final attributes (ingest.complete); "bytes" tells an interrupted run's
     # scene from another recording's before then
     source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "bytes": sizes,
               "reader": rec.kind, "truncated": bool(rec.truncated), **(getattr(rec, "attrs", None) or {}),
@@ -174,8 +183,8 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     if plan.scene_id in existing:
         cur = ds.scene(plan.scene_id).attrs
         src = cur.get("source") if isinstance(cur.get("source"), dict) else {}
-        have = src.get("sha256")
-        if (have and have != sha256()) or (not have and src.get("bytes") not in (None, sizes)):
+        same = same_source(src)
+        if same is False or (same is None and src.get("bytes") not in (None, sizes)):
             raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was ingested from another recording "
                                f"({(cur.get('source') or {}).get('recording')}); choose another --scene-id")
         prev = (cur.get("ingest") or {}).get("fingerprint")
@@ -371,7 +380,7 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         sync[role] = {"matched_frames": int(ok.sum()), "tolerance_ns": int(plan.tolerance_ns.get(role, 0)),
                       "offset_ns_median": int(np.median(off)) if len(off) else None,
                       "offset_ns_max_abs": int(np.abs(off).max()) if len(off) else None}
-    sc.set_attrs({"source": {**source, "sha256": sha256()},
+    sc.set_attrs({"source": {**source, SOURCE_HASH: digests()},
                   "ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
                              "time_source": plan.tmap.time,
                              "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped, "sync": sync,
