@@ -18,13 +18,16 @@ from holodata.cli.options import dask_options
               help="Window over the chirps and the samples (default: as ingested).")
 @click.option("--static-removal", type=click.Choice(["trajectory", "rotation", "none"]), default=None,
               help="Static reflection removed before imaging (default: as ingested).")
+@click.option("--focus", type=click.Choice(["far", "near"]), default=None,
+              help="far: PanoRadar's far-field azimuth compensation; near: focus on every range bin with the exact "
+                   "antenna distances (default: as ingested).")
 @click.option("--motion", type=click.Choice(["recorded", "slam", "none"]), default="recorded", show_default=True,
               help="Platform motion per rotation: what ingest imaged with, from slam's pose/T_world_radar, or at rest.")
 @click.option("--device", default="cpu", show_default=True, help="cpu (numpy/numba) or a torch device such as cuda.")
 @dask_options("one task per shard", "the dataset must be reachable from the workers (shared folder or s3://).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def beamform(dataset, scenes, fov, n_syn, window, static_removal, motion, device, workers, scheduler, quiet, as_json):
+def beamform(dataset, scenes, fov, n_syn, window, static_removal, focus, motion, device, workers, scheduler, quiet, as_json):
     """Re-image the raw radar samples a scene was ingested with (`holodata ingest --keep-iq`) into
     radar/heatmap, on the dataset's grid, with other imaging parameters or the motion slam measured.
     Every parameter goes into the scene attrs (source.beamform). Rerun to resume.
@@ -34,6 +37,7 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, motion, device
       holodata ingest panoradar_walk --out raw.zarr --keep-iq
       holodata slam raw.zarr && holodata beamform raw.zarr --motion slam
       holodata beamform raw.zarr --fov 60 --window hamming
+      holodata beamform raw.zarr --focus near
     """
     from holodata.dataset import open_dataset
     from holodata.distributed import cluster
@@ -47,7 +51,7 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, motion, device
     with cluster(workers, scheduler) as client:
         for sid in todo:
             out.append(_one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, client,
-                            quiet or as_json))
+                            quiet or as_json, focus))
             if not as_json:
                 r = out[-1]
                 click.echo(f"{sid}: {r['skipped']}" if r.get("skipped") else
@@ -57,7 +61,7 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, motion, device
         click.echo(json.dumps({"dataset": dataset, "scenes": out}, indent=2))
 
 
-def _one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, client, quiet) -> dict:
+def _one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, client, quiet, focus=None) -> dict:
     """Imaging parameters of scene ``sid``: as ingested, with the flags given; then beamform it."""
     from holodata.beamforming import beamform_scene
     from holodata.errors import DatasetError
@@ -75,6 +79,8 @@ def _one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, c
         kw.update(chirp_window=window, sample_window=window)
     if static_removal is not None:
         kw["static_removal"] = static_removal
+    if focus is not None:
+        kw["focus"] = focus
     try:
         params = BeamformParams(**kw)
     except ValueError as err:

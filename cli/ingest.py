@@ -29,6 +29,9 @@ from holodata.cli.options import dask_options
                    "azimuth (default 64x512, elevation +45..-45 deg).")
 @click.option("--beamform-fov", type=click.FloatRange(1.0, 360.0), default=None,
               help="Raw radar samples: azimuth field of view of one beam's synthetic aperture, degrees (default 90).")
+@click.option("--beamform-focus", type=click.Choice(["far", "near"]), default=None,
+              help="Raw radar samples: far = PanoRadar's far-field azimuth compensation (default); near = focus "
+                   "on every range bin with the exact antenna distances (sharper below ~3 m).")
 @click.option("--keep-iq", is_flag=True,
               help="Raw radar samples: also store them (radar/iq, ~21 MB per full-size rotation) so that "
                    "`holodata beamform` can re-image them with other parameters.")
@@ -36,7 +39,7 @@ from holodata.cli.options import dask_options
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, beamform_grid,
-           beamform_fov, keep_iq, workers, scheduler, quiet, as_json):
+           beamform_fov, beamform_focus, keep_iq, workers, scheduler, quiet, as_json):
     """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster
     .pcap (+ .json), .h5 (holodata layout), PanoRadar rf_npy/lidar_npy folder or raw trajectory
     (radar_data.npy + data_params.npz: beamformed here, parameters in the scene attrs) — and write one
@@ -61,7 +64,7 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     from holodata.dataset.info import plural
     from holodata.ingest import format_listing, ingest as run_ingest, list_recording
 
-    beamform = _beamform_params(beamform_grid, beamform_fov)
+    beamform = _beamform_params(beamform_grid, beamform_fov, beamform_focus)
     bf_kw = {"beamform": beamform} if beamform is not None else {}
     if list_only:
         infos, errors = [], []
@@ -112,9 +115,9 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
 COMMANDS = [ingest]
 
 
-def _beamform_params(grid: str | None, fov: float | None):
+def _beamform_params(grid: str | None, fov: float | None, focus: str | None = None):
     """BeamformParams from the --beamform-* flags (None when none was given: the reader's default)."""
-    if grid is None and fov is None:
+    if grid is None and fov is None and focus is None:
         return None
     from holodata.conventions import Grid
     from holodata.radar.beamform import BeamformParams
@@ -128,6 +131,8 @@ def _beamform_params(grid: str | None, fov: float | None):
         kw.update(n_elevation=g.H, n_azimuth=g.W)
     if fov is not None:
         kw["azimuth_fov_deg"] = fov
+    if focus is not None:
+        kw["focus"] = focus
     try:
         return BeamformParams(**kw)
     except ValueError as err:

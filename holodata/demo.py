@@ -43,7 +43,9 @@ class DemoConfig:
     ``stage2``: the learned stage two's settings (holodata.torch.stage2_train.Stage2Config fields;
     None: the demo stops at stage one and evaluate un-mirrors analytically); ``radar_output``:
     "heatmap" records the direct heatmaps; "iq" every rotation's raw samples (``radar_chirps`` chirp
-    positions, default 1024) which ingest beamforms onto ``grid``, as a real rig's data goes."""
+    positions, default 1024) which ingest beamforms onto ``grid``, as a real rig's data goes;
+    ``beamform_focus``: the beamformer's focus for ``"iq"`` ("near": every range bin focused with the
+    exact antenna distances; "far": PanoRadar's far-field compensation; docs/design/radar.md)."""
 
     corners: tuple[tuple[str, int], ...]
     n_test: int
@@ -65,6 +67,7 @@ class DemoConfig:
     stage2: dict | None = None
     radar_output: str = "heatmap"
     radar_chirps: int | None = None
+    beamform_focus: str = "near"
 
     def beamform(self):
         """The ingest beamformer's parameters for ``radar_output="iq"`` (None otherwise): the grid's rows,
@@ -75,7 +78,7 @@ class DemoConfig:
 
         g = self.grid
         return BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,
-                              elevation_min_deg=g.elev_min_deg, n_range=self.range_bins.n)
+                              elevation_min_deg=g.elev_min_deg, n_range=self.range_bins.n, focus=self.beamform_focus)
 
 
 def demo_config(quick: bool) -> DemoConfig:

@@ -97,3 +97,74 @@ def columns_direct(mag_all_beams: np.ndarray, params) -> np.ndarray:
                 tot += w
         out[:, :, j] /= tot
     return out
+
+
+def beamform_direct_near(rotation, chirp, params, *, before=None, after=None, velocity=None, chirp_period_s=None,
+                         static_refl=None, beams=None, elevation_rows=None) -> np.ndarray:
+    """The near-field variant (``focus="near"``, :mod:`holodata.radar.beamform_near`) as direct sums:
+    per beam, row and chirp of its window, vertical beamforming, the shift ``exp(j4π r cos θ/λ_i)``, the
+    sample window and the half-bin factor, the range FFT, then per range bin the sum
+    over chirps with ``exp(−j4π (d_m(R_k) + r cos θ − R_k) f̄/c)`` (exact distance ``d_m`` from chirp m's
+    antenna to the bin centre ``R_k`` on the beam). Same shapes as :func:`beamform_direct`."""
+    x = np.asarray(rotation, np.complex128)
+    N, V, S = x.shape
+    R = params.n_range or S
+    n_syn = params.syn_count(N)
+    h = (n_syn - 1) // 2
+    f = chirp.start_frequency_hz + chirp.slope_hz_per_s * np.arange(S) / chirp.sample_rate_hz
+    c = 299_792_458.0
+    lam = c / f
+    fbar = f.mean()
+    if params.static_removal == "none":
+        refl = np.zeros((V, S))
+    elif params.static_removal == "trajectory" and static_refl is not None:
+        refl = np.asarray(static_refl, np.complex128)
+    else:
+        refl = x.mean(axis=0)
+
+    def chirp_at(n):
+        if before is None or after is None:
+            ch = x[n % N]
+        elif n < 0:
+            ch = np.asarray(before, np.complex128)[len(before) + n]
+        elif n >= N:
+            ch = np.asarray(after, np.complex128)[n - N]
+        else:
+            ch = x[n]
+        return ch - refl
+
+    moving = velocity is not None and math.hypot(*velocity[:2]) > 0
+    if moving:
+        T = chirp.chirp_period_s if chirp_period_s is None else chirp_period_s
+        ds0 = math.hypot(*velocity[:2]) * T
+        theta_v = math.atan2(velocity[1], velocity[0])
+    elev = params.elevations()
+    rows = range(elev.size) if elevation_rows is None else elevation_rows
+    beams = range(N) if beams is None else beams
+    wc = window(params.chirp_window, n_syn)
+    ws = window(params.sample_window, S)
+    r = chirp.rotation_radius_m
+    Rk = (np.arange(R) + 0.5) * chirp.range_resolution_m
+    out = np.zeros((R, len(rows), len(beams)))
+    for io, ih in enumerate(rows):
+        el = elev[ih]
+        d_v = chirp.antenna_spacing_m * np.sin(el) * (V - 1 - np.arange(V))
+        vbf = np.exp(-2j * np.pi * d_v[:, None] / lam[None, :])                 # (V, S)
+        shift = np.exp(4j * np.pi * r * np.cos(el) / lam) * ws * np.exp(-1j * np.pi * np.arange(S) / S)
+        for jo, b in enumerate(beams):
+            phi_b = -2 * np.pi * b / N
+            acc = np.zeros(R, np.complex128)
+            for k in range(n_syn):
+                m = k - h
+                X = np.mean(chirp_at(b + m) * vbf, axis=0)                        # vertical beamforming
+                Z = np.fft.fft(X * shift)[:R]                                      # range profile (R,)
+                hh = 2 * np.pi * m / N
+                d = np.sqrt(Rk ** 2 + r * r - 2 * Rk * r * np.cos(el) * np.cos(hh))
+                term = Z * wc[k] * np.exp(-4j * np.pi * (d + r * np.cos(el) - Rk) * fbar / c)
+                if moving:
+                    ds = ds0 * np.cos(phi_b - theta_v) * np.cos(el)
+                    steps = (b + m) if params.motion_reference == "rotation_start" else m
+                    term = term * np.exp(4j * np.pi * steps * ds * fbar / c)
+                acc += term
+            out[:, io, jo] = np.abs(acc)
+    return out

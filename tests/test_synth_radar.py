@@ -144,19 +144,21 @@ def _sidelobe_db(cut: np.ndarray, step_deg: float, width_deg: float, out_to_deg:
     return float(20 * np.log10(y[sel].max()))
 
 
-@pytest.mark.parametrize("range_m, row, col", [(3.0, 32, 40), (1.5, 20, 300), (6.0, 44, 128)])
+@pytest.mark.parametrize("range_m, row, col, focus", [(3.0, 32, 40, "far"), (1.5, 20, 300, "far"), (6.0, 44, 128, "far"),
+                                                      (0.8, 32, 40, "near"), (1.5, 20, 300, "near")])
 @pytest.mark.slow
-def test_direct_heatmaps_carry_the_beamformer_psf(range_m, row, col):
+def test_direct_heatmaps_carry_the_beamformer_psf(range_m, row, col, focus):
     """One path through synth's direct heatmap model and the same point scatterer through raw FMCW
-    samples and the beamformer (PanoRadar's rig, 64 x 512): the same bin, row and column, -3 dB widths
-    within 10 % in azimuth and elevation, azimuth sidelobes within 3 dB."""
+    samples and the beamformer (PanoRadar's rig, 64 x 512), with either focus: the same bin, row and
+    column, -3 dB widths within 10 % in azimuth and elevation, azimuth sidelobes within 3 dB."""
     import importlib
 
     from holodata.radar.simulate import simulate_rotation
 
     bf = importlib.import_module("holodata.radar.beamform")
     g = Grid(64, 512)
-    cfg = RadarConfig(grid=g, range_bins=RangeBins(256, 0.0375), noise_amplitude=0.0, leakage_amplitude=0.0)
+    cfg = RadarConfig(grid=g, range_bins=RangeBins(256, 0.0375), noise_amplitude=0.0, leakage_amplitude=0.0,
+                      beamform_focus=focus)
     model = RadarModel(cfg, MATERIALS, np.zeros(1, np.uint8), MATERIAL_ID["human"])
     d = g.directions()[row, col]
     paths = {"pix": np.array([row * g.W + col]), "bounce": np.array([1]), "range": np.array([range_m]),
@@ -165,7 +167,7 @@ def test_direct_heatmaps_carry_the_beamformer_psf(range_m, row, col):
     chirp, _ = cfg.imaging()
     rot, _, _ = simulate_rotation((range_m * d)[None], chirp=chirp)
     params = bf.BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,
-                               elevation_min_deg=g.elev_min_deg, static_removal="none")
+                               elevation_min_deg=g.elev_min_deg, static_removal="none", focus=focus)
     raw = bf.beamform(rot, chirp, params)
     pd, pr = np.unravel_index(np.argmax(direct), direct.shape), np.unravel_index(np.argmax(raw), raw.shape)
     for p in (pd, pr):   # the path's cell (the elevation lobe is 8 rows wide: its peak within a row)

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .chirp import ChirpConfig
+from .chirp import SPEED_OF_LIGHT, ChirpConfig
 
 if TYPE_CHECKING:
     from .beamform import BeamformParams, Motion
@@ -102,3 +102,55 @@ def motion_phase_rate(chirp, params, motion: Motion, cos_el: float, beams: np.nd
     phi = -2 * np.pi * beams / N
     ds = motion.ds0 * np.cos(phi - motion.theta_v) * cos_el
     return 4 * np.pi * ds[:, None] / chirp.wavelengths()[None, :]
+
+
+# -- near-field focusing (BeamformParams.focus == "near") -------------------------------------------------
+def centre_frequency(chirp: ChirpConfig) -> float:
+    """Hz: the mean sample frequency. After the range FFT (sample window symmetric, bin k evaluated at
+    k + 0.5) a return from path length 2d has phase ``4π d f̄ / c`` plus a term of the bin alone, so
+    range-domain compensations use this frequency (exactly, up to the window's range response)."""
+    return float(chirp.frequencies().mean())
+
+
+def range_centres(chirp: ChirpConfig, n_range: int) -> np.ndarray:
+    """(n_range,) float64 metres: range-bin centres ``(k + 0.5) Δr`` from the rotation centre."""
+    return (np.arange(n_range) + 0.5) * chirp.range_resolution_m
+
+
+def near_sample_weights(chirp: ChirpConfig, params: BeamformParams, elev: np.ndarray) -> np.ndarray:
+    """(H, S) complex128: per row, the sample-domain factors applied before the range FFT of the
+    near-field path: the range weights (:func:`range_weights`) × ``exp(j4π r cos θ / λ_i)`` — the
+    far-field compensation of the beam's own chirp (``m = 0``), which moves the return of a point at
+    range ``R`` from the centre to bin ``R`` (its antenna is ``r cos θ`` closer) before any range-
+    dependent term is applied."""
+    lam = chirp.wavelengths()
+    shift = np.exp(4j * np.pi * chirp.rotation_radius_m * np.cos(elev)[:, None] / lam[None, :])
+    return shift * range_weights(chirp, params)[None, :]
+
+
+def near_kernel(chirp: ChirpConfig, params: BeamformParams, cos_el: np.ndarray, n_chirps: int,
+                n_range: int) -> np.ndarray:
+    """(E, n_syn, n_range) complex128 for offsets ``m = −h..h`` and range bins ``k``:
+    ``w_c[m] · exp(−j4π (d_m(R_k, θ) + r cos θ − R_k) f̄ / c)`` with the exact distance from chirp
+    ``m``'s antenna to the focal point at the bin's centre ``R_k`` on the beam,
+    ``d_m = sqrt(R_k² + r² − 2 R_k r cos θ cos(2πm/N))`` (back-projection; the far-field kernel
+    :func:`azimuth_kernel` is its ``R → ∞`` limit up to a constant phase)."""
+    n_syn = params.syn_count(n_chirps)
+    h = (n_syn - 1) // 2
+    ang = 2 * np.pi * np.arange(-h, h + 1) / n_chirps
+    r = chirp.rotation_radius_m
+    R = range_centres(chirp, n_range)[None, None, :]
+    ce = np.asarray(cos_el, float)[:, None, None]
+    d = np.sqrt(R * R + r * r - 2 * R * r * ce * np.cos(ang)[None, :, None])
+    k = 4 * np.pi * centre_frequency(chirp) / SPEED_OF_LIGHT
+    return window(params.chirp_window, n_syn)[None, :, None] * np.exp(-1j * k * (d + r * ce - R))
+
+
+def near_motion_phase_rate(chirp, params, motion: Motion, cos_el: float, beams: np.ndarray, N: int,
+                           n_range: int) -> np.ndarray:
+    """(nb, n_range) float64: the motion phase per chirp of offset after the range FFT,
+    ``4π δs f̄ / c`` (:func:`motion_phase_rate` at the centre frequency)."""
+    phi = -2 * np.pi * beams / N
+    ds = motion.ds0 * np.cos(phi - motion.theta_v) * cos_el
+    g = 4 * np.pi * ds * centre_frequency(chirp) / SPEED_OF_LIGHT
+    return np.repeat(g[:, None], n_range, axis=1)

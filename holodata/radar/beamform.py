@@ -66,6 +66,7 @@ from .chirp import ChirpConfig
 STATIC_REMOVAL = ("trajectory", "rotation", "none")
 DECIMATION = ("pick", "triangle")
 MOTION_REFERENCES = ("beam", "rotation_start")
+FOCUS = ("far", "near")
 RANGE_ORIGIN = "rotation_centre"
 
 
@@ -76,6 +77,9 @@ class BeamformParams:
     ``n_syn``: chirps per beam (odd); ``None`` → PanoRadar's ``int(fov/360 · N)`` made odd, from
     ``azimuth_fov_deg`` and the rotation's chirp count ``N`` (257 for 1024 chirps and 90°).
     ``n_range``: range bins kept (the first ``n_range`` of the ``n_samples``-point FFT; ``None`` → all).
+    ``focus``: ``"far"`` — PanoRadar's far-field azimuth compensation (the default; what real
+    PanoRadar heatmaps are); ``"near"`` — back-projection with the exact distance from every chirp's
+    antenna to each range bin's centre (:mod:`holodata.radar.beamform_near`; docs/design/radar.md).
     """
 
     n_elevation: int = 64
@@ -90,6 +94,7 @@ class BeamformParams:
     static_removal: str = "trajectory"
     azimuth_decimation: str = "pick"
     motion_reference: str = "beam"
+    focus: str = "far"
 
     def __post_init__(self) -> None:
         if self.n_elevation < 2 or self.n_azimuth < 1:
@@ -102,7 +107,8 @@ class BeamformParams:
         if self.n_syn is not None and (self.n_syn < 1 or self.n_syn % 2 == 0):
             raise ValueError(f"n_syn must be a positive odd number, got {self.n_syn}")
         for name, ok in (("chirp_window", WINDOWS), ("sample_window", WINDOWS), ("static_removal", STATIC_REMOVAL),
-                         ("azimuth_decimation", DECIMATION), ("motion_reference", MOTION_REFERENCES)):
+                         ("azimuth_decimation", DECIMATION), ("motion_reference", MOTION_REFERENCES),
+                         ("focus", FOCUS)):
             if getattr(self, name) not in ok:
                 raise ValueError(f"{name} must be one of {', '.join(ok)}, got {getattr(self, name)!r}")
         if self.n_range is not None and self.n_range < 1:
@@ -143,7 +149,16 @@ def beamform_attrs(chirp: ChirpConfig, params: BeamformParams, n_chirps: int | N
             "range_bin_centre": "(k+0.5)*range_resolution_m (samples x exp(-j*pi*i/n_samples) before the FFT)",
             "amplitude": "linear |sum|: mean over antennas, sums over chirps and samples with the windows, unnormalised",
             "columns": "column j = beam round(j*N/W) (pick) or triangle mean of beams within N/W (triangle)",
+            "focus": FOCUS_DOC[params.focus],
             **extra}
+
+
+FOCUS_DOC = {
+    "far": "far-field azimuth compensation exp(j4pi r cos(h) cos(el)/lambda_i) per sample (PanoRadar)",
+    "near": "near field: rows shifted by exp(j4pi r cos(el)/lambda_i), range FFT per chirp, then per range bin k the "
+            "chirps summed with exp(-j4pi (d_m(R_k) + r cos(el) - R_k) f_mean/c), d_m the exact distance from chirp m's "
+            "antenna to the bin centre R_k=(k+0.5)*range_resolution_m on the beam (holodata.radar.beamform_near)",
+}
 
 
 def static_reflection(chirps: np.ndarray) -> np.ndarray:
@@ -233,6 +248,18 @@ def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: Bea
     if refl is not None:
         xp = xp - refl[None]
     motion = Motion.from_velocity(velocity, chirp_period_s or chirp.chirp_period_s)
+    if params.focus == "near":
+        if device != "cpu":
+            raise ValueError(f"focus 'near' runs on the numpy path only (device 'cpu'), got device {device!r}")
+        from .beamform_near import motion_near, static_near
+
+        threads = threads or min(os.cpu_count() or 1, 8)
+        if motion is None:
+            return static_near(xp, off, circular, N, chirp, params, threads)
+        if circular and h:
+            xp = np.concatenate([xp[N - h:], xp, xp[:h]], axis=0)
+            off = h
+        return motion_near(xp, off, N, chirp, params, motion, threads)
     if device != "cpu":
         from .beamform_torch import beamform_torch
 

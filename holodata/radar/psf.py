@@ -10,7 +10,9 @@ is ``d_m = sqrt(R² + r² − 2Rr cos θ cos(mΔφ + δ))`` from chirp ``m``'s a
 
     A(δ; θ, R) = Σ_m w_m exp(j 4π [d_m − R + r cos θ cos(mΔφ)] / λ) / Σ_m w_m
 
-(``R = ∞``: the far field, ``d_m − R → −r cos θ cos(mΔφ + δ)``). At a few metres the far-field
+(``R = ∞``: the far field, ``d_m − R → −r cos θ cos(mΔφ + δ)``). With near-field focusing
+(``focus="near"``, :mod:`holodata.radar.beamform_near`) the compensation is the exact distance to
+the focal point, ``R − r cos θ cos(mΔφ)`` above becomes ``sqrt(R² + r² − 2Rr cos θ cos(mΔφ))``. At a few metres the far-field
 compensation leaves a quadratic phase over the 90° arc (``r² sin²/2R``, several radians at 3 m):
 the main lobe widens and the near sidelobes rise, as in real heatmaps.
 
@@ -51,8 +53,17 @@ def _aperture(n_syn: int, chirp_window: str, n_chirps: int):
     return 2 * np.pi * np.arange(-h, h + 1) / n_chirps, w / w.sum()
 
 
-def _sum(chirp, ang, w, R, cos_p, cos_r, delta):
-    """Σ_m w_m exp(j4π[d_m − R + r cos θ_r cos(mΔφ)]/λ), broadcast over R, cos_p, cos_r, delta."""
+def _compensated(r, R, cos_r, a, focus):
+    """The path the beamformer's azimuth compensation assumes from chirp offset angle ``a`` (up to a
+    constant): far field ``R − r cos θ_r cos a``; near (``focus="near"``) the exact distance to the
+    focal point at ``R`` on the beam."""
+    if focus == "near":
+        return np.sqrt(R * R + r * r - 2 * R * r * cos_r * np.cos(a))
+    return R - r * cos_r * np.cos(a)
+
+
+def _sum(chirp, ang, w, R, cos_p, cos_r, delta, focus="far"):
+    """Σ_m w_m exp(j4π[d_m − (compensated path)]/λ), broadcast over R, cos_p, cos_r, delta."""
     r = chirp.rotation_radius_m
     k = 4 * np.pi / centre_wavelength(chirp)
     a = ang.reshape((1,) * np.ndim(np.broadcast(R, cos_p, cos_r, delta)) + (-1,))
@@ -61,23 +72,24 @@ def _sum(chirp, ang, w, R, cos_p, cos_r, delta):
         res = r * (cos_r * np.cos(a) - cos_p * np.cos(a + delta))
     else:
         d = np.sqrt(R * R + r * r - 2 * R * r * cos_p * np.cos(a + delta))
-        res = d - R + r * cos_r * np.cos(a)
+        res = d - _compensated(r, R, cos_r, a, focus)
     return np.exp(1j * k * res) @ w
 
 
 def azimuth_response(chirp: ChirpConfig, n_syn: int, offsets_rad, cos_el, ranges_m=np.inf, *,
-                     chirp_window: str = "hann", n_chirps: int | None = None) -> np.ndarray:
+                     chirp_window: str = "hann", n_chirps: int | None = None, focus: str = "far") -> np.ndarray:
     """(len(cos_el), len(ranges), len(offsets)) complex128: A(δ; θ, R) above (``ranges_m`` = inf:
-    far field)."""
+    far field); ``focus`` as :class:`~holodata.radar.beamform.BeamformParams` (``"near"``: the
+    compensation is the exact distance, so the response is the far-field-like main lobe at every R)."""
     ang, w = _aperture(n_syn, chirp_window, int(n_chirps or chirp.chirps_per_rotation))
     ce = np.asarray(cos_el, float).reshape(-1, 1, 1)
     R = np.maximum(np.asarray(ranges_m, float).reshape(1, -1, 1), 2 * chirp.rotation_radius_m)
     d = np.asarray(offsets_rad, float).reshape(1, 1, -1)
-    return _sum(chirp, ang, w, R, ce, ce, d)
+    return _sum(chirp, ang, w, R, ce, ce, d, focus)
 
 
 def elevation_response(chirp: ChirpConfig, n_syn: int, elev_rows, elev_points, ranges_m=np.inf, *,
-                       chirp_window: str = "hann", n_chirps: int | None = None) -> np.ndarray:
+                       chirp_window: str = "hann", n_chirps: int | None = None, focus: str = "far") -> np.ndarray:
     """(len(ranges), len(rows), len(points)) float64: the elevation kernel above, 1 at θ_p = θ_r."""
     ang, w = _aperture(n_syn, chirp_window, int(n_chirps or chirp.chirps_per_rotation))
     R = np.maximum(np.asarray(ranges_m, float).reshape(-1, 1, 1, 1), 2 * chirp.rotation_radius_m)
@@ -92,7 +104,7 @@ def elevation_response(chirp: ChirpConfig, n_syn: int, elev_rows, elev_points, r
             res, sin_seen = r * (cos_r - cos_p) * np.cos(a), sin_p
         else:
             d = np.sqrt(R * R + r * r - 2 * R * r * cos_p * np.cos(a))
-            res, sin_seen = d - R + r * cos_r * np.cos(a), R * sin_p / d   # elevation seen from the antenna
+            res, sin_seen = d - _compensated(r, R, cos_r, a, focus), R * sin_p / d   # elevation seen from the antenna
         psi = 2 * np.pi * chirp.antenna_spacing_m * (sin_seen - sin_r) / lam
         return np.abs((np.exp(1j * (k * res + psi * (V - 1) / 2)) * _dirichlet(psi, V)) @ w)
 

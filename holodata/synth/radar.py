@@ -18,7 +18,8 @@ target at R is ``h(x) = sinc(x) + (sinc(x-1) + sinc(x+1))/2`` at bin offset x (m
 spread function of the rotating-array beamformer that makes real heatmaps from raw samples
 (:mod:`holodata.radar.psf`: a Hann-windowed 90° synthetic aperture on the rotation circle with
 PanoRadar's far-field compensation — near-field defocus included, so it depends on the range bin —
-and the 8-antenna vertical column), separable, applied to the complex cube (azimuth by circular
+or, with ``beamform_focus="near"``, that of the near-field-focused beamformer; and the 8-antenna
+vertical column), separable, applied to the complex cube (azimuth by circular
 FFT convolution per range bin and row, elevation by one banded matrix per range bin), so sidelobes
 and neighbouring paths interfere coherently (speckle that changes with mm-scale motion:
 λ ≈ 3.9 mm). The kernels are normalised to 1 at their peak (the amplitude model above stays the
@@ -60,6 +61,7 @@ class RadarConfig:
     noise_amplitude: float = 2e-3  # std of the complex thermal noise per cell (|a| = 1: ρ=1 at 1 m)
     leakage_amplitude: float = 0.05  # TX→RX coupling at the first range bins
     psf: bool = True
+    beamform_focus: str = "far"    # the beamformer whose PSF the direct heatmaps carry: "far" (PanoRadar) or "near"
     encoding: str = "float16"
 
     @property
@@ -107,7 +109,7 @@ def beamformer_psf(cfg: RadarConfig, n_ranges: int = 32) -> tuple[np.ndarray, np
 
     key = (cfg.grid, cfg.range_bins, cfg.n_virtual, cfg.antenna_spacing_m, cfg.chirps_per_rotation,
            cfg.azimuth_fov_deg, cfg.azimuth_support_deg, cfg.elevation_taps, cfg.rotation_radius_m,
-           cfg.start_frequency_hz, cfg.bandwidth_hz, n_ranges)
+           cfg.start_frequency_hz, cfg.bandwidth_hz, n_ranges, cfg.beamform_focus)
     if key in _PSF_CACHE:
         return _PSF_CACHE[key]
     chirp, n_syn = cfg.imaging()
@@ -130,7 +132,8 @@ def beamformer_psf(cfg: RadarConfig, n_ranges: int = 32) -> tuple[np.ndarray, np
     kern = np.zeros((R, H, W), np.complex128)
     cos_rows = np.round(np.cos(elev), 12)
     for c in np.unique(cos_rows):
-        A = azimuth_response(chirp, n_syn, 2 * np.pi * offs / W, [c], 1 / u)[0]        # (n_ranges, 2K+1)
+        A = azimuth_response(chirp, n_syn, 2 * np.pi * offs / W, [c], 1 / u,
+                             focus=cfg.beamform_focus)[0]                                   # (n_ranges, 2K+1)
         A = at_bins(A / A[:, K:K + 1])
         kern[:, cos_rows == c, :] = 0
         for j, o in enumerate(offs):
@@ -139,7 +142,8 @@ def beamformer_psf(cfg: RadarConfig, n_ranges: int = 32) -> tuple[np.ndarray, np
     el = np.zeros((R, H, H), np.float32)
     for i in range(H):
         band = np.arange(max(0, i - cfg.elevation_taps), min(H, i + cfg.elevation_taps + 1))
-        E = elevation_response(chirp, n_syn, elev[i:i + 1], elev[band], 1 / u)[:, 0, :]   # (n_ranges, len(band))
+        E = elevation_response(chirp, n_syn, elev[i:i + 1], elev[band], 1 / u,
+                               focus=cfg.beamform_focus)[:, 0, :]                           # (n_ranges, len(band))
         el[:, i, band] = at_bins(E)
     _PSF_CACHE.clear()
     _PSF_CACHE[key] = (spectrum, el)
