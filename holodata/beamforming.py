@@ -102,7 +102,7 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
         mot = np.zeros((T, 2))
     n_chirps = int(np.median(span[:, 1]))
     attrs = beamform_attrs(chirp, params, n_chirps, **{k: v for k, v in src.items()
-                                                       if k not in ("chirp", "params", "n_syn", "rebeamformed")})
+                                                       if k not in ("chirp", "params", "n_syn", "focus", "rebeamformed")})
     fp = _fingerprint(attrs, motion)
     w = create_dataset(url)
     scw = w.scene(scene_id)

@@ -298,3 +298,23 @@ def test_a_bag_without_its_chirp_configuration_is_a_one_line_error(moving, tmp_p
     assert r.exit_code == 1 and "/radar/raw" in r.output and "chirp configuration" in r.output, r.output
     assert "Traceback" not in r.output
     assert not url.exists() or not validate_dataset(str(url))["ok"]
+
+
+def test_beamform_focus_near_is_recorded_and_reimages(moving, tmp_path):
+    """`holodata beamform --focus near` re-images the stored samples with near-field focusing and says so
+    in source.beamform (params.focus and the focus description); ingest's own run was the far field."""
+    from holodata.ingest import ingest
+
+    url = str(tmp_path / "ds.zarr")
+    ingest([moving.folder], url, beamform=PARAMS, keep_iq=True)
+    sc = open_dataset(url).scene("walk_01")
+    assert sc.attrs["source"]["beamform"]["params"]["focus"] == "far"
+    first = np.asarray(sc["radar/heatmap"][...])
+    r = CliRunner().invoke(cli, ["beamform", url, "--focus", "near", "--quiet"])
+    assert r.exit_code == 0, r.output
+    again = open_dataset(url).scene("walk_01")
+    bf = again.attrs["source"]["beamform"]
+    assert bf["params"]["focus"] == "near" and bf["focus"].startswith("near field")
+    assert validate_dataset(url)["ok"]
+    near = np.asarray(again["radar/heatmap"][...])
+    assert near.shape == first.shape and not np.allclose(near, first, rtol=1e-2)
