@@ -108,6 +108,18 @@ def main(argv=None) -> dict:
     for name, floor in floors.items():
         ok = out[name]["rotations_per_s"] >= floor
         print(f"floor {name}: >= {floor} rotations/s: {'met' if ok else 'MISSED'}")
+    # near vs far interleaved, call by call: on a shared machine the load changes between the cases
+    # above, so their ratio is measured here with both sides under the same load
+    for kind, kw in (("static", {}), ("motion", moving)):
+        best = {"far": float("inf"), "near": float("inf")}
+        for _ in range(a.repeat):
+            for focus, prm in (("far", params), ("near", near)):
+                t0 = time.perf_counter()
+                beamform(rot, chirp, prm, static_refl=refl, **kw)
+                best[focus] = min(best[focus], time.perf_counter() - t0)
+        out[f"{kind}_near_over_far"] = best["near"] / best["far"]
+        print(f"{kind}: near / far time, interleaved: {best['near'] / best['far']:.2f} "
+              f"({best['near']:.3f} s / {best['far']:.3f} s)")
     if a.json:
         print(json.dumps(out, indent=1, default=float))
     return out
