@@ -889,18 +889,6 @@ def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path)
     assert res["map"] == "built from the LiDAR scans"
 
 
-def test_centred_offset_is_the_motion_of_the_centre_and_the_scaled_rotation():
-    from holodata.geometry import centred_offset as _centred_offset
-
-    T0 = _pose([1.0, 2.0, 0.5], [0.0, 0.0, 30.0])
-    D = _pose([0.02, -0.01, 0.03], [0.2, -0.1, 0.3])
-    c, Lc = np.array([3.0, -1.0, 1.0]), 4.0
-    y = _centred_offset(D @ T0, T0, c, Lc)
-    assert np.allclose(y[:3], Rotation.from_matrix(D[:3, :3]).as_rotvec() * Lc)
-    assert np.allclose(y[3:], D[:3, :3] @ c + D[:3, 3] - c)
-    assert np.allclose(_centred_offset(T0, T0, c, Lc), 0.0)
-
-
 def _corridor(seed: int):
     """A corridor along y (walls x = +-1, floor and ceiling; nothing fixes a shift along y): world
     points (N,3), their normals, a camera pose looking along it and the points in that camera."""
@@ -915,12 +903,12 @@ def _corridor(seed: int):
 
 
 def test_point_to_plane_icp_holds_a_corridor_seen_end_on_at_the_guess():
-    from holodata.geometry import point_to_plane_icp as weighted_icp
+    from holodata.geometry import point_to_plane_icp
 
     world, normals, T_true, cam = _corridor(2)
     guess = _pose([0.03, 0.05, -0.02], [0.0, 0.0, 0.0]) @ T_true
     info = {}
-    T = weighted_icp(cam, np.full(len(cam), 1e4), world, normals, guess, distances=(0.15, 0.05),
+    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, normals, guess, distances=(0.15, 0.05),
                      degenerate_ratio=0.02, info=info)
     assert info["frozen"] == 1
     assert abs(T[0, 3] - T_true[0, 3]) < 2e-3 and abs(T[2, 3] - T_true[2, 3]) < 2e-3   # walls and floor fix x, z
@@ -934,7 +922,7 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     show the turn; anchored_guess + hold_at put the held direction where the turned map has it
     (without them it stays at the TF guess). A TF pose off in yaw alone turns the camera without
     moving it: no turn is read from that."""
-    from holodata.geometry import hold_at, point_to_plane_icp as weighted_icp
+    from holodata.geometry import hold_at, point_to_plane_icp
     from holodata.mapping.register import anchored_guess
 
     world, normals, T_true, cam = _corridor(4)
@@ -944,7 +932,7 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     map_pts, map_n = world @ turn[:3, :3].T + turn[:3, 3], normals @ turn[:3, :3].T
     T_map = turn @ T_true                                    # the camera in the map's frame
     info = {}
-    T = weighted_icp(cam, np.full(len(cam), 1e4), map_pts, map_n, T_true, distances=(0.15, 0.05),
+    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), map_pts, map_n, T_true, distances=(0.15, 0.05),
                      degenerate_ratio=0.02, info=info)
     assert info["frozen"] == 1
     assert abs(T[1, 3] - T_true[1, 3]) < 2e-3               # held at the TF guess: 4 cm off the map's
@@ -960,7 +948,7 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     T_tf = T_true.copy()
     T_tf[:3, :3] = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.3])[:3, :3] @ T_true[:3, :3]
     info = {}
-    T3 = weighted_icp(cam, np.full(len(cam), 1e4), world, normals, T_tf, distances=(0.15, 0.05),
+    T3 = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, normals, T_tf, distances=(0.15, 0.05),
                       degenerate_ratio=0.02, info=info)
     target, seen = anchored_guess(T3, T_tf, anchor, info["held"][0][3:, 0], 0.5, 0.1)
     assert target is None and abs(seen["yaw_deg"]) > 0.25 and abs(seen["shift_deg"]) < 0.1, seen

@@ -51,11 +51,9 @@ one process (test).
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 
 import numpy as np
 
-from ...conventions import transform_points
 from ...errors import InputError
 from ...parallel import cpus, fork_call, release_free_memory
 from .config import RegisterConfig, Registration, RegistrationError
@@ -63,7 +61,9 @@ from ...geometry.voxels import voxel_average
 from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, icp, map_normals, mesh_surface_samples,
                         pose_uncertainty, register_extrinsic)
 from .camera import (_camera_points_through, camera_points_world, camera_seen_through, CameraFrames,
-                     depth_noise_model, frame_candidates, static_depth, static_depth_of)
+                     depth_noise_model, static_depth, static_depth_of)
+from .steps import (all_surfaces, body_columns_of, clear_outputs, human_candidates, human_shift, initial_guess,
+                    pick_track, registration_failure, static_camera, write_outputs)
 from .humans import (body_columns, closed_surface, cluster_points, pick_human, pixel_runs, radial_speed,
                      static_residual, track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
 
@@ -127,19 +127,19 @@ def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None
     return voxel_average(np.concatenate(pts), voxel)
 
 
-def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: bool = True, build_map: bool = True,
+def lidar_map(scene, cfg: RegisterConfig, segment: bool, quiet: bool = True, build_map: bool = True,
               segment_cfg=None, early=None) -> tuple[np.ndarray | None, dict | None, dict]:
-    """The LiDAR half of :func:`register_scene` (step 2 and the segmentation): background model,
+    """The LiDAR half of :func:`register_scene` (step 2 and the segmentation) of ``scene`` (a read
+    handle; run in a forked process, which opens its own writers): background model,
     the static map (when ``build_map``) and, when ``segment``, ``lidar/instance``. The map is built
     first, with the instance masks of the few map scans that have foreground computed on the spot,
     and handed to ``early`` (a callback, or None) before the segmentation of every scan starts.
     Returns (map points (M,3) float64 world or None, segmentation summary or None, timings
     {background_s, map_s, segment_s})."""
-    from ...dataset import open_dataset
     from ..segment import InstanceMasks, LidarScans, SegmentConfig, background_and_segment, segment_scene
 
     t0 = time.perf_counter()
-    scene = open_dataset(url).scene(sid)
+    url, sid = scene.ds.url, scene.id
     scans = LidarScans.open(scene, url)
     traj = scans.trajectory()
     scfg = segment_cfg or SegmentConfig()
@@ -159,34 +159,17 @@ def lidar_map(url: str, sid: str, cfg: RegisterConfig, segment: bool, quiet: boo
     return M, seg_summary, {"background_s": t1 - t0, "map_s": t2 - t1, "segment_s": time.perf_counter() - t2}
 
 
-def camera_world(url: str, sid: str, T: np.ndarray) -> None:
-    """Write ``camera/points_world`` of scene ``sid`` (made by the caller): every camera point in the
-    map frame through ``T`` (4,4) T_world_camera, float32, shard by shard (the recording's clouds
-    never sit in memory together)."""
+def camera_world(scene, T: np.ndarray) -> None:
+    """Write ``camera/points_world`` of ``scene`` (a read handle; the array made by the caller): every
+    camera point in the map frame through ``T`` (4,4) T_world_camera, float32, shard by shard (the
+    recording's clouds never sit in memory together)."""
     from ...dataset import open_dataset
 
-    ds = open_dataset(url)
-    scene = ds.scene(sid)
-    arr = open_dataset(url, "r+").scene(sid).ragged_array(
+    arr = open_dataset(scene.ds.url, "r+").scene(scene.id).ragged_array(
         "camera/points_world", 3, "float32", "m", ["point", "xyz"])
     for s in range(arr.n_shards):
         sl = arr.frames(s)
         arr.write_shard(s, [_camera_points_through(scene, T, k) for k in range(sl.start, sl.stop)])
-
-
-def human_surfaces(points: list, columns: list, shift: np.ndarray, eye: np.ndarray, voxel: float) -> list:
-    """:func:`closed_surface` per frame: (vertices (V,3) float32, faces (F,3) int32) of each frame's
-    human points (N,3) moved by its velocity ``shift`` (3,) m, seen from ``eye`` (3,), with its
-    :func:`body_columns` (span (N,2), pixel_m (N,), down_to (N,)); empty for a frame without points."""
-    out = []
-    for p, (span, px, down), d in zip(points, columns, shift):
-        if len(p) == 0:
-            out.append((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
-            continue
-        down = down + d[2] if down is not None else None
-        v, f = closed_surface(np.asarray(p, np.float64) + d, eye + d, span, voxel, pixel_m=px, down_to=down)
-        out.append((v.astype(np.float32), f.astype(np.int32)))
-    return out
 
 
 def register_processes(cfg: RegisterConfig) -> int:
@@ -301,40 +284,25 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     (None: its defaults). Returns a summary dict; raises :class:`RegistrationError` if no registration passes.
     A scene registered before from the same inputs and settings (:func:`register_fingerprint`, every
     output present) is not registered again unless ``force``: the stored report comes back with
-    ``skipped`` set, as slam does."""
+    ``skipped`` set, as slam does. The steps are :mod:`.steps`'."""
     from ...dataset import open_dataset
     from ..segment import LidarScans, _scene_id, instance_state
 
     cfg = cfg or RegisterConfig()
     t0 = time.perf_counter()
-    timings = {}
+    timings: dict = {}
     ds = open_dataset(url)
-    sid = _scene_id(ds, url, scene_id)
-    scene = ds.scene(sid)
+    scene = ds.scene(_scene_id(ds, url, scene_id))
+    where = f"{url}: scene {scene.id!r}"
     scene.require_complete("register")
     fingerprint = register_fingerprint(scene, cfg, init, segment_cfg)
-    done = scene.attrs.get("register") or {}
-    if (not force and done.get("fingerprint") == fingerprint and set(REGISTER_OUTPUTS) <= set(scene.arrays())
-            and (not cfg.segment_lidar or instance_state(scene) == "current")):
-        return {"scene": sid, **{k: v for k, v in done.items() if k not in ("params", "T_init")},
-                "skipped": "already done with the same inputs and settings (use --force to recompute)"}
+    skipped = None if force else stored_report(scene, cfg, fingerprint)
+    if skipped is not None:
+        return skipped
     release_free_memory()      # (before the forks below)
     cam = CameraFrames.open(scene, url)
     LidarScans.open(scene, url)   # checks the LiDAR arrays and poses before any work starts
-    T_init = _parse_init(init)
-    init_source = "--init"
-    if T_init is None:
-        world, tf = camera_tf_guess(scene)
-        if tf is None:
-            raise InputError(f"{url}: scene {sid!r}: no TF pose of the camera in a world frame (sensors.camera."
-                             f"T_<world>_sensor); give --init x,y,z,roll,pitch,yaw")
-        problem = map_frame_problem(scene, world)
-        if problem:
-            raise InputError(f"{url}: scene {sid!r}: the camera's TF pose is in {world!r} but {problem}; register "
-                             f"cannot start from it: give --init x,y,z,roll,pitch,yaw in the map's frame")
-        T_init, init_source = np.asarray(tf, float), "tf"
-    names = set(scene.arrays())
-    n = scene.n_frames
+    T_init, init_source = initial_guess(scene, url, _parse_init(init))
     processes = register_processes(cfg)
     # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
     # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
@@ -343,200 +311,96 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     stored_map = scene_map(scene) if cfg.slam_map else None
     lidar = None
     if segment or stored_map is None:
-        lidar = fork_call(lidar_map, url, sid, cfg, segment, quiet or processes > 1, stored_map is None, segment_cfg,
-                          label=f"{url}: scene {sid!r}: LiDAR map", enabled=processes > 1, early=stored_map is None)
+        lidar = fork_call(lidar_map, scene, cfg, segment, quiet or processes > 1, stored_map is None, segment_cfg,
+                          label=f"{where}: LiDAR map", enabled=processes > 1, early=stored_map is None)
     try:
         t1 = time.perf_counter()
-        # the static depth from an evenly spread subset of the frames with points; every frame's depth
-        # image is made again in the humans loop (a recording's images never sit in memory together)
-        cam_frames = [int(k) for k in np.flatnonzero(cam.counts() > 0)]
-        if len(cam_frames) > cfg.median_frames:
-            cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
-        images = {}          # the depth images made for the static depth, used again for the humans
-        static = static_depth(cam, cam_frames, quiet, images=images)
+        static = static_camera(cam, cfg, quiet)
         if static is None:
             if stored_map is None:
                 lidar.early()
-            raise InputError(f"{url}: scene {sid!r}: camera/points is empty in every frame")
-        med, mad, cnt = static
-        rays = cam.rays()
-        okm = np.isfinite(med) & (cnt > 0)
-        static_cam = rays[okm] * med[okm][:, None]
-        sig_mean = depth_noise_model(med[okm], mad[okm]) / np.sqrt(cnt[okm])
-        resid = static_residual(static_cam, cfg)
-        timings["camera_s"] = time.perf_counter() - t1
-        t1 = time.perf_counter()
-        # (the LiDAR process goes on with the segmentation of every scan)
-        M = stored_map if stored_map is not None else lidar.early()
-        timings["map_wait_s"] = time.perf_counter() - t1
+            raise InputError(f"{where}: camera/points is empty in every frame")
+        timings["camera_s"], t1 = time.perf_counter() - t1, time.perf_counter()
+        M = stored_map if stored_map is not None else lidar.early()   # (the LiDAR process goes on segmenting)
+        timings["map_wait_s"], t1 = time.perf_counter() - t1, time.perf_counter()
         if len(M) < 100:
-            raise InputError(f"{url}: scene {sid!r}: the LiDAR map is empty (no usable scans/poses)")
-        # 3. extrinsic
-        t1 = time.perf_counter()
-        # (onto slam's mesh near the camera where it was built from these poses)
-        reg = register_extrinsic(static_cam, M, T_init, cfg, sigma=sig_mean,
+            raise InputError(f"{where}: the LiDAR map is empty (no usable scans/poses)")
+        # 3. extrinsic (onto slam's mesh near the camera where it was built from these poses)
+        reg = register_extrinsic(static.points, M, T_init, cfg, sigma=static.sigma,
                                  mesh=scene_mesh(scene) if cfg.mesh_target else None,
                                  anchor=slam_anchor(scene) if init_source == "tf" else None)
-        timings["extrinsic_s"] = time.perf_counter() - t1
+        timings["extrinsic_s"], t2 = time.perf_counter() - t1, time.perf_counter()
         if not reg.accepted:
-            a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, "
-                          f"rmse {x['rmse'] * 100:.1f} cm, "
-                          f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
-                          + (f", the data does not constrain {len(x['held_directions'])} direction(s) "
-                             f"({', '.join(x['held_directions'])}): held at the guess, good to "
-                             f"{cfg.guess_std_m * 100:.1f} cm (--guess-std)" if x.get("held_directions") else "")
-                          + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
-                             if "prior_shift_m" in x else "")
-                          for x in reg.attempts)
-            raise RegistrationError(f"{url}: scene {sid!r}: camera-to-map registration failed its check ({a}; need "
-                                    f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
-                                    f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
-                                    f"give a better --init (or --guess-std if the guess is that good)")
-        T = reg.T
-        # 4. humans
-        t2 = time.perf_counter()
-        from scipy.spatial import cKDTree
-
-        eye = T[:3, 3]
-        sigma = np.where(np.isfinite(mad), mad, 0.0)
-        # map points the camera sees through (a person the LiDAR map kept) explain nothing away
-        carved = camera_seen_through(M, T, cam.K, cam.shape, images.values(),
-                                     np.maximum(cfg.fg_min_m, cfg.fg_sigma * depth_noise_model(
-                                         np.where(np.isfinite(med), med, 0.0), sigma)))
-        mtree = cKDTree(M[~carved])
-        # a person standing still is in the temporal background: static points on no large plane and not
-        # explained by the map are candidates in every frame
-        still = np.zeros(med.shape, bool)
-        if resid.any():
-            sw_ = transform_points(T, static_cam[resid])
-            dmap_ = mtree.query(sw_, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)[0]
-            rr = np.zeros(len(static_cam), bool)
-            rr[np.flatnonzero(resid)[dmap_ > cfg.map_explain_m]] = True
-            still[okm] = rr
-        human_pts, columns, pixels = [], [], []
-        w = open_dataset(url, "r+")
-        sw = w.scene(sid)
-        for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
-            if name in sw.arrays():
-                sw.remove(name)
-        cam_world = lambda: None  # noqa: E731
-        if cfg.write_camera_world:  # made here, written by a second process while this one finds the humans
-            sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
-            cam_world = fork_call(camera_world, url, sid, T, label=f"{url}: scene {sid!r}: camera/points_world",
-                                  enabled=processes > 1)
-        front = med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
-        always = ~np.isfinite(med) | still
-        # the later half of the frames in a second process (numpy and scipy only: it may fork after
-        # open3d's OpenMP), once the LiDAR half has had most of the time before the extrinsic
-        half = n // 2 if processes > 1 else n
-        later = fork_call(frame_candidates, cam, range(half, n), T, rays, front, always, mtree, cfg, images,
-                          label=f"{url}: scene {sid!r}: human candidates", enabled=half < n)
-        cand = frame_candidates(cam, range(half), T, rays, front, always, mtree, cfg, images, quiet, f"register {sid}")
-        cand += later()
-        del images
+            raise RegistrationError(registration_failure(where, reg, cfg, init_source))
+        T, eye, f_px = reg.T, reg.T[:3, 3], float(cam.K[0, 0])
+        # 4. humans (camera/points_world written by a second process meanwhile)
+        sw = open_dataset(url, "r+").scene(scene.id)
+        clear_outputs(sw, cfg)
+        cam_world = fork_call(camera_world, scene, T, label=f"{where}: camera/points_world",
+                              enabled=processes > 1) if cfg.write_camera_world else None
+        cand = human_candidates(cam, static, M, T, cfg, processes, quiet, where)
+        del static.images
         timings["candidates_s"] = time.perf_counter() - t2
-        # the person of interest: person-like clusters near the track's median (people farther away, e.g.
-        # walking past in another corridor, are not it)
-        f_px = float(cam.K[0, 0])
-        first = [pick_human(q[0], cfg, footprint=q[3] / f_px) for q in cand]
-        cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
-        centre = np.median(cents, axis=0) if len(cents) else None
-        floor_z = None
-        if centre is not None:  # the floor under the person: low percentile of the map's nearby heights
-            near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
-            if near.sum() > 50:
-                floor_z = float(np.percentile(M[near, 2], 2))
-        def finish(qw, hm):
-            if hm.any():
-                # a body is at most ~0.5 m deep along the view and stands on the floor: stereo streaks
-                # along the rays and floor returns at the feet go
-                rng_ = np.linalg.norm(qw - eye, axis=1)
-                mid = np.median(rng_[hm])
-                hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
-                if floor_z is not None:
-                    hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
-            return hm
-
-        def near_centre(qw, m0):
-            # the largest person-like cluster already lies near the track: it is also the largest near it
-            return m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m
-
-        picks = [finish(qw, m0 if centre is None or near_centre(qw, m0)
-                        else pick_human(qw, cfg, centre, footprint=dv / f_px))
-                 for (qw, vv, uu, dv), m0 in zip(cand, first)]
         ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
-        cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in names else ts
-        # track continuity: a pick far from where its neighbours put the person (a wall fragment while
-        # the person is lost in far stereo noise) is picked again near that prediction, or dropped
-        cen0 = np.array([c[0][m].mean(0) if m.any() else np.full(3, np.nan) for c, m in zip(cand, picks)])
-        t_cam = np.where(cts != 0, cts, ts)
-        jumped = track_jumps(cen0, t_cam, cfg.track_jump_m, cfg.walk_speed_mps)
-        pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
-        jump_cfg = replace(cfg, track_radius_m=2 * cfg.track_jump_m)
-        n_repicked = int(jumped.sum())
-        for k, ((qw, vv, uu, dv), hm) in enumerate(zip(cand, picks)):
-            if jumped[k]:
-                hm = (finish(qw, pick_human(qw, jump_cfg, pred[k], footprint=dv / f_px)) if np.isfinite(pred[k]).all()
-                      else np.zeros_like(hm))
-            human_pts.append(qw[hm].astype(np.float32))
-            pixels.append((qw[hm], vv[hm], uu[hm], dv[hm]))
-        # velocity compensation: camera stamp -> frame stamp
-        cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in human_pts], float)
-        shift = velocity_shift(cen, cts, ts, cfg.max_speed_mps)
-        # the solid behind the visible front (deeper behind a person walking along the view: the far leg)
-        walk = cfg.walk_back_frac * np.minimum(
-            1.0, radial_speed(cen, cts, eye, cfg.max_speed_mps) / cfg.walk_back_speed_mps)
-        for k, (qh, vh, uh, dh) in enumerate(pixels):
-            back = float(walk[k])
-            columns.append(body_columns(qh, vh, uh, dh, eye, cam.K[0, 0], cfg.min_thickness_m, cfg.thickness_m,
-                                        cfg.surface_gap_px, floor_z, cfg.floor_reach_m, back))
-        del pixels
+        cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in scene.arrays() else ts
+        picks = pick_track(cand.frames, M, eye, f_px, np.where(cts != 0, cts, ts), cfg)
+        shift = human_shift(picks.points, cts, ts, cfg)
+        columns = body_columns_of(picks, eye, f_px, cts, cfg)
+        picks.pixels = []
         timings["picks_s"] = time.perf_counter() - t2 - timings["candidates_s"]
-        cam_world()
-        # every other frame's surface in a second process
-        odd = fork_call(human_surfaces, human_pts[1::2], columns[1::2], shift[1::2], eye, cfg.surface_voxel,
-                        label=f"{url}: scene {sid!r}: human surfaces", enabled=processes > 1)
-        even = human_surfaces(human_pts[0::2], columns[0::2], shift[0::2], eye, cfg.surface_voxel)
-        surfaces = [None] * n
-        surfaces[0::2], surfaces[1::2] = even, odd()
+        if cam_world is not None:
+            cam_world()
+        # 5. closed surfaces, then the writes
+        surfaces = all_surfaces(picks.points, columns, shift, eye, cfg, processes, where)
         timings["humans_s"] = time.perf_counter() - t2
-        # 5. write
-        specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
-                 "human/faces": (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
-                 "human/points": (3, "float32", "m", ["point", "xyz"], human_pts)}
-        for name, (width, dt, units, dims, per_frame) in specs.items():
-            r = sw.ragged_array(name, width, dt, units, dims)
-            for s in range(r.n_shards):
-                sl = r.frames(s)
-                r.write_shard(s, per_frame[sl])
-        sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
-                       attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
+        write_outputs(sw, surfaces, picks.points, T)
         t1 = time.perf_counter()
         seg_summary = None
         if lidar is not None:
             _, seg_summary, lidar_timings = lidar()   # the segmentation of every scan (lidar/instance)
             timings.update(lidar_timings)
         timings["segment_wait_s"] = time.perf_counter() - t1
-        n_h = int(sum(len(s[1]) > 0 for s in surfaces))
-        report = {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
-                  "map": "slam (map/points)" if stored_map is not None else "built from the LiDAR scans",
-                  "frames_with_human": n_h, "frames": n, "map_points_seen_through": int(carved.sum()),
-                  "frames_repicked": n_repicked, "params": cfg.to_attrs(),
-                  "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
-                             "visible front (closed)",
-                  "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
-                  "seconds": time.perf_counter() - t0, "timings": timings, "fingerprint": fingerprint}
+        report = register_report(reg, init_source, T_init, stored_map is not None, surfaces, cand.carved,
+                                 picks.repicked, cfg, shift, time.perf_counter() - t0, timings, fingerprint)
         sw.set_attrs({"register": report})
-        out = {"scene": sid, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
-        if seg_summary:
-            out["segment"] = seg_summary
     except BaseException:
         if lidar is not None:
             lidar.join()   # it must not write on after register has failed
         raise
+    out = {"scene": scene.id, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
+    if seg_summary:
+        out["segment"] = seg_summary
     return out
 
 
+def stored_report(scene, cfg: RegisterConfig, fingerprint: str) -> dict | None:
+    """The report of a scene registered before from the same inputs and settings (``fingerprint``),
+    every output present (and ``lidar/instance`` current when segmenting), with ``skipped`` set; else
+    None."""
+    from ..segment import instance_state
+
+    done = scene.attrs.get("register") or {}
+    if (done.get("fingerprint") == fingerprint and set(REGISTER_OUTPUTS) <= set(scene.arrays())
+            and (not cfg.segment_lidar or instance_state(scene) == "current")):
+        return {"scene": scene.id, **{k: v for k, v in done.items() if k not in ("params", "T_init")},
+                "skipped": "already done with the same inputs and settings (use --force to recompute)"}
+    return None
+
+
+def register_report(reg: Registration, init_source: str, T_init: np.ndarray, slam_map: bool, surfaces: list,
+                    carved: np.ndarray, repicked: int, cfg: RegisterConfig, shift: np.ndarray, seconds: float,
+                    timings: dict, fingerprint: str) -> dict:
+    """The scene attribute ``register``: the extrinsic's report, where the guess and the map came
+    from, frames with a person, the settings, timings and the fingerprint."""
+    n = len(surfaces)
+    return {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
+            "map": "slam (map/points)" if slam_map else "built from the LiDAR scans",
+            "frames_with_human": int(sum(len(s[1]) > 0 for s in surfaces)), "frames": n,
+            "map_points_seen_through": int(carved.sum()), "frames_repicked": repicked, "params": cfg.to_attrs(),
+            "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
+                       "visible front (closed)",
+            "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
+            "seconds": seconds, "timings": timings, "fingerprint": fingerprint}
 
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
@@ -546,4 +410,4 @@ __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extr
            "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
            "track_jumps", "track_velocity", "radial_speed", "mesh_surface_samples",
            "scene_mesh", "held_directions", "anchored_guess", "static_depth_of",
-           "register_fingerprint", "scene_map", "slam_anchor"]
+           "register_fingerprint", "scene_map", "slam_anchor", "camera_seen_through"]

@@ -1,0 +1,269 @@
+"""The named steps :func:`~holodata.mapping.register.register_scene` runs (module doc of
+:mod:`holodata.mapping.register`): the stored report of a scene done before, the initial guess, the
+static camera cloud (step 1), the failure message of the extrinsic's check (step 3), the human
+candidates, picks and track (step 4), the closed surfaces (step 5) and the writes. Each gets what it
+works on (a scene handle, arrays, the settings), never a dataset URL to reopen."""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ...conventions import transform_points
+from ...errors import InputError
+from ...parallel import fork_call
+from .camera import CameraFrames, camera_seen_through, depth_noise_model, frame_candidates, static_depth
+from .config import RegisterConfig, Registration
+from .humans import (body_columns, closed_surface, pick_human, radial_speed, static_residual, track_jumps,
+                     track_prediction, velocity_shift)
+
+def initial_guess(scene, url: str, T_init: np.ndarray | None) -> tuple[np.ndarray, str]:
+    """(T_world_camera guess (4,4), its source "--init" or "tf"): ``T_init`` when given, else the
+    camera's TF pose in the map's world frame. InputError (one line) without one, or when the TF
+    world is not the frame the LiDAR map is in."""
+    from . import camera_tf_guess, map_frame_problem
+
+    if T_init is not None:
+        return T_init, "--init"
+    world, tf = camera_tf_guess(scene)
+    if tf is None:
+        raise InputError(f"{url}: scene {scene.id!r}: no TF pose of the camera in a world frame (sensors.camera."
+                         f"T_<world>_sensor); give --init x,y,z,roll,pitch,yaw")
+    problem = map_frame_problem(scene, world)
+    if problem:
+        raise InputError(f"{url}: scene {scene.id!r}: the camera's TF pose is in {world!r} but {problem}; register "
+                         f"cannot start from it: give --init x,y,z,roll,pitch,yaw in the map's frame")
+    return np.asarray(tf, float), "tf"
+
+
+@dataclass
+class StaticCamera:
+    """Step 1's result. Per pixel (H,W): ``med`` static depth (m, NaN: none), ``mad`` its spread (m),
+    ``cnt`` background samples; ``rays`` (H,W,3) unit-depth rays; ``okm`` (H,W) pixels with a static
+    depth; ``points`` (N,3) the static camera cloud (camera frame, m) of those pixels, ``sigma`` (N,) its
+    depth noise (m), ``residual`` (N,) bool its points on no large plane (:func:`static_residual`);
+    ``images``: {frame: depth image} made on the way (used again for the humans)."""
+
+    med: np.ndarray
+    mad: np.ndarray
+    cnt: np.ndarray
+    rays: np.ndarray
+    okm: np.ndarray
+    points: np.ndarray
+    sigma: np.ndarray
+    residual: np.ndarray
+    images: dict
+
+
+def static_camera(cam: CameraFrames, cfg: RegisterConfig, quiet: bool) -> StaticCamera | None:
+    """Step 1: the static depth from an evenly spread subset (``median_frames``) of the frames with
+    points, and the static camera cloud; None when every frame is empty. Every frame's depth image is
+    made again in the humans step (a recording's images never sit in memory together)."""
+    cam_frames = [int(k) for k in np.flatnonzero(cam.counts() > 0)]
+    if len(cam_frames) > cfg.median_frames:
+        cam_frames = [cam_frames[i] for i in np.linspace(0, len(cam_frames) - 1, cfg.median_frames).round().astype(int)]
+    images: dict = {}
+    static = static_depth(cam, cam_frames, quiet, images=images)
+    if static is None:
+        return None
+    med, mad, cnt = static
+    rays = cam.rays()
+    okm = np.isfinite(med) & (cnt > 0)
+    points = rays[okm] * med[okm][:, None]
+    sigma = depth_noise_model(med[okm], mad[okm]) / np.sqrt(cnt[okm])
+    return StaticCamera(med, mad, cnt, rays, okm, points, sigma, static_residual(points, cfg), images)
+
+
+def registration_failure(where: str, reg: Registration, cfg: RegisterConfig, init_source: str) -> str:
+    """The one-line message of a registration whose attempts all failed their check (``where``: the
+    dataset and scene)."""
+    a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, "
+                  f"rmse {x['rmse'] * 100:.1f} cm, "
+                  f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
+                  + (f", the data does not constrain {len(x['held_directions'])} direction(s) "
+                     f"({', '.join(x['held_directions'])}): held at the guess, good to "
+                     f"{cfg.guess_std_m * 100:.1f} cm (--guess-std)" if x.get("held_directions") else "")
+                  + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
+                     if "prior_shift_m" in x else "")
+                  for x in reg.attempts)
+    return (f"{where}: camera-to-map registration failed its check ({a}; need "
+            f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
+            f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
+            f"give a better --init (or --guess-std if the guess is that good)")
+
+
+def clear_outputs(sw, cfg: RegisterConfig) -> None:
+    """Remove a previous run's human arrays and camera copy from scene writer ``sw``; make
+    ``camera/points_world`` when ``write_camera_world`` (filled by :func:`camera_world`)."""
+    for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
+        if name in sw.arrays():
+            sw.remove(name)
+    if cfg.write_camera_world:
+        sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
+
+
+@dataclass
+class Candidates:
+    """Step 4's candidates: per frame (qw world points (N,3), rows (N,), columns (N,), depths (N,)) of
+    the returns that may be the person; ``carved``: map points the camera sees through (M,) bool."""
+
+    frames: list
+    carved: np.ndarray
+
+
+def human_candidates(cam: CameraFrames, static: StaticCamera, M: np.ndarray, T: np.ndarray, cfg: RegisterConfig,
+                     processes: int, quiet: bool, label: str) -> Candidates:
+    """Step 4, candidates: returns in front of the static depth (a moving person) or on no large plane
+    of the static cloud and not explained by the map (a person standing still, in the temporal
+    background), in every frame; the later half of the frames in a second process (numpy and scipy
+    only: it may fork after open3d's OpenMP) when ``processes`` > 1."""
+    from scipy.spatial import cKDTree
+
+    sigma = np.where(np.isfinite(static.mad), static.mad, 0.0)
+    # map points the camera sees through (a person the LiDAR map kept) explain nothing away
+    carved = camera_seen_through(M, T, cam.K, cam.shape, static.images.values(),
+                                 np.maximum(cfg.fg_min_m, cfg.fg_sigma * depth_noise_model(
+                                     np.where(np.isfinite(static.med), static.med, 0.0), sigma)))
+    mtree = cKDTree(M[~carved])
+    still = np.zeros(static.med.shape, bool)
+    if static.residual.any():
+        sw_ = transform_points(T, static.points[static.residual])
+        dmap_ = mtree.query(sw_, k=1, distance_upper_bound=np.nextafter(cfg.map_explain_m, np.inf), workers=-1)[0]
+        rr = np.zeros(len(static.points), bool)
+        rr[np.flatnonzero(static.residual)[dmap_ > cfg.map_explain_m]] = True
+        still[static.okm] = rr
+    front = static.med - np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma)    # a return nearer than this moved
+    always = ~np.isfinite(static.med) | still
+    n = cam.scene.n_frames
+    half = n // 2 if processes > 1 else n
+    later = fork_call(frame_candidates, cam, range(half, n), T, static.rays, front, always, mtree, cfg, static.images,
+                      label=f"{label}: human candidates", enabled=half < n)
+    cand = frame_candidates(cam, range(half), T, static.rays, front, always, mtree, cfg, static.images, quiet,
+                            f"register {cam.scene.id}")
+    cand += later()
+    return Candidates(cand, carved)
+
+
+def floor_below(M: np.ndarray, centre: np.ndarray | None) -> float | None:
+    """The floor under the person: the 2nd percentile of the map's heights within 2.5 m (plan) of the
+    track's ``centre`` (3,), None without a centre or with 50 map points or fewer there."""
+    if centre is None:
+        return None
+    near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
+    return float(np.percentile(M[near, 2], 2)) if near.sum() > 50 else None
+
+
+def body_only(qw: np.ndarray, hm: np.ndarray, eye: np.ndarray, floor_z: float | None, cfg: RegisterConfig) -> np.ndarray:
+    """The pick ``hm`` (N,) bool of the world points ``qw`` (N,3) without stereo streaks along the rays
+    (a body is at most ``max_depth_spread_m`` deep along the view from ``eye``) and floor returns at
+    the feet (``floor_margin_m`` above ``floor_z``)."""
+    if hm.any():
+        rng_ = np.linalg.norm(qw - eye, axis=1)
+        mid = np.median(rng_[hm])
+        hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
+        if floor_z is not None:
+            hm &= qw[:, 2] > floor_z + cfg.floor_margin_m
+    return hm
+
+
+def near_track(qw: np.ndarray, m0: np.ndarray, centre: np.ndarray, cfg: RegisterConfig) -> bool:
+    """Whether the largest person-like cluster ``m0`` of ``qw`` lies within ``track_radius_m`` (plan)
+    of the track's ``centre``: then it is also the largest near it."""
+    return bool(m0.any() and np.linalg.norm(qw[m0, :2].mean(0) - centre[:2]) <= cfg.track_radius_m)
+
+
+@dataclass
+class Picks:
+    """Step 4's picks: per frame the person's world points (N,3) float32 and (points, rows, columns,
+    depths) of them; ``floor_z`` under the track (or None); ``repicked`` frames picked again."""
+
+    points: list
+    pixels: list
+    floor_z: float | None
+    repicked: int
+
+
+def pick_track(cand: list, M: np.ndarray, eye: np.ndarray, f_px: float, t_cam: np.ndarray,
+               cfg: RegisterConfig) -> Picks:
+    """Step 4, the person of interest: person-like clusters near the track's median (people farther
+    away, e.g. walking past in another corridor, are not it); a pick far from where its neighbours put
+    the person (a wall fragment while the person is lost in far stereo noise, :func:`track_jumps`) is
+    picked again near that prediction, or dropped. ``t_cam`` (T,) the candidates' stamps (ns)."""
+    first = [pick_human(q[0], cfg, footprint=q[3] / f_px) for q in cand]
+    cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
+    centre = np.median(cents, axis=0) if len(cents) else None
+    floor_z = floor_below(M, centre)
+    picks = [body_only(qw, m0 if centre is None or near_track(qw, m0, centre, cfg)
+                       else pick_human(qw, cfg, centre, footprint=dv / f_px), eye, floor_z, cfg)
+             for (qw, vv, uu, dv), m0 in zip(cand, first)]
+    cen0 = np.array([c[0][m].mean(0) if m.any() else np.full(3, np.nan) for c, m in zip(cand, picks)])
+    jumped = track_jumps(cen0, t_cam, cfg.track_jump_m, cfg.walk_speed_mps)
+    pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
+    jump_cfg = replace(cfg, track_radius_m=2 * cfg.track_jump_m)
+    points, pixels = [], []
+    for k, ((qw, vv, uu, dv), hm) in enumerate(zip(cand, picks)):
+        if jumped[k]:
+            hm = (body_only(qw, pick_human(qw, jump_cfg, pred[k], footprint=dv / f_px), eye, floor_z, cfg)
+                  if np.isfinite(pred[k]).all() else np.zeros_like(hm))
+        points.append(qw[hm].astype(np.float32))
+        pixels.append((qw[hm], vv[hm], uu[hm], dv[hm]))
+    return Picks(points, pixels, floor_z, int(jumped.sum()))
+
+
+def body_columns_of(picks: Picks, eye: np.ndarray, f_px: float, cts: np.ndarray, cfg: RegisterConfig) -> list:
+    """Step 5, the solid behind each frame's visible front (:func:`body_columns`): deeper behind a
+    person walking along the view (the far leg) by ``walk_back_frac`` at ``walk_back_speed_mps``."""
+    cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in picks.points], float)
+    walk = cfg.walk_back_frac * np.minimum(1.0, radial_speed(cen, cts, eye, cfg.max_speed_mps) / cfg.walk_back_speed_mps)
+    return [body_columns(qh, vh, uh, dh, eye, f_px, cfg.min_thickness_m, cfg.thickness_m, cfg.surface_gap_px,
+                         picks.floor_z, cfg.floor_reach_m, float(walk[k]))
+            for k, (qh, vh, uh, dh) in enumerate(picks.pixels)]
+
+
+def human_shift(points: list, cts: np.ndarray, ts: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
+    """(T,3) velocity compensation of each frame's person from the camera stamp ``cts`` to the frame
+    stamp ``ts`` (ns) (:func:`velocity_shift`)."""
+    cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in points], float)
+    return velocity_shift(cen, cts, ts, cfg.max_speed_mps)
+
+
+def human_surfaces(points: list, columns: list, shift: np.ndarray, eye: np.ndarray, voxel: float) -> list:
+    """:func:`closed_surface` per frame: (vertices (V,3) float32, faces (F,3) int32) of each frame's
+    human points (N,3) moved by its velocity ``shift`` (3,) m, seen from ``eye`` (3,), with its
+    :func:`body_columns` (span (N,2), pixel_m (N,), down_to (N,)); empty for a frame without points."""
+    out = []
+    for p, (span, px, down), d in zip(points, columns, shift):
+        if len(p) == 0:
+            out.append((np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32)))
+            continue
+        down = down + d[2] if down is not None else None
+        v, f = closed_surface(np.asarray(p, np.float64) + d, eye + d, span, voxel, pixel_m=px, down_to=down)
+        out.append((v.astype(np.float32), f.astype(np.int32)))
+    return out
+
+
+def all_surfaces(points: list, columns: list, shift: np.ndarray, eye: np.ndarray, cfg: RegisterConfig,
+                 processes: int, label: str) -> list:
+    """Step 5: :func:`human_surfaces` of every frame, every other one in a second process when
+    ``processes`` > 1."""
+    odd = fork_call(human_surfaces, points[1::2], columns[1::2], shift[1::2], eye, cfg.surface_voxel,
+                    label=f"{label}: human surfaces", enabled=processes > 1)
+    even = human_surfaces(points[0::2], columns[0::2], shift[0::2], eye, cfg.surface_voxel)
+    surfaces: list = [None] * len(points)
+    surfaces[0::2], surfaces[1::2] = even, odd()
+    return surfaces
+
+
+def write_outputs(sw, surfaces: list, points: list, T: np.ndarray) -> None:
+    """The human arrays (ragged per frame, world frame) and ``calib/T_world_camera`` into scene writer
+    ``sw``."""
+    specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
+             "human/faces": (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
+             "human/points": (3, "float32", "m", ["point", "xyz"], points)}
+    for name, (width, dt, units, dims, per_frame) in specs.items():
+        r = sw.ragged_array(name, width, dt, units, dims)
+        for s in range(r.n_shards):
+            sl = r.frames(s)
+            r.write_shard(s, per_frame[sl])
+    sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
+                   attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
