@@ -286,7 +286,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     output present) is not registered again unless ``force``: the stored report comes back with
     ``skipped`` set, as slam does. The steps are :mod:`.steps`'."""
     from ...dataset import open_dataset
-    from ..segment import LidarScans, _scene_id, instance_state
+    from ..segment import LidarScans, _scene_id
 
     cfg = cfg or RegisterConfig()
     t0 = time.perf_counter()
@@ -306,13 +306,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     processes = register_processes(cfg)
     # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
     # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
-    # (lidar/instance made with other poses is made again; one left unfinished is resumed)
-    segment = cfg.segment_lidar and instance_state(scene) != "current"
-    stored_map = scene_map(scene) if cfg.slam_map else None
-    lidar = None
-    if segment or stored_map is None:
-        lidar = fork_call(lidar_map, scene, cfg, segment, quiet or processes > 1, stored_map is None, segment_cfg,
-                          label=f"{where}: LiDAR map", enabled=processes > 1, early=stored_map is None)
+    stored_map, lidar = lidar_half(scene, cfg, segment_cfg, processes, quiet, where)
     try:
         t1 = time.perf_counter()
         static = static_camera(cam, cfg, quiet)
@@ -371,6 +365,20 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     if seg_summary:
         out["segment"] = seg_summary
     return out
+
+
+def lidar_half(scene, cfg: RegisterConfig, segment_cfg, processes: int, quiet: bool, where: str):
+    """(slam's static map of ``scene`` or None, the forked :func:`lidar_map` or None): the LiDAR half
+    runs when the scene needs ``lidar/instance`` (made with other poses: made again; left unfinished:
+    resumed) or has no map of slam's to register against; with ``processes`` > 1 in a second process."""
+    from ..segment import instance_state
+
+    segment = cfg.segment_lidar and instance_state(scene) != "current"
+    stored_map = scene_map(scene) if cfg.slam_map else None
+    if not segment and stored_map is not None:
+        return stored_map, None
+    return stored_map, fork_call(lidar_map, scene, cfg, segment, quiet or processes > 1, stored_map is None, segment_cfg,
+                                 label=f"{where}: LiDAR map", enabled=processes > 1, early=stored_map is None)
 
 
 def stored_report(scene, cfg: RegisterConfig, fingerprint: str) -> dict | None:

@@ -178,3 +178,22 @@ def data_max_range(scans: Scans, n: int = 10) -> float:
     """Max range for kiss-icp from the data: 99.5th percentile of the first ``n`` scans' ranges ×1.1."""
     r = np.concatenate([np.linalg.norm(p, axis=1) for p in scans.points[:n]])
     return float(max(2.0, np.percentile(r, 99.5) * 1.1))
+
+
+def _import_in_background(modules) -> threading.Thread:
+    """Start importing ``modules`` in a daemon thread and return it (join it before use). kiss-icp and
+    open3d take ~1 s CPU to import (open3d's visualization module pulls in dash and plotly), mostly
+    Python; it runs while the scans are read, whose zarr decoding leaves the GIL free at times. An
+    import error is left for the real import to raise."""
+    import importlib
+
+    def run():
+        for m in modules:
+            try:
+                importlib.import_module(m)
+            except Exception:  # noqa: BLE001 - raised again, with context, by the import that needs it
+                return
+
+    th = threading.Thread(target=run, name="holodata-slam-imports", daemon=True)
+    th.start()
+    return th

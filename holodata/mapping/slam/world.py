@@ -249,3 +249,25 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
     info["dynamic_points_removed"] = removed
     info["scans_used"] = int(len(sub))
     return StaticMap(v, f, pts, info, background)
+
+
+def guess_poses(scene, scans: Scans) -> tuple[np.ndarray | None, str]:
+    """Odometry/TF-based guesses T_world_lidar (S,4,4) at the scan stamps: ingest's TF radar poses
+    (``pose/T_world_radar``, source tf) through the extrinsics, else the source recording's TF
+    (:func:`recording_tf_poses`); (None, "none") without either."""
+    names = set(scene.arrays())
+    ext = scene.attrs.get("extrinsics") or {}
+    T_bl, T_br = _attr_T(ext, "lidar"), _attr_T(ext, "radar")
+    if "pose/T_world_radar" in names and T_br is not None and dict(scene["pose/T_world_radar"].attrs).get("source") == "tf":
+        P = np.asarray(scene["pose/T_world_radar"][...], np.float64)
+        t = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+        ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1)
+        if ok.sum() >= 2:
+            T_rl = np.linalg.inv(T_br) @ (T_bl if T_bl is not None else np.eye(4))
+            return Trajectory(t[ok], P[ok]).interpolate(scans.stamp_ns) @ T_rl, "tf (pose/T_world_radar)"
+    for src, poses in (("tf (tf/T_world_lidar)", tf_lidar_poses),
+                       ("tf (source recording)", recording_tf_poses)):   # (the recording is read only if needed)
+        rt = poses(scene, scans.stamp_ns)
+        if rt is not None and rt[1].all():
+            return rt[0], src
+    return None, "none"

@@ -1,0 +1,98 @@
+"""What slam writes into a scene and reads back: the inputs' and settings' fingerprint, a finished
+scene's result, the poses, the static map and the ``slam`` attribute."""
+from __future__ import annotations
+
+import numpy as np
+
+from .config import SlamConfig, SlamResult
+
+
+def _fingerprint(scene, cfg: SlamConfig, mesh_cfg) -> str:
+    import hashlib
+    import json
+
+    h = hashlib.sha256(json.dumps({"slam": cfg.to_attrs(), "mesh": mesh_cfg.to_attrs() if mesh_cfg else None},
+                                  sort_keys=True).encode())
+    for name in ("lidar/points", "lidar/timestamp_ns", "time/timestamp_ns"):
+        if name in scene:
+            node = scene.nodes()[name][1]
+            h.update(json.dumps(node.get("attributes", {}).get("holodata", {}).get("shards"), sort_keys=True).encode())
+    return h.hexdigest()[:16]
+
+
+def _stored_result(scene, done: dict) -> SlamResult:
+    """A finished scene's result read back from the dataset (no recomputation; no kiss-icp poses)."""
+    Tl = np.asarray(scene["pose/T_world_lidar"][...], np.float64)
+    Tr = np.asarray(scene["pose/T_world_radar"][...], np.float64) if "pose/T_world_radar" in scene else None
+    names = set(scene.arrays())
+    st = np.asarray(scene["lidar/timestamp_ns"][...] if "lidar/timestamp_ns" in names else scene["time/timestamp_ns"][...],
+                    np.int64)
+    _, first = np.unique(st, return_index=True)
+    first = np.sort(first[st[first] > 0])
+    mesh = None
+    if "mesh/faces" in names:
+        mesh = (np.asarray(scene["mesh/vertices"][...], np.float32), np.asarray(scene["mesh/faces"][...], np.int32))
+    summary = dict(done.get("summary") or {})
+    summary["skipped"] = "already done with the same inputs and settings (use --force to recompute)"
+    points = np.asarray(scene["map/points"][...], np.float64) if "map/points" in names else None
+    return SlamResult(scene.id, st[first], Tl[first], None, None, Tl, Tr, mesh, summary, points)
+
+
+def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor, finfo, fp, mode=None) -> None:
+    from ...dataset import open_dataset
+
+    meta = ds.meta
+    w = open_dataset(url, "r+", created_by="holodata slam", shard_frames=int(meta.get("shard_frames") or 32))
+    sc = w.scene(scene_id)
+    if (sc.attrs.get("slam") or {}).get("complete"):
+        sc.set_attrs({"slam": {**sc.attrs["slam"], "complete": False}})  # a crash below must not look done
+    names = set(sc.arrays())
+    stale = sorted(n for n in names if n.startswith("gt/"))
+    for n in stale:  # ray-traced from the previous mesh/poses: would be silently wrong (raytrace-gt resumes)
+        sc.remove(n)
+    res.summary["removed_stale"] = stale
+    pose_attrs = {"source": "slam", "world_frame": anchor.get("world_frame"), "anchor": anchor.get("kind"),
+                  "method": "kiss-icp 1.3 + open3d scan-to-map point-to-plane ICP" if cfg.refine else "kiss-icp 1.3"}
+    if (mode or {}).get("map_scene"):
+        pose_attrs["method"] = f"open3d scan-to-map point-to-plane ICP against map scene {mode['map_scene']!r}"
+        pose_attrs["map_scene"] = mode["map_scene"]
+    arrays = [("pose/T_world_lidar", res.T_world_lidar, {"time": "lidar/timestamp_ns (time/timestamp_ns when 0)"})]
+    if res.T_world_radar is not None:
+        arrays.append(("pose/T_world_radar", res.T_world_radar, {"time": "time/timestamp_ns",
+                                                                 "T_lidar_radar": finfo.get("T_lidar_radar")}))
+    for name, P, extra in arrays:
+        if name in names:
+            sc.remove(name)
+        a = sc.frame_array(name, per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"], units="m",
+                           fill_value=float("nan"), attrs={**pose_attrs, **extra})
+        for k in range(a.n_shards):
+            a.write_shard(k, P[a.frames(k)])
+    if res.mesh is not None:
+        if "mesh/face_class" in names:
+            sc.remove("mesh/face_class")
+        write_static_map(sc, res.mesh[0], res.mesh[1], res.map_points, "slam")
+    sc.set_attrs({"slam": {"complete": True, "fingerprint": fp, "config": cfg.to_attrs(),
+                           "mesh_config": mesh_cfg.to_attrs() if cfg.mesh else None,
+                           "anchor": anchor, "summary": json_safe(res.summary), **(mode or {})}})
+
+
+def write_static_map(sc, vertices: np.ndarray, faces: np.ndarray, points: np.ndarray | None, source: str) -> None:
+    """Write a :class:`StaticMap`'s ``mesh/vertices``, ``mesh/faces`` and (when given) ``map/points``
+    (M,3) float32 into the scene writer ``sc``, each with the ``source`` of the poses they were built
+    from: ``holodata register`` uses them only while that matches ``pose/T_world_lidar``'s."""
+    sc.write_array("mesh/vertices", np.asarray(vertices, np.float32), dims=["vertex", "xyz"], units="m",
+                   attrs={"source": source, "frame": "world"})
+    sc.write_array("mesh/faces", np.asarray(faces, np.int32), dims=["face", "corner"], units="1",
+                   attrs={"source": source})
+    if points is not None:
+        sc.write_array("map/points", np.asarray(points, np.float32), dims=["point", "xyz"], units="m",
+                       attrs={"source": source, "frame": "world",
+                              "what": "static LiDAR returns averaged per mesh voxel (the mesh's input)"})
+    elif "map/points" in sc.arrays():
+        sc.remove("map/points")
+
+
+def json_safe(obj):
+    import json
+
+    return json.loads(json.dumps(obj, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
