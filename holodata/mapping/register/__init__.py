@@ -15,8 +15,8 @@ frame, with the intrinsics in ``sensors.camera.intrinsics``), the LiDAR map (``m
    (:func:`map_cloud`).
 3. **Extrinsic** ``T_world_camera`` (:func:`register_extrinsic`): point-to-plane Gauss-Newton ICP
    with a Tukey loss, coarse to fine (``icp_distances``), of the static camera cloud onto the map
-   (denoised onto local planes, :func:`holodata.geometry.local_plane_projection`) and slam's mesh near the camera
-   (:func:`mesh_surface_samples`), from ``--init`` or the TF pose. Directions the overlap does not
+   (denoised onto local planes, :func:`holodata.geometry.local_plane_projection`) and slam's mesh
+   near the camera (:func:`mesh_surface_samples`), from ``--init`` or the TF pose. Directions the overlap does not
    pin down are held at the guess (or where the SLAM map's own turn puts it, :func:`anchored_guess`)
    instead of sliding. Accepted only when overlap, fitness, RMSE and the pose's standard deviation
    (:func:`pose_uncertainty`) pass; else FPFH + RANSAC then the same ICP and check; else register
@@ -39,8 +39,10 @@ in the map frame; ``write_camera_world`` (``--camera-world``) also stores that c
 (``camera/points_world``, as large as ``camera/points``).
 
 Modules: :mod:`.config` (settings and results), :mod:`.extrinsic` (step 3), :mod:`.camera` (step 1,
-the camera's frames and candidate returns), :mod:`.humans` (steps 4–5 and the track checks); this
-module holds the pipeline (:func:`register_scene`, the LiDAR map, fingerprints, outputs).
+the camera's frames and candidate returns), :mod:`.humans` (steps 4–5 and the track checks),
+:mod:`.steps` (the named steps :func:`register_scene` runs); the ICP solver, voxel means and plane
+fits are :mod:`holodata.geometry`'s. This module holds the pipeline (:func:`register_scene`, the
+LiDAR half and its map, fingerprints, the report).
 
 **Processes** (``processes``, default two on a two-CPU machine; :mod:`holodata.parallel`): the LiDAR
 half (background model, map unless slam's is used, segmentation of every scan) runs in a forked
