@@ -175,3 +175,21 @@ def test_a_chunk_that_fails_its_crc_drops_its_messages_counted(synth, tmp_path):
     assert sc.attrs["ingest"]["dropped"]["radar"].get("undecodable") == 1
     warn = [w for w in json.loads(r.stdout)["scenes"][0]["warnings"] if "CRC" in w]
     assert len(warn) == 1 and "radar" in warn[0] and "chunk at byte" in warn[0], warn
+
+
+def test_a_tf_transform_with_nan_is_left_out():
+    """A TF transform whose damaged bytes read as NaN/inf would make every pose composed through it
+    NaN (validate rejects those poses): the buffer leaves it out and says so by its count."""
+    from types import SimpleNamespace as N
+
+    from holodata.readers.tf import TransformBuffer
+
+    def ts(x, w, t):
+        return N(header=N(frame_id="odom", stamp=N(sec=t, nanosec=0)), child_frame_id="base_link",
+                 transform=N(translation=N(x=x, y=0.0, z=0.0), rotation=N(x=0.0, y=0.0, z=0.0, w=w)))
+
+    tf = TransformBuffer()
+    assert tf.add_message(N(transforms=[ts(0.0, 1.0, 1), ts(float("nan"), 1.0, 2), ts(1.0, float("inf"), 3),
+                                        ts(2.0, 1.0, 4)])) == 2
+    T = tf.lookup("odom", "base_link", 3 * 10**9)     # between the two kept ones (t = 1 s, x = 0; t = 4 s, x = 2)
+    assert T is not None and np.isfinite(T).all() and abs(T[0, 3] - 2.0 * 2 / 3) < 1e-9

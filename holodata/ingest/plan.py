@@ -255,7 +255,9 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
     for raw in track(index_iter, total, f"ingest {scene_id or rec.path.name}: index", quiet, unit="messages"):
         if raw.topic in tf_topics:
             try:
-                tf.add_message(rec.decode(raw), static=raw.topic in tf_static)
+                msg = rec.decode(raw)
+                if tf.add_message(msg, static=raw.topic in tf_static) < len(msg.transforms):
+                    tf_bad += 1     # a NaN/inf transform (damaged bytes) was left out
             except (HolodataError, AttributeError, ValueError):
                 tf_bad += 1
             if raw.topic not in by_topic:
@@ -270,7 +272,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
             st.try_layout(raw)
         stamps[st.role] += [(it.index, it.stamp) for it in items]
     if tf_bad:
-        warnings.append(f"{tf_bad} TF messages do not decode; skipped")
+        warnings.append(f"{tf_bad} TF messages do not decode or hold NaN/inf transforms; skipped")
     t_index = time.perf_counter() - t_index
     for role, st in streams.items():
         stamps[role] += [(it.index, it.stamp) for it in st.flush(decode=False)]

@@ -65,11 +65,15 @@ class TransformBuffer:
             self._traj.pop(key, None)
 
     def add_message(self, msg, static: bool = False) -> int:
-        """Add every TransformStamped of a TFMessage; returns how many."""
+        """Add every TransformStamped of a TFMessage; returns how many. A transform holding a NaN/inf
+        translation or rotation (damaged bytes) is left out (not counted): it would make every pose
+        composed through it NaN, which validate rejects."""
         n = 0
         for ts in msg.transforms:
-            self.add(ts.header.frame_id, ts.child_frame_id, transform_matrix(ts.transform), _stamp(ts.header), static)
-            n += 1
+            T = transform_matrix(ts.transform)
+            if np.isfinite(T).all():
+                self.add(ts.header.frame_id, ts.child_frame_id, T, _stamp(ts.header), static)
+                n += 1
         return n
 
     # -- queries ------------------------------------------------------------------------------------
