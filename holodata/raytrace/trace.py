@@ -76,7 +76,8 @@ class _Geometry:
         v = self.vertices
         self.box = np.array([[v[:, k].min() - BOX_MARGIN_M for k in range(3)], [v[:, k].max() + BOX_MARGIN_M for k in range(3)]],
                             dtype=np.float32) if len(v) else None
-        keep = np.flatnonzero(np.any(self.normals != 0, axis=1))  # zero-area faces are never hit
+        nrm = self.normals
+        keep = np.flatnonzero((nrm[:, 0] != 0) | (nrm[:, 1] != 0) | (nrm[:, 2] != 0))  # zero-area faces are never hit
         if len(keep) == 0:
             self.backend = None
         elif len(keep) == len(self.faces):
@@ -142,15 +143,17 @@ class RayScene:
         g = _Geometry(hv, hf, self.backend_name, self.nthreads)
         return g if g.backend is not None else None
 
-    def _cast6(self, rays: np.ndarray, dyn: _Geometry | None):
+    def _cast6(self, rays: np.ndarray, dyn: _Geometry | None, soa=None):
         """Nearest hit of static + dynamic for rays (n,6) float32: t float32 (inf none), face
-        (integer, undefined where no hit), is_dyn bool (n,) or None without a dynamic mesh, t_static."""
+        (integer, undefined where no hit), is_dyn bool (n,) or None without a dynamic mesh. ``soa``:
+        the same origins and directions as contiguous (3,n) float32 rows, if at hand (faster culling)."""
         if self.cast_log is not None:
             self.cast_log.append(("static", rays.copy()))
         ts, fs = self.static.backend.cast6(rays)
         if dyn is None:
             return ts, fs, None
-        sub = _meets_box(rays, ts, dyn.box) if self.cull_dynamic else None
+        o3, d3 = soa if soa is not None else (rays[:, :3].T, rays[:, 3:].T)
+        sub = _meets_box(o3, d3, ts, dyn.box) if self.cull_dynamic else None
         if sub is None:
             if self.cast_log is not None:
                 self.cast_log.append(("dynamic", rays.copy()))
@@ -276,9 +279,10 @@ class RayScene:
                 break
             o, d, nx = S[0:3], S[3:6], S[6:9]
             R = rays[:n]
-            R[:, :3] = (o + off * d).T if b else o.T
+            ro = o + off * d if b else o
+            R[:, :3] = ro.T
             R[:, 3:] = d.T
-            t, f, isd = self._cast6(R, dyn)
+            t, f, isd = self._cast6(R, dyn, (ro, d))
             hit = np.isfinite(t)
             fz = np.where(hit if isd is None else hit & ~isd, f, 0)  # static face ids only
             st.n32.take(fz, axis=1, out=nx)
@@ -377,7 +381,7 @@ class RayScene:
             self.cast_log.append(("static:occluded", rays.copy()))
         blocked = self.static.backend.occluded6(rays)
         if dyn is not None:
-            sub = _meets_box(rays, np.float32(1), dyn.box) if self.cull_dynamic else None
+            sub = _meets_box(O, v, np.float32(1), dyn.box) if self.cull_dynamic else None
             part = rays if sub is None else rays[sub]
             if self.cast_log is not None:
                 self.cast_log.append(("dynamic:occluded", part.copy() if sub is None else part))
@@ -392,9 +396,10 @@ class RayScene:
         return self._visible32(np.asarray(O, np.float32).T, np.asarray(P, np.float32).T, self._dynamic(dyn))
 
 
-def _meets_box(rays: np.ndarray, tmax, box: np.ndarray) -> np.ndarray:
-    """Indices of the rays (n,6) float32 whose segment ``o + s d``, s in [0, ``tmax``] (scalar or (n,),
-    inf allowed), meets the axis-aligned ``box`` (2,3) float32 [lo, hi] (slab test).
+def _meets_box(o: np.ndarray, d: np.ndarray, tmax, box: np.ndarray) -> np.ndarray:
+    """Indices of the rays, origins ``o`` and directions ``d`` (3,n) float32 (rows may be strided views
+    of an (n,6) ray array), whose segment ``o + s d``, s in [0, ``tmax``] (scalar or (n,), inf
+    allowed), meets the axis-aligned ``box`` (2,3) float32 [lo, hi] (slab test).
 
     Conservative, so culling never changes a result: ``box`` is the mesh's box grown by
     BOX_MARGIN_M, which moves each slab's entry at least that far (|d| <= 1 m per unit s for the
@@ -403,10 +408,10 @@ def _meets_box(rays: np.ndarray, tmax, box: np.ndarray) -> np.ndarray:
     out would have missed the mesh or hit it beyond ``tmax``, where the static hit wins."""
     enter = leave = None
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for k in range(3):  # per axis on (n,) columns: numpy is slow on (n,3) arrays with their 3-long inner loops
-            inv = np.float32(1) / rays[:, 3 + k]  # d = 0: both slab ends -inf/+inf (origin inside) or same-signed
-            a = (box[0, k] - rays[:, k]) * inv
-            b = (box[1, k] - rays[:, k]) * inv
+        for k in range(3):  # per axis on (n,) rows: numpy is slow on (n,3) arrays with their 3-long inner loops
+            inv = np.float32(1) / d[k]  # d = 0: both slab ends -inf/+inf (origin inside) or same-signed
+            a = (box[0, k] - o[k]) * inv
+            b = (box[1, k] - o[k]) * inv
             # fmin/fmax ignore the NaN of 0 * inf (d = 0 with the origin on the grown box's face:
             # >= BOX_MARGIN_M from the mesh, so left out either way)
             lo, hi = np.fmin(a, b), np.fmax(a, b)
