@@ -96,16 +96,27 @@ def run_tasks(client, fn, calls: list[tuple], keys: list[str], description: str 
               retries: int = TASK_RETRIES) -> list:
     """Submit ``fn(*args)`` for every ``args`` in ``calls`` (task keys ``keys``), show progress over
     completions, return the results in submission order. The first task error is re-raised (its
-    original type, e.g. a HolodataError) after cancelling the rest."""
+    original type, e.g. a HolodataError) after cancelling the rest. A worker that dies mid-task (a
+    signal, the OOM killer) costs a rerun elsewhere (Dask's ``allowed-failures``, default 3); a task
+    that kills every worker it lands on ends in one WorkerError line."""
     from distributed import as_completed
 
     from .progress import track
+
+    from distributed.scheduler import KilledWorker
 
     futures = [client.submit(fn, *args, key=key, retries=retries, pure=False) for args, key in zip(calls, keys)]
     results = {}
     try:
         for fut in track(as_completed(futures), total=len(futures), description=description, quiet=quiet):
             results[fut.key] = fut.result()
+    except KilledWorker as err:   # Dask reran the task on fresh workers and each one died: one line, not its repr
+        from .parallel import WorkerError
+
+        client.cancel(futures)
+        raise WorkerError(f"{description or getattr(fn, '__name__', 'task')}: task {err.task!r} killed "
+                          f"{err.allowed_failures + 1} Dask workers (killed by a signal or out of memory); "
+                          f"given up") from err
     except BaseException:
         client.cancel(futures)
         raise

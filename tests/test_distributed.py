@@ -315,3 +315,27 @@ def test_shard_task_rerun_is_idempotent(tmp_path, monkeypatch):
     assert res["written"] == ["gt/label"] and traced == [["gt/label"]]
     assert manifests(out) == before
     assert hds.validate_dataset(str(out))["ok"]
+
+
+def _kill_own_worker(x):
+    os.kill(os.getpid(), signal.SIGKILL)
+
+
+def test_a_task_that_kills_every_worker_is_a_one_line_error_within_seconds():
+    """A Dask task whose worker dies each time (as under the OOM killer): Dask reruns it on a fresh
+    worker (allowed-failures, here 1), then run_tasks gives up with one WorkerError line naming the
+    step and the task, within seconds, instead of a KilledWorker repr or a hang."""
+    import dask
+
+    import holodata.distributed as hd
+    from holodata.parallel import WorkerError
+
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
+        with hd.cluster(workers=1) as client:
+            t = time.monotonic()
+            with pytest.raises(WorkerError) as e:
+                hd.run_tasks(client, _kill_own_worker, [(1,)], ["doomed-task"], description="test step")
+            took = time.monotonic() - t
+    msg = str(e.value)
+    assert "\n" not in msg and msg.startswith("test step: task 'doomed-task' killed 2 Dask workers"), msg
+    assert took < 60, took
