@@ -5,14 +5,17 @@ box-and-prism human (one mesh per frame via --human-dir), a radar trajectory thr
 then:
   1. runs the whole standalone pipeline (read inputs, trace 64x512 beams x 3 bounces + LOS checks,
      write gt/* shards) and reports frames/s;
-  2. replays, on a sample of frames, exactly the ray batches the tracer cast, through bare open3d
+  2. replays, on a sample of frames, the ray batches of the straightforward trace (the tracer with
+     its human culling switched off: every ray also against the human) through bare open3d
      ``RaycastingScene.cast_rays`` / ``test_occlusions`` (the LOS checks) (static scene built once,
-     human scene per frame) in the same run,
-     and prints the ratio  bare time / pipeline time  per frame (1.0 = no overhead);
-  3. runs the pipeline in subprocesses for 100 and 1000 frames and prints their peak RSS;
-  4. extrapolates to HoloRadar scale (28k frames).
+     human scene per frame) in the same run, and prints the ratio  bare time / pipeline time  per
+     frame (1.0 = no overhead), wall and CPU;
+  3. runs the ``holodata raytrace-gt`` command itself as a subprocess (start-up and imports
+     included) and prints its ratios (--skip-cli to skip);
+  4. runs the pipeline in subprocesses for 100 and 1000 frames and prints their peak RSS;
+  5. extrapolates to HoloRadar scale (28k frames).
 
-    .venv/bin/python benchmarks/raytrace.py [--frames 600] [--rss-grid 64x512] [--skip-rss]
+    .venv/bin/python benchmarks/raytrace.py [--frames 600] [--processes N] [--rss-grid 64x512] [--skip-rss]
 """
 from __future__ import annotations
 
