@@ -92,17 +92,16 @@ def core_timing(url: str, sid: str, bg, cfg) -> dict:
         valid, P, Pw = scans.scan(k, traj, cfg.deskew)
         if not valid.any():
             continue
-        bgm, near = background_masks(bg, valid, Pw, cfg)
-        prep.append((P, valid, bgm, np.where(valid[..., None], Pw, 0.0), near))
+        bgm = background_masks(bg, valid, Pw, cfg)
+        prep.append((P, valid, bgm, np.where(valid[..., None], Pw, 0.0)))
     st = np.ones((3, 3), bool)
     t_seg, t_lab = np.inf, np.inf
     for _ in range(3):
         t0 = time.perf_counter()
-        for P, valid, bgm, pw, near in prep:
-            segment_scan(P, valid, bgm, cfg, points_world=pw, background_near=near, floor=bg.floor, shifts=shifts,
-                         elev=elev)
+        for P, valid, bgm, pw in prep:
+            segment_scan(P, valid, bgm, cfg, points_world=pw, floor=bg.floor, shifts=shifts, elev=elev)
         t_seg = min(t_seg, time.perf_counter() - t0)
-        masks = [valid & ~bgm for P, valid, bgm, pw, near in prep]
+        masks = [valid & ~bgm for P, valid, bgm, pw in prep]
         t0 = time.perf_counter()
         for m in masks:
             ndimage.label(m, structure=st)

@@ -354,7 +354,7 @@ def test_surely_without_foreground_allows_for_the_float32_rounding():
     p32 = p64.astype(np.float32)
     assert (np.floor(p32[:, 0].astype(np.float64) / v) == 30).all() and (np.floor(p64[:, 0] / v) == 29).all()
     valid = np.ones((1, 20), bool)
-    bgm, _ = background_masks(bg, valid, p64[None], cfg)
+    bgm = background_masks(bg, valid, p64[None], cfg)
     assert (~bgm).sum() == 20                                            # float64: all foreground
     assert bg.contains(p32, 0).all()                                     # float32 alone: all background
     assert not surely_without_foreground(bg, p32, cfg)
@@ -392,7 +392,7 @@ def test_background_and_segment_reads_scans_once_with_the_same_masks(monkeypatch
     fg = []
     for k in range(len(scans.stamps)):
         valid, P, Pw = scans.scan(k, traj)
-        fg.append(int((valid & ~S.background_masks(bg, valid, Pw, SegmentConfig())[0]).sum()))
+        fg.append(int((valid & ~S.background_masks(bg, valid, Pw, SegmentConfig())).sum()))
     m = int(np.median(fg)) + 1
     cfg = SegmentConfig(min_points=m)
     few = {k for k, n in enumerate(fg) if n < m}

@@ -48,7 +48,7 @@ class Step:
 
 def gauss_newton_step(p: np.ndarray, n: np.ndarray, r: np.ndarray, w: np.ndarray, centre: np.ndarray | None = None,
                       lever: float = 1.0, damping: float = 0.0, max_cond: float = np.inf, hold_ratio: float = 0.0,
-                      max_std_m: float = 0.0, poses: tuple | None = None, hold_m: float = 0.0) -> Step | None:
+                      poses: tuple | None = None, hold_m: float = 0.0) -> Step | None:
     """One weighted point-to-plane Gauss-Newton step for points ``p`` (M,3) with residuals ``r`` (M,)
     against planes of unit normals ``n`` (M,3), weights ``w`` (M,) (robust × per point).
 
@@ -56,8 +56,7 @@ def gauss_newton_step(p: np.ndarray, n: np.ndarray, r: np.ndarray, w: np.ndarray
     None: the weighted centroid of ``p`` and ``lever`` its median distance from it (1 when 0).
     ``hold_ratio`` 0: the plain step -H⁻¹g with ``damping`` × Σw added to the diagonal of H; None when
     cond(H) > ``max_cond``. ``hold_ratio`` > 0: directions (eigenvectors of H) whose eigenvalue is below
-    ``hold_ratio`` × the largest, or with ``max_std_m`` > 0 (w inverse variances) whose standard
-    deviation 1/sqrt(eigenvalue) exceeds it, are held: the update along them is zero, except that with
+    ``hold_ratio`` × the largest are held: the update along them is zero, except that with
     ``poses`` = (current pose, guess) (4,4 each) it takes the pose back to within ``hold_m`` (m, in
     these coordinates: :func:`centred_offset`) of the guess along them."""
     if centre is None:
@@ -75,8 +74,6 @@ def gauss_newton_step(p: np.ndarray, n: np.ndarray, r: np.ndarray, w: np.ndarray
         return Step(-np.linalg.solve(H, g), centre, lever, np.zeros((6, 0)))
     ev, V = np.linalg.eigh(H)
     keep = ev >= hold_ratio * ev.max()
-    if max_std_m > 0:  # weights are inverse variances: 1/sqrt(ev) is the direction's std (m)
-        keep &= ev >= 1.0 / max_std_m ** 2
     y = -(V[:, keep] @ ((V[:, keep].T @ g) / ev[keep]))
     if not keep.all() and poses is not None:
         # held directions stay within hold_m of the guess: an earlier (coarser) stage may have moved
@@ -89,8 +86,8 @@ def gauss_newton_step(p: np.ndarray, n: np.ndarray, r: np.ndarray, w: np.ndarray
 def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
                        init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
                        degenerate_ratio: float = 0.0, info: dict | None = None,
-                       source_normals: np.ndarray | None = None, min_normal_cos: float = 0.8, search_m: float = 0.0,
-                       max_std_m: float = 0.0, hold_m: float = 0.05) -> np.ndarray:
+                       source_normals: np.ndarray | None = None, min_normal_cos: float = 0.8,
+                       hold_m: float = 0.05) -> np.ndarray:
     """Weighted point-to-plane ICP (iterated :func:`gauss_newton_step`): ``source`` (N,3) with ``weights``
     (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``, from ``init`` (4,4); returns T (4,4).
 
@@ -99,11 +96,10 @@ def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarr
     noisy far points keep their unbiased residuals instead of being truncated), kept when its
     point-to-plane residual is within that scale, Tukey-weighted with the same scale. ``source_normals``
     (N,3): correspondences whose normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge
-    the nearest map point can belong to the other wall. ``search_m`` > 0: nearest map points up to that
-    far (tangentially) are used, gated on the residual only. ``degenerate_ratio`` > 0: directions the
+    the nearest map point can belong to the other wall. ``degenerate_ratio`` > 0: directions the
     overlap does not pin down (:func:`gauss_newton_step`'s ``hold_ratio``, rotations about the
     correspondences' centroid scaled by their median distance from it) keep the initial guess to within
-    ``hold_m`` (a corridor seen end-on); ``max_std_m`` as there. ``info`` receives the number of held
+    ``hold_m`` (a corridor seen end-on). ``info`` receives the number of held
     directions (``frozen``), the eigenvalues relative to the largest and ``held`` = (V (6,k), centre,
     lever) for :func:`hold_at`. A stage ends when the update is below 10 µm and 1 µrad; fewer than 6
     correspondences end the solve."""
@@ -120,9 +116,8 @@ def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarr
         scale = np.clip(3 * sig, d, max_scale)
         for _ in range(iterations):
             p = transform_points(T, src)
-            reach = np.maximum(scale, search_m)
-            dist, j = tree.query(p, k=1, distance_upper_bound=float(reach.max()), workers=-1)
-            ok = np.isfinite(dist) & (dist <= reach)
+            dist, j = tree.query(p, k=1, distance_upper_bound=float(scale.max()), workers=-1)
+            ok = np.isfinite(dist) & (dist <= scale)
             jj = np.where(ok, j, 0)
             r_all = np.einsum("ij,ij->i", p - target[jj], target_normals[jj])
             ok &= np.abs(r_all) <= scale     # gated on the distance to the map's surface, not to its points
@@ -135,8 +130,7 @@ def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarr
             r = r_all[ok]
             w = w0[ok] * tukey_weights(r, scale[ok])
             if degenerate_ratio > 0:
-                step = gauss_newton_step(pp, nn, r, w, None, hold_ratio=degenerate_ratio, max_std_m=max_std_m,
-                                         poses=(T, T0), hold_m=hold_m)
+                step = gauss_newton_step(pp, nn, r, w, None, hold_ratio=degenerate_ratio, poses=(T, T0), hold_m=hold_m)
                 x = step.motion()
                 if info is not None:
                     ev = step.eigenvalues

@@ -254,22 +254,27 @@ def map_frame_problem(scene, world: str) -> str | None:
 
 
 REGISTER_OUTPUTS = ("calib/T_world_camera", "human/vertices", "human/faces", "human/points")
+# Switches deleted (issue 25: off by default, never used) after datasets were registered with them:
+# their only value stays in the fingerprint, so a scene registered before still reads as done.
+RETIRED_PARAMS = {"noise_weights": False, "max_std_m": 0.0, "search_m": 0.0, "mesh_keep_map_m": 0.0}
+RETIRED_SEGMENT_PARAMS = {"grow_pixels": 0}
 
 
 def register_fingerprint(scene, cfg: RegisterConfig, init, segment_cfg=None) -> str:
     """What register's outputs depend on, hashed: the settings (less ``processes``, which changes no
-    result), ``--init``, the camera's TF pose and intrinsics (``sensors.camera``), ingest's
-    fingerprint (the camera and LiDAR arrays) and the bytes of slam's poses, map points and mesh."""
+    result; with :data:`RETIRED_PARAMS`), ``--init``, the camera's TF pose and intrinsics
+    (``sensors.camera``), ingest's fingerprint (the camera and LiDAR arrays) and the bytes of slam's
+    poses, map points and mesh."""
     import hashlib
     import json
 
     h = hashlib.sha256()
-    params = {k: v for k, v in cfg.to_attrs().items() if k != "processes"}
+    params = {**RETIRED_PARAMS, **{k: v for k, v in cfg.to_attrs().items() if k != "processes"}}
     head = {"params": params, "init": None if init is None else np.asarray(_parse_init(init), float).tolist(),
             "camera": (scene.attrs.get("sensors") or {}).get("camera"),
             "ingest": (scene.attrs.get("ingest") or {}).get("fingerprint")}
     if segment_cfg is not None:                      # a segmentation other than the default's
-        head["segment"] = segment_cfg.to_attrs()
+        head["segment"] = {**RETIRED_SEGMENT_PARAMS, **segment_cfg.to_attrs()}
     h.update(json.dumps(head, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)).encode())
     names = set(scene.arrays())
     for name in ("pose/T_world_lidar", "map/points", "mesh/vertices", "mesh/faces"):

@@ -30,9 +30,7 @@ class RegisterConfig:
     map_plane_ratio: float = 0.1
     mesh_target: bool = True
     mesh_sample_m: float = 0.02
-    mesh_keep_map_m: float = 0.0
     mesh_degenerate_ratio: float = 0.025
-    search_m: float = 0.0
     max_pose_std_m: float = 0.02
     guess_std_m: float = 0.05   # accuracy of the guess (TF / --init) along directions the data does not
                                 # constrain (held at it): a hand-measured mount is good to a few cm
@@ -40,9 +38,6 @@ class RegisterConfig:
     anchor_max_deg: float = 0.5    # TF guess, slam map: held directions follow a map turn up to this
                                    # (docs/design/register.md, 3.)
     anchor_agree_deg: float = 0.1  # ... that the camera's yaw and position corrections show alike
-    # inverse-variance weights and variance-based freezing: options, off (docs/design/register.md)
-    noise_weights: bool = False
-    max_std_m: float = 0.0
     max_scale_m: float = 0.25
     crop_m: float = 0.6
     check_sigma_m: float = 0.02

@@ -13,6 +13,9 @@ from ...geometry.planes import local_plane_projection
 from ...geometry.voxels import voxel_average
 from .config import RegisterConfig, Registration
 
+# every camera point's ICP weight, 1/σ² for σ = 1 cm: the correspondence and Tukey scale is then
+# max(stage distance, 3 cm) for every point (holodata.geometry.point_to_plane_icp)
+UNIFORM_WEIGHT = 1e4
 
 # ------------------------------------------------------------------------------------ open3d helpers
 def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float | None = None, max_nn: int = 30):
@@ -257,7 +260,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
                                                 cfg.crop_m + cfg.max_scale_m, cfg.mesh_sample_m)
         if len(mesh_pts) < cfg.min_overlap_points:
             mesh_pts = None
-    if cfg.map_plane_m > 0 and (mesh_pts is None or cfg.mesh_keep_map_m <= 0):
+    if cfg.map_plane_m > 0:
         # denoise the target: map points near the camera cloud (under the guess) onto their local planes
         mp = voxel_average(map_points, cfg.map_voxel)
         reach = cfg.crop_m + cfg.max_scale_m + cfg.map_plane_m
@@ -265,18 +268,15 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         map_points = local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
     tgt_pts, tgt_n = map_normals(map_points, cfg)
     if mesh_pts is not None:
-        # the mesh's surface near the camera cloud joins the (denoised) map; with mesh_keep_map_m > 0
-        # it replaces the map points within that distance instead (measured a little worse)
-        far = (_nn_distances(tgt_pts, mesh_pts, cfg.mesh_keep_map_m) > cfg.mesh_keep_map_m if cfg.mesh_keep_map_m > 0
-               else np.ones(len(tgt_pts), bool))
-        tgt_pts, tgt_n = np.concatenate([mesh_pts, tgt_pts[far]]), np.concatenate([mesh_n, tgt_n[far]])
+        # the mesh's surface near the camera cloud joins the (denoised) map (docs/design/register.md, 3.)
+        tgt_pts, tgt_n = np.concatenate([mesh_pts, tgt_pts]), np.concatenate([mesh_n, tgt_n])
     tgt_tree = cKDTree(tgt_pts)
     # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
     # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
     full_src, full_sig, full_n = src, sig, src_n
     near = _nn_distances(transform_points(init, src), tgt_pts, cfg.crop_m) <= cfg.crop_m
     if near.sum() >= cfg.min_overlap_points:
-        src, sig, src_n = src[near], sig[near], src_n[near]
+        src, src_n = src[near], src_n[near]
     attempts = []
 
     def check(T, frozen: int = 0, held=None):
@@ -307,15 +307,12 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
 
     def refine(T0, info):
         # Gauss-Newton point-to-plane with Tukey loss and degeneracy-aware updates. Not open3d's
-        # registration_icp: from the exact pose it slid 43 cm along a corridor the overlap sees
-        # end-on (T corner, 1.5 m wide), and it has no way to hold such directions. Uniform weights:
-        # per-point camera noise weights were measured worse (the map's own error is not modelled).
-        return point_to_plane_icp(src, (1.0 / (sig ** 2 + cfg.map_sigma_m ** 2)) if cfg.noise_weights else np.full(len(src), 1e4),
-                            tgt_pts, tgt_n, T0, cfg.icp_distances, cfg.icp_iterations,
-                            degenerate_ratio=ratio, info=info, source_normals=src_n,
-                            min_normal_cos=cfg.min_normal_cos, search_m=cfg.search_m,
-                            max_std_m=cfg.max_std_m if cfg.noise_weights else 0.0, max_scale=cfg.max_scale_m,
-                            hold_m=cfg.hold_m)
+        # registration_icp: it slides along a corridor the overlap sees end-on, and it has no way to
+        # hold such directions (docs/design/register.md, 3.). Uniform weights: per-point camera noise
+        # weights did no better (the map's own error is not modelled).
+        return point_to_plane_icp(src, np.full(len(src), UNIFORM_WEIGHT), tgt_pts, tgt_n, T0, cfg.icp_distances,
+                                  cfg.icp_iterations, degenerate_ratio=ratio, info=info, source_normals=src_n,
+                                  min_normal_cos=cfg.min_normal_cos, max_scale=cfg.max_scale_m, hold_m=cfg.hold_m)
 
     # against the mesh's smooth surface a weak direction (a T corner's corridor seen end-on) is
     # determined by the data; against the noisy points it was held at the guess
@@ -335,7 +332,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
                      "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
     best = ("icp", T, c)
     if not c["accepted"] and allow_fallback:
-        src, sig, src_n = full_src, full_sig, full_n
+        src, src_n = full_src, full_n
         Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
         info2: dict = {}
         T2 = refine(Tg, info2)

@@ -25,17 +25,12 @@ The method of the Ouster OS0 instance-segmentation note, on the organised scan `
    person-like (vertical extent >= ``min_height_m``, horizontal extent <= ``max_width_m``, top at
    most ``max_height_m`` above the floor, not flat), largest first, at most ``max_instances``.
 
-Beam geometry: the constants were first tuned on an OS1-like LiDAR (33.2° vertical FOV, 64 beams,
-0.53° apart); on an OS0-like one (90°, 32 beams: 2.9° apart) walkers' AP50 fell to 0.15. Causes
-measured (``benchmarks/segment.py``): rows of a person at 4–6 m are 20–30 cm apart, beyond the
-fixed 10 cm + 2 %·r link threshold, so far people fell apart into rows; the 3×3 shrink removed a
-whole 15–30 cm row top and bottom and left such a person (~6 rows) without seeds; the far floor,
-hit by a coarse ring in a single scan as the robot moves, stayed out of the voxel background and
-joined the feet; the near-background split (seeds only away from voxels next to the background,
-then a 3-pixel regrowth) cut people within 1 m — whom a 90° LiDAR sees head to toe — into pieces
-the regrowth could not rejoin; and ``min_fraction`` 0.25 kept the trail of walkers in short
-recordings as background. AP50 now >= 0.9 for both LiDARs at 64×1024, 64×512 and 32×512 on every
-corner kind (numbers in ``benchmarks/segment.py``).
+Beam geometry: the link threshold, the shrink structure and the smallest height follow the beam
+spacing measured in the scan, so that a coarse wide-FOV LiDAR (an OS0-like 90°, 32 beams) is
+segmented as well as a fine narrow one (an OS1-like 33°, 64 beams): on a coarse grid the rows of a
+far person lie farther apart than a fixed link threshold, a fixed 3×3 shrink removes whole rows, and
+the far floor seen by one coarse ring stays out of the voxel background. What failed and the
+accuracy per LiDAR: ``docs/design/segment.md``.
 
 Output per scan: an instance image (Hl, Wl) uint16, 0 = background / no return, 1 = the largest
 instance, 2 = the next ... Stored as ``lidar/instance`` (T, Hl, Wl) uint16 with
@@ -85,8 +80,8 @@ def background_from_points(points_world: list, origins, cfg: SegmentConfig):
 def build_background(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bool = True):
     """Voxel background model of a scene's scans (world frame). With ``cfg.free_space`` the scan
     origins go to :meth:`VoxelBackground.build` (free-space test: a voxel people walk through is seen
-    through by other scans and drops out; measured AP50 0.96 vs 0.94 with the occupancy count on a
-    60-frame corner with two walkers)."""
+    through by other scans and drops out; the comparison with the occupancy count alone:
+    ``docs/design/segment.md``)."""
     return _background_pass(scans, cfg, traj, quiet)[0]
 
 
@@ -187,12 +182,10 @@ def grid_geometry(scans: LidarScans, n: int = 5) -> tuple[np.ndarray | None, np.
     return mode, np.median(el, axis=0)
 
 
-def background_masks(bg, valid: np.ndarray, points_world: np.ndarray, cfg: SegmentConfig
-                     ) -> tuple[np.ndarray, np.ndarray | None]:
-    """(background (H,W) bool, near (H,W) bool or None) of one scan for :func:`segment_scan`:
-    background = returns in a background voxel (:func:`in_background`, ``cfg.tolerance_voxels``) or
-    within ``cfg.floor_margin_m`` of the floor plane ``bg.floor`` (when the model has one); near =
-    within one voxel of the background, only with ``cfg.grow_pixels`` > 0 (else None)."""
+def background_masks(bg, valid: np.ndarray, points_world: np.ndarray, cfg: SegmentConfig) -> np.ndarray:
+    """The background (H,W) bool of one scan for :func:`segment_scan`: returns in a background voxel
+    (:func:`in_background`, ``cfg.tolerance_voxels``) or within ``cfg.floor_margin_m`` of the floor
+    plane ``bg.floor`` (when the model has one)."""
     v = np.asarray(valid, bool)
     p = points_world[v]
     bgm = np.zeros(v.shape, bool)
@@ -200,11 +193,7 @@ def background_masks(bg, valid: np.ndarray, points_world: np.ndarray, cfg: Segme
     floor = getattr(bg, "floor", None)
     if floor is not None and cfg.floor_margin_m > 0:
         bgm[v] |= above_floor(floor, p) < cfg.floor_margin_m
-    near = None
-    if cfg.grow_pixels > 0:
-        near = np.zeros(v.shape, bool)
-        near[v] = in_background(bg, p, 1) | bgm[v]
-    return bgm, near
+    return bgm
 
 
 def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | None = None, quiet: bool = True,
@@ -311,10 +300,9 @@ class InstanceMasks:
         valid, P, Pw = self.scans.scan(k, self.traj, self.cfg.deskew)
         if not valid.any():
             return None
-        bgm, near = background_masks(self.bg, valid, Pw, self.cfg)
+        bgm = background_masks(self.bg, valid, Pw, self.cfg)
         return segment_scan(P, valid, bgm, self.cfg, points_world=np.where(valid[..., None], Pw, 0.0),
-                            background_near=near, floor=getattr(self.bg, "floor", None), shifts=self.shifts,
-                            elev=self.elev)
+                            floor=getattr(self.bg, "floor", None), shifts=self.shifts, elev=self.elev)
 
     def __getitem__(self, k: int) -> np.ndarray:
         m = self._kept[k] = self.mask(k)

@@ -26,10 +26,7 @@ class SegmentConfig:
     ``min_height_m`` / ``max_width_m``: person-like extent (0 / inf switch the check off);
     ``min_depth_m``: smallest robust extent along the cluster's least principal axis (rejects flat
     patches of wall that the background missed, e.g. behind a lane people walk often);
-    ``max_instances``: keep at most this many clusters per scan (largest first; 0 = no limit);
-    ``grow_pixels`` > 0: seeds and flood fill only away from returns within one voxel of the
-    background, then the clusters regrow this many pixels (the former default 3: it split people
-    within ~1 m of a wide-FOV LiDAR; 0 = off)."""
+    ``max_instances``: keep at most this many clusters per scan (largest first; 0 = no limit)."""
 
     voxel: float = 0.15
     min_fraction: float = 0.6
@@ -49,7 +46,6 @@ class SegmentConfig:
     max_instances: int = 0
     deskew: bool = True
     free_space: bool = True
-    grow_pixels: int = 0
 
     def to_attrs(self) -> dict:
         return {k: (None if isinstance(v, float) and not np.isfinite(v) else v) for k, v in asdict(self).items()}

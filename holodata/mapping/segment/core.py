@@ -1,5 +1,5 @@
 """Segmentation of one organised scan, arrays in, arrays out (no I/O): foreground flood fill
-from seeds (:func:`flood_fill`), erosion, growing, destaggering, merging stacked pieces,
+from seeds (:func:`flood_fill`), erosion, destaggering, merging stacked pieces,
 the person-sized checks (:func:`segment_scan`)."""
 from __future__ import annotations
 
@@ -185,46 +185,16 @@ def destagger(a: np.ndarray, shifts: np.ndarray, inverse: bool = False) -> np.nd
     return a[np.arange(H)[:, None], cols]
 
 
-def grow(lab: np.ndarray, allowed: np.ndarray, points: np.ndarray, dist_m: float, dist_per_m: float,
-         steps: int, elev: np.ndarray | None = None, spacing_factor: float = 0.0) -> np.ndarray:
-    """Grow labels ``lab`` (H,W) int64 (-1 = none) by up to ``steps`` pixels into ``allowed`` pixels
-    (8-neighbourhood, columns wrap) whose point is within the flood-fill distance of the labelled
-    neighbour's point."""
-    lab = lab.copy()
-    rng = np.linalg.norm(points, axis=-1)
-    offs = [(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
-    for _ in range(steps):
-        new = lab.copy()
-        for dr, dc in offs:
-            # neighbour (i+dr, j+dc) of pixel (i, j); rows past the edge are unlabelled
-            nl = _shift(lab, dr, dc, fill=-1)
-            npnt = _shift(points, dr, dc, fill=0.0)
-            cand = (new < 0) & allowed & (nl >= 0)
-            if not cand.any():
-                continue
-            d = np.linalg.norm(points - npnt, axis=-1)
-            sp = neighbour_spacing(elev, lab.shape[1], dr, dc) if elev is not None else None
-            ok = cand & (d < link_threshold(rng, rng, sp, dist_m, dist_per_m, spacing_factor))
-            new[ok] = nl[ok]
-        if (new == lab).all():
-            break
-        lab = new
-    return lab
-
-
 def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray | None,
                  cfg: SegmentConfig | None = None, points_world: np.ndarray | None = None,
-                 shifts: np.ndarray | None = None, background_near: np.ndarray | None = None,
-                 floor: np.ndarray | None = None, elev: np.ndarray | None = None) -> np.ndarray:
+                 shifts: np.ndarray | None = None, floor: np.ndarray | None = None,
+                 elev: np.ndarray | None = None) -> np.ndarray:
     """Instance image of one organised scan.
 
     ``points`` (H,W,3) sensor-frame points m (flood-fill distances); ``valid`` (H,W) bool returns;
     ``background`` (H,W) bool, True = return explained by the static background (None: none is);
     ``points_world`` (H,W,3) world points for the extent checks (default ``points``; the z axis must be
-    up); ``background_near`` (H,W) bool, True = return *within one voxel* of the background: when
-    given, seeds and flood fill use only returns away from the background (a person touching a wall
-    or a patch of wall the background missed cannot merge), and the clusters then grow by
-    ``grow_pixels`` into the other foreground returns (feet, hands near walls); ``shifts`` (H,)
+    up); ``shifts`` (H,)
     destaggering column shifts (:func:`row_shifts`; None: measured here); ``floor`` the floor plane
     (:func:`floor_plane`; clusters topping out more than ``cfg.max_height_m`` above it are dropped);
     ``elev`` (H,) beam elevations (rad; :func:`beam_elevations`, None: measured here) for the
@@ -242,22 +212,17 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
         pw = points_world if points_world is not None else points
         lab = segment_scan(destagger(np.asarray(points), shifts), destagger(np.asarray(valid, bool), shifts),
                            None if background is None else destagger(np.asarray(background, bool), shifts), cfg,
-                           destagger(np.asarray(pw), shifts), np.zeros(len(shifts), np.int64),
-                           None if background_near is None else destagger(np.asarray(background_near, bool), shifts),
-                           floor, elev)
+                           destagger(np.asarray(pw), shifts), np.zeros(len(shifts), np.int64), floor, elev)
         return destagger(lab, shifts, inverse=True)
     valid = np.asarray(valid, bool)
     fg = valid & (~np.asarray(background, bool) if background is not None else True)
-    core = fg & ~np.asarray(background_near, bool) if background_near is not None else fg
     P = np.asarray(points, np.float64)
     if elev is None:
         elev = beam_elevations(P, valid)
-    seeds = erode(core, cfg.erosion, shrink_structure(elev, fg.shape[1]))
+    seeds = erode(fg, cfg.erosion, shrink_structure(elev, fg.shape[1]))
     if cfg.spacing_factor <= 0:
         elev = None
-    lab, n = flood_fill(P, core, seeds, cfg.dist_m, cfg.dist_per_m, elev, cfg.spacing_factor)
-    if background_near is not None and cfg.grow_pixels > 0 and n:
-        lab = grow(lab, fg, P, cfg.dist_m, cfg.dist_per_m, cfg.grow_pixels, elev, cfg.spacing_factor)
+    lab, n = flood_fill(P, fg, seeds, cfg.dist_m, cfg.dist_per_m, elev, cfg.spacing_factor)
     out = np.zeros(fg.shape, np.uint16)
     if n == 0:
         return out
