@@ -84,8 +84,8 @@ class DemoConfig:
 def demo_config(quick: bool) -> DemoConfig:
     """``quick``: small grids and few frames (about 5 min on 2 cores, README); else the paper's 64×512 grid."""
     if quick:
-        # cross_21 (2.4 m wide) for DEMO_CORNERS' cross_13 (4.0 m): at 32x128 beams the radar reaches
-        # the hidden side of the 4 m cross with ~80 GT NLOS points per frame, of cross_21 with ~680
+        # a 2.4 m wide cross for DEMO_CORNERS' 4 m one: at the quick demo's 32x128 beams the radar
+        # reaches the hidden side of the 4 m cross with few GT NLOS points (docs/design/synth.md)
         corners = tuple(("cross", 21) if c == ("cross", 13) else c for c in DEMO_CORNERS[:6])
         return DemoConfig(corners=corners, n_test=1, frames=12, grid=Grid(32, 128),
                           lidar_shape=(32, 512), camera_shape=(376, 672), epochs=15, depth=6,

@@ -284,7 +284,7 @@ def aligned_extrinsic_error(url: str, scene_id: str, truth_dir: str | Path, T_es
     chordal mean of R_true R_estᵀ, translation = mean residual; what the ATE falls back to on a
     straight path), not the position-only Umeyama fit: the synthetic corners' robot drives a straight
     line (lateral spread ~7 mm, constant height), where Umeyama's rotation about the path is set by
-    centimetre position noise (0.9 deg on oblique seed 4: 14 cm at 9 m) — harmless for the ATE of
+    centimetre position noise (``docs/design/register.md``, camera alignment) — harmless for the ATE of
     points on that line, meaningless for a camera 9 m off it. The Umeyama variant is returned too
     (``umeyama_trans_cm``, ``umeyama_rot_deg``). Returns {"trans_cm", "rot_deg", "align_rot_deg"
     (size of A's rotation), "umeyama_trans_cm", "umeyama_rot_deg", "umeyama_align_rot_deg"}. With

@@ -11,7 +11,8 @@
 3. Surface reconstruction with open3d, one of (``MeshConfig.method``):
 
    - ``poisson`` (default): screened Poisson, octree depth from the scene extent so the finest
-     cell is about 2·``voxel`` (finer measured worse and 3× slower); low-density vertices (``density_quantile``) and every vertex
+     cell is about 2·``voxel`` (a finer octree was worse and slower: ``docs/design/mesh.md``);
+     low-density vertices (``density_quantile``) and every vertex
      farther than ``trim_distance`` from the cloud are removed (Poisson closes open corridors
      with invented surface; the distance trim takes it away).
    - ``bpa``: ball pivoting with radii ``(2, 4)·voxel``.

@@ -44,7 +44,8 @@ class CameraFrames:
     def depth(self, k: int) -> np.ndarray:
         """(h,w) float32 depth image of frame ``k`` (NaN = none): each point in front of the camera (z > 0)
         at its nearest pixel, in float32 as stored (the camera points of a depth image are its pixels'
-        rays, so the same pixels as in float64; ~7x faster at 376x672); non-finite points go nowhere."""
+        rays, so the same pixels as in float64, and faster: ``docs/design/register.md``); non-finite points
+        go nowhere."""
         p = np.asarray(self.scene.ragged("camera/points", k))
         h, w = self.shape
         D = np.full(h * w, np.nan, np.float32)
@@ -87,8 +88,8 @@ def static_depth(cam: CameraFrames, frames: list[int], quiet: bool = True, far_q
     samples are those within 3 σ (stereo model, :func:`depth_noise_model`) of the pixel's
     ``far_quantile`` sample, then within 3 robust sigmas of their median. The plain median failed
     when a person walks along the camera's line of sight and covers the same pixels in most frames
-    (quick demo L corner: the person became static scene in 5 of 12 frames and a wall fragment was
-    taken instead, 150-180 cm off). A pixel has no static depth (NaN: its returns are candidates in
+    (the person became static scene and a wall fragment was taken instead: ``docs/design/register.md``,
+    static depth). A pixel has no static depth (NaN: its returns are candidates in
     every frame) where fewer than half the frames have a return, or where fewer than half the returns
     are background samples and the nearest other sample lies within the window of them (a continuum of
     depths: something moving along the line of sight that covers the pixel in every frame, not a wall
@@ -147,9 +148,9 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
         np.copyto(s, stack, where=inl)
         mean = np.where(cnt > 0, s.sum(axis=0) / np.maximum(cnt, 1), np.nan)
     # no static depth where fewer than half the frames have a return, nor where fewer than half the
-    # returns are background and these do not stand apart (the full demo's oblique_18: a person walking
-    # along the line of sight covers such pixels in every frame; their "static" depth was the person at
-    # the far end of the walk, whose torso was background there in 16 of 40 frames, 48 cm off)
+    # returns are background and these do not stand apart (a person walking along the line of sight
+    # covers such pixels in every frame: their "static" depth was the person at the far end of the walk;
+    # docs/design/register.md, static depth)
     mean = np.where((n * 2 >= F) & ((cnt * 2 >= n) | apart), mean, np.nan).astype(np.float32)
     return mean, mad.astype(np.float32), cnt.astype(np.int32)
 

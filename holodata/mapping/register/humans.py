@@ -140,16 +140,16 @@ def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, d
     capped), modelled as an ellipse with axes w and D: the pixel at lateral position s in (-1, 1) of its
     run spans ± h = D/2 · sqrt(1 - s²) around the run's centre range c, and c is the mean over the run of
     each pixel's estimate (its measured plan range + h; values more than ``hi`` from the run's median are
-    left out). The measured front only places the centre: stereo noise (σ ~5 cm at 3.6 m on the synthetic
-    ZED) no longer scatters the surface, the back is the front mirrored through the centre, and a round
-    limb is an ellipse of area π w D / 4 rather than a w × D box pushed a whole D back.
+    left out). The measured front only places the centre: stereo noise no longer scatters the surface,
+    the back is the front mirrored through the centre, and a round limb is an ellipse of area π w D / 4
+    rather than a w × D box pushed a whole D back (measurements: ``docs/design/register.md``).
 
     Returns ``span`` (N,2): the column's near and far ends as offsets (m) along the horizontal viewing
     direction from the pixel's point (negative: toward the camera), ``pixel_m`` (N,) the pixel's footprint
     edge (depth / fx, m) and ``down_to`` (N,) heights (m) the column reaches down to, NaN for none: with
     ``floor_z`` given, the lowest human pixel of each image column lying within ``floor_reach_m`` above
     it reaches the floor (the foreground test loses the feet, whose background — the floor just
-    behind them — is too near: 1-2 l of the body missing, the centroid 2 cm too high; and a walking
+    behind them — is too near: body volume missing, the centroid too high; and a walking
     person's far foot, hidden behind the near one in stride). ``back_frac``:
     every column's far end goes ``back_frac`` · D further back (the front stays): a person walking along
     the view hides the far leg and arm behind the near ones (register: ``walk_back_frac`` scaled by
@@ -212,7 +212,7 @@ def closed_surface(points_world: np.ndarray, eye: np.ndarray, thickness, voxel: 
     ``pixel_m`` (scalar or (N,), m): each point stands for a square pixel footprint of that edge; then a
     voxel is occupied when the columns fill at least half of it (their volume, sampled every voxel/2
     along the column, summed per voxel): an unbiased voxelisation. Without it every voxel a column
-    touches is occupied (each dimension grows by about a voxel: a 15 cm leg became 19 cm wide).
+    touches is occupied (each dimension grows by about a voxel: a leg becomes a voxel too wide).
     A footprint wider than the voxel is split into m × m sub-pixels (m = ceil(edge / voxel)) so that
     its volume spreads over the voxels it covers. ``down_to`` (N,) m, NaN for none: the point's column
     also fills the vertical strip below its footprint down to that height (feet reaching the floor)."""

@@ -296,7 +296,7 @@ def level_seeds(poses: np.ndarray, height_m: float = 0.01, tilt_deg: float = 0.2
     """True when seed poses (S,4,4) are those of a ground robot's odometry on a level floor: their
     height varies by less than ``height_m`` and every tilt (roll/pitch) relative to the first is below
     ``tilt_deg``. Such odometry pins height, roll and pitch better than scan-to-map ICP on a sparse,
-    throttled LiDAR (a synth mapping pass at 2 scans/s drifted 5 cm in height over 6 m), so
+    throttled LiDAR (``docs/design/slam.md``, height from a level TF tree), so
     :func:`refine` then takes those three from the seeds (:func:`with_vertical_of`)."""
     P = np.asarray(poses, np.float64)
     if len(P) < 2 or np.ptp(P[:, 2, 3]) >= height_m:
