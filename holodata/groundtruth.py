@@ -115,7 +115,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     elif workers == 1 or n_traced == 0:
         tracer = FrameTracer(mesh, cfg, traj, human, cycles) if n_traced else None
         results = (tracer(f) for _, _, frames in plan for f in frames)
-        _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock)
+        _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock, copy=False)
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
@@ -157,11 +157,19 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             "first_frame_s": round(clock["first"] - t0, 3) if "first" in clock else None}
 
 
-def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dict | None = None) -> None:
+def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dict | None = None,
+                copy: bool = True) -> None:
+    """Write the shards of ``plan`` from per-frame ``results`` (dicts of gt arrays, in plan order).
+    ``copy``: gather each shard into one array per name (results are views into reused
+    shared-memory slots); else hand the writer the frames' own arrays, which it encodes frame by
+    frame (in-process results are fresh per frame: no gathering copy)."""
     results = iter(results)
     for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet, unit="shards"):
-        bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]), dtype=specs[name]["dtype"])
-                for name in todo}
+        if copy:
+            bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]), dtype=specs[name]["dtype"])
+                    for name in todo}
+        else:
+            bufs = {name: [None] * len(frames) for name in todo}
         for i in range(len(frames)):
             out = next(results)
             if clock is not None and "first" not in clock:
