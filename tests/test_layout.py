@@ -2,12 +2,17 @@
 (shape, dtype, dims, units), and raytrace-gt creates its arrays from it."""
 from __future__ import annotations
 
+import ast
+from pathlib import Path
+
 import numpy as np
 
 from holodata.conventions import Grid, RangeBins
 from holodata.dataset import create_dataset
 from holodata.dataset.layout import GT_ARRAYS, LAYOUT, spec
 from holodata.dataset.validate import expected_spec, validate_dataset
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_every_entry_is_consistent():
@@ -57,3 +62,45 @@ def test_validate_names_an_array_whose_dims_or_units_are_not_the_layout_s(tmp_pa
     rep = validate_dataset(url)
     bad = [p for p in rep["problems"] if p["rule"] == "attrs"]
     assert [p["array"] for p in bad] == ["gt/range"] and "the layout has" in bad[0]["message"], rep["problems"]
+
+
+# Files that still spell array names as string literals (issue 25 point 2: converted file by file;
+# delete a file here once it uses the holodata.dataset.layout constants).
+NOT_YET_CONVERTED = {
+    "holodata/beamforming.py", "holodata/demo.py",
+    "holodata/mapping/human_eval.py", "holodata/mapping/register/__init__.py", "holodata/mapping/register/camera.py",
+    "holodata/mapping/register/steps.py", "holodata/mapping/segment/__init__.py", "holodata/mapping/segment/config.py",
+    "holodata/mapping/segment/scans.py", "holodata/mapping/slam/__init__.py", "holodata/mapping/slam/localise.py",
+    "holodata/mapping/slam/scans.py", "holodata/mapping/slam/store.py", "holodata/mapping/slam/world.py",
+    "cli/beamform.py", "holodata/evaluate/frames.py", "holodata/export.py", "holodata/groundtruth.py",
+    "holodata/ingest/write.py", "holodata/raytrace/frames.py", "holodata/raytrace/humans.py", "holodata/readers/hdf5.py",
+    "holodata/torch/data.py", "holodata/torch/stage2_train.py", "holodata/view.py",
+}
+
+
+def array_name_literals(path: Path) -> list[tuple[int, str]]:
+    """(line, name) of every string constant in ``path``'s code that is an array name of the layout;
+    docstrings (prose for the reader) are left out."""
+    tree = ast.parse(path.read_text())
+    docs = {id(n.body[0].value) for n in ast.walk(tree)
+            if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and n.body
+            and isinstance(n.body[0], ast.Expr) and isinstance(n.body[0].value, ast.Constant)}
+    return [(n.lineno, n.value) for n in ast.walk(tree)
+            if isinstance(n, ast.Constant) and isinstance(n.value, str) and n.value in LAYOUT and id(n) not in docs]
+
+
+def test_the_name_constants_follow_the_table():
+    import holodata.dataset.layout as layout
+
+    for name in LAYOUT:
+        assert getattr(layout, name.upper().replace("/", "_")) == name and name.upper().replace("/", "_") in layout.__all__
+    assert spec(layout.POSE_PREFIX + "camera").kind == "frame"
+
+
+def test_no_array_name_is_spelled_outside_the_layout():
+    files = [p for d in ("holodata", "cli") for p in sorted((ROOT / d).rglob("*.py")) if p != ROOT / "holodata/dataset/layout.py"]
+    found = {str(p.relative_to(ROOT)): array_name_literals(p) for p in files}
+    spelled = {f: hits for f, hits in found.items() if hits and f not in NOT_YET_CONVERTED}
+    assert not spelled, f"array names spelled outside holodata/dataset/layout.py (use its constants): {spelled}"
+    done = sorted(f for f in NOT_YET_CONVERTED if not found.get(f))
+    assert not done, f"converted (or gone): delete from NOT_YET_CONVERTED: {done}"

@@ -46,57 +46,95 @@ class ArraySpec:
         return self.resolve(**sizes)[1:]
 
 
+# The array names, one constant each, named by the rule path upper-cased and "/" -> "_" (RADAR_HEATMAP =
+# "radar/heatmap"). The table below and every module that reads or writes an array use these: no name is
+# spelled anywhere else in the package (tests/test_layout.py counts).
+TIME_TIMESTAMP_NS = "time/timestamp_ns"
+RADAR_HEATMAP = "radar/heatmap"
+RADAR_CYCLE_NS = "radar/cycle_ns"
+RADAR_IQ = "radar/iq"
+RADAR_IQ_SPAN = "radar/iq_span"
+RADAR_IQ_MOTION = "radar/iq_motion"
+RADAR_IQ_STATIC = "radar/iq_static"
+POSE_T_WORLD_RADAR = "pose/T_world_radar"
+POSE_T_WORLD_LIDAR = "pose/T_world_lidar"
+TF_T_WORLD_LIDAR = "tf/T_world_lidar"
+LIDAR_RANGE = "lidar/range"
+LIDAR_TIMESTAMP_NS = "lidar/timestamp_ns"
+LIDAR_INSTANCE = "lidar/instance"
+LIDAR_POINTS = "lidar/points"
+LIDAR_POINT_TIME_NS = "lidar/point_time_ns"
+CAMERA_POINTS = "camera/points"
+CAMERA_POINTS_WORLD = "camera/points_world"
+CAMERA_TIMESTAMP_NS = "camera/timestamp_ns"
+CALIB_T_WORLD_CAMERA = "calib/T_world_camera"
+HUMAN_VERTICES = "human/vertices"
+HUMAN_FACES = "human/faces"
+HUMAN_POINTS = "human/points"
+MESH_VERTICES = "mesh/vertices"
+MESH_FACES = "mesh/faces"
+MESH_FACE_CLASS = "mesh/face_class"
+MAP_POINTS = "map/points"
+GT_RANGE = "gt/range"
+GT_NORMAL = "gt/normal"
+GT_POINT = "gt/point"
+GT_LABEL = "gt/label"
+GT_SEMANTIC = "gt/semantic"
+GT_HUMAN_CENTER = "gt/human_center"
+POSE_PREFIX = "pose/T_world_"       # pose/T_world_<sensor>: any sensor's poses (spec())
+
+
 _GT = ("frame", "bounce", "elevation", "azimuth")
 _POSE = ("frame", "row", "col")
 
 LAYOUT: dict[str, ArraySpec] = {s.name: s for s in (
-    ArraySpec("time/timestamp_ns", "frame", ("T",), ("int64",), ("frame",), "ns", "ingest",
+    ArraySpec(TIME_TIMESTAMP_NS, "frame", ("T",), ("int64",), ("frame",), "ns", "ingest",
               ("slam", "register", "raytrace-gt", "train")),
-    ArraySpec("radar/heatmap", "frame", ("T", "R", "H", "W"), ("float16", "float32"),
+    ArraySpec(RADAR_HEATMAP, "frame", ("T", "R", "H", "W"), ("float16", "float32"),
               ("frame", "range", "elevation", "azimuth"), "1", "ingest", ("train", "evaluate"), 0.0),
-    ArraySpec("radar/cycle_ns", "frame", ("T", 2), ("int64",), ("frame", "start_end"), "ns", "ingest",
+    ArraySpec(RADAR_CYCLE_NS, "frame", ("T", 2), ("int64",), ("frame", "start_end"), "ns", "ingest",
               ("raytrace-gt", "evaluate")),
-    ArraySpec("radar/iq", "frame", ("T", None, None, None), ("complex64",), ("frame", "chirp", "antenna", "sample"), "1",
+    ArraySpec(RADAR_IQ, "frame", ("T", None, None, None), ("complex64",), ("frame", "chirp", "antenna", "sample"), "1",
               "ingest", ("beamform",), 0),
-    ArraySpec("radar/iq_span", "frame", ("T", 3), ("int32",), ("frame", "before_rotation_after"), "chirp frames",
+    ArraySpec(RADAR_IQ_SPAN, "frame", ("T", 3), ("int32",), ("frame", "before_rotation_after"), "chirp frames",
               "ingest", ("beamform",)),
-    ArraySpec("radar/iq_motion", "frame", ("T", 2), ("float64",), ("frame", "ds0_heading"), "m, rad", "ingest",
+    ArraySpec(RADAR_IQ_MOTION, "frame", ("T", 2), ("float64",), ("frame", "ds0_heading"), "m, rad", "ingest",
               ("beamform",)),
-    ArraySpec("radar/iq_static", "static", (None, None), ("complex64",), ("antenna", "sample"), "1", "ingest",
+    ArraySpec(RADAR_IQ_STATIC, "static", (None, None), ("complex64",), ("antenna", "sample"), "1", "ingest",
               ("beamform",)),
-    ArraySpec("pose/T_world_radar", "frame", ("T", 4, 4), ("float64",), _POSE, "m", "ingest, slam",
+    ArraySpec(POSE_T_WORLD_RADAR, "frame", ("T", 4, 4), ("float64",), _POSE, "m", "ingest, slam",
               ("raytrace-gt", "evaluate"), NAN),
-    ArraySpec("pose/T_world_lidar", "frame", ("T", 4, 4), ("float64",), _POSE, "m", "slam", ("register",), NAN),
-    ArraySpec("tf/T_world_lidar", "frame", ("T", 4, 4), ("float64",), _POSE, "m", "ingest", ("slam",), NAN),
-    ArraySpec("lidar/range", "frame", ("T", None, None), ("float32",), ("frame", "beam", "column"), "m", "ingest",
+    ArraySpec(POSE_T_WORLD_LIDAR, "frame", ("T", 4, 4), ("float64",), _POSE, "m", "slam", ("register",), NAN),
+    ArraySpec(TF_T_WORLD_LIDAR, "frame", ("T", 4, 4), ("float64",), _POSE, "m", "ingest", ("slam",), NAN),
+    ArraySpec(LIDAR_RANGE, "frame", ("T", None, None), ("float32",), ("frame", "beam", "column"), "m", "ingest",
               ("slam", "segment"), NAN),
-    ArraySpec("lidar/timestamp_ns", "frame", ("T",), ("int64",), ("frame",), "ns", "ingest", ("slam",)),
-    ArraySpec("lidar/instance", "frame", ("T", None, None), ("uint16",), ("frame", "beam", "column"), "1", "segment",
+    ArraySpec(LIDAR_TIMESTAMP_NS, "frame", ("T",), ("int64",), ("frame",), "ns", "ingest", ("slam",)),
+    ArraySpec(LIDAR_INSTANCE, "frame", ("T", None, None), ("uint16",), ("frame", "beam", "column"), "1", "segment",
               ("slam", "register"), 0),
-    ArraySpec("lidar/points", "ragged", (3,), ("float32",), ("point", "xyz"), "m", "ingest", ("slam",)),
-    ArraySpec("lidar/point_time_ns", "ragged", (1,), ("int64",), ("point", "time"), "ns", "ingest", ("slam",)),
-    ArraySpec("camera/points", "ragged", (3,), ("float32",), ("point", "xyz"), "m", "ingest", ("register",)),
-    ArraySpec("camera/points_world", "ragged", (3,), ("float32",), ("point", "xyz"), "m", "register"),
-    ArraySpec("camera/timestamp_ns", "frame", ("T",), ("int64",), ("frame",), "ns", "ingest", ("register",)),
-    ArraySpec("calib/T_world_camera", "static", (4, 4), ("float64",), ("row", "col"), "m", "register", ("view",)),
-    ArraySpec("human/vertices", "ragged", (3,), ("float32",), ("vertex", "xyz"), "m", "register", ("raytrace-gt",)),
-    ArraySpec("human/faces", "ragged", (3,), ("int32",), ("face", "corner"), "1", "register", ("raytrace-gt",)),
-    ArraySpec("human/points", "ragged", (3,), ("float32",), ("point", "xyz"), "m", "register"),
-    ArraySpec("mesh/vertices", "static", (None, 3), ("float32", "float64"), ("vertex", "xyz"), "m", "slam",
+    ArraySpec(LIDAR_POINTS, "ragged", (3,), ("float32",), ("point", "xyz"), "m", "ingest", ("slam",)),
+    ArraySpec(LIDAR_POINT_TIME_NS, "ragged", (1,), ("int64",), ("point", "time"), "ns", "ingest", ("slam",)),
+    ArraySpec(CAMERA_POINTS, "ragged", (3,), ("float32",), ("point", "xyz"), "m", "ingest", ("register",)),
+    ArraySpec(CAMERA_POINTS_WORLD, "ragged", (3,), ("float32",), ("point", "xyz"), "m", "register"),
+    ArraySpec(CAMERA_TIMESTAMP_NS, "frame", ("T",), ("int64",), ("frame",), "ns", "ingest", ("register",)),
+    ArraySpec(CALIB_T_WORLD_CAMERA, "static", (4, 4), ("float64",), ("row", "col"), "m", "register", ("view",)),
+    ArraySpec(HUMAN_VERTICES, "ragged", (3,), ("float32",), ("vertex", "xyz"), "m", "register", ("raytrace-gt",)),
+    ArraySpec(HUMAN_FACES, "ragged", (3,), ("int32",), ("face", "corner"), "1", "register", ("raytrace-gt",)),
+    ArraySpec(HUMAN_POINTS, "ragged", (3,), ("float32",), ("point", "xyz"), "m", "register"),
+    ArraySpec(MESH_VERTICES, "static", (None, 3), ("float32", "float64"), ("vertex", "xyz"), "m", "slam",
               ("raytrace-gt",)),
-    ArraySpec("mesh/faces", "static", (None, 3), ("int32", "int64", "uint32"), ("face", "corner"), "1", "slam",
+    ArraySpec(MESH_FACES, "static", (None, 3), ("int32", "int64", "uint32"), ("face", "corner"), "1", "slam",
               ("raytrace-gt",)),
-    ArraySpec("mesh/face_class", "static", (None,), ("uint8",), ("face",), "1", "slam", ("raytrace-gt",)),
-    ArraySpec("map/points", "static", (None, 3), ("float32", "float64"), ("point", "xyz"), "m", "slam", ("register",)),
-    ArraySpec("gt/range", "frame", ("T", "B", "H", "W"), ("float32",), _GT, "m", "raytrace-gt", ("train", "evaluate"),
+    ArraySpec(MESH_FACE_CLASS, "static", (None,), ("uint8",), ("face",), "1", "slam", ("raytrace-gt",)),
+    ArraySpec(MAP_POINTS, "static", (None, 3), ("float32", "float64"), ("point", "xyz"), "m", "slam", ("register",)),
+    ArraySpec(GT_RANGE, "frame", ("T", "B", "H", "W"), ("float32",), _GT, "m", "raytrace-gt", ("train", "evaluate"),
               NAN),
-    ArraySpec("gt/normal", "frame", ("T", "B", "H", "W", 3), ("float16", "float32"), _GT + ("xyz",), "1", "raytrace-gt",
+    ArraySpec(GT_NORMAL, "frame", ("T", "B", "H", "W", 3), ("float16", "float32"), _GT + ("xyz",), "1", "raytrace-gt",
               ("evaluate",), NAN),
-    ArraySpec("gt/point", "frame", ("T", "B", "H", "W", 3), ("float32",), _GT + ("xyz",), "m", "raytrace-gt",
+    ArraySpec(GT_POINT, "frame", ("T", "B", "H", "W", 3), ("float32",), _GT + ("xyz",), "m", "raytrace-gt",
               ("evaluate",), NAN),
-    ArraySpec("gt/label", "frame", ("T", "B", "H", "W"), ("uint8",), _GT, "1", "raytrace-gt", ("train", "evaluate"), 0),
-    ArraySpec("gt/semantic", "frame", ("T", "B", "H", "W"), ("uint8",), _GT, "1", "raytrace-gt", (), 0),
-    ArraySpec("gt/human_center", "frame", ("T", "K", 3), ("float32",), ("frame", "human", "xyz"), "m", "raytrace-gt",
+    ArraySpec(GT_LABEL, "frame", ("T", "B", "H", "W"), ("uint8",), _GT, "1", "raytrace-gt", ("train", "evaluate"), 0),
+    ArraySpec(GT_SEMANTIC, "frame", ("T", "B", "H", "W"), ("uint8",), _GT, "1", "raytrace-gt", (), 0),
+    ArraySpec(GT_HUMAN_CENTER, "frame", ("T", "K", 3), ("float32",), ("frame", "human", "xyz"), "m", "raytrace-gt",
               ("evaluate",), NAN),
 )}
 
@@ -107,10 +145,16 @@ def spec(name: str) -> ArraySpec | None:
     """The table's entry for ``name``; any ``pose/T_world_<sensor>`` is a pose (None: not in the layout)."""
     if name in LAYOUT:
         return LAYOUT[name]
-    if name.startswith("pose/T_world_"):
-        p = LAYOUT["pose/T_world_radar"]
+    if name.startswith(POSE_PREFIX):
+        p = LAYOUT[POSE_T_WORLD_RADAR]
         return ArraySpec(name, p.kind, p.shape, p.dtypes, p.dims, p.units, "slam", (), p.fill)
     return None
 
 
-__all__ = ["ArraySpec", "LAYOUT", "GT_ARRAYS", "spec"]
+__all__ = ["ArraySpec", "LAYOUT", "GT_ARRAYS", "POSE_PREFIX", "spec", "TIME_TIMESTAMP_NS", "RADAR_HEATMAP",
+           "RADAR_CYCLE_NS", "RADAR_IQ", "RADAR_IQ_SPAN", "RADAR_IQ_MOTION", "RADAR_IQ_STATIC", "POSE_T_WORLD_RADAR",
+           "POSE_T_WORLD_LIDAR", "TF_T_WORLD_LIDAR", "LIDAR_RANGE", "LIDAR_TIMESTAMP_NS", "LIDAR_INSTANCE",
+           "LIDAR_POINTS", "LIDAR_POINT_TIME_NS", "CAMERA_POINTS", "CAMERA_POINTS_WORLD", "CAMERA_TIMESTAMP_NS",
+           "CALIB_T_WORLD_CAMERA", "HUMAN_VERTICES", "HUMAN_FACES", "HUMAN_POINTS", "MESH_VERTICES", "MESH_FACES",
+           "MESH_FACE_CLASS", "MAP_POINTS", "GT_RANGE", "GT_NORMAL", "GT_POINT", "GT_LABEL", "GT_SEMANTIC",
+           "GT_HUMAN_CENTER"]

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..conventions import Grid, RangeBins
+from .layout import (GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, LIDAR_POINTS, MESH_FACES, MESH_VERTICES,
+                     POSE_T_WORLD_RADAR, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
 from .writer import create_dataset
 
 
@@ -33,26 +35,26 @@ def toy_frames(rng: np.random.Generator, frames: range, grid: Grid, n_bounces: i
     poses[:, 2, 2] = poses[:, 3, 3] = 1.0
     poses[:, 0, 3] = 0.1 * f
     heat = np.abs(rng.normal(size=(n, n_range, H, W))).astype(heatmap_dtype)
-    return {"gt/range": rng_, "gt/label": label, "gt/normal": nrm.astype(np.float16), "gt/point": pts,
-            "radar/heatmap": heat, "time/timestamp_ns": (10**9 + f * 500_000_000).astype(np.int64),
-            "pose/T_world_radar": poses}
+    return {GT_RANGE: rng_, GT_LABEL: label, GT_NORMAL: nrm.astype(np.float16), GT_POINT: pts,
+            RADAR_HEATMAP: heat, TIME_TIMESTAMP_NS: (10**9 + f * 500_000_000).astype(np.int64),
+            POSE_T_WORLD_RADAR: poses}
 
 
 def array_specs(grid: Grid, n_range: int, n_bounces: int = 3, heatmap_dtype="float16") -> dict:
     H, W, B = grid.H, grid.W, n_bounces
     return {
-        "time/timestamp_ns": dict(per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0),
-        "pose/T_world_radar": dict(per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"], units="m"),
-        "radar/heatmap": dict(per_frame_shape=(n_range, H, W), dtype=heatmap_dtype,
-                              dims=["frame", "range", "elevation", "azimuth"], units="1"),
-        "gt/range": dict(per_frame_shape=(B, H, W), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth"],
-                         units="m"),
-        "gt/label": dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"],
-                         units="1"),
-        "gt/normal": dict(per_frame_shape=(B, H, W, 3), dtype="float16",
-                          dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="1"),
-        "gt/point": dict(per_frame_shape=(B, H, W, 3), dtype="float32",
-                         dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="m"),
+        TIME_TIMESTAMP_NS: dict(per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0),
+        POSE_T_WORLD_RADAR: dict(per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"], units="m"),
+        RADAR_HEATMAP: dict(per_frame_shape=(n_range, H, W), dtype=heatmap_dtype,
+                            dims=["frame", "range", "elevation", "azimuth"], units="1"),
+        GT_RANGE: dict(per_frame_shape=(B, H, W), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth"],
+                       units="m"),
+        GT_LABEL: dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"],
+                       units="1"),
+        GT_NORMAL: dict(per_frame_shape=(B, H, W, 3), dtype="float16",
+                        dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="1"),
+        GT_POINT: dict(per_frame_shape=(B, H, W, 3), dtype="float32",
+                       dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="m"),
     }
 
 
@@ -79,10 +81,10 @@ def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range
             data = toy_frames(rng, range(fr.start, fr.stop), grid, n_range=n_range)
             for n, a in arrs.items():
                 a.write_shard(k, data[n])
-        sc.write_array("mesh/vertices", rng.uniform(-5, 5, (12, 3)).astype(np.float32), dims=["vertex", "xyz"], units="m")
-        sc.write_array("mesh/faces", rng.integers(0, 12, (20, 3)).astype(np.int32), dims=["face", "corner"], units="1")
+        sc.write_array(MESH_VERTICES, rng.uniform(-5, 5, (12, 3)).astype(np.float32), dims=["vertex", "xyz"], units="m")
+        sc.write_array(MESH_FACES, rng.integers(0, 12, (20, 3)).astype(np.int32), dims=["face", "corner"], units="1")
         if lidar:
-            rag = sc.ragged_array("lidar/points", width=3, dtype="float32", units="m")
+            rag = sc.ragged_array(LIDAR_POINTS, width=3, dtype="float32", units="m")
             for k in range(rag.n_shards):
                 fr = rag.frames(k)
                 rag.write_shard(k, [rng.normal(size=(int(rng.integers(0, 50)), 3)).astype(np.float32)

@@ -18,14 +18,15 @@ import numpy as np
 from ..conventions import Label, is_rigid
 from . import shards as sh
 from .info import stored_bytes
-from .layout import spec
+from .layout import (CAMERA_POINTS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, HUMAN_FACES,
+                     HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, RADAR_HEATMAP, TIME_TIMESTAMP_NS, spec)
 from .reader import Dataset, list_nodes, open_dataset
 from .schemas import schema_errors
 from .writer import ragged_digest
 
 MAX_LINES_PER_RULE = 10
-GT_CORE = ("gt/range", "gt/label", "gt/normal", "gt/point")
-RAGGED_KNOWN = {"lidar/points": 3, "camera/points": 3, "human/vertices": 3, "human/faces": 3}
+GT_CORE = (GT_RANGE, GT_LABEL, GT_NORMAL, GT_POINT)
+RAGGED_KNOWN = {LIDAR_POINTS: 3, CAMERA_POINTS: 3, HUMAN_VERTICES: 3, HUMAN_FACES: 3}
 
 
 @dataclass
@@ -141,8 +142,8 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> tuple[str, dict, int] | 
     if not isinstance(T, int) or T < 0:
         return None
     nodes = list_nodes(store, path)
-    if "time/timestamp_ns" not in nodes:
-        rep.add(sid, "time/timestamp_ns", None, "presence", "missing (every scene needs frame timestamps)")
+    if TIME_TIMESTAMP_NS not in nodes:
+        rep.add(sid, TIME_TIMESTAMP_NS, None, "presence", "missing (every scene needs frame timestamps)")
     present_gt = [n for n in GT_CORE if n in nodes]
     if present_gt:
         for n in GT_CORE:
@@ -167,7 +168,7 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> tuple[str, dict, int] | 
                 rep.add(sid, name, None, "shape", f"shape {shape}, expected {want} from n_frames and the grid")
             if dtype not in dts:
                 rep.add(sid, name, None, "dtype", f"dtype {dtype}, expected {' or '.join(dts)}")
-            if name.startswith("gt/") and pat[1] is None and len(shape) > 1 and name != "gt/human_center":
+            if name.startswith("gt/") and pat[1] is None and len(shape) > 1 and name != GT_HUMAN_CENTER:
                 if B is None:
                     B = shape[1]
                 elif shape[1] != B:
@@ -214,7 +215,7 @@ def _n_shards(m: dict) -> int:
 
 BLOCK_BYTES = 64 << 20  # shards decoding to more than this are decoded and checked in frame blocks
 PREFETCH = 2  # shards read + decoded ahead in worker threads (blosc and numpy release the GIL)
-CROSS = ("gt/range", "gt/label", "gt/normal")  # arrays whose rules look at another array's shard
+CROSS = (GT_RANGE, GT_LABEL, GT_NORMAL)  # arrays whose rules look at another array's shard
 
 
 class _Deferred:
@@ -247,7 +248,7 @@ def _check_scene(ds: Dataset, sid: str, nodes: dict, rep: _Report, bar) -> None:
         groups.setdefault(int(m["chunk_grid"]["configuration"]["chunk_shape"][0]), []).append(n)
     tasks: list = []
     for S, names in groups.items():
-        order = sorted(names, key=lambda n: (n not in ("gt/range",), n))
+        order = sorted(names, key=lambda n: (n not in (GT_RANGE,), n))
         for k in range(-(-T // S)):
             fr = slice(k * S, min((k + 1) * S, T))
             tasks.extend((S, k, fr, name) for name in order)
@@ -380,7 +381,7 @@ def frames_not_finite_nonneg(a: np.ndarray) -> np.ndarray:
 
 def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
     n = a.shape[0] if a.ndim else 0
-    if name == "gt/range":
+    if name == GT_RANGE:
         if a.dtype.kind != "f":
             return
         a2 = a.reshape(n, -1)
@@ -401,7 +402,7 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
                 _report_frames(rep, sid, name, fr, order, "bounce_order",
                                lambda i: f"{int(order[i].sum())} beams break R1 < R2 < R3 (a later bounce "
                                          f"not beyond the previous one, or after a missing one)")
-    elif name == "gt/label":
+    elif name == GT_LABEL:
         if a.dtype.kind not in "ui":
             return
         a2 = a.reshape(n, -1)
@@ -418,7 +419,7 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
                 _report_frames(rep, sid, name, fr, mism, "label_range",
                                lambda i: f"{int(mism[i].sum())} beams where label is 0 but range is not NaN, "
                                          f"or label is set without a range")
-    elif name == "gt/normal":
+    elif name == GT_NORMAL:
         nan = _range_nan(ds, sid, fr, decoded)
         if a.dtype.kind != "f" or nan is None or nan.shape != a.shape[:-1]:
             return
@@ -431,7 +432,7 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
         if bad.any():
             _report_frames(rep, sid, name, fr, bad, "normal_unit",
                            lambda i: f"{int(bad[i].sum())} normals not unit length (±{tol:g}) where range is finite")
-    elif name == "time/timestamp_ns":
+    elif name == TIME_TIMESTAMP_NS:
         if a.dtype != np.int64:
             rep.add(sid, name, fr.start, "timestamps", f"dtype {a.dtype}, expected int64")
             return
@@ -451,7 +452,7 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
             what = ("has NaN/inf" if not np.isfinite(a[i]).all()
                     else "is not rigid (rotation not orthonormal or last row not 0 0 0 1)")
             rep.add(sid, name, fr.start + i, "pose", f"pose {what}")
-    elif name == "radar/heatmap":
+    elif name == RADAR_HEATMAP:
         if a.dtype.kind != "f" or a.dtype.itemsize not in _EXP_BITS:
             return
         for i in frames_not_finite_nonneg(a):
@@ -462,7 +463,7 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
 def _range_nan(ds, sid, fr, decoded) -> np.ndarray | None:
     if "gt/range:nan" in decoded:
         return decoded["gt/range:nan"]
-    rng = _aligned(ds, sid, "gt/range", fr, decoded)
+    rng = _aligned(ds, sid, GT_RANGE, fr, decoded)
     return None if rng is None else np.isnan(rng)
 
 
@@ -481,8 +482,8 @@ def _check_small(ds, sid, name, meta, rep) -> None:
                                           f"{tuple(hd.get('shape', ()))} {hd.get('dtype')}")
     elif sh.sha256(np.ascontiguousarray(a).tobytes()) != hd["sha256"]:
         rep.add(sid, name, None, "checksum", "sha256 mismatch (corrupted)")
-    if name == "mesh/faces" and a.size and "mesh/vertices" in ds.scene(sid):
-        nv = ds.scene(sid)["mesh/vertices"].shape[0]
+    if name == MESH_FACES and a.size and MESH_VERTICES in ds.scene(sid):
+        nv = ds.scene(sid)[MESH_VERTICES].shape[0]
         if a.min() < 0 or a.max() >= nv:
             rep.add(sid, name, None, "mesh", f"face indices outside 0..{nv - 1}")
 
