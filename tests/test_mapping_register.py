@@ -981,3 +981,16 @@ def test_register_rerun_skips_unless_inputs_settings_or_force_change(tmp_path):
                    attrs=dict(sc["pose/T_world_lidar"].attrs))
     assert register_fingerprint(open_dataset(url).scene("recording"), cfg, None) != fp
 
+
+
+def test_retired_switches_are_hashed_at_their_only_value_and_are_no_longer_settings():
+    """register's fingerprint still carries the deleted switches (so scenes registered before keep
+    theirs), and no field of today's configs is shadowed by them."""
+    from dataclasses import fields
+
+    from holodata.mapping.register import RETIRED_PARAMS, RETIRED_SEGMENT_PARAMS
+    from holodata.mapping.segment import SegmentConfig
+
+    assert not set(RETIRED_PARAMS) & {f.name for f in fields(RegisterConfig)}
+    assert not set(RETIRED_SEGMENT_PARAMS) & {f.name for f in fields(SegmentConfig)}
+    assert set(RETIRED_PARAMS) == {"noise_weights", "max_std_m", "search_m", "mesh_keep_map_m"}

@@ -679,3 +679,20 @@ def test_slam_refuses_a_scene_ingest_did_not_finish(tmp_path):
     create_dataset(url, grid=Grid(8, 32)).scene("c", n_frames=2, attrs={"ingest": {"complete": False}})
     r = CliRunner().invoke(cli, ["slam", url, "--scene", "c"])
     assert r.exit_code == 1 and "not ingested completely" in r.output and "before slam" in r.output, r.output
+
+
+def test_settings_added_later_stay_out_of_the_fingerprint_only_at_their_defaults():
+    """A scene mapped before a setting existed keeps its fingerprint while the setting holds its
+    default; any other value is hashed (a change re-runs slam)."""
+    from dataclasses import fields, replace
+
+    from holodata.mapping.slam.config import SlamConfig
+    from holodata.mapping.slam.store import ADDED_SETTINGS, fingerprint_settings
+
+    names = {f.name for f in fields(SlamConfig)}
+    assert set(ADDED_SETTINGS) <= names
+    d = SlamConfig().to_attrs()
+    assert set(fingerprint_settings(d, ADDED_SETTINGS, SlamConfig)) == set(d) - set(ADDED_SETTINGS)
+    for name in ADDED_SETTINGS:
+        changed = replace(SlamConfig(), **{name: getattr(SlamConfig, name) * 2}).to_attrs()
+        assert fingerprint_settings(changed, ADDED_SETTINGS, SlamConfig)[name] == getattr(SlamConfig, name) * 2

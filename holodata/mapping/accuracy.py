@@ -41,6 +41,11 @@ from ..errors import InputError
 from ..trajectory import Trajectory, read_tum
 
 TAUS = (0.02, 0.05, 0.10)
+# the LiDAR that decides which true surface was observable, where truth/scene.json does not say:
+# any range from 0.3 m to 120 m, the whole vertical half-sphere
+DEFAULT_LIDAR = {"min_range_m": 0.3, "max_range_m": 120.0, "fov_deg": (-90.0, 90.0)}
+# evo's RPE over 1 m of path: pose pairs whose path length is within this share of the 1 m
+RPE_DELTA_TOL = 0.2
 
 
 # ----------------------------------------------------------------------------------------------
@@ -85,7 +90,7 @@ def trajectory_errors(estimate: Trajectory, truth: Trajectory, max_diff_s: float
     out["rpe_frame_rmse_m"] = float(rpe.get_statistic(st.rmse))
     try:
         r1 = metrics.RPE(metrics.PoseRelation.translation_part, delta=1.0, delta_unit=metrics.Unit.meters,
-                         rel_delta_tol=0.2, all_pairs=True)
+                         rel_delta_tol=RPE_DELTA_TOL, all_pairs=True)
         r1.process_data((ref, est))
         out["rpe_rmse_m"] = float(r1.get_statistic(st.rmse))
     except Exception:  # noqa: BLE001 - evo raises when no pair spans 1 m
@@ -180,8 +185,9 @@ def mesh_errors(est_vertices, est_faces, true_vertices, true_faces, sensor_poses
     ts = sample_mesh(tv, tf, sample_spacing)
     lidar = lidar or {}
     if sensor_poses is not None:
-        obs = observed_mask(tv, tf, ts, sensor_poses, lidar.get("min_range_m", 0.3), lidar.get("max_range_m", 120.0),
-                            tuple(lidar.get("fov_deg", (-90.0, 90.0))))
+        obs = observed_mask(tv, tf, ts, sensor_poses, lidar.get("min_range_m", DEFAULT_LIDAR["min_range_m"]),
+                            lidar.get("max_range_m", DEFAULT_LIDAR["max_range_m"]),
+                            tuple(lidar.get("fov_deg", DEFAULT_LIDAR["fov_deg"])))
     else:
         obs = np.ones(len(ts), bool)
     ts_obs = ts[obs]
@@ -328,13 +334,13 @@ def plot_cumulative(curves: dict, path: Path, xlabel: str, title: str, taus=None
 def lidar_from_scene_json(truth_dir: Path) -> dict:
     """LiDAR range limits and vertical field of view from ``truth/scene.json`` (defaults if absent)."""
     p = Path(truth_dir) / "scene.json"
-    out = {"min_range_m": 0.3, "max_range_m": 120.0, "fov_deg": (-90.0, 90.0)}
+    out = dict(DEFAULT_LIDAR)
     if p.is_file():
         d = json.loads(p.read_text())
         li = d.get("lidar") or {}
         alt = d.get("lidar_beam_altitude_deg")
-        out["min_range_m"] = float(li.get("min_range_m", 0.3))
-        out["max_range_m"] = float(li.get("max_range_m", 120.0))
+        out["min_range_m"] = float(li.get("min_range_m", DEFAULT_LIDAR["min_range_m"]))
+        out["max_range_m"] = float(li.get("max_range_m", DEFAULT_LIDAR["max_range_m"]))
         if isinstance(alt, list) and alt:
             out["fov_deg"] = (float(min(alt)) - 0.5, float(max(alt)) + 0.5)
         elif "vertical_fov_deg" in li:

@@ -28,6 +28,9 @@ import numpy as np
 from ..errors import InputError
 from ..geometry.voxels import cell_keys, dense_box, flat_index, unpack_keys, voxel_index, voxel_keys
 
+# a return within max(voxel, this × range) of a voxel's centre along its ray occupies it; beyond, it
+# sees through it: the LiDAR's range error and the ray's footprint grow with range
+FREE_SPACE_RANGE_SHARE = 0.02
 _OFFS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)], np.int64)
 
 
@@ -255,7 +258,7 @@ def _free_space(pts: list, origins: np.ndarray, centers: np.ndarray, voxel: floa
         img2[hole] = minimum_filter(img2, size=3, mode="wrap")[hole]  # fill gaps between rings/columns
         rv, iv, jv = bins(centers - o)
         rr = img[iv * naz + jv]
-        margin = np.maximum(voxel, 0.02 * rv)
+        margin = np.maximum(voxel, FREE_SPACE_RANGE_SHARE * rv)
         occ += np.abs(rr - rv) <= margin
         free += np.isfinite(rr) & (rr > rv + margin)
     return occ, free

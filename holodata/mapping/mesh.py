@@ -43,6 +43,17 @@ from ..meshio import merge_meshes
 from ..geometry.voxels import unique_voxels, unpack_keys
 
 METHODS = ("poisson", "bpa")
+# Poisson's bounding cube is this × the cloud's extent (open3d's default scale); the octree depth
+# is chosen from the same cube
+POISSON_SCALE = 1.1
+# floor and ceiling levels: points whose normal is this close to vertical (|n_z|), levels holding at
+# least this share of them, a ceiling at least this far above the floor (lower: a table top)
+VERTICAL_NORMAL_COS = 0.95
+MIN_LEVEL_SHARE = 0.01
+MIN_CEILING_HEIGHT_M = 1.8
+# points this far above the floor are walls for the floor fill's line of sight (below: clutter and
+# the floor's own noise; above: a ceiling seen through a door)
+WALL_BAND_M = (0.3, 2.0)
 
 
 @dataclass(frozen=True)
@@ -193,10 +204,10 @@ def poisson_mesh(pc, cfg: MeshConfig):
 
     pts = np.asarray(pc.points)
     extent = float(np.max(pts.max(0) - pts.min(0)))
-    depth = cfg.poisson_depth or int(np.clip(np.ceil(np.log2(extent * 1.1 / (2 * cfg.voxel))), 6, 11))
+    depth = cfg.poisson_depth or int(np.clip(np.ceil(np.log2(extent * POISSON_SCALE / (2 * cfg.voxel))), 6, 11))
     # n_threads=1: PoissonRecon's multi-threaded splatting segfaults at random (isl-org/Open3D#6828;
     # it crashed the test suite here once)
-    mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc, depth=depth, scale=1.1,
+    mesh, dens = o3d.geometry.TriangleMesh.create_from_point_cloud_poisson(pc, depth=depth, scale=POISSON_SCALE,
                                                                            linear_fit=False, n_threads=1)
     dens = np.asarray(dens)
     v = np.asarray(mesh.vertices)
@@ -263,18 +274,19 @@ def snap_to_planes(vertices: np.ndarray, faces: np.ndarray, distance: float = 0.
 def horizontal_planes(points: np.ndarray, normals: np.ndarray, bin_m: float = 0.02,
                       min_points: int = 200) -> tuple[float | None, float | None]:
     """Heights (m) of the floor and the ceiling: the lowest and highest well-supported levels of
-    points whose normal is vertical (None when absent; the ceiling needs 1.8 m above the floor)."""
-    z = points[np.abs(normals[:, 2]) > 0.95, 2]
+    points whose normal is vertical (None when absent; the ceiling needs :data:`MIN_CEILING_HEIGHT_M`
+    above the floor)."""
+    z = points[np.abs(normals[:, 2]) > VERTICAL_NORMAL_COS, 2]
     if len(z) < min_points:
         return None, None
     edges = np.arange(z.min(), z.max() + 2 * bin_m, bin_m)
     hist, _ = np.histogram(z, edges)
-    good = np.nonzero(hist >= max(min_points, 0.01 * len(z)))[0]
+    good = np.nonzero(hist >= max(min_points, MIN_LEVEL_SHARE * len(z)))[0]
     if not len(good):
         return None, None
     level = lambda i: float(np.median(z[(z >= edges[i]) & (z < edges[i + 1])]))  # noqa: E731
     floor, ceiling = level(good[0]), level(good[-1])
-    return floor, (ceiling if ceiling - floor > 1.8 else None)
+    return floor, (ceiling if ceiling - floor > MIN_CEILING_HEIGHT_M else None)
 
 
 def cell_quads(x0: np.ndarray, y0: np.ndarray, cell: float, height: float) -> tuple[np.ndarray, np.ndarray]:
@@ -309,12 +321,12 @@ def fill_plane_holes(points: np.ndarray, height: float, other: float | None, cel
 def fill_floor_near_sensors(points: np.ndarray, floor: float, sensor_xyz: np.ndarray, radius: float, cell: float
                            ) -> tuple[np.ndarray, np.ndarray]:
     """Floor quads (at height ``floor``) over the plan-view cells within ``radius`` of a sensor
-    position that the sensor sees in plan view without crossing a wall (points 0.3-2 m above the
-    floor): the floor under and around the robot, which a narrow-FOV LiDAR never samples."""
+    position that the sensor sees in plan view without crossing a wall (points :data:`WALL_BAND_M`
+    above the floor): the floor under and around the robot, which a narrow-FOV LiDAR never samples."""
     from scipy.ndimage import binary_dilation
     from scipy.spatial import cKDTree
 
-    wall = points[(points[:, 2] > floor + 0.3) & (points[:, 2] < floor + 2.0), :2]
+    wall = points[(points[:, 2] > floor + WALL_BAND_M[0]) & (points[:, 2] < floor + WALL_BAND_M[1]), :2]
     s_xy = np.asarray(sensor_xyz, np.float64)[:, :2]
     lo = np.minimum(wall.min(0) if len(wall) else s_xy.min(0), s_xy.min(0)) - radius - 2 * cell
     hi = np.maximum(wall.max(0) if len(wall) else s_xy.max(0), s_xy.max(0)) + radius + 2 * cell

@@ -12,6 +12,21 @@ from ...errors import InputError
 from ...progress import track
 from .config import RegisterConfig
 
+# median absolute deviation → standard deviation for normal noise
+MAD_TO_SIGMA = 1.4826
+# nearer than this to the camera no depth is trusted (behind or at the lens: no pixel, no stereo)
+MIN_DEPTH_M = 0.1
+# a pixel's background window is at least this wide (3 σ of the stereo model can be sub-centimetre
+# near the camera, finer than the depth quantisation)
+MIN_WINDOW_M = 0.02
+# the background samples' inlier band (3 robust σ) is at least this wide
+MIN_INLIER_BAND_M = 0.005
+# depth noise σ where the data says nothing (no spread): 1 cm; and the stereo model's floor
+UNKNOWN_SIGMA_M = 0.01
+MIN_MODEL_SIGMA_M = 1e-3
+# the stereo model σ = a·z² needs this many pixels with a spread to fit a
+MIN_MODEL_PIXELS = 100
+
 
 # ------------------------------------------------------------------------------------ camera frames
 @dataclass
@@ -124,8 +139,8 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
         med, far = (_sorted_quantile(s, n, q) for q in (0.5, far_quantile))   # (np.nanmedian, np.nanquantile)
         np.abs(np.subtract(stack, med[None], out=dev), out=dev)
         dev.sort(axis=0)
-        mad = 1.4826 * _sorted_quantile(dev, n, 0.5)
-        window = np.maximum(3 * depth_noise_model(far, mad), 0.02)
+        mad = MAD_TO_SIGMA * _sorted_quantile(dev, n, 0.5)
+        window = np.maximum(3 * depth_noise_model(far, mad), MIN_WINDOW_M)
         # the background samples, within the window of the far one: sorted samples [start, start + m)
         np.subtract(s, far[None], out=dev)
         start = (dev < -window[None]).sum(0)
@@ -135,14 +150,14 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
         np.abs(np.subtract(s, med[None], out=dev), out=dev)
         dev[np.logical_not(inside, out=inside)] = np.nan
         dev.sort(axis=0)
-        mad = 1.4826 * _sorted_quantile(dev, m, 0.5)
+        mad = MAD_TO_SIGMA * _sorted_quantile(dev, m, 0.5)
         # the nearest sample short of the background window: a background seen in a minority of the
         # frames must stand apart from what was in front of it (a wall behind a person); far samples
         # that continue the nearer ones are the far end of something moving along the line of sight
         short = (s < (far - window)[None]).sum(0)
         below = np.where(short > 0, np.take_along_axis(s, np.maximum(short - 1, 0)[None], 0)[0], -np.inf)
         apart = (far - window) - below >= window
-        inl = np.abs(np.subtract(stack, med[None], out=dev), out=dev) <= np.maximum(3 * mad, 0.005)[None]
+        inl = np.abs(np.subtract(stack, med[None], out=dev), out=dev) <= np.maximum(3 * mad, MIN_INLIER_BAND_M)[None]
         cnt = inl.sum(0)
         s.fill(0.0)                                   # (s as the buffer of the inliers' sum: no NaN in it)
         np.copyto(s, stack, where=inl)
@@ -211,7 +226,7 @@ def camera_seen_through(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape:
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.rint(K[0, 0] * q[:, 0] / z + K[0, 2])
         v = np.rint(K[1, 1] * q[:, 1] / z + K[1, 2])
-    inside = np.flatnonzero((z > 0.1) & (u >= 0) & (u < w) & (v >= 0) & (v < h))
+    inside = np.flatnonzero((z > MIN_DEPTH_M) & (u >= 0) & (u < w) & (v >= 0) & (v < h))
     out = np.zeros(len(q), bool)
     if not len(inside):
         return out
@@ -235,11 +250,11 @@ def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
     (chance small spreads would get huge weights). Falls back to the spread where a is not finite."""
     z = np.asarray(depth, np.float64)
     s = np.asarray(spread, np.float64)
-    ok = np.isfinite(z) & np.isfinite(s) & (z > 0.1) & (s > 0)
-    if ok.sum() < 100:
-        return np.where(np.isfinite(s), s, 0.01)
+    ok = np.isfinite(z) & np.isfinite(s) & (z > MIN_DEPTH_M) & (s > 0)
+    if ok.sum() < MIN_MODEL_PIXELS:
+        return np.where(np.isfinite(s), s, UNKNOWN_SIGMA_M)
     a = float(np.median(s[ok] / z[ok] ** 2))
-    return np.maximum(a * z ** 2, 1e-3)
+    return np.maximum(a * z ** 2, MIN_MODEL_SIGMA_M)
 
 
 def _camera_points(scene, k: int) -> np.ndarray:

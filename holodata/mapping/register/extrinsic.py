@@ -11,11 +11,22 @@ from ...conventions import rotation_angle_deg, transform_points, yaw_rad
 from ...geometry.icp import hold_at, open3d_icp, point_to_plane_icp
 from ...geometry.planes import local_plane_projection
 from ...geometry.voxels import voxel_average
+from .camera import UNKNOWN_SIGMA_M
 from .config import RegisterConfig, Registration
 
 # every camera point's ICP weight, 1/σ² for σ = 1 cm: the correspondence and Tukey scale is then
 # max(stage distance, 3 cm) for every point (holodata.geometry.point_to_plane_icp)
 UNIFORM_WEIGHT = 1e4
+# per-point depth noise is floored at this for the thinning's "least noisy" choice and the checks
+MIN_SIGMA_M = 0.003
+# a map turn is read from the camera's position correction only where the turn's lever across the
+# held direction is at least this share of the whole lever (else the turn moves it along it)
+MIN_LEVER_SHARE = 0.3
+# FPFH + RANSAC (open3d): normals within 2 voxels, features within 5 (at most 100 neighbours);
+# correspondences within 1.5 voxels, edge-length check 0.9; 100000 iterations, confidence 0.999
+FPFH_NORMAL_VOXELS, FPFH_FEATURE_VOXELS, FPFH_MAX_NN = 2, 5, 100
+RANSAC_DISTANCE_VOXELS, RANSAC_EDGE_LENGTH = 1.5, 0.9
+RANSAC_ITERATIONS, RANSAC_CONFIDENCE = 100000, 0.999
 
 # ------------------------------------------------------------------------------------ open3d helpers
 def _pcd(points: np.ndarray, voxel: float | None = None, normals_radius: float | None = None, max_nn: int = 30):
@@ -84,7 +95,7 @@ def anchored_guess(T: np.ndarray, init: np.ndarray, anchor: np.ndarray, held_dir
     across /= max(np.linalg.norm(across), 1e-12)
     lever = float(u @ across)
     shift = (float(np.degrees((T[:3, 3] - init[:3, 3]) @ across / lever))
-             if abs(lever) >= 0.3 * np.linalg.norm(u) else None)   # None: the turn moves it along held_dir only
+             if abs(lever) >= MIN_LEVER_SHARE * np.linalg.norm(u) else None)   # None: the turn moves it along held_dir only
     out = {"yaw_deg": round(yaw, 4), "shift_deg": None if shift is None else round(shift, 4)}
     if shift is None or not (abs(yaw) <= max_deg and abs(shift - yaw) <= agree_deg):
         return None, out
@@ -103,14 +114,16 @@ def fpfh_ransac(source: np.ndarray, target: np.ndarray, voxel: float, seed: int 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)  # no "too few correspondences" chatter
     feats = []
     for pts in (source, target):
-        p = _pcd(pts, voxel, 2 * voxel)
-        f = reg.compute_fpfh_feature(p, o3d.geometry.KDTreeSearchParamHybrid(radius=5 * voxel, max_nn=100))
+        p = _pcd(pts, voxel, FPFH_NORMAL_VOXELS * voxel)
+        f = reg.compute_fpfh_feature(p, o3d.geometry.KDTreeSearchParamHybrid(radius=FPFH_FEATURE_VOXELS * voxel,
+                                                                              max_nn=FPFH_MAX_NN))
         feats.append((p, f))
     (ps, fs), (pt, ft) = feats
     res = reg.registration_ransac_based_on_feature_matching(
-        ps, pt, fs, ft, True, 1.5 * voxel, reg.TransformationEstimationPointToPoint(False), 3,
-        [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
-        reg.RANSACConvergenceCriteria(100000, 0.999))
+        ps, pt, fs, ft, True, RANSAC_DISTANCE_VOXELS * voxel, reg.TransformationEstimationPointToPoint(False), 3,
+        [reg.CorrespondenceCheckerBasedOnEdgeLength(RANSAC_EDGE_LENGTH),
+         reg.CorrespondenceCheckerBasedOnDistance(RANSAC_DISTANCE_VOXELS * voxel)],
+        reg.RANSACConvergenceCriteria(RANSAC_ITERATIONS, RANSAC_CONFIDENCE))
     return np.asarray(res.transformation)
 
 
@@ -244,7 +257,8 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
 
     cfg = cfg or RegisterConfig()
     src_all = np.asarray(static_cam, np.float64)
-    sig = np.full(len(src_all), 0.01) if sigma is None else np.maximum(np.asarray(sigma, np.float64), 0.003)
+    sig = (np.full(len(src_all), UNKNOWN_SIGMA_M) if sigma is None
+           else np.maximum(np.asarray(sigma, np.float64), MIN_SIGMA_M))
     keep = np.linalg.norm(src_all, axis=1) <= cfg.max_range_m
     src_all, sig = src_all[keep], sig[keep]
     # voxel-thin (one point per cam_voxel cell, the least noisy)

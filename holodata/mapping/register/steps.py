@@ -17,6 +17,12 @@ from .config import RegisterConfig, Registration
 from .humans import (body_columns, closed_surface, pick_human, radial_speed, static_residual, track_jumps,
                      track_prediction, velocity_shift)
 
+# the floor under a person: the FLOOR_PERCENTILE-th percentile of the map's heights within
+# FLOOR_RADIUS_M (plan) of the track (low outliers aside), from more than FLOOR_MIN_POINTS points
+FLOOR_RADIUS_M = 2.5
+FLOOR_PERCENTILE = 2
+FLOOR_MIN_POINTS = 50
+
 def initial_guess(scene, url: str, T_init: np.ndarray | None) -> tuple[np.ndarray, str]:
     """(T_world_camera guess (4,4), its source "--init" or "tf"): ``T_init`` when given, else the
     camera's TF pose in the map's world frame. InputError (one line) without one, or when the TF
@@ -145,12 +151,12 @@ def human_candidates(cam: CameraFrames, static: StaticCamera, M: np.ndarray, T: 
 
 
 def floor_below(M: np.ndarray, centre: np.ndarray | None) -> float | None:
-    """The floor under the person: the 2nd percentile of the map's heights within 2.5 m (plan) of the
-    track's ``centre`` (3,), None without a centre or with 50 map points or fewer there."""
+    """The floor under the person (:data:`FLOOR_RADIUS_M`, :data:`FLOOR_PERCENTILE`) around the
+    track's ``centre`` (3,), None without a centre or with :data:`FLOOR_MIN_POINTS` map points or fewer there."""
     if centre is None:
         return None
-    near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < 2.5
-    return float(np.percentile(M[near, 2], 2)) if near.sum() > 50 else None
+    near = np.linalg.norm(M[:, :2] - centre[:2], axis=1) < FLOOR_RADIUS_M
+    return float(np.percentile(M[near, 2], FLOOR_PERCENTILE)) if near.sum() > FLOOR_MIN_POINTS else None
 
 
 def body_only(qw: np.ndarray, hm: np.ndarray, eye: np.ndarray, floor_z: float | None, cfg: RegisterConfig) -> np.ndarray:

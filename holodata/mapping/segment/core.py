@@ -8,6 +8,19 @@ import numpy as np
 from ...geometry.planes import fit_height_plane
 from .config import NEIGHBOURS, SegmentConfig
 
+# a beam's horizontal step shrinks with cos(elevation); floored here so that the steepest beams of a
+# wide-FOV LiDAR do not get a near-zero link distance
+MIN_COS_ELEVATION = 0.2
+# a cluster nearer than a person's height spans only part of the vertical FOV: it needs this share
+# of the height the FOV spans at its range
+MIN_HEIGHT_FOV_SHARE = 0.8
+# the floor: the densest FLOOR_BIN_M slice of heights, then planes through the returns within
+# FLOOR_BAND_M of it, then within FLOOR_SIGMAS standard deviations but at least FLOOR_MIN_BAND_M
+FLOOR_BIN_M = 0.02
+FLOOR_BAND_M = 0.10
+FLOOR_SIGMAS = 3.0
+FLOOR_MIN_BAND_M = 0.03
+
 
 # ------------------------------------------------------------------------------------------ core
 def _shift(a: np.ndarray, dr: int, dc: int, fill=False) -> np.ndarray:
@@ -93,7 +106,7 @@ def neighbour_spacing(elev: np.ndarray, W: int, dr: int, dc: int) -> np.ndarray:
     H = len(el)
     e2 = _shift(el[:, None], dr, 0, fill=np.nan)[:, 0]
     d_el = np.where(np.isfinite(e2), np.abs(e2 - el), 0.0)
-    c = np.maximum(np.cos(el), 0.2)
+    c = np.maximum(np.cos(el), MIN_COS_ELEVATION)
     return np.hypot(d_el / c, abs(dc) * 2 * np.pi / W * c).reshape(H, 1)
 
 
@@ -276,7 +289,7 @@ def min_height(min_height_m: float, elev: np.ndarray | None, points: np.ndarray,
     for c in range(n):
         a, b = bounds[c], bounds[c + 1]
         if b > a:
-            need[c] = min(need[c], 0.8 * span * float(np.median(rh[order[a:b]])))
+            need[c] = min(need[c], MIN_HEIGHT_FOV_SHARE * span * float(np.median(rh[order[a:b]])))
     return need
 
 
@@ -383,17 +396,18 @@ def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: i
     if len(p) > 400_000:
         p = p[rng.choice(len(p), 400_000, replace=False)]
     lo, hi = p[:, 2].min(), p[:, 2].max()
-    hist, edges = np.histogram(p[:, 2], bins=max(1, int(np.ceil((hi - lo) / 0.02))), range=(lo, max(hi, lo + 0.02)))
-    z0 = edges[int(np.argmax(hist))] + 0.01
+    hist, edges = np.histogram(p[:, 2], bins=max(1, int(np.ceil((hi - lo) / FLOOR_BIN_M))),
+                               range=(lo, max(hi, lo + FLOOR_BIN_M)))
+    z0 = edges[int(np.argmax(hist))] + FLOOR_BIN_M / 2
     coef = np.array([0.0, 0.0, z0])
-    band = 0.10
+    band = FLOOR_BAND_M
     for _ in range(4):  # re-select the returns near the current plane (follows a tilted world frame), refit
         res = p[:, 2] - (p[:, :2] @ coef[:2] + coef[2])
         q = p[np.abs(res) < band]
         if len(q) < min_points:
             return None
         coef = fit_height_plane(q)
-        band = max(3.0 * float((q[:, 2] - np.c_[q[:, :2], np.ones(len(q))] @ coef).std()), 0.03)
+        band = max(FLOOR_SIGMAS * float((q[:, 2] - np.c_[q[:, :2], np.ones(len(q))] @ coef).std()), FLOOR_MIN_BAND_M)
     return coef
 
 

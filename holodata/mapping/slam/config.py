@@ -47,6 +47,10 @@ class SlamConfig:
     recording's odometry/TF poses (:func:`guess_poses`) where the scene has them for every scan
     (kiss-icp otherwise); a mapping pass throttled to a few scans per second (0.3-0.4 m apart) is seeded
     better and cheaper by its wheel odometry than by kiss-icp's constant-velocity model.
+    ``scan_normal_radius`` / ``scan_normal_nn``: the normals of a keyframe scan added to the
+    refinement map (open3d hybrid search, sensor frame), and ``map_normal_radius`` /
+    ``map_normal_nn`` those of a whole static map (the global pass's target, localisation's map):
+    neighbourhoods that must span a few of the LiDAR's rings on a wall (a sparser LiDAR needs larger).
     """
 
     voxel: float = 0.15
@@ -83,6 +87,10 @@ class SlamConfig:
     background_min_fraction: float = 0.6
     mesh: bool = True
     seed_poses: str = "kiss-icp"
+    scan_normal_radius: float = 0.3
+    scan_normal_nn: int = 20
+    map_normal_radius: float = 0.25
+    map_normal_nn: int = 30
 
     def __post_init__(self):
         if self.seed_poses not in SEED_POSES:

@@ -20,6 +20,9 @@ from .store import _fingerprint, _stored_result, _write
 from .world import anchor_pose, frame_poses, guess_poses
 
 MAPPING_ROLE = "mapping"   # scene attribute ``role`` of a mapping-pass scene (no train/test split, no raytrace-gt)
+# the first scan's map crop reaches this far beyond the LiDAR's range from the guess: the guess may
+# be off by the odometry's drift (wider than refine's TARGET_MARGIN_M)
+FIRST_TARGET_MARGIN_M = 1.5
 
 
 def check_map_scene(ds, scene_id: str, map_scene: str) -> None:
@@ -34,11 +37,11 @@ def check_map_scene(ds, scene_id: str, map_scene: str) -> None:
 
 def map_target(points: np.ndarray, cfg: SlamConfig) -> VoxelMap:
     """The refinement's point-to-plane map (:class:`VoxelMap`, ``cfg.map_voxel``) of a static point map
-    ``points`` (M,3) world frame (normals from open3d, 0.25 m / 30 neighbours)."""
+    ``points`` (M,3) world frame (normals from open3d, ``cfg.map_normal_radius`` / ``map_normal_nn``)."""
     import open3d as o3d
 
     pc = _o3d_cloud(points)
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.25, max_nn=30))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.map_normal_radius, max_nn=cfg.map_normal_nn))
     vm = VoxelMap(cfg.map_voxel)
     vm.add(np.asarray(pc.points), np.asarray(pc.normals))
     return vm
@@ -53,7 +56,7 @@ def localise_first(points: np.ndarray, vmap: VoxelMap, guess: np.ndarray, cfg: S
     r2 = np.einsum("ij,ij->i", p, p)
     p = p[(r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)]
     src = p[first_per_voxel(p, cfg.source_voxel)]
-    tgt = _TargetCache(max_range + 1.5).cloud(vmap, guess[:3, 3])
+    tgt = _TargetCache(max_range + FIRST_TARGET_MARGIN_M).cloud(vmap, guess[:3, 3])
     return icp(src, tgt, guess, replace(cfg, icp_iterations=30), distances)
 
 

@@ -12,6 +12,13 @@ from ...geometry.voxels import first_per_voxel
 from ...progress import track
 from .config import Scans, SlamConfig
 
+# kiss-icp settings holodata fixes (kiss-icp's are for cars at speed): its own default map density,
+# and an adaptive threshold that starts at 0.5 m (kiss-icp: 2 m) and counts motion from 2 cm
+# (kiss-icp: 0.1 m), for a slow indoor robot
+KISS_POINTS_PER_VOXEL = 20
+KISS_INITIAL_THRESHOLD_M = 0.5
+KISS_MIN_MOTION_M = 0.02
+
 
 class KissStream:
     """kiss-icp 1.3 odometry fed scan by scan on demand (see :func:`kiss_odometry` for the settings):
@@ -29,9 +36,9 @@ class KissStream:
         self.use_t = cfg.deskew and scans.times is not None
         kc.data.deskew = bool(self.use_t)
         kc.mapping.voxel_size = float(cfg.voxel)
-        kc.mapping.max_points_per_voxel = 20
-        kc.adaptive_threshold.initial_threshold = 0.5
-        kc.adaptive_threshold.min_motion_th = 0.02
+        kc.mapping.max_points_per_voxel = KISS_POINTS_PER_VOXEL
+        kc.adaptive_threshold.initial_threshold = KISS_INITIAL_THRESHOLD_M
+        kc.adaptive_threshold.min_motion_th = KISS_MIN_MOTION_M
         kc.registration.convergence_criterion = float(cfg.kiss_convergence)
         kc.registration.max_num_iterations = int(cfg.kiss_max_iterations)
         self.odo = KissICP(config=kc)

@@ -16,8 +16,9 @@ def _o3d_cloud(points, normals=None):
     return pc
 
 
-def scan_normals(points: np.ndarray, radius: float = 0.3, max_nn: int = 20):
-    """Downsampled sensor-frame points → (points, normals facing the sensor) via open3d."""
+def scan_normals(points: np.ndarray, radius: float, max_nn: int):
+    """Downsampled sensor-frame points → (points, normals facing the sensor) via open3d (hybrid
+    search: ``radius`` m, at most ``max_nn`` neighbours; ``SlamConfig.scan_normal_radius`` / ``_nn``)."""
     import open3d as o3d
 
     pc = _o3d_cloud(points)

@@ -13,6 +13,17 @@ from .config import Scans, SlamConfig
 from .points import _o3d_cloud, downsample, scan_normals
 from .odometry import _Fixed, deskew, twist
 
+# the refinement's map crop reaches this far beyond the LiDAR's range around the scan's guess (the
+# guess is within a scan's motion of the pose)
+TARGET_MARGIN_M = 1.0
+# the rest check's Gauss-Newton step is refused (no rest decision) above this condition number: a
+# scan that sees too few plane orientations to pin down every direction
+MAX_REST_COND = 1e8
+# open3d ICP: stages stop on a relative RMSE change below max(icp_converged_m, this) (open3d's own
+# floor for the relative criteria), and a stage with fewer correspondences leaves the pose
+MIN_RELATIVE_RMSE = 1e-7
+MIN_CORRESPONDENCES = 30
+
 
 class VoxelMap:
     """Point-to-plane target map: one point (+ normal) per ``voxel``, first come first kept."""
@@ -95,9 +106,10 @@ def _gn_step(p: np.ndarray, q: np.ndarray, n: np.ndarray, centre: np.ndarray, k:
     """One point-to-plane Gauss-Newton step (6,) [rotation vector (rad), translation (m)] moving points
     ``p`` (M,3) onto the planes through ``q`` (M,3) with unit normals ``n`` (M,3), rotation about
     ``centre`` (3,) (the sensor: the translation is its shift), Tukey weights of width ``k`` (m)
-    (:func:`holodata.geometry.gauss_newton_step`). None when the system is ill-conditioned (cond > 1e8)."""
+    (:func:`holodata.geometry.gauss_newton_step`). None when the system is ill-conditioned (cond >
+    :data:`MAX_REST_COND`)."""
     r = np.einsum("ij,ij->i", p - q, n)
-    step = gauss_newton_step(p, n, r, tukey_weights(r, k), centre, max_cond=1e8)
+    step = gauss_newton_step(p, n, r, tukey_weights(r, k), centre, max_cond=MAX_REST_COND)
     return None if step is None else step.y
 
 
@@ -167,10 +179,10 @@ class _SameBeam:
 def icp(src_pts: np.ndarray, target, init: np.ndarray, cfg: SlamConfig, distances=None):
     """Coarse-to-fine point-to-plane ICP of ``src_pts`` (sensor frame) onto ``target`` (open3d
     cloud with normals) (:func:`holodata.geometry.open3d_icp`: Tukey width ``tukey_k`` × the stage's
-    distance; a stage with fewer than 30 correspondences leaves the pose). Returns (T, fitness, inlier
+    distance; a stage with fewer than :data:`MIN_CORRESPONDENCES` correspondences leaves the pose). Returns (T, fitness, inlier
     rmse) of the finest stage."""
     return open3d_icp(src_pts, target, init, distances or cfg.icp_distances, cfg.tukey_k, cfg.icp_iterations,
-                      relative_rmse=max(cfg.icp_converged_m, 1e-7), min_correspondences=30)
+                      relative_rmse=max(cfg.icp_converged_m, MIN_RELATIVE_RMSE), min_correspondences=MIN_CORRESPONDENCES)
 
 
 def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None,
@@ -210,7 +222,7 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
     beams = cfg.same_beam and scans.pixels is not None and scans.grid is not None
     n_pix = int(np.prod(scans.grid)) if beams else 0
     same, same_beam = None, 0   # _SameBeam reference of the current anchor pose, scans it found at rest
-    target = _TargetCache(max_range + 1.0)
+    target = _TargetCache(max_range + TARGET_MARGIN_M)
     def in_range(p):   # (N,) bool: returns within [min_range, max_range] of the sensor
         r2 = np.einsum("ij,ij->i", p, p)
         return (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)
@@ -280,7 +292,8 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
         xi_prev = xi
         if grow_map and not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
             i_map = first_per_voxel(pts, cfg.map_voxel)
-            dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map])
+            dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map], cfg.scan_normal_radius,
+                                  cfg.scan_normal_nn)
             vmap.add(transform_points(T, dp), transform_directions(T, dn))
             last_key = T
             keyframes += 1
@@ -386,7 +399,7 @@ def global_refine(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: f
     allp = np.concatenate([w[background.contains(w, tolerance=0)] for w in world])
     allp = downsample(allp, cfg.fine_map_voxel)
     pc = _o3d_cloud(allp)
-    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.25, max_nn=30))
+    pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.map_normal_radius, max_nn=cfg.map_normal_nn))
     # orient normals towards the nearest sensor position
     centers = poses[:, :3, 3]
     from scipy.spatial import cKDTree

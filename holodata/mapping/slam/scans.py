@@ -11,6 +11,12 @@ from ...errors import DatasetError
 from ...progress import track
 from .config import Scans
 
+# kiss-icp's max range from the data: this percentile of the first scans' ranges (stray far returns
+# aside) × RANGE_MARGIN, at least MIN_MAX_RANGE_M (a scan in a cupboard)
+RANGE_PERCENTILE = 99.5
+RANGE_MARGIN = 1.1
+MIN_MAX_RANGE_M = 2.0
+
 
 class _ScanSource:
     """The LiDAR arrays of a scene (module doc, 1.): ``stamps`` (T,) int64 scan stamps, ``has_t`` (per-point
@@ -177,7 +183,7 @@ def _returns(p: np.ndarray) -> np.ndarray:
 def data_max_range(scans: Scans, n: int = 10) -> float:
     """Max range for kiss-icp from the data: 99.5th percentile of the first ``n`` scans' ranges ×1.1."""
     r = np.concatenate([np.linalg.norm(p, axis=1) for p in scans.points[:n]])
-    return float(max(2.0, np.percentile(r, 99.5) * 1.1))
+    return float(max(MIN_MAX_RANGE_M, np.percentile(r, RANGE_PERCENTILE) * RANGE_MARGIN))
 
 
 def _import_in_background(modules) -> threading.Thread:

@@ -7,11 +7,23 @@ import numpy as np
 from .config import SlamConfig, SlamResult
 
 
+# Settings added after datasets were mapped (issue 25: inline constants made settings): left out of
+# the fingerprint at their default, so a scene mapped before still reads as done.
+ADDED_SETTINGS = ("scan_normal_radius", "scan_normal_nn", "map_normal_radius", "map_normal_nn")
+
+
+def fingerprint_settings(attrs: dict, added, defaults) -> dict:
+    """``attrs`` (a config's ``to_attrs()``) less the fields in ``added`` that hold their value in
+    ``defaults`` (the config class): what a fingerprint hashes, the same as before those fields existed."""
+    return {k: v for k, v in attrs.items() if not (k in added and v == getattr(defaults, k))}
+
+
 def _fingerprint(scene, cfg: SlamConfig, mesh_cfg) -> str:
     import hashlib
     import json
 
-    h = hashlib.sha256(json.dumps({"slam": cfg.to_attrs(), "mesh": mesh_cfg.to_attrs() if mesh_cfg else None},
+    h = hashlib.sha256(json.dumps({"slam": fingerprint_settings(cfg.to_attrs(), ADDED_SETTINGS, SlamConfig),
+                                   "mesh": mesh_cfg.to_attrs() if mesh_cfg else None},
                                   sort_keys=True).encode())
     for name in ("lidar/points", "lidar/timestamp_ns", "time/timestamp_ns"):
         if name in scene:
