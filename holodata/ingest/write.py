@@ -9,6 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.layout import (LIDAR_POINT_TIME_NS, LIDAR_RANGE, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP,
+                              RADAR_IQ, RADAR_IQ_MOTION, RADAR_IQ_SPAN, RADAR_IQ_STATIC, TF_T_WORLD_LIDAR,
+                              TIME_TIMESTAMP_NS)
 from ..errors import DatasetError, HolodataError, RecordingError
 from ..readers.base import DecodeError
 from .roles import BULK_CODEC, SHARD_TARGET_BYTES, _one_line
@@ -208,7 +211,7 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, dims=dims, units=units, codec=codec, **kw)
 
     # small arrays known now
-    ts = frame_arr("time/timestamp_ns", (), "int64", ["frame"], "ns")
+    ts = frame_arr(TIME_TIMESTAMP_NS, (), "int64", ["frame"], "ns")
     for k in range(ts.n_shards):
         ts.write_shard(k, plan.frame_stamps[ts.frames(k)])
     # per-role expected frames
@@ -224,16 +227,16 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         rs = plan.streams["radar"]
         shape = rs.shape
         fb = int(np.prod(shape)) * rs.dtype.itemsize
-        hm = frame_arr("radar/heatmap", shape, rs.dtype.newbyteorder("="), ["frame", "range", "elevation", "azimuth"],
+        hm = frame_arr(RADAR_HEATMAP, shape, rs.dtype.newbyteorder("="), ["frame", "range", "elevation", "azimuth"],
                        "1", shard_frames=_shard_frames(fb, S), fill_value=float("nan"), codec=bulk,
                        attrs={"amplitude": "linear", "topic": rs.topic})
-        outs["radar/heatmap"] = _Out(hm, False, lambda: np.full(shape, np.nan, rs.dtype), set(range(T)), bg)
-        cyc = frame_arr("radar/cycle_ns", (2,), "int64", ["frame", "start_end"], "ns")
-        outs["radar/cycle_ns"] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)), bg)
+        outs[RADAR_HEATMAP] = _Out(hm, False, lambda: np.full(shape, np.nan, rs.dtype), set(range(T)), bg)
+        cyc = frame_arr(RADAR_CYCLE_NS, (2,), "int64", ["frame", "start_end"], "ns")
+        outs[RADAR_CYCLE_NS] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)), bg)
         if plan.keep_iq:
             _iq_outputs(plan, sc, frame_arr, outs, T, S, bg)
-            if "radar/iq_static" in sc.arrays():
-                arrays.append("radar/iq_static")
+            if RADAR_IQ_STATIC in sc.arrays():
+                arrays.append(RADAR_IQ_STATIC)
     for role in ("lidar", "camera"):
         if role not in plan.streams:
             continue
@@ -243,15 +246,15 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         outs[f"{role}/points"] = _Out(pts, True, lambda: np.zeros((0, 3), np.float32), set(frames_with), bg)
         pr = plan.probe.get(role) or {}
         if role == "lidar" and pr.get("time"):
-            pt = sc.ragged_array("lidar/point_time_ns", width=1, dtype="int64", units="ns", dims=["point", "time"],
+            pt = sc.ragged_array(LIDAR_POINT_TIME_NS, width=1, dtype="int64", units="ns", dims=["point", "time"],
                                  codec=bulk)
-            arrays.append("lidar/point_time_ns")
-            outs["lidar/point_time_ns"] = _Out(pt, True, lambda: np.zeros((0, 1), np.int64), set(frames_with), bg)
+            arrays.append(LIDAR_POINT_TIME_NS)
+            outs[LIDAR_POINT_TIME_NS] = _Out(pt, True, lambda: np.zeros((0, 1), np.int64), set(frames_with), bg)
         if role == "lidar" and pr.get("grid"):
             gshape = tuple(pr["grid"])
-            lr = frame_arr("lidar/range", gshape, "float32", ["frame", "beam", "column"], "m",
+            lr = frame_arr(LIDAR_RANGE, gshape, "float32", ["frame", "beam", "column"], "m",
                            shard_frames=_shard_frames(4 * int(np.prod(gshape)), S), codec=bulk)
-            outs["lidar/range"] = _Out(lr, False, lambda g=gshape: np.full(g, np.nan, np.float32), set(frames_with), bg)
+            outs[LIDAR_RANGE] = _Out(lr, False, lambda g=gshape: np.full(g, np.nan, np.float32), set(frames_with), bg)
     # which items to decode: frames of unfinished shards only (resume)
     want: dict[str, set[int]] = {}
     for role, d in exp.items():
@@ -276,9 +279,9 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         p = item.payload
         for f in frames:
             if role == "radar":
-                outs["radar/heatmap"].put(f, p.heatmap)
-                outs["radar/cycle_ns"].put(f, np.asarray(p.cycle, np.int64))
-                if "radar/iq" in outs:
+                outs[RADAR_HEATMAP].put(f, p.heatmap)
+                outs[RADAR_CYCLE_NS].put(f, np.asarray(p.cycle, np.int64))
+                if RADAR_IQ in outs:
                     _put_iq(outs, f, p.iq)
             else:
                 outs[f"{role}/points"].put(f, p.points)
@@ -364,7 +367,7 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             warnings.append(f"all {decoded[role]} decoded {role} messages on {plan.streams[role].topic} hold no valid "
                             f"point (non-finite or (0, 0, 0)); {role}/points is empty")
     if grid_bad:
-        warnings.append(f"{grid_bad} LiDAR scans do not fit the {outs['lidar/range'].w.shape[1:]} grid; "
+        warnings.append(f"{grid_bad} LiDAR scans do not fit the {outs[LIDAR_RANGE].w.shape[1:]} grid; "
                         f"their lidar/range frames are NaN")
     # poses
     pose_note = _write_poses(plan, sc, frame_arr)
@@ -400,30 +403,30 @@ def _iq_outputs(plan: Plan, sc, frame_arr, outs: dict, T: int, S: int, bg) -> No
     src = plan.rec if hasattr(plan.rec, "iq_shape") else plan.streams["radar"]   # a raw reader, or raw messages
     L, V, Sm = src.iq_shape()
     if hasattr(src, "static_refl"):    # a trajectory mean exists only where the reader sees every chirp
-        sc.write_array("radar/iq_static", np.asarray(src.static_refl(), np.complex64), ["antenna", "sample"])
-    iq = frame_arr("radar/iq", (L, V, Sm), "complex64", ["frame", "chirp", "antenna", "sample"], "1",
+        sc.write_array(RADAR_IQ_STATIC, np.asarray(src.static_refl(), np.complex64), ["antenna", "sample"])
+    iq = frame_arr(RADAR_IQ, (L, V, Sm), "complex64", ["frame", "chirp", "antenna", "sample"], "1",
                    shard_frames=_shard_frames(8 * L * V * Sm, S), fill_value=0, codec=BULK_CODEC,
                    attrs={"scale": "unit (the recording's int16 scale divided out)",
                           "layout": "chirp frames [before | rotation | after] as radar/iq_span says, then zeros"})
-    span = frame_arr("radar/iq_span", (3,), "int32", ["frame", "before_rotation_after"], "chirp frames")
-    mot = frame_arr("radar/iq_motion", (2,), "float64", ["frame", "ds0_heading"], "m, rad",
+    span = frame_arr(RADAR_IQ_SPAN, (3,), "int32", ["frame", "before_rotation_after"], "chirp frames")
+    mot = frame_arr(RADAR_IQ_MOTION, (2,), "float64", ["frame", "ds0_heading"], "m, rad",
                     attrs={"columns": "travel per chirp (m), heading counter-clockwise from beam 0 (rad)"})
-    outs["radar/iq"] = _Out(iq, False, lambda: np.zeros((L, V, Sm), np.complex64), set(range(T)), bg)
-    outs["radar/iq_span"] = _Out(span, False, lambda: np.zeros(3, np.int32), set(range(T)), bg)
-    outs["radar/iq_motion"] = _Out(mot, False, lambda: np.zeros(2, np.float64), set(range(T)), bg)
+    outs[RADAR_IQ] = _Out(iq, False, lambda: np.zeros((L, V, Sm), np.complex64), set(range(T)), bg)
+    outs[RADAR_IQ_SPAN] = _Out(span, False, lambda: np.zeros(3, np.int32), set(range(T)), bg)
+    outs[RADAR_IQ_MOTION] = _Out(mot, False, lambda: np.zeros(2, np.float64), set(range(T)), bg)
 
 
 def _put_iq(outs: dict, f: int, raw) -> None:
-    L = outs["radar/iq"].w.shape[1]
+    L = outs[RADAR_IQ].w.shape[1]
     parts = (raw.before, raw.rotation, raw.after)
     n = [int(len(p)) for p in parts]
     if sum(n) > L:
         raise DecodeError(f"rotation {f}: {sum(n)} chirp frames exceed the {L} radar/iq was made for")
-    cube = np.zeros(outs["radar/iq"].w.shape[1:], np.complex64)
+    cube = np.zeros(outs[RADAR_IQ].w.shape[1:], np.complex64)
     cube[:sum(n)] = np.concatenate(parts, axis=0)
-    outs["radar/iq"].put(f, cube)
-    outs["radar/iq_span"].put(f, np.asarray(n, np.int32))
-    outs["radar/iq_motion"].put(f, np.asarray(raw.motion, np.float64))
+    outs[RADAR_IQ].put(f, cube)
+    outs[RADAR_IQ_SPAN].put(f, np.asarray(n, np.int32))
+    outs[RADAR_IQ_MOTION].put(f, np.asarray(raw.motion, np.float64))
 
 
 def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
@@ -441,7 +444,7 @@ def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
     if not ok.all():
         return (f"TF covers only {int(ok.sum())} of {len(ok)} radar frames ({world} -> {radar_frame}); "
                 f"no pose/T_world_radar")
-    w = frame_arr("pose/T_world_radar", (4, 4), "float64", ["frame", "row", "col"], "m",
+    w = frame_arr(POSE_T_WORLD_RADAR, (4, 4), "float64", ["frame", "row", "col"], "m",
                   attrs={"world_frame": world, "sensor_frame": radar_frame, "source": "tf"})
     for k in range(w.n_shards):
         w.write_shard(k, poses[w.frames(k)])
@@ -472,7 +475,7 @@ def _write_lidar_tf(plan: Plan, frame_arr) -> str | None:
     poses, ok = res
     ok &= np.asarray(stamps) > 0
     poses = np.where(ok[:, None, None], poses, np.nan)
-    w = frame_arr("tf/T_world_lidar", (4, 4), "float64", ["frame", "row", "col"], "m", fill_value=float("nan"),
+    w = frame_arr(TF_T_WORLD_LIDAR, (4, 4), "float64", ["frame", "row", "col"], "m", fill_value=float("nan"),
                   attrs={"world_frame": world, "sensor_frame": frame, "source": "tf",
                          "covered_frames": int(ok.sum()), "time": "the frame's LiDAR scan stamp"})
     for k in range(w.n_shards):
