@@ -33,7 +33,8 @@ import numpy as np
 
 from .beams import OriginModel, beam_rays, column_times, scene_origin_model
 from .conventions import RangeBins
-from .dataset.layout import GT_ARRAYS
+from .dataset.layout import (GT_ARRAYS, GT_RANGE, MESH_FACES, MESH_FACE_CLASS, MESH_VERTICES, POSE_T_WORLD_RADAR,
+                             RADAR_CYCLE_NS, TIME_TIMESTAMP_NS)
 from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .parallel import cpus
@@ -93,7 +94,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     extra = {"codec": cfg.codec} if cfg.codec else {}
     arrays = {name: sc.frame_array(name, **spec, **extra) for name, spec in specs.items()}
     sc.set_attrs({"gt": attrs})
-    first = arrays["gt/range"]
+    first = arrays[GT_RANGE]
     all_frames = range(len(traj))
     plan = []  # (shard, names to write, frames)
     for k in range(first.n_shards):
@@ -217,10 +218,10 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     T = len(traj)
     sc = w.scene(scene_id, n_frames=T, attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"})
     _write_frame_meta(sc, traj)
-    sc.write_array("mesh/vertices", mesh.vertices.astype(np.float32), dims=["vertex", "xyz"], units="m")
-    sc.write_array("mesh/faces", mesh.faces.astype(np.int32), dims=["face", "corner"], units="1")
+    sc.write_array(MESH_VERTICES, mesh.vertices.astype(np.float32), dims=["vertex", "xyz"], units="m")
+    sc.write_array(MESH_FACES, mesh.faces.astype(np.int32), dims=["face", "corner"], units="1")
     if mesh.face_class is not None:
-        sc.write_array("mesh/face_class", mesh.face_class, dims=["face"], units="1")
+        sc.write_array(MESH_FACE_CLASS, mesh.face_class, dims=["face"], units="1")
     summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet,
                              processes=processes, client=client)
     return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": (cfg.origin or OriginModel()).describe(),
@@ -228,8 +229,8 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
 
 
 def _write_frame_meta(sc, traj: Trajectory) -> None:
-    ta = sc.frame_array("time/timestamp_ns", per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0)
-    pa = sc.frame_array("pose/T_world_radar", per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"],
+    ta = sc.frame_array(TIME_TIMESTAMP_NS, per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0)
+    pa = sc.frame_array(POSE_T_WORLD_RADAR, per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"],
                         units="m", fill_value=float("nan"))
     for k in range(ta.n_shards):
         sl = ta.frames(k)
@@ -243,7 +244,7 @@ def _missing_hint(missing: list[str]) -> str:
     """What to do about the arrays raytrace-gt needs but a scene lacks."""
     if any(m.startswith("mesh/") for m in missing):
         return "run holodata slam first"
-    if "pose/T_world_radar" in missing:
+    if POSE_T_WORLD_RADAR in missing:
         return ("no radar poses: slam derives them from the LiDAR poses only when the recording's static TF "
                 "gives the radar extrinsic; otherwise use the standalone form --mesh/--poses")
     return "ingest the recording again"
@@ -266,23 +267,23 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         s = ds.scene(sid)
         s.require_complete("raytrace-gt")
         names = set(s.arrays())
-        missing = [n for n in ("mesh/vertices", "mesh/faces", "pose/T_world_radar", "time/timestamp_ns") if n not in names]
+        missing = [n for n in (MESH_VERTICES, MESH_FACES, POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS) if n not in names]
         if missing:
             if scene_ids:
                 raise InputError(f"{url}: scene {sid!r} lacks {', '.join(missing)} ({_missing_hint(missing)})")
             continue
-        v = np.asarray(s["mesh/vertices"][...], dtype=np.float64)
-        f = np.asarray(s["mesh/faces"][...], dtype=np.int64)
+        v = np.asarray(s[MESH_VERTICES][...], dtype=np.float64)
+        f = np.asarray(s[MESH_FACES][...], dtype=np.int64)
         if len(f) == 0 or len(v) == 0:
             raise InputError(f"{url}: scene {sid!r} mesh is empty")
         if f.min() < 0 or f.max() >= len(v):
             raise InputError(f"{url}: scene {sid!r} mesh/faces index out of range")
-        fc = np.asarray(s["mesh/face_class"][...], dtype=np.uint8) if "mesh/face_class" in names else None
-        poses = np.asarray(s["pose/T_world_radar"][...], dtype=np.float64)
-        ts = np.asarray(s["time/timestamp_ns"][...], dtype=np.int64)
+        fc = np.asarray(s[MESH_FACE_CLASS][...], dtype=np.uint8) if MESH_FACE_CLASS in names else None
+        poses = np.asarray(s[POSE_T_WORLD_RADAR][...], dtype=np.float64)
+        ts = np.asarray(s[TIME_TIMESTAMP_NS][...], dtype=np.int64)
         if not np.all(np.isfinite(poses)):
             raise InputError(f"{url}: scene {sid!r} pose/T_world_radar has non-finite poses")
-        cycles = np.asarray(s["radar/cycle_ns"][...], dtype=np.int64) if "radar/cycle_ns" in names else None
+        cycles = np.asarray(s[RADAR_CYCLE_NS][...], dtype=np.int64) if RADAR_CYCLE_NS in names else None
         plans.append((sid, s, v, f, fc, Trajectory(ts, poses), cycles))
     if not plans:
         raise InputError(f"{url}: no scene has mesh/* and pose/T_world_radar (run slam first)")

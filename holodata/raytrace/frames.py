@@ -13,7 +13,8 @@ import numpy as np
 
 from ..beams import OriginModel, beam_rays, column_poses, local_origins
 from ..conventions import DEFAULT_MAX_BOUNCES, DEFAULT_MAX_RANGE_M, LOS_TOLERANCE_M, Grid
-from ..dataset.layout import GT_ARRAYS
+from ..dataset.layout import (GT_ARRAYS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, GT_SEMANTIC,
+                              RADAR_CYCLE_NS)
 from ..errors import InputError
 from ..trajectory import Trajectory
 from .humans import HumanSource
@@ -94,12 +95,12 @@ def trace_frame(scene, cfg: GTConfig, traj: Trajectory, k: int, human, human_ver
     if hv is not None and len(hv):
         center[0] = np.asarray(hv, dtype=np.float64).mean(axis=0)
     return {
-        "gt/range": res.range.T.reshape(B, H, W),
-        "gt/normal": res.normal.transpose(1, 0, 2).reshape(B, H, W, 3).astype(np.float16),
-        "gt/point": res.point.transpose(1, 0, 2).reshape(B, H, W, 3),
-        "gt/label": res.label.T.reshape(B, H, W),
-        "gt/semantic": res.semantic.T.reshape(B, H, W),
-        "gt/human_center": center,
+        GT_RANGE: res.range.T.reshape(B, H, W),
+        GT_NORMAL: res.normal.transpose(1, 0, 2).reshape(B, H, W, 3).astype(np.float16),
+        GT_POINT: res.point.transpose(1, 0, 2).reshape(B, H, W, 3),
+        GT_LABEL: res.label.T.reshape(B, H, W),
+        GT_SEMANTIC: res.semantic.T.reshape(B, H, W),
+        GT_HUMAN_CENTER: center,
     }
 
 
@@ -126,7 +127,7 @@ def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource, origin_so
         "backend": cfg.backend, "max_bounces": int(cfg.max_bounces), "max_range_m": float(cfg.max_range),
         "origin_model": origin.to_attrs(),
         "origin_source": origin_source or ("flags" if cfg.origin is not None else "default"),
-        "column_times_from": ("radar/cycle_ns" if cycles else "frame stamps") if origin.column_time else None,
+        "column_times_from": (RADAR_CYCLE_NS if cycles else "frame stamps") if origin.column_time else None,
         "mesh_sha256": mesh_hash, "human": human.describe(),
         "los_tolerance_m": LOS_TOLERANCE_M, "class_source": scene.class_source,
         "class_table": {str(k): v for k, v in scene.class_names.items()}, "human_class": int(scene.human_class),

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.layout import HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ..errors import InputError
 from ..meshio import read_mesh
 
@@ -100,9 +101,9 @@ class HumanDataset(HumanSource):
             scene = open_dataset(url).scene(scene_id)
         self.scene = scene
         names = set(scene.arrays())
-        if {"human/vertices", "human/faces"} <= names:
+        if {HUMAN_VERTICES, HUMAN_FACES} <= names:
             self.kind = "dataset:human/vertices+faces"
-        elif "human/points" in names:
+        elif HUMAN_POINTS in names:
             self.kind = "dataset:human/points"
         else:
             self.kind = "none"
@@ -116,11 +117,11 @@ class HumanDataset(HumanSource):
 
             self.scene = open_dataset(self.url).scene(self.scene_id)
         if self.kind == "dataset:human/vertices+faces":
-            v = np.asarray(self.scene.ragged("human/vertices", k), dtype=np.float64)
-            f = np.asarray(self.scene.ragged("human/faces", k), dtype=np.int64)
+            v = np.asarray(self.scene.ragged(HUMAN_VERTICES, k), dtype=np.float64)
+            f = np.asarray(self.scene.ragged(HUMAN_FACES, k), dtype=np.int64)
             return (v, f) if len(f) else None
         if self.kind == "dataset:human/points":
-            v, f = points_to_mesh(self.scene.ragged("human/points", k))
+            v, f = points_to_mesh(self.scene.ragged(HUMAN_POINTS, k))
             return (v, f) if len(f) else None
         return None
 
