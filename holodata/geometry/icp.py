@@ -20,6 +20,17 @@ import numpy as np
 
 from ..conventions import transform_points
 
+# point_to_plane_icp: a stage has converged when the update moves less than STOP_TRANSLATION_M and
+# turns less than STOP_ROTATION_RAD (far below any sensor's noise); fewer than MIN_CORRESPONDENCES
+# correspondences cannot pin down 6 degrees of freedom; the plain step's Levenberg damping (× Σw)
+# only keeps a rank-deficient system solvable
+STOP_TRANSLATION_M = 1e-5
+STOP_ROTATION_RAD = 1e-6
+MIN_CORRESPONDENCES = 6
+PLAIN_DAMPING = 1e-9
+# open3d_icp: relative fitness change below which a stage stops
+RELATIVE_FITNESS = 1e-7
+
 
 def tukey_weights(r: np.ndarray, k) -> np.ndarray:
     """(N,) Tukey biweights (1 - (r/k)²)² of residuals ``r`` (N,) with width ``k`` (scalar or (N,)),
@@ -99,10 +110,10 @@ def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarr
     the nearest map point can belong to the other wall. ``degenerate_ratio`` > 0: directions the
     overlap does not pin down (:func:`gauss_newton_step`'s ``hold_ratio``, rotations about the
     correspondences' centroid scaled by their median distance from it) keep the initial guess to within
-    ``hold_m`` (a corridor seen end-on). ``info`` receives the number of held
-    directions (``frozen``), the eigenvalues relative to the largest and ``held`` = (V (6,k), centre,
-    lever) for :func:`hold_at`. A stage ends when the update is below 10 µm and 1 µrad; fewer than 6
-    correspondences end the solve."""
+    ``hold_m`` (a corridor seen end-on). ``info`` receives the number of held directions (``frozen``),
+    the eigenvalues relative to the largest and ``held`` = (V (6,k), centre, lever) for :func:`hold_at`.
+    A stage ends when the update is below 10 µm and 1 µrad (:data:`STOP_TRANSLATION_M`,
+    :data:`STOP_ROTATION_RAD`); fewer than :data:`MIN_CORRESPONDENCES` (6) correspondences end the solve."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(target)
@@ -124,7 +135,7 @@ def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarr
             if source_normals is not None:
                 cosn = np.abs(np.einsum("ij,ij->i", source_normals @ T[:3, :3].T, target_normals[jj]))
                 ok &= cosn >= min_normal_cos
-            if ok.sum() < 6:
+            if ok.sum() < MIN_CORRESPONDENCES:
                 return T
             pp, nn = p[ok], target_normals[j[ok]]
             r = r_all[ok]
@@ -137,9 +148,9 @@ def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarr
                     info.update(frozen=int(step.held.shape[1]), eigenvalues=(ev / ev.max()).round(4).tolist(),
                                 held=(step.held, step.centre, step.lever))
             else:
-                x = gauss_newton_step(pp, nn, r, w, origin, damping=1e-9).y
+                x = gauss_newton_step(pp, nn, r, w, origin, damping=PLAIN_DAMPING).y
             T = moved_by(T, x)
-            if np.linalg.norm(x[3:]) < 1e-5 and np.linalg.norm(x[:3]) < 1e-6:
+            if np.linalg.norm(x[3:]) < STOP_TRANSLATION_M and np.linalg.norm(x[:3]) < STOP_ROTATION_RAD:
                 break
     return T
 
@@ -195,7 +206,7 @@ def open3d_icp(points: np.ndarray, target, init: np.ndarray, distances, tukey_k:
     for d in distances:
         est = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=float(d * tukey_k)))
         res = reg.registration_icp(src, target, float(d), T, est,
-                                   reg.ICPConvergenceCriteria(1e-7, float(relative_rmse), int(iterations)))
+                                   reg.ICPConvergenceCriteria(RELATIVE_FITNESS, float(relative_rmse), int(iterations)))
         if len(res.correspondence_set) >= min_correspondences:
             T = np.asarray(res.transformation)
     return T, float(res.fitness), float(res.inlier_rmse)
