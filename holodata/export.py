@@ -28,11 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .dataset.layout import (CAMERA_POINTS, GT_LABEL, GT_RANGE, LIDAR_POINTS, LIDAR_POINT_TIME_NS, RADAR_CYCLE_NS,
+                             RADAR_HEATMAP, TIME_TIMESTAMP_NS)
 from .errors import DatasetError, InputError
 
 FORMATS = ("panoradar", "hdf5")
 # arrays the HDF5 reader's layout carries itself (not copied again under holodata/)
-IN_LAYOUT = ("radar/heatmap", "radar/cycle_ns", "lidar/points", "lidar/point_time_ns", "camera/points",
+IN_LAYOUT = (RADAR_HEATMAP, RADAR_CYCLE_NS, LIDAR_POINTS, LIDAR_POINT_TIME_NS, CAMERA_POINTS,
              "camera/point_time_ns")
 
 
@@ -59,18 +61,18 @@ def _ragged_frames(sc, name: str):
 
 def export_panoradar(sc, folder: Path, grid, range_bins) -> dict:
     """One scene as a PanoRadar processed trajectory folder (see the module docstring)."""
-    if "radar/heatmap" not in sc:
+    if RADAR_HEATMAP not in sc:
         raise DatasetError(f"scene {sc.id!r} has no radar/heatmap: nothing to export as PanoRadar rf_npy")
     tmp = folder.with_name(folder.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     dirs = {"rf": tmp / "rf_npy"}
-    has_gt = "gt/range" in sc
+    has_gt = GT_RANGE in sc
     if has_gt:
         dirs.update(lidar=tmp / "lidar_npy", gt=tmp / "gt_npy", label=tmp / "label_npy")
     for d in dirs.values():
         d.mkdir(parents=True)
-    hm, gr = sc["radar/heatmap"], sc["gt/range"] if has_gt else None
-    lab = sc["gt/label"] if "gt/label" in sc else None
+    hm, gr = sc[RADAR_HEATMAP], sc[GT_RANGE] if has_gt else None
+    lab = sc[GT_LABEL] if GT_LABEL in sc else None
     for f in range(sc.n_frames):
         name = f"{f:05d}.npy"
         a = np.asarray(hm[f], np.float32)
@@ -89,8 +91,8 @@ def export_panoradar(sc, folder: Path, grid, range_bins) -> dict:
             "gt_npy": "gt/range (bounce, elevation, azimuth) metres, NaN = none" if has_gt else None,
             "label_npy": "gt/label (bounce, elevation, azimuth)" if lab is not None else None,
             "columns": "column j looks at azimuth -2*pi*j/W (clockwise); row 0 = top elevation",
-            "timestamps_ns": ([int(t) for t in np.asarray(sc["time/timestamp_ns"][...])]
-                              if "time/timestamp_ns" in sc else None)}
+            "timestamps_ns": ([int(t) for t in np.asarray(sc[TIME_TIMESTAMP_NS][...])]
+                              if TIME_TIMESTAMP_NS in sc else None)}
     (tmp / "holodata.json").write_text(json.dumps(meta, indent=1))
     if folder.exists():
         shutil.rmtree(folder)
@@ -109,14 +111,14 @@ def export_hdf5(sc, path: Path, grid, range_bins) -> dict:
         h.attrs["holodata_scene_attrs"] = json.dumps(sc.attrs, default=str)
         h.attrs["grid"] = json.dumps(grid.to_attrs())
         h.attrs["range_bins"] = json.dumps(range_bins.to_attrs())
-        if "time/timestamp_ns" in sc:
-            t = np.asarray(sc["time/timestamp_ns"][...], np.int64)
+        if TIME_TIMESTAMP_NS in sc:
+            t = np.asarray(sc[TIME_TIMESTAMP_NS][...], np.int64)
         else:   # a scene without stamps (written by other tools): mid-cycle stamps of a 2 Hz radar, said so
             t = ((np.arange(sc.n_frames) + 0.5) * 5e8).astype(np.int64)
             h.attrs["timestamps"] = "synthesised: frame i at (i + 0.5) x 0.5 s (the scene has no time/timestamp_ns)"
-        if "radar/heatmap" in sc:
-            src = sc["radar/heatmap"]
-            d = h.create_dataset("radar/heatmap", shape=src.shape, dtype=src.dtype, chunks=(1,) + src.shape[1:],
+        if RADAR_HEATMAP in sc:
+            src = sc[RADAR_HEATMAP]
+            d = h.create_dataset(RADAR_HEATMAP, shape=src.shape, dtype=src.dtype, chunks=(1,) + src.shape[1:],
                                  compression="lzf")
             for f in range(sc.n_frames):
                 d[f] = np.asarray(src[f])
@@ -124,8 +126,8 @@ def export_hdf5(sc, path: Path, grid, range_bins) -> dict:
                             "elevation_min_deg": grid.elev_min_deg, "scaling": "linear",
                             "range_origin": "rotation_centre", "frame_id": "radar"})
             h["radar/timestamp_ns"] = t
-            if "radar/cycle_ns" in sc:
-                h["radar/cycle_ns"] = np.asarray(sc["radar/cycle_ns"][...], np.int64)
+            if RADAR_CYCLE_NS in sc:
+                h[RADAR_CYCLE_NS] = np.asarray(sc[RADAR_CYCLE_NS][...], np.int64)
         for role in ("lidar", "camera"):
             if f"{role}/points" not in sc:
                 continue
@@ -190,7 +192,7 @@ def export_dataset(url, fmt: str, out, scene_ids=None, split: str | None = None,
     for sid in track(todo, total=len(todo), description=f"export {fmt}", quiet=quiet, unit="scenes"):
         sc = ds.scene(sid)
         sc.require_complete("export")
-        if fmt == "panoradar" and "radar/heatmap" not in sc and not scene_ids:
+        if fmt == "panoradar" and RADAR_HEATMAP not in sc and not scene_ids:
             skipped.append({"scene": sid, "why": "no radar/heatmap (a LiDAR-only scene, e.g. a mapping pass)"})
             continue
         if fmt == "panoradar":

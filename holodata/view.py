@@ -29,6 +29,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from .dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS, GT_LABEL, GT_POINT, GT_RANGE, HUMAN_FACES,
+                             HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, POSE_T_WORLD_LIDAR,
+                             POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
 from .errors import DatasetError, InputError
 
 
@@ -103,10 +106,10 @@ class _Predictions:
 
         geo, f = self.beams.frame(k, self.f), self.f
         if self.run.model is None:
-            rng = np.asarray(self.sc["gt/range"][k], np.float32)[:, ::f, ::f]
-            p = oracle_points(rng, np.asarray(self.sc["gt/label"][k], np.uint8)[:, ::f, ::f], geo, self.grid)
+            rng = np.asarray(self.sc[GT_RANGE][k], np.float32)[:, ::f, ::f]
+            p = oracle_points(rng, np.asarray(self.sc[GT_LABEL][k], np.uint8)[:, ::f, ::f], geo, self.grid)
         else:
-            rng, hum = self.run.ranges([np.asarray(self.sc["radar/heatmap"][k], np.float32)])
+            rng, hum = self.run.ranges([np.asarray(self.sc[RADAR_HEATMAP][k], np.float32)])
             p = self.run.points(rng[0], hum[0], geo, self.grid)
         P = np.asarray(p["point"], np.float64).reshape(-1, 3)
         ok = np.isfinite(P).all(-1)
@@ -130,23 +133,23 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
 
     ds = open_dataset(url)
     if scene_id is None:
-        scene_id = next((s for s in ds.scenes if "radar/heatmap" in ds.scene(s)), ds.scenes[0] if ds.scenes else None)
+        scene_id = next((s for s in ds.scenes if RADAR_HEATMAP in ds.scene(s)), ds.scenes[0] if ds.scenes else None)
     if scene_id not in ds.scenes:
         raise DatasetError(f"{ds.url}: no scene {scene_id!r} (have {', '.join(ds.scenes) or 'none'})")
     sc = ds.scene(scene_id)
     fr = parse_frames(frames, sc.n_frames)
     notes: list[str] = []
     has = set(sc.arrays())
-    for name, what in (("radar/heatmap", "radar panels"), ("gt/range", "GT panels and points"),
-                       ("pose/T_world_radar", "radar poses (GT points drawn in the radar frame)"),
-                       ("lidar/points", "LiDAR scans"), ("mesh/vertices", "the static mesh"),
-                       ("human/vertices", "the human surface")):
+    for name, what in ((RADAR_HEATMAP, "radar panels"), (GT_RANGE, "GT panels and points"),
+                       (POSE_T_WORLD_RADAR, "radar poses (GT points drawn in the radar frame)"),
+                       (LIDAR_POINTS, "LiDAR scans"), (MESH_VERTICES, "the static mesh"),
+                       (HUMAN_VERTICES, "the human surface")):
         if name not in has:
             notes.append(f"no {name}: {what} left out")
     pred = None
     if checkpoint is not None or report is not None:
         ck, oracle, est = run_of_report(report) if report is not None else (checkpoint, False, "mean")
-        need = [n for n in (("gt/range", "gt/label") if oracle else ("radar/heatmap",)) if n not in has]
+        need = [n for n in ((GT_RANGE, GT_LABEL) if oracle else (RADAR_HEATMAP,)) if n not in has]
         if need:
             notes.append(f"no {need[0]}: the run's predicted points left out")
         else:
@@ -162,17 +165,17 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
     classes = [rr.AnnotationInfo(id=k, label=v) for k, v in sorted(LABEL_NAMES.items())]
     log("/", rr.AnnotationContext(classes), static=True)
     log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    if "mesh/vertices" in has and "mesh/faces" in has:
-        log("world/mesh", rr.Mesh3D(vertex_positions=np.asarray(sc["mesh/vertices"][...], np.float32),
-                                    triangle_indices=np.asarray(sc["mesh/faces"][...], np.int32)), static=True)
-    if "calib/T_world_camera" in has:
-        T = np.asarray(sc["calib/T_world_camera"][...], np.float64)
+    if MESH_VERTICES in has and MESH_FACES in has:
+        log("world/mesh", rr.Mesh3D(vertex_positions=np.asarray(sc[MESH_VERTICES][...], np.float32),
+                                    triangle_indices=np.asarray(sc[MESH_FACES][...], np.int32)), static=True)
+    if CALIB_T_WORLD_CAMERA in has:
+        T = np.asarray(sc[CALIB_T_WORLD_CAMERA][...], np.float64)
         log("world/camera", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=True)
-    t = np.asarray(sc["time/timestamp_ns"][...], np.int64) if "time/timestamp_ns" in has else \
+    t = np.asarray(sc[TIME_TIMESTAMP_NS][...], np.int64) if TIME_TIMESTAMP_NS in has else \
         (np.arange(sc.n_frames) * 500_000_000).astype(np.int64)
-    poses = np.asarray(sc["pose/T_world_radar"][...], np.float64) if "pose/T_world_radar" in has else None
-    lposes = np.asarray(sc["pose/T_world_lidar"][...], np.float64) if "pose/T_world_lidar" in has else None
-    cycles = np.asarray(sc["radar/cycle_ns"][...], np.int64) if "radar/cycle_ns" in has else None
+    poses = np.asarray(sc[POSE_T_WORLD_RADAR][...], np.float64) if POSE_T_WORLD_RADAR in has else None
+    lposes = np.asarray(sc[POSE_T_WORLD_LIDAR][...], np.float64) if POSE_T_WORLD_LIDAR in has else None
+    cycles = np.asarray(sc[RADAR_CYCLE_NS][...], np.int64) if RADAR_CYCLE_NS in has else None
     gt_attrs = (sc.attrs.get("gt") or {}).get("origin_model")
     origin = OriginModel.from_attrs(gt_attrs) if gt_attrs else scene_origin_model(sc.attrs)[0]
     traj = Trajectory(t, poses) if poses is not None and len(t) > 1 and np.all(np.diff(t) > 0) else None
@@ -181,8 +184,8 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
     beyond_rig = int(np.searchsorted(rb.centres(), 2 * RADAR_ROTATION_RADIUS_M))
     for f in fr:
         rec.set_time("time", timestamp=np.datetime64(int(t[f]), "ns"))
-        if "radar/heatmap" in has:
-            hm = np.asarray(sc["radar/heatmap"][f], np.float32)
+        if RADAR_HEATMAP in has:
+            hm = np.asarray(sc[RADAR_HEATMAP][f], np.float32)
             log("radar/range_azimuth", rr.Image(_db_image(hm[:, el0, :])))
             log("radar/elevation_azimuth", rr.Image(_db_image(hm[beyond_rig:].max(axis=0))))
         P = poses[f] if poses is not None else np.eye(4)
@@ -191,17 +194,17 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
         if lposes is not None:
             L = lposes[f]
             log("world/lidar", rr.Transform3D(translation=L[:3, 3], mat3x3=L[:3, :3]))
-            if "lidar/points" in has:
-                log("world/lidar/points", rr.Points3D(np.asarray(sc["lidar/points"][f], np.float32), radii=0.01))
-        if "camera/points" in has and "calib/T_world_camera" in has:
-            log("world/camera/points", rr.Points3D(np.asarray(sc["camera/points"][f], np.float32), radii=0.01))
-        if "human/vertices" in has and "human/faces" in has:
-            v, fc = np.asarray(sc["human/vertices"][f], np.float32), np.asarray(sc["human/faces"][f], np.int32)
+            if LIDAR_POINTS in has:
+                log("world/lidar/points", rr.Points3D(np.asarray(sc[LIDAR_POINTS][f], np.float32), radii=0.01))
+        if CAMERA_POINTS in has and CALIB_T_WORLD_CAMERA in has:
+            log("world/camera/points", rr.Points3D(np.asarray(sc[CAMERA_POINTS][f], np.float32), radii=0.01))
+        if HUMAN_VERTICES in has and HUMAN_FACES in has:
+            v, fc = np.asarray(sc[HUMAN_VERTICES][f], np.float32), np.asarray(sc[HUMAN_FACES][f], np.int32)
             if len(v) and len(fc):
                 log("world/human", rr.Mesh3D(vertex_positions=v, triangle_indices=fc))
-        if "gt/range" in has:
-            R = np.asarray(sc["gt/range"][f], np.float32)                  # (B, H, W)
-            lab = np.asarray(sc["gt/label"][f], np.uint8) if "gt/label" in has else None
+        if GT_RANGE in has:
+            R = np.asarray(sc[GT_RANGE][f], np.float32)                  # (B, H, W)
+            lab = np.asarray(sc[GT_LABEL][f], np.uint8) if GT_LABEL in has else None
             cp = column_poses(traj, f, g, origin, cycles[f] if cycles is not None else None) if traj is not None else None
             o, d = beam_rays(g, P, origin, cp)
             for b in range(R.shape[0]):
@@ -212,8 +215,8 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
             ids = lab.reshape(lab.shape[0], -1)[ok] if lab is not None else None
             mirrored = (o[None] + d[None] * np.nan_to_num(R.reshape(R.shape[0], -1, 1)))[ok]
             log("world/gt/mirrored", rr.Points3D(mirrored.astype(np.float32), class_ids=ids, radii=0.02))
-            if "gt/point" in has:
-                pts = np.asarray(sc["gt/point"][f], np.float32).reshape(R.shape[0], -1, 3)[ok]
+            if GT_POINT in has:
+                pts = np.asarray(sc[GT_POINT][f], np.float32).reshape(R.shape[0], -1, 3)[ok]
                 log("world/gt/unmirrored", rr.Points3D(pts, class_ids=ids, radii=0.02))
         if pred is not None:
             pts, ids = pred.frame(f)
