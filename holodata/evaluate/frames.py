@@ -14,6 +14,7 @@ import numpy as np
 
 from holodata.beams import OriginModel, column_poses, frame_beams, gt_origin_model, scene_origin_model
 from holodata.conventions import Grid
+from holodata.dataset.layout import GT_NORMAL, GT_POINT, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, TIME_TIMESTAMP_NS
 from holodata.trajectory import Trajectory
 
 
@@ -45,17 +46,17 @@ class SceneBeams:
         names = set(scene.arrays())
         self.scene, self.grid = scene, grid
         self.origin = origin or gt_origin_model(attrs) or scene_origin_model(attrs)[0]
-        if "time/timestamp_ns" not in names and self.origin.column_time:
+        if TIME_TIMESTAMP_NS not in names and self.origin.column_time:
             self.origin = OriginModel(self.origin.rotation_radius, False, self.origin.rotation_hz)
         T = scene.n_frames
-        if "pose/T_world_radar" in names:
-            poses = np.asarray(scene["pose/T_world_radar"][...], np.float64)
+        if POSE_T_WORLD_RADAR in names:
+            poses = np.asarray(scene[POSE_T_WORLD_RADAR][...], np.float64)
         else:
             poses = np.broadcast_to(np.eye(4), (T, 4, 4)).copy()
-        ts = np.asarray(scene["time/timestamp_ns"][...], np.int64) if "time/timestamp_ns" in names else np.arange(T)
+        ts = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64) if TIME_TIMESTAMP_NS in names else np.arange(T)
         self.traj = Trajectory(ts, poses)
-        self.cycles = np.asarray(scene["radar/cycle_ns"][...], np.int64) if "radar/cycle_ns" in names else None
-        self._has = {n: n in names for n in ("gt/point", "gt/normal")}
+        self.cycles = np.asarray(scene[RADAR_CYCLE_NS][...], np.int64) if RADAR_CYCLE_NS in names else None
+        self._has = {n: n in names for n in (GT_POINT, GT_NORMAL)}
 
     def beams(self, k: int, f: int = 1) -> tuple[np.ndarray, np.ndarray]:
         """(origins, directions) (H',W',3) of frame k in its radar frame, rows and columns strided
@@ -75,10 +76,10 @@ class SceneBeams:
         o, d = self.beams(k, f)
         T = self.traj.poses[k]
         gp = gn = None
-        if self._has["gt/point"]:
-            gp = self.to_radar(k, np.asarray(self.scene["gt/point"][k], np.float64)[:, ::f, ::f])
-        if self._has["gt/normal"]:
-            gn = np.asarray(self.scene["gt/normal"][k], np.float64)[:, ::f, ::f] @ T[:3, :3]
+        if self._has[GT_POINT]:
+            gp = self.to_radar(k, np.asarray(self.scene[GT_POINT][k], np.float64)[:, ::f, ::f])
+        if self._has[GT_NORMAL]:
+            gn = np.asarray(self.scene[GT_NORMAL][k], np.float64)[:, ::f, ::f] @ T[:3, :3]
         return FrameGeometry(o, d, T, gp, gn)
 
 

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from holodata.dataset.layout import GT_LABEL, GT_RANGE, RADAR_HEATMAP
 from holodata.errors import DatasetError
 
 
@@ -163,10 +164,10 @@ class HeatmapDataset(Dataset):
             sc = ds.scene(sid)
             sc.require_complete("training or evaluation")
             names = set(sc.arrays())
-            for need in ("radar/heatmap", "gt/range"):
+            for need in (RADAR_HEATMAP, GT_RANGE):
                 if need not in names:
                     raise DatasetError(f"scene {sid}: no {need} array (run raytrace-gt / ingest a radar topic first)")
-            n = int(sc["gt/range"].shape[0])
+            n = int(sc[GT_RANGE].shape[0])
             if frames_per_scene is not None:
                 n = min(n, frames_per_scene)
             self.index += [(sid, k) for k in range(n)]
@@ -197,7 +198,7 @@ class HeatmapDataset(Dataset):
 
     def _fit_norm(self) -> HeatmapNorm:
         picks = self.index[:: max(len(self.index) // 4, 1)][:4]
-        hm = [np.asarray(self._dataset().scene(s)["radar/heatmap"][k]) for s, k in picks]
+        hm = [np.asarray(self._dataset().scene(s)[RADAR_HEATMAP][k]) for s, k in picks]
         return HeatmapNorm.fit(np.stack(hm))
 
     def __len__(self) -> int:
@@ -207,10 +208,10 @@ class HeatmapDataset(Dataset):
         """Raw (heatmap linear, range, label) of item i, before transform and normalisation."""
         sid, k = self.index[i]
         sc = self._dataset().scene(sid)
-        hm = np.asarray(sc["radar/heatmap"][k])
-        rng = np.asarray(sc["gt/range"][k], dtype=np.float32)
-        if self.with_label and "gt/label" in set(sc.arrays()):
-            lab = np.asarray(sc["gt/label"][k], dtype=np.uint8)
+        hm = np.asarray(sc[RADAR_HEATMAP][k])
+        rng = np.asarray(sc[GT_RANGE][k], dtype=np.float32)
+        if self.with_label and GT_LABEL in set(sc.arrays()):
+            lab = np.asarray(sc[GT_LABEL][k], dtype=np.uint8)
         else:
             lab = np.zeros(rng.shape, np.uint8)
         return hm, rng, lab

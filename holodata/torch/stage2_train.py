@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from holodata.conventions import Grid, is_human
+from holodata.dataset.layout import GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, POSE_T_WORLD_RADAR, RADAR_HEATMAP
 from holodata.errors import InputError
 from holodata.progress import track
 
@@ -158,9 +159,9 @@ class _SceneGeometry:
                     "gt_point": (nan if g.gt_point is None else g.gt_point).astype(np.float32),
                     "gt_normal": (nan if g.gt_normal is None else g.gt_normal).astype(np.float32)}
         names = set(sc.arrays())
-        T = np.asarray(sc["pose/T_world_radar"][k], dtype=np.float64)
-        p = np.asarray(sc["gt/point"][k], dtype=np.float64)[:, ::f, ::f]
-        n = np.asarray(sc["gt/normal"][k], dtype=np.float64)[:, ::f, ::f] if "gt/normal" in names else np.full(p.shape, np.nan)
+        T = np.asarray(sc[POSE_T_WORLD_RADAR][k], dtype=np.float64)
+        p = np.asarray(sc[GT_POINT][k], dtype=np.float64)[:, ::f, ::f]
+        n = np.asarray(sc[GT_NORMAL][k], dtype=np.float64)[:, ::f, ::f] if GT_NORMAL in names else np.full(p.shape, np.nan)
         H, W = self.grid.H, self.grid.W
         return {"origins": np.zeros((H, W, 3), np.float32), "directions": self.grid.directions().astype(np.float32),
                 "gt_point": ((p - T[:3, 3]) @ T[:3, :3]).astype(np.float32),
@@ -182,12 +183,12 @@ def load_frames(dataset_url, split: str, f: int, frames_per_scene: int | None = 
     for sid in scenes:
         sc = ds.scene(sid)
         geo = _SceneGeometry(sc, ds.grid, f)
-        n = int(sc["gt/range"].shape[0])
+        n = int(sc[GT_RANGE].shape[0])
         if frames_per_scene:
             n = min(n, frames_per_scene)
         for k in track(range(n), total=n, description=f"stage-two frames {sid}", quiet=quiet):
-            cols["range"].append(np.asarray(sc["gt/range"][k], np.float32)[:, ::f, ::f])
-            cols["label"].append(np.asarray(sc["gt/label"][k], np.uint8)[:, ::f, ::f])
+            cols["range"].append(np.asarray(sc[GT_RANGE][k], np.float32)[:, ::f, ::f])
+            cols["label"].append(np.asarray(sc[GT_LABEL][k], np.uint8)[:, ::f, ::f])
             for name, v in geo.frame(k).items():
                 cols[name].append(v)
             keys.append((sid, k))
@@ -215,8 +216,8 @@ def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", b
         xs = []
         for sid, k in keys[i0:i0 + batch_size]:
             sc = ds.scene(sid)
-            hm = np.asarray(sc["radar/heatmap"][k])
-            r = np.asarray(sc["gt/range"][k], np.float32)
+            hm = np.asarray(sc[RADAR_HEATMAP][k])
+            r = np.asarray(sc[GT_RANGE][k], np.float32)
             xs.append(norm(apply_transform(hm, r, np.zeros(r.shape, np.uint8), t)[0]))
         with torch.no_grad():
             p = model.predict(torch.from_numpy(np.stack(xs)).to(device))
