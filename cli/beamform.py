@@ -40,11 +40,12 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, focus, motion,
       holodata beamform raw.zarr --focus near
     """
     from holodata.dataset import open_dataset
+    from holodata.dataset.layout import RADAR_IQ
     from holodata.distributed import cluster
     from holodata.errors import DatasetError
 
     ds = open_dataset(dataset)
-    todo = list(scenes) or [s for s in ds.scenes if "radar/iq" in ds.scene(s)]
+    todo = list(scenes) or [s for s in ds.scenes if RADAR_IQ in ds.scene(s)]
     if not todo:
         raise DatasetError(f"{ds.url}: no scene holds radar/iq (ingest raw recordings with --keep-iq)")
     out = []

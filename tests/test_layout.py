@@ -72,7 +72,6 @@ NOT_YET_CONVERTED = {
     "holodata/mapping/register/steps.py", "holodata/mapping/segment/__init__.py", "holodata/mapping/segment/config.py",
     "holodata/mapping/segment/scans.py", "holodata/mapping/slam/__init__.py", "holodata/mapping/slam/localise.py",
     "holodata/mapping/slam/scans.py", "holodata/mapping/slam/store.py", "holodata/mapping/slam/world.py",
-    "cli/beamform.py", "holodata/readers/hdf5.py",
 }
 
 

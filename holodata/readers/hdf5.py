@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.layout import RADAR_CYCLE_NS, RADAR_HEATMAP  # the file names its arrays as the dataset does
 from ..errors import RecordingError
 from .base import (POINTS_TYPE, RADAR_MSG, Header, PointsMsg, RadarHeatmapMsg, RawMessage, Recording, TopicInfo,
                    rate_of)
@@ -71,13 +72,13 @@ class Hdf5Recording(Recording):
 
     def _check(self) -> None:
         f = self.f
-        if "radar/heatmap" in f:
-            hm = f["radar/heatmap"]
+        if RADAR_HEATMAP in f:
+            hm = f[RADAR_HEATMAP]
             if hm.ndim != 4 or hm.dtype.kind != "f":
                 raise RecordingError(f"{self.path}: radar/heatmap must be (T, R, H, W) float, got {hm.shape} {hm.dtype}")
             ts = self._stamps("radar/timestamp_ns", hm.shape[0])
-            if "radar/cycle_ns" in f:
-                cyc = np.asarray(f["radar/cycle_ns"][...], np.int64)
+            if RADAR_CYCLE_NS in f:
+                cyc = np.asarray(f[RADAR_CYCLE_NS][...], np.int64)
                 if cyc.shape != (hm.shape[0], 2):
                     raise RecordingError(f"{self.path}: radar/cycle_ns has shape {cyc.shape}, expected ({hm.shape[0]}, 2)")
             else:
@@ -119,7 +120,7 @@ class Hdf5Recording(Recording):
     def _radar(self, i: int) -> RadarHeatmapMsg:
         s = self.streams["/radar/heatmap"]
         a = s["attrs"]
-        hm = np.asarray(self.f["radar/heatmap"][i])
+        hm = np.asarray(self.f[RADAR_HEATMAP][i])
         if str(a.get("scaling", "linear")) != "linear":
             hm = np.maximum(np.power(10.0, 3.0 * hm.astype(np.float64)) - 1e-3, 0.0).astype(np.float32)
         enc = "float16" if hm.dtype == np.float16 else "float32"
