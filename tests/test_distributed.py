@@ -197,6 +197,17 @@ def test_ingest_on_cluster_matches_in_process(cluster, tmp_path):
     assert any(k.startswith("a/radar/heatmap/") for k in ref) and any(k.startswith("b/lidar/points/") for k in ref)
     assert got == ref
     assert hds.validate_dataset(str(tmp_path / "dask.zarr"))["ok"]
+    # shard_frames reaches the workers' writers as it does the local one (one ingest_one for both)
+    from distributed import Client
+
+    from holodata.ingest import ingest
+
+    ingest(recs, str(tmp_path / "ref2.zarr"), shard_frames=2)
+    with Client(addr) as client:
+        ingest(recs, str(tmp_path / "dask2.zarr"), shard_frames=2, client=client)
+    ref2 = manifests(tmp_path / "ref2.zarr")
+    assert manifests(tmp_path / "dask2.zarr") == ref2
+    assert len([k for k in ref2 if k.startswith("b/radar/heatmap/")]) > len([k for k in ref if k.startswith("b/radar/heatmap/")])
     # a recording that fails is reported and the other still ingested (exit 1)
     (tmp_path / "bad.bag").write_bytes(b"not a bag")
     r = CliRunner().invoke(cli, ["ingest", str(tmp_path / "bad.bag"), recs[0], "--out", str(tmp_path / "c.zarr"),

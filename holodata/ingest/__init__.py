@@ -50,7 +50,9 @@ rejected with a one-line reason.
 
 from __future__ import annotations
 
+import dataclasses
 import uuid
+from dataclasses import dataclass
 from pathlib import Path
 
 from ..conventions import Grid, RangeBins
@@ -88,7 +90,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     if tolerance_ms is not None and tolerance_ms <= 0:
         raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
     failed: list[dict] = []
-    from ..dataset import create_dataset, open_dataset
+    from ..dataset import open_dataset
 
     try:
         existing = open_dataset(out)
@@ -119,14 +121,12 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         from . import __version__ as version
     except ImportError:  # pragma: no cover
         version = "?"
-    ds = None
+    opts = IngestOptions(topics=topics, msg_dir=msg_dir, tolerance_ms=tolerance_ms, meta=meta, codec=codec,
+                         beamform=beamform, keep_iq=keep_iq, shard_frames=shard_frames,
+                         provenance={"tool": "holodata ingest", "version": version})
     scenes = []
     if client is not None:  # the dataset exists before the workers write their scenes into it
-        create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
-                       provenance={"tool": "holodata ingest", "version": version},
-                       **({"shard_frames": shard_frames} if shard_frames else {}))
-        opts = {"topics": topics, "msg_dir": msg_dir, "tolerance_ms": tolerance_ms, "meta": meta, "codec": codec,
-                "beamform": beamform, "keep_iq": keep_iq}
+        _create(out, grid, rb, opts)
         scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
         failed += more
         todo = []
@@ -135,23 +135,14 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
 
             Store(out).delete_tree("")
     for (_, r, _), sid in zip(todo, ids):
-        p = None
         try:
-            p = plan_recording(r, topics, sid, msg_dir, tolerance_ms, meta, quiet, beamform, keep_iq)
-            if p.grid is not None and grid is None:   # the first radar recording sets the dataset's grid
-                grid, rb, ds = p.grid, p.range_bins, None
-            else:
-                check_grid(r, p, grid, rb)
-            if ds is None:   # created only once something is ingestable: a failed run leaves no empty dataset
-                kw = {"shard_frames": shard_frames} if shard_frames else {}
-                ds = create_dataset(out, grid=grid, range_bins=rb, created_by="holodata ingest",
-                                    provenance={"tool": "holodata ingest", "version": version}, **kw)
-            scenes.append(write_plan(p, ds, quiet=quiet, codec=codec))   # source digest: waited for at its end
+            summary, radar = ingest_one(r, sid, out, grid, rb, opts, quiet=quiet)
         except (HolodataError, OSError) as err:
             failed.append({"recording": str(r), "error": _error_line(r, out, err)})
-        finally:
-            if p is not None:
-                p.rec.close()
+            continue
+        scenes.append(summary)
+        if grid is None and radar is not None:   # the first radar recording sets the dataset's grid
+            grid, rb = radar
     if not scenes:
         raise RecordingError(_failures(failed))
     return {"dataset": str(out), "scenes": scenes, "failed": failed, "ok": not failed}
@@ -207,41 +198,78 @@ def check_grid(recording, plan: Plan, grid, range_bins) -> None:
                              f"{grid}, {range_bins}")
 
 
-# -- Dask task (holodata.distributed runs it): one per recording -----------------------------------------
-def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: dict) -> dict:
-    """Worker side: plan and write one recording as scene ``scene_id`` of dataset ``out`` (which
-    exists). Returns {"scene": summary} or {"failed": {recording, error}}."""
+@dataclass(frozen=True)
+class IngestOptions:
+    """What :func:`ingest` was asked besides the recordings (its parameters of the same names), as
+    one picklable value for :func:`ingest_one` and the Dask task. ``provenance``: the dataset's
+    ``provenance`` root attribute."""
+    topics: dict | None = None
+    msg_dir: str | Path | None = None
+    tolerance_ms: float | None = None
+    meta: str | Path | None = None
+    codec: str | None = None
+    beamform: object = None
+    keep_iq: bool = False
+    shard_frames: int | None = None
+    provenance: dict = dataclasses.field(default_factory=dict)
+
+
+def _create(out, grid, range_bins, opts: IngestOptions):
+    """The dataset writer at ``out``, created when missing (its root records ``opts.provenance``)."""
     from ..dataset import create_dataset
+
+    kw = {"shard_frames": opts.shard_frames} if opts.shard_frames else {}
+    return create_dataset(out, grid=grid, range_bins=range_bins, created_by="holodata ingest",
+                          provenance=opts.provenance, **kw)
+
+
+def ingest_one(recording, scene_id: str, out, grid: Grid | None, range_bins: RangeBins | None,
+               opts: IngestOptions, quiet: bool = True) -> tuple[dict, tuple[Grid, RangeBins] | None]:
+    """One recording as scene ``scene_id`` of the dataset at ``out``: plan it (index and sync passes),
+    check its radar grid against the dataset's (``grid`` None: none is known yet, and a radar
+    recording's grid becomes the dataset's), create or reopen the dataset (only now, so a recording
+    that fails leaves no empty dataset) and write the scene. The local loop of :func:`ingest` and the
+    Dask task both call it. Returns (the scene summary, the recording's (grid, range bins) or None
+    without radar); raises HolodataError/OSError naming the recording."""
+    p = plan_recording(Path(recording), opts.topics, scene_id, opts.msg_dir, opts.tolerance_ms, opts.meta, quiet,
+                       opts.beamform, opts.keep_iq)
+    try:
+        if grid is not None:
+            check_grid(recording, p, grid, range_bins)
+        radar = (p.grid, p.range_bins) if p.grid is not None else None
+        ds = _create(out, *(radar or (grid, range_bins)), opts)
+        return write_plan(p, ds, quiet=quiet, codec=opts.codec), radar   # source digest: waited for at its end
+    finally:
+        p.rec.close()
+
+
+# -- Dask task (holodata.distributed runs it): one per recording -----------------------------------------
+def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: IngestOptions) -> dict:
+    """Worker side: :func:`ingest_one` into the dataset ``out`` (which exists). Returns
+    {"scene": summary} or {"failed": {recording, error}}."""
     from ..distributed import tune_malloc
 
     tune_malloc()
-    p = None
     try:
-        p = plan_recording(Path(path), opts["topics"], scene_id, opts["msg_dir"], opts["tolerance_ms"],
-                           opts["meta"], True, opts.get("beamform"), opts.get("keep_iq", False))
-        check_grid(path, p, grid, range_bins)
-        ds = create_dataset(out, grid=grid, range_bins=range_bins)
-        return {"scene": write_plan(p, ds, quiet=True, codec=opts["codec"])}
+        return {"scene": ingest_one(path, scene_id, out, grid, range_bins, opts)[0]}
     except (HolodataError, OSError) as err:
         return {"failed": {"recording": str(path), "error": _error_line(path, out, err)}}
-    finally:
-        if p is not None:
-            p.rec.close()
 
 
-def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, opts: dict, quiet: bool = True
-                ) -> tuple[list[dict], list[dict]]:
+def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, opts: IngestOptions,
+                quiet: bool = True) -> tuple[list[dict], list[dict]]:
     """One Dask task per recording ``todo`` [(index, path, _)] → scenes ``ids`` of the existing
     dataset ``out``. Returns (scene summaries, failures) in recording order."""
     from ..distributed import run_tasks, worker_path
 
     token = uuid.uuid4().hex[:8]
-    opts = {**opts, **{k: worker_path(opts[k]) for k in ("msg_dir", "meta") if opts.get(k)}}
+    opts = dataclasses.replace(opts, **{k: worker_path(getattr(opts, k)) for k in ("msg_dir", "meta") if getattr(opts, k)})
     calls = [(worker_path(r), sid, worker_path(out), grid, range_bins, opts) for (_, r, _), sid in zip(todo, ids)]
     keys = [f"ingest-{sid}-{token}" for sid in ids]
     res = run_tasks(client, _ingest_task, calls, keys, description="ingest", quiet=quiet)
     return [r["scene"] for r in res if "scene" in r], [r["failed"] for r in res if "failed" in r]
 
 
-__all__ = ["ingest", "ingest_dask", "plan_recording", "write_plan", "check_grid", "radar_grid", "list_recording",
+__all__ = ["ingest", "ingest_one", "IngestOptions", "ingest_dask",
+           "plan_recording", "write_plan", "check_grid", "radar_grid", "list_recording",
            "format_listing", "map_topics", "load_topics_file", "Plan", "TopicMap"]
