@@ -92,6 +92,9 @@ def test_the_name_constants_follow_the_table():
     for name in LAYOUT:
         assert getattr(layout, name.upper().replace("/", "_")) == name and name.upper().replace("/", "_") in layout.__all__
     assert spec(layout.POSE_PREFIX + "camera").kind == "frame"
+    for role in ("lidar", "camera"):
+        assert layout.POINTS_OF[role] == f"{role}/points" and LAYOUT[layout.POINTS_OF[role]].kind == "ragged"
+        assert layout.STAMPS_OF[role] == f"{role}/timestamp_ns" and LAYOUT[layout.STAMPS_OF[role]].units == "ns"
 
 
 def test_no_array_name_is_spelled_outside_the_layout():

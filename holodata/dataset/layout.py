@@ -82,6 +82,9 @@ GT_LABEL = "gt/label"
 GT_SEMANTIC = "gt/semantic"
 GT_HUMAN_CENTER = "gt/human_center"
 POSE_PREFIX = "pose/T_world_"       # pose/T_world_<sensor>: any sensor's poses (spec())
+# the point cloud and the frame stamps of each point sensor (ingest's roles)
+POINTS_OF = {"lidar": LIDAR_POINTS, "camera": CAMERA_POINTS}
+STAMPS_OF = {"lidar": LIDAR_TIMESTAMP_NS, "camera": CAMERA_TIMESTAMP_NS}
 
 
 _GT = ("frame", "bounce", "elevation", "azimuth")
@@ -151,10 +154,10 @@ def spec(name: str) -> ArraySpec | None:
     return None
 
 
-__all__ = ["ArraySpec", "LAYOUT", "GT_ARRAYS", "POSE_PREFIX", "spec", "TIME_TIMESTAMP_NS", "RADAR_HEATMAP",
-           "RADAR_CYCLE_NS", "RADAR_IQ", "RADAR_IQ_SPAN", "RADAR_IQ_MOTION", "RADAR_IQ_STATIC", "POSE_T_WORLD_RADAR",
-           "POSE_T_WORLD_LIDAR", "TF_T_WORLD_LIDAR", "LIDAR_RANGE", "LIDAR_TIMESTAMP_NS", "LIDAR_INSTANCE",
-           "LIDAR_POINTS", "LIDAR_POINT_TIME_NS", "CAMERA_POINTS", "CAMERA_POINTS_WORLD", "CAMERA_TIMESTAMP_NS",
-           "CALIB_T_WORLD_CAMERA", "HUMAN_VERTICES", "HUMAN_FACES", "HUMAN_POINTS", "MESH_VERTICES", "MESH_FACES",
-           "MESH_FACE_CLASS", "MAP_POINTS", "GT_RANGE", "GT_NORMAL", "GT_POINT", "GT_LABEL", "GT_SEMANTIC",
-           "GT_HUMAN_CENTER"]
+__all__ = ["ArraySpec", "LAYOUT", "GT_ARRAYS", "POSE_PREFIX", "POINTS_OF", "STAMPS_OF", "spec", "TIME_TIMESTAMP_NS",
+           "RADAR_HEATMAP", "RADAR_CYCLE_NS", "RADAR_IQ", "RADAR_IQ_SPAN", "RADAR_IQ_MOTION", "RADAR_IQ_STATIC",
+           "POSE_T_WORLD_RADAR", "POSE_T_WORLD_LIDAR", "TF_T_WORLD_LIDAR", "LIDAR_RANGE", "LIDAR_TIMESTAMP_NS",
+           "LIDAR_INSTANCE", "LIDAR_POINTS", "LIDAR_POINT_TIME_NS", "CAMERA_POINTS", "CAMERA_POINTS_WORLD",
+           "CAMERA_TIMESTAMP_NS", "CALIB_T_WORLD_CAMERA", "HUMAN_VERTICES", "HUMAN_FACES", "HUMAN_POINTS",
+           "MESH_VERTICES", "MESH_FACES", "MESH_FACE_CLASS", "MAP_POINTS", "GT_RANGE", "GT_NORMAL", "GT_POINT",
+           "GT_LABEL", "GT_SEMANTIC", "GT_HUMAN_CENTER"]

@@ -19,7 +19,8 @@ from ..conventions import Label, is_rigid
 from . import shards as sh
 from .info import stored_bytes
 from .layout import (CAMERA_POINTS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, HUMAN_FACES,
-                     HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, RADAR_HEATMAP, TIME_TIMESTAMP_NS, spec)
+                     HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, POSE_PREFIX, RADAR_HEATMAP,
+                     TIME_TIMESTAMP_NS, spec)
 from .reader import Dataset, list_nodes, open_dataset
 from .schemas import schema_errors
 from .writer import ragged_digest
@@ -444,7 +445,7 @@ def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
             rep.add(sid, name, off + i + 1, "timestamps", f"timestamp {full[i + 1]} not after the previous {full[i]}")
         if len(a):
             state[("ts", sid)] = a[-1]
-    elif name.startswith("pose/T_world_"):
+    elif name.startswith(POSE_PREFIX):
         if a.ndim != 3 or a.shape[1:] != (4, 4):
             return
         ok = is_rigid(a)

@@ -9,9 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..dataset.layout import (LIDAR_POINT_TIME_NS, LIDAR_RANGE, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP,
-                              RADAR_IQ, RADAR_IQ_MOTION, RADAR_IQ_SPAN, RADAR_IQ_STATIC, TF_T_WORLD_LIDAR,
-                              TIME_TIMESTAMP_NS)
+from ..dataset.layout import (LIDAR_POINT_TIME_NS, LIDAR_RANGE, POINTS_OF, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS,
+                              RADAR_HEATMAP, RADAR_IQ, RADAR_IQ_MOTION, RADAR_IQ_SPAN, RADAR_IQ_STATIC, STAMPS_OF,
+                              TF_T_WORLD_LIDAR, TIME_TIMESTAMP_NS)
 from ..errors import DatasetError, HolodataError, RecordingError
 from ..readers.base import DecodeError
 from .roles import BULK_CODEC, SHARD_TARGET_BYTES, _one_line
@@ -241,9 +241,9 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         if role not in plan.streams:
             continue
         frames_with = {f for fl in exp[role].values() for f in fl}
-        pts = sc.ragged_array(f"{role}/points", width=3, dtype="float32", units="m", codec=bulk)
-        arrays.append(f"{role}/points")
-        outs[f"{role}/points"] = _Out(pts, True, lambda: np.zeros((0, 3), np.float32), set(frames_with), bg)
+        pts = sc.ragged_array(POINTS_OF[role], width=3, dtype="float32", units="m", codec=bulk)
+        arrays.append(POINTS_OF[role])
+        outs[POINTS_OF[role]] = _Out(pts, True, lambda: np.zeros((0, 3), np.float32), set(frames_with), bg)
         pr = plan.probe.get(role) or {}
         if role == "lidar" and pr.get("time"):
             pt = sc.ragged_array(LIDAR_POINT_TIME_NS, width=1, dtype="int64", units="ns", dims=["point", "time"],
@@ -284,13 +284,13 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
                 if RADAR_IQ in outs:
                     _put_iq(outs, f, p.iq)
             else:
-                outs[f"{role}/points"].put(f, p.points)
+                outs[POINTS_OF[role]].put(f, p.points)
                 n_points[role] += len(p.points)
-                if f"{role}/point_time_ns" in outs:
+                if role == "lidar" and LIDAR_POINT_TIME_NS in outs:
                     t = p.time_ns if p.time_ns is not None else np.zeros(len(p.points), np.int64)
-                    outs[f"{role}/point_time_ns"].put(f, np.asarray(t, np.int64).reshape(-1, 1))
-                if f"{role}/range" in outs:
-                    g = outs[f"{role}/range"]
+                    outs[LIDAR_POINT_TIME_NS].put(f, np.asarray(t, np.int64).reshape(-1, 1))
+                if role == "lidar" and LIDAR_RANGE in outs:
+                    g = outs[LIDAR_RANGE]
                     if p.grid is not None and p.grid.shape == g.w.shape[1:]:
                         g.put(f, p.grid)
                     else:
@@ -351,9 +351,9 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             vals = plan.frame_stamps
         else:
             ok = np.zeros(T, bool)
-            ok[sorted(outs[f"{role}/points"].expected)] = True
+            ok[sorted(outs[POINTS_OF[role]].expected)] = True
             vals = np.where(ok, plan.match_stamp[role], 0)
-        w = frame_arr(f"{role}/timestamp_ns", (), "int64", ["frame"], "ns")
+        w = frame_arr(STAMPS_OF[role], (), "int64", ["frame"], "ns")
         for k in range(w.n_shards):
             w.write_shard(k, vals[w.frames(k)])
     warnings = list(plan.warnings)
