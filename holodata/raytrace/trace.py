@@ -18,6 +18,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..conventions import DEFAULT_MAX_BOUNCES, DEFAULT_MAX_RANGE_M, LOS_TOLERANCE_M
+from . import _kernels
 from .backends import DEFAULT_BACKEND, make_backend
 from .labels import class_table, combine_label, face_normals, geometric_classes
 
@@ -128,6 +129,7 @@ class RayScene:
         self.class_names, self.human_class = class_table(face_class, class_names)
         self.cast_log: list | None = None
         self.cull_dynamic = True
+        self.compiled = True  # per-bounce array work in numba kernels (_kernels.py); False: the numpy reference
 
     # ------------------------------------------------------------------ casting
     def prepare_dynamic(self, vertices, faces):
@@ -152,8 +154,13 @@ class RayScene:
         ts, fs = self.static.backend.cast6(rays)
         if dyn is None:
             return ts, fs, None
-        o3, d3 = soa if soa is not None else (rays[:, :3].T, rays[:, 3:].T)
-        sub = _meets_box(o3, d3, ts, dyn.box) if self.cull_dynamic else None
+        if not self.cull_dynamic:
+            sub = None
+        elif self.compiled:
+            sub = _kernels.meets_box(rays, ts, dyn.box)
+        else:
+            o3, d3 = soa if soa is not None else (rays[:, :3].T, rays[:, 3:].T)
+            sub = _meets_box(o3, d3, ts, dyn.box)
         if sub is None:
             if self.cast_log is not None:
                 self.cast_log.append(("dynamic", rays.copy()))
@@ -260,6 +267,8 @@ class RayScene:
         N, B = O.shape[1], int(max_bounces)
         d = d / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         dyn = self._dynamic(dynamic)
+        if self.compiled:
+            return self._trace_compiled(O, d, B, max_range, dyn, labels)
         st = self.static
         rng = np.full((B, N), np.nan, dtype=np.float32)
         point = np.full((B, 3, N), np.nan, dtype=np.float32)  # structure of arrays; (N,B,3) views returned
@@ -359,6 +368,60 @@ class RayScene:
         return TraceResult(rng.T, normal.transpose(2, 0, 1), point.transpose(2, 0, 1), face.T, hdyn.T,
                            label.T, semantic.T)
 
+    def _trace_compiled(self, O, d, B: int, max_range, dyn, labels: bool) -> TraceResult:
+        """:meth:`trace_soa`'s bounce loop with the array work in numba kernels (:mod:`._kernels`): the
+        same float32 operations in the same order, so identical to the bit to the numpy path."""
+        N, st = O.shape[1], self.static
+        rng = np.full((B, N), np.nan, dtype=np.float32)
+        point = np.full((B, 3, N), np.nan, dtype=np.float32)
+        normal = np.full((B, 3, N), np.nan, dtype=np.float32)
+        face = np.full((B, N), -1, dtype=np.int64)
+        hdyn = np.zeros((B, N), dtype=bool)
+        visited: list = []
+        S = np.empty((12, N), dtype=np.float32)  # rows as in trace_soa
+        S[0:3], S[3:6], S[11] = O, d, 0.0
+        idx = np.arange(N)
+        rays = self._workspace(N)
+        off = np.float32(SELF_HIT_OFFSET_M)
+        mr = np.asarray(max_range, dtype=np.result_type(np.float32, max_range))[()]  # numpy 2's comparison dtype
+        dn32, dc32 = (dyn.n32, dyn.c32) if dyn is not None else (st.n32, st.c32)
+        for b in range(B):
+            n = S.shape[1]
+            if n == 0:
+                break
+            R = rays[:n]
+            _kernels.make_rays(S, off, b == 0, R)
+            t, f, isd = self._cast6(R, dyn)
+            isd = np.zeros(n, bool) if isd is None else isd
+            hit, tt = np.empty(n, bool), np.empty(n, np.float32)
+            if _kernels.refine(S, t, f, isd, st.n32, st.c32, dn32, dc32, off, b == 0, hit, tt):
+                # rare: grazing float32 self-hits; recast those exactly (as trace_soa)
+                spur = np.flatnonzero(hit & (tt < 0.5 * off))
+                o, dd, nx, nd = S[0:3], S[3:6], S[6:9], S[10]
+                ts, fs, ds, ns = self._first_hit(o[:, spur].T.astype(np.float64), dd[:, spur].T.astype(np.float64), dyn,
+                                                 float(off))
+                tt[spur], f[spur], nx[:, spur] = ts, np.maximum(fs, 0), ns.T
+                hit[spur] = fs >= 0
+                nd[spur] = np.einsum("ij,ji->i", ns, dd[:, spur])
+                isd[spur] = ds
+            S, idx, P = _kernels.advance(S, tt, hit, f, isd, mr, idx, b, rng, point, normal, face, hdyn)
+            visited.append((b, idx, P))
+        los = np.ones((B, N), dtype=bool)
+        parts = [q for q in visited[1:] if len(q[1])] if labels else []
+        if parts:
+            ii = np.concatenate([q[1] for q in parts])
+            P = np.concatenate([q[2] for q in parts], axis=1)
+            vis = self._visible32(O[:, ii], P, dyn)
+            pos = 0
+            for b, i, _ in parts:
+                los[b, i] = vis[pos:pos + len(i)]
+                pos += len(i)
+        semantic = np.empty((B, N), dtype=np.uint8)
+        label = np.empty((B, N), dtype=np.uint8)
+        _kernels.labels(face, hdyn, los, self.face_semantic, np.uint8(self.human_class), semantic, label)
+        return TraceResult(rng.T, normal.transpose(2, 0, 1), point.transpose(2, 0, 1), face.T, hdyn.T,
+                           label.T, semantic.T)
+
     def _workspace(self, n: int) -> np.ndarray:
         """Reused (n,6) float32 ray buffer (fresh large allocations cost page faults every call)."""
         buf = getattr(self, "_ws", None)
@@ -370,18 +433,27 @@ class RayScene:
         """(n,) bool for (3,n) float32 origins and points: P visible from O, i.e. nothing (scene or
         dynamic mesh) on the segment closer than LOS_TOLERANCE_M before P. One any-hit (occlusion)
         query per mesh, the direction scaled to the segment length minus the tolerance."""
-        v = P - O
-        L = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-        near = L <= LOS_TOLERANCE_M
-        v *= np.where(near, np.float32(0), (L - np.float32(LOS_TOLERANCE_M)) / np.where(near, np.float32(1), L))
-        rays = self._workspace(len(L))
-        rays[:, :3] = O.T
-        rays[:, 3:] = v.T
+        if self.compiled:
+            rays = self._workspace(P.shape[1])
+            near = _kernels.los_rays(np.ascontiguousarray(O), np.ascontiguousarray(P), np.float32(LOS_TOLERANCE_M), rays)
+        else:
+            v = P - O
+            L = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            near = L <= LOS_TOLERANCE_M
+            v *= np.where(near, np.float32(0), (L - np.float32(LOS_TOLERANCE_M)) / np.where(near, np.float32(1), L))
+            rays = self._workspace(len(L))
+            rays[:, :3] = O.T
+            rays[:, 3:] = v.T
         if self.cast_log is not None:
             self.cast_log.append(("static:occluded", rays.copy()))
         blocked = self.static.backend.occluded6(rays)
         if dyn is not None:
-            sub = _meets_box(O, v, np.float32(1), dyn.box) if self.cull_dynamic else None
+            if not self.cull_dynamic:
+                sub = None
+            elif self.compiled:
+                sub = _kernels.meets_box(rays, np.ones(1, np.float32), dyn.box)
+            else:
+                sub = _meets_box(O, v, np.float32(1), dyn.box)
             part = rays if sub is None else rays[sub]
             if self.cast_log is not None:
                 self.cast_log.append(("dynamic:occluded", part.copy() if sub is None else part))

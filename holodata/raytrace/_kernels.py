@@ -1,0 +1,193 @@
+"""The tracer's per-bounce array work (:meth:`holodata.raytrace.RayScene.trace_soa`), compiled with numba.
+
+Each kernel is one pass over the rays doing what ~10-40 numpy array operations did (docs/design/
+raytrace.md: ~11-13 ms of numpy per 64x512 frame), with the same float32 operations in the same
+order, so the results are identical to the bit to the numpy reference path (``RayScene.compiled =
+False``; tests/test_raytrace.py compares both on random scenes and rays):
+
+- no ``fastmath`` (no reassociation, no fused multiply-add: LLVM contracts only under fastmath),
+  ``error_model="numpy"`` (x/0 gives inf/NaN as in numpy instead of raising);
+- every constant enters as a float32 scalar, as numpy 2 treats Python floats next to float32 arrays
+  (NEP 50), and sums keep numpy's left-to-right order ``(a + b) + c``.
+
+Arrays in, arrays out: no I/O. numba compiles on first use and caches the machine code next to
+this file (``cache=True``), as :mod:`holodata.radar._motion_kernel` does.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+_JIT = dict(cache=True, nogil=True, error_model="numpy")
+
+
+@numba.njit(**_JIT)
+def make_rays(S, off, first, R):  # pragma: no cover - compiled
+    """Rays (n,6) float32 into ``R`` from the state ``S`` (12,n): origin rows 0-2 (moved ``off``
+    along the direction unless ``first``), direction rows 3-5."""
+    n = S.shape[1]
+    for i in range(n):
+        dx, dy, dz = S[3, i], S[4, i], S[5, i]
+        if first:
+            R[i, 0], R[i, 1], R[i, 2] = S[0, i], S[1, i], S[2, i]
+        else:
+            R[i, 0] = S[0, i] + off * dx
+            R[i, 1] = S[1, i] + off * dy
+            R[i, 2] = S[2, i] + off * dz
+        R[i, 3], R[i, 4], R[i, 5] = dx, dy, dz
+
+
+@numba.njit(**_JIT)
+def meets_box(R, tmax, box):  # pragma: no cover - compiled
+    """:func:`holodata.raytrace.trace._meets_box` on rays ``R`` (n,6) float32 (origin, direction);
+    ``tmax`` (n,) or (1,) float32. Returns the int64 indices of the rays kept."""
+    n = R.shape[0]
+    out = np.empty(n, np.int64)
+    m = 0
+    one = np.float32(1)
+    for i in range(n):
+        enter = np.float32(-np.inf)
+        leave = np.float32(np.inf)
+        for k in range(3):
+            inv = one / R[i, 3 + k]
+            a = (box[0, k] - R[i, k]) * inv
+            b = (box[1, k] - R[i, k]) * inv
+            # np.fmin / np.fmax: a NaN operand is ignored (both NaN: NaN)
+            lo = b if np.isnan(a) else (a if np.isnan(b) else min(a, b))
+            hi = b if np.isnan(a) else (a if np.isnan(b) else max(a, b))
+            if k == 0:
+                enter, leave = lo, hi
+            else:
+                enter = lo if np.isnan(enter) else (enter if np.isnan(lo) else max(enter, lo))
+                leave = hi if np.isnan(leave) else (leave if np.isnan(hi) else min(leave, hi))
+        tm = tmax[i] if tmax.shape[0] > 1 else tmax[0]
+        if enter <= leave and leave >= 0 and enter <= tm:
+            out[m] = i
+            m += 1
+    return out[:m]
+
+
+@numba.njit(**_JIT)
+def refine(S, t, f, isd, st_n32, st_c32, dy_n32, dy_c32, off, first, hit, tout):  # pragma: no cover - compiled
+    """Normals (S rows 6-8, unoriented), n.d (row 10) and the hit distance refined against the hit
+    triangle's plane (``tout``), ``hit`` = finite t. Returns the number of spurious (grazing
+    self-) hits closer than off/2 (only when not ``first``), which the caller recasts."""
+    n = S.shape[1]
+    thr = np.float32(1e-3)
+    half = off * np.float32(0.5)
+    nspur = 0
+    for i in range(n):
+        ti = t[i]
+        h = np.isfinite(ti)
+        hit[i] = h
+        if isd[i]:
+            fi = f[i]
+            nx, ny, nz, c = dy_n32[0, fi], dy_n32[1, fi], dy_n32[2, fi], dy_c32[fi]
+        else:
+            fz = f[i] if h else 0
+            nx, ny, nz, c = st_n32[0, fz], st_n32[1, fz], st_n32[2, fz], st_c32[fz]
+        S[6, i], S[7, i], S[8, i] = nx, ny, nz
+        nd = nx * S[3, i] + ny * S[4, i] + nz * S[5, i]
+        S[10, i] = nd
+        no = nx * S[0, i] + ny * S[1, i] + nz * S[2, i]
+        if not first:
+            ti = ti + off
+        tref = (c - no) / nd
+        if abs(tref - ti) < thr:
+            ti = tref
+        tout[i] = ti
+        if not first and h and ti < half:
+            nspur += 1
+    return nspur
+
+
+@numba.njit(**_JIT)
+def advance(S, t, hit, f, isd, max_range, idx, b, rng, point, normal, face, hdyn):  # pragma: no cover - compiled
+    """One bounce's bookkeeping: accumulate the distance, keep the rays that hit within
+    ``max_range``, write their range, point, oriented normal, face and hit_dynamic into row ``b`` of
+    the (B,N) / (B,3,N) outputs at ``idx``, reflect their directions and move their origins to the
+    hit points. Returns (new state (12,m), new idx (m,), points (3,m))."""
+    n = S.shape[1]
+    m = 0
+    keep = np.empty(n, np.int64)
+    for i in range(n):
+        acc = S[11, i] + t[i]
+        S[9, i] = t[i]
+        S[11, i] = acc
+        if hit[i] and acc <= max_range:
+            keep[m] = i
+            m += 1
+    S2 = np.empty((12, m), np.float32)
+    idx2 = np.empty(m, np.int64)
+    P = np.empty((3, m), np.float32)
+    m1 = np.float32(-1)
+    p1 = np.float32(1)
+    two = np.float32(2)
+    for j in range(m):
+        i = keep[j]
+        g = idx[i]
+        idx2[j] = g
+        ti = S[9, i]
+        nd = S[10, i]
+        sgn = m1 if nd > 0 else p1
+        dx, dy, dz = S[3, i], S[4, i], S[5, i]
+        px = S[0, i] + ti * dx
+        py = S[1, i] + ti * dy
+        pz = S[2, i] + ti * dz
+        nx, ny, nz = S[6, i] * sgn, S[7, i] * sgn, S[8, i] * sgn
+        rng[b, g] = S[11, i]
+        point[b, 0, g], point[b, 1, g], point[b, 2, g] = px, py, pz
+        normal[b, 0, g], normal[b, 1, g], normal[b, 2, g] = nx, ny, nz
+        face[b, g] = f[i]
+        hdyn[b, g] = isd[i]
+        P[0, j], P[1, j], P[2, j] = px, py, pz
+        k = two * abs(nd)
+        dx = dx + k * nx
+        dy = dy + k * ny
+        dz = dz + k * nz
+        L = np.sqrt(dx * dx + dy * dy + dz * dz)
+        S2[0, j], S2[1, j], S2[2, j] = px, py, pz
+        S2[3, j], S2[4, j], S2[5, j] = dx / L, dy / L, dz / L
+        S2[6, j], S2[7, j], S2[8, j] = nx, ny, nz
+        S2[9, j], S2[10, j], S2[11, j] = ti, nd, S[11, i]
+    return S2, idx2, P
+
+
+@numba.njit(**_JIT)
+def los_rays(O, P, tol, R):  # pragma: no cover - compiled
+    """LOS segments into ``R`` (n,6) float32 from origins ``O`` and points ``P`` (3,n) float32: origin,
+    and ``P - O`` scaled to its length minus ``tol`` (0 when the length <= ``tol``). Returns ``near``
+    (n,) bool (length <= ``tol``)."""
+    n = P.shape[1]
+    near = np.empty(n, np.bool_)
+    zero = np.float32(0)
+    for i in range(n):
+        vx = P[0, i] - O[0, i]
+        vy = P[1, i] - O[1, i]
+        vz = P[2, i] - O[2, i]
+        L = np.sqrt(vx * vx + vy * vy + vz * vz)
+        nr = L <= tol
+        near[i] = nr
+        s = zero if nr else (L - tol) / L
+        R[i, 0], R[i, 1], R[i, 2] = O[0, i], O[1, i], O[2, i]
+        R[i, 3], R[i, 4], R[i, 5] = vx * s, vy * s, vz * s
+    return near
+
+
+@numba.njit(**_JIT)
+def labels(face, hdyn, los, face_semantic, human_class, semantic, label):  # pragma: no cover - compiled
+    """semantic and label (conventions.Label, :func:`holodata.raytrace.labels.combine_label`) of
+    (B,N) faces (-1 none), hit_dynamic and LOS flags."""
+    B, N = face.shape
+    for b in range(B):
+        for i in range(N):
+            f = face[b, i]
+            if f < 0:
+                semantic[b, i] = 0
+                label[b, i] = 0
+            elif hdyn[b, i]:
+                semantic[b, i] = human_class
+                label[b, i] = 3 if los[b, i] else 4
+            else:
+                semantic[b, i] = face_semantic[f]
+                label[b, i] = 1 if los[b, i] else 2
