@@ -31,6 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from ..conventions import rotation_angle_deg
+from ..dataset.layout import (CALIB_T_WORLD_CAMERA, HUMAN_FACES, HUMAN_VERTICES, LIDAR_INSTANCE, LIDAR_TIMESTAMP_NS,
+                              POSE_T_WORLD_LIDAR, POSE_T_WORLD_RADAR)
 from ..errors import InputError
 
 
@@ -113,8 +115,8 @@ def segmentation_ap50(url: str, scene_id: str, truth_dir: str | Path, min_truth_
         raise InputError(f"{path}: no truth instance masks (synthesise with visible_walkers > 0)")
     tr = read_lidar_instances(path)
     sc = open_dataset(url).scene(scene_id)
-    inst = sc["lidar/instance"]
-    stamps = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
+    inst = sc[LIDAR_INSTANCE]
+    stamps = np.asarray(sc[LIDAR_TIMESTAMP_NS][...], np.int64)
     where = {int(s): i for i, s in enumerate(tr["stamp_ns"])}
     preds, truths = [], []
     for k, s in enumerate(stamps):
@@ -202,27 +204,27 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
         raise InputError(f"frame must be world, radar, lidar or aligned, got {frame!r}")
     A = np.eye(4)
     if frame == "aligned":  # the estimate through the alignment of aligned_extrinsic_error
-        pair = _matched_trajectories(np.asarray(sc["lidar/timestamp_ns"][...], np.int64),
-                                     np.asarray(sc["pose/T_world_lidar"][...], float), true_lidar_poses(sc, truth_dir))
+        pair = _matched_trajectories(np.asarray(sc[LIDAR_TIMESTAMP_NS][...], np.int64),
+                                     np.asarray(sc[POSE_T_WORLD_LIDAR][...], float), true_lidar_poses(sc, truth_dir))
         if pair is not None:
             from .accuracy import pose_alignment
 
             A = pose_alignment(*pair)
     if frame == "radar":
-        P_est = np.asarray(sc["pose/T_world_radar"][...], float)
+        P_est = np.asarray(sc[POSE_T_WORLD_RADAR][...], float)
         P_true = read_tum(Path(truth_dir) / "trajectory_radar.tum").poses
         if len(P_true) != sc.n_frames:
             raise InputError(f"{truth_dir}: trajectory_radar.tum has {len(P_true)} poses for {sc.n_frames} frames")
     if frame == "lidar":
-        P_est, P_true = np.asarray(sc["pose/T_world_lidar"][...], float), true_lidar_poses(sc, truth_dir)
+        P_est, P_true = np.asarray(sc[POSE_T_WORLD_LIDAR][...], float), true_lidar_poses(sc, truth_dir)
     errs, missing = [], 0
     for k in range(sc.n_frames):
         p = hd / f"{k:06d}.ply"
         if not p.is_file():
             continue
         m = read_mesh(p)
-        v = np.asarray(sc.ragged("human/vertices", k), float)
-        f = np.asarray(sc.ragged("human/faces", k), np.int64)
+        v = np.asarray(sc.ragged(HUMAN_VERTICES, k), float)
+        f = np.asarray(sc.ragged(HUMAN_FACES, k), np.int64)
         if len(f) == 0:
             missing += 1
             errs.append(np.nan)
@@ -246,7 +248,7 @@ def true_lidar_poses(sc, truth_dir: str | Path) -> np.ndarray:
     from ..trajectory import read_tum
 
     lid = read_tum(Path(truth_dir) / "trajectory_lidar.tum")
-    stamps = np.asarray(sc["lidar/timestamp_ns"][...], np.int64)
+    stamps = np.asarray(sc[LIDAR_TIMESTAMP_NS][...], np.int64)
     where = {int(t): i for i, t in enumerate(lid.timestamp_ns)}
     P = np.full((len(stamps), 4, 4), np.nan)
     for k, s in enumerate(stamps):
@@ -269,7 +271,7 @@ def robot_relative_extrinsic_error(url: str, scene_id: str, truth_dir: str | Pat
     from ..dataset import open_dataset
 
     sc = open_dataset(url).scene(scene_id)
-    return relative_extrinsic_error(np.asarray(sc["pose/T_world_lidar"][...], float), T_est,
+    return relative_extrinsic_error(np.asarray(sc[POSE_T_WORLD_LIDAR][...], float), T_est,
                                     true_lidar_poses(sc, truth_dir), truth_camera_extrinsic(truth_dir))
 
 
@@ -292,8 +294,8 @@ def aligned_extrinsic_error(url: str, scene_id: str, truth_dir: str | Path, T_es
     from ..dataset import open_dataset
 
     sc = open_dataset(url).scene(scene_id)
-    return aligned_extrinsic_error_poses(np.asarray(sc["lidar/timestamp_ns"][...], np.int64),
-                                         np.asarray(sc["pose/T_world_lidar"][...], float), T_est,
+    return aligned_extrinsic_error_poses(np.asarray(sc[LIDAR_TIMESTAMP_NS][...], np.int64),
+                                         np.asarray(sc[POSE_T_WORLD_LIDAR][...], float), T_est,
                                          true_lidar_poses(sc, truth_dir), truth_camera_extrinsic(truth_dir))
 
 
@@ -364,7 +366,7 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
     rad = read_tum(truth_dir / "trajectory_radar.tum")
     w = open_dataset(url, "r+")
     sw = w.scene(scene_id)
-    for name, poses in (("pose/T_world_lidar", P), ("pose/T_world_radar", rad.poses if len(rad) == sc.n_frames else None)):
+    for name, poses in ((POSE_T_WORLD_LIDAR, P), (POSE_T_WORLD_RADAR, rad.poses if len(rad) == sc.n_frames else None)):
         if poses is None:
             continue
         if name in sw.arrays():
@@ -388,16 +390,16 @@ def evaluate_register(url: str, scene_id: str, truth_dir: str | Path, out_dir: s
 
     truth_dir = Path(truth_dir)
     sc = open_dataset(url).scene(scene_id)
-    if "calib/T_world_camera" not in sc.arrays():
+    if CALIB_T_WORLD_CAMERA not in sc.arrays():
         raise InputError(f"{url}: scene {scene_id!r} has no calib/T_world_camera (run holodata register first)")
-    T = np.asarray(sc["calib/T_world_camera"][...], float)
+    T = np.asarray(sc[CALIB_T_WORLD_CAMERA][...], float)
     out = {"extrinsic": extrinsic_error(T, truth_camera_extrinsic(truth_dir)),
            "extrinsic_aligned": aligned_extrinsic_error(url, scene_id, truth_dir, T),
            "extrinsic_robot": robot_relative_extrinsic_error(url, scene_id, truth_dir, T),
            "human_centroid": human_centroid_errors(url, scene_id, truth_dir)}
-    if "pose/T_world_radar" in sc.arrays() and (truth_dir / "trajectory_radar.tum").is_file():
+    if POSE_T_WORLD_RADAR in sc.arrays() and (truth_dir / "trajectory_radar.tum").is_file():
         out["human_centroid_radar"] = human_centroid_errors(url, scene_id, truth_dir, frame="radar")
-    if (truth_dir / "lidar_instances.npz").is_file() and "lidar/instance" in sc.arrays():
+    if (truth_dir / "lidar_instances.npz").is_file() and LIDAR_INSTANCE in sc.arrays():
         out["segmentation"] = segmentation_ap50(url, scene_id, truth_dir)
     if out_dir is not None:
         out_dir = Path(out_dir)

@@ -56,6 +56,9 @@ import time
 
 import numpy as np
 
+from ...dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, CAMERA_TIMESTAMP_NS, HUMAN_FACES, HUMAN_POINTS,
+                               HUMAN_VERTICES, LIDAR_INSTANCE, MAP_POINTS, MESH_FACES, MESH_VERTICES, POSE_T_WORLD_LIDAR,
+                               TIME_TIMESTAMP_NS)
 from ...errors import InputError
 from ...parallel import cpus, fork_call, release_free_memory
 from .config import RegisterConfig, Registration, RegistrationError
@@ -150,7 +153,7 @@ def lidar_map(scene, cfg: RegisterConfig, segment: bool, quiet: bool = True, bui
     if segment:
         inst = InstanceMasks(scans, bg, scfg, traj, world_points)
     else:
-        inst = scene["lidar/instance"] if "lidar/instance" in set(scene.arrays()) else None
+        inst = scene[LIDAR_INSTANCE] if LIDAR_INSTANCE in set(scene.arrays()) else None
     M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans,
                   world_points=world_points) if build_map else None
     t2 = time.perf_counter()
@@ -168,7 +171,7 @@ def camera_world(scene, T: np.ndarray) -> None:
     from ...dataset import open_dataset
 
     arr = open_dataset(scene.ds.url, "r+").scene(scene.id).ragged_array(
-        "camera/points_world", 3, "float32", "m", ["point", "xyz"])
+        CAMERA_POINTS_WORLD, 3, "float32", "m", ["point", "xyz"])
     for s in range(arr.n_shards):
         sl = arr.frames(s)
         arr.write_shard(s, [_camera_points_through(scene, T, k) for k in range(sl.start, sl.stop)])
@@ -187,7 +190,7 @@ def _built_from_the_poses(scene, names: tuple) -> bool:
     ``pose/T_world_lidar``'s (``holodata slam`` writes "slam" on its poses, mesh and map; poses
     replaced afterwards, e.g. by the true ones, leave products that no longer match them)."""
     nodes = scene.nodes()
-    names = names + ("pose/T_world_lidar",)
+    names = names + (POSE_T_WORLD_LIDAR,)
     if not all(n in nodes for n in names):
         return False
     src = [(nodes[n][1].get("attributes") or {}).get("source") for n in names]
@@ -199,9 +202,9 @@ def slam_anchor(scene) -> np.ndarray | None:
     anchored at the TF pose of that scan (their world is the TF world, off by the odometry's error
     there); None otherwise."""
     nodes = scene.nodes()
-    if "pose/T_world_lidar" not in nodes:
+    if POSE_T_WORLD_LIDAR not in nodes:
         return None
-    if (nodes["pose/T_world_lidar"][1].get("attributes") or {}).get("source") != "slam":
+    if (nodes[POSE_T_WORLD_LIDAR][1].get("attributes") or {}).get("source") != "slam":
         return None
     anchor = (scene.attrs.get("slam") or {}).get("anchor") or {}
     T0 = anchor.get("T_world_lidar0")
@@ -213,17 +216,17 @@ def slam_anchor(scene) -> np.ndarray | None:
 def scene_mesh(scene) -> tuple[np.ndarray, np.ndarray] | None:
     """The scene's static mesh (``mesh/vertices`` (V,3), ``mesh/faces`` (F,3)) when it was built from
     the poses the scene holds now (:func:`_built_from_the_poses`); None otherwise."""
-    if not _built_from_the_poses(scene, ("mesh/vertices", "mesh/faces")):
+    if not _built_from_the_poses(scene, (MESH_VERTICES, MESH_FACES)):
         return None
-    return np.asarray(scene["mesh/vertices"][...], np.float64), np.asarray(scene["mesh/faces"][...], np.int64)
+    return np.asarray(scene[MESH_VERTICES][...], np.float64), np.asarray(scene[MESH_FACES][...], np.int64)
 
 
 def scene_map(scene) -> np.ndarray | None:
     """slam's static map ``map/points`` (M,3) float64 world when it was built from the poses the scene
     holds now (:func:`_built_from_the_poses`); None otherwise."""
-    if not _built_from_the_poses(scene, ("map/points",)):
+    if not _built_from_the_poses(scene, (MAP_POINTS,)):
         return None
-    return np.asarray(scene["map/points"][...], np.float64)
+    return np.asarray(scene[MAP_POINTS][...], np.float64)
 
 
 def camera_tf_guess(scene) -> tuple[str | None, list | None]:
@@ -241,9 +244,9 @@ def map_frame_problem(scene, world: str) -> str | None:
     ``world``, or None when they are: slam found no TF pose of the LiDAR (its world is then the
     first scan's frame: ``anchor`` base or lidar), or its poses name another world frame."""
     nodes = scene.nodes()
-    if "pose/T_world_lidar" not in nodes:
+    if POSE_T_WORLD_LIDAR not in nodes:
         return None
-    a = nodes["pose/T_world_lidar"][1].get("attributes") or {}
+    a = nodes[POSE_T_WORLD_LIDAR][1].get("attributes") or {}
     if a.get("source") == "slam" and a.get("anchor") not in (None, "tf"):
         return (f"the LiDAR map is in the {a.get('world_frame') or 'first scan frame'} (slam found no TF pose of "
                 f"the LiDAR: TF does not connect its frame to {world!r})")
@@ -253,7 +256,7 @@ def map_frame_problem(scene, world: str) -> str | None:
     return None
 
 
-REGISTER_OUTPUTS = ("calib/T_world_camera", "human/vertices", "human/faces", "human/points")
+REGISTER_OUTPUTS = (CALIB_T_WORLD_CAMERA, HUMAN_VERTICES, HUMAN_FACES, HUMAN_POINTS)
 # Switches deleted (issue 25: off by default, never used) after datasets were registered with them:
 # their only value stays in the fingerprint, so a scene registered before still reads as done.
 RETIRED_PARAMS = {"noise_weights": False, "max_std_m": 0.0, "search_m": 0.0, "mesh_keep_map_m": 0.0}
@@ -277,7 +280,7 @@ def register_fingerprint(scene, cfg: RegisterConfig, init, segment_cfg=None) -> 
         head["segment"] = {**RETIRED_SEGMENT_PARAMS, **segment_cfg.to_attrs()}
     h.update(json.dumps(head, sort_keys=True, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)).encode())
     names = set(scene.arrays())
-    for name in ("pose/T_world_lidar", "map/points", "mesh/vertices", "mesh/faces"):
+    for name in (POSE_T_WORLD_LIDAR, MAP_POINTS, MESH_VERTICES, MESH_FACES):
         if name in names:
             h.update(name.encode())
             h.update(np.ascontiguousarray(scene[name][...]).tobytes())
@@ -342,8 +345,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         cand = human_candidates(cam, static, M, T, cfg, processes, quiet, where)
         del static.images
         timings["candidates_s"] = time.perf_counter() - t2
-        ts = np.asarray(scene["time/timestamp_ns"][...], np.int64)
-        cts = np.asarray(scene["camera/timestamp_ns"][...], np.int64) if "camera/timestamp_ns" in scene.arrays() else ts
+        ts = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
+        cts = np.asarray(scene[CAMERA_TIMESTAMP_NS][...], np.int64) if CAMERA_TIMESTAMP_NS in scene.arrays() else ts
         picks = pick_track(cand.frames, M, eye, f_px, np.where(cts != 0, cts, ts), cfg)
         shift = human_shift(picks.points, cts, ts, cfg)
         columns = body_columns_of(picks, eye, f_px, cts, cfg)

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...conventions import transform_points
+from ...dataset.layout import CALIB_T_WORLD_CAMERA, CAMERA_POINTS, CAMERA_POINTS_WORLD
 from ...errors import InputError
 from ...progress import track
 from .config import RegisterConfig
@@ -40,7 +41,7 @@ class CameraFrames:
     @classmethod
     def open(cls, scene, url: str = "") -> "CameraFrames":
         where = f"{url}: scene {scene.id!r}"
-        if "camera/points" not in set(scene.arrays()):
+        if CAMERA_POINTS not in set(scene.arrays()):
             raise InputError(f"{where} has no camera/points (nothing to register)")
         intr = ((scene.attrs.get("sensors") or {}).get("camera") or {}).get("intrinsics")
         if not intr or "K" not in intr:
@@ -54,14 +55,14 @@ class CameraFrames:
 
     def counts(self) -> np.ndarray:
         """(T,) int64 points stored per frame (from the ragged offsets; nothing else is read)."""
-        return np.diff(np.asarray(self.scene["camera/points"].offsets[...], np.int64))
+        return np.diff(np.asarray(self.scene[CAMERA_POINTS].offsets[...], np.int64))
 
     def depth(self, k: int) -> np.ndarray:
         """(h,w) float32 depth image of frame ``k`` (NaN = none): each point in front of the camera (z > 0)
         at its nearest pixel, in float32 as stored (the camera points of a depth image are its pixels'
         rays, so the same pixels as in float64, and faster: ``docs/design/register.md``); non-finite points
         go nowhere."""
-        p = np.asarray(self.scene.ragged("camera/points", k))
+        p = np.asarray(self.scene.ragged(CAMERA_POINTS, k))
         h, w = self.shape
         D = np.full(h * w, np.nan, np.float32)
         if len(p):
@@ -259,7 +260,7 @@ def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
 
 def _camera_points(scene, k: int) -> np.ndarray:
     """(N,3) float64 finite camera-frame points of frame ``k`` in front of the camera (z > 0)."""
-    p = np.asarray(scene.ragged("camera/points", k), np.float64)
+    p = np.asarray(scene.ragged(CAMERA_POINTS, k), np.float64)
     return p[np.isfinite(p).all(1) & (p[:, 2] > 0)] if len(p) else p.reshape(0, 3)
 
 
@@ -273,8 +274,8 @@ def camera_points_world(scene, k: int) -> np.ndarray:
     in front of the camera): ``camera/points_world`` where register stored it, else the same values
     from ``camera/points`` through ``calib/T_world_camera``."""
     names = set(scene.arrays())
-    if "camera/points_world" in names:
-        return np.asarray(scene.ragged("camera/points_world", k))
-    if "calib/T_world_camera" not in names:
+    if CAMERA_POINTS_WORLD in names:
+        return np.asarray(scene.ragged(CAMERA_POINTS_WORLD, k))
+    if CALIB_T_WORLD_CAMERA not in names:
         raise InputError(f"scene {scene.id!r} has no calib/T_world_camera (run holodata register first)")
-    return _camera_points_through(scene, np.asarray(scene["calib/T_world_camera"][...], np.float64), k)
+    return _camera_points_through(scene, np.asarray(scene[CALIB_T_WORLD_CAMERA][...], np.float64), k)

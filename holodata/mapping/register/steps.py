@@ -10,6 +10,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ...conventions import transform_points
+from ...dataset.layout import CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ...errors import InputError
 from ...parallel import fork_call
 from .camera import CameraFrames, camera_seen_through, depth_noise_model, frame_candidates, static_depth
@@ -101,11 +102,11 @@ def registration_failure(where: str, reg: Registration, cfg: RegisterConfig, ini
 def clear_outputs(sw, cfg: RegisterConfig) -> None:
     """Remove a previous run's human arrays and camera copy from scene writer ``sw``; make
     ``camera/points_world`` when ``write_camera_world`` (filled by :func:`camera_world`)."""
-    for name in ("human/vertices", "human/faces", "human/points", "camera/points_world"):
+    for name in (HUMAN_VERTICES, HUMAN_FACES, HUMAN_POINTS, CAMERA_POINTS_WORLD):
         if name in sw.arrays():
             sw.remove(name)
     if cfg.write_camera_world:
-        sw.ragged_array("camera/points_world", 3, "float32", "m", ["point", "xyz"])
+        sw.ragged_array(CAMERA_POINTS_WORLD, 3, "float32", "m", ["point", "xyz"])
 
 
 @dataclass
@@ -263,13 +264,13 @@ def all_surfaces(points: list, columns: list, shift: np.ndarray, eye: np.ndarray
 def write_outputs(sw, surfaces: list, points: list, T: np.ndarray) -> None:
     """The human arrays (ragged per frame, world frame) and ``calib/T_world_camera`` into scene writer
     ``sw``."""
-    specs = {"human/vertices": (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
-             "human/faces": (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
-             "human/points": (3, "float32", "m", ["point", "xyz"], points)}
+    specs = {HUMAN_VERTICES: (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
+             HUMAN_FACES: (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
+             HUMAN_POINTS: (3, "float32", "m", ["point", "xyz"], points)}
     for name, (width, dt, units, dims, per_frame) in specs.items():
         r = sw.ragged_array(name, width, dt, units, dims)
         for s in range(r.n_shards):
             sl = r.frames(s)
             r.write_shard(s, per_frame[sl])
-    sw.write_array("calib/T_world_camera", T, dims=["row", "col"], units="m",
+    sw.write_array(CALIB_T_WORLD_CAMERA, T, dims=["row", "col"], units="m",
                    attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})

@@ -59,6 +59,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...dataset.layout import POSE_T_WORLD_LIDAR
 from ...errors import InputError
 from ...progress import track
 from .config import INSTANCE_ARRAY, SegmentConfig
@@ -254,9 +255,9 @@ def pose_fingerprint(scene) -> str | None:
     with ``lidar/instance`` as ``poses_sha256``: the poses its scans were segmented with."""
     import hashlib
 
-    if "pose/T_world_lidar" not in set(scene.arrays()):
+    if POSE_T_WORLD_LIDAR not in set(scene.arrays()):
         return None
-    P = np.ascontiguousarray(scene["pose/T_world_lidar"][...], np.float64)
+    P = np.ascontiguousarray(scene[POSE_T_WORLD_LIDAR][...], np.float64)
     return hashlib.sha256(P.tobytes()).hexdigest()
 
 

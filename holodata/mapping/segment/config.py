@@ -5,8 +5,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from ...dataset.layout import LIDAR_INSTANCE
 
-INSTANCE_ARRAY = "lidar/instance"
+INSTANCE_ARRAY = LIDAR_INSTANCE       # segment's output (the layout's name; kept for its importers)
 # neighbour offsets (row, col): right, down, down-right, down-left, 2 right, 2 down
 NEIGHBOURS = ((0, 1), (1, 0), (1, 1), (1, -1), (0, 2), (2, 0))
 

@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...conventions import transform_points
+from ...dataset.layout import (LIDAR_POINTS, LIDAR_POINT_TIME_NS, LIDAR_RANGE, LIDAR_TIMESTAMP_NS, POSE_T_WORLD_LIDAR,
+                               TIME_TIMESTAMP_NS)
 from ...errors import DatasetError, InputError
 
 
@@ -30,21 +32,21 @@ class LidarScans:
     def open(cls, scene, url: str = "") -> "LidarScans":
         names = set(scene.arrays())
         where = f"{url}: scene {scene.id!r}"
-        if "lidar/range" not in names or "lidar/points" not in names:
+        if LIDAR_RANGE not in names or LIDAR_POINTS not in names:
             raise InputError(f"{where} has no organised LiDAR scans (lidar/range + lidar/points); the grid "
                              f"segmentation needs an Ouster-like organised cloud")
-        if "pose/T_world_lidar" not in names:
+        if POSE_T_WORLD_LIDAR not in names:
             raise InputError(f"{where} has no pose/T_world_lidar (run holodata slam first)")
-        poses = np.asarray(scene["pose/T_world_lidar"][...], np.float64)
-        rng = scene["lidar/range"]
-        if "lidar/timestamp_ns" in names:
-            stamps = np.asarray(scene["lidar/timestamp_ns"][...], np.int64)
+        poses = np.asarray(scene[POSE_T_WORLD_LIDAR][...], np.float64)
+        rng = scene[LIDAR_RANGE]
+        if LIDAR_TIMESTAMP_NS in names:
+            stamps = np.asarray(scene[LIDAR_TIMESTAMP_NS][...], np.int64)
         else:
-            stamps = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+            stamps = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
         if poses.shape != (scene.n_frames, 4, 4) or rng.shape[0] != scene.n_frames:
             raise DatasetError(f"{where}: pose/T_world_lidar {poses.shape} / lidar/range {rng.shape} do not "
                                f"match {scene.n_frames} frames")
-        return cls(scene, poses, stamps, tuple(rng.shape[1:]), "lidar/point_time_ns" in names)
+        return cls(scene, poses, stamps, tuple(rng.shape[1:]), LIDAR_POINT_TIME_NS in names)
 
     def usable(self, k: int) -> bool:
         return bool(self.stamps[k] != 0 and np.isfinite(self.poses[k]).all())
@@ -63,7 +65,7 @@ class LidarScans:
         """(H,W) float32 ``lidar/range`` of frame ``k``. Sequential reads (k, k+1, ...) load the rest of
         the zarr shard at once (one decompression per shard, not per frame); others read one frame."""
         if self._range is None:
-            self._range = self.scene["lidar/range"]
+            self._range = self.scene[LIDAR_RANGE]
         blk = self._block
         sequential, self._last = k == self._last + 1, k
         if blk is not None and blk[0] <= k < blk[1]:
@@ -80,7 +82,7 @@ class LidarScans:
         one point per finite pixel in row-major order, checked) of frame ``k``."""
         r = self.range_frame(k)
         fin = np.isfinite(r)
-        pts = np.asarray(self.scene.ragged("lidar/points", k), np.float64)
+        pts = np.asarray(self.scene.ragged(LIDAR_POINTS, k), np.float64)
         n_fin = int(fin.sum())
         if len(pts) != n_fin:
             raise DatasetError(f"scene {self.scene.id!r} frame {k}: lidar/points has {len(pts)} points for "
@@ -103,7 +105,7 @@ class LidarScans:
             return np.zeros((H, W), bool), P, np.full((H, W, 3), np.nan)
         tt = None
         if deskew and self.has_time and traj is not None and len(traj) > 1:
-            t = np.asarray(self.scene.ragged("lidar/point_time_ns", k), np.int64).reshape(-1)
+            t = np.asarray(self.scene.ragged(LIDAR_POINT_TIME_NS, k), np.int64).reshape(-1)
             tt = np.zeros((H, W), np.int64)
             if len(t) == len(pts):
                 tt[fin] = t
@@ -123,7 +125,7 @@ class LidarScans:
             return np.zeros((H, W), bool) if not self.usable(k) else valid, np.zeros((0, 3))
         tt = None
         if deskew and self.has_time and traj is not None and len(traj) > 1:
-            t = np.asarray(self.scene.ragged("lidar/point_time_ns", k), np.int64).reshape(-1)
+            t = np.asarray(self.scene.ragged(LIDAR_POINT_TIME_NS, k), np.int64).reshape(-1)
             tv = t[vf] if len(t) == len(pts) else np.zeros(int(vf.sum()), np.int64)
             s = int(self.stamps[k])
             if not _constant_pose(traj, s + min(int(tv.min()), 0), s + max(int(tv.max()), 0)):
