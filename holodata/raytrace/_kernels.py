@@ -105,7 +105,7 @@ def refine(S, t, f, isd, st_n32, st_c32, dy_n32, dy_c32, off, first, hit, tout):
 def advance(S, t, hit, f, isd, max_range, idx, b, rng, point, normal, face, hdyn):  # pragma: no cover - compiled
     """One bounce's bookkeeping: accumulate the distance, keep the rays that hit within
     ``max_range``, write their range, point, oriented normal, face and hit_dynamic into row ``b`` of
-    the (B,N) / (B,3,N) outputs at ``idx``, reflect their directions and move their origins to the
+    the (B,N) / (B,N,3) outputs at ``idx``, reflect their directions and move their origins to the
     hit points. Returns (new state (12,m), new idx (m,), points (3,m))."""
     n = S.shape[1]
     m = 0
@@ -136,8 +136,8 @@ def advance(S, t, hit, f, isd, max_range, idx, b, rng, point, normal, face, hdyn
         pz = S[2, i] + ti * dz
         nx, ny, nz = S[6, i] * sgn, S[7, i] * sgn, S[8, i] * sgn
         rng[b, g] = S[11, i]
-        point[b, 0, g], point[b, 1, g], point[b, 2, g] = px, py, pz
-        normal[b, 0, g], normal[b, 1, g], normal[b, 2, g] = nx, ny, nz
+        point[b, g, 0], point[b, g, 1], point[b, g, 2] = px, py, pz
+        normal[b, g, 0], normal[b, g, 1], normal[b, g, 2] = nx, ny, nz
         face[b, g] = f[i]
         hdyn[b, g] = isd[i]
         P[0, j], P[1, j], P[2, j] = px, py, pz

@@ -244,7 +244,8 @@ class RayScene:
               max_range: float = DEFAULT_MAX_RANGE_M, dynamic=None, labels: bool = True) -> TraceResult:
         """Trace ``origins`` (N,3) m along ``directions`` (N,3) with up to ``max_bounces`` specular
         bounces; returns a :class:`TraceResult` (arrays are (N,B,...) views of bounce-major storage:
-        ``res.range.T`` is a contiguous (B,N) array, ``res.point.transpose(1,2,0)`` a contiguous (B,3,N)). ``dynamic`` =
+        ``res.range.T`` is a contiguous (B,N) array, ``res.point.transpose(1,0,2)`` a contiguous (B,N,3) —
+        (B,3,N) storage on the numpy path, ``compiled = False``). ``dynamic`` =
         (vertices, faces) considered at
         every bounce and in the LOS checks. ``labels=False`` skips the LOS casts (all LOS).
 
@@ -373,8 +374,8 @@ class RayScene:
         same float32 operations in the same order, so identical to the bit to the numpy path."""
         N, st = O.shape[1], self.static
         rng = np.full((B, N), np.nan, dtype=np.float32)
-        point = np.full((B, 3, N), np.nan, dtype=np.float32)
-        normal = np.full((B, 3, N), np.nan, dtype=np.float32)
+        point = np.full((B, N, 3), np.nan, dtype=np.float32)  # (B,N,3): the gt/* layout, no copy in frames.py
+        normal = np.full((B, N, 3), np.nan, dtype=np.float32)
         face = np.full((B, N), -1, dtype=np.int64)
         hdyn = np.zeros((B, N), dtype=bool)
         visited: list = []
@@ -419,7 +420,7 @@ class RayScene:
         semantic = np.empty((B, N), dtype=np.uint8)
         label = np.empty((B, N), dtype=np.uint8)
         _kernels.labels(face, hdyn, los, self.face_semantic, np.uint8(self.human_class), semantic, label)
-        return TraceResult(rng.T, normal.transpose(2, 0, 1), point.transpose(2, 0, 1), face.T, hdyn.T,
+        return TraceResult(rng.T, normal.transpose(1, 0, 2), point.transpose(1, 0, 2), face.T, hdyn.T,
                            label.T, semantic.T)
 
     def _workspace(self, n: int) -> np.ndarray:
