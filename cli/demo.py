@@ -7,11 +7,13 @@ import click
 @click.command()
 @click.option("--out", "out", type=click.Path(file_okay=False), default="holodata-demo", show_default=True,
               help="Output folder (recordings/, dataset.zarr, run/, report/); rerunning resumes.")
-@click.option("--quick", is_flag=True, help="Small grids and few frames: about 5 minutes on 2 cores.")
+@click.option("--quick", is_flag=True, help="Small grids and few frames, raw radar samples: about 7 minutes on 2 cores.")
 @click.option("--mapping", type=click.Choice(["slam", "truth"]), default="slam", show_default=True,
               help="Poses, mesh and humans from holodata slam + register, or from the synthetic truth (oracle).")
-@click.option("--radar-output", "radar_output", type=click.Choice(["heatmap", "iq"]), default="heatmap", show_default=True,
-              help="iq: synth records raw radar samples and ingest beamforms them (as a real rig's data goes; slower).")
+@click.option("--radar-output", "radar_output", type=click.Choice(["heatmap", "iq"]), default=None,
+              help="iq: synth records raw radar samples and ingest beamforms them, as a real rig's data goes (the "
+                   "default with --quick); heatmap: synth records the direct heatmaps (the default for the full demo, "
+                   "whose 320 full-size rotations of raw samples would take about an hour to synthesise).")
 @click.option("--beamform-focus", "focus", type=click.Choice(["near", "far"]), default=None,
               help="With --radar-output iq: ingest's beamformer focuses every range bin with the exact antenna "
                    "distances (near, the default) or uses PanoRadar's far-field compensation (far).")
@@ -23,15 +25,15 @@ def demo(out, quick, mapping, radar_output, focus, quiet, as_json) -> None:
     evaluate every Table-2 row against the strongest-peaks baseline. Prints where the report is.
 
     Example: holodata demo --quick --out demo_run
-             holodata demo --quick --radar-output iq --out demo_iq
+             holodata demo --quick --radar-output heatmap --out demo_hm
     """
     import dataclasses
 
-    from holodata.demo import demo_config, run_demo
+    from holodata.demo import default_radar_output, demo_config, run_demo
     from holodata.evaluate import format_tables
 
     log = None if as_json else (lambda line: click.echo(line, err=True))
-    cfg = dataclasses.replace(demo_config(quick), radar_output=radar_output)
+    cfg = dataclasses.replace(demo_config(quick), radar_output=radar_output or default_radar_output(quick))
     if focus is not None:
         cfg = dataclasses.replace(cfg, beamform_focus=focus)
     res = run_demo(out, quick=quick, mapping=mapping, quiet=quiet, log=log, config=cfg)

@@ -81,6 +81,15 @@ class DemoConfig:
                               elevation_min_deg=g.elev_min_deg, n_range=self.range_bins.n, focus=self.beamform_focus)
 
 
+def default_radar_output(quick: bool) -> str:
+    """What ``holodata demo`` records by default: raw samples beamformed by ingest with near-field
+    focusing for the quick demo (it then scores like the direct heatmaps, docs/design/radar.md
+    §"Synthetic raw samples"), the direct heatmaps for the full one (320 full-size rotations of raw
+    samples take about an hour to synthesise on 2 cores). :func:`demo_config` itself keeps
+    ``"heatmap"`` (the benchmarks that build on it measure that road)."""
+    return "iq" if quick else "heatmap"
+
+
 def demo_config(quick: bool) -> DemoConfig:
     """``quick``: small grids and few frames (about 5 min on 2 cores, README); else the paper's 64×512 grid."""
     if quick:
