@@ -191,3 +191,23 @@ def labels(face, hdyn, los, face_semantic, human_class, semantic, label):  # pra
             else:
                 semantic[b, i] = face_semantic[f]
                 label[b, i] = 1 if los[b, i] else 2
+
+
+@numba.njit(**_JIT)
+def merge_hits(ts, fs, sub, td, fd):  # pragma: no cover - compiled
+    """Nearest of the static hits ``ts``, ``fs`` (n,) and the dynamic hits ``td``, ``fd`` of the rays
+    ``sub`` (m,): t (n,) float32, face (n,) int64, is_dyn (n,) bool — ``np.minimum`` / ``np.where``
+    of RayScene._cast6 (the dynamic mesh wins only when strictly closer)."""
+    n = ts.shape[0]
+    t = ts.copy()
+    f = np.empty(n, np.int64)
+    isd = np.zeros(n, np.bool_)
+    for i in range(n):
+        f[i] = fs[i]
+    for j in range(sub.shape[0]):
+        i = sub[j]
+        if td[j] < ts[i]:
+            t[i] = td[j]
+            f[i] = fd[j]
+            isd[i] = True
+    return t, f, isd

@@ -169,6 +169,10 @@ class RayScene:
             part = rays[sub]
             if self.cast_log is not None:
                 self.cast_log.append(("dynamic", part))
+            if self.compiled:  # one pass: the same minimum and selection as below
+                if not len(sub):
+                    return ts, fs, np.zeros(len(rays), bool)
+                return _kernels.merge_hits(ts, fs, sub, *dyn.backend.cast6(part))
             td = np.full(len(rays), np.inf, dtype=np.float32)
             fd = np.zeros(len(rays), dtype=np.int64)
             if len(sub):
