@@ -62,6 +62,7 @@ import numpy as np
 from .beam_geometry import (WINDOWS, _REANCHOR, _to_columns, azimuth_kernel, beam_indices,  # noqa: F401
                             column_weights, motion_phase_rate, range_weights, vertical_weights, window)
 from .chirp import ChirpConfig
+from ._steps import _blas_single, _elevation_groups, _fold, _vertical
 
 STATIC_REMOVAL = ("trajectory", "rotation", "none")
 DECIMATION = ("pick", "triangle")
@@ -298,18 +299,6 @@ def _kernel_spectrum(chirp, params, N, Lf, elev, threads=1):
     return _KCACHE[key]
 
 
-def _fold(beams: np.ndarray, off: int, Lf: int) -> int:
-    """Decimation factor q when the beams are exactly every q-th output of the chirp-axis IFFT
-    (then the spectrum is folded q times and a length-Lf/q IFFT gives just those beams), else 1."""
-    nb = beams.size
-    if nb < 2 or off != 0:
-        return 1
-    q = int(beams[1] - beams[0])
-    if q > 1 and Lf % q == 0 and nb == Lf // q and np.array_equal(beams, q * np.arange(nb)):
-        return q
-    return 1
-
-
 def _static_numpy(xp, off, circular, N, chirp, params, threads):
     import scipy.fft as sfft
 
@@ -352,39 +341,7 @@ def _static_numpy(xp, off, circular, N, chirp, params, threads):
     return _to_columns(mag, cw)
 
 
-def _blas_single():
-    """BLAS limited to one thread while we thread over samples ourselves (OpenBLAS's own threads on
-    the many small (Lf × V) @ (V × H) products cost more than they give)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - threadpoolctl comes with scipy's usual installs
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(1, user_api="blas")
-
-
-
-
 # -- moving platform: direct sum -----------------------------------------------------------------------
-
-
-def _vertical(xp: np.ndarray, vw: np.ndarray, threads: int) -> np.ndarray:
-    """(H, L, S) complex64 vertical beamforming of chirps ``xp`` (L, V, S) with weights ``vw`` (S, V, H):
-    one small matrix product per sample, spread over threads with single-threaded BLAS."""
-    L, V, S = xp.shape
-    H = vw.shape[2]
-    xt = np.ascontiguousarray(xp.transpose(2, 0, 1))                                # (S, L, V)
-    out = np.empty((H, L, S), np.complex64)
-    parts = [p for p in np.array_split(np.arange(S), threads) if p.size]
-
-    def part(ss):
-        s0, s1 = int(ss[0]), int(ss[-1]) + 1
-        out[:, :, s0:s1] = np.matmul(xt[s0:s1], vw[s0:s1]).transpose(2, 1, 0)
-
-    with _blas_single(), ThreadPoolExecutor(max_workers=len(parts)) as pool:
-        list(pool.map(part, parts))
-    return out
 
 
 _AKCACHE: dict = {}
@@ -397,14 +354,6 @@ def _azimuth_kernel64(chirp, params, N):
             _AKCACHE.pop(next(iter(_AKCACHE)))
         _AKCACHE[key] = azimuth_kernel(chirp, params, np.cos(params.elevations()), N).astype(np.complex64)
     return _AKCACHE[key]
-
-
-def _elevation_groups(elev: np.ndarray) -> list[list[int]]:
-    """Rows with the same cos θ (±θ of a symmetric grid) share every coefficient but the data."""
-    groups: dict = {}
-    for r, e in enumerate(elev):
-        groups.setdefault(round(float(np.cos(e)), 12), []).append(r)
-    return list(groups.values())
 
 
 def _motion_numpy(xp, off, N, chirp, params, motion, threads):

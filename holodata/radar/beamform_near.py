@@ -39,7 +39,7 @@ import numpy as np
 
 from .beam_geometry import (_to_columns, column_weights, near_kernel, near_motion_phase_rate, near_sample_weights,
                             vertical_weights)
-from .beamform import _blas_single, _elevation_groups, _fold, _vertical
+from ._steps import _blas_single, _elevation_groups, _fold, _vertical
 
 _NKCACHE: dict = {}
 

@@ -1,0 +1,59 @@
+"""Steps shared by the far-field (:mod:`holodata.radar.beamform`) and the near-field
+(:mod:`holodata.radar.beamform_near`) beamformers: vertical beamforming over the antenna column,
+the decimation fold of the chirp-axis IFFT, rows that share coefficients, single-threaded BLAS
+while the caller threads itself. Arrays in, arrays out; a leaf module (no import of either)."""
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+
+def _fold(beams: np.ndarray, off: int, Lf: int) -> int:
+    """Decimation factor q when the beams are exactly every q-th output of the chirp-axis IFFT
+    (then the spectrum is folded q times and a length-Lf/q IFFT gives just those beams), else 1."""
+    nb = beams.size
+    if nb < 2 or off != 0:
+        return 1
+    q = int(beams[1] - beams[0])
+    if q > 1 and Lf % q == 0 and nb == Lf // q and np.array_equal(beams, q * np.arange(nb)):
+        return q
+    return 1
+
+
+def _blas_single():
+    """BLAS limited to one thread while we thread over samples ourselves (OpenBLAS's own threads on
+    the many small (Lf × V) @ (V × H) products cost more than they give)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl comes with scipy's usual installs
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(1, user_api="blas")
+
+
+def _vertical(xp: np.ndarray, vw: np.ndarray, threads: int) -> np.ndarray:
+    """(H, L, S) complex64 vertical beamforming of chirps ``xp`` (L, V, S) with weights ``vw`` (S, V, H):
+    one small matrix product per sample, spread over threads with single-threaded BLAS."""
+    L, V, S = xp.shape
+    H = vw.shape[2]
+    xt = np.ascontiguousarray(xp.transpose(2, 0, 1))                                # (S, L, V)
+    out = np.empty((H, L, S), np.complex64)
+    parts = [p for p in np.array_split(np.arange(S), threads) if p.size]
+
+    def part(ss):
+        s0, s1 = int(ss[0]), int(ss[-1]) + 1
+        out[:, :, s0:s1] = np.matmul(xt[s0:s1], vw[s0:s1]).transpose(2, 1, 0)
+
+    with _blas_single(), ThreadPoolExecutor(max_workers=len(parts)) as pool:
+        list(pool.map(part, parts))
+    return out
+
+
+def _elevation_groups(elev: np.ndarray) -> list[list[int]]:
+    """Rows with the same cos θ (±θ of a symmetric grid) share every coefficient but the data."""
+    groups: dict = {}
+    for r, e in enumerate(elev):
+        groups.setdefault(round(float(np.cos(e)), 12), []).append(r)
+    return list(groups.values())
