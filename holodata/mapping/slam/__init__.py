@@ -14,8 +14,10 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
    time. kiss-icp reports the pose at the *last* point time of a scan (its deskew reference).
 3. **Refinement** (:func:`refine`): scan-to-map point-to-plane ICP in open3d (Tukey kernel,
    coarse-to-fine correspondence distances), initial guesses from kiss-icp's relative motion,
-   own deskew (constant twist over the scan from the neighbouring refined poses, reference time
-   = the scan stamp, so ``pose/T_world_lidar[k]`` is the pose at ``lidar/timestamp_ns[k]``), and
+   own deskew (constant twist over the scan from the neighbouring refined poses; each scan is
+   registered at the middle of its sweep, where a wrong twist biases the pose least, and moved to
+   the scan stamp through the twist, so ``pose/T_world_lidar[k]`` is the pose at
+   ``lidar/timestamp_ns[k]``: ``docs/design/slam.md``, yaw drift on a sparse 10 Hz LiDAR), and
    optionally (``global_pass``) a second pass against the whole map with moving points removed by
    the voxel background model. Where TF's LiDAR poses are a ground robot's on a level floor
    (:func:`level_tf_poses`) or the seeds are (``seed_poses="tf"``), height, roll and pitch are

@@ -112,6 +112,17 @@ def twist(Ta: np.ndarray, Tb: np.ndarray, dt: float) -> np.ndarray:
     return np.r_[Rotation.from_matrix(D[:3, :3]).as_rotvec(), D[:3, 3]] / dt
 
 
+def advance(xi: np.ndarray, dt: float) -> np.ndarray:
+    """(4,4) pose at ``dt`` s relative to the reference of a sensor moving with body twist ``xi`` [ω, v]
+    per second, in the reference frame: ``[R(dt·ω), dt·v]``, the model :func:`deskew` maps points with
+    (a point seen at time ``dt`` lies at ``advance(xi, dt) @ p`` in the reference frame)."""
+    A = np.eye(4)
+    if dt != 0:
+        A[:3, :3] = Rotation.from_rotvec(np.asarray(xi[:3], np.float64) * dt).as_matrix()
+        A[:3, 3] = np.asarray(xi[3:], np.float64) * dt
+    return A
+
+
 def deskew(points: np.ndarray, times: np.ndarray | None, xi: np.ndarray) -> np.ndarray:
     """Points (N,3) taken at ``times`` (N,) s relative to the reference, sensor moving with body twist
     ``xi`` [ω, v] per second → the same points in the sensor frame at the reference time:

@@ -11,7 +11,7 @@ from ...geometry.voxels import first_per_voxel, voxel_index, voxel_keys
 from ...progress import track
 from .config import Scans, SlamConfig
 from .points import _o3d_cloud, downsample, scan_normals
-from .odometry import _Fixed, deskew, twist
+from .odometry import _Fixed, advance, deskew, twist
 
 # the refinement's map crop reaches this far beyond the LiDAR's range around the scan's guess (the
 # guess is within a scan's motion of the pose)
@@ -217,6 +217,11 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
     fit = np.zeros(S)
     rmse = np.zeros(S)
     xi_prev = np.zeros(6)
+    # each scan is registered at the middle of its sweep (mid[i], deskewed to tc s after the stamp), where
+    # an error of the deskew twist distorts it symmetrically and biases the pose least; poses[i] at the
+    # stamp follows through the twist (docs/design/slam.md: yaw drift on a 10 Hz sparse LiDAR)
+    mid = np.zeros((S, 4, 4))
+    tc = 0.0
     fallbacks = 0
     last_key, keyframes, still, anchor = None, 0, 0, 0
     beams = cfg.same_beam and scans.pixels is not None and scans.grid is not None
@@ -263,9 +268,12 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
             pts, tm = ranged(scans.points[i], raw_t)
             # deskew only the downsampled points that are used (ICP source, map keyframe)
             i_src = first_per_voxel(pts, cfg.source_voxel)
+            tc = 0.5 * float(tm.min() + tm.max()) if use_t and len(tm) else 0.0
+            if use_t:
+                tm = tm - tc
             src = deskew(pts[i_src], tm[i_src], xi) if use_t else pts[i_src]
         if i == 0:
-            T = poses[0]
+            T = Tc = poses[0]     # (no twist yet: the middle is the stamp's pose)
             f, e = 1.0, 0.0
         elif at_rest:
             # at rest: the last step was small, one point-to-plane Gauss-Newton step of this scan from the
@@ -273,28 +281,34 @@ def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = 
             # initial poses, they moved less than still_m since) -> hold that pose; no ICP, no kiss-icp
             stream.hold(i)
             T, f, e = poses[anchor].copy(), float(fit[anchor]), float(rmse[anchor])
+            Tc = T
             still += 1
             xi = np.zeros(6)
         else:
             guess = poses[i - 1] @ (np.linalg.inv(init[i - 1]) @ stream.pose(i))
             tgt = target.cloud(vmap, guess[:3, 3])
-            T, f, e = icp(src, tgt, guess, cfg)
+            guess = guess @ advance(xi, tc)     # the guess at the middle of the sweep
+            Tc, f, e = icp(src, tgt, guess, cfg)
             if f < cfg.min_fitness:  # too few scan points near the map (sparse, far, outdoor): trust kiss-icp
-                T = guess
+                Tc = guess
                 fallbacks += 1
             if vertical is not None:
+                Tc = with_vertical_of(Tc, vertical[i])
+            if seed_twist is None:   # the motion between the middles of the two sweeps
+                xi = twist(mid[i - 1], Tc, t_s[i] - t_s[i - 1])
+            T = Tc @ advance(xi, -tc)
+            if vertical is not None:
                 T = with_vertical_of(T, vertical[i])
-            xi = twist(poses[i - 1], T, t_s[i] - t_s[i - 1]) if seed_twist is None else seed_twist[i]
             anchor = i
             same = None
-        poses[i] = T
+        poses[i], mid[i] = T, Tc
         fit[i], rmse[i] = f, e
         xi_prev = xi
         if grow_map and not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
             i_map = first_per_voxel(pts, cfg.map_voxel)
             dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map], cfg.scan_normal_radius,
                                   cfg.scan_normal_nn)
-            vmap.add(transform_points(T, dp), transform_directions(T, dn))
+            vmap.add(transform_points(Tc, dp), transform_directions(Tc, dn))
             last_key = T
             keyframes += 1
     health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
