@@ -24,6 +24,8 @@ import numpy as np
 from .errors import DatasetError, InputError
 from .radar.beamform import BeamformParams, Motion, beamform, beamform_attrs
 from .radar.chirp import ChirpConfig
+from .dataset.layout import (POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, RADAR_IQ, RADAR_IQ_MOTION,
+                             RADAR_IQ_SPAN, RADAR_IQ_STATIC, TIME_TIMESTAMP_NS)
 
 MOTIONS = ("recorded", "slam", "none")
 
@@ -76,7 +78,7 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     ds = open_dataset(url)
     sc = ds.scene(scene_id)
     sc.require_complete("beamform")
-    for name in ("radar/iq", "radar/iq_span", "radar/cycle_ns"):
+    for name in (RADAR_IQ, RADAR_IQ_SPAN, RADAR_CYCLE_NS):
         if name not in sc:
             raise DatasetError(f"{ds.url}: scene {scene_id!r} has no {name} (ingest its raw recording with --keep-iq)")
     src = (sc.attrs.get("source") or {}).get("beamform") or {}
@@ -88,16 +90,16 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     params = BeamformParams(**{**base.to_attrs(), "n_elevation": g.H, "n_azimuth": g.W,
                                "elevation_max_deg": g.elev_max_deg, "elevation_min_deg": g.elev_min_deg,
                                "n_range": ds.range_bins.n})
-    span = np.asarray(sc["radar/iq_span"][...], np.int64)
-    cycles = np.asarray(sc["radar/cycle_ns"][...], np.int64)
+    span = np.asarray(sc[RADAR_IQ_SPAN][...], np.int64)
+    cycles = np.asarray(sc[RADAR_CYCLE_NS][...], np.int64)
     T = sc.n_frames
     if motion == "recorded":
-        mot = np.asarray(sc["radar/iq_motion"][...], np.float64) if "radar/iq_motion" in sc else np.zeros((T, 2))
+        mot = np.asarray(sc[RADAR_IQ_MOTION][...], np.float64) if RADAR_IQ_MOTION in sc else np.zeros((T, 2))
     elif motion == "slam":
-        if "pose/T_world_radar" not in sc:
+        if POSE_T_WORLD_RADAR not in sc:
             raise DatasetError(f"{ds.url}: scene {scene_id!r} has no pose/T_world_radar (run holodata slam first, "
                                f"or --motion recorded/none)")
-        mot = motion_from_poses(sc["pose/T_world_radar"][...], sc["time/timestamp_ns"][...], cycles, span[:, 1])
+        mot = motion_from_poses(sc[POSE_T_WORLD_RADAR][...], sc[TIME_TIMESTAMP_NS][...], cycles, span[:, 1])
     else:
         mot = np.zeros((T, 2))
     n_chirps = int(np.median(span[:, 1]))
@@ -106,14 +108,14 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     fp = _fingerprint(attrs, motion)
     w = create_dataset(url)
     scw = w.scene(scene_id)
-    hm_meta = sc.nodes().get("radar/heatmap", (None, {}))[1].get("attributes", {})
-    if hm_meta.get("beamform_fingerprint") == fp and all(sc.is_done("radar/heatmap", k)
+    hm_meta = sc.nodes().get(RADAR_HEATMAP, (None, {}))[1].get("attributes", {})
+    if hm_meta.get("beamform_fingerprint") == fp and all(sc.is_done(RADAR_HEATMAP, k)
                                                          for k in range(hm_meta.get("holodata", {}).get("n_shards", 0))):
         return {"scene": scene_id, "frames": T, "motion": motion, "skipped": "already imaged with these parameters"}
-    if hm_meta.get("beamform_fingerprint") != fp and "radar/heatmap" in sc:
-        scw.remove("radar/heatmap")
+    if hm_meta.get("beamform_fingerprint") != fp and RADAR_HEATMAP in sc:
+        scw.remove(RADAR_HEATMAP)
     R = params.n_range or chirp.n_samples
-    hm = scw.frame_array("radar/heatmap", (R, g.H, g.W), "float32", ["frame", "range", "elevation", "azimuth"], "1",
+    hm = scw.frame_array(RADAR_HEATMAP, (R, g.H, g.W), "float32", ["frame", "range", "elevation", "azimuth"], "1",
                          shard_frames=max(1, min(w.shard_frames, (64 << 20) // (4 * R * g.H * g.W))),
                          fill_value=float("nan"), codec="lz4",
                          attrs={"amplitude": "linear", "beamform_fingerprint": fp, "source": "holodata beamform"})
@@ -142,13 +144,13 @@ def image_shard(url: str, scene_id: str, k: int, job: dict) -> int:
     sc = open_dataset(url).scene(scene_id)
     chirp, params = ChirpConfig.from_attrs(job["chirp"]), BeamformParams.from_attrs(job["params"])
     hm_w = create_dataset(url).scene(scene_id).frame_array(
-        "radar/heatmap", tuple(sc["radar/heatmap"].shape[1:]), "float32")
+        RADAR_HEATMAP, tuple(sc[RADAR_HEATMAP].shape[1:]), "float32")
     T = sc.n_frames
     fr = range(*hm_w.frames(k).indices(T))
-    span = np.asarray(sc["radar/iq_span"][fr.start:fr.stop], np.int64)
-    cycles = np.asarray(sc["radar/cycle_ns"][fr.start:fr.stop], np.int64)
-    refl = np.asarray(sc["radar/iq_static"][...], np.complex64) if "radar/iq_static" in sc else None
-    iq = sc["radar/iq"]
+    span = np.asarray(sc[RADAR_IQ_SPAN][fr.start:fr.stop], np.int64)
+    cycles = np.asarray(sc[RADAR_CYCLE_NS][fr.start:fr.stop], np.int64)
+    refl = np.asarray(sc[RADAR_IQ_STATIC][...], np.complex64) if RADAR_IQ_STATIC in sc else None
+    iq = sc[RADAR_IQ]
     out = np.empty((len(fr),) + hm_w.shape[1:], np.float32)
     for j, f in enumerate(fr):
         b, n, a = (int(v) for v in span[j])

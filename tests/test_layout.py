@@ -67,7 +67,7 @@ def test_validate_names_an_array_whose_dims_or_units_are_not_the_layout_s(tmp_pa
 # Files that still spell array names as string literals (issue 25 point 2: converted file by file;
 # delete a file here once it uses the holodata.dataset.layout constants).
 NOT_YET_CONVERTED = {
-    "holodata/beamforming.py", "holodata/demo.py", "holodata/mapping/slam/__init__.py", "holodata/mapping/slam/localise.py",
+    "holodata/mapping/slam/__init__.py", "holodata/mapping/slam/localise.py",
     "holodata/mapping/slam/scans.py", "holodata/mapping/slam/store.py", "holodata/mapping/slam/world.py",
 }
 
