@@ -18,10 +18,9 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-_JIT = dict(cache=True, nogil=True, error_model="numpy")
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def make_rays(S, off, first, R):  # pragma: no cover - compiled
     """Rays (n,6) float32 into ``R`` from the state ``S`` (12,n): origin rows 0-2 (moved ``off``
     along the direction unless ``first``), direction rows 3-5."""
@@ -37,7 +36,7 @@ def make_rays(S, off, first, R):  # pragma: no cover - compiled
         R[i, 3], R[i, 4], R[i, 5] = dx, dy, dz
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def meets_box(R, tmax, box):  # pragma: no cover - compiled
     """:func:`holodata.raytrace.trace._meets_box` on rays ``R`` (n,6) float32 (origin, direction);
     ``tmax`` (n,) or (1,) float32. Returns the int64 indices of the rays kept."""
@@ -67,7 +66,7 @@ def meets_box(R, tmax, box):  # pragma: no cover - compiled
     return out[:m]
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def refine(S, t, f, isd, st_n32, st_c32, dy_n32, dy_c32, off, first, hit, tout):  # pragma: no cover - compiled
     """Normals (S rows 6-8, unoriented), n.d (row 10) and the hit distance refined against the hit
     triangle's plane (``tout``), ``hit`` = finite t. Returns the number of spurious (grazing
@@ -101,7 +100,7 @@ def refine(S, t, f, isd, st_n32, st_c32, dy_n32, dy_c32, off, first, hit, tout):
     return nspur
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def advance(S, t, hit, f, isd, max_range, idx, b, rng, point, normal, face, hdyn):  # pragma: no cover - compiled
     """One bounce's bookkeeping: accumulate the distance, keep the rays that hit within
     ``max_range``, write their range, point, oriented normal, face and hit_dynamic into row ``b`` of
@@ -153,7 +152,7 @@ def advance(S, t, hit, f, isd, max_range, idx, b, rng, point, normal, face, hdyn
     return S2, idx2, P
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def los_rays(O, P, tol, R):  # pragma: no cover - compiled
     """LOS segments into ``R`` (n,6) float32 from origins ``O`` and points ``P`` (3,n) float32: origin,
     and ``P - O`` scaled to its length minus ``tol`` (0 when the length <= ``tol``). Returns ``near``
@@ -174,7 +173,7 @@ def los_rays(O, P, tol, R):  # pragma: no cover - compiled
     return near
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def labels(face, hdyn, los, face_semantic, human_class, semantic, label):  # pragma: no cover - compiled
     """semantic and label (conventions.Label, :func:`holodata.raytrace.labels.combine_label`) of
     (B,N) faces (-1 none), hit_dynamic and LOS flags."""
@@ -193,7 +192,7 @@ def labels(face, hdyn, los, face_semantic, human_class, semantic, label):  # pra
                 label[b, i] = 1 if los[b, i] else 2
 
 
-@numba.njit(**_JIT)
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def merge_hits(ts, fs, sub, td, fd):  # pragma: no cover - compiled
     """Nearest of the static hits ``ts``, ``fs`` (n,) and the dynamic hits ``td``, ``fd`` of the rays
     ``sub`` (m,): t (n,) float32, face (n,) int64, is_dyn (n,) bool — ``np.minimum`` / ``np.where``
