@@ -141,7 +141,8 @@ class FrameTracer:
     rotation start/end per frame, or None (see :func:`trace_frame`)."""
 
     def __init__(self, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, cycles=None):
-        self.scene = _make_scene(*mesh, cfg)
+        vertices, faces, face_class, class_names = mesh
+        self.scene = _make_scene(vertices, faces, face_class, class_names, cfg)
         self.cfg, self.traj, self.human, self.cycles = cfg, traj, human, cycles
         self._last = (None, None)
 

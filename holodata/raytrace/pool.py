@@ -33,9 +33,10 @@ def _worker_init(mesh, cfg, traj, human, shm_name, n_slots, cycles=None) -> None
 
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
     shm = shared_memory.SharedMemory(name=shm_name)
-    size = _slot_bytes(specs)
+    size, buf = _slot_bytes(specs), shm.buf
+    assert buf is not None   # an open block always has its buffer
     _WORKER.update(tracer=FrameTracer(mesh, cfg, traj, human, cycles), shm=shm,
-                   slots=[_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)])
+                   slots=[_slot_views(buf[i * size:(i + 1) * size], specs) for i in range(n_slots)])
 
 
 def _worker_frame(f: int, slot: int) -> int:
