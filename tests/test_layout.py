@@ -64,14 +64,6 @@ def test_validate_names_an_array_whose_dims_or_units_are_not_the_layout_s(tmp_pa
     assert [p["array"] for p in bad] == ["gt/range"] and "the layout has" in bad[0]["message"], rep["problems"]
 
 
-# Files that still spell array names as string literals (issue 25 point 2: converted file by file;
-# delete a file here once it uses the holodata.dataset.layout constants).
-NOT_YET_CONVERTED = {
-    "holodata/mapping/slam/__init__.py", "holodata/mapping/slam/localise.py",
-    "holodata/mapping/slam/scans.py", "holodata/mapping/slam/store.py", "holodata/mapping/slam/world.py",
-}
-
-
 def array_name_literals(path: Path) -> list[tuple[int, str]]:
     """(line, name) of every string constant in ``path``'s code that is an array name of the layout;
     docstrings (prose for the reader) are left out."""
@@ -97,7 +89,5 @@ def test_the_name_constants_follow_the_table():
 def test_no_array_name_is_spelled_outside_the_layout():
     files = [p for d in ("holodata", "cli") for p in sorted((ROOT / d).rglob("*.py")) if p != ROOT / "holodata/dataset/layout.py"]
     found = {str(p.relative_to(ROOT)): array_name_literals(p) for p in files}
-    spelled = {f: hits for f, hits in found.items() if hits and f not in NOT_YET_CONVERTED}
+    spelled = {f: hits for f, hits in found.items() if hits}
     assert not spelled, f"array names spelled outside holodata/dataset/layout.py (use its constants): {spelled}"
-    done = sorted(f for f in NOT_YET_CONVERTED if not found.get(f))
-    assert not done, f"converted (or gone): delete from NOT_YET_CONVERTED: {done}"

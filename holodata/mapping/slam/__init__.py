@@ -72,6 +72,7 @@ from .store import _fingerprint, _stored_result, _write, write_static_map
 from .localise import MAPPING_ROLE, check_map_scene, localise_scene
 from .world import (StaticMap, anchor_pose, frame_poses, guess_poses, level_tf_poses, recording_tf_poses, static_mesh,
                     tf_agreement, tf_lidar_poses)
+from ...dataset.layout import LIDAR_POINTS, MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 
 
 def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: dict, feed, quiet: bool):
@@ -160,7 +161,7 @@ def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig =
     fp = _fingerprint(scene, config, mesh_config if config.mesh else None)
     done = scene.attrs.get("slam") or {}
     if (write and not force and done.get("complete") and done.get("fingerprint") == fp
-            and "pose/T_world_lidar" in scene and (not config.mesh or ("mesh/faces" in scene and "map/points" in scene))):
+            and POSE_T_WORLD_LIDAR in scene and (not config.mesh or (MESH_FACES in scene and MAP_POINTS in scene))):
         return _export(_stored_result(scene, done), tum, ply)
     timings: dict = {}
     health: dict = {}
@@ -267,7 +268,7 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, map_
                 raise InputError(f"{dataset_url}: no scene {sid!r} (have: {', '.join(ds.scenes) or 'none'})")
         ids = list(scene_ids)
     else:
-        ids = [s for s in ds.scenes if "lidar/points" in ds.scene(s)]
+        ids = [s for s in ds.scenes if LIDAR_POINTS in ds.scene(s)]
     if not ids:
         raise InputError(f"{dataset_url}: no scene has lidar/points (nothing for slam)")
     if single_exports and len(ids) > 1 and (kwargs.get("tum") or kwargs.get("ply")):

@@ -18,6 +18,7 @@ from .refine import VoxelMap, _TargetCache, icp, refine
 from .scans import _import_in_background, data_max_range, load_scans
 from .store import _fingerprint, _stored_result, _write
 from .world import anchor_pose, frame_poses, guess_poses
+from ...dataset.layout import LIDAR_POINTS, MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 
 MAPPING_ROLE = "mapping"   # scene attribute ``role`` of a mapping-pass scene (no train/test split, no raytrace-gt)
 # the first scan's map crop reaches this far beyond the LiDAR's range from the guess: the guess may
@@ -31,7 +32,7 @@ def check_map_scene(ds, scene_id: str, map_scene: str) -> None:
         raise InputError(f"{ds.url}: no map scene {map_scene!r} (have: {', '.join(ds.scenes) or 'none'})")
     if map_scene == scene_id:
         raise InputError(f"{ds.url}: scene {scene_id!r} cannot be its own map scene")
-    if "lidar/points" not in ds.scene(map_scene):
+    if LIDAR_POINTS not in ds.scene(map_scene):
         raise InputError(f"{ds.url}: map scene {map_scene!r} has no lidar/points (a mapping pass needs LiDAR scans)")
 
 
@@ -106,7 +107,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     fp = _fingerprint(scene, config, mesh_config) + "-map-" + str((mscene.attrs.get("slam") or {}).get("fingerprint"))
     done = scene.attrs.get("slam") or {}
     if (write and not force and done.get("complete") and done.get("fingerprint") == fp
-            and "pose/T_world_lidar" in scene and "mesh/faces" in scene and "map/points" in scene):
+            and POSE_T_WORLD_LIDAR in scene and MESH_FACES in scene and MAP_POINTS in scene):
         res = _stored_result(scene, done)
         if tum is not None:
             write_tum(tum, res.trajectory())

@@ -10,6 +10,7 @@ import numpy as np
 from ...errors import DatasetError
 from ...progress import track
 from .config import Scans
+from ...dataset.layout import LIDAR_POINTS, LIDAR_POINT_TIME_NS, LIDAR_RANGE, LIDAR_TIMESTAMP_NS, TIME_TIMESTAMP_NS
 
 # kiss-icp's max range from the data: this percentile of the first scans' ranges (stray far returns
 # aside) × RANGE_MARGIN, at least MIN_MAX_RANGE_M (a scan in a cupboard)
@@ -24,17 +25,17 @@ class _ScanSource:
 
     def __init__(self, scene):
         names = set(scene.arrays())
-        if "lidar/points" not in names:
+        if LIDAR_POINTS not in names:
             raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has no lidar/points (slam needs LiDAR scans)")
-        if "lidar/timestamp_ns" in names:
-            self.stamps = np.asarray(scene["lidar/timestamp_ns"][...], np.int64)
-        elif "time/timestamp_ns" in names:
-            self.stamps = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+        if LIDAR_TIMESTAMP_NS in names:
+            self.stamps = np.asarray(scene[LIDAR_TIMESTAMP_NS][...], np.int64)
+        elif TIME_TIMESTAMP_NS in names:
+            self.stamps = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
         else:
             raise DatasetError(f"{scene.ds.url}: scene {scene.id!r} has neither lidar/timestamp_ns nor time/timestamp_ns")
         self.scene = scene
-        self.has_t = "lidar/point_time_ns" in names
-        self.rng = scene["lidar/range"] if "lidar/range" in names and len(scene["lidar/range"].shape) == 3 else None
+        self.has_t = LIDAR_POINT_TIME_NS in names
+        self.rng = scene[LIDAR_RANGE] if LIDAR_RANGE in names and len(scene[LIDAR_RANGE].shape) == 3 else None
         self.grid = tuple(int(x) for x in self.rng.shape[1:]) if self.rng is not None else None
 
     def candidates(self) -> np.ndarray:
@@ -52,8 +53,8 @@ class _ScanSource:
         None) of each scan in frame order (frames without a new stamp or with < 100 returns skipped);
         ``stop()`` True ends it early."""
         scene, stamps, T = self.scene, self.stamps, self.scene.n_frames
-        pr = scene["lidar/points"]
-        tr = scene["lidar/point_time_ns"] if self.has_t else None
+        pr = scene[LIDAR_POINTS]
+        tr = scene[LIDAR_POINT_TIME_NS] if self.has_t else None
         rng = self.rng
         last = None
         rblock = None  # (first frame, end frame, (n,H,W) ranges): lidar/range read a shard at a time

@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from .config import SlamConfig, SlamResult
+from ...dataset.layout import (LIDAR_POINTS, LIDAR_TIMESTAMP_NS, MAP_POINTS, MESH_FACES, MESH_FACE_CLASS,
+                               MESH_VERTICES, POSE_T_WORLD_LIDAR, POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS)
 
 
 # Settings added after datasets were mapped (issue 25: inline constants made settings): left out of
@@ -25,7 +27,7 @@ def _fingerprint(scene, cfg: SlamConfig, mesh_cfg) -> str:
     h = hashlib.sha256(json.dumps({"slam": fingerprint_settings(cfg.to_attrs(), ADDED_SETTINGS, SlamConfig),
                                    "mesh": mesh_cfg.to_attrs() if mesh_cfg else None},
                                   sort_keys=True).encode())
-    for name in ("lidar/points", "lidar/timestamp_ns", "time/timestamp_ns"):
+    for name in (LIDAR_POINTS, LIDAR_TIMESTAMP_NS, TIME_TIMESTAMP_NS):
         if name in scene:
             node = scene.nodes()[name][1]
             h.update(json.dumps(node.get("attributes", {}).get("holodata", {}).get("shards"), sort_keys=True).encode())
@@ -34,19 +36,19 @@ def _fingerprint(scene, cfg: SlamConfig, mesh_cfg) -> str:
 
 def _stored_result(scene, done: dict) -> SlamResult:
     """A finished scene's result read back from the dataset (no recomputation; no kiss-icp poses)."""
-    Tl = np.asarray(scene["pose/T_world_lidar"][...], np.float64)
-    Tr = np.asarray(scene["pose/T_world_radar"][...], np.float64) if "pose/T_world_radar" in scene else None
+    Tl = np.asarray(scene[POSE_T_WORLD_LIDAR][...], np.float64)
+    Tr = np.asarray(scene[POSE_T_WORLD_RADAR][...], np.float64) if POSE_T_WORLD_RADAR in scene else None
     names = set(scene.arrays())
-    st = np.asarray(scene["lidar/timestamp_ns"][...] if "lidar/timestamp_ns" in names else scene["time/timestamp_ns"][...],
+    st = np.asarray(scene[LIDAR_TIMESTAMP_NS][...] if LIDAR_TIMESTAMP_NS in names else scene[TIME_TIMESTAMP_NS][...],
                     np.int64)
     _, first = np.unique(st, return_index=True)
     first = np.sort(first[st[first] > 0])
     mesh = None
-    if "mesh/faces" in names:
-        mesh = (np.asarray(scene["mesh/vertices"][...], np.float32), np.asarray(scene["mesh/faces"][...], np.int32))
+    if MESH_FACES in names:
+        mesh = (np.asarray(scene[MESH_VERTICES][...], np.float32), np.asarray(scene[MESH_FACES][...], np.int32))
     summary = dict(done.get("summary") or {})
     summary["skipped"] = "already done with the same inputs and settings (use --force to recompute)"
-    points = np.asarray(scene["map/points"][...], np.float64) if "map/points" in names else None
+    points = np.asarray(scene[MAP_POINTS][...], np.float64) if MAP_POINTS in names else None
     return SlamResult(scene.id, st[first], Tl[first], None, None, Tl, Tr, mesh, summary, points)
 
 
@@ -68,9 +70,9 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
     if (mode or {}).get("map_scene"):
         pose_attrs["method"] = f"open3d scan-to-map point-to-plane ICP against map scene {mode['map_scene']!r}"
         pose_attrs["map_scene"] = mode["map_scene"]
-    arrays = [("pose/T_world_lidar", res.T_world_lidar, {"time": "lidar/timestamp_ns (time/timestamp_ns when 0)"})]
+    arrays = [(POSE_T_WORLD_LIDAR, res.T_world_lidar, {"time": "lidar/timestamp_ns (time/timestamp_ns when 0)"})]
     if res.T_world_radar is not None:
-        arrays.append(("pose/T_world_radar", res.T_world_radar, {"time": "time/timestamp_ns",
+        arrays.append((POSE_T_WORLD_RADAR, res.T_world_radar, {"time": TIME_TIMESTAMP_NS,
                                                                  "T_lidar_radar": finfo.get("T_lidar_radar")}))
     for name, P, extra in arrays:
         if name in names:
@@ -80,8 +82,8 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
         for k in range(a.n_shards):
             a.write_shard(k, P[a.frames(k)])
     if res.mesh is not None:
-        if "mesh/face_class" in names:
-            sc.remove("mesh/face_class")
+        if MESH_FACE_CLASS in names:
+            sc.remove(MESH_FACE_CLASS)
         write_static_map(sc, res.mesh[0], res.mesh[1], res.map_points, "slam")
     sc.set_attrs({"slam": {"complete": True, "fingerprint": fp, "config": cfg.to_attrs(),
                            "mesh_config": mesh_cfg.to_attrs() if cfg.mesh else None,
@@ -92,16 +94,16 @@ def write_static_map(sc, vertices: np.ndarray, faces: np.ndarray, points: np.nda
     """Write a :class:`StaticMap`'s ``mesh/vertices``, ``mesh/faces`` and (when given) ``map/points``
     (M,3) float32 into the scene writer ``sc``, each with the ``source`` of the poses they were built
     from: ``holodata register`` uses them only while that matches ``pose/T_world_lidar``'s."""
-    sc.write_array("mesh/vertices", np.asarray(vertices, np.float32), dims=["vertex", "xyz"], units="m",
+    sc.write_array(MESH_VERTICES, np.asarray(vertices, np.float32), dims=["vertex", "xyz"], units="m",
                    attrs={"source": source, "frame": "world"})
-    sc.write_array("mesh/faces", np.asarray(faces, np.int32), dims=["face", "corner"], units="1",
+    sc.write_array(MESH_FACES, np.asarray(faces, np.int32), dims=["face", "corner"], units="1",
                    attrs={"source": source})
     if points is not None:
-        sc.write_array("map/points", np.asarray(points, np.float32), dims=["point", "xyz"], units="m",
+        sc.write_array(MAP_POINTS, np.asarray(points, np.float32), dims=["point", "xyz"], units="m",
                        attrs={"source": source, "frame": "world",
                               "what": "static LiDAR returns averaged per mesh voxel (the mesh's input)"})
-    elif "map/points" in sc.arrays():
-        sc.remove("map/points")
+    elif MAP_POINTS in sc.arrays():
+        sc.remove(MAP_POINTS)
 
 
 def json_safe(obj):

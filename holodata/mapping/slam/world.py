@@ -15,6 +15,7 @@ from ...trajectory import Trajectory
 from .config import Scans, SlamConfig
 from .points import downsample
 from .refine import deskewed_scans, level_seeds, mesh_scan_subset
+from ...dataset.layout import LIDAR_TIMESTAMP_NS, POSE_T_WORLD_RADAR, TF_T_WORLD_LIDAR, TIME_TIMESTAMP_NS
 
 
 def _attr_T(d, key) -> np.ndarray | None:
@@ -76,11 +77,11 @@ def tf_lidar_poses(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray
     """TF poses T_world_lidar (S,4,4) at ``stamps_ns`` (S,) from ingest's ``tf/T_world_lidar`` (the
     LiDAR frame's TF pose at each frame's scan, NaN where TF does not cover it), with (S,) bool
     "covered" (within the covered frames' time span) and the world frame's name; None without it."""
-    if "tf/T_world_lidar" not in set(scene.arrays()):
+    if TF_T_WORLD_LIDAR not in set(scene.arrays()):
         return None
-    a = scene["tf/T_world_lidar"]
+    a = scene[TF_T_WORLD_LIDAR]
     P = np.asarray(a[...], np.float64)
-    name = "lidar/timestamp_ns" if "lidar/timestamp_ns" in set(scene.arrays()) else "time/timestamp_ns"
+    name = LIDAR_TIMESTAMP_NS if LIDAR_TIMESTAMP_NS in set(scene.arrays()) else TIME_TIMESTAMP_NS
     t = np.asarray(scene[name][...], np.int64)
     ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1) & (t > 0)
     if not ok.any():
@@ -139,19 +140,19 @@ def anchor_pose(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, int, dict]:
     T_bl, T_br = _attr_T(ext, "lidar"), _attr_T(ext, "radar")
     prev = (scene.attrs.get("slam") or {}).get("anchor")
     names = set(scene.arrays())
-    for src, res in (("tf/T_world_lidar", lambda: tf_lidar_poses(scene, stamps_ns)),
-                     ("TF of the source recording", lambda: None if "pose/T_world_radar" in names
+    for src, res in ((TF_T_WORLD_LIDAR, lambda: tf_lidar_poses(scene, stamps_ns)),
+                     ("TF of the source recording", lambda: None if POSE_T_WORLD_RADAR in names
                       else recording_tf_poses(scene, stamps_ns))):
         r = res()
         if r is not None and r[1].any():
             j = int(np.argmax(r[1]))
             return r[0][j], j, {"kind": "tf", "world_frame": r[2], "via": src, "scan": j}
-    if "pose/T_world_radar" in names and T_bl is not None and T_br is not None:
-        pa = scene["pose/T_world_radar"]
+    if POSE_T_WORLD_RADAR in names and T_bl is not None and T_br is not None:
+        pa = scene[POSE_T_WORLD_RADAR]
         src = dict(pa.attrs).get("source")
         if src == "tf":
             P = np.asarray(pa[...], np.float64)
-            t = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+            t = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
             ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1)
             if ok.sum() >= 1:
                 T_wr = Trajectory(t[ok], P[ok]).interpolate(stamps_ns[:1])[0]
@@ -167,8 +168,8 @@ def frame_poses(scene, scans: Scans, poses: np.ndarray) -> tuple[np.ndarray, np.
     """Per-frame (T,4,4) T_world_lidar at each frame's LiDAR stamp (frame time when it has none) and
     T_world_radar at the frame time through the extrinsic (None without one)."""
     names = set(scene.arrays())
-    ft = np.asarray(scene["time/timestamp_ns"][...], np.int64) if "time/timestamp_ns" in names else None
-    lt = np.asarray(scene["lidar/timestamp_ns"][...], np.int64) if "lidar/timestamp_ns" in names else None
+    ft = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64) if TIME_TIMESTAMP_NS in names else None
+    lt = np.asarray(scene[LIDAR_TIMESTAMP_NS][...], np.int64) if LIDAR_TIMESTAMP_NS in names else None
     if ft is None:
         ft = lt
     t_l = np.where(lt > 0, lt, ft) if lt is not None else ft
@@ -258,9 +259,9 @@ def guess_poses(scene, scans: Scans) -> tuple[np.ndarray | None, str]:
     names = set(scene.arrays())
     ext = scene.attrs.get("extrinsics") or {}
     T_bl, T_br = _attr_T(ext, "lidar"), _attr_T(ext, "radar")
-    if "pose/T_world_radar" in names and T_br is not None and dict(scene["pose/T_world_radar"].attrs).get("source") == "tf":
-        P = np.asarray(scene["pose/T_world_radar"][...], np.float64)
-        t = np.asarray(scene["time/timestamp_ns"][...], np.int64)
+    if POSE_T_WORLD_RADAR in names and T_br is not None and dict(scene[POSE_T_WORLD_RADAR].attrs).get("source") == "tf":
+        P = np.asarray(scene[POSE_T_WORLD_RADAR][...], np.float64)
+        t = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
         ok = np.all(np.isfinite(P.reshape(len(P), -1)), axis=1)
         if ok.sum() >= 2:
             T_rl = np.linalg.inv(T_br) @ (T_bl if T_bl is not None else np.eye(4))
