@@ -77,8 +77,10 @@ def cluster(workers: int = 0, scheduler: str | None = None):
         finally:
             client.close()
         return
+    # the scheduler's HTTP server binds dashboard_address even without a dashboard (None means :8787,
+    # and a second cluster on the machine then warns): a free port instead
     lc = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None, silence_logs=logging.ERROR)
+                      dashboard_address="127.0.0.1:0", silence_logs=logging.ERROR)
     client = Client(lc)
     client.holodata_local_workers = workers
     try:
