@@ -57,3 +57,23 @@ def _elevation_groups(elev: np.ndarray) -> list[list[int]]:
     for r, e in enumerate(elev):
         groups.setdefault(round(float(np.cos(e)), 12), []).append(r)
     return list(groups.values())
+
+
+def _row_pairs(groups: list[list[int]]) -> np.ndarray:
+    """(G, 2) int64 rows formed together by the moving-platform sums: the first two rows of each
+    group of :func:`_elevation_groups` (-1 when a row is alone); a third or later row of a group is
+    formed on its own, after all groups."""
+    rows = [g[:2] + [-1] * (2 - len(g[:2])) for g in groups]
+    rows += [[r, -1] for g in groups for r in g[2:]]
+    return np.array(rows, np.int64)
+
+
+def _to_rotation_start(y: np.ndarray, rows: np.ndarray, gam: np.ndarray, beams: np.ndarray) -> None:
+    """In place: the beams ``y`` (H, nb, ...) of each row pair referred to the rotation's start
+    instead of their own chirp (``motion_reference="rotation_start"``), with the motion phase rate
+    ``gam`` (G, nb, ...) of the pair."""
+    for g, (r0, r1) in enumerate(rows):
+        post = np.exp(1j * gam[g] * beams[:, None]).astype(np.complex64)
+        y[r0] *= post
+        if r1 >= 0:
+            y[r1] *= post

@@ -62,7 +62,7 @@ import numpy as np
 from .beam_geometry import (WINDOWS, _REANCHOR, _to_columns, azimuth_kernel, beam_indices,  # noqa: F401
                             column_weights, motion_phase_rate, range_weights, vertical_weights, window)
 from .chirp import ChirpConfig
-from ._steps import _blas_single, _elevation_groups, _fold, _vertical
+from ._steps import _blas_single, _elevation_groups, _fold, _row_pairs, _to_rotation_start, _vertical
 
 STATIC_REMOVAL = ("trajectory", "rotation", "none")
 DECIMATION = ("pick", "triangle")
@@ -369,11 +369,7 @@ def _motion_numpy(xp, off, N, chirp, params, motion, threads):
     # vertical beamforming of every padded chirp: (H, L, S)
     X = _vertical(xp, vw, threads)
     K = _azimuth_kernel64(chirp, params, N)                                       # (H, n_syn, S)
-    groups = _elevation_groups(elev)
-    rows = np.array([g[:2] + [-1] * (2 - len(g[:2])) for g in groups], np.int64)
-    extra = [(g[0], r) for g in groups for r in g[2:]]   # a third row with the same cos θ: formed on its own
-    for _, r in extra:
-        rows = np.vstack([rows, [[r, -1]]])
+    rows = _row_pairs(_elevation_groups(elev))
     gam = np.stack([motion_phase_rate(chirp, params, motion, float(np.cos(elev[r0])), beams, N)
                     for r0 in rows[:, 0]])                                        # (G, nb, S)
     y = np.empty((H, beams.size, S), np.complex64)
@@ -381,10 +377,6 @@ def _motion_numpy(xp, off, N, chirp, params, motion, threads):
 
     motion_sums(X, rows, off, beams, K, gam, y, threads)
     if params.motion_reference == "rotation_start":
-        for g, (r0, r1) in enumerate(rows):
-            post = np.exp(1j * gam[g] * beams[:, None]).astype(np.complex64)
-            y[r0] *= post
-            if r1 >= 0:
-                y[r1] *= post
+        _to_rotation_start(y, rows, gam, beams)
     mag = np.abs(sfft.fft(y * rw, axis=2, workers=threads)[:, :, :R]).transpose(2, 0, 1)   # (R, H, nb)
     return _to_columns(mag, cw)

@@ -39,7 +39,7 @@ import numpy as np
 
 from .beam_geometry import (_to_columns, column_weights, near_kernel, near_motion_phase_rate, near_sample_weights,
                             vertical_weights)
-from ._steps import _blas_single, _elevation_groups, _fold, _vertical
+from ._steps import _blas_single, _elevation_groups, _fold, _row_pairs, _to_rotation_start, _vertical
 
 _NKCACHE: dict = {}
 
@@ -152,19 +152,11 @@ def motion_near(xp, off, N, chirp, params, motion, threads) -> np.ndarray:
     X = np.ascontiguousarray(sfft.fft(X, axis=2, workers=threads, overwrite_x=True)[:, :, :R])   # (H, L, R)
     K = _cache(("kernel", chirp, params, N, R),
                lambda: near_kernel(chirp, params, np.cos(elev), N, R).astype(np.complex64))   # (H, n_syn, R)
-    groups = _elevation_groups(elev)
-    rows = np.array([g[:2] + [-1] * (2 - len(g[:2])) for g in groups], np.int64)
-    for g in groups:
-        for r in g[2:]:
-            rows = np.vstack([rows, [[r, -1]]])
+    rows = _row_pairs(_elevation_groups(elev))
     gam = np.stack([near_motion_phase_rate(chirp, params, motion, float(np.cos(elev[r0])), beams, N, R)
                     for r0 in rows[:, 0]])                                             # (G, nb, R)
     y = np.empty((H, beams.size, R), np.complex64)
     motion_sums(X, rows, off, beams, K, gam, y, threads)
     if params.motion_reference == "rotation_start":
-        for g, (r0, r1) in enumerate(rows):
-            post = np.exp(1j * gam[g] * beams[:, None]).astype(np.complex64)
-            y[r0] *= post
-            if r1 >= 0:
-                y[r1] *= post
+        _to_rotation_start(y, rows, gam, beams)
     return _to_columns(np.abs(y).transpose(2, 0, 1), cw)
