@@ -352,19 +352,12 @@ class RayScene:
             d /= np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
             o[...] = p
         hit = face >= 0
-        los = np.ones((B, N), dtype=bool)
+        parts = []
         if labels and B > 1:
             parts = [(b, visited[b]) for b in range(1, B) if visited[b] is not None]
             parts = [(b, np.arange(N) if isinstance(s, slice) else s, p) for b, (s, p) in parts]
             parts = [q for q in parts if len(q[1])]
-            if parts:
-                ii = np.concatenate([q[1] for q in parts])
-                P = np.concatenate([q[2] for q in parts], axis=1)
-                vis = self._visible32(O[:, ii], P, dyn)
-                pos = 0
-                for b, i, _ in parts:
-                    los[b, i] = vis[pos:pos + len(i)]
-                    pos += len(i)
+        los = self._los(parts, O, dyn, B, N)
         semantic = np.zeros((B, N), dtype=np.uint8)
         sm = hit & ~hdyn
         semantic[sm] = self.face_semantic[face[sm]]
@@ -411,16 +404,7 @@ class RayScene:
                 isd[spur] = ds
             S, idx, P = _kernels.advance(S, tt, hit, f, isd, mr, idx, b, rng, point, normal, face, hdyn)
             visited.append((b, idx, P))
-        los = np.ones((B, N), dtype=bool)
-        parts = [q for q in visited[1:] if len(q[1])] if labels else []
-        if parts:
-            ii = np.concatenate([q[1] for q in parts])
-            P = np.concatenate([q[2] for q in parts], axis=1)
-            vis = self._visible32(O[:, ii], P, dyn)
-            pos = 0
-            for b, i, _ in parts:
-                los[b, i] = vis[pos:pos + len(i)]
-                pos += len(i)
+        los = self._los([q for q in visited[1:] if len(q[1])] if labels else [], O, dyn, B, N)
         semantic = np.empty((B, N), dtype=np.uint8)
         label = np.empty((B, N), dtype=np.uint8)
         _kernels.labels(face, hdyn, los, self.face_semantic, np.uint8(self.human_class), semantic, label)
@@ -433,6 +417,21 @@ class RayScene:
         if buf is None or len(buf) < n:
             buf = self._ws = np.empty((n, 6), dtype=np.float32)
         return buf[:n]
+
+    def _los(self, parts: list, O: np.ndarray, dyn, B: int, N: int) -> np.ndarray:
+        """(B, N) bool: bounce b of ray i is LOS (its hit point visible from the ray's origin) for the
+        ``parts`` [(b, ray indices, (3, n) float32 hit points)] of bounces 2..B, checked in one batch;
+        True elsewhere (bounce 1 is LOS by construction)."""
+        los = np.ones((B, N), dtype=bool)
+        if parts:
+            ii = np.concatenate([q[1] for q in parts])
+            P = np.concatenate([q[2] for q in parts], axis=1)
+            vis = self._visible32(O[:, ii], P, dyn)
+            pos = 0
+            for b, i, _ in parts:
+                los[b, i] = vis[pos:pos + len(i)]
+                pos += len(i)
+        return los
 
     def _visible32(self, O: np.ndarray, P: np.ndarray, dyn) -> np.ndarray:
         """(n,) bool for (3,n) float32 origins and points: P visible from O, i.e. nothing (scene or
