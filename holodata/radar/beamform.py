@@ -249,29 +249,23 @@ def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: Bea
     if refl is not None:
         xp = xp - refl[None]
     motion = Motion.from_velocity(velocity, chirp_period_s or chirp.chirp_period_s)
-    if params.focus == "near":
-        if device != "cpu":
-            raise ValueError(f"focus 'near' runs on the numpy path only (device 'cpu'), got device {device!r}")
-        from .beamform_near import motion_near, static_near
-
-        threads = threads or min(os.cpu_count() or 1, 8)
-        if motion is None:
-            return static_near(xp, off, circular, N, chirp, params, threads)
-        if circular and h:
-            xp = np.concatenate([xp[N - h:], xp, xp[:h]], axis=0)
-            off = h
-        return motion_near(xp, off, N, chirp, params, motion, threads)
     if device != "cpu":
+        if params.focus == "near":
+            raise ValueError(f"focus 'near' runs on the numpy path only (device 'cpu'), got device {device!r}")
         from .beamform_torch import beamform_torch
 
         return beamform_torch(xp, off, circular, N, chirp, params, motion, device)
+    if params.focus == "near":
+        from .beamform_near import motion_near as moving, static_near as static
+    else:
+        moving, static = _motion_numpy, _static_numpy
     threads = threads or min(os.cpu_count() or 1, 8)
     if motion is None:
-        return _static_numpy(xp, off, circular, N, chirp, params, threads)
+        return static(xp, off, circular, N, chirp, params, threads)
     if circular and h:
         xp = np.concatenate([xp[N - h:], xp, xp[:h]], axis=0)
         off = h
-    return _motion_numpy(xp, off, N, chirp, params, motion, threads)
+    return moving(xp, off, N, chirp, params, motion, threads)
 
 
 beamform_rotation = beamform
