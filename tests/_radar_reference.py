@@ -13,18 +13,12 @@ import numpy as np
 from holodata.radar.beamform import window
 
 
-def beamform_direct(rotation, chirp, params, *, before=None, after=None, velocity=None, chirp_period_s=None,
-                    static_refl=None, beams=None, elevation_rows=None) -> np.ndarray:
-    """(n_range, len(rows), len(beams)) float64 magnitudes for beams ``beams`` (default: every chirp
-    position) and elevation rows ``elevation_rows`` (default all); columns are not decimated here
-    (see :func:`columns_direct`)."""
+def _inputs(rotation, chirp, params, before, after, velocity, chirp_period_s, static_refl):
+    """What both references start from: the rotation's shape (N, V, S); ``chirp_at(n)``, chirp
+    position n (neighbouring rotations' chirps, or circular without them) minus the static
+    reflection; and the platform's motion (moving, travel per chirp ds0 in m, heading theta_v)."""
     x = np.asarray(rotation, np.complex128)
     N, V, S = x.shape
-    R = params.n_range or S
-    n_syn = params.syn_count(N)
-    h = (n_syn - 1) // 2
-    lam = chirp.wavelengths()
-    # 1. static reflection
     if params.static_removal == "none":
         refl = np.zeros((V, S))
     elif params.static_removal == "trajectory" and static_refl is not None:
@@ -44,10 +38,25 @@ def beamform_direct(rotation, chirp, params, *, before=None, after=None, velocit
         return c - refl
 
     moving = velocity is not None and math.hypot(*velocity[:2]) > 0
+    ds0 = theta_v = 0.0
     if moving:
         T = chirp.chirp_period_s if chirp_period_s is None else chirp_period_s
         ds0 = math.hypot(*velocity[:2]) * T
         theta_v = math.atan2(velocity[1], velocity[0])
+    return (N, V, S), chirp_at, moving, ds0, theta_v
+
+
+def beamform_direct(rotation, chirp, params, *, before=None, after=None, velocity=None, chirp_period_s=None,
+                    static_refl=None, beams=None, elevation_rows=None) -> np.ndarray:
+    """(n_range, len(rows), len(beams)) float64 magnitudes for beams ``beams`` (default: every chirp
+    position) and elevation rows ``elevation_rows`` (default all); columns are not decimated here
+    (see :func:`columns_direct`)."""
+    (N, V, S), chirp_at, moving, ds0, theta_v = _inputs(rotation, chirp, params, before, after, velocity,
+                                                        chirp_period_s, static_refl)
+    R = params.n_range or S
+    n_syn = params.syn_count(N)
+    h = (n_syn - 1) // 2
+    lam = chirp.wavelengths()
     elev = params.elevations()
     rows = range(elev.size) if elevation_rows is None else elevation_rows
     beams = range(N) if beams is None else beams
@@ -106,8 +115,8 @@ def beamform_direct_near(rotation, chirp, params, *, before=None, after=None, ve
     sample window and the half-bin factor, the range FFT, then per range bin the sum
     over chirps with ``exp(−j4π (d_m(R_k) + r cos θ − R_k) f̄/c)`` (exact distance ``d_m`` from chirp m's
     antenna to the bin centre ``R_k`` on the beam). Same shapes as :func:`beamform_direct`."""
-    x = np.asarray(rotation, np.complex128)
-    N, V, S = x.shape
+    (N, V, S), chirp_at, moving, ds0, theta_v = _inputs(rotation, chirp, params, before, after, velocity,
+                                                        chirp_period_s, static_refl)
     R = params.n_range or S
     n_syn = params.syn_count(N)
     h = (n_syn - 1) // 2
@@ -115,29 +124,6 @@ def beamform_direct_near(rotation, chirp, params, *, before=None, after=None, ve
     c = 299_792_458.0
     lam = c / f
     fbar = f.mean()
-    if params.static_removal == "none":
-        refl = np.zeros((V, S))
-    elif params.static_removal == "trajectory" and static_refl is not None:
-        refl = np.asarray(static_refl, np.complex128)
-    else:
-        refl = x.mean(axis=0)
-
-    def chirp_at(n):
-        if before is None or after is None:
-            ch = x[n % N]
-        elif n < 0:
-            ch = np.asarray(before, np.complex128)[len(before) + n]
-        elif n >= N:
-            ch = np.asarray(after, np.complex128)[n - N]
-        else:
-            ch = x[n]
-        return ch - refl
-
-    moving = velocity is not None and math.hypot(*velocity[:2]) > 0
-    if moving:
-        T = chirp.chirp_period_s if chirp_period_s is None else chirp_period_s
-        ds0 = math.hypot(*velocity[:2]) * T
-        theta_v = math.atan2(velocity[1], velocity[0])
     elev = params.elevations()
     rows = range(elev.size) if elevation_rows is None else elevation_rows
     beams = range(N) if beams is None else beams
