@@ -25,6 +25,7 @@ from .scene import (
     LIDAR_START_S,
     Scenario,
     Sensors,
+    counting_put,
     _trans,
 )
 from .worlds import CLASS_ID
@@ -83,13 +84,7 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
     cam_cfg, rcfg = sc.camera_cfg, sc.radar_cfg
     T_world_cam_opt = sc.T_world_cam_link @ T_LINK_OPTICAL
     with BagWriter(rec, fmt) as bw:
-        for topic, typ in topics.items():
-            bw.add(topic, typ, latched=topic in ("/tf_static", "/ouster/metadata"))
-
-        def put(topic, t_ns, msg):
-            bw.write(topic, t_ns, msg)
-            counts[topic] += 1
-
+        put = counting_put(bw, topics, counts)
         for log_ns, _, kind, idx, t_ns in track(events, len(events), "synth", quiet):
             if kind == "static":
                 tfs = [bw.transform("/tf_static", t_ns, FRAME_MAP, FRAME_ODOM, sc.T_map_odom),

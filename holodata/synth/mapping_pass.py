@@ -22,6 +22,7 @@ from .scene import (
     ODOM_HZ,
     Scenario,
     Sensors,
+    counting_put,
     _rng,
 )
 from .worlds import World
@@ -119,13 +120,7 @@ def write_mapping_recording(sc: Scenario, mp: MappingPass, out_dir: Path, fmt: s
     msc = _MappingView(sc, mp)
     lidar_tum = []
     with BagWriter(rec, fmt) as bw:
-        for topic, typ in topics.items():
-            bw.add(topic, typ, latched=topic in ("/tf_static", "/ouster/metadata"))
-
-        def put(topic, t_ns, msg):
-            bw.write(topic, t_ns, msg)
-            counts[topic] += 1
-
+        put = counting_put(bw, topics, counts)
         for log_ns, _, kind, idx, t_ns in track(ev, len(ev), "synth: mapping pass", quiet):
             if kind == "static":
                 tfs = [bw.transform("/tf_static", t_ns, FRAME_MAP, FRAME_ODOM, mp.T_map_odom),

@@ -36,6 +36,20 @@ FRAME_CAM_LINK = "zed2i_camera_link"
 FRAME_RIGHT_OPT = "zed2i_right_camera_optical_frame"
 
 
+def counting_put(bw, topics: dict, counts: dict):
+    """Declare ``topics`` ({topic: message type}) on the recording writer ``bw`` (static TF and the
+    Ouster metadata latched, as drivers publish them) and return ``put(topic, t_ns, msg)``, which
+    writes a message and counts it in ``counts`` (the recording's per-topic message counts)."""
+    for topic, typ in topics.items():
+        bw.add(topic, typ, latched=topic in ("/tf_static", "/ouster/metadata"))
+
+    def put(topic, t_ns, msg):
+        bw.write(topic, t_ns, msg)
+        counts[topic] += 1
+
+    return put
+
+
 def _rng(seed: int, stream: str, index: int = 0) -> np.random.Generator:
     return np.random.default_rng([int(seed) & 0xFFFFFFFF, STREAMS[stream], int(index)])
 
