@@ -102,10 +102,9 @@ def run_tasks(client, fn, calls: list[tuple], keys: list[str], description: str 
     signal, the OOM killer) costs a rerun elsewhere (Dask's ``allowed-failures``, default 3); a task
     that kills every worker it lands on ends in one WorkerError line."""
     from distributed import as_completed
+    from distributed.scheduler import KilledWorker
 
     from .progress import track
-
-    from distributed.scheduler import KilledWorker
 
     futures = [client.submit(fn, *args, key=key, retries=retries, pure=False) for args, key in zip(calls, keys)]
     results = {}
