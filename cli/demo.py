@@ -7,7 +7,7 @@ import click
 @click.command()
 @click.option("--out", "out", type=click.Path(file_okay=False), default="holodata-demo", show_default=True,
               help="Output folder (recordings/, dataset.zarr, run/, report/); rerunning resumes.")
-@click.option("--quick", is_flag=True, help="Small grids and few frames, raw radar samples: about 7 minutes on 2 cores.")
+@click.option("--quick", is_flag=True, help="Small grids and few frames, raw radar samples: about 5 minutes on 2 idle cores.")
 @click.option("--mapping", type=click.Choice(["slam", "truth"]), default="slam", show_default=True,
               help="Poses, mesh and humans from holodata slam + register, or from the synthetic truth (oracle).")
 @click.option("--radar-output", "radar_output", type=click.Choice(["heatmap", "iq"]), default=None,
