@@ -48,6 +48,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._heldout import HELDOUT_VARIANTS, prepare_heldout  # noqa: E402  (the held-out recordings)
+
 
 def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
     """Bare open3d point-to-plane ICP on the same clouds register uses; returns time, error, and
@@ -317,40 +319,18 @@ def _closest(rows: list) -> str:
     return ", ".join(out)
 
 
-# the held-out family (issue 23): variants that differ from the tuned corners where real recordings do
-HELDOUT_VARIANTS = {
-    "hidden-depth16-64": dict(camera="hidden", camera_output="depth16", lidar_rows=64, lidar_fov_deg=45.0),
-    "robot-cloud-32": dict(camera="robot", camera_output="cloud", camera_shape=(120, 160), lidar_rows=32,
-                           lidar_fov_deg=90.0, person="box"),
-    "hidden-cloud-128-noisy": dict(camera="hidden", camera_output="cloud", camera_shape=(120, 160), lidar_rows=128,
-                                   lidar_fov_deg=90.0, depth_noise=2.0, width=2.6),
-    "robot-depth16-64-narrow": dict(camera="robot", camera_output="depth16", lidar_rows=64, lidar_fov_deg=45.0,
-                                    width=1.6, person="box"),
-}
-
-
 def run_heldout(variant: str, seed: int, args, root: Path) -> dict:
     """One held-out recording (:mod:`holodata.synth.heldout`): ingest, slam, register from the TF guess
     (7.8 cm / 2.7 deg off the truth, in TF's world) with the default ``--guess-std`` and, when refused
     for held directions, again with ``guess_std_m`` 0.02 (the row says so); errors against its truth."""
     from holodata import open_dataset
-    from holodata.ingest import ingest
     from holodata.mapping.human_eval import (aligned_extrinsic_error, extrinsic_error, human_centroid_errors,
                                              truth_camera_extrinsic)
     from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene
     from holodata.mapping.slam import slam_scene
-    from holodata.synth.heldout import HeldOutConfig, synthesize_heldout
     from holodata.trajectory import read_tum
 
-    d = root / f"{variant}_{seed}"
-    truth = d / "rec" / "truth"
-    if not (truth / "scene.json").is_file():
-        shutil.rmtree(d, ignore_errors=True)
-        synthesize_heldout(d / "rec", HeldOutConfig(seed=seed, **HELDOUT_VARIANTS[variant]))
-    url = str(d / "ds.zarr")
-    if not Path(url).exists():
-        ingest([d / "rec" / "recording"], url, quiet=True)
-    sid = open_dataset(url).scenes[0]
+    truth, url, sid = prepare_heldout(variant, seed, root)
     slam_scene(url, sid, quiet=True)
     sc = open_dataset(url).scene(sid)
     P = np.asarray(sc["pose/T_world_lidar"][...])

@@ -22,6 +22,8 @@ This family differs where real recordings do (issue 23):
 Truth (``truth/``): ``extrinsics.json`` (``T_world_camera_optical`` true, ``T_map_camera_link_tf``
 the guess), ``trajectory_lidar.tum`` (true T_world_lidar at each scan's header stamp),
 ``human/<k:06d>.ply`` (the person at scan k's stamp: frame k of a LiDAR-framed scene),
+``lidar_instances.npz`` (:func:`holodata.synth.truth.write_lidar_instances`: per scan, the returns
+that hit the person, instance 1; the person is posed at the middle of the sweep, as the scan saw it),
 ``mesh.ply``, ``scene.json`` (the configuration and derived parameters). The world frame is
 ``map``, the true world.
 """
@@ -219,6 +221,7 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
     topics = dict(TOPICS_BASE, **(TOPICS_DEPTH if cfg.camera_output == "depth16" else TOPICS_CLOUD))
     rec = recording_path(out_dir, fmt)
     lidar_tum = []
+    inst_rows: list[tuple[int, np.ndarray]] = []   # (scan stamp, (rows, cols) person mask) per scan
     t_s = lambda t: (int(t) - t_first) / 1e9   # noqa: E731
     with BagWriter(rec, fmt) as bw_:
         for topic, typ in topics.items():
@@ -237,7 +240,11 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
                 t = int(scans[i])
                 T_cols = truth.interpolate(t + lidar.column_times_ns()) @ T_base_lidar
                 mid = t + period // 2
-                pts, _ = lidar.scan(scene, T_cols, person.mesh_at(t_s(mid)), np.random.default_rng([cfg.seed, 1, i]))
+                hm = person.mesh_at(t_s(mid))
+                # face_instance only labels the returns (stats["instance"]); the scan itself is unchanged
+                pts, st = lidar.scan(scene, T_cols, hm, np.random.default_rng([cfg.seed, 1, i]),
+                                     face_instance=np.ones(len(hm[1]), np.uint16))
+                inst_rows.append((t, st["instance"]))
                 bw_.write("/ouster/points", log_ns, bw_.point_cloud("/ouster/points", t, lidar_cfg.frame_id, pts))
                 lidar_tum.append(truth.interpolate(np.array([t]))[0] @ T_base_lidar)
                 hv, hf = person.mesh_at(t_s(t))
@@ -260,6 +267,7 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
                 bw_.write("/camera/depth/camera_info", log_ns, info)
     truthio.write_mesh(truth_dir / "mesh.ply", world.vertices, world.faces, world.face_class, world.class_names)
     truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", scans, np.stack(lidar_tum))
+    truthio.write_lidar_instances(truth_dir / "lidar_instances.npz", inst_rows, 1, False)
     tb = np.arange(t_first, t_last + 1, 10_000_000, dtype=np.int64)
     truthio.write_trajectory(truth_dir / "trajectory_base.tum", tb, truth.interpolate(tb))
     truthio.write_json(truth_dir / "extrinsics.json", {
