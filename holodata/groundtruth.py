@@ -27,6 +27,7 @@ from __future__ import annotations
 import threading
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -163,22 +164,41 @@ def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dic
     """Write the shards of ``plan`` from per-frame ``results`` (dicts of gt arrays, in plan order).
     ``copy``: gather each shard into one array per name (results are views into reused
     shared-memory slots); else hand the writer the frames' own arrays, which it encodes frame by
-    frame (in-process results are fresh per frame: no gathering copy)."""
+    frame (in-process results are fresh per frame: no gathering copy), and the shard is written by a
+    background thread while the next shard is traced (Blosc, sha256 and file writes release the GIL,
+    so writing runs on the core the tracer's single-threaded parts leave idle)."""
     results = iter(results)
-    for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet, unit="shards"):
-        if copy:
-            bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]), dtype=specs[name]["dtype"])
-                    for name in todo}
-        else:
-            bufs = {name: [None] * len(frames) for name in todo}
-        for i in range(len(frames)):
-            out = next(results)
-            if clock is not None and "first" not in clock:
-                clock["first"] = time.perf_counter()
-            for name in todo:
-                bufs[name][i] = out[name]
-        for name in todo:
-            arrays[name].write_shard(k, bufs[name])
+    writer = None if copy else ThreadPoolExecutor(1, thread_name_prefix="holodata-gt-writer")
+    prev = None  # the shard being written in the background
+    try:
+        for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet, unit="shards"):
+            if copy:
+                bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]),
+                                       dtype=specs[name]["dtype"]) for name in todo}
+            else:
+                bufs = {name: [None] * len(frames) for name in todo}
+            for i in range(len(frames)):
+                out = next(results)
+                if clock is not None and "first" not in clock:
+                    clock["first"] = time.perf_counter()
+                for name in todo:
+                    bufs[name][i] = out[name]
+            if writer is None:
+                _write_shard(arrays, k, todo, bufs)
+                continue
+            if prev is not None:
+                prev.result()  # at most one shard in the writer: memory stays at two shards; its error surfaces here
+            prev = writer.submit(_write_shard, arrays, k, todo, bufs)
+        if prev is not None:
+            prev.result()
+    finally:
+        if writer is not None:
+            writer.shutdown(wait=True)  # never leave a write running behind an error
+
+
+def _write_shard(arrays: dict, k: int, todo: list, bufs: dict) -> None:
+    for name in todo:
+        arrays[name].write_shard(k, bufs[name])
 
 
 def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *,

@@ -153,9 +153,8 @@ def write_ply(path: str | Path, mesh: Mesh, binary: bool = True) -> None:
 # ---------------------------------------------------------------- PLY
 def _read_ply(data: bytes) -> Mesh:
     """PLY via trimesh's parser (header, ascii and binary element data of either byte order), then
-    holodata's part: class comments, the face class property and the polygon fan (module docstring)."""
-    from trimesh.exchange.ply import load_ply
-
+    holodata's part: class comments, the face class property and the polygon fan (module docstring).
+    Binary files whose lists all have one length are read without trimesh (:func:`_ply_binary_fixed`)."""
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
         raise InputError("not a PLY file (missing 'ply' magic or 'end_header')")
@@ -165,8 +164,15 @@ def _read_ply(data: bytes) -> Mesh:
         raise InputError(f"unsupported PLY format {fmt!r}")
     class_names = {int(t[2]): " ".join(t[3:]) for t in (line.split() for line in header)
                    if len(t) >= 4 and t[0] == "comment" and t[1] == "class"}
+    elements = None
+    if fmt != "ascii":  # the common binary layout without trimesh (its import costs a command ~0.5 s of CPU)
+        elements = _ply_binary_fixed(data[data.find(b"\n", end) + 1:], header,
+                                     "<" if fmt.endswith("little_endian") else ">")
     try:
-        elements = load_ply(io.BytesIO(data), fix_texture=False, skip_materials=True)["metadata"]["_ply_raw"]
+        if elements is None:
+            from trimesh.exchange.ply import load_ply
+
+            elements = load_ply(io.BytesIO(data), fix_texture=False, skip_materials=True)["metadata"]["_ply_raw"]
     except ValueError as err:
         # trimesh sizes a binary list element from its first record: faces of mixed sizes end here
         if fmt == "ascii" or "list" not in data[:end].decode("ascii", "replace"):
@@ -227,12 +233,40 @@ def _fan(lists) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(tris, dtype=np.int32).reshape(-1, 3), np.asarray(owners, dtype=np.int64)
 
 
-def _ply_binary_records(body: bytes, header: list[str], order: str) -> dict | None:
-    """Binary PLY elements read record by record, for the one layout trimesh's reader cannot size:
-    list properties whose length changes from record to record (faces mixing triangles, quads and
-    other polygons). Elements without lists are read whole. Returns trimesh's ``_ply_raw`` shape
-    ({name: {"length", "properties", "data"}}), or None if the body is shorter or longer than the
-    header says."""
+def _ply_binary_fixed(body: bytes, header: list[str], order: str) -> dict | None:
+    """Binary PLY elements read whole with one numpy record type each, when every list property
+    has the same length in every record (triangle meshes): trimesh's ``_ply_raw`` shape with lists
+    as (N, k) arrays, the values trimesh's reader gives. None for anything else (empty or
+    mixed-length lists, a body shorter or longer than the header says): the caller reads those
+    with trimesh."""
+    out, pos = {}, 0
+    try:
+        for name, count, props in _ply_elements(header):
+            fields, at = [], pos
+            for p in props:
+                if p[1] == "list":
+                    if count == 0:
+                        return None
+                    k = int(np.frombuffer(body, order + p[2], 1, at)[0])
+                    fields += [(p[0] + "#n", order + p[2]), (p[0], order + p[3], (k,))]
+                    at += np.dtype(p[2]).itemsize + np.dtype(p[3]).itemsize * k
+                else:
+                    fields.append((p[0], order + p[1]))
+                    at += np.dtype(p[1]).itemsize
+            rec = np.frombuffer(body, np.dtype(fields), count, pos)
+            for p in props:
+                if p[1] == "list" and np.any(rec[p[0] + "#n"] != rec[p[0]].shape[1]):
+                    return None
+            pos += rec.dtype.itemsize * count
+            out[name] = {"length": count, "properties": {p[0]: "$LIST" if p[1] == "list" else p[1] for p in props},
+                         "data": {p[0]: rec[p[0]] for p in props}}
+    except (ValueError, KeyError, IndexError):
+        return None
+    return out if pos == len(body) else None
+
+
+def _ply_elements(header: list[str]) -> list[tuple[str, int, list[tuple]]]:
+    """[(element name, count, [(property, type) | (property, "list", count type, value type)])] of a PLY header."""
     elements: list[tuple[str, int, list[tuple]]] = []
     for tok in (line.split() for line in header):
         if tok and tok[0] == "element":
@@ -240,6 +274,16 @@ def _ply_binary_records(body: bytes, header: list[str], order: str) -> dict | No
         elif tok and tok[0] == "property" and elements:
             prop = (tok[4], "list", _PLY_TYPES[tok[2]], _PLY_TYPES[tok[3]]) if tok[1] == "list" else (tok[2], _PLY_TYPES[tok[1]])
             elements[-1][2].append(prop)
+    return elements
+
+
+def _ply_binary_records(body: bytes, header: list[str], order: str) -> dict | None:
+    """Binary PLY elements read record by record, for the one layout trimesh's reader cannot size:
+    list properties whose length changes from record to record (faces mixing triangles, quads and
+    other polygons). Elements without lists are read whole. Returns trimesh's ``_ply_raw`` shape
+    ({name: {"length", "properties", "data"}}), or None if the body is shorter or longer than the
+    header says."""
+    elements = _ply_elements(header)
     out, pos = {}, 0
     try:
         for name, count, props in elements:
