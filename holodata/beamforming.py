@@ -65,8 +65,8 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     """Re-image scene ``scene_id`` of dataset ``url`` from ``radar/iq``; returns a summary
     {scene, frames, motion, n_syn, seconds, skipped?}. ``params``: grid fields are taken from the
     dataset (pass the others: field of view, n_syn, windows, static removal, decimation, motion
-    reference). ``client`` (a ``distributed.Client``): one Dask task per shard (:func:`image_shard`;
-    the dataset must be reachable from the workers)."""
+    reference). ``client`` (a ``distributed.Client``): one Dask task per shard (:func:`image_shard`
+    on the scene the worker opens; the dataset must be reachable from the workers)."""
     import time
 
     from .dataset import create_dataset, open_dataset
@@ -123,11 +123,11 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     todo = [k for k in range(hm.n_shards) if not hm.is_done(k)]
     if client is None:
         for k in track(todo, total=len(todo), description=f"beamform {scene_id}", quiet=quiet, unit="shards"):
-            image_shard(url, scene_id, k, job)
+            image_shard(sc, k, job, hm)
     else:
         from .distributed import run_tasks, worker_path
 
-        run_tasks(client, image_shard, [(worker_path(url), scene_id, k, job) for k in todo],
+        run_tasks(client, _image_shard_task, [(worker_path(url), scene_id, k, job) for k in todo],
                   [f"beamform-{scene_id}-shard{k}-{fp}" for k in todo], description=f"beamform {scene_id}", quiet=quiet)
     src_new = {**attrs, "rebeamformed": {"by": "holodata beamform", "motion": motion, "fingerprint": fp}}
     scw.set_attrs({"source": {**(sc.attrs.get("source") or {}), "beamform": src_new}})
@@ -135,16 +135,25 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
             "seconds": round(time.perf_counter() - t0, 2)}
 
 
-def image_shard(url: str, scene_id: str, k: int, job: dict) -> int:
-    """Beamform and commit shard ``k`` of ``radar/heatmap`` (which exists) from ``radar/iq``; ``job``:
-    {chirp, params (attrs), motion (T, 2), device}. Runs locally or as a Dask task. Returns the frames
-    written."""
-    from .dataset import create_dataset, open_dataset
+def _image_shard_task(url: str, scene_id: str, k: int, job: dict) -> int:
+    """The Dask task of :func:`beamform_scene`: :func:`image_shard` of the scene opened on the worker."""
+    from .dataset import open_dataset
 
-    sc = open_dataset(url).scene(scene_id)
+    return image_shard(open_dataset(url).scene(scene_id), k, job)
+
+
+def image_shard(sc, k: int, job: dict, hm_w=None) -> int:
+    """Beamform and commit shard ``k`` of ``radar/heatmap`` (which exists) from ``radar/iq`` of scene
+    ``sc`` (a read handle); ``job``: {chirp, params (attrs), motion (T, 2), device}; ``hm_w``: the
+    heatmap's :class:`~holodata.dataset.FrameArrayWriter` (None: opened here on ``sc``'s dataset).
+    Returns the frames written."""
+    from .dataset import create_dataset
+
+    url, scene_id = sc.ds.url, sc.id
     chirp, params = ChirpConfig.from_attrs(job["chirp"]), BeamformParams.from_attrs(job["params"])
-    hm_w = create_dataset(url).scene(scene_id).frame_array(
-        RADAR_HEATMAP, tuple(sc[RADAR_HEATMAP].shape[1:]), "float32")
+    if hm_w is None:
+        hm_w = create_dataset(url).scene(scene_id).frame_array(
+            RADAR_HEATMAP, tuple(sc[RADAR_HEATMAP].shape[1:]), "float32")
     T = sc.n_frames
     fr = range(*hm_w.frames(k).indices(T))
     span = np.asarray(sc[RADAR_IQ_SPAN][fr.start:fr.stop], np.int64)

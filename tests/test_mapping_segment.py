@@ -405,7 +405,7 @@ def test_background_and_segment_reads_scans_once_with_the_same_masks(monkeypatch
     monkeypatch.setattr(S.LidarScans, "scan", lambda self, k, *a, **kw: reads.append(k) or orig(self, k, *a, **kw))
     monkeypatch.setattr(S.LidarScans, "scan_world",
                         lambda self, k, *a, **kw: world_reads.append(k) or orig_w(self, k, *a, **kw))
-    bg2, summary, kept = S.background_and_segment(url, "recording", cfg, overwrite=True)
+    bg2, summary, kept = S.background_and_segment(open_dataset(url).scene("recording"), cfg, overwrite=True)
     got = np.asarray(open_dataset(url).scene("recording")["lidar/instance"][...])
     assert np.array_equal(got, ref)
     assert np.array_equal(bg2.keys, bg.keys) and np.allclose(bg2.floor, bg.floor)

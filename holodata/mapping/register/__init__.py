@@ -141,14 +141,13 @@ def lidar_map(scene, cfg: RegisterConfig, segment: bool, quiet: bool = True, bui
     and handed to ``early`` (a callback, or None) before the segmentation of every scan starts.
     Returns (map points (M,3) float64 world or None, segmentation summary or None, timings
     {background_s, map_s, segment_s})."""
-    from ..segment import InstanceMasks, LidarScans, SegmentConfig, background_and_segment, segment_scene
+    from ..segment import InstanceMasks, LidarScans, SegmentConfig, background_and_segment, write_instances
 
     t0 = time.perf_counter()
-    url, sid = scene.ds.url, scene.id
-    scans = LidarScans.open(scene, url)
+    scans = LidarScans.open(scene, scene.ds.url)
     traj = scans.trajectory()
     scfg = segment_cfg or SegmentConfig()
-    bg, _, world_points = background_and_segment(url, sid, scfg, quiet, segment=False, scans=scans, traj=traj)
+    bg, _, world_points = background_and_segment(scene, scfg, quiet, segment=False, scans=scans, traj=traj)
     t1 = time.perf_counter()
     if segment:
         inst = InstanceMasks(scans, bg, scfg, traj, world_points)
@@ -159,7 +158,8 @@ def lidar_map(scene, cfg: RegisterConfig, segment: bool, quiet: bool = True, bui
     t2 = time.perf_counter()
     if early is not None:
         early(M)
-    seg_summary = (segment_scene(url, sid, scfg, quiet, background=bg, world_points=world_points, masks=inst)
+    seg_summary = (write_instances(scene, scfg, quiet, background=bg, world_points=world_points, masks=inst,
+                                   scans=scans, traj=traj)
                    if segment else None)         # the masks the map asked for are not computed again
     return M, seg_summary, {"background_s": t1 - t0, "map_s": t2 - t1, "segment_s": time.perf_counter() - t2}
 

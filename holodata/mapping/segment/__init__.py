@@ -106,28 +106,27 @@ def _background_pass(scans: LidarScans, cfg: SegmentConfig, traj=None, quiet: bo
     return bg, kept
 
 
-def background_and_segment(url: str, scene_id: str | None = None, cfg: SegmentConfig | None = None,
-                           quiet: bool = True, overwrite: bool = False, segment: bool = True, scans=None, traj=None):
-    """(background model, :func:`segment_scene` summary or None, world points): :func:`build_background`
-    of the scene's scans and, with ``segment``, their segmentation, which reuses the background pass's
-    world points: scans without foreground are not read and de-skewed a second time (366 of the 400
-    scans of a 400-cycle corner are taken at rest, most of them without foreground). World points:
-    {frame: float32 world points (N,3) of the valid returns in row-major order} of the usable scans,
-    the lists the model was built from (``holodata register`` builds its map from them). ``scans`` /
-    ``traj``: the scene's :class:`LidarScans` and trajectory when the caller has them."""
-    from ...dataset import open_dataset
-
+def background_and_segment(scene, cfg: SegmentConfig | None = None, quiet: bool = True, overwrite: bool = False,
+                           segment: bool = True, scans=None, traj=None):
+    """(background model, :func:`write_instances` summary or None, world points) of ``scene`` (a read
+    handle, :meth:`Dataset.scene <holodata.dataset.Dataset.scene>`; a forked child gets the handle and
+    opens no dataset of its own for reading): :func:`build_background` of the scene's scans and, with
+    ``segment``, their segmentation, which reuses the background pass's world points: scans without
+    foreground are not read and de-skewed a second time (366 of the 400 scans of a 400-cycle corner are
+    taken at rest, most of them without foreground). World points: {frame: float32 world points (N,3)
+    of the valid returns in row-major order} of the usable scans, the lists the model was built from
+    (``holodata register`` builds its map from them). ``scans`` / ``traj``: the scene's
+    :class:`LidarScans` and trajectory when the caller has them."""
     cfg = cfg or SegmentConfig()
-    ds = open_dataset(url)
-    sid = _scene_id(ds, url, scene_id)
     if scans is None:
-        scans = LidarScans.open(ds.scene(sid), url)
+        scans = LidarScans.open(scene, scene.ds.url)
     if traj is None:
         traj = scans.trajectory()
     bg, kept = _background_pass(scans, cfg, traj, quiet, keep=True)
     if not segment:
         return bg, None, kept
-    return bg, segment_scene(url, sid, cfg, quiet, overwrite, background=bg, world_points=kept), kept
+    return bg, write_instances(scene, cfg, quiet, overwrite, background=bg, world_points=kept, scans=scans,
+                               traj=traj), kept
 
 
 def surely_without_foreground(bg, points_world32: np.ndarray, cfg: SegmentConfig) -> bool:
@@ -200,31 +199,43 @@ def background_masks(bg, valid: np.ndarray, points_world: np.ndarray, cfg: Segme
 def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | None = None, quiet: bool = True,
                   overwrite: bool = False, background=None, world_points: dict | None = None,
                   masks: "InstanceMasks | None" = None) -> dict:
-    """Segment every scan of a dataset scene and write ``lidar/instance`` (T,Hl,Wl) uint16 (resumable:
-    finished shards are kept). ``background``: a prebuilt model of these scans (else built here);
-    ``world_points``: {frame: float32 world points of the valid returns (N,3)} from
-    the pass that built ``background`` (:func:`background_and_segment`): scans that are
-    :func:`surely_without_foreground` are written empty without reading them again (the same
-    result). ``masks``: the :class:`InstanceMasks` of these scans and this background that another
-    user already asked (``holodata register``'s map): the masks it holds are not computed again.
-    Returns a summary {scene, frames, instances_per_scan, ...}."""
+    """Segment every scan of scene ``scene_id`` (None: the only one) of dataset ``url`` and write
+    ``lidar/instance``: :func:`write_instances` of the scene (the arguments are its)."""
+    from ...dataset import open_dataset
+
+    ds = open_dataset(url)
+    return write_instances(ds.scene(_scene_id(ds, url, scene_id)), cfg, quiet, overwrite, background=background,
+                           world_points=world_points, masks=masks)
+
+
+def write_instances(scene, cfg: SegmentConfig | None = None, quiet: bool = True, overwrite: bool = False,
+                    background=None, world_points: dict | None = None, masks: "InstanceMasks | None" = None,
+                    scans: LidarScans | None = None, traj=None) -> dict:
+    """Segment every scan of ``scene`` (a read handle; the writes go through a writer opened on its
+    dataset) and write ``lidar/instance`` (T,Hl,Wl) uint16 (resumable: finished shards are kept).
+    ``background``: a prebuilt model of these scans (else built here); ``world_points``: {frame:
+    float32 world points of the valid returns (N,3)} from the pass that built ``background``
+    (:func:`background_and_segment`): scans that are :func:`surely_without_foreground` are written
+    empty without reading them again (the same result). ``masks``: the :class:`InstanceMasks` of
+    these scans and this background that another user already asked (``holodata register``'s map):
+    the masks it holds are not computed again. ``scans`` / ``traj``: the scene's :class:`LidarScans`
+    and trajectory when the caller has them. Returns a summary {scene, frames, instances_per_scan, ...}."""
     import time
 
     from ...dataset import open_dataset
 
     cfg = cfg or SegmentConfig()
     t0 = time.perf_counter()
-    ds = open_dataset(url)
-    sid = _scene_id(ds, url, scene_id)
-    scene = ds.scene(sid)
-    scans = LidarScans.open(scene, url)
-    traj = scans.trajectory()
+    sid = scene.id
+    if scans is None:
+        scans = LidarScans.open(scene, scene.ds.url)
+    if traj is None:
+        traj = scans.trajectory()
     if background is None:
         background, world_points = _background_pass(scans, cfg, traj, quiet, keep=True)
     bg = background
     world_points = world_points or {}
-    w = open_dataset(url, "r+")
-    sw = w.scene(sid)
+    sw = open_dataset(scene.ds.url, "r+").scene(sid)
     poses = pose_fingerprint(scene)
     if INSTANCE_ARRAY in sw.arrays() and (overwrite or instance_state(scene) == "stale"):
         sw.remove(INSTANCE_ARRAY)
@@ -321,7 +332,7 @@ def _scene_id(ds, url: str, scene_id: str | None) -> str:
 
 
 __all__ = ["SegmentConfig", "segment_scan", "flood_fill", "erode", "LidarScans", "build_background", "segment_scene",
-           "InstanceMasks",
+           "write_instances", "InstanceMasks",
            "background_and_segment", "surely_without_foreground", "INSTANCE_ARRAY", "instance_state",
            "pose_fingerprint", "destagger", "row_shifts", "merge_stacked", "neighbour_spacing", "shrink_structure",
            "beam_elevations", "floor_plane", "grid_geometry", "background_masks", "in_background"]
