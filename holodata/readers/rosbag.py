@@ -115,11 +115,15 @@ class RosbagsRecording(Recording):
     _table = None
 
     def _message_table(self):
-        """:class:`.mcap_file.McapMessageTable` of a single-file rosbag2 MCAP bag with uncompressed
-        chunks whose indexes match the bag's message counts, else False."""
+        """Where each message lies, so that a pass reads only the bytes it needs: a
+        :class:`.mcap_file.McapMessageTable` for a single-file rosbag2 MCAP bag with uncompressed
+        chunks whose indexes match the bag's message counts, a :class:`Ros1MessageTable` for a ROS 1
+        bag with uncompressed chunks; else False (messages are read through rosbags)."""
         if self._table is None:
             self._table = False
-            if self.ros_version == 2 and len(self.files) == 1 and self.files[0].suffix == ".mcap" \
+            if self.ros_version == 1:
+                self._table = Ros1MessageTable.build(self.path, self.reader) or False
+            elif len(self.files) == 1 and self.files[0].suffix == ".mcap" \
                     and not getattr(self.reader, "compression_mode", None):
                 from .mcap_file import McapMessageTable
 
@@ -135,9 +139,14 @@ class RosbagsRecording(Recording):
             yield from self.raw_messages(topics)
             return
         want = set(topics)
-        conns = {c.topic: c for c in self.reader.connections if c.topic in want}
-        enc = {t: self._encoding(c) for t, c in conns.items()}
         try:
+            if self.ros_version == 1:
+                conns = [c for c in self.reader.connections if c.topic in want]
+                for c, log, data, ref in table.messages(conns, set(heads)):
+                    yield RawMessage(c.topic, c.msgtype, log, data, "ros1", ref=ref)
+                return
+            conns = {c.topic: c for c in self.reader.connections if c.topic in want}
+            enc = {t: self._encoding(c) for t, c in conns.items()}
             for topic, log, data, ref in table.messages(conns, set(heads)):
                 yield RawMessage(topic, conns[topic].msgtype, log, data, enc[topic], ref=ref)
         except (ValueError, OSError) as err:
@@ -155,6 +164,130 @@ class RosbagsRecording(Recording):
             self.reader.close()
         except Exception:  # noqa: BLE001
             pass
+
+
+class Ros1MessageTable:
+    """Where each message of an indexed ROS 1 bag with uncompressed chunks lies (rosbags' index:
+    per message its chunk and its offset in the chunk's data), so that a pass can read only the bytes
+    it needs: a header prefix (stamp, frame id) of a message it will not decode, the whole payload of
+    one it will — as :class:`.mcap_file.McapMessageTable` does for MCAP. rosbags' own reader reads
+    (and copies) every chunk whole for any message in it. Messages come in the order rosbags yields
+    them: log time, then the connection's place in the list asked for, then the connection's index
+    order (rosbags merges its per-connection indexes, which compare by time only).
+
+    ``build`` returns None (callers then read through rosbags) when any chunk is compressed."""
+
+    HEAD = 256     # payload bytes read for a header-only message (ROS 1 header, frame id < ~230 chars)
+    PROBE = 96     # record header bytes read with it (a message data record's is 4 + ~45)
+
+    def __init__(self, path: Path, log_ns, pos, conn, seq, limit):
+        self.path, self.log_ns, self.pos, self.conn, self.seq, self.limit = path, log_ns, pos, conn, seq, limit
+
+    @classmethod
+    def build(cls, path: Path, reader) -> "Ros1MessageTable | None":
+        import numpy as np
+        from rosbags.rosbag1.reader import decompressors
+
+        chunks = reader.chunks
+        if not chunks or any(c.decompressor is not decompressors["none"] for c in chunks.values()):
+            return None
+        rows = [(e.time, e.chunk_pos, e.offset, cid, k) for cid, idx in reader.indexes.items()
+                for k, e in enumerate(idx)]
+        if not rows:
+            return None
+        t, cpos, off, cid, seq = (np.array(c, np.int64) for c in zip(*rows))
+        datapos = np.array([chunks[k].datapos for k in cpos.tolist()], np.int64)
+        size = np.array([chunks[k].datasize for k in cpos.tolist()], np.int64)
+        return cls(path, t, datapos + off, cid, seq, datapos + size)
+
+    def messages(self, conns, heads: set[str] | frozenset = frozenset()):
+        """(connection, log_ns, payload, ref) of the connections ``conns`` in rosbags' order; for a
+        topic in ``heads`` the payload is its first :attr:`HEAD` bytes and ``ref`` = (offset, size) to
+        read the rest with :meth:`payload` (else ref is None). Raises ValueError where a record is not
+        the message the index says or runs past its chunk."""
+        import os
+
+        import numpy as np
+
+        by_id = {c.id: c for c in conns}
+        rank = {c.id: r for r, c in enumerate(conns)}
+        sel = np.flatnonzero(np.isin(self.conn, list(by_id)))
+        ranks = np.array([rank[k] for k in self.conn[sel].tolist()], np.int64)
+        sel = sel[np.lexsort((self.seq[sel], ranks, self.log_ns[sel]))]
+        fd = os.open(self.path, os.O_RDONLY)
+        try:
+            for log, pos, cid, limit in zip(self.log_ns[sel].tolist(), self.pos[sel].tolist(),
+                                            self.conn[sel].tolist(), self.limit[sel].tolist()):
+                c = by_id[cid]
+                head = c.topic in heads
+                start, size, b, at = self._record(fd, pos, limit, cid, log, self.HEAD if head else 0)
+                if head and size > self.HEAD:
+                    yield c, log, b[start - at:start - at + self.HEAD], (start, size)
+                    continue
+                if start + size <= at + len(b):
+                    data = b[start - at:start - at + size]
+                else:
+                    data = os.pread(fd, size, start)
+                if len(data) != size:
+                    raise ValueError(f"message at byte {start} is cut short")
+                yield c, log, data, None
+        finally:
+            os.close(fd)
+
+    def _record(self, fd: int, pos: int, limit: int, cid: int, log: int, extra: int) -> tuple[int, int, bytes, int]:
+        """(payload offset, payload size, bytes read, their file offset) of the message data record
+        at ``pos`` (connection records before it skipped, as rosbags does); ValueError unless it is
+        connection ``cid``'s message at ``log`` and lies within its chunk (ending at ``limit``)."""
+        import os
+        import struct
+
+        try:
+            while True:
+                b = os.pread(fd, 4 + self.PROBE + 4 + extra, pos)
+                (hlen,) = struct.unpack_from("<I", b, 0)
+                if pos + 8 + hlen > limit:
+                    raise ValueError(f"record at byte {pos} runs past the end of its chunk")
+                if 8 + hlen > len(b):
+                    b = os.pread(fd, 8 + hlen + extra, pos)
+                fields, i = {}, 4
+                while i < 4 + hlen:
+                    (n,) = struct.unpack_from("<I", b, i)
+                    name, eq, value = b[i + 4:i + 4 + n].partition(b"=")
+                    if not eq or i + 4 + n > 4 + hlen:
+                        raise ValueError(f"record at byte {pos} has a damaged header")
+                    fields[name] = value
+                    i += 4 + n
+                (size,) = struct.unpack_from("<I", b, 4 + hlen)
+                start = pos + 8 + hlen
+                if start + size > limit:
+                    raise ValueError(f"record at byte {pos} runs past the end of its chunk")
+                op = fields.get(b"op", b"")
+                if op == b"\x07":     # a connection record: the message follows it
+                    pos = start + size
+                    continue
+                if op != b"\x02" or len(fields.get(b"conn", b"")) != 4 or len(fields.get(b"time", b"")) != 8:
+                    raise ValueError(f"record at byte {pos} is not a message data record")
+                (conn,) = struct.unpack("<I", fields[b"conn"])
+                sec, nsec = struct.unpack("<II", fields[b"time"])
+                if conn != cid or sec * 1_000_000_000 + nsec != log:
+                    raise ValueError(f"record at byte {pos} is not the indexed message")
+                return start, size, b, pos
+        except struct.error as err:
+            raise ValueError(f"record at byte {pos} is cut short") from err
+
+    def payload(self, ref) -> bytes:
+        """The whole payload of a message :meth:`messages` gave header-only."""
+        import os
+
+        off, size = ref
+        fd = os.open(self.path, os.O_RDONLY)
+        try:
+            data = os.pread(fd, size, off)
+        finally:
+            os.close(fd)
+        if len(data) != size:
+            raise ValueError(f"message at byte {off} is cut short")
+        return data
 
 
 # --------------------------------------------------------------------------------------------------

@@ -1,0 +1,97 @@
+"""What ingest's passes read: a ROS 1 bag with uncompressed chunks is read through its index
+(:class:`holodata.readers.rosbag.Ros1MessageTable`: header prefixes of the messages a pass will not
+decode, whole payloads of the rest) and yields exactly what rosbags' own reader yields, in its order;
+a damaged message record stops the read there (the recording is marked truncated and the readable
+part ingests into a valid dataset); a bag with compressed chunks is read through rosbags."""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+from holodata.dataset import open_dataset, validate_dataset
+from holodata.ingest import ingest
+from holodata.readers import open_recording
+from holodata.readers.rosbag import Ros1MessageTable
+
+from _recordings import write_recording
+
+HEADS = {"/radar/heatmap", "/os/points", "/cam/depth/image_raw"}
+
+
+def _same_as_rosbags(rec, heads) -> int:
+    """Assert raw_heads(heads) == raw_messages message by message; returns (how many came header-only,
+    how many of ``heads`` are longer than the prefix)."""
+    topics = [t.name for t in rec.topics()]
+    ref = list(rec.raw_messages(topics))
+    got = list(rec.raw_heads(topics, heads))
+    assert [(m.topic, m.msgtype, m.log_ns, m.encoding) for m in got] == \
+        [(m.topic, m.msgtype, m.log_ns, m.encoding) for m in ref]
+    n_head = 0
+    for a, b in zip(ref, got):
+        if b.ref is not None:
+            n_head += 1
+            assert b.topic in heads and len(b.data) == Ros1MessageTable.HEAD
+            assert bytes(b.data) == bytes(a.data)[:len(b.data)]
+            assert rec.stamp_ns(b) == rec.stamp_ns(a)          # the header prefix gives the stamp
+        assert bytes(rec.full(b).data) == bytes(a.data)
+    return n_head, sum(m.topic in heads and len(m.data) > Ros1MessageTable.HEAD for m in ref)
+
+
+def test_ros1_index_reads_what_rosbags_reads(tmp_path):
+    bag = tmp_path / "r.bag"
+    write_recording(bag, "rosbag1", n_radar=4, radar_shape=(16, 8, 32))   # heatmaps 8 KB: > the header prefix
+    with open_recording(bag) as rec:
+        assert isinstance(rec._message_table(), Ros1MessageTable)
+        n_head, n_long = _same_as_rosbags(rec, HEADS)
+        assert n_head == n_long > 4          # heatmaps and LiDAR scans: longer than the prefix
+        assert _same_as_rosbags(rec, set())[0] == 0
+
+
+def test_compressed_ros1_chunks_are_read_through_rosbags(tmp_path):
+    from rosbags.rosbag1 import Writer
+
+    from holodata.messages import typestore_for
+
+    store = typestore_for(1)
+    bag = tmp_path / "lz4.bag"
+    w = Writer(bag)
+    w.set_compression(Writer.CompressionFormat.LZ4)
+    w.open()
+    c = w.add_connection("/chatter", "std_msgs/msg/String", typestore=store)
+    for k in range(5):
+        w.write(c, 10**9 + k, store.serialize_ros1(store.types["std_msgs/msg/String"](data="x" * 400 * k),
+                                                   "std_msgs/msg/String"))
+    w.close()
+    with open_recording(bag) as rec:
+        assert rec._message_table() is False
+        n_head, n_long = _same_as_rosbags(rec, {"/chatter"})
+        assert n_head == 0 and n_long > 0    # read whole through rosbags
+
+
+@pytest.mark.parametrize("damage", ["zeroed header", "length past the chunk"])
+def test_a_damaged_ros1_record_truncates_the_recording(tmp_path, damage):
+    bag = tmp_path / "r.bag"
+    truth = write_recording(bag, "rosbag1", n_radar=6, radar_shape=(16, 8, 32))
+    with open_recording(bag) as rec:
+        t = rec._message_table()
+        radar = next(c.id for c in rec.reader.connections if c.topic == "/radar/heatmap")
+        pos = int(t.pos[t.conn == radar][3])       # the 4th heatmap's message data record
+    data = bytearray(bag.read_bytes())
+    if damage == "zeroed header":
+        data[pos:pos + 16] = bytes(16)
+    else:
+        (hlen,) = struct.unpack_from("<I", data, pos)
+        struct.pack_into("<I", data, pos + 4 + hlen, 0x7FFFFFFF)
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(bytes(data))
+    with open_recording(bad) as rec:
+        got = [m for m in rec.raw_heads([t.name for t in rec.topics()], HEADS) if m.topic == "/radar/heatmap"]
+        assert len(got) == 3 and rec.truncated
+        assert len(rec.problems) == 1 and str(bad) in rec.problems[0] and "damaged record" in rec.problems[0]
+    s = ingest([bad], tmp_path / "ds.zarr")
+    sc = open_dataset(tmp_path / "ds.zarr").scene(s["scenes"][0]["scene"])
+    assert sc.attrs["source"]["truncated"] is True and sc.n_frames == 3
+    np.testing.assert_array_equal(sc["radar/heatmap"][...], np.stack(truth["heatmaps"][:3]))
+    assert validate_dataset(tmp_path / "ds.zarr")["ok"]
