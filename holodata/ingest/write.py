@@ -15,9 +15,8 @@ from ..dataset.layout import (LIDAR_POINT_TIME_NS, LIDAR_RANGE, POINTS_OF, POSE_
 from ..errors import DatasetError, HolodataError, RecordingError
 from ..readers.base import DecodeError
 from .roles import BULK_CODEC, SHARD_TARGET_BYTES, _one_line
-from .streams import (CameraCloudStream, CloudStream, DepthStream, OusterPacketStream, OusterScanStream, StereoStream,
-                      radar_beam_origin)
 from .plan import SOURCE_HASH, Plan, _head_topics, _limit_malloc_arenas, file_digests, file_sha256
+from .sensors import extrinsics, sensor_attrs, sensor_frame, world_frame
 
 
 class _Background:
@@ -145,84 +144,143 @@ def write_plan(plan: Plan, ds, quiet: bool = True, codec: str | None = None) -> 
 
 
 def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background) -> dict:
-    from ..progress import track
+    """The write pass's steps: the source and the fingerprint a resumed scene must agree with, the
+    scene and its outputs, the decoding pass, then the other sensors' stamps, poses, TF and the
+    final attributes (``ingest.complete``)."""
+    T, fs = len(plan.frame_stamps), plan.frame_sensor
+    source, sizes = _source_attrs(plan)
+    fingerprint = _fingerprint(plan)
+    if plan.scene_id in ds.scene_ids() and _resumed_scene_done(plan, ds, sizes, fingerprint):
+        return {"scene": plan.scene_id, "frames": T, "skipped": "already ingested"}
+    attrs = {"frame_sensor": fs, "source": source, "sensors": sensor_attrs(plan),
+             "extrinsics": extrinsics(plan),
+             "ingest": {"complete": False, "topics": plan.tmap.to_dict(), "fingerprint": fingerprint}}
+    sc = ds.scene(plan.scene_id, n_frames=T, attrs=attrs)
+    arrays: list[str] = []
 
-    rec, T = plan.rec, len(plan.frame_stamps)
-    fs = plan.frame_sensor
+    def frame_arr(name, shape, dtype, dims, units, codec=codec, **kw):
+        arrays.append(name)
+        return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, dims=dims, units=units, codec=codec, **kw)
 
-    def digests() -> list[str]:
-        """The recording files' BLAKE3 digests, hashed on a thread since plan_recording: waited for
-        only when a resumed scene must be compared, else at the end (overlapping the write pass)."""
-        if not plan.digests:
-            plan.digests = plan.sha_future.result() if plan.sha_future is not None else file_digests(rec.files)
-        return plan.digests
+    _write_stamps(frame_arr(TIME_TIMESTAMP_NS, (), "int64", ["frame"], "ns"), plan.frame_stamps)
+    exp = _expected_frames(plan)
+    outs = _outputs(plan, sc, frame_arr, arrays, exp, codec or BULK_CODEC, ds.shard_frames, bg)
+    dec = _Decoded(plan, exp, outs)
+    t_pass = time.perf_counter()
+    _decode_pass(plan, dec, _wanted_items(exp, outs), quiet)
+    for o in outs.values():
+        o.flush(final=True)
+    bg.join()
+    timings = {"index_pass_s": round(plan.index_seconds, 4), "write_pass_s": round(time.perf_counter() - t_pass, 4),
+               "decode_s": round(dec.seconds, 4),
+               "store_s": round(bg.seconds + sum(o.seconds for o in outs.values()), 4)}
+    if dec.failed.get(fs):
+        raise RecordingError(f"{plan.rec.path}: {dec.failed[fs]} {fs} messages decoded in the index pass but not in "
+                             f"the write pass ({dec.fail_msg.get(fs)})")
+    _write_sensor_stamps(plan, outs, frame_arr)
+    warnings = list(plan.warnings) + _decode_warnings(plan, dec, outs)
+    for note in (_write_poses(plan, sc, frame_arr), _write_lidar_tf(plan, frame_arr)):
+        if note:
+            warnings.append(note)
+    sync = _sync_summary(plan)
+    sc.set_attrs({"source": {**source, SOURCE_HASH: _digests(plan)},
+                  "ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
+                             "time_source": plan.tmap.time,
+                             "counts": plan.counts, "decoded": dec.decoded, "dropped": plan.dropped, "sync": sync,
+                             "notes": plan.notes[:20], "warnings": warnings[:50]}})
+    return {"scene": plan.scene_id, "recording": str(plan.rec.path), "frames": T, "frame_sensor": fs,
+            "arrays": sorted(set(arrays)), "counts": plan.counts, "decoded": dec.decoded, "dropped": plan.dropped,
+            "sync": sync, "truncated": bool(plan.rec.truncated), "warnings": warnings, "notes": plan.notes,
+            "timings": timings}
 
-    def same_source(src: dict) -> bool | None:
-        """Whether the scene's recorded digest (BLAKE3, or sha256 for scenes ingested before) is this
-        recording's; None when it has none (an interrupted run: ``bytes`` decides)."""
-        if src.get(SOURCE_HASH):
-            return src[SOURCE_HASH] == digests()
-        if src.get("sha256"):
-            return src["sha256"] == file_sha256(rec.files)
-        return None
 
+def _digests(plan: Plan) -> list[str]:
+    """The recording files' BLAKE3 digests, hashed on a thread since plan_recording: waited for only
+    when a resumed scene must be compared, else at the end (overlapping the write pass)."""
+    if not plan.digests:
+        plan.digests = plan.sha_future.result() if plan.sha_future is not None else file_digests(plan.rec.files)
+    return plan.digests
+
+
+def _source_attrs(plan: Plan) -> tuple[dict, list]:
+    """(the scene attribute ``source`` without the digest, the recording files' sizes in bytes (None
+    where unreadable)). The digest goes in with the final attributes (``ingest.complete``);
+    ``bytes`` tells an interrupted run's scene from another recording's before then."""
+    rec = plan.rec
     sizes = []
     for f in rec.files:
         try:
             sizes.append(Path(f).stat().st_size)
         except OSError:
             sizes.append(None)
-    # the digest goes in with the final attributes (ingest.complete); "bytes" tells an interrupted run's
-    # scene from another recording's before then
     source = {"recording": str(rec.path), "files": [str(f) for f in rec.files], "bytes": sizes,
               "reader": rec.kind, "truncated": bool(rec.truncated), **(getattr(rec, "attrs", None) or {}),
               **({"problems": rec.problems[:20]} if rec.problems else {}),
               **({"beamform": plan.streams["radar"].attrs} if getattr(plan.streams.get("radar"), "attrs", None) else {})}
-    # what the frames and their contents depend on: a resumed run must agree
-    fingerprint = hashlib.sha256(json.dumps(
+    return source, sizes
+
+
+def _fingerprint(plan: Plan) -> str:
+    """sha256 of what the frames and their contents depend on (topics, tolerances, frame stamps,
+    matches): a resumed run must agree."""
+    return hashlib.sha256(json.dumps(
         {"topics": plan.tmap.to_dict(), "tolerance_ns": plan.tolerance_ns, "frames": plan.frame_stamps.tolist(),
          "match": {r: v.tolist() for r, v in plan.match.items()}}, sort_keys=True).encode()).hexdigest()
-    existing = ds.scene_ids()
-    if plan.scene_id in existing:
-        cur = ds.scene(plan.scene_id).attrs
-        src = cur.get("source") if isinstance(cur.get("source"), dict) else {}
-        same = same_source(src)
-        if same is False or (same is None and src.get("bytes") not in (None, sizes)):
-            raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was ingested from another recording "
-                               f"({(cur.get('source') or {}).get('recording')}); choose another --scene-id")
-        prev = (cur.get("ingest") or {}).get("fingerprint")
-        if prev and prev != fingerprint:
-            raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was started with other topics/tolerance; rerun with "
-                               f"the same options or choose another --scene-id")
-        if (cur.get("ingest") or {}).get("complete"):
-            return {"scene": plan.scene_id, "frames": T, "skipped": "already ingested"}
-    attrs = {"frame_sensor": fs, "source": source, "sensors": _sensor_attrs(plan),
-             "extrinsics": _extrinsics(plan),
-             "ingest": {"complete": False, "topics": plan.tmap.to_dict(), "fingerprint": fingerprint}}
-    sc = ds.scene(plan.scene_id, n_frames=T, attrs=attrs)
-    S = ds.shard_frames
-    outs: dict[str, _Out] = {}
-    arrays = []
 
-    bulk = codec or BULK_CODEC
 
-    def frame_arr(name, shape, dtype, dims, units, codec=codec, **kw):
-        arrays.append(name)
-        return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, dims=dims, units=units, codec=codec, **kw)
+def _same_source(plan: Plan, src: dict) -> bool | None:
+    """Whether the scene's recorded digest (BLAKE3, or sha256 for scenes ingested before) is this
+    recording's; None when it has none (an interrupted run: ``bytes`` decides)."""
+    if src.get(SOURCE_HASH):
+        return src[SOURCE_HASH] == _digests(plan)
+    if src.get("sha256"):
+        return src["sha256"] == file_sha256(plan.rec.files)
+    return None
 
-    # small arrays known now
-    ts = frame_arr(TIME_TIMESTAMP_NS, (), "int64", ["frame"], "ns")
-    for k in range(ts.n_shards):
-        ts.write_shard(k, plan.frame_stamps[ts.frames(k)])
-    # per-role expected frames
-    exp: dict[str, dict[int, list[int]]] = {}     # role -> item index -> frames
+
+def _resumed_scene_done(plan: Plan, ds, sizes: list, fingerprint: str) -> bool:
+    """For a scene that exists: True when it was ingested completely from this recording; a
+    :class:`DatasetError` when it came from another recording or other topics/tolerances; False
+    when it is an interrupted run of this one (resumed)."""
+    cur = ds.scene(plan.scene_id).attrs
+    src = cur.get("source") if isinstance(cur.get("source"), dict) else {}
+    same = _same_source(plan, src)
+    if same is False or (same is None and src.get("bytes") not in (None, sizes)):
+        raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was ingested from another recording "
+                           f"({(cur.get('source') or {}).get('recording')}); choose another --scene-id")
+    prev = (cur.get("ingest") or {}).get("fingerprint")
+    if prev and prev != fingerprint:
+        raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was started with other topics/tolerance; rerun with "
+                           f"the same options or choose another --scene-id")
+    return bool((cur.get("ingest") or {}).get("complete"))
+
+
+def _write_stamps(w, values: np.ndarray) -> None:
+    """Write the (T,) per-frame array ``values`` shard by shard into frame-array writer ``w``."""
+    for k in range(w.n_shards):
+        w.write_shard(k, values[w.frames(k)])
+
+
+def _expected_frames(plan: Plan) -> dict[str, dict[int, list[int]]]:
+    """{role: {item index: the frames it fills}}: the frame sensor's items fill their own frames,
+    another sensor's matched items the frames they were matched to."""
+    exp: dict[str, dict[int, list[int]]] = {}
     for role in plan.streams:
-        items = plan.frame_items if role == fs else plan.match[role]
+        items = plan.frame_items if role == plan.frame_sensor else plan.match[role]
         d: dict[int, list[int]] = {}
         for f, i in enumerate(items.tolist()):
             if i >= 0:
                 d.setdefault(i, []).append(f)
         exp[role] = d
+    return exp
+
+
+def _outputs(plan: Plan, sc, frame_arr, arrays: list, exp: dict, bulk: str, S: int, bg) -> dict[str, _Out]:
+    """The scene's decoded arrays, made (or reopened on a resume) and buffered shard by shard:
+    ``radar/heatmap``, ``radar/cycle_ns`` (and the raw samples with ``keep_iq``), the point sensors'
+    points, the LiDAR's point times and range image where the probe found them."""
+    T = len(plan.frame_stamps)
+    outs: dict[str, _Out] = {}
     if "radar" in plan.streams:
         rs = plan.streams["radar"]
         shape = rs.shape
@@ -255,7 +313,12 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             lr = frame_arr(LIDAR_RANGE, gshape, "float32", ["frame", "beam", "column"], "m",
                            shard_frames=_shard_frames(4 * int(np.prod(gshape)), S), codec=bulk)
             outs[LIDAR_RANGE] = _Out(lr, False, lambda g=gshape: np.full(g, np.nan, np.float32), set(frames_with), bg)
-    # which items to decode: frames of unfinished shards only (resume)
+    return outs
+
+
+def _wanted_items(exp: dict, outs: dict) -> dict[str, set[int]]:
+    """{role: the item indices to decode}: the items filling a frame of an unfinished shard of one of
+    the role's arrays (a resumed scene decodes only what is missing)."""
     want: dict[str, set[int]] = {}
     for role, d in exp.items():
         names = [n for n in outs if n.startswith(role + "/")]
@@ -264,19 +327,29 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
             if any(not outs[n].shard_done(f) for n in names for f in fl):
                 w.add(i)
         want[role] = w
-    stamp_out = [role for role in plan.streams if role != "radar"]
-    decoded = {r: 0 for r in plan.streams}
-    n_points = {r: 0 for r in plan.streams}
-    failed = {r: 0 for r in plan.streams}
-    fail_msg: dict[str, str] = {}
-    grid_bad = 0
+    return want
 
-    def deliver(role, item):
-        nonlocal grid_bad
-        frames = exp[role].get(item.index)
+
+class _Decoded:
+    """Hands the decoded items of the write pass to the outputs (``exp``: {role: {item index: frames}})
+    and counts, per role, the items decoded and failed, the points written and the first failure;
+    ``grid_bad``: LiDAR scans that do not fit ``lidar/range``'s grid; ``seconds``: decoding time."""
+
+    def __init__(self, plan: Plan, exp: dict, outs: dict):
+        self.exp, self.outs = exp, outs
+        self.decoded = {r: 0 for r in plan.streams}
+        self.n_points = {r: 0 for r in plan.streams}
+        self.failed = {r: 0 for r in plan.streams}
+        self.fail_msg: dict[str, str] = {}
+        self.grid_bad = 0
+        self.seconds = 0.0
+
+    def deliver(self, role: str, item) -> None:
+        """Put a decoded item's payload into the frames it fills."""
+        frames = self.exp[role].get(item.index)
         if not frames:
             return
-        p = item.payload
+        outs, p = self.outs, item.payload
         for f in frames:
             if role == "radar":
                 outs[RADAR_HEATMAP].put(f, p.heatmap)
@@ -285,7 +358,7 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
                     _put_iq(outs, f, p.iq)
             else:
                 outs[POINTS_OF[role]].put(f, p.points)
-                n_points[role] += len(p.points)
+                self.n_points[role] += len(p.points)
                 if role == "lidar" and LIDAR_POINT_TIME_NS in outs:
                     t = p.time_ns if p.time_ns is not None else np.zeros(len(p.points), np.int64)
                     outs[LIDAR_POINT_TIME_NS].put(f, np.asarray(t, np.int64).reshape(-1, 1))
@@ -294,23 +367,29 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
                     if p.grid is not None and p.grid.shape == g.w.shape[1:]:
                         g.put(f, p.grid)
                     else:
-                        grid_bad += 1
+                        self.grid_bad += 1
                         g.fail(f)
 
-    def failed_item(role, idx, err):
-        failed[role] += 1
-        fail_msg.setdefault(role, _one_line(err))
-        for f in exp[role].get(idx, []):
-            for n, o in outs.items():
+    def fail(self, role: str, idx: int, err) -> None:
+        """Item ``idx`` did not decode: its frames expect nothing from the role's arrays."""
+        self.failed[role] += 1
+        self.fail_msg.setdefault(role, _one_line(err))
+        for f in self.exp[role].get(idx, []):
+            for n, o in self.outs.items():
                 if n.startswith(role + "/"):
                     o.fail(f)
 
+
+def _decode_pass(plan: Plan, dec: _Decoded, want: dict, quiet: bool) -> None:
+    """Read the matched topics' messages once more, decode the ``want``-ed items and hand them to
+    ``dec``; the outputs write every shard whose frames are all in."""
+    from ..progress import track
+
+    rec, outs = plan.rec, dec.outs
     by_topic = {tp: st for st in plan.streams.values() for tp in st.topics}
     for st in plan.streams.values():
         st.reset()
     total = sum(t.count for t in rec.topics(frame_ids=False) if t.name in by_topic)
-    t_pass = time.perf_counter()
-    t_decode = 0.0
     heads = _head_topics(plan.streams)
     for raw in track(rec.raw_heads(list(by_topic), heads), total, f"ingest {plan.scene_id}: write", quiet,
                      unit="messages"):
@@ -319,15 +398,15 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         try:
             items = st.feed(raw, decode=True, want=want[st.role])
         except HolodataError as err:
-            failed_item(st.role, getattr(err, "item", -1), err)
+            dec.fail(st.role, getattr(err, "item", -1), err)
             continue
         finally:
-            t_decode += time.perf_counter() - t
+            dec.seconds += time.perf_counter() - t
         fresh = False
         for it in items:
             if it.payload is not None:
-                decoded[st.role] += 1
-                deliver(st.role, it)
+                dec.decoded[st.role] += 1
+                dec.deliver(st.role, it)
                 fresh = True
         if fresh:
             for o in outs.values():
@@ -335,47 +414,45 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     for role, st in plan.streams.items():
         for it in st.flush(decode=True, want=want[role]):
             if it.payload is not None:
-                decoded[role] += 1
-                deliver(role, it)
-    for o in outs.values():
-        o.flush(final=True)
-    bg.join()
-    timings = {"index_pass_s": round(plan.index_seconds, 4), "write_pass_s": round(time.perf_counter() - t_pass, 4),
-               "decode_s": round(t_decode, 4), "store_s": round(bg.seconds + sum(o.seconds for o in outs.values()), 4)}
-    if failed.get(fs):
-        raise RecordingError(f"{rec.path}: {failed[fs]} {fs} messages decoded in the index pass but not in the "
-                             f"write pass ({fail_msg.get(fs)})")
-    # per-frame stamps of the other sensors: the matched message's stamp, 0 = none (or it failed)
-    for role in stamp_out:
-        if role == fs:
+                dec.decoded[role] += 1
+                dec.deliver(role, it)
+
+
+def _write_sensor_stamps(plan: Plan, outs: dict, frame_arr) -> None:
+    """Per-frame stamps of the sensors other than the radar (``lidar/timestamp_ns``, ...): the
+    matched message's stamp, 0 = none (or it failed); the frame sensor's are the frame stamps."""
+    T = len(plan.frame_stamps)
+    for role in [r for r in plan.streams if r != "radar"]:
+        if role == plan.frame_sensor:
             vals = plan.frame_stamps
         else:
             ok = np.zeros(T, bool)
             ok[sorted(outs[POINTS_OF[role]].expected)] = True
             vals = np.where(ok, plan.match_stamp[role], 0)
-        w = frame_arr(STAMPS_OF[role], (), "int64", ["frame"], "ns")
-        for k in range(w.n_shards):
-            w.write_shard(k, vals[w.frames(k)])
-    warnings = list(plan.warnings)
-    for role, n in failed.items():
+        _write_stamps(frame_arr(STAMPS_OF[role], (), "int64", ["frame"], "ns"), vals)
+
+
+def _decode_warnings(plan: Plan, dec: _Decoded, outs: dict) -> list[str]:
+    """Warnings of the write pass: messages that did not decode (recorded in ``plan.dropped``), point
+    sensors without a valid point, LiDAR scans off ``lidar/range``'s grid."""
+    warnings = []
+    for role, n in dec.failed.items():
         if n and role != "radar":
             plan.dropped[role]["failed_in_write_pass"] = n
-            warnings.append(f"{n} {role} messages on {plan.streams[role].topic} did not decode ({fail_msg[role]}); "
+            warnings.append(f"{n} {role} messages on {plan.streams[role].topic} did not decode ({dec.fail_msg[role]}); "
                             f"their frames have no {role} data")
     for role in ("lidar", "camera"):
-        if decoded.get(role) and not n_points[role]:
-            warnings.append(f"all {decoded[role]} decoded {role} messages on {plan.streams[role].topic} hold no valid "
-                            f"point (non-finite or (0, 0, 0)); {role}/points is empty")
-    if grid_bad:
-        warnings.append(f"{grid_bad} LiDAR scans do not fit the {outs[LIDAR_RANGE].w.shape[1:]} grid; "
+        if dec.decoded.get(role) and not dec.n_points[role]:
+            warnings.append(f"all {dec.decoded[role]} decoded {role} messages on {plan.streams[role].topic} hold no "
+                            f"valid point (non-finite or (0, 0, 0)); {role}/points is empty")
+    if dec.grid_bad:
+        warnings.append(f"{dec.grid_bad} LiDAR scans do not fit the {outs[LIDAR_RANGE].w.shape[1:]} grid; "
                         f"their lidar/range frames are NaN")
-    # poses
-    pose_note = _write_poses(plan, sc, frame_arr)
-    if pose_note:
-        warnings.append(pose_note)
-    tf_note = _write_lidar_tf(plan, frame_arr)
-    if tf_note:
-        warnings.append(tf_note)
+    return warnings
+
+
+def _sync_summary(plan: Plan) -> dict:
+    """{role: matched frames, tolerance, median and largest |offset| to the frame stamps (ns)}."""
     sync = {}
     for role in plan.match:
         ok = plan.match[role] >= 0
@@ -383,15 +460,7 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         sync[role] = {"matched_frames": int(ok.sum()), "tolerance_ns": int(plan.tolerance_ns.get(role, 0)),
                       "offset_ns_median": int(np.median(off)) if len(off) else None,
                       "offset_ns_max_abs": int(np.abs(off).max()) if len(off) else None}
-    sc.set_attrs({"source": {**source, SOURCE_HASH: digests()},
-                  "ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
-                             "time_source": plan.tmap.time,
-                             "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped, "sync": sync,
-                             "notes": plan.notes[:20], "warnings": warnings[:50]}})
-    return {"scene": plan.scene_id, "recording": str(rec.path), "frames": T, "frame_sensor": fs,
-            "arrays": sorted(set(arrays)), "counts": plan.counts, "decoded": decoded, "dropped": plan.dropped,
-            "sync": sync, "truncated": bool(rec.truncated), "warnings": warnings, "notes": plan.notes,
-            "timings": timings}
+    return sync
 
 
 def _iq_outputs(plan: Plan, sc, frame_arr, outs: dict, T: int, S: int, bg) -> None:
@@ -434,7 +503,7 @@ def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
     if "radar" not in plan.streams or tf is None or not tf.frames:
         return None
     radar_frame = str(plan.streams["radar"].first.header.frame_id).lstrip("/")
-    world = plan.tmap.world_frame or _world_frame(tf, radar_frame)
+    world = plan.tmap.world_frame or world_frame(tf, radar_frame)
     if world is None:
         return f"TF does not connect radar frame {radar_frame!r} to a world frame; no pose/T_world_radar"
     res = tf.lookup_many(world, radar_frame, plan.frame_stamps)
@@ -459,12 +528,12 @@ def _write_lidar_tf(plan: Plan, frame_arr) -> str | None:
     tf = plan.tf
     if "lidar" not in plan.streams or tf is None or not tf.frames:
         return None
-    frame = _sensor_frame(plan, "lidar")
+    frame = sensor_frame(plan, "lidar")
     if not frame:
         return None
     from ..readers.tf import BASE_FRAMES
 
-    world = plan.tmap.world_frame or _world_frame(tf, frame)
+    world = plan.tmap.world_frame or world_frame(tf, frame)
     if world is None or world == frame or (world in BASE_FRAMES and not plan.tmap.world_frame):
         return None     # (the robot's own base frame is no world: no odometry/localisation in TF)
     stamps = plan.frame_stamps if plan.frame_sensor == "lidar" else np.where(
@@ -483,106 +552,3 @@ def _write_lidar_tf(plan: Plan, frame_arr) -> str | None:
     if not ok.any():
         return f"TF ({world} -> {frame}) covers none of the LiDAR scans; tf/T_world_lidar is NaN"
     return None
-
-
-def _world_frame(tf, frame: str) -> str | None:
-    """``map``/``world``/``odom`` if TF connects it to ``frame``, else the root of ``frame``'s tree
-    when a moving (non-static) transform leads from it to ``frame`` — a tree of static transforms only
-    is the rig's own (``base_link → radar``), not a world the sensor moves in."""
-    from ..readers.tf import WORLD_FRAMES
-
-    for cand in WORLD_FRAMES:
-        if cand in tf.frames and tf._path(cand, frame, False) is not None:
-            return cand
-    root = tf.root(frame)
-    return None if root == frame or tf._path(root, frame, True) is not None else root
-
-
-def _sensor_frame(plan: Plan, role: str) -> str | None:
-    st = plan.streams.get(role)
-    if st is None:
-        return None
-    if role == "radar":
-        return str(st.first.header.frame_id).lstrip("/")
-    pr = plan.probe.get(role) or {}
-    return (pr.get("frame_id") or "").lstrip("/") or None
-
-
-def _extrinsics(plan: Plan) -> dict:
-    tf = plan.tf
-    if tf is None or not tf.frames:
-        return {}
-    from ..readers.tf import BASE_FRAMES, find_frame
-
-    base = plan.tmap.base_frame or find_frame(tf.frames, BASE_FRAMES)
-    out = {}
-    if base is None:
-        return out
-    for role in ("radar", "lidar", "camera"):
-        fr = _sensor_frame(plan, role)
-        if not fr:
-            continue
-        T = tf.lookup(base, fr, None, static_only=True)
-        if T is not None:
-            out[role] = T.tolist()
-    return out
-
-
-def _sensor_attrs(plan: Plan) -> dict:
-    out: dict = {}
-    tf = plan.tf
-    for role, st in plan.streams.items():
-        d = {"topic": st.topic, "frame_id": _sensor_frame(plan, role)}
-        if role == "radar":
-            m = st.first
-            d.update({"type": m.__class__.__name__ if not hasattr(m, "__msgtype__") else m.__msgtype__,
-                      "encoding": str(m.encoding), "shape": list(st.shape),
-                      "rotation_radius_m": float(m.rotation_radius), "range_resolution_m": float(m.range_resolution),
-                      "elevation_max_rad": float(m.elevation_max), "elevation_min_rad": float(m.elevation_min),
-                      "beam_origin": radar_beam_origin(m, st.topic).to_attrs()})
-        if isinstance(st, (OusterScanStream, OusterPacketStream)):
-            meta = st.rec.meta if isinstance(st, OusterScanStream) else None
-            if meta is None:
-                from ..readers.ouster import load_info, sensor_meta
-
-                info, text = load_info(st.metadata_text)
-                meta = sensor_meta(info, text)
-            d["ouster"] = meta.to_attrs()
-            d["ouster_metadata_json"] = meta.json_text
-            d["range_definition"] = "Ouster RANGE channel (beam origin), destaggered"
-        elif role == "lidar":
-            pr = plan.probe.get("lidar") or {}
-            d["organised_grid"] = list(pr["grid"]) if pr.get("grid") else None
-            if pr.get("grid"):
-                d["range_definition"] = ("norm of xyz (sensor origin), grid as published" if isinstance(st, CloudStream)
-                                         else "range image as stored in the recording (m)")
-            if getattr(st, "time_field", None):
-                d["time_field"] = st.time_field
-                d["time_reference"] = st.time_reference
-        if isinstance(st, StereoStream):
-            d["stereo"] = {"right_topic": st.right_topic, "right_camera_info_topic": st.right_info_topic,
-                           "baseline_m": st.baseline, "matcher": "OpenCV StereoSGBM (3-way), block 5",
-                           "depth": "fx * baseline / disparity"}
-        if isinstance(st, DepthStream):
-            d["camera_info_topic"] = st.info_topic
-            d["intrinsics"] = st.model.to_attrs()
-            d["stride"] = st.stride
-            d["points_frame"] = "optical (x right, y down, z forward)"
-        T_frame_points = np.eye(4)
-        if isinstance(st, CameraCloudStream) and st.model is not None:
-            d["camera_info_topic"] = st.info_topic
-            d["intrinsics"] = {**st.model.to_attrs(), "source": st.model_source}
-            d["points_frame"] = ("optical (x right, y down, z forward)" + (
-                "" if np.array_equal(st.R_opt, np.eye(3)) else f", rotated from the cloud's frame {d['frame_id']!r}"))
-            T_frame_points[:3, :3] = st.R_opt.T      # the points' optical axes in the cloud's frame
-        fr = d.get("frame_id")
-        if tf is not None and fr and tf.frames:
-            from ..readers.tf import WORLD_FRAMES, find_frame
-
-            world = plan.tmap.world_frame or find_frame(tf.frames, WORLD_FRAMES)
-            if world:
-                T = tf.lookup(world, fr, None, static_only=True)
-                if T is not None:
-                    d[f"T_{world}_sensor"] = (T @ T_frame_points).tolist()   # the frame camera/points are in
-        out[role] = d
-    return out
