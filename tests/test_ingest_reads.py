@@ -95,3 +95,24 @@ def test_a_damaged_ros1_record_truncates_the_recording(tmp_path, damage):
     assert sc.attrs["source"]["truncated"] is True and sc.n_frames == 3
     np.testing.assert_array_equal(sc["radar/heatmap"][...], np.stack(truth["heatmaps"][:3]))
     assert validate_dataset(tmp_path / "ds.zarr")["ok"]
+
+
+def test_each_heatmap_is_value_checked_once(tmp_path, monkeypatch):
+    """The index pass checks every radar heatmap against the value rules (a frame exists only for a
+    message that passes); the write pass keeps that verdict instead of checking the same bytes again."""
+    import holodata.ingest.streams as streams
+
+    calls = []
+    real = streams.frames_not_finite_nonneg
+
+    def counting(a):
+        calls.append(a.shape)
+        return real(a)
+
+    monkeypatch.setattr(streams, "frames_not_finite_nonneg", counting)
+    rec = tmp_path / "rec"
+    truth = write_recording(rec, "mcap", n_radar=5, radar_shape=(16, 8, 32))
+    ingest([rec], tmp_path / "ds.zarr")
+    assert len(calls) == len(truth["radar"]) == 5
+    sc = open_dataset(tmp_path / "ds.zarr").scene("rec")
+    np.testing.assert_array_equal(sc["radar/heatmap"][...], np.stack(truth["heatmaps"]))

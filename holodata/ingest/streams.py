@@ -27,6 +27,8 @@ class _Stream:
         self.rec, self.topic, self.time = rec, topic, time
         self.n = 0
         self.failed: list[str] = []
+        self.checked: set[int] = set()   # items whose message passed every check in the index pass
+        self._converting = -1             # the item being converted
 
     @property
     def topics(self) -> list[str]:
@@ -55,6 +57,7 @@ class _Stream:
         if decode and want is not None and i not in want:
             return [Item(i, st)]
         try:
+            self._converting = i
             payload = self.convert(raw, keep=decode)
         except HolodataError as err:
             err.item = i
@@ -65,6 +68,8 @@ class _Stream:
                               f"does not decode: its fields do not form a valid message (damaged bytes?)")
             bad.item = i
             raise bad from err
+        if check and not decode:
+            self.checked.add(i)
         return [Item(i, st, payload if decode else None)]
 
     def flush(self, decode: bool, want=None) -> list[Item]:
@@ -149,8 +154,9 @@ class RadarStream(_Stream):
         buf = data if isinstance(data, np.ndarray) else np.frombuffer(bytes(data), np.uint8)
         hm = buf.view(dt).reshape(shape)
         # the layout's value rule (validate's): a heatmap with NaN/inf or negative amplitudes is a
-        # damaged message, dropped here (counted) rather than written into a dataset validate rejects
-        if len(frames_not_finite_nonneg(hm[None])):
+        # damaged message, dropped here (counted) rather than written into a dataset validate rejects;
+        # checked once, in the index pass, whose verdict the write pass keeps (same file, same bytes)
+        if self._converting not in self.checked and len(frames_not_finite_nonneg(hm[None])):
             raise DecodeError(f"topic {self.topic}: RadarHeatmap at {raw.log_ns} ns holds NaN/inf or negative "
                               f"amplitudes (damaged message)")
         if not keep:
