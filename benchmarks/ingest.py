@@ -29,39 +29,9 @@ number.
     .venv/bin/python benchmarks/ingest.py [--frames 40] [--format mcap|rosbag1|sqlite3]
         [--compression none|lz4|bz2|zstd] [--keep DIR] [--validate] [--repeat N]
 
-Findings (2 cores shared with other jobs, load average 6-12 — wall numbers are 2-3x idle ones):
-
-- before (zarr writes shards, zstd clevel 3, one writer thread, every message read whole in both
-  passes): rec1x ratio 0.04 / rec4x 0.07 at load ~8; the lead measured 0.09 / 0.08 idle (ingest
-  1.68 s, 0.93 s of it shard writes, vs bare 0.15 s).
-- after: rec1x ratio 0.10-0.18, rec4x 0.08-0.14 at load 6-12; CPU ratio 0.11-0.18 / 0.10-0.14;
-  peak RSS 270-285 MB / 289-303 MB (4x / 1x 1.04-1.10). Changes, each measured:
-  * shard objects assembled directly (Blosc chunks + index + crc32c, byte-exact with zarr-python;
-    holodata/dataset/shards.py) and ragged rows written chunk by chunk with numcodecs: zarr's
-    sharding encoder ran ~30-50 MB/s through its asyncio path, numcodecs Blosc runs ~1 GB/s;
-  * lz4 (Blosc, byte shuffle) for the bulk arrays instead of zstd clevel 3: a 32 MB float16
-    heatmap shard encodes in 0.015 s vs 0.05 s (zstd 1) / ~0.08 s (zstd 3), camera points 24 MB
-    0.05 s vs 0.12 s; output 0-10% larger (heatmaps 1.00 vs 0.89 of raw, points 0.84 vs 0.79);
-  * two writer threads with a 48 MB bound on queued shard data (Blosc, hashlib and file writes
-    release the GIL), the source sha256 on its own thread from the start and waited for only at
-    the end; one malloc arena (glibc arenas of the writer threads fragmented: 4x RSS +20%);
-  * rosbag2 MCAP bags are read through their chunk message indexes: the index pass reads a
-    256-byte header prefix per message, the write pass reads whole only the messages it decodes
-    (unmatched LiDAR scans, 4 of 5 here, and depth images are never read whole); CameraInfo is
-    decoded only when an image is converted;
-  * dataset metadata without zarr round trips where zarr only rewrites a JSON document (array
-    zarr.json made in a MemoryStore and put once, groups and shard-record folding written
-    directly): array setup per scene ~0.2 s -> ~0.06 s under load.
-- where the time goes now (rec1x, CPU seconds under load): bare 0.12-0.16; ingest 0.86-0.96 =
-  main thread 0.31 (index pass, decode, dataset metadata through zarr ~0.1-0.2) + sha256 of the
-  281 MB source 0.19 + shard writes 0.30 (lz4 ~0.1, sha256 of the 130 MB of shards ~0.08, page
-  cache writes ~0.05, ragged concatenation/digests) + zarr's event loop. rec4x: sha256 of the
-  source 0.74 vs bare 0.31-0.46.
-- the floor 0.5 is out of reach on 2 cores without dropping required work: the source sha256
-  alone (1.5-1.8 GB/s with SHA-NI) costs more CPU than the whole bare read (~2-3 GB/s, arrays
-  deserialise as views), and the shards' own sha256 + compression + writes roughly as much again;
-  2 x bare time is less than those two together. More cores help (sha256, two writers and the
-  main thread in parallel); a faster shard checksum (e.g. BLAKE3/xxh3) would be a format change.
+Measurements, their dates and the load they ran under: benchmarks/results/ingest.md (the findings of
+the earlier rounds — zarr's sharding encoder, lz4 instead of zstd, writer threads, header-only reads —
+are kept there too).
 """
 from __future__ import annotations
 
@@ -356,8 +326,10 @@ def main() -> None:
             hr = holodata_readers(rec)
             out = root / f"ds{mult}x.zarr"
             load = os.getloadavg()
+            loads = []
             bare = ing = phys = None
             for _ in range(args.repeat):    # alternated, best of each side: other jobs' bursts hit both alike
+                loads.append(round(os.getloadavg()[0], 2))     # 1-min load average at the start of each round
                 b = bare_rosbags(rec, args.format)    # run 1 warms the page cache: both sides read a warm file
                 bare = b if bare is None or b["seconds"] < bare["seconds"] else bare
                 shutil.rmtree(out, ignore_errors=True)
@@ -384,6 +356,7 @@ def main() -> None:
                    "peak_rss_mb": round(ing["rss_mb"], 1), "rss_after_imports_mb": round(ing["rss_imports_mb"], 1),
                    "bare_cpu_s": round(bare["cpu_s"], 3), "ingest_cpu_s": round(ing["cpu_s"], 3),
                    "cpu_ratio": round(bare["cpu_s"] / ing["cpu_s"], 3), "loadavg": [round(x, 2) for x in load],
+                   "loadavg_per_round": loads,
                    "page_cache": "warm", "decoded": ing["decoded"], "timings": ing["timings"],
                    "physical": {k: round(v, 3) for k, v in phys.items()},
                    "physical_ratio": round(phys["seconds"] / ing["seconds"], 3),
@@ -407,7 +380,8 @@ def main() -> None:
             print(f"{'':10s} CPU s (all threads): ingest {ing['cpu_s']:.2f}, physical pipeline {phys['cpu_s']:.2f} (ratio "
                   f"{row['physical_cpu_ratio']:.2f}), bare {bare['cpu_s']:.2f} (ratio {row['cpu_ratio']:.2f}); "
                   f"page cache warm for both; load average before ingest "
-                  f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs", flush=True)
+                  f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} CPUs (1-min at each round: "
+                  f"{' '.join(f'{x:.1f}' for x in loads)})", flush=True)
         r1, r4 = rows
         print(f"peak RSS 4x / 1x: {r4['peak_rss_mb'] / r1['peak_rss_mb']:.2f} (flat memory: about 1)")
         print(json.dumps({"format": args.format, "compression": args.compression, "rows": rows}))
