@@ -115,9 +115,8 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     if hm_meta.get("beamform_fingerprint") != fp and RADAR_HEATMAP in sc:
         scw.remove(RADAR_HEATMAP)
     R = params.n_range or chirp.n_samples
-    hm = scw.frame_array(RADAR_HEATMAP, (R, g.H, g.W), "float32", ["frame", "range", "elevation", "azimuth"], "1",
-                         shard_frames=max(1, min(w.shard_frames, (64 << 20) // (4 * R * g.H * g.W))),
-                         fill_value=float("nan"), codec="lz4",
+    hm = scw.frame_array(RADAR_HEATMAP, (R, g.H, g.W), "float32",
+                         shard_frames=max(1, min(w.shard_frames, (64 << 20) // (4 * R * g.H * g.W))), codec="lz4",
                          attrs={"amplitude": "linear", "beamform_fingerprint": fp, "source": "holodata beamform"})
     job = {"chirp": chirp.to_attrs(), "params": params.to_attrs(), "motion": mot, "device": device}
     todo = [k for k in range(hm.n_shards) if not hm.is_done(k)]

@@ -308,24 +308,23 @@ def map_from_truth(sc, truth_dir: Path) -> None:
     if len(traj) != sc.n_frames:
         raise InputError(f"{truth_dir / 'trajectory_radar.tum'}: {len(traj)} poses for {sc.n_frames} frames")
     sc.remove(POSE_T_WORLD_RADAR)  # ingest's odometry poses drift; the oracle replaces them
-    poses = sc.frame_array(POSE_T_WORLD_RADAR, (4, 4), "float64", ["frame", "row", "col"], "m",
-                           attrs={"source": "truth (oracle mapping)"})
+    poses = sc.frame_array(POSE_T_WORLD_RADAR, (4, 4), attrs={"source": "truth (oracle mapping)"})
     for k in range(poses.n_shards):
         poses.write_shard(k, traj.poses[poses.frames(k)])
 
     mesh = read_mesh(truth_dir / "mesh.ply")
-    sc.write_array(MESH_VERTICES, mesh.vertices.astype(np.float32), dims=["vertex", "xyz"], units="m")
-    sc.write_array(MESH_FACES, mesh.faces.astype(np.int32), dims=["face", "corner"], units="1")
+    sc.write_array(MESH_VERTICES, mesh.vertices)
+    sc.write_array(MESH_FACES, mesh.faces)
     if mesh.face_class is not None:
-        sc.write_array(MESH_FACE_CLASS, mesh.face_class, dims=["face"], units="1")
+        sc.write_array(MESH_FACE_CLASS, mesh.face_class)
     if mesh.class_names:
         sc.set_attrs({"class_names": {str(k): v for k, v in dict(mesh.class_names).items()}})
 
     human_dir = truth_dir / "human"
     if not human_dir.is_dir():
         return
-    hv = sc.ragged_array(HUMAN_VERTICES, 3, "float32", units="m", dims=["vertex", "xyz"])
-    hf = sc.ragged_array(HUMAN_FACES, 3, "int32", units="1", dims=["face", "corner"])
+    hv = sc.ragged_array(HUMAN_VERTICES)
+    hf = sc.ragged_array(HUMAN_FACES)
     for k in range(hv.n_shards):
         verts, faces = [], []
         for f in range(*hv.frames(k).indices(sc.n_frames)):

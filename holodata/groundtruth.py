@@ -238,10 +238,10 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     T = len(traj)
     sc = w.scene(scene_id, n_frames=T, attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"})
     _write_frame_meta(sc, traj)
-    sc.write_array(MESH_VERTICES, mesh.vertices.astype(np.float32), dims=["vertex", "xyz"], units="m")
-    sc.write_array(MESH_FACES, mesh.faces.astype(np.int32), dims=["face", "corner"], units="1")
+    sc.write_array(MESH_VERTICES, mesh.vertices)
+    sc.write_array(MESH_FACES, mesh.faces)
     if mesh.face_class is not None:
-        sc.write_array(MESH_FACE_CLASS, mesh.face_class, dims=["face"], units="1")
+        sc.write_array(MESH_FACE_CLASS, mesh.face_class)
     summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet,
                              processes=processes, client=client)
     return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": (cfg.origin or OriginModel()).describe(),
@@ -249,9 +249,8 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
 
 
 def _write_frame_meta(sc, traj: Trajectory) -> None:
-    ta = sc.frame_array(TIME_TIMESTAMP_NS, per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0)
-    pa = sc.frame_array(POSE_T_WORLD_RADAR, per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"],
-                        units="m", fill_value=float("nan"))
+    ta = sc.frame_array(TIME_TIMESTAMP_NS, per_frame_shape=())
+    pa = sc.frame_array(POSE_T_WORLD_RADAR, per_frame_shape=(4, 4))
     for k in range(ta.n_shards):
         sl = ta.frames(k)
         if not ta.is_done(k):

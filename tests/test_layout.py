@@ -91,3 +91,95 @@ def test_no_array_name_is_spelled_outside_the_layout():
     found = {str(p.relative_to(ROOT)): array_name_literals(p) for p in files}
     spelled = {f: hits for f, hits in found.items() if hits}
     assert not spelled, f"array names spelled outside holodata/dataset/layout.py (use its constants): {spelled}"
+
+
+def _stored_facts(url: str, sid: str) -> dict:
+    """{array name: (kind, dtype, dims, units, fill value or None, ragged width or None)} as stored."""
+    import json
+
+    from holodata.dataset import open_dataset
+
+    sc = open_dataset(url).scene(sid)
+    out = {}
+    for name, (kind, meta) in sc.nodes().items():
+        a = meta.get("attributes", {})
+        if kind == "ragged":
+            values = json.loads((Path(url) / "scenes" / sid / name / "values" / "zarr.json").read_text())
+            out[name] = (kind, values["data_type"], a.get("dims"), a.get("units"), None, a["holodata"]["width"])
+        else:
+            fill = np.asarray(sc[name].fill_value) if kind == "frame" else None
+            out[name] = (kind, meta["data_type"], a.get("dims"), a.get("units"), fill, None)
+    return out
+
+
+def _mismatches(facts: dict, strict_dtype: bool = True) -> list[str]:
+    """The stored arrays whose kind, dtype, dims, units, fill value or ragged width is not their layout entry's."""
+    kinds = {"frame": "frame", "static": "array", "ragged": "ragged"}
+    bad = []
+    for name, (kind, dt, dims, units, fill, width) in facts.items():
+        s = spec(name)
+        if s is None:
+            bad.append(f"{name}: not in the layout")
+            continue
+        if kind != kinds[s.kind] or dims != list(s.dims) or units != s.units:
+            bad.append(f"{name}: {kind} {dims} {units!r}, the layout has {s.kind} {list(s.dims)} {s.units!r}")
+        if (dt != s.dtype) if strict_dtype else (dt not in s.dtypes):
+            bad.append(f"{name}: dtype {dt}, the layout has {s.dtypes}")
+        if fill is not None:
+            want = np.asarray(s.fill if s.fill is not None else (np.nan if np.dtype(dt).kind == "f" else 0))
+            if not (np.array_equal(fill, want) or (np.isnan(want).all() and np.isnan(fill).all())):
+                bad.append(f"{name}: fill {fill}, the layout has {want}")
+        if width is not None and width != s.shape[0]:
+            bad.append(f"{name}: width {width}, the layout has {s.shape[0]}")
+    return bad
+
+
+def test_the_writer_makes_every_array_as_its_layout_entry_says(tmp_path):
+    """Made from its name and sizes alone (a static array from float64 data), every array of the table
+    has its entry's kind, dtype, dims, units, fill value and ragged width: the writer takes them from
+    the layout, so a stage states none of them."""
+    url = str(tmp_path / "d.zarr")
+    sizes = {"T": 2, "R": 4, "H": 2, "W": 3, "B": 2, "K": 1}
+    sc = create_dataset(url, grid=Grid(2, 3), range_bins=RangeBins(4, 0.1)).scene("s", n_frames=2)
+    entries = {**LAYOUT, "pose/T_world_camera": spec("pose/T_world_camera")}
+    for name, s in entries.items():
+        shape = tuple(2 if d is None else d for d in s.resolve(**sizes))
+        if s.kind == "frame":
+            sc.frame_array(name, shape[1:])
+        elif s.kind == "static":
+            sc.write_array(name, np.ones(shape, np.float64))
+        else:
+            sc.ragged_array(name)
+    facts = _stored_facts(url, "s")
+    assert sorted(facts) == sorted(entries)
+    assert _mismatches(facts) == []
+    # what the check would catch: arrays written off the layout
+    sc.remove("gt/range")
+    sc.frame_array("gt/range", (2, 2, 3), dims=["frame", "bounce", "row", "col"], units="cm")
+    sc.write_array("mesh/faces", np.ones((2, 3), np.int64), dtype="int64")
+    assert [m.split(":")[0] for m in _mismatches(_stored_facts(url, "s"))] == ["gt/range", "mesh/faces"]
+
+
+def test_the_toy_dataset_s_arrays_are_the_layout_s(tmp_path):
+    from holodata.dataset.synthetic import write_toy_dataset
+
+    url = write_toy_dataset(str(tmp_path / "toy.zarr"), n_frames=3)
+    assert _mismatches(_stored_facts(url, "c1"), strict_dtype=False) == []
+
+
+WRITER_CALLS = {"frame_array": 3, "ragged_array": 1, "write_array": 2}   # positional arguments a stage may give
+
+
+def test_no_stage_states_dims_units_fill_or_width_of_its_own():
+    """The writer calls in holodata/ and cli/ name the array and give its sizes or data (and a dtype
+    where the layout allows several: the heatmap's float16 or float32): dims, units, fill values and
+    ragged widths are the layout's, stated once (the writer takes them from it)."""
+    found = []
+    files = [p for d in ("holodata", "cli") for p in sorted((ROOT / d).rglob("*.py")) if p != ROOT / "holodata/dataset/writer.py"]
+    for p in files:
+        for n in ast.walk(ast.parse(p.read_text())):
+            if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in WRITER_CALLS:
+                stated = sorted({k.arg for k in n.keywords} & {"dims", "units", "fill_value", "width"})
+                if len(n.args) > WRITER_CALLS[n.func.attr] or stated:
+                    found.append(f"{p.relative_to(ROOT)}:{n.lineno} {n.func.attr} {stated or len(n.args)}")
+    assert not found, f"writer calls stating what the layout states: {found}"

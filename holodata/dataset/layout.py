@@ -1,9 +1,11 @@
 """The dataset layout as one table (docs/format.md §3): every array a scene can hold, its kind,
 shape, dtypes, dimension names, units, the stage that writes it and the stages that need it.
 
-``validate`` checks shapes and dtypes against it, and ``raytrace-gt`` creates its arrays from it.
-A test (``tests/test_layout.py``) checks that every array the pipeline writes is in the table, with
-the same dims, units and dtype.
+The dataset writer (:mod:`holodata.dataset.writer`) takes each array's dtype, dims, units, fill value
+and ragged width from it, so the stages that create arrays name them and give their sizes, nothing
+more; ``validate`` checks shapes, dtypes, dims and units against it, and ``raytrace-gt`` creates its
+arrays from it. Tests (``tests/test_layout.py``) check that the writer makes every array as its entry
+says and that no stage spells dims or units of its own.
 
 Shapes are patterns over the symbols of the scene: ``T`` frames, ``R`` range bins, ``H``/``W``
 the beam grid, ``B`` bounces, ``K`` humans; ``None`` = any length (sensor grids, point counts). For frame arrays
@@ -94,7 +96,7 @@ LAYOUT: dict[str, ArraySpec] = {s.name: s for s in (
     ArraySpec(TIME_TIMESTAMP_NS, "frame", ("T",), ("int64",), ("frame",), "ns", "ingest",
               ("slam", "register", "raytrace-gt", "train")),
     ArraySpec(RADAR_HEATMAP, "frame", ("T", "R", "H", "W"), ("float16", "float32"),
-              ("frame", "range", "elevation", "azimuth"), "1", "ingest", ("train", "evaluate"), 0.0),
+              ("frame", "range", "elevation", "azimuth"), "1", "ingest", ("train", "evaluate"), NAN),
     ArraySpec(RADAR_CYCLE_NS, "frame", ("T", 2), ("int64",), ("frame", "start_end"), "ns", "ingest",
               ("raytrace-gt", "evaluate")),
     ArraySpec(RADAR_IQ, "frame", ("T", None, None, None), ("complex64",), ("frame", "chirp", "antenna", "sample"), "1",

@@ -42,19 +42,14 @@ def toy_frames(rng: np.random.Generator, frames: range, grid: Grid, n_bounces: i
 
 def array_specs(grid: Grid, n_range: int, n_bounces: int = 3, heatmap_dtype="float16") -> dict:
     H, W, B = grid.H, grid.W, n_bounces
-    return {
-        TIME_TIMESTAMP_NS: dict(per_frame_shape=(), dtype="int64", dims=["frame"], units="ns", fill_value=0),
-        POSE_T_WORLD_RADAR: dict(per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"], units="m"),
-        RADAR_HEATMAP: dict(per_frame_shape=(n_range, H, W), dtype=heatmap_dtype,
-                            dims=["frame", "range", "elevation", "azimuth"], units="1"),
-        GT_RANGE: dict(per_frame_shape=(B, H, W), dtype="float32", dims=["frame", "bounce", "elevation", "azimuth"],
-                       units="m"),
-        GT_LABEL: dict(per_frame_shape=(B, H, W), dtype="uint8", dims=["frame", "bounce", "elevation", "azimuth"],
-                       units="1"),
-        GT_NORMAL: dict(per_frame_shape=(B, H, W, 3), dtype="float16",
-                        dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="1"),
-        GT_POINT: dict(per_frame_shape=(B, H, W, 3), dtype="float32",
-                       dims=["frame", "bounce", "elevation", "azimuth", "xyz"], units="m"),
+    return {   # dtypes, dims and units: the layout's (the heatmap's dtype is one of the two it allows)
+        TIME_TIMESTAMP_NS: dict(per_frame_shape=()),
+        POSE_T_WORLD_RADAR: dict(per_frame_shape=(4, 4)),
+        RADAR_HEATMAP: dict(per_frame_shape=(n_range, H, W), dtype=heatmap_dtype),
+        GT_RANGE: dict(per_frame_shape=(B, H, W)),
+        GT_LABEL: dict(per_frame_shape=(B, H, W)),
+        GT_NORMAL: dict(per_frame_shape=(B, H, W, 3)),
+        GT_POINT: dict(per_frame_shape=(B, H, W, 3)),
     }
 
 
@@ -81,10 +76,10 @@ def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range
             data = toy_frames(rng, range(fr.start, fr.stop), grid, n_range=n_range)
             for n, a in arrs.items():
                 a.write_shard(k, data[n])
-        sc.write_array(MESH_VERTICES, rng.uniform(-5, 5, (12, 3)).astype(np.float32), dims=["vertex", "xyz"], units="m")
-        sc.write_array(MESH_FACES, rng.integers(0, 12, (20, 3)).astype(np.int32), dims=["face", "corner"], units="1")
+        sc.write_array(MESH_VERTICES, rng.uniform(-5, 5, (12, 3)))
+        sc.write_array(MESH_FACES, rng.integers(0, 12, (20, 3)))
         if lidar:
-            rag = sc.ragged_array(LIDAR_POINTS, width=3, dtype="float32", units="m")
+            rag = sc.ragged_array(LIDAR_POINTS)
             for k in range(rag.n_shards):
                 fr = rag.frames(k)
                 rag.write_shard(k, [rng.normal(size=(int(rng.integers(0, 50)), 3)).astype(np.float32)

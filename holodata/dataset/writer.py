@@ -34,14 +34,18 @@ RAGGED_CHUNK_BYTES = 1 << 20
 SMALL_CHUNK_BYTES = 8 << 20
 
 
-def _layout_defaults(name: str, dims, units) -> tuple:
-    """(dims, units) with the layout's filled in where the caller gave none (units "1" otherwise)."""
+def _layout_facts(name: str, dims=None, units=None, dtype=None, fill=None) -> tuple:
+    """(dims, units, dtype, fill) of array ``name``: the caller's where given (a test writing an
+    array off the layout, an array the layout does not know), else the layout's
+    (:mod:`holodata.dataset.layout`: the one place they are stated); for an array the layout does
+    not know dims None, units "1", dtype None and fill None (the writers' own defaults)."""
     from .layout import spec
 
     s = spec(name)
-    if dims is None and s is not None:
-        dims = list(s.dims)
-    return dims, units if units is not None else (s.units if s is not None else "1")
+    if s is None:
+        return dims, units if units is not None else "1", dtype, fill
+    return (list(s.dims) if dims is None else dims, s.units if units is None else units,
+            s.dtype if dtype is None else dtype, s.fill if fill is None else fill)
 
 
 def _json(store: Store, key: str) -> Any:
@@ -256,24 +260,26 @@ class SceneWriter:
                                                                          for p in name.split("/")):
             raise DatasetError(f"{self.ds.url}: scene {self.id!r}: bad array name {name!r}")
 
-    def frame_array(self, name: str, per_frame_shape=(), dtype="float32", dims=None, units=None,
+    def frame_array(self, name: str, per_frame_shape=(), dtype=None, dims=None, units=None,
                     fill_value=None, shard_frames: int | None = None, codec: str | None = None,
                     attrs: dict | None = None) -> "FrameArrayWriter":
         """Create (or reopen, same shape/dtype) a frame array (T,) + per_frame_shape: one frame per
-        chunk, ``shard_frames`` frames per shard. ``dims``/``units`` default to the layout's
-        (:mod:`holodata.dataset.layout`) for the arrays it knows."""
+        chunk, ``shard_frames`` frames per shard. ``dtype``, ``dims``, ``units`` and ``fill_value``
+        are the layout's (:mod:`holodata.dataset.layout`) for the arrays it knows (a caller passes
+        ``dtype`` only where the layout allows several, e.g. ``radar/heatmap`` float16 or float32);
+        for others float32, ``frame, dim_1, ...``, "1" and NaN (float) or 0."""
         self._check_name(name)
         path = f"{self.path}/{name}"
         per_frame_shape = tuple(int(s) for s in per_frame_shape)
         shape = (self.n_frames,) + per_frame_shape
-        dtype = np.dtype(dtype)
+        dims, units, dtype, fill_value = _layout_facts(name, dims, units, dtype, fill_value)
+        dtype = np.dtype("float32" if dtype is None else dtype)
         cur = _json(self.ds.store, f"{path}/zarr.json")
         if cur is not None:
             if tuple(cur.get("shape", ())) != shape or np.dtype(cur.get("data_type")) != dtype:
                 raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r} exists as "
                                    f"{tuple(cur.get('shape', ()))} {cur.get('data_type')}, asked for {shape} {dtype}")
             return FrameArrayWriter(self, name, cur)
-        dims, units = _layout_defaults(name, dims, units)
         dims = list(dims) if dims is not None else ["frame"] + [f"dim_{i}" for i in range(1, len(shape))]
         if len(dims) != len(shape):
             raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r}: {len(dims)} dims for a "
@@ -292,14 +298,18 @@ class SceneWriter:
                                             "shape": list(shape), "dtype": str(dtype)}})
         return FrameArrayWriter(self, name, _json(self.ds.store, f"{path}/zarr.json"))
 
-    def write_array(self, name: str, data, dims, units: str | None = None, attrs: dict | None = None) -> None:
+    def write_array(self, name: str, data, dims=None, units: str | None = None, attrs: dict | None = None,
+                    dtype=None) -> None:
         """Write a small non-frame array (mesh, calibration) whole; replaces an existing one. Its
-        sha256 (of the C-order bytes) goes into attrs after the data, so validate sees a torn write."""
+        sha256 (of the C-order bytes) goes into attrs after the data, so validate sees a torn write.
+        ``data`` is stored as ``dtype``; ``dtype``, ``dims`` and ``units`` are the layout's for the
+        arrays it knows (for others the data's dtype, ``dim_0, ...`` and "1")."""
         import zarr
 
         self._check_name(name)
-        dims, units = _layout_defaults(name, dims, units)
-        data = np.ascontiguousarray(data)
+        dims, units, dtype, _ = _layout_facts(name, dims, units, dtype)
+        data = np.ascontiguousarray(data if dtype is None else np.asarray(data).astype(dtype, copy=False))
+        dims = [f"dim_{i}" for i in range(data.ndim)] if dims is None else dims
         if len(dims) != data.ndim:
             raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r}: {len(dims)} dims for a "
                                f"{data.ndim}-d array")
@@ -318,13 +328,24 @@ class SceneWriter:
         a.attrs.update({"holodata": {"kind": "array", "sha256": sh.sha256(data.tobytes()),
                                      "shape": list(data.shape), "dtype": str(data.dtype)}})
 
-    def ragged_array(self, name: str, width: int, dtype="float32", units: str | None = None, dims=None,
+    def ragged_array(self, name: str, width: int | None = None, dtype=None, units: str | None = None, dims=None,
                      shard_frames: int | None = None, codec: str | None = None) -> "RaggedWriter":
         """Create (or reopen) ragged array ``name``: values (N, width) + offsets (T+1,) int64.
-        ``codec``: of the values (default: the dataset's); ``dims``/``units``: the layout's by default."""
+        ``codec``: of the values (default: the dataset's); ``width``, ``dtype``, ``dims`` and ``units``:
+        the layout's for the arrays it knows (for others float32, ``point, xyz|component`` and "1";
+        ``width`` must be given)."""
+        from .layout import spec
+
         self._check_name(name)
         path = f"{self.path}/{name}"
-        dtype = np.dtype(dtype)
+        dims, units, dtype, _ = _layout_facts(name, dims, units, dtype)
+        dtype = np.dtype("float32" if dtype is None else dtype)
+        if width is None:
+            s = spec(name)
+            if s is None:
+                raise DatasetError(f"{self.ds.url}: scene {self.id!r}: ragged array {name!r} is not in the layout; "
+                                   f"give its width")
+            width = int(s.shape[0])
         cur = _json(self.ds.store, f"{path}/zarr.json")
         if cur is not None:
             hd = cur.get("attributes", {}).get("holodata", {})
@@ -334,7 +355,6 @@ class SceneWriter:
                                    f"(asked for ragged width {width} {dtype})")
             return RaggedWriter(self, name, cur)
         S = int(shard_frames or self.ds.shard_frames)
-        dims, units = _layout_defaults(name, dims, units)
         dims = list(dims) if dims is not None else ["point", "xyz" if width == 3 else "component"]
         self._parents(name)
         hd = {"kind": "ragged", "width": int(width), "shard_frames": S, "n_shards": math.ceil(self.n_frames / S),

@@ -158,11 +158,12 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     sc = ds.scene(plan.scene_id, n_frames=T, attrs=attrs)
     arrays: list[str] = []
 
-    def frame_arr(name, shape, dtype, dims, units, codec=codec, **kw):
+    def frame_arr(name, shape, dtype=None, codec=codec, **kw):
+        """Frame array ``name`` (its dtype, dims and units the layout's), listed in the summary."""
         arrays.append(name)
-        return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, dims=dims, units=units, codec=codec, **kw)
+        return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, codec=codec, **kw)
 
-    _write_stamps(frame_arr(TIME_TIMESTAMP_NS, (), "int64", ["frame"], "ns"), plan.frame_stamps)
+    _write_stamps(frame_arr(TIME_TIMESTAMP_NS, ()), plan.frame_stamps)
     exp = _expected_frames(plan)
     outs = _outputs(plan, sc, frame_arr, arrays, exp, codec or BULK_CODEC, ds.shard_frames, bg)
     dec = _Decoded(plan, exp, outs)
@@ -285,11 +286,10 @@ def _outputs(plan: Plan, sc, frame_arr, arrays: list, exp: dict, bulk: str, S: i
         rs = plan.streams["radar"]
         shape = rs.shape
         fb = int(np.prod(shape)) * rs.dtype.itemsize
-        hm = frame_arr(RADAR_HEATMAP, shape, rs.dtype.newbyteorder("="), ["frame", "range", "elevation", "azimuth"],
-                       "1", shard_frames=_shard_frames(fb, S), fill_value=float("nan"), codec=bulk,
+        hm = frame_arr(RADAR_HEATMAP, shape, rs.dtype.newbyteorder("="), shard_frames=_shard_frames(fb, S), codec=bulk,
                        attrs={"amplitude": "linear", "topic": rs.topic})
         outs[RADAR_HEATMAP] = _Out(hm, False, lambda: np.full(shape, np.nan, rs.dtype), set(range(T)), bg)
-        cyc = frame_arr(RADAR_CYCLE_NS, (2,), "int64", ["frame", "start_end"], "ns")
+        cyc = frame_arr(RADAR_CYCLE_NS, (2,))
         outs[RADAR_CYCLE_NS] = _Out(cyc, False, lambda: np.zeros(2, np.int64), set(range(T)), bg)
         if plan.keep_iq:
             _iq_outputs(plan, sc, frame_arr, outs, T, S, bg)
@@ -299,19 +299,17 @@ def _outputs(plan: Plan, sc, frame_arr, arrays: list, exp: dict, bulk: str, S: i
         if role not in plan.streams:
             continue
         frames_with = {f for fl in exp[role].values() for f in fl}
-        pts = sc.ragged_array(POINTS_OF[role], width=3, dtype="float32", units="m", codec=bulk)
+        pts = sc.ragged_array(POINTS_OF[role], codec=bulk)
         arrays.append(POINTS_OF[role])
         outs[POINTS_OF[role]] = _Out(pts, True, lambda: np.zeros((0, 3), np.float32), set(frames_with), bg)
         pr = plan.probe.get(role) or {}
         if role == "lidar" and pr.get("time"):
-            pt = sc.ragged_array(LIDAR_POINT_TIME_NS, width=1, dtype="int64", units="ns", dims=["point", "time"],
-                                 codec=bulk)
+            pt = sc.ragged_array(LIDAR_POINT_TIME_NS, codec=bulk)
             arrays.append(LIDAR_POINT_TIME_NS)
             outs[LIDAR_POINT_TIME_NS] = _Out(pt, True, lambda: np.zeros((0, 1), np.int64), set(frames_with), bg)
         if role == "lidar" and pr.get("grid"):
             gshape = tuple(pr["grid"])
-            lr = frame_arr(LIDAR_RANGE, gshape, "float32", ["frame", "beam", "column"], "m",
-                           shard_frames=_shard_frames(4 * int(np.prod(gshape)), S), codec=bulk)
+            lr = frame_arr(LIDAR_RANGE, gshape, shard_frames=_shard_frames(4 * int(np.prod(gshape)), S), codec=bulk)
             outs[LIDAR_RANGE] = _Out(lr, False, lambda g=gshape: np.full(g, np.nan, np.float32), set(frames_with), bg)
     return outs
 
@@ -429,7 +427,7 @@ def _write_sensor_stamps(plan: Plan, outs: dict, frame_arr) -> None:
             ok = np.zeros(T, bool)
             ok[sorted(outs[POINTS_OF[role]].expected)] = True
             vals = np.where(ok, plan.match_stamp[role], 0)
-        _write_stamps(frame_arr(STAMPS_OF[role], (), "int64", ["frame"], "ns"), vals)
+        _write_stamps(frame_arr(STAMPS_OF[role], ()), vals)
 
 
 def _decode_warnings(plan: Plan, dec: _Decoded, outs: dict) -> list[str]:
@@ -472,14 +470,12 @@ def _iq_outputs(plan: Plan, sc, frame_arr, outs: dict, T: int, S: int, bg) -> No
     src = plan.rec if hasattr(plan.rec, "iq_shape") else plan.streams["radar"]   # a raw reader, or raw messages
     L, V, Sm = src.iq_shape()
     if hasattr(src, "static_refl"):    # a trajectory mean exists only where the reader sees every chirp
-        sc.write_array(RADAR_IQ_STATIC, np.asarray(src.static_refl(), np.complex64), ["antenna", "sample"])
-    iq = frame_arr(RADAR_IQ, (L, V, Sm), "complex64", ["frame", "chirp", "antenna", "sample"], "1",
-                   shard_frames=_shard_frames(8 * L * V * Sm, S), fill_value=0, codec=BULK_CODEC,
+        sc.write_array(RADAR_IQ_STATIC, src.static_refl())
+    iq = frame_arr(RADAR_IQ, (L, V, Sm), shard_frames=_shard_frames(8 * L * V * Sm, S), codec=BULK_CODEC,
                    attrs={"scale": "unit (the recording's int16 scale divided out)",
                           "layout": "chirp frames [before | rotation | after] as radar/iq_span says, then zeros"})
-    span = frame_arr(RADAR_IQ_SPAN, (3,), "int32", ["frame", "before_rotation_after"], "chirp frames")
-    mot = frame_arr(RADAR_IQ_MOTION, (2,), "float64", ["frame", "ds0_heading"], "m, rad",
-                    attrs={"columns": "travel per chirp (m), heading counter-clockwise from beam 0 (rad)"})
+    span = frame_arr(RADAR_IQ_SPAN, (3,))
+    mot = frame_arr(RADAR_IQ_MOTION, (2,), attrs={"columns": "travel per chirp (m), heading counter-clockwise from beam 0 (rad)"})
     outs[RADAR_IQ] = _Out(iq, False, lambda: np.zeros((L, V, Sm), np.complex64), set(range(T)), bg)
     outs[RADAR_IQ_SPAN] = _Out(span, False, lambda: np.zeros(3, np.int32), set(range(T)), bg)
     outs[RADAR_IQ_MOTION] = _Out(mot, False, lambda: np.zeros(2, np.float64), set(range(T)), bg)
@@ -513,8 +509,7 @@ def _write_poses(plan: Plan, sc, frame_arr) -> str | None:
     if not ok.all():
         return (f"TF covers only {int(ok.sum())} of {len(ok)} radar frames ({world} -> {radar_frame}); "
                 f"no pose/T_world_radar")
-    w = frame_arr(POSE_T_WORLD_RADAR, (4, 4), "float64", ["frame", "row", "col"], "m",
-                  attrs={"world_frame": world, "sensor_frame": radar_frame, "source": "tf"})
+    w = frame_arr(POSE_T_WORLD_RADAR, (4, 4), attrs={"world_frame": world, "sensor_frame": radar_frame, "source": "tf"})
     for k in range(w.n_shards):
         w.write_shard(k, poses[w.frames(k)])
     return None
@@ -544,8 +539,7 @@ def _write_lidar_tf(plan: Plan, frame_arr) -> str | None:
     poses, ok = res
     ok &= np.asarray(stamps) > 0
     poses = np.where(ok[:, None, None], poses, np.nan)
-    w = frame_arr(TF_T_WORLD_LIDAR, (4, 4), "float64", ["frame", "row", "col"], "m", fill_value=float("nan"),
-                  attrs={"world_frame": world, "sensor_frame": frame, "source": "tf",
+    w = frame_arr(TF_T_WORLD_LIDAR, (4, 4), attrs={"world_frame": world, "sensor_frame": frame, "source": "tf",
                          "covered_frames": int(ok.sum()), "time": "the frame's LiDAR scan stamp"})
     for k in range(w.n_shards):
         w.write_shard(k, poses[w.frames(k)])

@@ -371,8 +371,7 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
             continue
         if name in sw.arrays():
             sw.remove(name)
-        a = sw.frame_array(name, (4, 4), "float64", ["frame", "row", "col"], "m",
-                           attrs={"world_frame": "map", "source": "truth"})
+        a = sw.frame_array(name, (4, 4), attrs={"world_frame": "map", "source": "truth"})
         for s in range(a.n_shards):
             a.write_shard(s, poses[a.frames(s)])
 

@@ -170,8 +170,7 @@ def camera_world(scene, T: np.ndarray) -> None:
     recording's clouds never sit in memory together)."""
     from ...dataset import open_dataset
 
-    arr = open_dataset(scene.ds.url, "r+").scene(scene.id).ragged_array(
-        CAMERA_POINTS_WORLD, 3, "float32", "m", ["point", "xyz"])
+    arr = open_dataset(scene.ds.url, "r+").scene(scene.id).ragged_array(CAMERA_POINTS_WORLD)
     for s in range(arr.n_shards):
         sl = arr.frames(s)
         arr.write_shard(s, [_camera_points_through(scene, T, k) for k in range(sl.start, sl.stop)])

@@ -106,7 +106,7 @@ def clear_outputs(sw, cfg: RegisterConfig) -> None:
         if name in sw.arrays():
             sw.remove(name)
     if cfg.write_camera_world:
-        sw.ragged_array(CAMERA_POINTS_WORLD, 3, "float32", "m", ["point", "xyz"])
+        sw.ragged_array(CAMERA_POINTS_WORLD)
 
 
 @dataclass
@@ -264,13 +264,11 @@ def all_surfaces(points: list, columns: list, shift: np.ndarray, eye: np.ndarray
 def write_outputs(sw, surfaces: list, points: list, T: np.ndarray) -> None:
     """The human arrays (ragged per frame, world frame) and ``calib/T_world_camera`` into scene writer
     ``sw``."""
-    specs = {HUMAN_VERTICES: (3, "float32", "m", ["vertex", "xyz"], [s[0] for s in surfaces]),
-             HUMAN_FACES: (3, "int32", "1", ["face", "corner"], [s[1] for s in surfaces]),
-             HUMAN_POINTS: (3, "float32", "m", ["point", "xyz"], points)}
-    for name, (width, dt, units, dims, per_frame) in specs.items():
-        r = sw.ragged_array(name, width, dt, units, dims)
+    data = {HUMAN_VERTICES: [s[0] for s in surfaces], HUMAN_FACES: [s[1] for s in surfaces], HUMAN_POINTS: points}
+    for name, per_frame in data.items():
+        r = sw.ragged_array(name)
         for s in range(r.n_shards):
             sl = r.frames(s)
             r.write_shard(s, per_frame[sl])
-    sw.write_array(CALIB_T_WORLD_CAMERA, T, dims=["row", "col"], units="m",
+    sw.write_array(CALIB_T_WORLD_CAMERA, T,
                    attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})

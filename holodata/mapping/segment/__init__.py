@@ -239,8 +239,7 @@ def write_instances(scene, cfg: SegmentConfig | None = None, quiet: bool = True,
     poses = pose_fingerprint(scene)
     if INSTANCE_ARRAY in sw.arrays() and (overwrite or instance_state(scene) == "stale"):
         sw.remove(INSTANCE_ARRAY)
-    arr = sw.frame_array(INSTANCE_ARRAY, per_frame_shape=scans.shape, dtype="uint16", dims=["frame", "beam", "column"],
-                         units="1", fill_value=0,
+    arr = sw.frame_array(INSTANCE_ARRAY, per_frame_shape=scans.shape,
                          attrs={"method": "voxel background + erosion seeds + Euclidean flood fill (Ouster OS0)",
                                 "values": "0 = background or no return; 1..n instances by decreasing size",
                                 "params": cfg.to_attrs(), "background_voxels": int(len(bg)), "poses_sha256": poses})

@@ -77,8 +77,7 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
     for name, P, extra in arrays:
         if name in names:
             sc.remove(name)
-        a = sc.frame_array(name, per_frame_shape=(4, 4), dtype="float64", dims=["frame", "row", "col"], units="m",
-                           fill_value=float("nan"), attrs={**pose_attrs, **extra})
+        a = sc.frame_array(name, per_frame_shape=(4, 4), attrs={**pose_attrs, **extra})
         for k in range(a.n_shards):
             a.write_shard(k, P[a.frames(k)])
     if res.mesh is not None:
@@ -94,13 +93,10 @@ def write_static_map(sc, vertices: np.ndarray, faces: np.ndarray, points: np.nda
     """Write a :class:`StaticMap`'s ``mesh/vertices``, ``mesh/faces`` and (when given) ``map/points``
     (M,3) float32 into the scene writer ``sc``, each with the ``source`` of the poses they were built
     from: ``holodata register`` uses them only while that matches ``pose/T_world_lidar``'s."""
-    sc.write_array(MESH_VERTICES, np.asarray(vertices, np.float32), dims=["vertex", "xyz"], units="m",
-                   attrs={"source": source, "frame": "world"})
-    sc.write_array(MESH_FACES, np.asarray(faces, np.int32), dims=["face", "corner"], units="1",
-                   attrs={"source": source})
+    sc.write_array(MESH_VERTICES, vertices, attrs={"source": source, "frame": "world"})
+    sc.write_array(MESH_FACES, faces, attrs={"source": source})
     if points is not None:
-        sc.write_array(MAP_POINTS, np.asarray(points, np.float32), dims=["point", "xyz"], units="m",
-                       attrs={"source": source, "frame": "world",
+        sc.write_array(MAP_POINTS, points, attrs={"source": source, "frame": "world",
                               "what": "static LiDAR returns averaged per mesh voxel (the mesh's input)"})
     elif MAP_POINTS in sc.arrays():
         sc.remove(MAP_POINTS)
