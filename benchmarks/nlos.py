@@ -6,8 +6,8 @@ evaluate: model = refined, model_no_refine, model_analytic, baseline, oracle_sta
     .venv/bin/python benchmarks/nlos.py [--out DIR] [--device cpu|cuda] [--paper]
         [--grid 32x128] [--frames 16] [--corners 6] [--epochs 60] [--rt-epochs 12] [--refine-epochs 10]
 
-The default size trains on a 2-core CPU in under 45 minutes; ``--paper`` (with ``--device
-cuda``) is the paper-size run: 64×512 beams, 8 corners × 40 frames, 30 + 30 + 30 epochs.
+The default size is for a CPU; ``--paper`` (with ``--device cuda``) is the paper-size run: 64×512
+beams, 8 corners × 40 frames, 30 + 30 + 30 epochs.
 Data: holodata demo's synthetic corners (synth → ingest → mapping from the recordings' truth →
 raytrace-gt), so the ground truth is exact and the numbers measure learning, not mapping.
 Rerunning with the same --out resumes every stage. Measured numbers go to
