@@ -20,21 +20,8 @@ background model's build time (once per scene).
 
 ``--keep DIR`` keeps (and on a rerun reuses) the recordings and datasets.
 
-Measured 2026-12-01 (2 shared cores at load 6-10: timings noisy), defaults (12 frames, 2 walkers,
-seed 1): before this benchmark's fixes (commit f8687fa) AP50 was 0.43 / 0.52 / 0.58 for the 33.2°
-LiDAR at 64x1024 / 64x512 / 32x512 and 0.70 / 0.68 / 0.14-0.18 for the 90° one, the same for every
-corner kind (the walkers use the approach corridor, common to all kinds). Now AP50 1.000 in all 24
-cells (FOV x LiDAR x corner). ``segment_scan`` 5-6 ms per 32x512 scan, 7-12 ms per 64x512, 14-39 ms
-per 64x1024, x27-250 (typically x70-90) the bare ``scipy.ndimage.label`` of the same masks;
-``segment_scene`` end to end 24-230 ms per scan, mostly reading and de-skewing. Other draws, 30
-frames, T/L/oblique, 64x512 and 32x512, both FOVs: seeds 2/3/4 AP50 0.967-1.000. With
-``--walkers 3 --frames 20 --seed 5``: 0.87-0.93 at 33.2°, 0.92-0.98 at 90° — walkers 1 and 3 share
-a lane in synth and pass through each other (overlapping bodies are one cluster; the one behind
-leaves its trail in the background), and a walker 0.5 m from the LiDAR splits into limbs.
-After the segmentation speed-up (dense-grid background model, shard reads, de-skew shortcuts; see
-``holodata.mapping.segment``), rerun at load ~6: AP50 1.000 in all 24 cells and ``lidar/instance``
-identical to the run before it in every cell; the 12-frame timings are within the load noise (the
-robot moves in all 12 scans; the gain is in long recordings: ``benchmarks/pipeline.py``).
+Measurements of the default run (per date, with the load and the code they ran):
+``benchmarks/results/segment.md``.
 """
 from __future__ import annotations
 

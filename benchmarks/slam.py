@@ -34,54 +34,7 @@ Floors (issue 9): ATE < 5 cm, mesh F@5cm >= 0.90 (aim ATE < 3 cm, F >= 0.95).
 ``--frames`` counts radar cycles (2 Hz); ingest keeps the LiDAR scan (10 Hz) nearest each radar
 frame, so slam sees one scan per cycle (400 scans for 400 cycles, 0.5 s apart).
 
-Measured 2026-12-01 (2 cores shared with other jobs, load 9-17: wall times are inflated and noisy;
-compare within one run), 64x512 LiDAR:
-
-* 400-cycle L corner (robot drives ~3.5 m in 10 s, then stands): before the speed-up (kiss-icp on
-  every scan with its default 1e-4 / 500-iteration convergence, ICP on every scan kiss-icp saw
-  move > 2 mm) slam 84.4 s (kiss-icp 34.9, refine 32.5, mesh 11.5) vs raytrace-gt 37.0 s in the same
-  run (load 8); after (--reuse, load 9-12): 380 of 400 scans found at rest, 20 fed to kiss-icp,
-  slam 49.8 s (read 7.3, kiss-icp 2.2, refine 22.9 incl. the open3d import, mesh 16.2) vs
-  raytrace-gt 35.2 s; ATE 0.26 -> 0.14 cm, F@2/5/10 0.966/0.985/0.993 (unchanged). CPU seconds
-  of kiss-icp + refinement on the same scans (load-independent): 36.1 -> 4.8 s.
-* 60 cycles, T / L / cross / oblique (with the mesh's plane snapping): ATE 0.31 / 0.36 / 0.38 / 0.45
-  cm, F@2 0.971 / 0.968 / 0.961 / 0.965, F@5 0.987 / 0.985 / 0.987 / 0.986, Chamfer 0.93 / 1.08 /
-  0.96 / 0.94 cm (before the speed-up: ATE 0.30 / 0.36 / 0.39 / 0.44 cm, F@5 0.986 / 0.985 / 0.987 /
-  0.986, Chamfer 1.23 / 1.33 / 1.17 / 1.19 cm).
-* 40 cycles with ``--walkers 2`` (load 4-6): ATE 0.41 / 0.49 / 0.51 / 0.63 cm, F@5 0.984 / 0.980 /
-  0.984 / 0.982; slam 5.4-7.0 s per corner.
-
-* Rest check beam by beam (``slam._SameBeam``, on organised scans) and a one-pass return mask in
-  ``load_scans``; before / after in the same conditions. 400-cycle L corner (64x512, the ingested
-  corner of ``benchmarks/pipeline.py --keep``; ``slam_scene`` without writing, old and new code
-  alternated five times, load 2.4-5.5): slam 13.4 -> 11.1 s wall, 12.2 -> 10.1 s CPU (means; the
-  rest checks ~2.4 -> ~0.9 s); 373 scans at rest (366 before), 339 of them decided beam
-  by beam; ATE 0.238 -> 0.275 cm (7 rest scans whose map check had failed on noise were re-ICP'd
-  before and are held now), mesh F@2/5/10 0.986/0.994/0.997 both, Chamfer 0.78 -> 0.70 cm.
-  ``--frames 60`` (``--keep DIR --reuse``: the same corners, old then new, load 3-4): T / cross /
-  oblique identical (ATE 0.32 / 0.37 / 0.52 cm, F@2 0.981 / 0.976 / 0.979, F@5 0.992 / 0.993 /
-  0.993); L ATE 0.38 -> 0.37 cm, F@2 0.978 both, F@5 0.992 -> 0.991, Chamfer 0.72 -> 0.75 cm.
-  Measured and not taken: Poisson (3-4 s of the 400-cycle corner) is bound by its octree depth (8
-  for a 9.9 m corner), not by the points: a 5 / 6 cm input cloud saved nothing and lost F@2 0.986 ->
-  0.985 / 0.983; depth 7 saves ~2.5 s but F@2 0.986 -> 0.969, Chamfer 0.78 -> 1.12 cm. The map rest check
-  is noise-limited (its step at rest: median 1.5 mm, p99 2.4 mm of the 3 mm bound), so a sparser
-  source would send more rest scans to ICP.
-
-* Both cores (2026-12-01, 400-cycle L corner of ``benchmarks/pipeline.py --keep``, ``slam_scene``
-  without writing, old and new code alternated, load 4-5 from other jobs): the scans are read in a
-  thread while the refinement works on the first ones (``stream_scans``), kiss-icp/open3d are
-  imported meanwhile, the mesh's background model is built in a forked process while the points
-  are accumulated split by background voxel, deskew is one Rodrigues formula per point (a held
-  pose's zero twist skips it) and each mesh scan is deskewed once. CPU of the main thread (the
-  critical path when the second core is free) 11.1 -> 9.1 s; all CPU (threads, children) 13.2 ->
-  13.7 s; wall at load 4-5 unchanged within the noise (15-22 s both). ATE, F-scores, Chamfer and
-  the ``pipeline.py --gt-diff`` range differences unchanged (60 cycles: ATE 0.31 / 0.36 / 0.38 /
-  0.50 cm, F@2 0.971 / 0.968 / 0.962 / 0.965; 400 cycles: GT |range| median 0.3 / 0.4 / 0.5 cm,
-  p90 1.1 / 2.2 / 6.1 cm). Measured and not taken: multi-threaded Poisson (no faster at load 1.8;
-  it segfaults at random, isl-org/Open3D#6828); Poisson depth 7 on the 60-cycle corners
-  (F@2 L 0.968 -> 0.933, cross 0.962 -> 0.861); half the mesh scans (``mesh_max_scans`` 60: bounce-3
-  GT p90 6.1 -> 9.4 cm); reading in a forked process (the 260 MB of scans pickled through a pipe
-  cost +0.8 s CPU).
+Measurements (per date, with the load and the code they ran): ``benchmarks/results/slam.md``.
 
 ``benchmarks/pipeline.py`` prints the ingest / slam / register / raytrace-gt table of one corner.
 """
