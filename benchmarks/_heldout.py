@@ -55,7 +55,7 @@ def write_true_lidar_poses(url: str, sid: str, truth: Path) -> None:
     """The true ``pose/T_world_lidar`` of the scene's scans (``truth/trajectory_lidar.tum``), replacing
     any there: scoring a stage without SLAM error. (``human_eval.write_truth_poses`` also wants the
     radar trajectory, which a LiDAR-only recording has not.)"""
-    from holodata import open_dataset
+    from holodata.dataset import open_dataset
     from holodata.dataset.layout import POSE_T_WORLD_LIDAR
     from holodata.mapping.human_eval import true_lidar_poses
 
@@ -97,3 +97,23 @@ def scene_static_mesh(url: str, sid: str) -> tuple[np.ndarray, np.ndarray]:
     sm = static_mesh(scans, scene_trajectory(url, sid).interpolate(scans.stamp_ns), cfg,
                      float(cfg.max_range or data_max_range(scans)))
     return np.asarray(sm.vertices), np.asarray(sm.faces)
+
+
+def person_ghost_m2(vertices: np.ndarray, faces: np.ndarray, truth: Path, spacing: float = 0.02,
+                    far_m: float = 0.10, near_m: float = 0.30) -> dict:
+    """How much of a static mesh (world frame of the truth) is the walking person left behind: its area
+    (m², from samples about one per ``spacing``²) farther than ``far_m`` from the true static mesh
+    (``truth/mesh.ply``, which holds no person), split into that within ``near_m`` of the person at some
+    scan (every 5th ``truth/human/<k>.ply``: the person's trail) and the rest."""
+    from scipy.spatial import cKDTree
+
+    from holodata.mapping.accuracy import mesh_distance, sample_mesh
+    from holodata.meshio import read_mesh
+
+    tm = read_mesh(Path(truth) / "mesh.ply")
+    es = sample_mesh(vertices, faces, spacing)
+    far = es[mesh_distance(tm.vertices, tm.faces, es) > far_m]
+    hum = [read_mesh(p).vertices for p in sorted((Path(truth) / "human").glob("*.ply"))[::5]]
+    on = (cKDTree(np.concatenate(hum)).query(far, distance_upper_bound=near_m)[0] < np.inf if len(far) and hum
+          else np.zeros(len(far), bool))
+    return {"person_m2": float(on.sum() * spacing ** 2), "other_m2": float((~on).sum() * spacing ** 2)}

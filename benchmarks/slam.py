@@ -37,6 +37,16 @@ frame, so slam sees one scan per cycle (400 scans for 400 cycles, 0.5 s apart).
 Measurements (per date, with the load and the code they ran): ``benchmarks/results/slam.md``.
 
 ``benchmarks/pipeline.py`` prints the ingest / slam / register / raytrace-gt table of one corner.
+
+``--family heldout`` (issue 25 point 11): slam and its static mesh (``holodata.mapping.mesh`` +
+``background``) on the recordings of :mod:`holodata.synth.heldout`, a family nothing was tuned on
+(LiDAR-only, an L corridor driven through with furniture, 32/64/128 beams, a person walking;
+``benchmarks/_heldout.py``: ``--variants``, ``--seeds``): ATE and the mesh's F@2/5/10 cm and Chamfer
+against ``truth/mesh.ply`` (the same :func:`evaluate_slam` as above, no radar coverage: no radar),
+from slam's poses and from the true ones (the mesh step alone). Shares ``--keep DIR`` with
+``benchmarks/register.py --family heldout``. Results: ``benchmarks/results/mesh.md``.
+
+    .venv/bin/python benchmarks/slam.py --family heldout [--variants ...] [--seeds 1,2] [--keep DIR]
 """
 from __future__ import annotations
 
@@ -270,6 +280,73 @@ def main_demo(args) -> None:
             shutil.rmtree(work, ignore_errors=True)
 
 
+def run_heldout(variant: str, seed: int, root: Path) -> dict:
+    """One held-out recording: slam (``ds.zarr``, skipped when done) and its mesh, and the mesh step on
+    the true poses (``ds_truth.zarr``), against the truth."""
+    from benchmarks._heldout import (person_ghost_m2, prepare_heldout, scene_static_mesh, scene_trajectory,
+                                     write_true_lidar_poses)
+    from holodata.conventions import transform_points
+    from holodata.mapping.register import scene_mesh
+
+    out = {"variant": variant, "seed": seed}
+    truth, url, sid = prepare_heldout(variant, seed, root)
+    S.slam_scene(url, sid, quiet=True)                 # skipped when done (a kept folder)
+    sc = open_dataset(url).scene(sid)
+    summ = sc.attrs["slam"]["summary"]
+    tm = summ["timings"]                               # slam's own run (when it was done)
+    out["slam_s"] = float(tm.get("total_s", sum(v for k, v in tm.items() if k != "read_wait_s")))
+    mesh = scene_mesh(sc)
+    acc = evaluate_slam(scene_trajectory(url, sid), mesh, truth, coverage=False)
+    out["slam"] = {"ate_cm": acc["trajectory"]["ate_rmse_m"] * 100, "scans": summ["scans"], "faces": len(mesh[1]),
+                   **acc["mesh"], **person_ghost_m2(transform_points(np.asarray(acc["mesh_alignment"]), mesh[0]),
+                                                    mesh[1], truth)}
+    truth, url, sid = prepare_heldout(variant, seed, root, dataset="ds_truth.zarr")
+    write_true_lidar_poses(url, sid, truth)
+    t0 = time.perf_counter()
+    v, f = scene_static_mesh(url, sid)
+    out["mesh_s"] = time.perf_counter() - t0
+    acc = evaluate_slam(scene_trajectory(url, sid), (v, f), truth, coverage=False)
+    out["truth"] = {"ate_cm": acc["trajectory"]["ate_rmse_m"] * 100, "faces": len(f), **acc["mesh"],
+                    **person_ghost_m2(v, f, truth)}
+    return out
+
+
+def _mesh_cells(m: dict) -> str:
+    return (f"{m['f_2cm']:.3f} {m['f_5cm']:.3f} {m['f_10cm']:.3f}  {m['precision_5cm']:.3f} {m['recall_5cm']:.3f}  "
+            f"{m['chamfer_m'] * 100:5.2f}  {m['observed_fraction']:.2f}  {m['person_m2']:6.3f} {m['other_m2']:6.3f}")
+
+
+def main_heldout(args) -> None:
+    from benchmarks._heldout import HELDOUT_VARIANTS
+
+    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-slam-heldout-"))
+    root.mkdir(parents=True, exist_ok=True)
+    variants = args.variants.split(",") if args.variants else list(HELDOUT_VARIANTS)
+    print("held-out family (holodata.synth.heldout): static mesh vs truth/mesh.ply (occlusion-aware, as above)")
+    print("  (ghost m2: mesh area > 10 cm off the true static mesh, within 30 cm of the person at some scan / elsewhere)")
+    print(f"  {'variant':26s} seed poses  ATE cm  F@2   F@5   F@10   P@5   R@5    CD cm  obs   ghost m2 person other"
+          "   faces  slam s mesh s")
+    rows = []
+    try:
+        for v in variants:
+            for seed in [int(x) for x in args.seeds.split(",")]:
+                r = run_heldout(v, seed, root)
+                rows.append(r)
+                for p, t in (("slam", r["slam_s"]), ("truth", r["mesh_s"])):
+                    m = r[p]
+                    print(f"  {v:26s} {seed:4d} {p:5s}  {m['ate_cm']:5.2f}  {_mesh_cells(m)}  {m['faces']:7d}  "
+                          + (f"{t:6.1f}" if p == "slam" else f"{'':6s} {t:6.1f}"), flush=True)
+        for p in ("slam", "truth"):
+            f5 = [r[p]["f_5cm"] for r in rows]
+            print(f"{p} poses: F@5 min {min(f5):.3f}, mean {np.mean(f5):.3f}; floors (ATE < 5 cm, F@5 >= 0.90): "
+                  + ("met" if all(r[p]["ate_cm"] < 5 and r[p]["f_5cm"] >= 0.9 for r in rows) else "NOT met"))
+        if args.json:
+            print(json.dumps(rows, default=float))
+    finally:
+        if not args.keep:
+            shutil.rmtree(root, ignore_errors=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=40, help="radar frames (2 Hz) per corner")
@@ -287,7 +364,14 @@ def main() -> None:
     ap.add_argument("--demo", choices=["quick", "full"], default=None, help="the demo configuration's corners, mapped first")
     ap.add_argument("--only", default=None, help="with --demo: these scene ids only (comma-separated)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--family", choices=("tuned", "heldout"), default="tuned",
+                    help="heldout: the recordings of holodata.synth.heldout (--variants, --seeds)")
+    ap.add_argument("--variants", default=None, help="--family heldout: comma list (default all; benchmarks/_heldout.py)")
+    ap.add_argument("--seeds", default="1,2", help="--family heldout: comma list of synth seeds")
     args = ap.parse_args()
+    if args.family == "heldout":
+        main_heldout(args)
+        return
     if args.demo:
         main_demo(args)
         return

@@ -161,3 +161,46 @@ def test_register_refuses_a_guess_from_a_frame_the_map_is_not_in(heldout):
     assert open_dataset(url).scene(sid).attrs["slam"]["anchor"]["kind"] != "tf"
     with pytest.raises(InputError, match=r"camera's TF pose is in 'map' but the LiDAR map is in .*--init"):
         register_scene(url, sid, quiet=True)
+
+
+def test_heldout_truth_masks_are_the_returns_on_the_person(heldout):
+    """truth/lidar_instances.npz (issue 25 point 11): per scan, returns of the recorded scan only, and
+    they lie on the person (the true pose puts them around the person's mesh)."""
+    from holodata import open_dataset
+    from holodata.ingest import ingest
+    from holodata.meshio import read_mesh
+    from holodata.synth.truth import read_lidar_instances
+    from holodata.trajectory import read_tum
+
+    root, rec = heldout
+    truth = root / "h" / "truth"
+    url = str(root / "masks.zarr")
+    ingest([rec], url)
+    sc = open_dataset(url).scene(open_dataset(url).scenes[0])
+    tr = read_lidar_instances(truth / "lidar_instances.npz")
+    lid = read_tum(truth / "trajectory_lidar.tum")
+    np.testing.assert_array_equal(tr["stamp_ns"], lid.timestamp_ns)
+    assert int(tr["n_walkers"]) == 1 and not bool(tr["hidden_human"])
+    frame = {int(t): k for k, t in enumerate(np.asarray(sc["lidar/timestamp_ns"][...], np.int64))}
+    on_person = 0
+    for i in range(0, len(tr["stamp_ns"]), 3):
+        m = tr["mask"](i) > 0
+        k = frame[int(tr["stamp_ns"][i])]
+        r = np.asarray(sc["lidar/range"][k], float)
+        fin = np.isfinite(r)
+        P = np.zeros(r.shape + (3,))
+        P[fin] = np.asarray(sc.ragged("lidar/points", k), float)   # the valid pixels in row-major order
+        valid = fin & (r > 0)
+        assert not (m & ~valid).any()                         # only returns are labelled
+        if m.sum() < 20:
+            continue
+        on_person += 1
+        T = lid.poses[i]
+        Pw = P[m] @ T[:3, :3].T + T[:3, 3]
+        others = P[valid & ~m] @ T[:3, :3].T + T[:3, 3]
+        c = read_mesh(truth / "human" / f"{i:06d}.ply").vertices[:, :2].mean(0)
+        near = np.linalg.norm(Pw[:, :2] - c, axis=1)
+        assert np.median(near) < 0.4, np.median(near)         # the person moves < 6 cm within half a sweep
+        others = others[others[:, 2] > 0.3]                  # (the floor between the feet is not the person)
+        assert (np.linalg.norm(others[:, :2] - c, axis=1) < 0.1).sum() < 0.05 * m.sum()   # few unlabelled there
+    assert on_person >= 5
