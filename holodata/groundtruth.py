@@ -116,7 +116,8 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
             a._consolidate()
     elif workers == 1 or n_traced == 0:
         tracer = FrameTracer(mesh, cfg, traj, human, cycles) if n_traced else None
-        results = (tracer(f) for _, _, frames in plan for f in frames)
+        results = (tracer.run((f for _, _, frames in plan for f in frames), threads=min(2, cpus())) if tracer
+                   else iter(()))
         _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock, copy=False)
     else:
         import multiprocessing as mp

@@ -147,28 +147,29 @@ def advance(S, t, hit, f, isd, max_range, idx, b, rng, point, normal, face, hdyn
         L = np.sqrt(dx * dx + dy * dy + dz * dz)
         S2[0, j], S2[1, j], S2[2, j] = px, py, pz
         S2[3, j], S2[4, j], S2[5, j] = dx / L, dy / L, dz / L
-        S2[6, j], S2[7, j], S2[8, j] = nx, ny, nz
-        S2[9, j], S2[10, j], S2[11, j] = ti, nd, S[11, i]
+        S2[11, j] = S[11, i]  # rows 6-10 are rewritten (refine, the next advance) before they are read
     return S2, idx2, P
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def los_rays(O, P, tol, R):  # pragma: no cover - compiled
-    """LOS segments into ``R`` (n,6) float32 from origins ``O`` and points ``P`` (3,n) float32: origin,
-    and ``P - O`` scaled to its length minus ``tol`` (0 when the length <= ``tol``). Returns ``near``
-    (n,) bool (length <= ``tol``)."""
+def los_rays(O, idx, P, tol, R):  # pragma: no cover - compiled
+    """LOS segments into ``R`` (n,6) float32 from origins ``O[:, idx]`` ((3,N) float32, ``idx`` (n,)
+    int64) and points ``P`` (3,n) float32: origin, and ``P - O`` scaled to its length minus ``tol`` (0
+    when the length <= ``tol``). Returns ``near`` (n,) bool (length <= ``tol``)."""
     n = P.shape[1]
     near = np.empty(n, np.bool_)
     zero = np.float32(0)
     for i in range(n):
-        vx = P[0, i] - O[0, i]
-        vy = P[1, i] - O[1, i]
-        vz = P[2, i] - O[2, i]
+        k = idx[i]
+        ox, oy, oz = O[0, k], O[1, k], O[2, k]
+        vx = P[0, i] - ox
+        vy = P[1, i] - oy
+        vz = P[2, i] - oz
         L = np.sqrt(vx * vx + vy * vy + vz * vz)
         nr = L <= tol
         near[i] = nr
         s = zero if nr else (L - tol) / L
-        R[i, 0], R[i, 1], R[i, 2] = O[0, i], O[1, i], O[2, i]
+        R[i, 0], R[i, 1], R[i, 2] = ox, oy, oz
         R[i, 3], R[i, 4], R[i, 5] = vx * s, vy * s, vz * s
     return near
 

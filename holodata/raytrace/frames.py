@@ -7,7 +7,11 @@ frame) is what every executor runs: in-process, in the local process pool
 """
 from __future__ import annotations
 
+import threading
+from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from itertools import islice
 
 import numpy as np
 
@@ -145,14 +149,48 @@ class FrameTracer:
         self.scene = _make_scene(vertices, faces, face_class, class_names, cfg)
         self.cfg, self.traj, self.human, self.cycles = cfg, traj, human, cycles
         self._last = (None, None)
+        self._lock = threading.Lock()
 
     def __call__(self, f: int) -> dict:
+        return self._trace(f, *self._human(f))
+
+    def run(self, frames, threads: int = 2) -> Iterator[dict]:
+        """Each frame's gt dict (as ``self(f)``), in the order of ``frames``, traced by ``threads``
+        threads, each frame in one of them. open3d's casts hold the GIL (and use every core); the
+        compiled kernels and numpy's loops release it, so one frame's kernels run while another
+        frame's rays are cast, and the core a single frame leaves idle between its casts is used.
+        Each frame's trace is the one ``self(f)`` computes (nothing shared is written but the
+        scene's per-thread ray buffer), so the results are the same to the bit."""
+        if threads <= 1:
+            yield from (self(f) for f in frames)
+            return
+        from collections import deque
+
+        it = iter(frames)
+        with ThreadPoolExecutor(threads, thread_name_prefix="holodata-gt-trace") as ex:
+            pending: deque = deque(ex.submit(self, f) for f in islice(it, threads))
+            while pending:
+                out = pending.popleft().result()
+                f = next(it, None)
+                if f is not None:
+                    pending.append(ex.submit(self, f))
+                yield out
+
+    def _human(self, f: int) -> tuple:
+        """(human (vertices, faces), its prepared dynamic geometry) of frame ``f``, or (None, None)."""
         h = self.human(f)
         if h is None:
+            return None, None
+        with self._lock:
+            last = self._last
+            if h is not last[0]:  # build the human BVH once per distinct mesh
+                last = self._last = (h, self.scene.prepare_dynamic(*h))
+        return h, last[1]
+
+    def _trace(self, f: int, h, dyn) -> dict:
+        if h is None:
             return trace_frame(self.scene, self.cfg, self.traj, f, None, cycles=self.cycles)
-        if h is not self._last[0]:  # build the human BVH once per distinct mesh
-            self._last = (h, self.scene.prepare_dynamic(*h))
-        return trace_frame(self.scene, self.cfg, self.traj, f, self._last[1], human_vertices=h[0], cycles=self.cycles)
+        return trace_frame(self.scene, self.cfg, self.traj, f, dyn, human_vertices=h[0], cycles=self.cycles)
 
 
 def trace_shard(tracer: FrameTracer, frames, names=GT_ARRAYS) -> dict:

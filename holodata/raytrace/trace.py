@@ -13,6 +13,7 @@ given per call, cast separately and merged by nearest hit, so the static BVH is 
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -412,10 +413,14 @@ class RayScene:
                            label.T, semantic.T)
 
     def _workspace(self, n: int) -> np.ndarray:
-        """Reused (n,6) float32 ray buffer (fresh large allocations cost page faults every call)."""
-        buf = getattr(self, "_ws", None)
+        """Reused (n,6) float32 ray buffer (fresh large allocations cost page faults every call), one
+        per thread: several threads may trace with one scene at once (:meth:`FrameTracer.run
+        <holodata.raytrace.frames.FrameTracer.run>`); everything else a trace writes is its own."""
+        ws = self.__dict__.setdefault("_ws", {})
+        key = threading.get_ident()
+        buf = ws.get(key)
         if buf is None or len(buf) < n:
-            buf = self._ws = np.empty((n, 6), dtype=np.float32)
+            buf = ws[key] = np.empty((n, 6), dtype=np.float32)
         return buf[:n]
 
     def _los(self, parts: list, O: np.ndarray, dyn, B: int, N: int) -> np.ndarray:
@@ -426,21 +431,25 @@ class RayScene:
         if parts:
             ii = np.concatenate([q[1] for q in parts])
             P = np.concatenate([q[2] for q in parts], axis=1)
-            vis = self._visible32(O[:, ii], P, dyn)
+            vis = self._visible32(O, P, dyn, ii)
             pos = 0
             for b, i, _ in parts:
                 los[b, i] = vis[pos:pos + len(i)]
                 pos += len(i)
         return los
 
-    def _visible32(self, O: np.ndarray, P: np.ndarray, dyn) -> np.ndarray:
+    def _visible32(self, O: np.ndarray, P: np.ndarray, dyn, idx=None) -> np.ndarray:
         """(n,) bool for (3,n) float32 origins and points: P visible from O, i.e. nothing (scene or
         dynamic mesh) on the segment closer than LOS_TOLERANCE_M before P. One any-hit (occlusion)
-        query per mesh, the direction scaled to the segment length minus the tolerance."""
+        query per mesh, the direction scaled to the segment length minus the tolerance. ``idx`` (n,)
+        int64: the origins are ``O[:, idx]`` (gathered inside the compiled kernel, no copy)."""
         if self.compiled:
             rays = self._workspace(P.shape[1])
-            near = _kernels.los_rays(np.ascontiguousarray(O), np.ascontiguousarray(P), np.float32(LOS_TOLERANCE_M), rays)
+            idx = np.arange(P.shape[1]) if idx is None else idx
+            near = _kernels.los_rays(np.ascontiguousarray(O), idx, np.ascontiguousarray(P), np.float32(LOS_TOLERANCE_M),
+                                     rays)
         else:
+            O = O if idx is None else O[:, idx]
             v = P - O
             L = np.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
             near = L <= LOS_TOLERANCE_M
