@@ -139,3 +139,16 @@ def test_source_digests_are_the_files_blake3_and_sha256(tmp_path):
     ingest([rec], tmp_path / "ds.zarr")
     src = open_dataset(tmp_path / "ds.zarr").scene("r").attrs["source"]
     assert src["blake3"] == [blake3.blake3(rec.read_bytes()).hexdigest()]
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "rosbag1"])
+def test_decoded_arrays_are_views_of_the_payload(tmp_path, fmt):
+    """Decoding a message does not copy its payload: a heatmap's bytes are a view of the bytes read
+    (rosbags slices the CDR encapsulation header off its input, which copied a ``bytes`` payload)."""
+    rec = tmp_path / ("r.bag" if fmt == "rosbag1" else "r")
+    truth = write_recording(rec, fmt, n_radar=2, radar_shape=(16, 8, 32))
+    with open_recording(rec) as r:
+        raw = r.full(next(r.raw_heads(["/radar/heatmap"], {"/radar/heatmap"})))
+        msg = r.decode(raw)
+        assert np.shares_memory(np.asarray(msg.data), np.frombuffer(raw.data, np.uint8))
+        np.testing.assert_array_equal(np.asarray(msg.data).view("<f2").reshape(16, 8, 32), truth["heatmaps"][0])

@@ -303,8 +303,8 @@ class MessageDecoder:
         try:
             if raw.encoding == "ros1":
                 return self.store.deserialize_ros1(raw.data, raw.msgtype)
-            if raw.encoding == "cdr":
-                return self.store.deserialize_cdr(raw.data, raw.msgtype)
+            if raw.encoding == "cdr":   # a view: rosbags slices off the 4-byte encapsulation, a copy of bytes
+                return self.store.deserialize_cdr(memoryview(raw.data), raw.msgtype)
         except Exception as err:  # noqa: BLE001 - rosbags raises SerdeError, struct/index/value errors
             why = " ".join(str(err).split())[:100]     # the exception class stays in the cause (--debug)
             raise DecodeError(f"topic {raw.topic}: {raw.msgtype} message at {raw.log_ns} ns ({len(raw.data)} bytes) "
