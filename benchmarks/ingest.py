@@ -5,7 +5,9 @@ Writes two recordings with rosbags' own writer — a radar (2 Hz RadarHeatmap) +
 recording of N radar frames and one of 4N — then, in the same run:
 
 - bare: rosbags reads every message of the topics ingest uses and deserialises it with the bag's
-  typestore (what ``AnyReader`` does): messages/s and MB/s of serialised payload;
+  typestore (what ``AnyReader`` does), from a memoryview of the payload as ingest does (rosbags
+  slices the CDR encapsulation header off its input, which copies a ``bytes`` payload): messages/s
+  and MB/s of serialised payload;
 - ingest: ``holodata.ingest.ingest`` of the same recording into a fresh dataset (index pass, sync,
   decode of the matched messages, BLAKE3 of the file (sha256 before issue 27), compressed shard
   writes), in a child process so its peak RSS is its own;
@@ -184,7 +186,7 @@ def bare_rosbags(path: Path, fmt: str, repeat: int = 2) -> dict:
         with AnyReader([path]) as r:
             conns = [c for c in r.connections if c.topic in TOPICS]
             for c, _, raw in r.messages(conns):
-                r.deserialize(raw, c.msgtype)
+                r.deserialize(memoryview(raw), c.msgtype)    # a view: rosbags' CDR slice of bytes copies
                 n += 1
                 nb += len(raw)
         dt, dc = time.perf_counter() - t, time.process_time() - c0
