@@ -211,3 +211,39 @@ def merge_hits(ts, fs, sub, td, fd):  # pragma: no cover - compiled
             f[i] = fd[j]
             isd[i] = True
     return t, f, isd
+
+
+@numba.njit(cache=True, nogil=True)
+def to_half(x, out):  # pragma: no cover - compiled
+    """``x`` (n,) float32 rounded to IEEE binary16 bit patterns into ``out`` (n,) uint16 (a float16
+    array's ``.view(np.uint16)``): ``x.astype(np.float16)`` to the bit — round to nearest, ties to
+    even; overflow to inf; subnormal halves; a NaN keeps its top payload bits — in one pass
+    (numpy's cast costs ~0.7 ms per 64x512x3 frame's normals). Checked against numpy on every
+    float32 bit pattern (docs/design/raytrace.md) and on a sample in tests/test_raytrace_kernels.py."""
+    u = x.view(np.uint32)
+    for i in range(u.shape[0]):
+        b = np.int64(u[i])
+        sgn = (b >> 16) & 0x8000
+        e = (b >> 23) & 0xFF
+        m = b & 0x7FFFFF
+        if e == 0xFF:
+            h = 0x7C00 if m == 0 else max(0x7C00 + (m >> 13), 0x7C01)  # numpy keeps a NaN a NaN, quiet or not
+        elif e > 127 + 15:
+            h = 0x7C00
+        elif e >= 127 - 14:  # a normal half; a carry out of the significand rounds up the exponent
+            h = ((e - 127 + 15) << 10) | (m >> 13)
+            rem = m & 0x1FFF
+            if rem > 0x1000 or (rem == 0x1000 and (h & 1)):
+                h += 1
+        else:  # a subnormal half (or zero): units of 2**-24
+            shift = 126 - e
+            if shift > 24:
+                h = 0
+            else:
+                M = m | 0x800000
+                h = M >> shift
+                rem = M & ((1 << shift) - 1)
+                half = 1 << (shift - 1)
+                if rem > half or (rem == half and (h & 1)):
+                    h += 1
+        out[i] = sgn | h
