@@ -15,7 +15,7 @@ from holodata.ingest import ingest
 from holodata.readers import open_recording
 from holodata.readers.rosbag import Ros1MessageTable
 
-from _recordings import write_recording
+from _recordings import Writer, cloud_msg, lidar_scan, write_recording
 
 HEADS = {"/radar/heatmap", "/os/points", "/cam/depth/image_raw"}
 
@@ -152,3 +152,23 @@ def test_decoded_arrays_are_views_of_the_payload(tmp_path, fmt):
         msg = r.decode(raw)
         assert np.shares_memory(np.asarray(msg.data), np.frombuffer(raw.data, np.uint8))
         np.testing.assert_array_equal(np.asarray(msg.data).view("<f2").reshape(16, 8, 32), truth["heatmaps"][0])
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "rosbag1"])
+def test_topic_frame_ids_from_header_prefixes(tmp_path, fmt):
+    """``topics(frame_ids=True)`` reads header prefixes where the reader can seek: the frame ids are
+    those of the whole messages, also one longer than the prefix (read whole then)."""
+    rec = tmp_path / ("r.bag" if fmt == "rosbag1" else "r")
+    long_id = "sensor_" + "x" * 300
+    w = Writer(rec, fmt)
+    w.add("/a/points", "sensor_msgs/msg/PointCloud2")
+    w.add("/b/points", "sensor_msgs/msg/PointCloud2")
+    for k in range(3):
+        w.write("/a/points", 10**9 + k, cloud_msg(w.T, fmt, 10**9 + k, "os_sensor", lidar_scan(k)))
+        w.write("/b/points", 10**9 + k, cloud_msg(w.T, fmt, 10**9 + k, long_id, lidar_scan(k)))
+    w.close()
+    with open_recording(rec) as r:
+        assert r._message_table()            # read through the index: header prefixes
+        ids = {t.name: t.frame_id for t in r.topics(frame_ids=True)}
+        whole = {m.topic: str(r.decode(m).header.frame_id) for m in r.raw_messages(["/a/points", "/b/points"])}
+    assert ids == whole == {"/a/points": "os_sensor", "/b/points": long_id}

@@ -128,11 +128,13 @@ class Recording:
         if frame_ids and self.decoder is not None:
             want = {t.name: t for t in infos if t.count > 0 and t.decodable and self.decoder.has_header(t.msgtype)}
             if want:
-                try:
-                    for raw in self.raw_messages(list(want)):
+                try:     # header prefixes where the reader can seek to each message (raw_heads)
+                    for raw in self.raw_heads(list(want), want):
                         info = want.pop(raw.topic, None)
                         if info is not None:
-                            info.frame_id = self.decoder.frame_id(raw)
+                            fid = self.decoder.frame_id(raw)
+                            info.frame_id = fid if fid is not None or raw.ref is None else \
+                                self.decoder.frame_id(self.full(raw))
                         if not want:
                             break
                 except RecordingError:
