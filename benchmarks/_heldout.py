@@ -59,7 +59,11 @@ def write_true_lidar_poses(url: str, sid: str, truth: Path) -> None:
     from holodata.dataset.layout import POSE_T_WORLD_LIDAR
     from holodata.mapping.human_eval import true_lidar_poses
 
-    P = true_lidar_poses(open_dataset(url).scene(sid), truth)
+    sc = open_dataset(url).scene(sid)
+    P = true_lidar_poses(sc, truth)
+    if (POSE_T_WORLD_LIDAR in sc.arrays() and (sc.nodes()[POSE_T_WORLD_LIDAR][1].get("attributes") or {}).get(
+            "source") == "truth" and np.array_equal(np.asarray(sc[POSE_T_WORLD_LIDAR][...]), P, equal_nan=True)):
+        return                                    # written by an earlier run: the same poses, left alone
     sw = open_dataset(url, "r+").scene(sid)
     if POSE_T_WORLD_LIDAR in sw.arrays():
         sw.remove(POSE_T_WORLD_LIDAR)
@@ -103,8 +107,8 @@ def person_ghost_m2(vertices: np.ndarray, faces: np.ndarray, truth: Path, spacin
                     far_m: float = 0.10, near_m: float = 0.30) -> dict:
     """How much of a static mesh (world frame of the truth) is the walking person left behind: its area
     (m², from samples about one per ``spacing``²) farther than ``far_m`` from the true static mesh
-    (``truth/mesh.ply``, which holds no person), split into that within ``near_m`` of the person at some
-    scan (every 5th ``truth/human/<k>.ply``: the person's trail) and the rest."""
+    (``truth/mesh.ply``, which holds no person), split into that within ``near_m`` of the person's
+    surface at some scan (every 5th ``truth/human/<k>.ply``: the person's trail) and the rest."""
     from scipy.spatial import cKDTree
 
     from holodata.mapping.accuracy import mesh_distance, sample_mesh
@@ -113,7 +117,8 @@ def person_ghost_m2(vertices: np.ndarray, faces: np.ndarray, truth: Path, spacin
     tm = read_mesh(Path(truth) / "mesh.ply")
     es = sample_mesh(vertices, faces, spacing)
     far = es[mesh_distance(tm.vertices, tm.faces, es) > far_m]
-    hum = [read_mesh(p).vertices for p in sorted((Path(truth) / "human").glob("*.ply"))[::5]]
+    hum = [sample_mesh((m := read_mesh(p)).vertices, m.faces, 0.05)          # (a box person has 8 vertices)
+           for p in sorted((Path(truth) / "human").glob("*.ply"))[::5]]
     on = (cKDTree(np.concatenate(hum)).query(far, distance_upper_bound=near_m)[0] < np.inf if len(far) and hum
           else np.zeros(len(far), bool))
     return {"person_m2": float(on.sum() * spacing ** 2), "other_m2": float((~on).sum() * spacing ** 2)}
