@@ -66,7 +66,7 @@ from ...geometry.voxels import voxel_average
 from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, icp, map_normals, mesh_surface_samples,
                         pose_uncertainty, register_extrinsic)
 from .camera import (_camera_points_through, camera_points_world, camera_seen_through, CameraFrames,
-                     depth_noise_model, static_depth, static_depth_of)
+                     depth_noise_model, noise_coefficient, static_depth, static_depth_of)
 from .steps import (all_surfaces, body_columns_of, clear_outputs, human_candidates, human_shift, initial_guess,
                     pick_track, registration_failure, static_camera, write_outputs)
 from .humans import (body_columns, closed_surface, cluster_points, pick_human, pixel_runs, radial_speed,
@@ -346,7 +346,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         timings["candidates_s"] = time.perf_counter() - t2
         ts = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
         cts = np.asarray(scene[CAMERA_TIMESTAMP_NS][...], np.int64) if CAMERA_TIMESTAMP_NS in scene.arrays() else ts
-        picks = pick_track(cand.frames, M, eye, f_px, np.where(cts != 0, cts, ts), cfg)
+        picks = pick_track(cand.frames, M, eye, f_px, np.where(cts != 0, cts, ts), cfg,
+                           noise_coefficient(static.med, static.mad))
         shift = human_shift(picks.points, cts, ts, cfg)
         columns = body_columns_of(picks, eye, f_px, cts, cfg)
         picks.pixels = []

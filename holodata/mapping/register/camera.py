@@ -245,16 +245,25 @@ def camera_seen_through(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape:
     return out
 
 
-def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
-    """Per-pixel depth noise σ (m) from the stereo model σ = a·z² (disparity noise), with ``a`` the
-    median of spread/z² over the pixels: smooth in z, unlike the per-pixel spread of a few frames
-    (chance small spreads would get huge weights). Falls back to the spread where a is not finite."""
+def noise_coefficient(depth: np.ndarray, spread: np.ndarray) -> float | None:
+    """``a`` (1/m) of the stereo noise model σ = a·z² (disparity noise): the median of spread/z² over the
+    pixels with a ``depth`` (m) and a positive ``spread`` (m, one return's σ); None with fewer than
+    ``MIN_MODEL_PIXELS`` such pixels."""
     z = np.asarray(depth, np.float64)
     s = np.asarray(spread, np.float64)
     ok = np.isfinite(z) & np.isfinite(s) & (z > MIN_DEPTH_M) & (s > 0)
-    if ok.sum() < MIN_MODEL_PIXELS:
+    return float(np.median(s[ok] / z[ok] ** 2)) if ok.sum() >= MIN_MODEL_PIXELS else None
+
+
+def depth_noise_model(depth: np.ndarray, spread: np.ndarray) -> np.ndarray:
+    """Per-pixel depth noise σ (m) from the stereo model σ = a·z² (:func:`noise_coefficient`): smooth in
+    z, unlike the per-pixel spread of a few frames (chance small spreads would get huge weights). Falls
+    back to the spread where a is not known."""
+    z = np.asarray(depth, np.float64)
+    s = np.asarray(spread, np.float64)
+    a = noise_coefficient(z, s)
+    if a is None:
         return np.where(np.isfinite(s), s, UNKNOWN_SIGMA_M)
-    a = float(np.median(s[ok] / z[ok] ** 2))
     return np.maximum(a * z ** 2, MIN_MODEL_SIGMA_M)
 
 

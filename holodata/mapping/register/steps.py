@@ -191,18 +191,23 @@ class Picks:
 
 
 def pick_track(cand: list, M: np.ndarray, eye: np.ndarray, f_px: float, t_cam: np.ndarray,
-               cfg: RegisterConfig) -> Picks:
+               cfg: RegisterConfig, sigma_a: float | None = None) -> Picks:
     """Step 4, the person of interest: person-like clusters near the track's median (people farther
     away, e.g. walking past in another corridor, are not it); a pick far from where its neighbours put
     the person (a wall fragment while the person is lost in far stereo noise, :func:`track_jumps`) is
-    picked again near that prediction, or dropped. ``t_cam`` (T,) the candidates' stamps (ns)."""
-    first = [pick_human(q[0], cfg, footprint=q[3] / f_px) for q in cand]
+    picked again near that prediction, or dropped. ``t_cam`` (T,) the candidates' stamps (ns).
+    ``sigma_a`` (1/m): the camera's depth noise σ = a·z² (:func:`~.camera.noise_coefficient`); with it
+    neighbouring pixels link along the view within their noise (:func:`pick_human`'s ``pixels``)."""
+    def px(q):
+        return None if sigma_a is None else (q[1], q[2], q[3], sigma_a * np.asarray(q[3], np.float64) ** 2)
+
+    first = [pick_human(q[0], cfg, footprint=q[3] / f_px, pixels=px(q), eye=eye) for q in cand]
     cents = np.array([q[0][m].mean(0) for q, m in zip(cand, first) if m.any()])
     centre = np.median(cents, axis=0) if len(cents) else None
     floor_z = floor_below(M, centre)
     picks = [body_only(qw, m0 if centre is None or near_track(qw, m0, centre, cfg)
-                       else pick_human(qw, cfg, centre, footprint=dv / f_px), eye, floor_z, cfg)
-             for (qw, vv, uu, dv), m0 in zip(cand, first)]
+                       else pick_human(qw, cfg, centre, footprint=q[3] / f_px, pixels=px(q), eye=eye), eye, floor_z, cfg)
+             for q, m0 in zip(cand, first) for qw in (q[0],)]
     cen0 = np.array([c[0][m].mean(0) if m.any() else np.full(3, np.nan) for c, m in zip(cand, picks)])
     jumped = track_jumps(cen0, t_cam, cfg.track_jump_m, cfg.walk_speed_mps)
     pred = track_prediction(np.where(jumped[:, None], np.nan, cen0), t_cam)
@@ -210,7 +215,9 @@ def pick_track(cand: list, M: np.ndarray, eye: np.ndarray, f_px: float, t_cam: n
     points, pixels = [], []
     for k, ((qw, vv, uu, dv), hm) in enumerate(zip(cand, picks)):
         if jumped[k]:
-            hm = (body_only(qw, pick_human(qw, jump_cfg, pred[k], footprint=dv / f_px), eye, floor_z, cfg)
+            hm = (body_only(qw, pick_human(qw, jump_cfg, pred[k], footprint=dv / f_px, pixels=px((qw, vv, uu, dv)),
+                                            eye=eye),
+                            eye, floor_z, cfg)
                   if np.isfinite(pred[k]).all() else np.zeros_like(hm))
         points.append(qw[hm].astype(np.float32))
         pixels.append((qw[hm], vv[hm], uu[hm], dv[hm]))

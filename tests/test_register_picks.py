@@ -1,0 +1,76 @@
+"""register's person pick on a noisy far camera (issue 23: robot-cloud-32 seeds 3/4): returns linked
+along the view within their depth noise, the width judged less that noise, and body columns of runs
+whose depths disagree."""
+import numpy as np
+
+from holodata.mapping.register import RegisterConfig, pick_human
+from holodata.mapping.register.camera import depth_noise_model, noise_coefficient
+from holodata.mapping.register.humans import body_columns, cluster_returns, pixel_links
+
+
+def _far_person(rng, depth=9.0, a=0.0036, f=84.0):
+    """A 0.45 x 1.6 m person facing a camera at the origin looking along +y, ``depth`` m away, seen by a
+    camera of focal length ``f`` px whose depth noise is σ = a·z² (0.29 m at 9 m), a fifth of the
+    pixels lost: (points (N,3) z up, rows, cols, depths, sigmas)."""
+    fp = depth / f
+    cols = np.arange(int(round(-0.225 / fp)), int(round(0.225 / fp)) + 1)
+    rows = np.arange(int(round(-1.6 / fp)), 1)
+    r, c = (x.ravel() for x in np.meshgrid(rows, cols, indexing="ij"))
+    keep = rng.random(len(r)) > 0.2
+    r, c = r[keep] + 60, c[keep] + 80
+    sig = a * depth ** 2
+    z = depth + rng.normal(0.0, sig, len(r))
+    x = (c - 80) * z / f
+    h = (60 - r) * z / f
+    return np.c_[x, z, h], r, c, z, np.full(len(r), sig)
+
+
+def test_far_noisy_person_is_one_cluster_and_picked_whole():
+    """σ 0.29 m along the view, pixels 11 cm apart: isotropic linking (1.5 footprints) breaks the body
+    into pieces and the pick is a fraction of it (the centroid 20-60 cm off on robot-cloud-32); linked
+    along the view within the noise, the whole body is one cluster, and its width, judged across the
+    view and along it less the noise's spread, is a person's: picked whole."""
+    rng = np.random.default_rng(7)
+    pts, r, c, z, sig = _far_person(rng)
+    cfg = RegisterConfig()
+    fp = z / 84.0
+    dist = max(cfg.cluster_m, cfg.cluster_px * float(np.median(fp)))
+    iso = cluster_returns(pts, dist)
+    assert np.bincount(iso).max() < 0.7 * len(pts)            # the mechanism: pieces
+    assert pick_human(pts, cfg, footprint=fp).mean() < 0.7
+    px = (r, c, z, sig)
+    lab = cluster_returns(pts, dist, px, cfg.surface_gap_px, cfg.fg_sigma)
+    assert np.bincount(lab).max() >= 0.95 * len(pts)
+    m = pick_human(pts, cfg, footprint=fp, pixels=px, eye=np.zeros(3))
+    assert m.mean() > 0.85
+    # the noise allowance is along the view only: 1.8 m across the view is no person, noise or not
+    wide = pts * [4.0, 1.0, 1.0]
+    assert not pick_human(wide, cfg, footprint=fp, pixels=px, eye=np.zeros(3)).any()
+    # nor is a body as deep along the view as the noise allows plus 1.8 m
+    deep = pts + np.outer(np.linspace(-0.9, 0.9, len(pts)), [0.0, 1.0, 0.0])
+    assert not pick_human(deep, cfg, footprint=fp, pixels=px, eye=np.zeros(3)).any()
+
+
+def test_pixel_links_only_neighbours_within_the_noise():
+    r = np.array([0, 0, 0, 5])
+    c = np.array([0, 2, 3, 0])
+    z = np.array([5.0, 5.5, 9.0, 5.0])
+    i, j = pixel_links(r, c, z, np.full(4, 0.1), gap=2, n_sigma=4.0)
+    assert sorted(zip(i.tolist(), j.tolist())) == [(0, 1)]          # 2 px apart, 0.5 m < 4·0.14 m
+    assert len(pixel_links(r, c, z, np.full(4, 0.1), gap=1, n_sigma=4.0)[0]) == 0
+
+
+def test_noise_coefficient_is_the_model_of_depth_noise_model():
+    z = np.linspace(1.0, 9.0, 400)
+    s = 0.004 * z ** 2
+    assert abs(noise_coefficient(z, s) - 0.004) < 1e-12
+    np.testing.assert_allclose(depth_noise_model(z, s), s)
+    assert noise_coefficient(z[:10], s[:10]) is None
+
+
+def test_body_columns_run_whose_middle_depths_disagree_stays_at_the_run():
+    """A two-pixel run whose depths differ by more than twice ``hi``: none lies within ``hi`` of the
+    median, and the run's centre used to be 0 — the column 9 m toward the camera."""
+    p = np.array([[0.0, 8.5, 1.0], [0.02, 9.5, 1.0]])
+    span, _, _ = body_columns(p, np.array([10, 10]), np.array([5, 6]), p[:, 1], np.zeros(3), 84.0, 0.06, 0.22)
+    assert np.all(np.abs(span) < 1.0)
