@@ -172,3 +172,16 @@ def test_topic_frame_ids_from_header_prefixes(tmp_path, fmt):
         ids = {t.name: t.frame_id for t in r.topics(frame_ids=True)}
         whole = {m.topic: str(r.decode(m).header.frame_id) for m in r.raw_messages(["/a/points", "/b/points"])}
     assert ids == whole == {"/a/points": "os_sensor", "/b/points": long_id}
+
+
+def test_mcap_topic_times_from_the_message_table(tmp_path):
+    """A single-file rosbag2 MCAP bag's first/last log times (and so its rates) come from the message
+    table ingest reads anyway; they are those of the chunk message indexes read record by record."""
+    from holodata.readers.mcap_file import McapMessageTable, topic_times_mcap
+
+    rec = tmp_path / "r"
+    write_recording(rec, "mcap", n_radar=3)
+    with open_recording(rec) as r:
+        assert isinstance(r._message_table(), McapMessageTable)
+        got = {t.name: (t.first_ns, t.last_ns) for t in r.topics(frame_ids=False) if t.count}
+        assert got == topic_times_mcap(r.files[0]) and len(got) >= 5

@@ -63,6 +63,14 @@ class RosbagsRecording(Recording):
                     if idx:
                         lo, hi = out.setdefault(c.topic, [idx[0].time, idx[-1].time])
                         out[c.topic] = [min(lo, idx[0].time), max(hi, idx[-1].time)]
+            elif (table := self._message_table()) and hasattr(table, "channels"):
+                import numpy as np       # a single MCAP file whose index ingest reads anyway: its log times
+
+                for ch, topic in table.topics.items():
+                    t = table.log_ns[table.channels == ch]
+                    if len(t):
+                        lo, hi = out.setdefault(topic, [int(t.min()), int(t.max())])
+                        out[topic] = [min(lo, int(np.min(t))), max(hi, int(np.max(t)))]
             else:
                 from .mcap_file import topic_times_mcap
                 from .sqlite import topic_times_sqlite
