@@ -247,3 +247,17 @@ def to_half(x, out):  # pragma: no cover - compiled
                 if rem > half or (rem == half and (h & 1)):
                     h += 1
         out[i] = sgn | h
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def column_dirs(R, dirs, out):  # pragma: no cover - compiled
+    """Per-column beam directions into ``out`` (3,H,W) float32: ``R`` (W,3,3) float64 column
+    rotations, ``dirs`` (H,W,3) float64 radar-frame directions; the float64 sum
+    ``(R_i0 d_0 + R_i2 d_2) + R_i1 d_1`` of :func:`holodata.raytrace.frames.column_rays_soa`, rounded
+    to float32 once."""
+    H, W = dirs.shape[0], dirs.shape[1]
+    for i in range(3):
+        for h in range(H):
+            for w in range(W):
+                out[i, h, w] = np.float32((R[w, i, 0] * dirs[h, w, 0] + R[w, i, 2] * dirs[h, w, 2])
+                                          + R[w, i, 1] * dirs[h, w, 1])

@@ -54,7 +54,7 @@ def _grid_soa(grid: Grid) -> np.ndarray:
 def _grid_dirs(grid: Grid) -> np.ndarray:
     """(H, W, 3) float64 radar-frame beam directions (cached per grid)."""
     if grid not in _GRID_DIRS:
-        _GRID_DIRS[grid] = grid.directions()
+        _GRID_DIRS[grid] = np.ascontiguousarray(grid.directions(), dtype=np.float64)
     return _GRID_DIRS[grid]
 
 
@@ -64,14 +64,15 @@ def column_rays_soa(grid: Grid, origin: OriginModel, col: np.ndarray) -> tuple[n
 
     beam_rays's ``einsum("wij,hwj->hwi")`` costs a frame ~7 ms; the same float64 products summed
     in the same order, ``(R_i0 d_0 + R_i2 d_2) + R_i1 d_1`` (numpy's einsum order for this
-    contraction; tests/test_groundtruth.py checks it), cost ~1 ms."""
+    contraction; tests/test_groundtruth.py checks it), cost ~1 ms in numpy, ~0.2 in a compiled loop
+    (:func:`holodata.raytrace._kernels.column_dirs`)."""
     H, W = grid.H, grid.W
     R, t = col[:, :3, :3], col[:, :3, 3]
     o = np.einsum("wij,wj->wi", R, local_origins(grid, origin)) + t  # (W,3), as beam_rays
     dirs = _grid_dirs(grid)
     d = np.empty((3, H, W), dtype=np.float32)
-    for i in range(3):
-        d[i] = (R[None, :, i, 0] * dirs[..., 0] + R[None, :, i, 2] * dirs[..., 2]) + R[None, :, i, 1] * dirs[..., 1]
+    _kernels.column_dirs(np.ascontiguousarray(R), dirs, d)  # the sum below in one compiled pass, to the bit
+    # numpy: d[i] = (R[None, :, i, 0] * dirs[..., 0] + R[None, :, i, 2] * dirs[..., 2]) + R[None, :, i, 1] * dirs[..., 1]
     o32 = np.ascontiguousarray(np.broadcast_to(o.T.astype(np.float32)[:, None, :], (3, H, W)))
     return o32.reshape(3, H * W), d.reshape(3, H * W)
 
