@@ -6,6 +6,7 @@ ties between neighbouring halves (normal and subnormal), unit-vector components.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from holodata.raytrace._kernels import to_half
 from holodata.raytrace.frames import _half
@@ -58,3 +59,27 @@ def test_half_helper_takes_any_layout():
         got = _half(arr)
         want = arr.astype(np.float16)
         assert got.dtype == np.float16 and got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
+def _numpy_face_normals(v, f):
+    v = np.asarray(v, dtype=np.float64)
+    f = np.asarray(f)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+
+def test_compiled_face_normals_equal_numpys_to_the_bit():
+    from holodata.raytrace.labels import face_normals
+
+    rng = np.random.default_rng(11)
+    for scale, vdt, fdt in ((1e-3, np.float64, np.int64), (1.0, np.float32, np.int32), (1e3, np.float64, np.uint32)):
+        v = (rng.normal(size=(500, 3)) * scale).astype(vdt)
+        f = rng.integers(0, 500, size=(3000, 3)).astype(fdt)
+        f[:20, 2] = f[:20, 0]  # degenerate: zero normals
+        got, want = face_normals(v, f), _numpy_face_normals(v, f)
+        assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+        distinct = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+        assert (got[:20] == 0).all() and np.allclose(np.linalg.norm(got[distinct], axis=1), 1)
+    with pytest.raises(IndexError):  # out-of-range faces fail as numpy's indexing does
+        face_normals(np.zeros((3, 3)), np.array([[0, 1, 3]]))

@@ -261,3 +261,23 @@ def column_dirs(R, dirs, out):  # pragma: no cover - compiled
             for w in range(W):
                 out[i, h, w] = np.float32((R[w, i, 0] * dirs[h, w, 0] + R[w, i, 2] * dirs[h, w, 2])
                                           + R[w, i, 1] * dirs[h, w, 1])
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def face_normals(v, f, out):  # pragma: no cover - compiled
+    """Unit geometric normals into ``out`` (F,3) float64 of faces ``f`` (F,3) int64 (in range) over
+    vertices ``v`` (V,3) float64: :func:`holodata.raytrace.labels.face_normals`'s ``np.cross`` of the
+    edges, divided by ``np.linalg.norm`` (``(x² + y²) + z²``, numpy's order for this reduction), zero
+    for degenerate faces — to the bit."""
+    for j in range(f.shape[0]):
+        a, b, c = f[j, 0], f[j, 1], f[j, 2]
+        e1x, e1y, e1z = v[b, 0] - v[a, 0], v[b, 1] - v[a, 1], v[b, 2] - v[a, 2]
+        e2x, e2y, e2z = v[c, 0] - v[a, 0], v[c, 1] - v[a, 1], v[c, 2] - v[a, 2]
+        nx = e1y * e2z - e1z * e2y
+        ny = e1z * e2x - e1x * e2z
+        nz = e1x * e2y - e1y * e2x
+        L = np.sqrt((nx * nx + ny * ny) + nz * nz)
+        if L > 0:
+            out[j, 0], out[j, 1], out[j, 2] = nx / L, ny / L, nz / L
+        else:
+            out[j, 0], out[j, 1], out[j, 2] = 0.0, 0.0, 0.0

@@ -14,9 +14,18 @@ HEIGHT_BAND_M = 0.3        # horizontal faces within this of the lowest/highest 
 
 
 def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,3) float64 unit geometric normals (right-hand winding); zero for degenerate faces."""
-    v = np.asarray(vertices, dtype=np.float64)
+    """(F,3) float64 unit geometric normals (right-hand winding); zero for degenerate faces. In one
+    compiled pass (:func:`holodata.raytrace._kernels.face_normals`, identical to the bit to the numpy
+    below, ~0.3 ms -> ~0.05 per human mesh of 3.6k faces) when the face indices are in range."""
+    v = np.ascontiguousarray(vertices, dtype=np.float64)
     f = np.asarray(faces)
+    if f.ndim == 2 and f.shape[1] == 3 and v.ndim == 2 and v.shape[1] == 3 and np.issubdtype(f.dtype, np.integer) \
+            and (len(f) == 0 or (f.min() >= 0 and f.max() < len(v))):
+        from . import _kernels
+
+        out = np.empty((len(f), 3))
+        _kernels.face_normals(v, np.ascontiguousarray(f, dtype=np.int64), out)
+        return out
     n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     norm = np.linalg.norm(n, axis=1, keepdims=True)
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
