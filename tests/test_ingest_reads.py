@@ -185,3 +185,17 @@ def test_mcap_topic_times_from_the_message_table(tmp_path):
         assert isinstance(r._message_table(), McapMessageTable)
         got = {t.name: (t.first_ns, t.last_ns) for t in r.topics(frame_ids=False) if t.count}
         assert got == topic_times_mcap(r.files[0]) and len(got) >= 5
+
+
+def test_lidar_range_norms_are_numpys_bits():
+    """lidar/range of organised clouds: the per-point norm ingest computes is, bit for bit,
+    ``np.linalg.norm(xyz, axis=1)`` in float32 (NaN and inf included)."""
+    from holodata.ingest.streams import _norm3
+
+    rng = np.random.default_rng(7)
+    xyz = (rng.normal(size=(5000, 3)) * rng.uniform(0.01, 300, (5000, 1))).astype(np.float32)
+    xyz[::11] = np.nan
+    xyz[5::13, 1] = np.inf
+    got = _norm3(xyz)
+    assert got.dtype == np.float32
+    assert np.array_equal(got.view(np.uint32), np.linalg.norm(xyz, axis=1).astype(np.float32).view(np.uint32))
