@@ -64,6 +64,8 @@ class RegisterConfig:
     min_points: int = 100
     min_area_m2: float = 0.1
     cluster_px: float = 1.5
+    link_sigma: float = 2.0     # neighbouring pixels link along the view within this many sigmas of their
+                                # depth difference (docs/design/register.md, far people on a noisy camera)
     track_radius_m: float = 2.0
     track_jump_m: float = 0.4
     walk_speed_mps: float = 1.5

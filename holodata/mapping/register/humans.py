@@ -73,7 +73,7 @@ def pixel_links(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, sigma: np
 
 
 def cluster_returns(points: np.ndarray, dist: float, pixels: tuple | None = None, gap: int = 2,
-                    n_sigma: float = 4.0) -> np.ndarray:
+                    n_sigma: float = RegisterConfig.link_sigma) -> np.ndarray:
     """Labels (N,) int64 of the connected components of ``points`` (N,3) linked by :func:`cluster_points`
     (voxels of edge ``dist`` touching) or, with ``pixels`` = (rows, cols, depth, sigma) (N,) each, by
     :func:`pixel_links` (``gap``, ``n_sigma``) as well."""
@@ -158,8 +158,8 @@ def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray
     depth. Without it: ``cluster_m`` and ``min_points`` alone.
 
     ``pixels`` = (rows, cols, depth, sigma) (N,) each: the returns' pixels, optical depths (m) and depth
-    noise σ (m); returns on pixels at most ``surface_gap_px`` apart whose depths agree within
-    ``fg_sigma`` noise sigmas (the foreground test's margin, :func:`pixel_links`) are linked as well: on
+    noise σ (m); returns on pixels at most ``surface_gap_px`` apart whose depths differ by at most
+    ``link_sigma`` sigmas of their difference (:func:`pixel_links`) are linked as well: on
     the held-out 120×160 cloud (σ 0.1 m at 5.5 m, 0.3 m at 9 m) a person fell apart along the view
     into an upper and a lower piece, each person-like, and the larger half was taken (centroid p90
     41-51 cm, ``docs/design/register.md``). With ``pixels`` and the camera centre ``eye`` (3,) the
@@ -170,7 +170,7 @@ def pick_human(points_world: np.ndarray, cfg: RegisterConfig, centre: np.ndarray
     if len(points_world) < cfg.min_points and (fp2 is None or fp2.sum() < cfg.min_area_m2):
         return out
     dist = cfg.cluster_m if fp2 is None else max(cfg.cluster_m, cfg.cluster_px * float(np.sqrt(np.median(fp2))))
-    lab = cluster_returns(points_world, dist, pixels, cfg.surface_gap_px, cfg.fg_sigma)
+    lab = cluster_returns(points_world, dist, pixels, cfg.surface_gap_px, cfg.link_sigma)
     sizes = np.bincount(lab)
     enough = sizes >= cfg.min_points
     if fp2 is not None:
