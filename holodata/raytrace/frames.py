@@ -189,11 +189,13 @@ class FrameTracer:
                 yield out
 
     def _human(self, f: int) -> tuple:
-        """(human (vertices, faces), its prepared dynamic geometry) of frame ``f``, or (None, None)."""
-        h = self.human(f)
-        if h is None:
-            return None, None
+        """(human (vertices, faces), its prepared dynamic geometry) of frame ``f``, or (None, None).
+        One thread at a time: a human source (a dataset reader, a user's class) need not be
+        thread-safe, and reading it holds the GIL anyway."""
         with self._lock:
+            h = self.human(f)
+            if h is None:
+                return None, None
             last = self._last
             if h is not last[0]:  # build the human BVH once per distinct mesh
                 last = self._last = (h, self.scene.prepare_dynamic(*h))
