@@ -25,8 +25,16 @@ class SegmentConfig:
     view with overlapping heights (:func:`merge_stacked`; 0: off); ``max_height_m``: highest top of a
     person above the floor (and tallest merge); ``min_points``: smallest kept cluster;
     ``min_height_m`` / ``max_width_m``: person-like extent (0 / inf switch the check off);
-    ``min_depth_m``: smallest robust extent along the cluster's least principal axis (rejects flat
-    patches of wall that the background missed, e.g. behind a lane people walk often);
+    ``min_depth_m`` / ``min_depth_sigmas`` / ``surface_sigmas`` / ``max_surface_share``: the flat
+    surface check, which rejects patches of wall that the background missed (e.g. behind a lane
+    people walk often) and keeps flat movers (a box-shaped robot, a board carried face-on): a
+    cluster is *thin* when its robust extent along its least principal axis (:func:`_thickness`)
+    is under ``min_depth_m``, or, when that is None, under ``min_depth_sigmas`` × the scan's range
+    noise measured from its background returns (:func:`range_noise`; a face-on plane measures
+    about 3 σ from the noise alone, 3.6 σ at the 95th percentile); a thin cluster is dropped when more
+    than ``max_surface_share`` of its border continues the surrounding surface within
+    ``surface_sigmas``·√6·σ (:func:`surface_share`), i.e. it is a piece of that surface, not
+    something standing in front of it (``min_depth_m`` 0: off; docs/design/segment.md);
     ``max_instances``: keep at most this many clusters per scan (largest first; 0 = no limit)."""
 
     voxel: float = 0.15
@@ -43,7 +51,10 @@ class SegmentConfig:
     min_points: int = 15
     min_height_m: float = 0.25
     max_width_m: float = 1.5
-    min_depth_m: float = 0.06
+    min_depth_m: float | None = None
+    min_depth_sigmas: float = 5.0
+    surface_sigmas: float = 3.0
+    max_surface_share: float = 0.5
     max_instances: int = 0
     deskew: bool = True
     free_space: bool = True

@@ -257,12 +257,23 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
         np.maximum.at(top, ls, hfl)
         ok &= top <= cfg.max_height_m
     cand = np.flatnonzero(ok)
-    if np.isfinite(cfg.max_width_m) or cfg.min_depth_m > 0:
+    depth_check = cfg.min_depth_m is None or cfg.min_depth_m > 0
+    if np.isfinite(cfg.max_width_m) or depth_check:
         good = []
+        rng = sigma = None
         for c in cand:
             q = ps[ls == c]
-            if _plan_extent(q[:, :2]) <= cfg.max_width_m and _thickness(q) >= cfg.min_depth_m:
-                good.append(c)
+            if _plan_extent(q[:, :2]) > cfg.max_width_m:
+                continue
+            if depth_check:
+                if sigma is None:   # measured once per scan, only when a cluster gets this far
+                    rng = np.sqrt((P * P).sum(-1))
+                    sigma = range_noise(rng, valid & ~fg)
+                thin_below = cfg.min_depth_m if cfg.min_depth_m is not None else cfg.min_depth_sigmas * sigma
+                if _thickness(q) < thin_below and surface_share(
+                        rng, valid, lab == c, cfg.surface_sigmas * np.sqrt(6.0) * sigma) > cfg.max_surface_share:
+                    continue
+            good.append(c)
         cand = np.array(good, np.int64)
     cand = cand[np.argsort(-sizes[cand], kind="stable")]
     if cfg.max_instances > 0:
@@ -351,6 +362,50 @@ def merge_stacked(lab: np.ndarray, n: int, points_world: np.ndarray, xy_m: float
     out = lab.copy()
     out[sel] = new[ls]
     return out, len(uniq)
+
+
+def range_noise(rng: np.ndarray, mask: np.ndarray, min_triples: int = 100) -> float:
+    """1-sigma range noise (m) of an organised scan, measured from its own returns: the robust spread
+    (1.4826 × the median absolute deviation) of the second differences ``r[i, j-1] - 2 r[i, j] +
+    r[i, j+1]`` along the rows (columns wrap) over triples of returns all in ``mask`` (H,W) bool (the
+    background returns: static surfaces), divided by √6 (the second difference of independent
+    noise has variance 6σ²: the pseudo-residuals of Gasser, Sroka & Jennen-Steinmetz 1986). A smooth
+    surface's own change of slope between neighbouring columns is small next to the noise; edges
+    and corners are the outliers the median ignores. ``rng`` (H,W) ranges (m). NaN with fewer
+    than ``min_triples`` triples (then the flat surface check of :func:`segment_scan` keeps all)."""
+    r = np.asarray(rng, np.float64)
+    m = np.asarray(mask, bool)
+    both = m & np.roll(m, 1, axis=1) & np.roll(m, -1, axis=1)
+    if int(both.sum()) < min_triples:
+        return float("nan")
+    d = (np.roll(r, 1, axis=1) - 2.0 * r + np.roll(r, -1, axis=1))[both]
+    return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(6.0))
+
+
+def surface_share(rng: np.ndarray, valid: np.ndarray, mask: np.ndarray, tol_m: float) -> float:
+    """Share (0..1) of a cluster's border that continues the surface around it. Over every edge
+    pixel ``e`` of ``mask`` (H,W) and grid direction d (4-neighbourhood; columns wrap) with ``e + d``
+    outside the cluster and ``e - d`` inside it, the border continues when the neighbour is a return
+    whose range lies within ``tol_m`` of the straight-line extrapolation ``2 r[e] - r[e - d]`` (a
+    second difference again: with range noise σ its spread is √6·σ). A piece of wall the
+    background missed continues the wall on most of its border; something standing in front of
+    the wall (a person, however flat) has a depth jump on most of it (its feet continue the floor
+    only). ``rng`` (H,W) ranges (m), ``valid`` (H,W) returns; a neighbour without a return is a
+    jump. 0 with no such edge."""
+    r = np.asarray(rng, np.float64)
+    m = np.asarray(mask, bool)
+    v = np.asarray(valid, bool)
+    ones = np.ones_like(m)
+    cont = total = 0
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        edge = m & ~_shift(m, dr, dc, True) & _shift(m, -dr, -dc, False) & _shift(ones, dr, dc, False)
+        if not edge.any():
+            continue
+        rn = _shift(r, dr, dc, np.nan)[edge]
+        jump = np.where(_shift(v, dr, dc, False)[edge], rn - (2.0 * r[edge] - _shift(r, -dr, -dc, np.nan)[edge]), np.inf)
+        cont += int((np.abs(jump) < tol_m).sum())
+        total += int(edge.sum())
+    return cont / total if total else 0.0
 
 
 def _thickness(p: np.ndarray) -> float:
