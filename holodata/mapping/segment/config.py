@@ -54,7 +54,7 @@ class SegmentConfig:
     min_depth_m: float | None = None
     min_depth_sigmas: float = 5.0
     surface_sigmas: float = 3.0
-    max_surface_share: float = 0.5
+    max_surface_share: float = 0.8
     max_instances: int = 0
     deskew: bool = True
     free_space: bool = True
