@@ -107,6 +107,7 @@ def test_schema_and_reduced_grid():
     np.testing.assert_allclose(g.azimuths(), E.GRID.azimuths()[::2])
 
 
+@pytest.mark.browser
 def test_report_loads_in_headless_chromium(dataset, tmp_path):
     from holodata.evaluate.report import check_in_browser, find_chromium, screenshot
 
