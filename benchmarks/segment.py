@@ -112,23 +112,17 @@ def core_timing(url: str, sid: str, bg, cfg) -> dict:
 def run_one(root: Path, corner: str, fov: float, lidar: tuple, args) -> dict:
     from holodata.dataset import open_dataset
     from holodata.mapping.human_eval import segmentation_ap50
-    from holodata.mapping.segment import LidarScans, SegmentConfig, build_background, segment_scene
+    from holodata.mapping.segment import SegmentConfig
 
     url, truth, prep = prepare(root, corner, fov, lidar, args)
     sid = open_dataset(url).scenes[0]
-    cfg = SegmentConfig()
-    scans = LidarScans.open(open_dataset(url).scene(sid), url)
-    t0 = time.perf_counter()
-    bg = build_background(scans, cfg, scans.trajectory())
-    t_bg = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    s = segment_scene(url, sid, cfg=cfg, overwrite=True, background=bg)
-    t_seg = time.perf_counter() - t0
+    seg = _segment(url, sid)
     ap = segmentation_ap50(url, sid, truth)
-    ct = core_timing(url, sid, bg, cfg)
-    return {"corner": corner, "fov": fov, "lidar": f"{lidar[0]}x{lidar[1]}", "prep_s": prep, "background_s": t_bg,
-            "segment_scene_s": t_seg, "scans": ct["scans"], **ct, "ratio": ct["segment_scan_s"] / max(ct["label_s"], 1e-9),
-            "instances_per_scan": s["instances_per_scan"], "ap50": ap}
+    ct = core_timing(url, sid, seg["background"], SegmentConfig())
+    return {"corner": corner, "fov": fov, "lidar": f"{lidar[0]}x{lidar[1]}", "prep_s": prep,
+            "background_s": seg["background_s"], "segment_scene_s": seg["segment_scene_s"], "scans": ct["scans"], **ct,
+            "ratio": ct["segment_scan_s"] / max(ct["label_s"], 1e-9), "instances_per_scan": seg["instances_per_scan"],
+            "ap50": ap}
 
 
 RANGE_BINS_M = (0.0, 3.0, 6.0, 10.0, np.inf)     # recall by the person's range (m)
