@@ -741,3 +741,19 @@ def test_a_wrong_deskew_twist_biases_the_sweeps_middle_least():
     at_stamp, at_middle = yaw_bias(0.0), yaw_bias(0.05)
     assert abs(at_stamp) > 0.03                       # ~ 1 deg/s × 0.05 s
     assert abs(at_middle) < 0.2 * abs(at_stamp)
+
+
+def test_a_new_method_version_changes_the_fingerprint(monkeypatch):
+    """A deliberate change of slam's output raises METHOD_VERSION: scenes mapped by the older method
+    then no longer read as done (their fingerprint differs) and are mapped again without --force."""
+    from holodata.mapping.slam import store
+    from holodata.mapping.slam.config import SlamConfig
+
+    class NoArrays:   # a scene without LiDAR arrays: the fingerprint hashes the settings and the version
+        def __contains__(self, name):
+            return False
+
+    before = store._fingerprint(NoArrays(), SlamConfig(), None)
+    assert store._fingerprint(NoArrays(), SlamConfig(), None) == before
+    monkeypatch.setattr(store, "METHOD_VERSION", store.METHOD_VERSION + 1)
+    assert store._fingerprint(NoArrays(), SlamConfig(), None) != before

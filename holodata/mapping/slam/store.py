@@ -9,6 +9,11 @@ from ...dataset.layout import (LIDAR_POINTS, LIDAR_TIMESTAMP_NS, MAP_POINTS, MES
                                MESH_VERTICES, POSE_T_WORLD_LIDAR, POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS)
 
 
+# The version of slam's method, in the fingerprint: raised with every deliberate change of slam's output
+# (its settings unchanged), so that scenes mapped by the older method are mapped again instead of read
+# as done. 2: scans deskewed to and registered at the middle of their sweep (issue 23, docs/design/slam.md).
+METHOD_VERSION = 2
+
 # Settings added after datasets were mapped (issue 25: inline constants made settings): left out of
 # the fingerprint at their default, so a scene mapped before still reads as done.
 ADDED_SETTINGS = ("scan_normal_radius", "scan_normal_nn", "map_normal_radius", "map_normal_nn")
@@ -25,7 +30,7 @@ def _fingerprint(scene, cfg: SlamConfig, mesh_cfg) -> str:
     import json
 
     h = hashlib.sha256(json.dumps({"slam": fingerprint_settings(cfg.to_attrs(), ADDED_SETTINGS, SlamConfig),
-                                   "mesh": mesh_cfg.to_attrs() if mesh_cfg else None},
+                                   "mesh": mesh_cfg.to_attrs() if mesh_cfg else None, "method": METHOD_VERSION},
                                   sort_keys=True).encode())
     for name in (LIDAR_POINTS, LIDAR_TIMESTAMP_NS, TIME_TIMESTAMP_NS):
         if name in scene:
