@@ -11,7 +11,9 @@ Layout under the work folder: ``<variant>_<seed>/rec/{recording,truth}`` and the
 """
 from __future__ import annotations
 
+import contextlib
 import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,21 @@ HELDOUT_VARIANTS = {
     "robot-depth16-64-narrow": dict(camera="robot", camera_output="depth16", lidar_rows=64, lidar_fov_deg=45.0,
                                     width=1.6, person="box"),
 }
+
+
+@contextlib.contextmanager
+def heldout_cells(args, prefix: str):
+    """The work folder and the (variant, seed) cells of a ``--family heldout`` run: ``args.keep``
+    (created if missing, kept) or a temporary folder named ``prefix``… (removed afterwards, also on
+    error); ``args.variants`` (comma list, default all of :data:`HELDOUT_VARIANTS`) × ``args.seeds``."""
+    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix=prefix))
+    root.mkdir(parents=True, exist_ok=True)
+    variants = args.variants.split(",") if args.variants else list(HELDOUT_VARIANTS)
+    try:
+        yield root, [(v, int(seed)) for v in variants for seed in args.seeds.split(",")]
+    finally:
+        if not args.keep:
+            shutil.rmtree(root, ignore_errors=True)
 
 
 def prepare_heldout(variant: str, seed: int, root: Path, instances: bool = False,

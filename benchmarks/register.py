@@ -48,7 +48,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks._heldout import HELDOUT_VARIANTS, prepare_heldout  # noqa: E402  (the held-out recordings)
+from benchmarks._heldout import HELDOUT_VARIANTS, heldout_cells, prepare_heldout  # noqa: E402  (the held-out recordings)
 
 
 def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
@@ -376,24 +376,17 @@ def _heldout_row(r: dict) -> str:
 
 
 def main_heldout(args) -> int:
-    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-bench-heldout-"))
-    root.mkdir(parents=True, exist_ok=True)
-    variants = args.variants.split(",") if args.variants else list(HELDOUT_VARIANTS)
     print("held-out family (holodata.synth.heldout: LiDAR-only, TF tree, hand-measured camera TF 7.8 cm / 2.7 deg off)")
     print("  variant                   seed  anchor slam cm  world cm deg  aligned  unc cm                      "
           "centroid med p90  robot med p90  found     s")
     rows = []
-    try:
-        for v in variants:
-            for seed in [int(x) for x in args.seeds.split(",")]:
-                r = run_heldout(v, seed, args, root)
-                rows.append(r)
-                print(_heldout_row(r), flush=True)
+    with heldout_cells(args, "holodata-bench-heldout-") as (root, cells):
+        for v, seed in cells:
+            r = run_heldout(v, seed, args, root)
+            rows.append(r)
+            print(_heldout_row(r), flush=True)
         if args.json:
             print(json.dumps(rows, indent=1, default=float))
-    finally:
-        if not args.keep:
-            shutil.rmtree(root, ignore_errors=True)
     return 0
 
 

@@ -244,11 +244,8 @@ def _recall_text(r: dict) -> str:
 
 
 def main_heldout(args) -> int:
-    from benchmarks._heldout import HELDOUT_VARIANTS
+    from benchmarks._heldout import heldout_cells
 
-    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-bench-segment-heldout-"))
-    root.mkdir(parents=True, exist_ok=True)
-    variants = args.variants.split(",") if args.variants else list(HELDOUT_VARIANTS)
     poses = [p.strip() for p in args.poses.split(",")]
     bins = " ".join(f"{a:g}-{b:g}" for a, b in zip(RANGE_BINS_M[:-1], RANGE_BINS_M[1:]))
     print(f"load average at start: {os.getloadavg()[0]:.2f} (2 shared cores; timings are noisy)", flush=True)
@@ -256,20 +253,19 @@ def main_heldout(args) -> int:
     print(f"  {'variant':26s} seed poses   AP50   P     R    people-scans  found by range ({bins} m)   "
           "FP/100 scans  inst/scan  s/scan  missed by cause")
     rows = []
-    try:
-        for v in variants:
-            for seed in [int(x) for x in args.seeds.split(",")]:
-                r = run_heldout(v, seed, poses, root)
-                rows.append(r)
-                for p in poses:
-                    x = r[p]
-                    a = x["ap50"]
-                    print(f"  {v:26s} {seed:4d} {p:5s}  {a['ap']:.3f}  {a['precision']:.2f}  {a['recall']:.2f}  "
-                          f"{a['n_truth']:4d}/{x['scans']:4d}   {_recall_text(x):30s}  "
-                          f"{100 * x['false_positives'] / max(x['scans'], 1):6.1f}     {x['instances_per_scan']:.2f}"
-                          f"     {x['segment_scene_s'] / max(x['scans'], 1):.3f}  "
-                          + " ".join(f"{c} {n}" for c, n in sorted(x["miss_causes"].items(), key=lambda t: -t[1])),
-                          flush=True)
+    with heldout_cells(args, "holodata-bench-segment-heldout-") as (root, cells):
+        for v, seed in cells:
+            r = run_heldout(v, seed, poses, root)
+            rows.append(r)
+            for p in poses:
+                x = r[p]
+                a = x["ap50"]
+                print(f"  {v:26s} {seed:4d} {p:5s}  {a['ap']:.3f}  {a['precision']:.2f}  {a['recall']:.2f}  "
+                      f"{a['n_truth']:4d}/{x['scans']:4d}   {_recall_text(x):30s}  "
+                      f"{100 * x['false_positives'] / max(x['scans'], 1):6.1f}     {x['instances_per_scan']:.2f}"
+                      f"     {x['segment_scene_s'] / max(x['scans'], 1):.3f}  "
+                      + " ".join(f"{c} {n}" for c, n in sorted(x["miss_causes"].items(), key=lambda t: -t[1])),
+                      flush=True)
         if args.json:
             print(json.dumps(rows, indent=1, default=float))
         for p in poses:
@@ -277,9 +273,6 @@ def main_heldout(args) -> int:
             print(f"{p} poses: AP50 min {min(vals):.3f}, mean {np.mean(vals):.3f}; floor (AP50 >= 0.9): "
                   + ("met" if all(v >= 0.9 for v in vals) else "NOT met ("
                      + ", ".join(f"{r['variant']}_{r['seed']}" for r in rows if r[p]["ap50"]["ap"] < 0.9) + ")"))
-    finally:
-        if not args.keep:
-            shutil.rmtree(root, ignore_errors=True)
     return 0
 
 

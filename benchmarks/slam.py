@@ -317,34 +317,27 @@ def _mesh_cells(m: dict) -> str:
 
 
 def main_heldout(args) -> None:
-    from benchmarks._heldout import HELDOUT_VARIANTS
+    from benchmarks._heldout import heldout_cells
 
-    root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-slam-heldout-"))
-    root.mkdir(parents=True, exist_ok=True)
-    variants = args.variants.split(",") if args.variants else list(HELDOUT_VARIANTS)
     print("held-out family (holodata.synth.heldout): static mesh vs truth/mesh.ply (occlusion-aware, as above)")
     print("  (ghost m2: mesh area > 10 cm off the true static mesh, within 30 cm of the person at some scan / elsewhere)")
     print(f"  {'variant':26s} seed poses  ATE cm  F@2   F@5   F@10   P@5   R@5    CD cm  obs   ghost m2 person other"
           "   faces  slam s mesh s")
     rows = []
-    try:
-        for v in variants:
-            for seed in [int(x) for x in args.seeds.split(",")]:
-                r = run_heldout(v, seed, root)
-                rows.append(r)
-                for p, t in (("slam", r["slam_s"]), ("truth", r["mesh_s"])):
-                    m = r[p]
-                    print(f"  {v:26s} {seed:4d} {p:5s}  {m['ate_cm']:5.2f}  {_mesh_cells(m)}  {m['faces']:7d}  "
-                          + (f"{t:6.1f}" if p == "slam" else f"{'':6s} {t:6.1f}"), flush=True)
+    with heldout_cells(args, "holodata-slam-heldout-") as (root, cells):
+        for v, seed in cells:
+            r = run_heldout(v, seed, root)
+            rows.append(r)
+            for p, t in (("slam", r["slam_s"]), ("truth", r["mesh_s"])):
+                m = r[p]
+                print(f"  {v:26s} {seed:4d} {p:5s}  {m['ate_cm']:5.2f}  {_mesh_cells(m)}  {m['faces']:7d}  "
+                      + (f"{t:6.1f}" if p == "slam" else f"{'':6s} {t:6.1f}"), flush=True)
         for p in ("slam", "truth"):
             f5 = [r[p]["f_5cm"] for r in rows]
             print(f"{p} poses: F@5 min {min(f5):.3f}, mean {np.mean(f5):.3f}; floors (ATE < 5 cm, F@5 >= 0.90): "
                   + ("met" if all(r[p]["ate_cm"] < 5 and r[p]["f_5cm"] >= 0.9 for r in rows) else "NOT met"))
         if args.json:
             print(json.dumps(rows, default=float))
-    finally:
-        if not args.keep:
-            shutil.rmtree(root, ignore_errors=True)
 
 
 def main() -> None:
