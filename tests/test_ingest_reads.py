@@ -100,7 +100,7 @@ def test_a_damaged_ros1_record_truncates_the_recording(tmp_path, damage):
 def test_each_heatmap_is_value_checked_once(tmp_path, monkeypatch):
     """The index pass checks every radar heatmap against the value rules (a frame exists only for a
     message that passes); the write pass keeps that verdict instead of checking the same bytes again."""
-    import holodata.ingest.streams as streams
+    import holodata.ingest.radar_streams as streams
 
     calls = []
     real = streams.frames_not_finite_nonneg

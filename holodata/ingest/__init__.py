@@ -59,7 +59,7 @@ from ..conventions import Grid, RangeBins
 from ..errors import HolodataError, InputError, RecordingError
 from ..readers import open_recording
 from .roles import RADAR_SUFFIX, TopicMap, _one_line, load_topics_file, map_topics
-from .streams import radar_stream
+from .radar_streams import radar_stream
 from .plan import Plan, _grid_of, _scene_id, plan_recording
 from .listing import format_listing, list_recording
 from .write import write_plan

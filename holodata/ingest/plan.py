@@ -16,8 +16,9 @@ from ..errors import HolodataError, InputError, RecordingError
 from ..readers import open_recording, synth_output_folder
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
 from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, _one_line, map_topics
+from .radar_streams import RadarStream, RawRadarStream, radar_stream
 from .streams import (CameraCloudStream, CloudStream, DepthStream, GridStream, OusterPacketStream, OusterScanStream,
-                      PointsStream, RadarStream, RawRadarStream, StereoStream, _Stream, radar_stream)
+                      PointsStream, StereoStream, _Stream)
 
 
 @dataclass

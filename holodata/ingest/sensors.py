@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 
 from .plan import Plan
-from .streams import (CameraCloudStream, CloudStream, DepthStream, OusterPacketStream, OusterScanStream, StereoStream,
-                      radar_beam_origin)
+from .radar_streams import radar_beam_origin
+from .streams import CameraCloudStream, CloudStream, DepthStream, OusterPacketStream, OusterScanStream, StereoStream
 
 
 def world_frame(tf, frame: str) -> str | None:
