@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...conventions import rotation_angle_deg, transform_points, yaw_rad
-from ...geometry.icp import hold_at, open3d_icp, point_to_plane_icp
+from ...geometry.icp import STOP_TRANSLATION_M, centred_offset, hold_at, open3d_icp, point_to_plane_icp
 from ...geometry.planes import local_plane_projection
 from ...geometry.voxels import voxel_average
 from .camera import UNKNOWN_SIGMA_M
@@ -22,6 +22,8 @@ MIN_SIGMA_M = 0.003
 # a map turn is read from the camera's position correction only where the turn's lever across the
 # held direction is at least this share of the whole lever (else the turn moves it along it)
 MIN_LEVER_SHARE = 0.3
+# held directions are taken to the guess by at most this many first-order steps (hold_at_guess)
+HOLD_STEPS = 5
 # FPFH + RANSAC (open3d): normals within 2 voxels, features within 5 (at most 100 neighbours);
 # correspondences within 1.5 voxels, edge-length check 0.9; 100000 iterations, confidence 0.999
 FPFH_NORMAL_VOXELS, FPFH_FEATURE_VOXELS, FPFH_MAX_NN = 2, 5, 100
@@ -235,6 +237,42 @@ def held_directions(held: tuple) -> list[str]:
     return out
 
 
+def camera_held(held: tuple, camera: np.ndarray) -> tuple:
+    """The directions :func:`~holodata.geometry.point_to_plane_icp` held (``info["held"]``: V (6,k)
+    in step coordinates about the correspondences' centroid c, rotations × lever) as the same motions
+    in step coordinates about the camera's position ``camera`` (3,) m: (Q (6,k) orthonormal, camera,
+    lever) for :func:`~holodata.geometry.hold_at`. A rotation ω about c is the rotation ω about the
+    camera plus the translation ω × (camera - c): holding c where the guess puts it lets a turn the
+    data does measure (a TF yaw error) carry the camera along a direction the data does not
+    (docs/design/register.md, 3.: held directions)."""
+    V, c, lever = held
+    V = np.asarray(V, np.float64)
+    cam = np.asarray(camera, np.float64)
+    om = V[:3] / lever
+    Vc = np.concatenate([V[:3], V[3:] + np.cross(om.T, cam - np.asarray(c, np.float64)).T])
+    return np.linalg.qr(Vc)[0], cam, lever
+
+
+def hold_at_guess(T: np.ndarray, guess: np.ndarray, held: tuple | None) -> tuple[np.ndarray, np.ndarray]:
+    """``T`` (4,4) moved along the directions the ICP held (``held``: its ``info["held"]`` or None) to
+    where the camera pose ``guess`` (4,4) lies along them, read about the guess's camera
+    (:func:`camera_held`); and the slide (k,) m: how far the result still lies from the guess along
+    each of the k held directions, which the reported uncertainty adds to the guess's: 0 but where
+    :func:`~holodata.geometry.hold_at`, a first-order step repeated up to :data:`HOLD_STEPS` times,
+    has not come within the ICP's own resolution (:data:`~holodata.geometry.icp.STOP_TRANSLATION_M`)
+    of the guess (a fallback pose far from it). Neither a coarse stage's slide nor a measured turn
+    about a far centroid moves the camera along a direction nothing measured."""
+    if held is None or np.asarray(held[0]).shape[1] == 0:
+        return T, np.zeros(0)
+    Q, cam, lever = camera_held(held, guess[:3, 3])
+    for _ in range(HOLD_STEPS):
+        T = hold_at(T, guess, (Q, cam, lever))
+        slide = Q.T @ centred_offset(T, guess, cam, lever)
+        if np.abs(slide).max() < STOP_TRANSLATION_M:
+            break
+    return T, slide
+
+
 def prior_deviation(T: np.ndarray, init: np.ndarray) -> tuple[float, float]:
     """How far a camera pose ``T`` (4,4) lies from the initial guess ``init``: (metres, degrees)."""
     return float(np.linalg.norm(T[:3, 3] - init[:3, 3])), rotation_angle_deg(np.linalg.inv(init) @ T)
@@ -293,7 +331,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         src, src_n = src[near], src_n[near]
     attempts = []
 
-    def check(T, frozen: int = 0, held=None):
+    def check(T, frozen: int = 0, held=None, slide=None):
         # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
         # far stereo points are too noisy to tell a right from a slightly wrong alignment
         p = transform_points(T, full_src)
@@ -312,9 +350,13 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         std = float(u["std_m"][min(frozen, 5)])
         c["pose_std_m"] = std
         # along the held directions the result is the guess: its uncertainty is the guess's, not a
-        # measurement (never a sub-centimetre figure the data did not give)
+        # measurement (never a sub-centimetre figure the data did not give), plus however far the
+        # result lies from the guess along them (a slide nothing measured adds to the guess's error)
         c["held_directions"] = held_directions(held) if frozen and held is not None else []
-        c["uncertainty_m"] = max(std, cfg.guess_std_m) if frozen else std
+        c["held_slide_m"] = [] if slide is None else [round(float(x), 5) for x in slide]
+        moved = float(np.abs(slide).max()) if slide is not None and len(slide) else 0.0
+        moved = moved if moved >= STOP_TRANSLATION_M else 0.0     # (within the ICP's resolution: none)
+        c["uncertainty_m"] = max(std, cfg.guess_std_m + moved) if frozen else std
         if cfg.max_pose_std_m > 0 and c["uncertainty_m"] > cfg.max_pose_std_m:
             c["accepted"] = False
         return c
@@ -333,14 +375,14 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     ratio = cfg.mesh_degenerate_ratio if mesh_pts is not None else cfg.degenerate_ratio
     info: dict = {}
     T = refine(init, info)
-    anchor_turn = None
+    anchor_turn, target = None, None
     if anchor is not None and info.get("frozen") and cfg.anchor_max_deg > 0:
         V = info["held"][0]
         target, anchor_turn = anchored_guess(T, init, anchor, V[3:, 0], cfg.anchor_max_deg, cfg.anchor_agree_deg)
-        if target is not None:
-            T = hold_at(T, target, info["held"])
         anchor_turn["applied"] = target is not None
-    c = check(T, info.get("frozen", 0), info.get("held"))
+    # held directions: at the (anchored) guess, about its camera, all the way
+    T, slide = hold_at_guess(T, init if target is None else target, info.get("held") if info.get("frozen") else None)
+    c = check(T, info.get("frozen", 0), info.get("held"), slide)
     attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
                      "frozen_directions": info.get("frozen", 0),
                      "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
@@ -350,7 +392,9 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
         info2: dict = {}
         T2 = refine(Tg, info2)
-        c2 = check(T2, info2.get("frozen", 0), info2.get("held"))
+        # (the ICP held its directions where RANSAC put them: they go to the guess too)
+        T2, slide2 = hold_at_guess(T2, init, info2.get("held") if info2.get("frozen") else None)
+        c2 = check(T2, info2.get("frozen", 0), info2.get("held"), slide2)
         shift, rot = prior_deviation(T2, init)
         c2 = {**c2, "prior_shift_m": shift, "prior_rot_deg": rot}
         if shift > cfg.fallback_max_shift_m or rot > cfg.fallback_max_rot_deg:
