@@ -115,3 +115,56 @@ def test_track_jumps_flags_a_run_of_frames_on_another_object():
     c2 = np.stack([np.zeros(20), np.r_[0.1 * np.arange(10), 3.0 + 0.1 * np.arange(10)], np.ones(20)], 1)
     t2 = np.r_[np.arange(10) * 100_000_000, 3_900_000_000 + np.arange(10) * 100_000_000]
     assert not track_jumps(c2, t2, jump_m=0.4, speed_mps=1.5).any()
+
+
+def _walk(rng, sigma, n=200, speed=0.8, hz=10.0):
+    """A person walking back and forth over 2 m at ``speed`` (instant turns, as the synthetic walks),
+    10 Hz, each frame's centroid off by ``sigma`` per axis: (t_ns, truth (n,3), measured (n,3))."""
+    t = np.arange(n) / hz
+    s = (speed * t) % 4.0
+    y = np.where(s <= 2.0, s, 4.0 - s)
+    truth = np.stack([np.full(n, 1.0), 5.0 + y, np.full(n, 0.8)], 1)
+    return (t * 1e9).astype(np.int64), truth, truth + rng.normal(0.0, sigma, (n, 3))
+
+
+def test_track_smooth_follows_the_noise_of_the_track():
+    """Far coarse camera (robot-cloud-32): each frame's centroid is off by ~10 cm, independently from
+    frame to frame; smoothing along the track brings the median error down by a third or more. Near
+    camera (1 cm): the window shrinks to about a frame and the track is left as measured (an instant
+    turn would otherwise be cut short)."""
+    from holodata.mapping.register.tracks import smooth_window, track_noise, track_smooth
+
+    rng = np.random.default_rng(3)
+    t, truth, far = _walk(rng, 0.06)
+    assert abs(track_noise(far, t) - 0.06 * np.sqrt(3)) < 0.25 * 0.06 * np.sqrt(3)
+    w = np.full(len(t), 40.0)
+    err0 = np.linalg.norm(far - truth, axis=1)
+    err1 = np.linalg.norm(track_smooth(far, w, t) - truth, axis=1)
+    assert 0.25 < smooth_window(far, t) < 0.6
+    assert np.median(err1) < 0.67 * np.median(err0)
+    assert np.percentile(err1, 90) < np.percentile(err0, 90)
+    _, _, near = _walk(rng, 0.01)
+    assert smooth_window(near, t) < 0.1
+    np.testing.assert_allclose(track_smooth(near, w, t), near)
+    # missing frames stay missing; a frame far off (a bad pick) moves its neighbours little
+    far[50] = np.nan
+    far[80] += [0.0, 0.4, 0.0]
+    out = track_smooth(far, w, t)
+    assert np.isnan(out[50]).all()
+    assert np.linalg.norm(out[79] - truth[79]) < 0.1
+
+
+def test_column_centroid_is_the_volume_weighted_centre():
+    """Two columns seen from the origin along +y: the wider-footprint, longer one weighs more; a strip
+    down to the floor pulls the centre down."""
+    from holodata.mapping.register.humans import column_centroid
+
+    p = np.array([[0.0, 5.0, 1.0], [0.2, 5.0, 1.0]])
+    span = np.array([[0.0, 0.2], [0.0, 0.1]])
+    px = np.array([0.1, 0.1])
+    c = column_centroid(p, np.zeros(3), span, px)
+    v = px ** 2 * (span[:, 1] - span[:, 0])
+    np.testing.assert_allclose(c[[0, 2]], [(0.2 * v[1]) / v.sum(), 1.0], atol=2e-3)   # (rays 2° apart)
+    assert abs(c[1] - (5.0 + (0.1 * v[0] + 0.05 * v[1]) / v.sum())) < 0.02   # along the ray, not exactly +y
+    c2 = column_centroid(p, np.zeros(3), span, px, down_to=np.array([0.0, np.nan]))
+    assert c2[2] < c[2] - 0.2

@@ -68,7 +68,7 @@ from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, icp, map_n
 from .camera import (_camera_points_through, camera_points_world, camera_seen_through, CameraFrames,
                      depth_noise_model, noise_coefficient, static_depth, static_depth_of)
 from .steps import (all_surfaces, body_columns_of, clear_outputs, human_candidates, human_shift, initial_guess,
-                    pick_track, registration_failure, static_camera, write_outputs)
+                    pick_track, registration_failure, static_camera, track_smoothing, write_outputs)
 from .humans import (body_columns, closed_surface, cluster_points, pick_human, pixel_runs, radial_speed,
                      static_residual, track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
 
@@ -350,6 +350,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                            noise_coefficient(static.med, static.mad))
         shift = human_shift(picks.points, cts, ts, cfg)
         columns = body_columns_of(picks, eye, f_px, cts, cfg)
+        shift = shift + track_smoothing(picks.points, columns, shift, eye, ts, cfg)
         picks.pixels = []
         timings["picks_s"] = time.perf_counter() - t2 - timings["candidates_s"]
         if cam_world is not None:

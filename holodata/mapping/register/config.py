@@ -68,6 +68,8 @@ class RegisterConfig:
                                 # depth difference (docs/design/register.md, far people on a noisy camera)
     track_radius_m: float = 2.0
     track_jump_m: float = 0.4
+    track_smooth: bool = True   # the person's centroid smoothed along the track, as far as its own noise
+                                # allows (humans.smooth_window; docs/design/register.md)
     walk_speed_mps: float = 1.5
     max_depth_spread_m: float = 0.35
     floor_margin_m: float = 0.04

@@ -525,3 +525,32 @@ def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray,
                 if np.linalg.norm(v) <= max_speed:
                     out[k] = max(out[k], abs(float(v @ u)) / nu)
     return out
+
+
+def column_centroid(points_world: np.ndarray, eye: np.ndarray, span: np.ndarray, pixel_m: np.ndarray,
+                    down_to: np.ndarray | None = None) -> np.ndarray:
+    """Centre of mass (3,) of the body columns (:func:`body_columns`: ``span`` (N,2) m along the plan
+    viewing direction from ``eye`` (3,), footprint ``pixel_m`` (N,) m, strips down to ``down_to`` (N,)
+    m, NaN none) of the points (N,3): each column weighs its volume. The solid :func:`closed_surface`
+    voxelises has this centre up to its voxels; NaN (3,) for no points."""
+    p = np.asarray(points_world, np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.full(3, np.nan)
+    d = p - np.asarray(eye, float)
+    d[:, 2] = 0.0
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    a, b = np.asarray(span, float)[:, 0], np.asarray(span, float)[:, 1]
+    px = np.broadcast_to(np.asarray(pixel_m, float), (len(p),))
+    L = np.maximum(b - a, 0.0)
+    mid = p + d * (0.5 * (a + b))[:, None]
+    vol = px ** 2 * L
+    pos, w = [mid], [vol]
+    if down_to is not None:
+        dz = np.asarray(down_to, float)
+        ext = np.where(np.isfinite(dz), np.maximum(p[:, 2] - px / 2 - np.nan_to_num(dz), 0.0), 0.0)
+        strip = mid.copy()
+        strip[:, 2] = p[:, 2] - px / 2 - ext / 2
+        pos.append(strip)
+        w.append(px * L * ext)
+    P, W = np.concatenate(pos), np.concatenate(w)
+    return P.T @ W / W.sum() if W.sum() > 0 else p.mean(0)

@@ -15,8 +15,9 @@ from ...errors import InputError
 from ...parallel import fork_call
 from .camera import CameraFrames, camera_seen_through, depth_noise_model, frame_candidates, static_depth
 from .config import RegisterConfig, Registration
-from .humans import (body_columns, closed_surface, pick_human, radial_speed, static_residual, track_jumps,
-                     track_prediction, velocity_shift)
+from .humans import (body_columns, closed_surface, column_centroid, pick_human, radial_speed, static_residual,
+                     track_jumps, track_prediction, velocity_shift)
+from .tracks import track_smooth
 
 # the floor under a person: the FLOOR_PERCENTILE-th percentile of the map's heights within
 # FLOOR_RADIUS_M (plan) of the track (low outliers aside), from more than FLOOR_MIN_POINTS points
@@ -279,3 +280,18 @@ def write_outputs(sw, surfaces: list, points: list, T: np.ndarray) -> None:
             r.write_shard(s, per_frame[sl])
     sw.write_array(CALIB_T_WORLD_CAMERA, T,
                    attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
+
+
+def track_smoothing(points: list, columns: list, shift: np.ndarray, eye: np.ndarray, ts: np.ndarray,
+                    cfg: RegisterConfig) -> np.ndarray:
+    """(T,3) the shifts that move each frame's solid (its :func:`column_centroid` moved by its
+    velocity ``shift`` (T,3)) onto the smoothed track (:func:`track_smooth`, its window from the
+    track's noise and speed, frame stamps ``ts`` (T,) ns, weights the frame's returns); zero where a
+    frame has no person or ``track_smooth`` is off."""
+    if not cfg.track_smooth:
+        return np.zeros((len(points), 3))
+    cen = np.array([column_centroid(p, eye, span, px, down) if len(p) else np.full(3, np.nan)
+                    for p, (span, px, down) in zip(points, columns)], float) + shift
+    n = np.array([len(p) for p in points], float)
+    out = track_smooth(cen, n, ts) - cen
+    return np.where(np.isfinite(out), out, 0.0)
