@@ -576,7 +576,8 @@ def nan_quantile(stack, q):
 
 def _static_depth_plain(stack, far_quantile=0.8):
     """The plain formulation of :func:`static_depth_of` (a temporary per step; its code until
-    2026-12-02): the reference it must equal."""
+    2026-12-02, with the inliers kept inside the background window since 2026-12-05): the reference
+    it must equal."""
     from holodata.mapping.register import depth_noise_model
 
     n = np.isfinite(stack).sum(0)
@@ -587,7 +588,7 @@ def _static_depth_plain(stack, far_quantile=0.8):
         background = np.where(np.abs(stack - far[None]) <= window[None], stack, np.nan)
         med = nan_quantile(background, 0.5)
         mad = 1.4826 * nan_quantile(np.abs(background - med[None]), 0.5)
-        inl = np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]
+        inl = (np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]) & (np.abs(stack - far[None]) <= window[None])
         cnt = inl.sum(0)
         mean = np.where(cnt > 0, np.nansum(np.where(inl, stack, 0.0), axis=0) / np.maximum(cnt, 1), np.nan)
         below = np.max(np.where(stack < (far - window)[None], stack, -np.inf), axis=0)

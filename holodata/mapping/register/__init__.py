@@ -65,7 +65,7 @@ from .config import RegisterConfig, Registration, RegistrationError
 from ...geometry.voxels import voxel_average
 from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, icp, map_normals, mesh_surface_samples,
                         pose_uncertainty, register_extrinsic)
-from .camera import (_camera_points_through, camera_points_world, camera_seen_through, CameraFrames,
+from .camera import (_camera_points_through, camera_points_world, camera_seen_through, camera_swept, CameraFrames,
                      depth_noise_model, noise_coefficient, static_depth, static_depth_of)
 from .steps import (all_surfaces, body_columns_of, clear_outputs, human_candidates, human_shift, initial_guess,
                     pick_track, registration_failure, static_camera, track_smoothing, write_outputs)
@@ -429,4 +429,4 @@ __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extr
            "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
            "track_jumps", "track_velocity", "radial_speed", "mesh_surface_samples",
            "scene_mesh", "held_directions", "anchored_guess", "static_depth_of",
-           "register_fingerprint", "scene_map", "slam_anchor", "camera_seen_through"]
+           "register_fingerprint", "scene_map", "slam_anchor", "camera_seen_through", "camera_swept"]

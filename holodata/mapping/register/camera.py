@@ -1,6 +1,7 @@
 """The depth camera's frames: :class:`CameraFrames`, the static depth (:func:`static_depth`),
 the per-frame candidate returns of a moving or standing person (:func:`frame_candidates`)
-and what the camera sees through (:func:`camera_seen_through`)."""
+and what the camera sees through (:func:`camera_seen_through`) or sees swept by a walk along its
+line of sight (:func:`camera_swept`)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -158,7 +159,11 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
         short = (s < (far - window)[None]).sum(0)
         below = np.where(short > 0, np.take_along_axis(s, np.maximum(short - 1, 0)[None], 0)[0], -np.inf)
         apart = (far - window) - below >= window
+        # the inliers are background samples: within the window of the far one as well (3 robust sigmas
+        # of samples that fill the window evenly, the far end of a walk along the line of sight, reach
+        # beyond it, and counted half the walk as background: docs/design/register.md, static depth)
         inl = np.abs(np.subtract(stack, med[None], out=dev), out=dev) <= np.maximum(3 * mad, MIN_INLIER_BAND_M)[None]
+        inl &= np.abs(np.subtract(stack, far[None], out=dev), out=dev) <= window[None]
         cnt = inl.sum(0)
         s.fill(0.0)                                   # (s as the buffer of the inliers' sum: no NaN in it)
         np.copyto(s, stack, where=inl)
@@ -211,6 +216,20 @@ def frame_candidates(cam: CameraFrames, frames, T: np.ndarray, rays: np.ndarray,
     return out
 
 
+def _map_pixels(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape: tuple) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where map ``points`` (N,3, world) fall in the image of the camera at ``T`` (4,4, T_world_camera;
+    pinhole ``K``, image ``shape`` (h, w)): (indices (I,) of the points in the image and farther than
+    ``MIN_DEPTH_M``, their flat pixel indices (I,), their optical depths (I,) m)."""
+    h, w = shape
+    q = transform_points(np.linalg.inv(T), np.asarray(points, np.float64))
+    z = q[:, 2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = np.rint(K[0, 0] * q[:, 0] / z + K[0, 2])
+        v = np.rint(K[1, 1] * q[:, 1] / z + K[1, 2])
+    inside = np.flatnonzero((z > MIN_DEPTH_M) & (u >= 0) & (u < w) & (v >= 0) & (v < h))
+    return inside, v[inside].astype(np.intp) * w + u[inside].astype(np.intp), z[inside]
+
+
 def camera_seen_through(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape: tuple, images,
                         margin: np.ndarray | float, min_fraction: float = 0.2) -> np.ndarray:
     """(N,) bool: map ``points`` (N,3, world) the camera at ``T`` (4,4, T_world_camera; pinhole ``K``,
@@ -222,17 +241,10 @@ def camera_seen_through(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape:
     side those voxels are empty whenever the person is elsewhere; such map points must not explain
     the person's returns away."""
     h, w = shape
-    q = transform_points(np.linalg.inv(T), np.asarray(points, np.float64))
-    z = q[:, 2]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        u = np.rint(K[0, 0] * q[:, 0] / z + K[0, 2])
-        v = np.rint(K[1, 1] * q[:, 1] / z + K[1, 2])
-    inside = np.flatnonzero((z > MIN_DEPTH_M) & (u >= 0) & (u < w) & (v >= 0) & (v < h))
-    out = np.zeros(len(q), bool)
+    inside, pix, zi = _map_pixels(points, T, K, shape)
+    out = np.zeros(len(points), bool)
     if not len(inside):
         return out
-    pix = v[inside].astype(np.intp) * w + u[inside].astype(np.intp)
-    zi = z[inside]
     mg = np.broadcast_to(np.asarray(margin, np.float64), (h, w)).reshape(-1)[pix]
     through = np.zeros(len(inside), np.int32)
     seen = np.zeros(len(inside), np.int32)
@@ -242,6 +254,35 @@ def camera_seen_through(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape:
         seen += ok
         through += ok & (d > zi + mg)
     out[inside] = (seen > 0) & (through >= np.maximum(1, min_fraction * seen))
+    return out
+
+
+def camera_swept(points: np.ndarray, T: np.ndarray, K: np.ndarray, shape: tuple, images,
+                 static: np.ndarray) -> np.ndarray:
+    """(N,) bool: map ``points`` (N,3, world) on pixels that something moving along the camera's line of
+    sight covers in every frame (:func:`static_depth_of` leaves them without a ``static`` depth, (h, w)
+    m, NaN, though at least half the depth ``images`` (a list of (h, w) float32 m, NaN = none, the frames
+    of the static depth) have a return there), no farther than the pixel's farthest return. The camera
+    (``T`` (4,4) T_world_camera, pinhole ``K``, image ``shape``) saw the returns there sweep through the
+    depths up to the far end of the walk, so no static surface stands there; the LiDAR cannot see
+    through the far end of a walk along its own line of sight either (the walker blocks those scans),
+    so slam's map keeps the person there, and the camera cannot see through it
+    (:func:`camera_seen_through`): the walker hides it in every frame. Such map points must not explain
+    the person's returns away when they stand at that end."""
+    out = np.zeros(len(points), bool)
+    images = list(images)
+    if not images:
+        return out
+    inside, pix, zi = _map_pixels(points, T, K, shape)
+    open_ = ~np.isfinite(static.reshape(-1)[pix])
+    inside, pix, zi = inside[open_], pix[open_], zi[open_]
+    if not len(inside):
+        return out
+    samples = np.stack([D.reshape(-1)[pix] for D in images])         # (F, I)
+    finite = np.isfinite(samples)
+    cover = finite.sum(0) * 2 >= len(images)
+    farthest = np.where(finite, samples, -np.inf).max(0)
+    out[inside] = cover & (zi <= farthest)
     return out
 
 

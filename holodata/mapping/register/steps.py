@@ -13,7 +13,8 @@ from ...conventions import transform_points
 from ...dataset.layout import CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ...errors import InputError
 from ...parallel import fork_call
-from .camera import CameraFrames, camera_seen_through, depth_noise_model, frame_candidates, static_depth
+from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
+                     static_depth)
 from .config import RegisterConfig, Registration
 from .humans import (body_columns, closed_surface, column_centroid, pick_human, radial_speed, static_residual,
                      track_jumps, track_prediction, velocity_shift)
@@ -128,10 +129,12 @@ def human_candidates(cam: CameraFrames, static: StaticCamera, M: np.ndarray, T: 
     from scipy.spatial import cKDTree
 
     sigma = np.where(np.isfinite(static.mad), static.mad, 0.0)
-    # map points the camera sees through (a person the LiDAR map kept) explain nothing away
+    # map points the camera sees through, or sees a walk along its line of sight sweep over (a person
+    # the LiDAR map kept), explain nothing away
     carved = camera_seen_through(M, T, cam.K, cam.shape, static.images.values(),
                                  np.maximum(cfg.fg_min_m, cfg.fg_sigma * depth_noise_model(
                                      np.where(np.isfinite(static.med), static.med, 0.0), sigma)))
+    carved |= camera_swept(M, T, cam.K, cam.shape, static.images.values(), static.med)
     mtree = cKDTree(M[~carved])
     still = np.zeros(static.med.shape, bool)
     if static.residual.any():
