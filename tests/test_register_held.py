@@ -55,6 +55,16 @@ def test_a_measured_turn_does_not_carry_the_camera_along_a_held_direction(deg):
     # the yaw was measured, and the guess's camera position (exact here) is kept along the corridor
     assert np.degrees(abs(np.arctan2(r.T[1, 0], r.T[0, 0]))) < 0.2
     assert r.accepted and np.linalg.norm(r.T[:3, 3] - T_true[:3, 3]) < 0.01, (r.T[:3, 3], a)
+    # the same guess from TF onto a slam map anchored 10 m away across the corridor: the guess's 3° is
+    # more than a map's turn (anchor_max_deg 0.5), so the turn was not read and may move the camera
+    # along the corridor by up to 0.5° × 10 m: refused, saying so
+    anchor = T_true[:3, 3] - [0.0, 10.0, 0.0]
+    r = register_extrinsic(cam, corridor, init, RegisterConfig(mesh_target=False, guess_std_m=0.01),
+                           allow_fallback=False, anchor=anchor)
+    a = r.attempts[0]
+    assert a["anchor_turn"]["applied"] is False and not r.accepted
+    assert a["map_turn_reach_m"] == pytest.approx([np.radians(0.5) * 10.0], rel=0.02)
+    assert a["uncertainty_m"] == pytest.approx(0.01 + np.radians(0.5) * 10.0, rel=0.02)
 
 
 def test_hold_at_guess_puts_the_camera_back_and_reports_what_it_could_not():
@@ -78,3 +88,18 @@ def test_hold_at_guess_puts_the_camera_back_and_reports_what_it_could_not():
     np.testing.assert_allclose(H[:3, :3], T[:3, :3], atol=1e-9)          # the turn is kept
     np.testing.assert_allclose(H[1:3, 3], T[1:3, 3], atol=1e-9)          # and the other directions
     assert hold_at_guess(T, guess, None)[0] is T
+
+
+def test_map_turn_reach_is_the_turn_times_the_lever_across_the_held_direction():
+    """A SLAM map anchored at a TF pose is the TF world turned about the anchor; where that turn was not
+    read, the TF guess's camera is off in the map by up to anchor_max_deg × its distance from the
+    anchor, along the held direction when the lever is across it, not at all when along it."""
+    from holodata.mapping.register.extrinsic import map_turn_reach
+
+    V = np.zeros((6, 1))
+    V[3, 0] = 1.0                                      # translation along x, about a centroid 3 m away
+    held = (V, np.array([3.0, 10.0, 1.2]), 2.0)
+    across = map_turn_reach(held, np.array([0.0, 10.0, 1.2]), np.zeros(3), 0.5)
+    assert across == pytest.approx([np.radians(0.5) * 10.0], rel=1e-6)
+    along = map_turn_reach(held, np.array([10.0, 0.0, 1.2]), np.zeros(3), 0.5)
+    assert along == pytest.approx([0.0], abs=1e-9)

@@ -253,6 +253,18 @@ def camera_held(held: tuple, camera: np.ndarray) -> tuple:
     return np.linalg.qr(Vc)[0], cam, lever
 
 
+def map_turn_reach(held: tuple, camera: np.ndarray, anchor: np.ndarray, max_deg: float) -> np.ndarray:
+    """(k,) m: how far a turn of the map by ``max_deg`` about the vertical through ``anchor`` (3,) m
+    moves the camera at ``camera`` (3,) m along each of the k held directions (``held``: the ICP's
+    ``info["held"]``). A SLAM map anchored at a TF pose is the TF world turned so by the odometry's
+    error there (:func:`anchored_guess`); where that turn could not be read, the TF guess's camera
+    is off in the map by up to this along a direction nothing measured."""
+    Q, cam, lever = camera_held(held, camera)
+    d = np.radians(max_deg)
+    m = np.concatenate([[0.0, 0.0, d * lever], np.cross([0.0, 0.0, d], cam - np.asarray(anchor, np.float64))])
+    return np.abs(Q.T @ m)
+
+
 def hold_at_guess(T: np.ndarray, guess: np.ndarray, held: tuple | None) -> tuple[np.ndarray, np.ndarray]:
     """``T`` (4,4) moved along the directions the ICP held (``held``: its ``info["held"]`` or None) to
     where the camera pose ``guess`` (4,4) lies along them, read about the guess's camera
@@ -331,7 +343,7 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         src, src_n = src[near], src_n[near]
     attempts = []
 
-    def check(T, frozen: int = 0, held=None, slide=None):
+    def check(T, frozen: int = 0, held=None, slide=None, turn_reach=None):
         # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
         # far stereo points are too noisy to tell a right from a slightly wrong alignment
         p = transform_points(T, full_src)
@@ -356,6 +368,9 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         c["held_slide_m"] = [] if slide is None else [round(float(x), 5) for x in slide]
         moved = float(np.abs(slide).max()) if slide is not None and len(slide) else 0.0
         moved = moved if moved >= STOP_TRANSLATION_M else 0.0     # (within the ICP's resolution: none)
+        if turn_reach is not None and len(turn_reach):
+            c["map_turn_reach_m"] = [round(float(x), 5) for x in turn_reach]
+            moved += float(np.max(turn_reach))
         c["uncertainty_m"] = max(std, cfg.guess_std_m + moved) if frozen else std
         if cfg.max_pose_std_m > 0 and c["uncertainty_m"] > cfg.max_pose_std_m:
             c["accepted"] = False
@@ -382,7 +397,12 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         anchor_turn["applied"] = target is not None
     # held directions: at the (anchored) guess, about its camera, all the way
     T, slide = hold_at_guess(T, init if target is None else target, info.get("held") if info.get("frozen") else None)
-    c = check(T, info.get("frozen", 0), info.get("held"), slide)
+    turn_reach = None
+    if anchor is not None and info.get("frozen") and target is None:
+        # the map's turn about its anchor was not read: the TF guess's camera is off in the map by
+        # up to anchor_max_deg's reach along the held directions, which nothing measured
+        turn_reach = map_turn_reach(info["held"], init[:3, 3], anchor, cfg.anchor_max_deg)
+    c = check(T, info.get("frozen", 0), info.get("held"), slide, turn_reach)
     attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
                      "frozen_directions": info.get("frozen", 0),
                      "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
@@ -394,7 +414,9 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         T2 = refine(Tg, info2)
         # (the ICP held its directions where RANSAC put them: they go to the guess too)
         T2, slide2 = hold_at_guess(T2, init, info2.get("held") if info2.get("frozen") else None)
-        c2 = check(T2, info2.get("frozen", 0), info2.get("held"), slide2)
+        c2 = check(T2, info2.get("frozen", 0), info2.get("held"), slide2,
+                   map_turn_reach(info2["held"], init[:3, 3], anchor, cfg.anchor_max_deg)
+                   if anchor is not None and info2.get("frozen") else None)
         shift, rot = prior_deviation(T2, init)
         c2 = {**c2, "prior_shift_m": shift, "prior_rot_deg": rot}
         if shift > cfg.fallback_max_shift_m or rot > cfg.fallback_max_rot_deg:
