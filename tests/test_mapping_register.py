@@ -576,8 +576,8 @@ def nan_quantile(stack, q):
 
 def _static_depth_plain(stack, far_quantile=0.8):
     """The plain formulation of :func:`static_depth_of` (a temporary per step; its code until
-    2026-12-02, with the inliers kept inside the background window since 2026-12-05): the reference
-    it must equal."""
+    2026-12-02; since 2026-12-05 only the inliers inside the background window count as background):
+    the reference it must equal."""
     from holodata.mapping.register import depth_noise_model
 
     n = np.isfinite(stack).sum(0)
@@ -588,12 +588,13 @@ def _static_depth_plain(stack, far_quantile=0.8):
         background = np.where(np.abs(stack - far[None]) <= window[None], stack, np.nan)
         med = nan_quantile(background, 0.5)
         mad = 1.4826 * nan_quantile(np.abs(background - med[None]), 0.5)
-        inl = (np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]) & (np.abs(stack - far[None]) <= window[None])
+        inl = np.abs(stack - med[None]) <= np.maximum(3 * mad, 0.005)[None]
         cnt = inl.sum(0)
+        cnt_bg = (inl & (np.abs(stack - far[None]) <= window[None])).sum(0)
         mean = np.where(cnt > 0, np.nansum(np.where(inl, stack, 0.0), axis=0) / np.maximum(cnt, 1), np.nan)
         below = np.max(np.where(stack < (far - window)[None], stack, -np.inf), axis=0)
         apart = (far - window) - below >= window
-    mean = np.where((n * 2 >= len(stack)) & ((cnt * 2 >= n) | apart), mean, np.nan).astype(np.float32)
+    mean = np.where((n * 2 >= len(stack)) & ((cnt_bg * 2 >= n) | apart), mean, np.nan).astype(np.float32)
     return mean, mad.astype(np.float32), cnt.astype(np.int32)
 
 

@@ -159,12 +159,13 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
         short = (s < (far - window)[None]).sum(0)
         below = np.where(short > 0, np.take_along_axis(s, np.maximum(short - 1, 0)[None], 0)[0], -np.inf)
         apart = (far - window) - below >= window
-        # the inliers are background samples: within the window of the far one as well (3 robust sigmas
-        # of samples that fill the window evenly, the far end of a walk along the line of sight, reach
-        # beyond it, and counted half the walk as background: docs/design/register.md, static depth)
         inl = np.abs(np.subtract(stack, med[None], out=dev), out=dev) <= np.maximum(3 * mad, MIN_INLIER_BAND_M)[None]
-        inl &= np.abs(np.subtract(stack, far[None], out=dev), out=dev) <= window[None]
         cnt = inl.sum(0)
+        # background are only the inliers within the window of the far sample as well: 3 robust sigmas of
+        # samples that fill the window evenly (the far end of a walk along the line of sight) reach beyond
+        # it, and counted half the walk as background (docs/design/register.md, "A person lingering").
+        # The mean stays that of the inliers, a band symmetric about their median (the window is not)
+        cnt_bg = (inl & (np.abs(np.subtract(stack, far[None], out=dev), out=dev) <= window[None])).sum(0)
         s.fill(0.0)                                   # (s as the buffer of the inliers' sum: no NaN in it)
         np.copyto(s, stack, where=inl)
         mean = np.where(cnt > 0, s.sum(axis=0) / np.maximum(cnt, 1), np.nan)
@@ -172,7 +173,7 @@ def static_depth_of(stack: np.ndarray, far_quantile: float = 0.8) -> tuple[np.nd
     # returns are background and these do not stand apart (a person walking along the line of sight
     # covers such pixels in every frame: their "static" depth was the person at the far end of the walk;
     # docs/design/register.md, static depth)
-    mean = np.where((n * 2 >= F) & ((cnt * 2 >= n) | apart), mean, np.nan).astype(np.float32)
+    mean = np.where((n * 2 >= F) & ((cnt_bg * 2 >= n) | apart), mean, np.nan).astype(np.float32)
     return mean, mad.astype(np.float32), cnt.astype(np.int32)
 
 
