@@ -201,6 +201,9 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
              + ([("tf_yaw", None)] if args.tf_yaw else []) + ([("tf_turn", None)] if args.tf_turn else []))
     for name, init in inits:
         ds = open_dataset(url)
+        anchor = slam_anchor(ds.scene(sid))
+        if name == "tf_turn" and anchor is None:   # (true poses: no slam map, no anchor to turn about)
+            continue
         w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins)
         if "lidar/instance" in w.scene(sid).arrays():
             w.scene(sid).remove("lidar/instance")
@@ -208,9 +211,6 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
         if name == "tf_yaw":    # the TF pose itself off in yaw (register's TF path, not --init)
             w.scene(sid).set_attrs({"sensors": turned_tf(sensors, args.tf_yaw)})
         if name == "tf_turn":   # ... turned about the slam map's anchor, as the map itself may be
-            anchor = slam_anchor(ds.scene(sid))
-            if anchor is None:
-                continue
             w.scene(sid).set_attrs({"sensors": turned_tf(sensors, args.tf_turn, anchor)})
         t1 = time.perf_counter()
         try:
