@@ -369,8 +369,10 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         moved = float(np.abs(slide).max()) if slide is not None and len(slide) else 0.0
         moved = moved if moved >= STOP_TRANSLATION_M else 0.0     # (within the ICP's resolution: none)
         if turn_reach is not None and len(turn_reach):
+            # reported as a bound beside the uncertainty, not in it: anchor_max_deg is the largest turn
+            # the anchored hold looks for, not a measured one, and counting it refused every demo
+            # scene with a held direction far from slam's anchor (docs/design/register.md)
             c["map_turn_reach_m"] = [round(float(x), 5) for x in turn_reach]
-            moved += float(np.max(turn_reach))
         c["uncertainty_m"] = max(std, cfg.guess_std_m + moved) if frozen else std
         if cfg.max_pose_std_m > 0 and c["uncertainty_m"] > cfg.max_pose_std_m:
             c["accepted"] = False

@@ -92,10 +92,10 @@ def registration_failure(where: str, reg: Registration, cfg: RegisterConfig, ini
                   + (f", the data does not constrain {len(x['held_directions'])} direction(s) "
                      f"({', '.join(x['held_directions'])}): held at the guess, good to "
                      f"{x.get('uncertainty_m', cfg.guess_std_m) * 100:.1f} cm ({cfg.guess_std_m * 100:.1f} cm "
-                     f"--guess-std" + (f" + {max(x['map_turn_reach_m']) * 100:.1f} cm the map may be turned "
-                                       f"about its anchor there" if x.get("map_turn_reach_m") else "")
-                     + (f" + {max(map(abs, x['held_slide_m'])) * 100:.1f} cm slid"
-                        if any(abs(v) >= 1e-5 for v in x.get("held_slide_m") or []) else "") + ")"
+                     f"--guess-std" + (f" + {max(map(abs, x['held_slide_m'])) * 100:.1f} cm slid"
+                                       if any(abs(v) >= 1e-5 for v in x.get("held_slide_m") or []) else "") + ")"
+                     + (f", and up to {max(x['map_turn_reach_m']) * 100:.1f} cm more if slam's map is turned "
+                        f"about its anchor by anchor_max_deg" if x.get("map_turn_reach_m") else "")
                      if x.get("held_directions") else "")
                   + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
                      if "prior_shift_m" in x else "")
