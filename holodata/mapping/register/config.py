@@ -69,7 +69,7 @@ class RegisterConfig:
     track_radius_m: float = 2.0
     track_jump_m: float = 0.4
     track_smooth: bool = True   # the person's centroid smoothed along the track, as far as its own noise
-                                # allows (humans.smooth_window; docs/design/register.md)
+                                # allows (tracks.smooth_window; docs/design/register.md)
     walk_speed_mps: float = 1.5
     max_depth_spread_m: float = 0.35
     floor_margin_m: float = 0.04
