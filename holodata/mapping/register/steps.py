@@ -12,6 +12,7 @@ import numpy as np
 from ...conventions import transform_points
 from ...dataset.layout import CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ...errors import InputError
+from ...geometry.icp import STOP_TRANSLATION_M
 from ...parallel import fork_call
 from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
                      static_depth)
@@ -83,20 +84,30 @@ def static_camera(cam: CameraFrames, cfg: RegisterConfig, quiet: bool) -> Static
     return StaticCamera(med, mad, cnt, rays, okm, points, sigma, static_residual(points, cfg), images)
 
 
+def _held_text(x: dict, cfg: RegisterConfig) -> str:
+    """What an attempt ``x`` says of the directions it held at the guess: their names, the uncertainty
+    it reported (the --guess-std share, any slide) and the map turn's reach as a bound; "" for none."""
+    if not x.get("held_directions"):
+        return ""
+    slide = max((abs(v) for v in x.get("held_slide_m") or []), default=0.0)
+    parts = [f"{cfg.guess_std_m * 100:.1f} cm --guess-std"]
+    if slide >= STOP_TRANSLATION_M:
+        parts.append(f"{slide * 100:.1f} cm slid")
+    text = (f", the data does not constrain {len(x['held_directions'])} direction(s) "
+            f"({', '.join(x['held_directions'])}): held at the guess, good to "
+            f"{x.get('uncertainty_m', cfg.guess_std_m) * 100:.1f} cm ({' + '.join(parts)})")
+    if x.get("map_turn_reach_m"):
+        text += (f", and up to {max(x['map_turn_reach_m']) * 100:.1f} cm more if slam's map is turned "
+                 f"about its anchor by anchor_max_deg")
+    return text
+
+
 def registration_failure(where: str, reg: Registration, cfg: RegisterConfig, init_source: str) -> str:
     """The one-line message of a registration whose attempts all failed their check (``where``: the
     dataset and scene)."""
     a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, "
                   f"rmse {x['rmse'] * 100:.1f} cm, "
-                  f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm"
-                  + (f", the data does not constrain {len(x['held_directions'])} direction(s) "
-                     f"({', '.join(x['held_directions'])}): held at the guess, good to "
-                     f"{x.get('uncertainty_m', cfg.guess_std_m) * 100:.1f} cm ({cfg.guess_std_m * 100:.1f} cm "
-                     f"--guess-std" + (f" + {max(map(abs, x['held_slide_m'])) * 100:.1f} cm slid"
-                                       if any(abs(v) >= 1e-5 for v in x.get("held_slide_m") or []) else "") + ")"
-                     + (f", and up to {max(x['map_turn_reach_m']) * 100:.1f} cm more if slam's map is turned "
-                        f"about its anchor by anchor_max_deg" if x.get("map_turn_reach_m") else "")
-                     if x.get("held_directions") else "")
+                  f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm" + _held_text(x, cfg)
                   + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
                      if "prior_shift_m" in x else "")
                   for x in reg.attempts)
