@@ -15,8 +15,9 @@ import click
 @click.option("--split", default="test", show_default=True, help="Dataset split to evaluate.")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default="cpu", show_default=True)
 @click.option("--max-frames", type=click.IntRange(min=1), default=None, help="Evaluate only the first N frames of the split.")
-@click.option("--estimator", type=click.Choice(["mean", "median", "mode"]), default="mean", show_default=True,
-              help="Point estimate of each beam's range-bin distribution (soft-argmax models).")
+@click.option("--estimator", type=click.Choice(["auto", "mean", "median", "mode"]), default="auto", show_default=True,
+              help="Point estimate of each beam's range-bin distribution (soft-argmax models; auto: the one the "
+                   "checkpoint was trained for).")
 @click.option("--screenshot", is_flag=True, help="Also save REPORT/report.png (headless Chromium).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print metrics.json on stdout.")
@@ -33,7 +34,7 @@ def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estima
     if oracle == (checkpoint is not None):
         raise click.UsageError("give either --checkpoint RUN or --oracle")
     doc = run_evaluate(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet,
-                       estimator=estimator, oracle=oracle)
+                       estimator=None if estimator == "auto" else estimator, oracle=oracle)
     if screenshot:
         from pathlib import Path
 

@@ -22,8 +22,9 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
               help="Corner shape.")
 @click.option("--width", type=float, default=None,
               help="Approach-corridor width in metres (default: drawn from the seed, 1.3-4.7).")
-@click.option("--frames", type=click.IntRange(min=1), default=20, show_default=True,
-              help="Radar rotations (2 Hz); at the default sizes ~43 MB each (20: ~0.87 GB), printed before writing.")
+@click.option("--frames", type=int, default=None,
+              help="Radar rotations (2 Hz; default 20, with --corners 4); at the default sizes ~43 MB each (20: ~0.87 GB), "
+                   "printed before writing.")
 @click.option("--format", "fmt", type=click.Choice(["mcap", "rosbag2", "rosbag1"]), default="mcap", show_default=True,
               help="mcap: ROS 2 bag with MCAP storage; rosbag2: sqlite3 storage; rosbag1: ROS 1 .bag.")
 @click.option("--seed", type=int, default=0, show_default=True, help="Random seed (same seed: identical files).")
@@ -54,13 +55,22 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
                    "of grating lobes).")
 @click.option("--count", type=click.IntRange(min=1), default=1, show_default=True,
               help="Recordings to write: >1 writes OUT/scene_000, OUT/scene_001, ... with seeds SEED, SEED+1, ...")
-@dask_options("one recording per task (with --count)", "OUT must be a folder the workers share.")
+@click.option("--corners", type=int, default=None,
+              help="Write a training dataset instead: OUT is a Zarr dataset of N procedurally varied corners x --frames "
+                   "rotations (heatmaps + ground truth from the true mesh; no LiDAR, camera or mapping pass), seeded by --seed, "
+                   "resumable.")
+@click.option("--test", "n_test", type=int, default=0, show_default=True,
+              help="With --corners: the last N corners form the test split (the rest train).")
+@click.option("--processes", type=click.IntRange(min=0), default=0, show_default=True,
+              help="With --corners: local worker processes (0 = one per CPU).")
+@dask_options("one recording (with --count) or one corner (with --corners) per task",
+              "OUT must be a folder the workers share.")
 @click.option("--force", is_flag=True, help="Replace a recording already in OUT (an interrupted run needs no --force).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
-          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, radar_output, radar_chirps, count, workers, scheduler,
-          force, quiet, as_json) -> None:
+          stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, radar_output, radar_chirps, corners, n_test, processes,
+          count, workers, scheduler, force, quiet, as_json) -> None:
     """Synthesise a corner recording (rotating radar, Ouster-like LiDAR, stereo depth camera, a
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
@@ -74,6 +84,9 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     --radar-output iq --grid 32x128; holodata ingest synth_L/recording --out d.zarr --beamform-grid 32x128
 
     Many recordings on a Dask cluster: holodata synth --out corners/ --count 32 --workers 2
+
+    A training dataset of 256 varied corners x 4 rotations (the last 16 for testing):
+    holodata synth --corners 256 --frames 4 --grid 32x128 --test 16 --out train.zarr
     """
     from holodata.conventions import Grid, RangeBins
     from holodata.synth import synthesize
@@ -82,6 +95,13 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
         g = Grid.parse(grid)
     except ValueError as err:
         raise click.BadParameter(str(err), param_hint="--grid") from err
+    if corners is not None:
+        if count > 1:
+            raise click.UsageError("give either --corners (a training dataset) or --count (recordings), not both")
+        _corpus(out, corners, 4 if frames is None else frames, g, RangeBins(n=range_bins), seed, n_test, not no_human,
+                processes, workers, scheduler, quiet, as_json)
+        return
+    frames = 20 if frames is None else frames
     kw = dict(corner=corner, width=width, frames=frames, format=fmt, human=not no_human, grid=g,
               range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
               camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers,
@@ -122,6 +142,27 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     if res.mapping_recording is not None:
         click.echo(f"mapping:   {res.mapping_recording} (the empty corner, LiDAR + odometry; ingest it as its own scene "
                    f"and use holodata slam --map-scene)")
+
+
+def _corpus(out, corners, frames, grid, range_bins, seed, n_test, human, processes, workers, scheduler, quiet,
+            as_json) -> None:
+    from holodata.distributed import cluster
+    from holodata.synth.corpus import CorpusConfig, synth_corpus
+
+    cfg = CorpusConfig(corners=corners, frames=frames, grid=grid, range_bins=range_bins, seed=seed, n_test=n_test,
+                       **({} if human else {"hidden_person": 0.0}))
+    cfg.check()
+    with cluster(workers, scheduler) as client:
+        res = synth_corpus(out, cfg, processes=processes, client=client, quiet=quiet or as_json)
+    if as_json:
+        import json
+
+        click.echo(json.dumps(res, indent=2, default=str))
+        return
+    click.echo(f"dataset: {res['dataset']} ({corners} corners x {frames} frames on {grid.H}x{grid.W} beams, seed {seed}; "
+               f"{res['written']} written, {corners - res['written']} already there; {res['seconds']:.0f} s)")
+    for line in res["span"]:
+        click.echo("  " + line)
 
 
 COMMANDS = [synth]

@@ -18,6 +18,9 @@ import click
 @click.option("--lr", type=float, default=None, help="AdamW learning rate.")
 @click.option("--seed", type=int, default=None)
 @click.option("--workers", "num_workers", type=click.IntRange(min=0), default=None, help="DataLoader worker processes.")
+@click.option("--range-loss", "range_loss", type=click.Choice(["l1", "ce"]), default=None,
+              help="Stage one's range term: l1 (L1 on the soft-argmax mean; default) or ce (cross-entropy over range bins "
+                   "against two-hot sub-bin targets, predicted by the mode).")
 @click.option("--stage", type=click.Choice(["1", "2", "all"]), default="all", show_default=True,
               help="1: stage one only; 2: stage two only (from --stage1 or RUN/checkpoint.pt); all: stage one, then stage two.")
 @click.option("--stage1", "stage1", type=click.Path(), default=None,
@@ -28,8 +31,8 @@ import click
               help="Epochs of each stage-two phase (ray tracer, then refiner; default 20 each).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, stage, stage1, stage2_file,
-          stage2_epochs, quiet, as_json):
+def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, range_loss, stage, stage1,
+          stage2_file, stage2_epochs, quiet, as_json):
     """Train stage one (the multi-return range-image UNet) and stage two (hybrid ray tracer +
     volumetric refiner, stored in RUN/stage2.pt) on DATASET's train split (split by scene).
 
@@ -43,7 +46,7 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     summary = {}
     if stage in ("1", "all"):
         flags = {"epochs": epochs, "device": device, "batch_size": batch_size, "lr": lr, "seed": seed,
-                 "num_workers": num_workers}
+                 "num_workers": num_workers, "range_loss": range_loss}
         if config_file:
             cfg = TrainConfig.from_file(config_file, **flags)
         else:

@@ -271,9 +271,11 @@ def _missing_hint(missing: list[str]) -> str:
 
 
 def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig | None = None,
-                     quiet: bool = True, processes: int = 0, client=None) -> dict:
+                     quiet: bool = True, processes: int = 0, client=None, unfinished_ok: bool = False) -> dict:
     """``holodata raytrace-gt DATASET [--scene ID]``: for each scene with mesh/* and pose/T_world_radar,
-    trace with the dataset's grid and write gt/* (resumable)."""
+    trace with the dataset's grid and write gt/* (resumable). ``unfinished_ok``: the caller is the writer
+    that marked the scenes unfinished and traces their GT as its last step (``synth --corners``), so its
+    own mark does not stop it."""
     from .dataset import create_dataset, open_dataset
 
     cfg = cfg or GTConfig()
@@ -285,7 +287,8 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         if sid not in ds.scenes:
             raise InputError(f"{url}: no scene {sid!r} (have: {', '.join(ds.scenes)})")
         s = ds.scene(sid)
-        s.require_complete("raytrace-gt")
+        if not unfinished_ok:
+            s.require_complete("raytrace-gt")
         names = set(s.arrays())
         missing = [n for n in (MESH_VERTICES, MESH_FACES, POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS) if n not in names]
         if missing:

@@ -187,7 +187,7 @@ def validate_metrics(doc: dict) -> None:
 def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: str = "cpu",
              batch_size: int = 4, tau: float = M.DEFAULT_TAU_M, taus=M.DEFAULT_TAUS_M,
              max_frames: int | None = None, quiet: bool = False, report: bool = True,
-             oracle: bool = False, estimator: str = "mean") -> dict:
+             oracle: bool = False, estimator: str | None = None) -> dict:
     """Evaluate ``checkpoint`` (file or run directory) and the strongest-peaks baseline on the
     ``split`` scenes of the dataset at ``dataset_url``; write ``out_dir``/metrics.json (+ figures
     and report.html when ``report``). Returns the metrics document (the same dict as the JSON).
@@ -195,7 +195,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     ``oracle=True`` scores the ground truth itself (ranges, normals, labels) as the "model"
     (``checkpoint`` may then be None): a check of the metric plumbing, which must give perfect
     scores. ``estimator``: the model's point estimate per beam ("mean", "median", "mode"; see
-    :meth:`holodata.torch.model.MultiReturnUNet.predict`)."""
+    :meth:`holodata.torch.model.MultiReturnUNet.predict`; None: the one the checkpoint was trained for)."""
     from holodata.dataset import open_dataset
     from holodata.torch.data import HeatmapDataset, apply_transform
 
@@ -276,7 +276,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                      "max_range_m": max_range, "cd_convention": "sum", "downsample": f,
                      "grid": grid.to_attrs(), "range_bins": rb.to_attrs(), "norm": norm.to_dict(),
                      "baseline": "three strongest range peaks per beam (>= 6 dB over the beam median, beyond 0.25 m)",
-                     "train_epochs": int(ck.get("epoch", 0)), "estimator": estimator,
+                     "train_epochs": int(ck.get("epoch", 0)), "estimator": run.point_estimator,
                      "beam_origin": {sid: b.origin.to_attrs() for sid, b in beams.items()},
                      "stage2": _stage2_settings(ck2),
                      "gt_nlos_points_per_frame": float(np.mean(gt_nlos_points)) if gt_nlos_points else 0.0},

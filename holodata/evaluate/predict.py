@@ -31,10 +31,15 @@ class Predictor:
     stage2_checkpoint: dict | None
     checkpoint: dict
     device: object
-    estimator: str = "mean"
+    estimator: str | None = None
+
+    @property
+    def point_estimator(self) -> str:
+        """The estimate used: the one asked for, else the model's own (``ModelConfig.estimator``)."""
+        return self.estimator or (self.model.cfg.estimator if self.model is not None else "mean")
 
     @classmethod
-    def load(cls, checkpoint, device: str = "cpu", estimator: str = "mean", oracle: bool = False) -> "Predictor":
+    def load(cls, checkpoint, device: str = "cpu", estimator: str | None = None, oracle: bool = False) -> "Predictor":
         """Load ``checkpoint`` (a run directory or its checkpoint file); ``oracle``: no model."""
         from holodata.torch.data import HeatmapNorm
         from holodata.torch.train import load_checkpoint, model_from_checkpoint, resolve_device

@@ -260,23 +260,25 @@ class Sensors:
                                   [m.lidar_reflectivity for m in w.materials], w.face_material,
                                   w.materials[MATERIAL_ID["human"]].lidar_reflectivity) if sc.stereo else None
 
-    def _radar_paths(self, k: int) -> tuple[dict, np.ndarray, np.ndarray]:
+    def _radar_paths(self, k: int, T_cols: np.ndarray | None = None) -> tuple[dict, np.ndarray, np.ndarray]:
         """The specular paths of cycle k's beams (:meth:`RadarModel.paths`) and the beams' world-frame
-        origins and directions (H*W, 3): column j from the rotation centre at its time."""
+        origins and directions (H*W, 3): column j from the rotation centre at its time, its pose
+        ``T_cols[j]`` (W,4,4) T_world_radar when given, else the true trajectory's at that time."""
         sc, cfg = self.sc, self.sc.radar_cfg
         g = cfg.grid
         start, end = sc.radar_cycle(k)
-        t_cols = start + np.round((np.arange(g.W) + 0.5) / g.W * (end - start)).astype(np.int64)
-        T_cols = sc.truth.interpolate(t_cols) @ sc.T_base_radar             # (W,4,4)
+        if T_cols is None:
+            t_cols = start + np.round((np.arange(g.W) + 0.5) / g.W * (end - start)).astype(np.int64)
+            T_cols = sc.truth.interpolate(t_cols) @ sc.T_base_radar             # (W,4,4)
         D = np.einsum("wij,hwj->hwi", T_cols[:, :3, :3], g.directions()).reshape(-1, 3)
         O = np.broadcast_to(T_cols[None, :, :3, 3], (g.H, g.W, 3)).reshape(-1, 3)
         human = sc.dynamic_mesh((start + end) // 2)[0]
         tr = self.trace(O, D, human, cfg.max_bounces, cfg.range_bins.max_range)
         return self.radar.paths(tr, O, D), O, D
 
-    def radar_frame(self, k: int) -> tuple[np.ndarray, dict]:
-        """(n_range, H, W) float32 heatmap of cycle k and per-frame stats."""
-        paths, _, _ = self._radar_paths(k)
+    def radar_frame(self, k: int, T_cols: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+        """(n_range, H, W) float32 heatmap of cycle k and per-frame stats (``T_cols``: see :meth:`_radar_paths`)."""
+        paths, _, _ = self._radar_paths(k, T_cols)
         hm = self.radar.cube(paths, _rng(self.sc.seed, "radar", k))
         return hm, path_stats(paths)
 

@@ -17,6 +17,12 @@ import torch.nn.functional as F
 from torch import nn
 
 
+ESTIMATORS = ("mean", "median", "mode")
+# the "mode" estimate's window about the most likely bin: a two-hot target (losses.two_hot) puts its
+# mass on two neighbouring bins, which ±1 bin always holds; ±2 tolerates a little spread
+MODE_HALF_BINS = 2
+
+
 @dataclass
 class ModelConfig:
     """in_channels: range bins; depth: encoder levels (paper: 7), each after the first halves H and
@@ -33,6 +39,7 @@ class ModelConfig:
     head: str = "softargmax"
     range_bins_out: int = 0  # soft-argmax bins; 0 = in_channels
     input_skip: bool = True  # soft-argmax logits += scale_b · input heatmap (same bins)
+    estimator: str = "mean"  # predict()'s default point estimate: the one its training loss suits
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -126,13 +133,15 @@ class MultiReturnUNet(nn.Module):
         return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1]}
 
     @torch.no_grad()
-    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str = "mean") -> dict:
+    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str | None = None) -> dict:
         """Inference: range with NaN where P(return) < threshold; human probability.
 
         With the soft-argmax head, ``estimator`` picks the point estimate of each beam's range-bin
-        distribution: "mean" (default; the training-time soft-argmax), "median" (minimises the
-        expected absolute error) or "mode" (soft-argmax within ±3 bins of the most likely bin:
+        distribution (None: ``cfg.estimator``, the one the model was trained for): "mean" (the
+        soft-argmax L1 training uses), "median" (minimises the
+        expected absolute error) or "mode" (soft-argmax within ±``MODE_HALF_BINS`` bins of the most likely bin:
         sharpest where the model is confident, but a wrong peak where it is not)."""
+        estimator = estimator or self.cfg.estimator
         out = self.forward(x)
         rng = out["range"]
         if "bin_logits" in out and estimator == "median":
@@ -147,9 +156,9 @@ class MultiReturnUNet(nn.Module):
         elif "bin_logits" in out and estimator == "mode":
             lg = out["bin_logits"]
             idx = torch.arange(lg.shape[2], device=lg.device).view(1, 1, -1, 1, 1)
-            lg = lg.masked_fill((idx - lg.argmax(2, keepdim=True)).abs() > 3, float("-inf"))
+            lg = lg.masked_fill((idx - lg.argmax(2, keepdim=True)).abs() > MODE_HALF_BINS, float("-inf"))
             rng = (torch.softmax(lg, dim=2) * self.centres).sum(2)
-        elif estimator not in ("median", "mean", "mode"):
+        elif estimator not in ESTIMATORS:
             raise ValueError(f"estimator must be 'mean', 'median' or 'mode', got {estimator!r}")
         valid = torch.sigmoid(out["valid_logit"]) >= valid_threshold
         rng = torch.where(valid, rng, torch.full_like(rng, float("nan")))

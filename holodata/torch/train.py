@@ -42,7 +42,10 @@ class TrainConfig:
     Data: downsample (H,W stride), range_pool (range-bin max-pool), crop_w (random azimuth
     window), frames_per_scene (cap). Optimiser: AdamW lr / weight_decay, cosine decay to
     lr·lr_floor over ``epochs``. Loss weights: w_range, w_gradient, w_valid, w_human (and
-    human_pos_weight, the weight of human pixels in that term; :func:`multi_return_loss`)."""
+    human_pos_weight, the weight of human pixels in that term; :func:`multi_return_loss`).
+    range_loss: "l1" (L1 on the soft-argmax mean) or "ce" (per-bin cross-entropy against two-hot
+    sub-bin targets, :func:`holodata.torch.losses.range_bin_nll`); estimator: the point estimate the
+    model predicts with (None: "mode" for "ce", "mean" for "l1"), recorded in the checkpoint."""
 
     epochs: int = 20
     batch_size: int = 4
@@ -68,6 +71,19 @@ class TrainConfig:
     w_valid: float = 0.2
     w_human: float = 0.2
     human_pos_weight: float = 10.0
+    range_loss: str = "l1"
+    estimator: str | None = None
+
+    def __post_init__(self) -> None:
+        from .losses import RANGE_LOSSES
+        from .model import ESTIMATORS
+
+        if self.range_loss not in RANGE_LOSSES:
+            raise InputError(f"range_loss must be one of {', '.join(RANGE_LOSSES)}, got {self.range_loss!r}")
+        if self.estimator is not None and self.estimator not in ESTIMATORS:
+            raise InputError(f"estimator must be one of {', '.join(ESTIMATORS)}, got {self.estimator!r}")
+        if self.range_loss == "ce" and self.head != "softargmax":
+            raise InputError("range_loss 'ce' needs head 'softargmax' (a distribution over range bins)")
 
     @classmethod
     def from_file(cls, path, **overrides) -> "TrainConfig":
@@ -97,7 +113,12 @@ class TrainConfig:
         return asdict(self)
 
     def loss_weights(self) -> LossWeights:
-        return LossWeights(self.w_range, self.w_gradient, self.w_valid, self.w_human, self.human_pos_weight)
+        return LossWeights(self.w_range, self.w_gradient, self.w_valid, self.w_human, self.human_pos_weight,
+                           self.range_loss)
+
+    def point_estimator(self) -> str:
+        """The estimator the model predicts with (:attr:`estimator`, else the one ``range_loss`` suits)."""
+        return self.estimator or ("mode" if self.range_loss == "ce" else "mean")
 
     def sample_transform(self, train: bool = True) -> SampleTransform:
         return SampleTransform(self.downsample, self.range_pool, self.crop_w, random_crop=train,
@@ -179,7 +200,7 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
     device = resolve_device(config.device)
     mcfg = ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
                        max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range),
-                       head=config.head, input_skip=config.input_skip)
+                       head=config.head, input_skip=config.input_skip, estimator=config.point_estimator())
     seed_everything(config.seed)
     model = MultiReturnUNet(mcfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
@@ -215,7 +236,7 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
             x = batch["heatmap"].to(device, non_blocking=True)
             y = batch["range"].to(device, non_blocking=True)
             lab = batch["label"].to(device, non_blocking=True)
-            loss, parts = multi_return_loss(model(x), y, lab, weights)
+            loss, parts = multi_return_loss(model(x), y, lab, weights, max_range=mcfg.max_range)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
