@@ -47,7 +47,8 @@ class DemoConfig:
     "heatmap" records the direct heatmaps; "iq" every rotation's raw samples (``radar_chirps`` chirp
     positions, default 1024) which ingest beamforms onto ``grid``, as a real rig's data goes;
     ``beamform_focus``: the beamformer's focus for ``"iq"`` ("near": every range bin focused with the
-    exact antenna distances; "far": PanoRadar's far-field compensation; docs/design/radar.md)."""
+    exact antenna distances; "far": PanoRadar's far-field compensation; docs/design/radar.md);
+    ``range_loss``: stage one's range term (TrainConfig.range_loss: "l1" or "ce")."""
 
     corners: tuple[tuple[str, int], ...]
     n_test: int
@@ -70,6 +71,7 @@ class DemoConfig:
     radar_output: str = "heatmap"
     radar_chirps: int | None = None
     beamform_focus: str = "near"
+    range_loss: str = "l1"
 
     def beamform(self):
         """The ingest beamformer's parameters for ``radar_output="iq"`` (None otherwise): the grid's rows,
@@ -199,7 +201,8 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     run_dir = out / "run"
     train(str(url), run_dir, TrainConfig(epochs=cfg.epochs, depth=cfg.depth, batch_size=cfg.batch_size,
                                          base_channels=cfg.base_channels, max_channels=cfg.max_channels,
-                                         range_pool=cfg.range_pool), quiet=quiet)
+                                         range_pool=cfg.range_pool, range_loss=cfg.range_loss,
+                                         w_gradient=0.0 if cfg.range_loss == "ce" else 0.5), quiet=quiet)
     stage("train", t0)
     if cfg.stage2 is not None:
         from .torch.stage2_train import Stage2Config, train_stage2
