@@ -133,7 +133,7 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
                                   POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
     from ..groundtruth import GTConfig, raytrace_dataset
     from ..trajectory import Trajectory
-    from .scene import Sensors, path_stats
+    from .scene import Sensors
 
     sid = scene_id(index)
     ds = open_dataset(url)
@@ -156,9 +156,9 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     heat, humans, stats = [], [], []
     for k in range(cfg.frames):
         T_cols = column_poses(traj, k, cfg.grid, origin, cycles[k])   # the poses raytrace-gt will trace from
-        paths, _, _ = sensors._radar_paths(k, T_cols)
-        heat.append(sensors.radar.cube(paths, _frame_rng(sc.seed, k)).astype(cfg.heatmap_dtype))
-        stats.append(path_stats(paths))
+        hm, st = sensors.radar_frame(k, T_cols)
+        heat.append(hm.astype(cfg.heatmap_dtype))
+        stats.append(st)
         humans.append(sc.dynamic_mesh(int(t[k]))[0] if sc.walk is not None or sc.walkers else None)
     for name, shape, data in ((TIME_TIMESTAMP_NS, (), t), (RADAR_CYCLE_NS, (2,), cycles),
                               (POSE_T_WORLD_RADAR, (4, 4), poses)):
@@ -181,12 +181,6 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     raytrace_dataset(url, [sid], GTConfig(nthreads=1), quiet=True, processes=1, unfinished_ok=True)
     s.set_attrs({"ingest": {"complete": True, "by": CREATED_BY}})
     return info
-
-
-def _frame_rng(seed: int, k: int) -> np.random.Generator:
-    from .scene import _rng
-
-    return _rng(seed, "radar", k)
 
 
 def _write_frames(arr, data) -> None:
