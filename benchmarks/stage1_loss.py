@@ -105,8 +105,7 @@ def main(argv=None) -> int:
     epochs = max(1, math.ceil(a.steps * 4 / n_frames))
     print("\nloss  estimator   b1 median / p90 cm / within 10 cm     b2 ...     b3 ...     train loss   seconds")
     for loss in a.losses.split(","):
-        cfg = TrainConfig(epochs=epochs, depth=6, base_channels=8, max_channels=64, range_pool=2, range_loss=loss,
-                          w_gradient=0.5 if loss == "l1" else 0.0)
+        cfg = TrainConfig(epochs=epochs, depth=6, base_channels=8, max_channels=64, range_pool=2, range_loss=loss)
         t1 = time.perf_counter()
         res = train(train_url, out / f"run_{loss}_{a.corners}_{a.steps}", cfg, quiet=True)
         dt = time.perf_counter() - t1

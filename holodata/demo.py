@@ -201,8 +201,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     run_dir = out / "run"
     train(str(url), run_dir, TrainConfig(epochs=cfg.epochs, depth=cfg.depth, batch_size=cfg.batch_size,
                                          base_channels=cfg.base_channels, max_channels=cfg.max_channels,
-                                         range_pool=cfg.range_pool, range_loss=cfg.range_loss,
-                                         w_gradient=0.0 if cfg.range_loss == "ce" else 0.5), quiet=quiet)
+                                         range_pool=cfg.range_pool, range_loss=cfg.range_loss), quiet=quiet)
     stage("train", t0)
     if cfg.stage2 is not None:
         from .torch.stage2_train import Stage2Config, train_stage2
@@ -291,12 +290,11 @@ def truth_scene_attrs(truth_dir: Path) -> dict:
     from the synthetic scene description; the evaluation breaks results down by them."""
     d = json.loads((Path(truth_dir) / "scene.json").read_text())
     attrs = {"corner_type": d["corner_type"], "width_m": float(d["width_m"]), "building": "synthetic"}
-    stats = d.get("stats") or {}
-    for key in ("los_nlos_human_drop_db", "los_nlos_drop_db"):  # the paper's bands are about the human
-        v = stats.get(key)
-        if v is not None and np.isfinite(float(v)):
-            attrs["attenuation_db"] = float(v)
-            break
+    from .synth.scene import attenuation_db
+
+    att = attenuation_db(d.get("stats") or {})
+    if att is not None:
+        attrs["attenuation_db"] = att
     return attrs
 
 

@@ -76,6 +76,8 @@ def test_two_peaks_l1_sits_between_them_ce_on_the_likelier():
 def test_config_checks_loss_and_estimator():
     assert TrainConfig(range_loss="ce").point_estimator() == "mode"
     assert TrainConfig().point_estimator() == "mean"
+    assert TrainConfig().loss_weights().gradient == 0.5 and TrainConfig(range_loss="ce").loss_weights().gradient == 0.0
+    assert TrainConfig(range_loss="ce", w_gradient=0.3).loss_weights().gradient == 0.3
     with pytest.raises(InputError, match="range_loss"):
         TrainConfig(range_loss="l2")
     with pytest.raises(InputError, match="estimator"):
@@ -89,7 +91,7 @@ def test_training_with_ce_records_the_mode_and_lowers_the_loss(tmp_path):
     hm, R, L = synth_frames(T=4, n=32, dr=0.3)
     ds = ArrayFrames(hm, R, L)
     cfg = TrainConfig(epochs=15, lr=3e-3, depth=3, base_channels=8, max_channels=16, blocks=1, batch_size=2,
-                      range_loss="ce", w_gradient=0.0)
+                      range_loss="ce")
     res = fit(ds, tmp_path / "run", cfg, ds.norm, in_channels=hm.shape[1], max_range=9.6, quiet=True)
     assert "nll" in res.history[0] and res.history[-1]["nll"] < 0.85 * res.history[0]["nll"]
     ck = load_checkpoint(tmp_path / "run")

@@ -82,8 +82,13 @@ class CornerSpec:
     robot_stop_x: float | None
 
 
+def corner_kind(index: int) -> str:
+    """Corner ``index``'s kind: the kinds in turn, so every kind is equally represented."""
+    return CORNER_TYPES[index % len(CORNER_TYPES)]
+
+
 def scene_id(index: int) -> str:
-    return f"c{index:04d}_{CORNER_TYPES[index % len(CORNER_TYPES)]}"
+    return f"c{index:04d}_{corner_kind(index)}"
 
 
 def draw_corner(cfg: CorpusConfig, index: int, attempt: int = 0) -> CornerSpec:
@@ -93,7 +98,7 @@ def draw_corner(cfg: CorpusConfig, index: int, attempt: int = 0) -> CornerSpec:
     human = bool(rng.random() < cfg.hidden_person)
     walkers = int(rng.integers(1, 3)) if rng.random() < cfg.visible_walkers else 0
     stop = float(rng.uniform(-2.5, -0.4)) if rng.random() < 0.5 else None
-    return CornerSpec(index, CORNER_TYPES[index % len(CORNER_TYPES)], seed, human, walkers, stop)
+    return CornerSpec(index, corner_kind(index), seed, human, walkers, stop)
 
 
 def build_corner(cfg: CorpusConfig, index: int):
@@ -133,7 +138,7 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
                                   POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
     from ..groundtruth import GTConfig, raytrace_dataset
     from ..trajectory import Trajectory
-    from .scene import Sensors
+    from .scene import Sensors, attenuation_db, drop_medians
 
     sid = scene_id(index)
     ds = open_dataset(url)
@@ -159,7 +164,7 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
         hm, st = sensors.radar_frame(k, T_cols)
         heat.append(hm.astype(cfg.heatmap_dtype))
         stats.append(st)
-        humans.append(sc.dynamic_mesh(int(t[k]))[0] if sc.walk is not None or sc.walkers else None)
+        humans.append(sc.dynamic_mesh(int(t[k]))[0])   # None without anybody
     for name, shape, data in ((TIME_TIMESTAMP_NS, (), t), (RADAR_CYCLE_NS, (2,), cycles),
                               (POSE_T_WORLD_RADAR, (4, 4), poses)):
         _write_frames(s.frame_array(name, per_frame_shape=shape), data)
@@ -174,10 +179,9 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
                            for f in fr])
         hf.write_shard(k, [np.zeros((0, 3), np.int32) if humans[f] is None else humans[f][1].astype(np.int32)
                            for f in fr])
-    drop = [st["los_nlos_human_drop_db"] for st in stats if np.isfinite(st["los_nlos_human_drop_db"])] or \
-        [st["los_nlos_drop_db"] for st in stats if np.isfinite(st["los_nlos_drop_db"])]
-    if drop:
-        s.set_attrs({"attenuation_db": float(np.median(drop))})
+    att = attenuation_db(drop_medians(stats))
+    if att is not None:
+        s.set_attrs({"attenuation_db": att})
     raytrace_dataset(url, [sid], GTConfig(nthreads=1), quiet=True, processes=1, unfinished_ok=True)
     s.set_attrs({"ingest": {"complete": True, "by": CREATED_BY}})
     return info
@@ -186,8 +190,7 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
 def _write_frames(arr, data) -> None:
     """All shards of frame array writer ``arr`` from ``data`` (K frames, stacked or a list)."""
     for k in range(arr.n_shards):
-        sl = arr.frames(k)
-        arr.write_shard(k, data[sl] if isinstance(data, np.ndarray) else data[sl])
+        arr.write_shard(k, data[arr.frames(k)])
 
 
 def corner_summary(spec: CornerSpec, sc) -> dict:

@@ -26,6 +26,7 @@ from .scene import (
     Scenario,
     Sensors,
     counting_put,
+    drop_medians,
     _trans,
 )
 from .worlds import CLASS_ID
@@ -186,13 +187,10 @@ def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
                    "lidar": sc.lidar_cfg.frame_id, "camera_link": FRAME_CAM_LINK,
                    "camera_optical": cam_cfg.frame_id, "camera_cloud": cam_cfg.cloud_frame_id},
     })
-    drops = np.array([r["los_nlos_human_drop_db"] for r in frame_rows], float)
-    drops_all = np.array([r["los_nlos_drop_db"] for r in frame_rows], float)
     stats = {
         "lidar_human_hits": lidar_human_hits,
         "camera_human_pixels": camera_human_pixels,
-        "los_nlos_drop_db": float(np.nanmedian(drops_all)) if np.isfinite(drops_all).any() else None,
-        "los_nlos_human_drop_db": float(np.nanmedian(drops)) if np.isfinite(drops).any() else None,
+        **drop_medians(frame_rows),
     }
     d = stats["los_nlos_human_drop_db"]
     stats["attenuation_band"] = None if d is None else ("low" if d < 10 else "medium" if d <= 20 else "high")

@@ -344,6 +344,26 @@ class Sensors:
         return self.stereo.pair(self.scene, self.sc.dynamic_mesh(t_ns)[0], _rng(self.sc.seed, "stereo", i))
 
 
+def drop_medians(frame_stats: list[dict]) -> dict:
+    """Median LOS→NLOS drops (dB) over a recording's frames (:func:`path_stats` rows): ``los_nlos_drop_db``
+    (every NLOS path) and ``los_nlos_human_drop_db`` (NLOS human paths); None where no frame has one."""
+    out = {}
+    for key in ("los_nlos_drop_db", "los_nlos_human_drop_db"):
+        v = np.array([r[key] for r in frame_stats], float)
+        out[key] = float(np.nanmedian(v)) if np.isfinite(v).any() else None
+    return out
+
+
+def attenuation_db(drops: dict) -> float | None:
+    """A corner's attenuation (dB) for the paper's bands: the drop to the human when there is one (the
+    bands are about the human), else to any NLOS path (``drops``: :func:`drop_medians`' keys)."""
+    for key in ("los_nlos_human_drop_db", "los_nlos_drop_db"):
+        v = drops.get(key)
+        if v is not None and np.isfinite(float(v)):
+            return float(v)
+    return None
+
+
 def path_stats(paths: dict) -> dict:
     """LOS structure vs NLOS human power from per-path amplitudes (dB drop, NaN if no NLOS human)."""
     p = np.abs(paths["amp"]) ** 2

@@ -67,7 +67,7 @@ class TrainConfig:
     crop_w: int | None = None
     frames_per_scene: int | None = None
     w_range: float = 1.0
-    w_gradient: float = 0.5
+    w_gradient: float | None = None   # None: 0.5 with range_loss "l1", 0 with "ce" (what each was measured with)
     w_valid: float = 0.2
     w_human: float = 0.2
     human_pos_weight: float = 10.0
@@ -113,8 +113,8 @@ class TrainConfig:
         return asdict(self)
 
     def loss_weights(self) -> LossWeights:
-        return LossWeights(self.w_range, self.w_gradient, self.w_valid, self.w_human, self.human_pos_weight,
-                           self.range_loss)
+        grad = self.w_gradient if self.w_gradient is not None else (0.0 if self.range_loss == "ce" else 0.5)
+        return LossWeights(self.w_range, grad, self.w_valid, self.w_human, self.human_pos_weight, self.range_loss)
 
     def point_estimator(self) -> str:
         """The estimator the model predicts with (:attr:`estimator`, else the one ``range_loss`` suits)."""
