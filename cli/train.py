@@ -39,7 +39,11 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     Example: holodata train demo/dataset.zarr --out runs/unet --epochs 30 --device cuda
 
     Example: holodata train demo/dataset.zarr --out runs/s2 --stage 2 --stage1 runs/unet
+
+    Data-parallel: torchrun --nproc-per-node 2 -m holodata.cli.main train DS --out RUN (same global
+    batch and seed; rank 0 writes the checkpoints and trains stage two).
     """
+    from holodata.torch import ddp
     from holodata.torch.stage2_train import Stage2Config, train_stage2
     from holodata.torch.train import TrainConfig, train as run_train
 
@@ -54,9 +58,13 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         res = run_train(dataset, out, cfg, quiet=quiet)
         summary = {"run": str(res.out_dir), "checkpoint": str(res.checkpoint), "epochs": res.epochs,
                    "resumed_from": res.resumed_from, "final_loss": res.final_loss}
-        if not as_json:
-            start = f" (resumed after epoch {res.resumed_from})" if res.resumed_from else ""
-            click.echo(f"trained {res.epochs} epochs{start}; final loss {res.final_loss:.4g}; checkpoint {res.checkpoint}")
+    ctx = ddp.from_env()
+    ddp.close(ctx)
+    if not ctx.main:
+        return  # stage two and the summary: rank 0 alone
+    if summary and not as_json:
+        start = f" (resumed after epoch {res.resumed_from})" if res.resumed_from else ""
+        click.echo(f"trained {res.epochs} epochs{start}; final loss {res.final_loss:.4g}; checkpoint {res.checkpoint}")
     if stage in ("2", "all"):
         s2 = _read_mapping(stage2_file) if stage2_file else {}
         for k, v in {"device": device, "seed": seed, "epochs_rt": stage2_epochs, "epochs_refine": stage2_epochs}.items():

@@ -108,7 +108,22 @@ def split_scenes(scenes: list[str], splits: dict | None, split: str, test_fracti
     return ids[-n_test:] if split == "test" else ids[:-n_test]
 
 
-class ArrayFrames(Dataset):
+class EpochAugment:
+    """Per-sample augmentation draws keyed by (seed, epoch, sample index): the crop/roll of sample i
+    in epoch e is the same whichever process, DataLoader worker or data-parallel rank reads it, so
+    a run is reproducible and N training processes see the batches one process would
+    (:func:`holodata.torch.train.fit` calls :meth:`set_epoch` before each epoch)."""
+
+    _aug_key: tuple[int, int] = (0, 0)
+
+    def set_epoch(self, seed: int, epoch: int) -> None:
+        self._aug_key = (int(seed) % 2**32, int(epoch))
+
+    def sample_gen(self, i: int) -> np.random.Generator:
+        return np.random.default_rng([*self._aug_key, int(i)])
+
+
+class ArrayFrames(EpochAugment, Dataset):
     """In-memory frames: heatmap (T,N_r,H,W) linear amplitude, range (T,3,H,W), label (T,3,H,W)."""
 
     def __init__(self, heatmap, gt_range, gt_label=None, norm: HeatmapNorm | None = None,
@@ -119,13 +134,12 @@ class ArrayFrames(Dataset):
         self.norm = norm or HeatmapNorm.fit(self.hm[: min(len(self.hm), 8)])
         self.transform = transform or SampleTransform()
         self.scene = scene
-        self._gen = np.random.default_rng(0)
 
     def __len__(self) -> int:
         return len(self.hm)
 
     def __getitem__(self, i: int) -> dict:
-        hm, rng, lab = apply_transform(self.hm[i], self.rng[i], self.lab[i], self.transform, self._gen)
+        hm, rng, lab = apply_transform(self.hm[i], self.rng[i], self.lab[i], self.transform, self.sample_gen(i))
         return _sample(self.norm(hm), rng, lab, self.scene, i)
 
 
@@ -136,7 +150,7 @@ def _sample(hm, rng, lab, scene, frame) -> dict:
             "scene": scene, "frame": int(frame)}
 
 
-class HeatmapDataset(Dataset):
+class HeatmapDataset(EpochAugment, Dataset):
     """Frames of a holodata dataset's ``split`` (by scene). ``ds``: an opened dataset or its URL.
 
     Safe with multi-process DataLoader workers: the Zarr store is (re)opened lazily in each
@@ -178,7 +192,6 @@ class HeatmapDataset(Dataset):
         self.norm = norm or self._fit_norm()
         self.grid = ds.grid
         self.range_bins = ds.range_bins
-        self._gen = np.random.default_rng(os.getpid())
 
     def _dataset(self):
         if self._ds is None or self._pid != os.getpid():
@@ -187,7 +200,6 @@ class HeatmapDataset(Dataset):
             if self.url is None:
                 raise DatasetError("HeatmapDataset was built from an in-memory dataset without a URL")
             self._ds, self._pid = open_dataset(self.url), os.getpid()
-            self._gen = np.random.default_rng(os.getpid())
         return self._ds
 
     def __getstate__(self):
@@ -218,6 +230,6 @@ class HeatmapDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict:
         hm, rng, lab = self.read(i)
-        hm, rng, lab = apply_transform(hm, rng, lab, self.transform, self._gen)
+        hm, rng, lab = apply_transform(hm, rng, lab, self.transform, self.sample_gen(i))
         sid, k = self.index[i]
         return _sample(self.norm(hm), rng, lab, sid, k)

@@ -21,6 +21,7 @@ from torch.utils.data import DataLoader
 from holodata.errors import InputError
 from holodata.progress import track
 
+from . import ddp
 from .data import HeatmapNorm, SampleTransform
 from .losses import LossWeights, multi_return_loss
 from .model import ModelConfig, MultiReturnUNet
@@ -192,18 +193,21 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
 
     Resumes from ``out_dir/checkpoint.pt`` when present (same model config required): epochs
     continue from the last completed one up to ``config.epochs``. Each epoch shuffles with a
-    generator seeded by (seed, epoch), so a resumed run sees the same batches as an
-    uninterrupted one.
+    generator seeded by (seed, epoch) and augments each sample with draws keyed by (seed, epoch,
+    sample), so a resumed run sees the same batches as an uninterrupted one. Under ``torchrun``
+    the global batch is split over the processes (:mod:`holodata.torch.ddp`); rank 0 writes.
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    device = resolve_device(config.device)
+    ctx, dev_name = ddp.setup(config.device, config.batch_size)
+    if ctx.main:
+        out.mkdir(parents=True, exist_ok=True)
+    device = resolve_device(dev_name)
     mcfg = ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
                        max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range),
                        head=config.head, input_skip=config.input_skip, estimator=config.point_estimator())
     seed_everything(config.seed)
-    model = MultiReturnUNet(mcfg).to(device)
-    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    net = MultiReturnUNet(mcfg).to(device)
+    opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     start, history = 0, []
     ck_path = out / CHECKPOINT
     if resume and ck_path.exists():
@@ -211,13 +215,15 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
         if ck["model_config"] != mcfg.to_dict():
             raise InputError(f"{ck_path}: checkpoint model config {ck['model_config']} differs from the "
                              f"requested {mcfg.to_dict()}; use a new --out directory")
-        model.load_state_dict(ck["model_state"])
+        net.load_state_dict(ck["model_state"])
         opt.load_state_dict(ck["optimizer_state"])
         start, history = int(ck["epoch"]), list(ck["history"])
         norm = HeatmapNorm.from_dict(ck["norm"])
         torch.set_rng_state(ck["torch_rng"])
-    (out / "config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
-    _truncate_log(out / METRICS_LOG, start)
+    model = ddp.wrap(net, ctx, dev_name)
+    if ctx.main:
+        (out / "config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
+        _truncate_log(out / METRICS_LOG, start)
     weights = config.loss_weights()
     if start >= config.epochs:
         return RunResult(out, ck_path, start, start, history)
@@ -225,40 +231,47 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
         lr = config.lr * (config.lr_floor + (1 - config.lr_floor) * 0.5 * (1 + math.cos(math.pi * epoch / config.epochs)))
         for g in opt.param_groups:
             g["lr"] = lr
-        gen = torch.Generator().manual_seed(config.seed * 100003 + epoch)
-        loader = DataLoader(train_set, batch_size=config.batch_size, shuffle=True, generator=gen,
-                            num_workers=config.num_workers, collate_fn=_collate, drop_last=False,
-                            persistent_workers=False)
+        if hasattr(train_set, "set_epoch"):
+            train_set.set_epoch(config.seed, epoch)
+        # the permutation torch's RandomSampler draws from this generator, split over the ranks
+        order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(config.seed * 100003 + epoch))
+        loader = DataLoader(train_set, batch_sampler=ddp.local_batches(order.tolist(), config.batch_size, ctx),
+                            num_workers=config.num_workers, collate_fn=_collate, persistent_workers=False)
         model.train()
         sums: dict = {}
         n_seen, t0 = 0, time.perf_counter()
-        for batch in track(loader, total=len(loader), description=f"epoch {epoch + 1}/{config.epochs}", quiet=quiet):
+        for batch in track(loader, total=len(loader), description=f"epoch {epoch + 1}/{config.epochs}",
+                           quiet=quiet or not ctx.main):
             x = batch["heatmap"].to(device, non_blocking=True)
             y = batch["range"].to(device, non_blocking=True)
             lab = batch["label"].to(device, non_blocking=True)
             loss, parts = multi_return_loss(model(x), y, lab, weights, max_range=mcfg.max_range)
             opt.zero_grad(set_to_none=True)
             loss.backward()
-            torch.nn.utils.clip_grad_norm_(model.parameters(), 5.0)
+            torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
             opt.step()
             bs = x.shape[0]
             n_seen += bs
             sums["loss"] = sums.get("loss", 0.0) + float(loss.detach()) * bs
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v * bs
+        sums = ddp.sum_over_ranks({**sums, "_n": n_seen}, ctx)
+        n_seen = int(sums.pop("_n"))
         dt = time.perf_counter() - t0
         row = {"epoch": epoch + 1, **{k: v / max(n_seen, 1) for k, v in sums.items()}, "lr": lr,
                "samples": n_seen, "seconds": round(dt, 3), "samples_per_s": n_seen / dt if dt > 0 else None}
         history.append(row)
-        _atomic_save({
-            "format": "holodata-checkpoint-1", "epoch": epoch + 1, "model_config": mcfg.to_dict(),
-            "model_state": model.state_dict(), "optimizer_state": opt.state_dict(),
-            "train_config": config.to_dict(), "norm": norm.to_dict(),
-            "transform": config.sample_transform(train=False).to_dict(), "history": history,
-            "torch_rng": torch.get_rng_state(), "meta": meta or {},
-        }, ck_path)
-        with open(out / METRICS_LOG, "a") as fh:
-            fh.write(json.dumps(row) + "\n")
+        if ctx.main:
+            _atomic_save({
+                "format": "holodata-checkpoint-1", "epoch": epoch + 1, "model_config": mcfg.to_dict(),
+                "model_state": net.state_dict(), "optimizer_state": opt.state_dict(),
+                "train_config": config.to_dict(), "norm": norm.to_dict(),
+                "transform": config.sample_transform(train=False).to_dict(), "history": history,
+                "torch_rng": torch.get_rng_state(), "meta": {**(meta or {}), "processes": ctx.world},
+            }, ck_path)
+            with open(out / METRICS_LOG, "a") as fh:
+                fh.write(json.dumps(row) + "\n")
+        ddp.barrier(ctx)
     return RunResult(out, ck_path, config.epochs, start, history)
 
 
