@@ -6,7 +6,8 @@ import click
 
 @click.command()
 @click.argument("dataset")
-@click.option("--checkpoint", type=click.Path(exists=True), help="RUN directory or RUN/checkpoint.pt (not with --oracle).")
+@click.option("--checkpoint", type=click.Path(), help="RUN directory or RUN/checkpoint.pt, or 'pretrained' (the weights "
+              "holodata ships, trained at the quick demo's 32x128 grid); not with --oracle.")
 @click.option("--oracle", is_flag=True,
               help="Score the ground truth itself (GT ranges, normals, labels) through the same stage-two un-mirroring: a "
                    "perfect prediction, which must score perfectly.")

@@ -29,10 +29,13 @@ import click
               help="YAML/JSON file of Stage2Config fields (flags win).")
 @click.option("--stage2-epochs", type=click.IntRange(min=0), default=None,
               help="Epochs of each stage-two phase (ray tracer, then refiner; default 20 each).")
+@click.option("--init", "init", default=None,
+              help="Fine-tune stage one from this checkpoint (file, run directory, or 'pretrained': the weights holodata "
+                   "ships); its training settings are the defaults, flags and --config win.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, range_loss, stage, stage1,
-          stage2_file, stage2_epochs, quiet, as_json):
+          stage2_file, stage2_epochs, init, quiet, as_json):
     """Train stage one (the multi-return range-image UNet) and stage two (hybrid ray tracer +
     volumetric refiner, stored in RUN/stage2.pt) on DATASET's train split (split by scene).
 
@@ -51,11 +54,18 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     if stage in ("1", "all"):
         flags = {"epochs": epochs, "device": device, "batch_size": batch_size, "lr": lr, "seed": seed,
                  "num_workers": num_workers, "range_loss": range_loss}
+        base = {}
+        if init is not None:
+            from holodata.torch.pretrained import resolve
+            from holodata.torch.train import load_checkpoint
+
+            base = dict(load_checkpoint(resolve(init)).get("train_config") or {})
         if config_file:
             cfg = TrainConfig.from_file(config_file, **flags)
-        else:
-            cfg = TrainConfig.from_dict({k: v for k, v in flags.items() if v is not None})
-        res = run_train(dataset, out, cfg, quiet=quiet)
+            base.update({k: v for k, v in cfg.to_dict().items() if v != getattr(TrainConfig(), k)})
+        base.update({k: v for k, v in flags.items() if v is not None})
+        cfg = TrainConfig.from_dict(base)
+        res = run_train(dataset, out, cfg, quiet=quiet, init=init)
         summary = {"run": str(res.out_dir), "checkpoint": str(res.checkpoint), "epochs": res.epochs,
                    "resumed_from": res.resumed_from, "final_loss": res.final_loss}
     ctx = ddp.from_env()

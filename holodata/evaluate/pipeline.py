@@ -201,6 +201,9 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
 
     from .predict import Predictor
 
+    from holodata.torch.pretrained import resolve
+
+    checkpoint = None if oracle else resolve(checkpoint)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     run = Predictor.load(checkpoint, device=device, estimator=estimator, oracle=oracle)
@@ -210,6 +213,10 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     f = run.downsample
     model_tf, base_tf = run.transforms()
     ds = open_dataset(str(dataset_url))
+    if not oracle:
+        from holodata.torch.train import check_stage1
+
+        check_stage1(ck, ds, checkpoint)
     data = HeatmapDataset(str(dataset_url), split=split, norm=norm, transform=model_tf)
     grid = reduced_grid(ds.grid, f)
     rb: RangeBins = ds.range_bins

@@ -47,6 +47,9 @@ class Predictor:
         dev = resolve_device(device)
         if oracle:
             return cls(None, None, None, {"norm": HeatmapNorm().to_dict(), "transform": {}, "epoch": 0}, dev, estimator)
+        from holodata.torch.pretrained import resolve
+
+        checkpoint = resolve(checkpoint)
         ck = load_checkpoint(checkpoint)
         model = model_from_checkpoint(ck, device=str(dev))
         from holodata.torch.stage2_infer import STAGE2_CHECKPOINT, load_stage2

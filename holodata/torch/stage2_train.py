@@ -33,7 +33,7 @@ from holodata.dataset.layout import GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, POS
 from holodata.errors import InputError
 from holodata.progress import track
 
-from .train import _atomic_save, check_fields
+from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
 from .stage2_infer import STAGE2_CHECKPOINT, Stage2, calibrate_keep, los_flags
@@ -309,15 +309,6 @@ def refine_targets(vox_coords: torch.Tensor, gt_points: list, gt_human: list, vo
 
 
 # ----------------------------------------------------------------------------- training
-
-
-def check_stage1(ck: dict, ds, where) -> None:
-    """InputError unless the stage-one checkpoint's grid and range bins are the dataset's."""
-    meta = ck.get("meta") or {}
-    if meta.get("grid") != ds.grid.to_attrs() or meta.get("range_bins") != ds.range_bins.to_attrs():
-        raise InputError(f"{where}: stage-one checkpoint grid {meta.get('grid')} / range bins "
-                         f"{meta.get('range_bins')} differ from the dataset's {ds.grid.to_attrs()} / "
-                         f"{ds.range_bins.to_attrs()}")
 
 
 def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: Grid):

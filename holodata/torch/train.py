@@ -181,6 +181,15 @@ def load_checkpoint(path) -> dict:
         raise InputError(f"{p}: not a holodata checkpoint ({err.__class__.__name__})") from err
 
 
+def check_stage1(ck: dict, ds, where) -> None:
+    """InputError unless the stage-one checkpoint's grid and range bins are the dataset's."""
+    meta = ck.get("meta") or {}
+    if meta.get("grid") != ds.grid.to_attrs() or meta.get("range_bins") != ds.range_bins.to_attrs():
+        raise InputError(f"{where}: stage-one checkpoint grid {meta.get('grid')} / range bins "
+                         f"{meta.get('range_bins')} differ from the dataset's {ds.grid.to_attrs()} / "
+                         f"{ds.range_bins.to_attrs()}")
+
+
 def model_from_checkpoint(ck: dict, device: str = "cpu") -> MultiReturnUNet:
     model = MultiReturnUNet(ModelConfig(**ck["model_config"]))
     model.load_state_dict(ck["model_state"])
@@ -188,13 +197,15 @@ def model_from_checkpoint(ck: dict, device: str = "cpu") -> MultiReturnUNet:
 
 
 def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels: int,
-        max_range: float = 9.6, meta: dict | None = None, quiet: bool = False, resume: bool = True) -> RunResult:
+        max_range: float = 9.6, meta: dict | None = None, quiet: bool = False, resume: bool = True,
+        init: dict | None = None) -> RunResult:
     """Train on a torch Dataset of sample dicts (see holodata.torch.data) into ``out_dir``.
 
     Resumes from ``out_dir/checkpoint.pt`` when present (same model config required): epochs
     continue from the last completed one up to ``config.epochs``. Each epoch shuffles with a
     generator seeded by (seed, epoch) and augments each sample with draws keyed by (seed, epoch,
-    sample), so a resumed run sees the same batches as an uninterrupted one. Under ``torchrun``
+    sample), so a resumed run sees the same batches as an uninterrupted one. ``init``: a checkpoint
+    (dict) whose weights a fresh run starts from (fine-tuning; its model config must be this one's). Under ``torchrun``
     the global batch is split over the processes (:mod:`holodata.torch.ddp`); rank 0 writes.
     """
     out = Path(out_dir)
@@ -220,6 +231,11 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
         start, history = int(ck["epoch"]), list(ck["history"])
         norm = HeatmapNorm.from_dict(ck["norm"])
         torch.set_rng_state(ck["torch_rng"])
+    elif init is not None:
+        if init["model_config"] != mcfg.to_dict():
+            raise InputError(f"{(meta or {}).get('init', 'init checkpoint')}: its model config {init['model_config']} "
+                             f"differs from the requested {mcfg.to_dict()}")
+        net.load_state_dict(init["model_state"])
     model = ddp.wrap(net, ctx, dev_name)
     if ctx.main:
         (out / "config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
@@ -290,9 +306,12 @@ def _truncate_log(path: Path, epochs_done: int) -> None:
     path.write_text("".join(k + "\n" for k in keep))
 
 
-def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet: bool = False) -> RunResult:
+def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet: bool = False,
+          init=None) -> RunResult:
     """Train the multi-return model on the ``train`` split of the dataset at ``dataset_url`` into
-    ``out_dir`` (resuming when ``out_dir/checkpoint.pt`` exists). Returns a :class:`RunResult`."""
+    ``out_dir`` (resuming when ``out_dir/checkpoint.pt`` exists). ``init``: a stage-one checkpoint
+    (file, run directory or "pretrained") a fresh run fine-tunes from, with its heatmap
+    normalisation; it must match the dataset's grid and range bins. Returns a :class:`RunResult`."""
     from holodata.dataset import open_dataset
 
     from .data import HeatmapDataset
@@ -301,6 +320,14 @@ def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet:
     ds = open_dataset(str(dataset_url))
     norm = None
     ck_path = Path(out_dir) / CHECKPOINT
+    init_ck, init_path = None, None
+    if init is not None:
+        from .pretrained import resolve
+
+        init_path = resolve(init)
+        init_ck = load_checkpoint(init_path)
+        check_stage1(init_ck, ds, init_path)
+        norm = HeatmapNorm.from_dict(init_ck["norm"])
     if ck_path.exists():
         norm = HeatmapNorm.from_dict(load_checkpoint(ck_path)["norm"])
     train_set = HeatmapDataset(ds if getattr(ds, "url", None) else str(dataset_url), split="train", norm=norm,
@@ -309,6 +336,6 @@ def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet:
         train_set.url = str(dataset_url)
     n_in = int(ds.range_bins.n) // max(cfg.range_pool, 1)
     meta = {"dataset": str(dataset_url), "train_scenes": train_set.scenes, "grid": ds.grid.to_attrs(),
-            "range_bins": ds.range_bins.to_attrs()}
+            "range_bins": ds.range_bins.to_attrs(), **({"init": str(init_path)} if init_path else {})}
     return fit(train_set, out_dir, cfg, train_set.norm, in_channels=n_in,
-               max_range=float(ds.range_bins.max_range), meta=meta, quiet=quiet)
+               max_range=float(ds.range_bins.max_range), meta=meta, quiet=quiet, init=init_ck)
