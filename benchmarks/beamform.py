@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from _radar_reference import beamform_direct, beamform_direct_near  # noqa: E402
 
-from holodata.radar.beamform import BeamformParams, beamform, beam_indices, static_reflection  # noqa: E402
+from holodata.radar import BeamformParams, beamform, beam_indices, static_reflection  # noqa: E402
 from holodata.radar.chirp import ChirpConfig  # noqa: E402
 from holodata.radar.simulate import point_at, simulate_rotation  # noqa: E402
 

@@ -66,7 +66,7 @@ def _one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, c
     """Imaging parameters of scene ``sid``: as ingested, with the flags given; then beamform it."""
     from holodata.beamforming import beamform_scene
     from holodata.errors import DatasetError
-    from holodata.radar.beamform import BeamformParams
+    from holodata.radar import BeamformParams
 
     if sid not in ds.scenes:
         raise DatasetError(f"{ds.url}: no scene {sid!r} (have {', '.join(ds.scenes)})")

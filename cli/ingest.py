@@ -120,7 +120,7 @@ def _beamform_params(grid: str | None, fov: float | None, focus: str | None = No
     if grid is None and fov is None and focus is None:
         return None
     from holodata.conventions import Grid
-    from holodata.radar.beamform import BeamformParams
+    from holodata.radar import BeamformParams
 
     kw = {}
     if grid is not None:

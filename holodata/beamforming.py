@@ -3,7 +3,7 @@
 source of the platform's motion.
 
 Steps (:func:`beamform_scene`): read the chirp configuration the recording was imaged with (scene
-attrs ``source.beamform.chirp``) and the requested :class:`~holodata.radar.beamform.BeamformParams`
+attrs ``source.beamform.chirp``) and the requested :class:`~holodata.radar.beam_geometry.BeamformParams`
 (the dataset's grid: heatmaps stay on the beams the ground truth is traced for); take every
 rotation's motion from ``motion`` — ``"recorded"`` (what ingest imaged with, ``radar/iq_motion``),
 ``"slam"`` (:func:`motion_from_poses` on ``pose/T_world_radar``) or ``"none"`` (at rest); beamform
@@ -22,7 +22,8 @@ import math
 import numpy as np
 
 from .errors import DatasetError, InputError
-from .radar.beamform import BeamformParams, Motion, beamform, beamform_attrs
+from .radar.beam_geometry import BeamformParams, Motion
+from .radar.beamform import beamform, beamform_attrs
 from .radar.chirp import ChirpConfig
 from .dataset.layout import (POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, RADAR_IQ, RADAR_IQ_MOTION,
                              RADAR_IQ_SPAN, RADAR_IQ_STATIC, TIME_TIMESTAMP_NS)

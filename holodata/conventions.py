@@ -117,6 +117,17 @@ class Grid:
         return cls(h, w, max(a, b), min(a, b))
 
 
+def reduced_grid(grid: Grid, f: int) -> Grid:
+    """The beam grid after striding rows and columns by ``f`` (rows 0, f, 2f, …): what the model and
+    evaluation work at for a run trained with downsample ``f``."""
+    if f <= 1:
+        return grid
+    H2 = (grid.H + f - 1) // f
+    step = (grid.elev_max_deg - grid.elev_min_deg) / (grid.H - 1)
+    W2 = (grid.W + f - 1) // f
+    return Grid(H2, W2, grid.elev_max_deg, grid.elev_max_deg - (H2 - 1) * f * step)
+
+
 @dataclass(frozen=True)
 class RangeBins:
     """Radar range axis: bin ``k`` centre ``(k + 0.5) * dr`` metres."""

@@ -78,7 +78,7 @@ class DemoConfig:
         columns and elevations, the range bins kept."""
         if self.radar_output != "iq":
             return None
-        from .radar.beamform import BeamformParams
+        from .radar.beam_geometry import BeamformParams
 
         g = self.grid
         return BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,

@@ -91,8 +91,8 @@ class _Predictions:
     """A run's predicted points per frame, in the world frame (see :mod:`holodata.evaluate.predict`)."""
 
     def __init__(self, checkpoint, oracle: bool, estimator: str, ds, sc, device: str = "cpu"):
+        from .conventions import reduced_grid
         from .evaluate.frames import SceneBeams
-        from .evaluate.pipeline import reduced_grid
         from .evaluate.predict import Predictor
 
         self.run = Predictor.load(checkpoint, device=device, estimator=estimator, oracle=oracle)

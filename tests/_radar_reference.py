@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from holodata.radar.beamform import window
+from holodata.radar.beam_geometry import window
 
 
 def _inputs(rotation, chirp, params, before, after, velocity, chirp_period_s, static_refl):

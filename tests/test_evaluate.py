@@ -9,7 +9,8 @@ pytest.importorskip("torch")
 import _eval_dataset as E  # noqa: E402
 
 from holodata.evaluate import evaluate  # noqa: E402
-from holodata.evaluate.pipeline import load_schema, reduced_grid, validate_metrics  # noqa: E402
+from holodata.conventions import reduced_grid  # noqa: E402
+from holodata.evaluate.pipeline import load_schema, validate_metrics  # noqa: E402
 from holodata.torch import TrainConfig, train  # noqa: E402
 
 TINY = dict(depth=3, base_channels=8, max_channels=16, blocks=1, batch_size=2, lr=3e-3)

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from holodata.radar import BeamformParams, ChirpConfig, beamform, beamform_attrs, point_at, simulate_rotation
-from holodata.radar.beamform import beam_indices
+from holodata.radar import BeamformParams, ChirpConfig, beam_indices, beamform, beamform_attrs, point_at, simulate_rotation
 from holodata.radar.chirp import SPEED_OF_LIGHT
 
 from _radar_reference import beamform_direct, beamform_direct_near, columns_direct

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from holodata.cli.main import cli
 from holodata.dataset import open_dataset, validate_dataset
 from holodata.errors import RecordingError
-from holodata.radar.beamform import BeamformParams
+from holodata.radar import BeamformParams
 from holodata.radar.chirp import ChirpConfig
 from holodata.readers import guess_reader, open_recording
 from holodata.synth.panoradar_raw import BoxRoom, box_room_trajectory

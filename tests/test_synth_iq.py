@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from holodata.conventions import Grid, RangeBins
+from holodata.radar import BeamformParams
 from holodata.radar._iq_kernel import beat_samples
 from holodata.radar.chirp import ChirpConfig
 from holodata.radar.simulate import antenna_positions, simulate_chirps
@@ -91,7 +92,7 @@ def test_beamformed_raw_samples_match_the_direct_heatmap_path():
     direct = model.cube(paths, None)
     iq, chirp, pad = _rotation(model, paths)
     N = model.cfg.chirps_per_rotation
-    p = bf.BeamformParams(n_elevation=G.H, n_azimuth=G.W, static_removal="none")
+    p = BeamformParams(n_elevation=G.H, n_azimuth=G.W, static_removal="none")
     hm = bf.beamform(iq[pad:N + pad], chirp, p, before=iq[:pad], after=iq[N + pad:])
     for r, j, rm in ((12, 40, 3.0), (20, 100, 5.0), (15, 70, 7.5)):
         k = int(rm / 0.0375)
@@ -118,7 +119,7 @@ def test_a_moving_platform_is_refocused_by_its_motion():
     model = _model(g)
     paths = _paths([(1, 320, 4.0, 1.0)], g)
     N = model.cfg.chirps_per_rotation
-    p = bf.BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=2.0, elevation_min_deg=-2.0,
+    p = BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=2.0, elevation_min_deg=-2.0,
                           static_removal="none")
 
     def image(v, compensate):
@@ -148,7 +149,7 @@ def test_synth_iq_recording_ingests_into_a_dataset_that_validates(tmp_path):
     assert iq.counts[RAW_TOPIC] == 2 and "/radar/heatmap" not in iq.counts
     url = str(tmp_path / "d.zarr")
     ingest([str(iq.recording), str(hm.recording)], url, scene_ids=["iq", "hm"], quiet=True,
-           beamform=bf.BeamformParams(n_elevation=G.H, n_azimuth=G.W))
+           beamform=BeamformParams(n_elevation=G.H, n_azimuth=G.W))
     assert validate_dataset(url, quiet=True)["ok"]
     ds = open_dataset(url)
     a, b = ds.scene("iq"), ds.scene("hm")

@@ -153,6 +153,7 @@ def test_direct_heatmaps_carry_the_beamformer_psf(range_m, row, col, focus):
     column, -3 dB widths within 10 % in azimuth and elevation, azimuth sidelobes within 3 dB."""
     import importlib
 
+    from holodata.radar import BeamformParams
     from holodata.radar.simulate import simulate_rotation
 
     bf = importlib.import_module("holodata.radar.beamform")
@@ -166,7 +167,7 @@ def test_direct_heatmaps_carry_the_beamformer_psf(range_m, row, col, focus):
     direct = model.cube(paths, None)
     chirp, _ = cfg.imaging()
     rot, _, _ = simulate_rotation((range_m * d)[None], chirp=chirp)
-    params = bf.BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,
+    params = BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,
                                elevation_min_deg=g.elev_min_deg, static_removal="none", focus=focus)
     raw = bf.beamform(rot, chirp, params)
     pd, pr = np.unravel_index(np.argmax(direct), direct.shape), np.unravel_index(np.argmax(raw), raw.shape)

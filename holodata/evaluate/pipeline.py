@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from holodata import metrics as M
-from holodata.conventions import Grid, RangeBins, is_human, is_los
+from holodata.conventions import Grid, RangeBins, is_human, is_los, reduced_grid
 from holodata.progress import track
 
 from .baseline import strongest_peaks
@@ -37,16 +37,6 @@ METHODS = ("model", "baseline")
 # baseline, and the GT range images through the trained stage two (stage-one error removed)
 STAGE2_ROWS = ("model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1")
 ERR_SAMPLE = 200_000  # errors kept per bounce for the CDF figure
-
-
-def reduced_grid(grid: Grid, f: int) -> Grid:
-    """The beam grid after striding rows and columns by ``f`` (rows 0, f, 2f, …)."""
-    if f <= 1:
-        return grid
-    H2 = (grid.H + f - 1) // f
-    step = (grid.elev_max_deg - grid.elev_min_deg) / (grid.H - 1)
-    W2 = (grid.W + f - 1) // f
-    return Grid(H2, W2, grid.elev_max_deg, grid.elev_max_deg - (H2 - 1) * f * step)
 
 
 @dataclass

@@ -95,7 +95,7 @@ class Predictor:
         """Stage two of the "model" row for one frame: {point (…,3) radar frame, los (…) bool,
         human (…) bool} — the refined voxel cloud (or the learned ray tracer's points) when the run
         has a learned stage two, else the analytic un-mirroring with the free-space LOS test.
-        ``grid``: the run's strided grid (:func:`holodata.evaluate.pipeline.reduced_grid`)."""
+        ``grid``: the run's strided grid (:func:`holodata.conventions.reduced_grid`)."""
         if self.stage2 is not None:
             s2 = self.stage2.predict(rng, human, geo.directions, geo.origins, grid)
             return s2["refined"] or s2["no_refine"]

@@ -75,7 +75,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     there and the others are still ingested. Raises RecordingError when none could be ingested.
     ``client`` (a ``distributed.Client``): one Dask task per recording (:mod:`holodata.distributed`);
     the recordings must be readable at the same paths on the workers. ``beamform``:
-    :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples (PanoRadar raw
+    :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar samples (PanoRadar raw
     trajectories), default 64 x 512 beams, all range bins; ``keep_iq``: store their raw samples too
     (``radar/iq``), so that ``holodata beamform`` can re-image them with other parameters."""
     recordings = [Path(r) for r in recordings]

@@ -150,7 +150,7 @@ def plan_recording(path, topics: dict | None = None, scene_id: str | None = None
                    tolerance_ms: float | None = None, meta=None, quiet: bool = True, beamform=None,
                    keep_iq: bool = False) -> Plan:
     """Open, map, index and sync one recording (nothing written). RecordingError if unusable.
-    ``beamform``: :class:`~holodata.radar.beamform.BeamformParams` for recordings of raw radar samples;
+    ``beamform``: :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar samples;
     ``keep_iq``: also store those samples (``radar/iq``, for ``holodata beamform``)."""
     from ..progress import track
 

@@ -87,11 +87,11 @@ class RadarStream(_Stream):
 class RawRadarStream(RadarStream):
     """``holodata_msgs/msg/RadarRawRotation`` messages: each rotation's raw samples, checked on the index
     pass (no imaging there) and beamformed (:func:`holodata.radar.beamform.beamform`) when kept.
-    ``params``: :class:`~holodata.radar.beamform.BeamformParams` (default 64 x 512). The static
+    ``params``: :class:`~holodata.radar.beam_geometry.BeamformParams` (default 64 x 512). The static
     reflection is each rotation's own mean (a bag carries no trajectory mean)."""
 
     def __init__(self, rec, topic, time, params=None):
-        from ..radar.beamform import BeamformParams
+        from ..radar.beam_geometry import BeamformParams
 
         super().__init__(rec, topic, time)
         p = params or BeamformParams()
@@ -118,7 +118,8 @@ class RawRadarStream(RadarStream):
     def convert(self, raw, keep):
         from types import SimpleNamespace
 
-        from ..radar.beamform import Motion, beamform, beamform_attrs
+        from ..radar.beam_geometry import Motion
+        from ..radar.beamform import beamform, beamform_attrs
         from ..readers.base import RawRotation
 
         msg = self.rec.decode(raw)

@@ -1,8 +1,8 @@
 """Raw rotating-radar samples → heatmaps: chirp/array configuration (:mod:`.chirp`), the
 beamformer (:mod:`.beamform`, numpy/scipy; :mod:`.beamform_torch` for torch devices) and a raw
 beat-signal simulator (:mod:`.simulate`). Arrays in, arrays out; no I/O."""
-from .beamform import (BeamformParams, Motion, beamform, beamform_attrs, beamform_rotation, beam_indices,
-                       static_reflection)
+from .beam_geometry import BeamformParams, Motion, beam_indices
+from .beamform import beamform, beamform_attrs, beamform_rotation, static_reflection
 from .chirp import PANORADAR_CHIRP, SPEED_OF_LIGHT, ChirpConfig
 from .simulate import point_at, simulate_chirps, simulate_rotation
 

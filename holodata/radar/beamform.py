@@ -52,92 +52,17 @@ two formulations in torch. Arrays in, arrays out: no I/O here.
 """
 from __future__ import annotations
 
-import math
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from .beam_geometry import (WINDOWS, _REANCHOR, _to_columns, azimuth_kernel, beam_indices,  # noqa: F401
-                            column_weights, motion_phase_rate, range_weights, vertical_weights, window)
+from .beam_geometry import (BeamformParams, Motion, _to_columns, azimuth_kernel, column_weights, motion_phase_rate,
+                            range_weights, vertical_weights)
 from .chirp import ChirpConfig
 from ._steps import _blas_single, _elevation_groups, _fold, _row_pairs, _to_rotation_start, _vertical
 
-STATIC_REMOVAL = ("trajectory", "rotation", "none")
-DECIMATION = ("pick", "triangle")
-MOTION_REFERENCES = ("beam", "rotation_start")
-FOCUS = ("far", "near")
 RANGE_ORIGIN = "rotation_centre"
-
-
-@dataclass(frozen=True)
-class BeamformParams:
-    """Imaging parameters. Angles in degrees here (they are attributes and flags); radians inside.
-
-    ``n_syn``: chirps per beam (odd); ``None`` → PanoRadar's ``int(fov/360 · N)`` made odd, from
-    ``azimuth_fov_deg`` and the rotation's chirp count ``N`` (257 for 1024 chirps and 90°).
-    ``n_range``: range bins kept (the first ``n_range`` of the ``n_samples``-point FFT; ``None`` → all).
-    ``focus``: ``"far"`` — PanoRadar's far-field azimuth compensation (the default; what real
-    PanoRadar heatmaps are); ``"near"`` — back-projection with the exact distance from every chirp's
-    antenna to each range bin's centre (:mod:`holodata.radar.beamform_near`; docs/design/radar.md).
-    """
-
-    n_elevation: int = 64
-    n_azimuth: int = 512
-    elevation_max_deg: float = 45.0
-    elevation_min_deg: float = -45.0
-    azimuth_fov_deg: float = 90.0
-    n_syn: int | None = None
-    chirp_window: str = "hann"
-    sample_window: str = "hann"
-    n_range: int | None = None
-    static_removal: str = "trajectory"
-    azimuth_decimation: str = "pick"
-    motion_reference: str = "beam"
-    focus: str = "far"
-
-    def __post_init__(self) -> None:
-        if self.n_elevation < 2 or self.n_azimuth < 1:
-            raise ValueError(f"beamform grid needs n_elevation >= 2 and n_azimuth >= 1, got "
-                             f"{self.n_elevation}x{self.n_azimuth}")
-        if not self.elevation_max_deg > self.elevation_min_deg:
-            raise ValueError(f"elevation max ({self.elevation_max_deg}) must exceed min ({self.elevation_min_deg})")
-        if not 0 < self.azimuth_fov_deg <= 360:
-            raise ValueError(f"azimuth_fov_deg must be in (0, 360], got {self.azimuth_fov_deg}")
-        if self.n_syn is not None and (self.n_syn < 1 or self.n_syn % 2 == 0):
-            raise ValueError(f"n_syn must be a positive odd number, got {self.n_syn}")
-        for name, ok in (("chirp_window", WINDOWS), ("sample_window", WINDOWS), ("static_removal", STATIC_REMOVAL),
-                         ("azimuth_decimation", DECIMATION), ("motion_reference", MOTION_REFERENCES),
-                         ("focus", FOCUS)):
-            if getattr(self, name) not in ok:
-                raise ValueError(f"{name} must be one of {', '.join(ok)}, got {getattr(self, name)!r}")
-        if self.n_range is not None and self.n_range < 1:
-            raise ValueError(f"n_range must be >= 1, got {self.n_range}")
-
-    def syn_count(self, n_chirps: int) -> int:
-        """Chirps per beam for a rotation of ``n_chirps`` (odd, at most ``n_chirps``)."""
-        if self.n_syn is not None:
-            n = self.n_syn
-        else:
-            n = int(np.deg2rad(self.azimuth_fov_deg) / (2 * np.pi) * n_chirps)
-            n = n if n % 2 == 1 else n + 1
-        if n > n_chirps:
-            raise ValueError(f"n_syn {n} exceeds the rotation's {n_chirps} chirps")
-        return n
-
-    def elevations(self) -> np.ndarray:
-        """(H,) float64 radians, row 0 = max (docs/format.md §2)."""
-        hi, lo = np.deg2rad(self.elevation_max_deg), np.deg2rad(self.elevation_min_deg)
-        return hi - np.arange(self.n_elevation) * (hi - lo) / (self.n_elevation - 1)
-
-    def to_attrs(self) -> dict:
-        return {k: v for k, v in asdict(self).items()}
-
-    @classmethod
-    def from_attrs(cls, attrs: dict) -> "BeamformParams":
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in attrs.items() if k in names})
 
 
 def beamform_attrs(chirp: ChirpConfig, params: BeamformParams, n_chirps: int | None = None, **extra) -> dict:
@@ -170,34 +95,6 @@ def static_reflection(chirps: np.ndarray) -> np.ndarray:
     for a in range(0, chirps.shape[0], step):
         acc += np.asarray(chirps[a:a + step]).sum(axis=0, dtype=np.complex128)
     return (acc / max(chirps.shape[0], 1)).astype(np.complex64)
-
-
-@dataclass(frozen=True)
-class Motion:
-    """Platform motion during one rotation: travel per chirp ``ds0`` (m) and heading ``theta_v``
-    (rad, counter-clockwise from beam 0 = the radar frame's +x at the rotation's start)."""
-
-    ds0: float
-    theta_v: float
-
-    @classmethod
-    def from_velocity(cls, velocity, chirp_period_s: float) -> "Motion | None":
-        """From (vx, vy) m/s in the radar frame at the rotation start; None for a platform at rest."""
-        if velocity is None:
-            return None
-        vx, vy = (float(v) for v in np.asarray(velocity, float).reshape(-1)[:2])
-        speed = math.hypot(vx, vy)
-        if speed == 0.0:
-            return None
-        return cls(speed * float(chirp_period_s), math.atan2(vy, vx))
-
-    def velocity(self, chirp_period_s: float) -> tuple[float, float] | None:
-        """(vx, vy) m/s for chirps ``chirp_period_s`` apart (the inverse of :meth:`from_velocity`);
-        None at rest (``ds0`` 0) or without a period — what :func:`beamform` takes."""
-        if not self.ds0 > 0 or not chirp_period_s > 0:
-            return None
-        speed = self.ds0 / chirp_period_s
-        return speed * math.cos(self.theta_v), speed * math.sin(self.theta_v)
 
 
 # -- entry point ---------------------------------------------------------------------------------------

@@ -79,7 +79,7 @@ def _sum(chirp, ang, w, R, cos_p, cos_r, delta, focus="far"):
 def azimuth_response(chirp: ChirpConfig, n_syn: int, offsets_rad, cos_el, ranges_m=np.inf, *,
                      chirp_window: str = "hann", n_chirps: int | None = None, focus: str = "far") -> np.ndarray:
     """(len(cos_el), len(ranges), len(offsets)) complex128: A(δ; θ, R) above (``ranges_m`` = inf:
-    far field); ``focus`` as :class:`~holodata.radar.beamform.BeamformParams` (``"near"``: the
+    far field); ``focus`` as :class:`~holodata.radar.beam_geometry.BeamformParams` (``"near"``: the
     compensation is the exact distance, so the response is the far-field-like main lobe at every R)."""
     ang, w = _aperture(n_syn, chirp_window, int(n_chirps or chirp.chirps_per_rotation))
     ce = np.asarray(cos_el, float).reshape(-1, 1, 1)

@@ -218,7 +218,7 @@ def open_recording(path, msg_dir=None, meta=None, reader: str | None = None, bea
                    device: str = "cpu") -> Recording:
     """Open ``path`` with the reader :func:`guess_reader` picks (or ``reader``). ``msg_dir``: folder
     of ``.msg`` files for types the file does not define; ``meta``: Ouster metadata ``.json``;
-    ``beamform``: :class:`~holodata.radar.beamform.BeamformParams` and ``device`` for readers of raw
+    ``beamform``: :class:`~holodata.radar.beam_geometry.BeamformParams` and ``device`` for readers of raw
     radar samples."""
     p = synth_output_recording(path)
     name = reader or guess_reader(p)

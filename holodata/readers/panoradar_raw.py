@@ -35,7 +35,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import RecordingError
-from ..radar.beamform import BeamformParams, Motion, beamform, beamform_attrs, static_reflection
+from ..radar.beam_geometry import BeamformParams, Motion
+from ..radar.beamform import beamform, beamform_attrs, static_reflection
 from ..radar.chirp import ChirpConfig
 from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, DecodeError, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, RawRotation,
                    Recording, TopicInfo, rate_of)

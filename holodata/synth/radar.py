@@ -73,7 +73,7 @@ class RadarConfig:
         heatmaps carry (:mod:`holodata.radar.psf`) and whose samples ``radar_output="iq"`` writes.
         Its sweep is the one whose range bins are ``range_bins.dr`` (c / 2B, B = slope·S/fs; 3.997 GHz
         for 3.75 cm, as PanoRadar's 3.9975 GHz), so a beamformed rotation lands on the same bins."""
-        from ..radar.beamform import BeamformParams
+        from ..radar.beam_geometry import BeamformParams
         from ..radar.chirp import ChirpConfig
 
         n, S, fs = self.n_virtual, max(256, self.range_bins.n), 5.12e6

@@ -8,8 +8,8 @@ points are LOS by definition) and stage-one human probabilities. Training:
 """
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -20,10 +20,27 @@ from holodata.errors import InputError
 from .stage2 import (CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig,
                      VoxelRefiner, voxel_point_mean, voxelize)
 
-if TYPE_CHECKING:
-    from .stage2_train import Frames
-
 STAGE2_CHECKPOINT = "stage2.pt"
+
+
+@dataclass
+class Frames:
+    """Stage-two frames in memory (each radar frame's own radar frame). range/label (T,3,H,W);
+    gt_point/gt_normal (T,3,H,W,3) NaN = none; origins/directions (T,H,W,3); s1_range/s1_human
+    (T,3,H,W) the stage-one prediction or None."""
+
+    range: np.ndarray
+    label: np.ndarray
+    gt_point: np.ndarray
+    gt_normal: np.ndarray
+    origins: np.ndarray
+    directions: np.ndarray
+    s1_range: np.ndarray | None = None
+    s1_human: np.ndarray | None = None
+    keys: list = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.range)
 
 
 def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: np.ndarray | None = None) -> np.ndarray:

@@ -22,13 +22,13 @@ import json
 import math
 import shutil
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from holodata.conventions import Grid, is_human
+from holodata.conventions import Grid, is_human, reduced_grid
 from holodata.dataset.layout import GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, POSE_T_WORLD_RADAR, RADAR_HEATMAP
 from holodata.errors import InputError
 from holodata.progress import track
@@ -36,7 +36,7 @@ from holodata.progress import track
 from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
-from .stage2_infer import STAGE2_CHECKPOINT, Stage2, calibrate_keep, los_flags
+from .stage2_infer import STAGE2_CHECKPOINT, Frames, Stage2, calibrate_keep, los_flags
 
 STAGE2_LOG = "stage2_metrics.jsonl"
 
@@ -114,26 +114,6 @@ class Stage2Config:
 # ----------------------------------------------------------------------------- frames
 
 
-@dataclass
-class Frames:
-    """Stage-two frames in memory (each radar frame's own radar frame). range/label (T,3,H,W);
-    gt_point/gt_normal (T,3,H,W,3) NaN = none; origins/directions (T,H,W,3); s1_range/s1_human
-    (T,3,H,W) the stage-one prediction or None."""
-
-    range: np.ndarray
-    label: np.ndarray
-    gt_point: np.ndarray
-    gt_normal: np.ndarray
-    origins: np.ndarray
-    directions: np.ndarray
-    s1_range: np.ndarray | None = None
-    s1_human: np.ndarray | None = None
-    keys: list = field(default_factory=list)
-
-    def __len__(self) -> int:
-        return len(self.range)
-
-
 class _SceneGeometry:
     """Adapter over the dataset's beam geometry: beam origins/directions (H,W,3) and GT
     points/normals (3,H,W,3) of frame k in its own radar frame at downsample ``f``. Uses
@@ -141,7 +121,6 @@ class _SceneGeometry:
     when available, else origins 0 and the grid's directions."""
 
     def __init__(self, sc, full_grid: Grid, f: int):
-        from holodata.evaluate.pipeline import reduced_grid
 
         self.sc, self.f, self.grid = sc, f, reduced_grid(full_grid, f)
         try:
@@ -171,7 +150,6 @@ class _SceneGeometry:
 def load_frames(dataset_url, split: str, f: int, frames_per_scene: int | None = None, quiet: bool = True) -> tuple[Frames, Grid]:
     """The ``split`` frames of a dataset at downsample ``f`` (GT arrays, beam geometry)."""
     from holodata.dataset import open_dataset
-    from holodata.evaluate.pipeline import reduced_grid
 
     from .data import split_scenes
 
