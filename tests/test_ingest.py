@@ -451,3 +451,56 @@ def test_scenes_with_a_sha256_source_digest_still_compare(tmp_path):
     assert ingest([rec], url, quiet=True)["scenes"][0]["skipped"] == "already ingested"
     with pytest.raises(HolodataError, match="was ingested from another recording"):
         ingest([other], url, quiet=True)
+
+
+def _count_opens(monkeypatch) -> tuple[dict, dict]:
+    """Every reader's open wrapped (the registry, whoever calls it): ({recording path: opens},
+    {recording path: closes of what those opens returned})."""
+    import dataclasses
+    from collections import Counter
+
+    from holodata.readers import READERS
+
+    opens, closes = Counter(), Counter()
+
+    def wrap(spec):
+        def open_(path, *a, **k):
+            opens[str(path)] += 1
+            rec = spec.open(path, *a, **k)
+            real_close = rec.close
+
+            def close():
+                closes[str(path)] += 1
+                real_close()
+
+            rec.close = close
+            return rec
+        return dataclasses.replace(spec, open=open_)
+
+    for name, spec in list(READERS.items()):
+        monkeypatch.setitem(READERS, name, wrap(spec))
+    return opens, closes
+
+
+def test_ingest_opens_each_recording_once(tmp_path, monkeypatch):
+    """Issue 44 point 3: the grid pre-pass (several recordings into a new dataset), the plan and the
+    write pass share one opened recording per recording (it was opened by the pre-pass and again by
+    the plan), closed once when its scene is written or it failed; a LiDAR-only recording among them
+    and one rejected when planned likewise. Counted at the reader registry, whoever calls it."""
+    recs = [tmp_path / "a", tmp_path / "b.bag", tmp_path / "lidar"]
+    write_recording(recs[0], "mcap", n_radar=3, camera=False)
+    write_recording(recs[1], "rosbag1", n_radar=3, camera=False)
+    write_recording(recs[2], "mcap", n_radar=0, radar=False, camera=False)
+    bad = tmp_path / "tf_only"                  # opens, has no sensor topic: rejected when planned
+    write_recording(bad, "mcap", n_radar=2, radar=False, lidar=False, camera=False)
+    opens, closes = _count_opens(monkeypatch)
+    s = ingest(recs + [bad], tmp_path / "ds.zarr", shard_frames=2)
+    assert [x["scene"] for x in s["scenes"]] == ["a", "b", "lidar"] and len(s["failed"]) == 1, s
+    assert dict(opens) == {str(r): 1 for r in recs + [bad]}
+    assert closes == opens
+    # into the existing dataset (no pre-pass) and a single recording: once as well
+    opens.clear()
+    closes.clear()
+    write_recording(tmp_path / "c", "mcap", n_radar=3, camera=False)
+    ingest([tmp_path / "c"], tmp_path / "ds.zarr", shard_frames=2)
+    assert dict(opens) == {str(tmp_path / "c"): 1} and closes == opens

@@ -40,7 +40,9 @@ frames, intrinsics, Ouster metadata), ``ingest`` (mapping, tolerance, counts, dr
 Modules: :mod:`.roles` (topic mapping), :mod:`.streams` (one decoder per kind of sensor message),
 :mod:`.plan` (index and sync passes), :mod:`.write` (the write pass), :mod:`.listing`
 (``ingest --list``); this module orchestrates them (:func:`ingest`, locally or one Dask task per
-recording).
+recording). Each recording is opened once (:func:`open_for_ingest`) and the opened
+:class:`~holodata.readers.base.Recording` is passed down to the grid pre-pass
+(:func:`radar_grid`), the plan and the write pass; whoever opened it closes it.
 
 Truncated recordings (recorder crash, file cut short): the readable prefix is ingested and the
 scene is marked ``source.truncated = true`` with the reason; ``ingest`` warns. Recordings with no
@@ -58,9 +60,10 @@ from pathlib import Path
 from ..conventions import Grid, RangeBins
 from ..errors import HolodataError, InputError, RecordingError
 from ..readers import open_recording
+from ..readers.base import Recording
 from .roles import RADAR_SUFFIX, TopicMap, _one_line, load_topics_file, map_topics
 from .radar_streams import radar_stream
-from .plan import Plan, _grid_of, _scene_id, plan_recording
+from .plan import Plan, _grid_of, _limit_malloc_arenas, _scene_id, plan_recording
 from .listing import format_listing, list_recording
 from .write import write_plan
 
@@ -98,25 +101,6 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         grid, rb = (existing.grid, existing.range_bins) if existing.meta.get("grid_source") != "default" else (None, None)
     except HolodataError:
         existing, grid, rb = None, None, None
-    todo = []
-    if existing is None and (len(recordings) > 1 or client is not None):
-        # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes)
-        for i, r in enumerate(recordings):
-            try:
-                todo.append((i, r, radar_grid(r, topics, msg_dir, meta, beamform)))
-            except (HolodataError, OSError) as err:
-                failed.append({"recording": str(r), "error": _one_line(err)})
-        if not todo:
-            raise RecordingError(_failures(failed))
-        grids = {g for _, _, g in todo if g is not None}
-        if len(grids) > 1:
-            raise RecordingError(f"recordings have different radar grids ({sorted(str(g[0].to_attrs()) for g in grids)}); "
-                                 f"ingest them into separate datasets")
-        grid, rb = next(iter(grids)) if grids else (None, None)
-    else:
-        todo = [(i, r, None) for i, r in enumerate(recordings)]
-    ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
-    ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
     try:
         from . import __version__ as version
     except ImportError:  # pragma: no cover
@@ -124,25 +108,63 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     opts = IngestOptions(topics=topics, msg_dir=msg_dir, tolerance_ms=tolerance_ms, meta=meta, codec=codec,
                          beamform=beamform, keep_iq=keep_iq, shard_frames=shard_frames,
                          provenance={"tool": "holodata ingest", "version": version})
-    scenes = []
-    if client is not None:  # the dataset exists before the workers write their scenes into it
-        _create(out, grid, rb, opts)
-        scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
-        failed += more
+    opened: dict[int, Recording] = {}   # index -> recording opened by the pre-pass, until its scene is written
+    try:
         todo = []
-        if not scenes and existing is None:   # created for the workers, nothing landed: leave no empty dataset
-            from ..dataset.store import Store
+        if existing is None and (len(recordings) > 1 or client is not None):
+            # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes); the
+            # local loop goes on with the recordings it opened, Dask workers open their own
+            for i, r in enumerate(recordings):
+                try:
+                    rec = open_for_ingest(r, opts)
+                except (HolodataError, OSError) as err:
+                    failed.append({"recording": str(r), "error": _one_line(err)})
+                    continue
+                try:
+                    todo.append((i, r, radar_grid(rec, topics, beamform)))
+                except (HolodataError, OSError) as err:
+                    failed.append({"recording": str(r), "error": _one_line(err)})
+                    rec.close()
+                    continue
+                if client is None:
+                    opened[i] = rec
+                else:
+                    rec.close()
+            if not todo:
+                raise RecordingError(_failures(failed))
+            grids = {g for _, _, g in todo if g is not None}
+            if len(grids) > 1:
+                raise RecordingError(f"recordings have different radar grids "
+                                     f"({sorted(str(g[0].to_attrs()) for g in grids)}); ingest them into separate datasets")
+            grid, rb = next(iter(grids)) if grids else (None, None)
+        else:
+            todo = [(i, r, None) for i, r in enumerate(recordings)]
+        ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
+        ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
+        scenes = []
+        if client is not None:  # the dataset exists before the workers write their scenes into it
+            _create(out, grid, rb, opts)
+            scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
+            failed += more
+            todo = []
+            if not scenes and existing is None:   # created for the workers, nothing landed: leave no empty dataset
+                from ..dataset.store import Store
 
-            Store(out).delete_tree("")
-    for (_, r, _), sid in zip(todo, ids):
-        try:
-            summary, radar = ingest_one(r, sid, out, grid, rb, opts, quiet=quiet)
-        except (HolodataError, OSError) as err:
-            failed.append({"recording": str(r), "error": _error_line(r, out, err)})
-            continue
-        scenes.append(summary)
-        if grid is None and radar is not None:   # the first radar recording sets the dataset's grid
-            grid, rb = radar
+                Store(out).delete_tree("")
+        for (i, r, _), sid in zip(todo, ids):
+            try:
+                rec = opened.pop(i) if i in opened else open_for_ingest(r, opts)
+                with rec:
+                    summary, radar = ingest_one(rec, sid, out, grid, rb, opts, quiet=quiet)
+            except (HolodataError, OSError) as err:
+                failed.append({"recording": str(r), "error": _error_line(r, out, err)})
+                continue
+            scenes.append(summary)
+            if grid is None and radar is not None:   # the first radar recording sets the dataset's grid
+                grid, rb = radar
+    finally:
+        for rec in opened.values():    # the pre-pass's recordings that were not reached (an error, Ctrl-C)
+            rec.close()
     if not scenes:
         raise RecordingError(_failures(failed))
     return {"dataset": str(out), "scenes": scenes, "failed": failed, "ok": not failed}
@@ -163,19 +185,27 @@ def _failures(failed: list[dict]) -> str:
     return f"none of {len(failed)} recordings can be ingested: " + "; ".join(f["error"] for f in failed)
 
 
-def radar_grid(path, topics=None, msg_dir=None, meta=None, beamform=None) -> tuple[Grid, RangeBins] | None:
-    """The radar grid of a recording (from its first decodable radar message), None without radar."""
-    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
+def open_for_ingest(path, opts: IngestOptions) -> Recording:
+    """``path`` opened the way ingest reads it (``opts.msg_dir``, ``opts.meta``, ``opts.beamform``);
+    the caller closes it (``with``). The one open of a recording per ingest."""
+    _limit_malloc_arenas()   # before any reader or ingest thread allocates
+    return open_recording(path, msg_dir=opts.msg_dir, meta=opts.meta, beamform=opts.beamform)
+
+
+def radar_grid(rec: Recording, topics=None, beamform=None) -> tuple[Grid, RangeBins] | None:
+    """The radar grid of the opened recording ``rec`` (from its first decodable radar message), None
+    without radar. ``rec`` stays open (it is planned and written next)."""
+    infos = rec.topics(frame_ids=False)
+    if not any(t.msgtype.endswith(RADAR_SUFFIX) and t.count for t in infos) and not (topics or {}).get("radar"):
+        return None
+    tmap, _ = map_topics(rec, topics, rec.topics(frame_ids=True))
+    if not tmap.radar:
+        return None
+    st = radar_stream(rec, tmap.radar, tmap.time, next(t.msgtype for t in infos if t.name == tmap.radar), beamform)
+    last = None
+    msgs = rec.raw_messages([tmap.radar])
     try:
-        infos = rec.topics(frame_ids=False)
-        if not any(t.msgtype.endswith(RADAR_SUFFIX) and t.count for t in infos) and not (topics or {}).get("radar"):
-            return None
-        tmap, _ = map_topics(rec, topics, rec.topics(frame_ids=True))
-        if not tmap.radar:
-            return None
-        st = radar_stream(rec, tmap.radar, tmap.time, next(t.msgtype for t in infos if t.name == tmap.radar), beamform)
-        last = None
-        for n, raw in enumerate(rec.raw_messages([tmap.radar])):
+        for n, raw in enumerate(msgs):
             try:
                 st.convert(raw, keep=False)
                 return _grid_of(rec, st)
@@ -183,9 +213,11 @@ def radar_grid(path, topics=None, msg_dir=None, meta=None, beamform=None) -> tup
                 last = err
             if n >= 20:
                 break
-        raise RecordingError(f"{rec.path}: no decodable radar message on {tmap.radar} ({_one_line(last) if last else 'none'})")
     finally:
-        rec.close()
+        close = getattr(msgs, "close", None)   # leave no reader generator suspended mid-file
+        if close is not None:
+            close()
+    raise RecordingError(f"{rec.path}: no decodable radar message on {tmap.radar} ({_one_line(last) if last else 'none'})")
 
 
 
@@ -223,24 +255,21 @@ def _create(out, grid, range_bins, opts: IngestOptions):
                           provenance=opts.provenance, **kw)
 
 
-def ingest_one(recording, scene_id: str, out, grid: Grid | None, range_bins: RangeBins | None,
+def ingest_one(rec: Recording, scene_id: str, out, grid: Grid | None, range_bins: RangeBins | None,
                opts: IngestOptions, quiet: bool = True) -> tuple[dict, tuple[Grid, RangeBins] | None]:
-    """One recording as scene ``scene_id`` of the dataset at ``out``: plan it (index and sync passes),
+    """The opened recording ``rec`` (:func:`open_for_ingest`; left open, its opener closes it) as
+    scene ``scene_id`` of the dataset at ``out``: plan it (index and sync passes),
     check its radar grid against the dataset's (``grid`` None: none is known yet, and a radar
     recording's grid becomes the dataset's), create or reopen the dataset (only now, so a recording
     that fails leaves no empty dataset) and write the scene. The local loop of :func:`ingest` and the
     Dask task both call it. Returns (the scene summary, the recording's (grid, range bins) or None
     without radar); raises HolodataError/OSError naming the recording."""
-    p = plan_recording(Path(recording), opts.topics, scene_id, opts.msg_dir, opts.tolerance_ms, opts.meta, quiet,
-                       opts.beamform, opts.keep_iq)
-    try:
-        if grid is not None:
-            check_grid(recording, p, grid, range_bins)
-        radar = (p.grid, p.range_bins) if p.grid is not None else None
-        ds = _create(out, *(radar or (grid, range_bins)), opts)
-        return write_plan(p, ds, quiet=quiet, codec=opts.codec), radar   # source digest: waited for at its end
-    finally:
-        p.rec.close()
+    p = plan_recording(rec, opts.topics, scene_id, opts.tolerance_ms, quiet, opts.beamform, opts.keep_iq)
+    if grid is not None:
+        check_grid(rec.path, p, grid, range_bins)
+    radar = (p.grid, p.range_bins) if p.grid is not None else None
+    ds = _create(out, *(radar or (grid, range_bins)), opts)
+    return write_plan(p, ds, quiet=quiet, codec=opts.codec), radar   # source digest: waited for at its end
 
 
 # -- Dask task (holodata.distributed runs it): one per recording -----------------------------------------
@@ -251,7 +280,8 @@ def _ingest_task(path: str, scene_id: str, out: str, grid, range_bins, opts: Ing
 
     tune_malloc()
     try:
-        return {"scene": ingest_one(path, scene_id, out, grid, range_bins, opts)[0]}
+        with open_for_ingest(path, opts) as rec:
+            return {"scene": ingest_one(rec, scene_id, out, grid, range_bins, opts)[0]}
     except (HolodataError, OSError) as err:
         return {"failed": {"recording": str(path), "error": _error_line(path, out, err)}}
 
@@ -270,6 +300,6 @@ def ingest_dask(client, todo: list, ids: list[str], out: str, grid, range_bins, 
     return [r["scene"] for r in res if "scene" in r], [r["failed"] for r in res if "failed" in r]
 
 
-__all__ = ["ingest", "ingest_one", "IngestOptions", "ingest_dask",
+__all__ = ["ingest", "ingest_one", "open_for_ingest", "IngestOptions", "ingest_dask",
            "plan_recording", "write_plan", "check_grid", "radar_grid", "list_recording",
            "format_listing", "map_topics", "load_topics_file", "Plan", "TopicMap"]

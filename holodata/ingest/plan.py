@@ -1,4 +1,4 @@
-"""The index and sync passes: :func:`plan_recording` opens a recording, maps its topics, indexes
+"""The index and sync passes: :func:`plan_recording` takes an opened recording, maps its topics, indexes
 the messages and matches every sensor to the frames (:class:`Plan`; nothing written)."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import numpy as np
 
 from ..conventions import Grid, RangeBins
 from ..errors import HolodataError, InputError, RecordingError
-from ..readers import open_recording, synth_output_folder
+from ..readers import synth_output_folder
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
 from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, _one_line, map_topics
 from .radar_streams import RadarStream, RawRadarStream, radar_stream
@@ -146,18 +146,20 @@ def _nearest(frame_t: np.ndarray, item_t: np.ndarray, tol_ns: int) -> tuple[np.n
     return idx, off
 
 
-def plan_recording(path, topics: dict | None = None, scene_id: str | None = None, msg_dir=None,
-                   tolerance_ms: float | None = None, meta=None, quiet: bool = True, beamform=None,
+def plan_recording(rec: Recording, topics: dict | None = None, scene_id: str | None = None,
+                   tolerance_ms: float | None = None, quiet: bool = True, beamform=None,
                    keep_iq: bool = False) -> Plan:
-    """Open, map, index and sync one recording (nothing written). RecordingError if unusable.
-    ``beamform``: :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar samples;
-    ``keep_iq``: also store those samples (``radar/iq``, for ``holodata beamform``)."""
+    """Map, index and sync one opened recording ``rec`` (:func:`holodata.readers.open_recording`;
+    nothing written). RecordingError if unusable. The plan reads ``rec`` again when it is written
+    (``plan.rec``): whoever opened it closes it, after :func:`~holodata.ingest.write.write_plan`.
+    ``beamform``: :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar
+    samples (the one ``rec`` was opened with); ``keep_iq``: also store those samples (``radar/iq``,
+    for ``holodata beamform``)."""
     from ..progress import track
 
     from concurrent.futures import ThreadPoolExecutor
 
     _limit_malloc_arenas()
-    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
     pool = ThreadPoolExecutor(1)   # checksums overlap the index pass (hashlib releases the GIL)
     sha = pool.submit(file_digests, rec.files)
     pool.shutdown(wait=False)
@@ -165,7 +167,6 @@ def plan_recording(path, topics: dict | None = None, scene_id: str | None = None
         plan = _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform)
     except BaseException:
         sha.cancel()
-        rec.close()
         raise
     plan.sha_future = sha
     if keep_iq and "radar" in plan.streams and (hasattr(rec, "iq_shape") or hasattr(plan.streams["radar"], "iq_shape")):
