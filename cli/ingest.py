@@ -32,6 +32,10 @@ from holodata.cli.options import dask_options
 @click.option("--beamform-focus", type=click.Choice(["far", "near"]), default=None,
               help="Raw radar samples: far = PanoRadar's far-field azimuth compensation (default); near = focus "
                    "on every range bin with the exact antenna distances (sharper below ~3 m).")
+@click.option("--beamform-motion", "motion", type=click.Choice(["static", "moving"]), default=None,
+              help="PanoRadar raw trajectories: the robot was at rest (static: circular padding, no motion term) or "
+                   "moving (default: static when the trajectory's folder or its parent, the building folder as in "
+                   "PanoRadar, names 'static'; --list says which rule decided).")
 @click.option("--keep-iq", is_flag=True,
               help="Raw radar samples: also store them (radar/iq, ~21 MB per full-size rotation) so that "
                    "`holodata beamform` can re-image them with other parameters.")
@@ -39,7 +43,7 @@ from holodata.cli.options import dask_options
 @click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, beamform_grid,
-           beamform_fov, beamform_focus, keep_iq, workers, scheduler, quiet, as_json):
+           beamform_fov, beamform_focus, motion, keep_iq, workers, scheduler, quiet, as_json):
     """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster
     .pcap (+ .json), .h5 (holodata layout), PanoRadar rf_npy/lidar_npy folder or raw trajectory
     (radar_data.npy + data_params.npz: beamformed here, parameters in the scene attrs) — and write one
@@ -57,6 +61,8 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
       holodata ingest corner_01/ corner_02.mcap --out data.zarr --topics topics.yaml
 
       holodata ingest panoradar_traj/ --out data.zarr --beamform-grid 64x512
+
+      holodata ingest --list lab_run/exp-000 --beamform-motion static
     """
     import json
     import sys
@@ -66,6 +72,8 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
 
     beamform = _beamform_params(beamform_grid, beamform_fov, beamform_focus)
     bf_kw = {"beamform": beamform} if beamform is not None else {}
+    if motion is not None:
+        bf_kw["motion"] = motion
     if list_only:
         infos, errors = [], []
         for r in recordings:
@@ -90,7 +98,7 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
         summary = run_ingest(list(recordings), out, topics=topics_file, scene_ids=list(scene_ids) or None,
                              msg_dir=msg_dir, tolerance_ms=tolerance_ms, quiet=quiet or as_json, meta=meta,
                              codec=codec, client=client, beamform=beamform,
-                             keep_iq=keep_iq)
+                             keep_iq=keep_iq, motion=motion)
     if as_json:
         click.echo(json.dumps(summary, indent=2, default=str))
     else:

@@ -318,3 +318,39 @@ def test_beamform_focus_near_is_recorded_and_reimages(moving, tmp_path):
     assert validate_dataset(url)["ok"]
     near = np.asarray(again["radar/heatmap"][...])
     assert near.shape == first.shape and not np.allclose(near, first, rtol=1e-2)
+
+
+def test_a_static_building_folder_makes_its_trajectories_static_and_an_override_reads_others(tmp_path):
+    """PanoRadar decides static vs moving from the building folder holding the trajectories
+    (process_raw_data.py: ``'static' in in_building_folder.name``): ``bldg_static/exp-000`` (2 rotations
+    with no chirps beyond them, a robot at rest) ingests as static, ``--list`` names the rule, and a
+    folder named otherwise needs ``--beamform-motion static`` (without it: a one-line error that says so)."""
+    tr = box_room_trajectory(tmp_path / "bldg_static" / "exp-000", chirp=CHIRP, n_rotations=2, room=ROOM, pad=0)
+    odd = tmp_path / "lab_run" / "exp-001"
+    shutil.copytree(tr.folder, odd)
+    run = CliRunner().invoke
+    r = run(cli, ["ingest", "--list", str(tr.folder), "--beamform-grid", "16x64"])
+    assert r.exit_code == 0, r.output
+    assert "Motion:    static: parent folder 'bldg_static'" in r.output and "Ingest:    yes" in r.output, r.output
+    url = str(tmp_path / "ds.zarr")
+    r = run(cli, ["ingest", str(tr.folder), "--out", url, "--beamform-grid", "16x64", "--quiet"])
+    assert r.exit_code == 0, r.output
+    sc = open_dataset(url).scene("exp-000")
+    bf = sc.attrs["source"]["beamform"]
+    assert bf["padding"] == "circular" and bf["rotations_imaged"] == 2 and bf["motion"].startswith("static: parent")
+    assert sc["radar/heatmap"].shape == (2, 256, 16, 64)
+    # the same samples under a name that says nothing: moving, refused, then static when told
+    moving = "moving: neither folder 'exp-001' nor its parent 'lab_run' names 'static'"
+    for args in (["--list"], ["--out", str(tmp_path / "bad.zarr"), "--quiet"]):
+        r = run(cli, ["ingest", *args, str(odd), "--beamform-grid", "16x64"])
+        assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1, r.output
+        assert "no rotation can be imaged" in r.output and moving in r.output, r.output
+        assert "a robot at rest: --beamform-motion static" in r.output, r.output
+    r = run(cli, ["ingest", "--list", str(odd), "--beamform-grid", "16x64", "--beamform-motion", "static"])
+    assert "Motion:    static: given (--beamform-motion static)" in r.output, r.output
+    url2 = str(tmp_path / "odd.zarr")
+    r = run(cli, ["ingest", str(odd), "--out", url2, "--beamform-grid", "16x64", "--beamform-motion", "static",
+                  "--quiet"])
+    assert r.exit_code == 0, r.output
+    np.testing.assert_array_equal(np.asarray(open_dataset(url2).scene("exp-001")["radar/heatmap"][...]),
+                                  np.asarray(sc["radar/heatmap"][...]))

@@ -71,7 +71,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
            quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None,
 
 
-           client=None, beamform=None, keep_iq: bool = False) -> dict:
+           client=None, beamform=None, keep_iq: bool = False, motion: str | None = None) -> dict:
     """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
     each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
     {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
@@ -80,7 +80,9 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     the recordings must be readable at the same paths on the workers. ``beamform``:
     :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar samples (PanoRadar raw
     trajectories), default 64 x 512 beams, all range bins; ``keep_iq``: store their raw samples too
-    (``radar/iq``), so that ``holodata beamform`` can re-image them with other parameters."""
+    (``radar/iq``), so that ``holodata beamform`` can re-image them with other parameters; ``motion``:
+    "static" | "moving", the robot's motion in every PanoRadar raw trajectory given, instead of
+    reading it from their folder names (:func:`holodata.readers.panoradar_raw.motion_rule`)."""
     recordings = [Path(r) for r in recordings]
     if not recordings:
         raise InputError("no recording given")
@@ -106,7 +108,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
     except ImportError:  # pragma: no cover
         version = "?"
     opts = IngestOptions(topics=topics, msg_dir=msg_dir, tolerance_ms=tolerance_ms, meta=meta, codec=codec,
-                         beamform=beamform, keep_iq=keep_iq, shard_frames=shard_frames,
+                         beamform=beamform, keep_iq=keep_iq, motion=motion, shard_frames=shard_frames,
                          provenance={"tool": "holodata ingest", "version": version})
     opened: dict[int, Recording] = {}   # index -> recording opened by the pre-pass, until its scene is written
     try:
@@ -186,10 +188,10 @@ def _failures(failed: list[dict]) -> str:
 
 
 def open_for_ingest(path, opts: IngestOptions) -> Recording:
-    """``path`` opened the way ingest reads it (``opts.msg_dir``, ``opts.meta``, ``opts.beamform``);
+    """``path`` opened the way ingest reads it (``opts.msg_dir``, ``opts.meta``, ``opts.beamform``, ``opts.motion``);
     the caller closes it (``with``). The one open of a recording per ingest."""
     _limit_malloc_arenas()   # before any reader or ingest thread allocates
-    return open_recording(path, msg_dir=opts.msg_dir, meta=opts.meta, beamform=opts.beamform)
+    return open_recording(path, msg_dir=opts.msg_dir, meta=opts.meta, beamform=opts.beamform, motion=opts.motion)
 
 
 def radar_grid(rec: Recording, topics=None, beamform=None) -> tuple[Grid, RangeBins] | None:
@@ -242,6 +244,7 @@ class IngestOptions:
     codec: str | None = None
     beamform: object = None
     keep_iq: bool = False
+    motion: str | None = None
     shard_frames: int | None = None
     provenance: dict = dataclasses.field(default_factory=dict)
 
@@ -264,7 +267,7 @@ def ingest_one(rec: Recording, scene_id: str, out, grid: Grid | None, range_bins
     that fails leaves no empty dataset) and write the scene. The local loop of :func:`ingest` and the
     Dask task both call it. Returns (the scene summary, the recording's (grid, range bins) or None
     without radar); raises HolodataError/OSError naming the recording."""
-    p = plan_recording(rec, opts.topics, scene_id, opts.tolerance_ms, quiet, opts.beamform, opts.keep_iq)
+    p = plan_recording(rec, opts.topics, scene_id, opts.tolerance_ms, quiet, opts.beamform, opts.keep_iq, opts.motion)
     if grid is not None:
         check_grid(rec.path, p, grid, range_bins)
     radar = (p.grid, p.range_bins) if p.grid is not None else None

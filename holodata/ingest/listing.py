@@ -9,12 +9,14 @@ from .roles import ROLES, TopicMap, _one_line, load_topics_file, map_topics
 from .plan import _reject_reason
 
 
-def list_recording(path, msg_dir=None, meta=None, topics=None, beamform=None) -> dict:
+def list_recording(path, msg_dir=None, meta=None, topics=None, beamform=None, motion=None) -> dict:
     """What ``ingest --list`` prints: reader, files, duration, topics (name, type, count, rate,
-    frame id) and the role ingest would give each (with ``topics``: dict or YAML path overrides)."""
+    frame id), the role ingest would give each (with ``topics``: dict or YAML path overrides) and
+    the reader's ``decisions`` (e.g. which rule made a PanoRadar trajectory static; ``motion``
+    overrides it, as in :func:`holodata.ingest.ingest`)."""
     if isinstance(topics, (str, Path)):
         topics = load_topics_file(topics)
-    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform)
+    rec = open_recording(path, msg_dir=msg_dir, meta=meta, beamform=beamform, motion=motion)
     try:
         infos = rec.topics(frame_ids=True)
         try:
@@ -39,7 +41,8 @@ def list_recording(path, msg_dir=None, meta=None, topics=None, beamform=None) ->
         return {"recording": str(rec.path), "reader": rec.kind, "files": [str(f) for f in rec.files], "bytes": size,
                 "start_ns": lo, "end_ns": hi, "duration_s": None if lo is None else (hi - lo) / 1e9,
                 "messages": sum(t.count for t in infos), "truncated": bool(rec.truncated),
-                "problems": list(rec.problems), "notes": notes, "ingestable": usable, "reason": reason,
+                "problems": list(rec.problems), "decisions": dict(rec.decisions), "notes": notes,
+                "ingestable": usable, "reason": reason,
                 "topics": [{**t.to_dict(), "role": roles.get(t.name)} for t in infos]}
     finally:
         rec.close()
@@ -66,6 +69,8 @@ def format_listing(info: dict) -> str:
         if not t["decodable"]:
             extra.append(f"({t.get('note') or 'not decodable'})")
         lines.append(f"  {t['name']:<{w}}  {t['type']:<{wt}}  {t['count']:>7}  {rate:>11}  {' '.join(extra)}".rstrip())
+    for what, how in info.get("decisions", {}).items():
+        lines.append(f"{what.capitalize() + ':':<10} {how}")
     for p in info["problems"]:
         lines.append(f"warning: {p}")
     for n in info["notes"]:

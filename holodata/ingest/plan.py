@@ -148,13 +148,14 @@ def _nearest(frame_t: np.ndarray, item_t: np.ndarray, tol_ns: int) -> tuple[np.n
 
 def plan_recording(rec: Recording, topics: dict | None = None, scene_id: str | None = None,
                    tolerance_ms: float | None = None, quiet: bool = True, beamform=None,
-                   keep_iq: bool = False) -> Plan:
+                   keep_iq: bool = False, motion: str | None = None) -> Plan:
     """Map, index and sync one opened recording ``rec`` (:func:`holodata.readers.open_recording`;
     nothing written). RecordingError if unusable. The plan reads ``rec`` again when it is written
     (``plan.rec``): whoever opened it closes it, after :func:`~holodata.ingest.write.write_plan`.
     ``beamform``: :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar
     samples (the one ``rec`` was opened with); ``keep_iq``: also store those samples (``radar/iq``,
-    for ``holodata beamform``)."""
+    for ``holodata beamform``); ``motion``: the override ``rec`` was opened with (a warning when
+    the recording has no folder-name rule for it to override)."""
     from ..progress import track
 
     from concurrent.futures import ThreadPoolExecutor
@@ -169,6 +170,9 @@ def plan_recording(rec: Recording, topics: dict | None = None, scene_id: str | N
         sha.cancel()
         raise
     plan.sha_future = sha
+    if motion is not None and "motion" not in rec.decisions:
+        plan.warnings.append(f"{rec.path}: the robot's motion is not read from folder names in this recording; "
+                             f"--beamform-motion has nothing to override")
     if keep_iq and "radar" in plan.streams and (hasattr(rec, "iq_shape") or hasattr(plan.streams["radar"], "iq_shape")):
         plan.keep_iq = True
     elif keep_iq:

@@ -127,10 +127,10 @@ def _open_hdf5(p: Path, **_):
     return Hdf5Recording(p)
 
 
-def _open_panoradar_raw(p: Path, beamform=None, device="cpu", **_):
+def _open_panoradar_raw(p: Path, beamform=None, device="cpu", motion=None, **_):
     from .panoradar_raw import PanoRadarRawRecording
 
-    return PanoRadarRawRecording(p, beamform, device)
+    return PanoRadarRawRecording(p, beamform, device, motion)
 
 
 def _open_npy(p: Path, **_):
@@ -215,18 +215,19 @@ def guess_reader(path) -> str:
 
 
 def open_recording(path, msg_dir=None, meta=None, reader: str | None = None, beamform=None,
-                   device: str = "cpu") -> Recording:
+                   device: str = "cpu", motion: str | None = None) -> Recording:
     """Open ``path`` with the reader :func:`guess_reader` picks (or ``reader``). ``msg_dir``: folder
     of ``.msg`` files for types the file does not define; ``meta``: Ouster metadata ``.json``;
     ``beamform``: :class:`~holodata.radar.beam_geometry.BeamformParams` and ``device`` for readers of raw
-    radar samples."""
+    radar samples; ``motion``: "static" | "moving", the robot's motion for readers that otherwise
+    read it from folder names (PanoRadar raw trajectories, :func:`.panoradar_raw.motion_rule`)."""
     p = synth_output_recording(path)
     name = reader or guess_reader(p)
     if name not in READERS:
         raise RecordingError(f"unknown reader {name!r} (have {', '.join(READERS)})")
     try:
         return READERS[name].open(p, msg_dir=Path(msg_dir) if msg_dir else None, meta=meta, beamform=beamform,
-                                  device=device)
+                                  device=device, motion=motion)
     except HolodataError:
         raise
     except Exception as err:  # noqa: BLE001 - library errors become one line naming the file

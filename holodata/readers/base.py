@@ -76,7 +76,9 @@ class Recording:
 
     Attributes: ``path`` (what the user gave), ``kind`` (reader name), ``files`` (the files holding
     the data, for checksums), ``truncated`` (True when only a readable prefix could be read — the
-    reason is in ``problems``), ``problems`` (one-line warnings met while reading).
+    reason is in ``problems``), ``problems`` (one-line warnings met while reading), ``decisions``
+    ({what: how the reader decided it}, e.g. {"motion": "static: parent folder 'bldg_static'"}: what
+    the reader read into the recording that no file states; ``ingest --list`` shows them).
     """
 
     kind = "recording"
@@ -86,6 +88,7 @@ class Recording:
         self.files: list[Path] = []
         self.truncated = False
         self.problems: list[str] = []
+        self.decisions: dict[str, str] = {}
         self.decoder: MessageDecoder | None = None
 
     # -- to implement -----------------------------------------------------------------------------

@@ -17,8 +17,9 @@ no LiDAR–radar offset, so the translation is zero).
 
 How the rotations are imaged (all of it goes into :attr:`PanoRadarRawRecording.attrs` ``beamform``,
 so the scene says how its heatmaps were made): static reflection = the mean over every chirp of the
-trajectory (PanoRadar's ``static_refl``); a folder whose name contains "static" is a robot at rest
-(circular padding, no motion term, as PanoRadar); otherwise every rotation takes its beams' outer
+trajectory (PanoRadar's ``static_refl``); a robot at rest (:func:`motion_rule`: "static" in the
+trajectory folder's name or in its parent's, the building folder PanoRadar decides by, or the caller's
+override) is imaged with circular padding and no motion term, as PanoRadar; otherwise every rotation takes its beams' outer
 chirps from the neighbouring rotations, and the motion term uses ``motion_output.npz``'s travel per
 chirp and heading when the folder has it (PanoRadar's sign unwrapping of ``v_esti``; not its
 empirical −5.5° heading offset). A moving trajectory without it is imaged as if at rest, and the
@@ -34,7 +35,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ..errors import RecordingError
+from ..errors import InputError, RecordingError
 from ..radar.beam_geometry import BeamformParams, Motion
 from ..radar.beamform import beamform, beamform_attrs, static_reflection
 from ..radar.chirp import ChirpConfig
@@ -47,6 +48,28 @@ TF_TOPIC = "/tf_static"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 INT16_SCALE = 32768.0
 REQUIRED = ("radar_data.npy", "radar_ts.txt", "data_params.npz")
+MOTIONS = ("static", "moving")
+
+
+def motion_rule(folder, override: str | None = None) -> tuple[bool, str]:
+    """Whether the trajectory in ``folder`` was recorded by a robot at rest, and the rule that decided
+    it: (static, "static: parent folder 'bldg_static'"). ``override`` ("static" | "moving") decides
+    when given; else "static" (any case) in the trajectory folder's own name or in its parent's.
+    PanoRadar's ``process_raw_data.py`` (``process_dataset``) and ``motion_estimation.py`` decide
+    from the *building* folder holding the trajectories (``'static' in in_building_folder.name``:
+    every trajectory inside is static), hence the parent; the folder's own name is holodata's older
+    rule, kept so that single trajectories named ``static_01`` still read as static. The path is
+    resolved first, so that ``.`` and relative paths see the real folder names."""
+    if override is not None:
+        if override not in MOTIONS:
+            raise InputError(f"robot motion must be one of {', '.join(MOTIONS)}, got {override!r}")
+        return override == "static", f"{override}: given (--beamform-motion {override})"
+    p = Path(folder).resolve()
+    if "static" in p.name.lower():
+        return True, f"static: folder '{p.name}'"
+    if "static" in p.parent.name.lower():
+        return True, f"static: parent folder '{p.parent.name}'"
+    return False, f"moving: neither folder '{p.name}' nor its parent '{p.parent.name}' names 'static'"
 
 
 def _load_npy(path: Path, mmap: bool = True) -> np.ndarray:
@@ -93,7 +116,9 @@ def _separators(params_path: Path, params, key: str, n: int, what: str, required
 class PanoRadarRawRecording(Recording):
     kind = "panoradar-raw"
 
-    def __init__(self, path: Path, beamform_params: BeamformParams | None = None, device: str = "cpu"):
+    def __init__(self, path: Path, beamform_params: BeamformParams | None = None, device: str = "cpu",
+                 motion: str | None = None):
+        """``motion``: "static" | "moving" overrides :func:`motion_rule`'s reading of the folder names."""
         super().__init__(path)
         p = self.path
         for name in REQUIRED:
@@ -136,7 +161,8 @@ class PanoRadarRawRecording(Recording):
             raise RecordingError(f"{p}: {err}") from err
         self.params = beamform_params or BeamformParams()
         self.device = device
-        self.static = "static" in p.name.lower()
+        self.static, rule = motion_rule(p, motion)
+        self.decisions["motion"] = rule
         self.problems: list[str] = []
         self.motion = None
         if not self.static and (p / "motion_output.npz").exists():
@@ -161,8 +187,8 @@ class PanoRadarRawRecording(Recording):
                                      f"neighbouring chirps their beams need; left out")
             self.rotations = keep
         if not self.rotations:
-            raise RecordingError(f"{p}: no rotation can be imaged ({len(lens)} rotation(s), "
-                                 f"{'static' if self.static else 'moving'})")
+            hint = "" if self.static or motion else "; a robot at rest: --beamform-motion static"
+            raise RecordingError(f"{p}: no rotation can be imaged ({len(lens)} rotation(s), {rule}{hint})")
         self._refl = None
         # LiDAR (optional)
         self.lidar = self.lidar_ts = None
@@ -176,7 +202,7 @@ class PanoRadarRawRecording(Recording):
         self.files = [p / n for n in ("radar_data.npy", "radar_ts.txt", "data_params.npz", "lidar_data.npy",
                                       "lidar_ts.txt", "imu_data.npy", "imu_ts.txt", "motion_output.npz")
                       if (p / n).exists()]
-        mode = "static (folder name)" if self.static else ("motion_output.npz" if self.motion else "none (as if at rest)")
+        mode = f"none ({rule})" if self.static else ("motion_output.npz" if self.motion else "none (as if at rest)")
         self.attrs = {
             "format": "PanoRadar raw trajectory",
             "radar_scaling": f"stored int16-scaled I/Q; divided by {INT16_SCALE:g}",
@@ -185,7 +211,7 @@ class PanoRadarRawRecording(Recording):
                                        rotation_end="next radar_sep" if self.yaw_source == "none" else
                                        "one turn relative to the world: radar_sep + round(2*pi / (dtheta0 - dt*omega)), "
                                        "omega the mean yaw rate of imu_data.npy over the rotation",
-                                       static_reflection="mean over every chirp of the trajectory",
+                                       static_reflection="mean over every chirp of the trajectory", motion=rule,
                                        rotations_imaged=len(self.rotations), rotations_in_file=len(lens),
                                        frequency_note="PanoRadar's imaging uses linspace(77, 81 GHz, n_samples)"),
             "lidar_to_radar_transform": transform.tolist(),
@@ -359,7 +385,7 @@ class PanoRadarRawRecording(Recording):
         return longest, self.radar.shape[1], self.radar.shape[2]
 
 
-__all__ = ["PanoRadarRawRecording"]
+__all__ = ["PanoRadarRawRecording", "motion_rule", "MOTIONS"]
 
 
 class RotationHeatmap(RadarHeatmapMsg):

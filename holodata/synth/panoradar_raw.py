@@ -117,8 +117,8 @@ def box_room_trajectory(folder, *, chirp: ChirpConfig | None = None, n_rotations
     half a 90° window) are recorded before the first rotation and after the last, as a moving
     recording's beams need. ``lidar_yaw_deg``: yaw of the LiDAR frame relative to the radar frame
     (``transform`` then rotates it back). A moving trajectory gets ``motion_output.npz`` (true
-    velocity) unless ``motion_file`` is False; a folder whose name contains "static" marks a robot at
-    rest for PanoRadar's code.
+    velocity) unless ``motion_file`` is False; "static" in the name of the folder or of its parent
+    (the building folder, PanoRadar's rule) marks a robot at rest (:func:`holodata.readers.panoradar_raw.motion_rule`).
     """
     chirp = chirp or ChirpConfig()
     room = room or BoxRoom()
