@@ -35,7 +35,10 @@ from holodata.cli.options import dask_options
               help="Each column at its own time within the rotation (pose SLERP between trajectory samples; rotation cycles "
                    "from radar/cycle_ns). Default: the recording's model (on).")
 @click.option("--rotation-hz", default=None, type=click.FloatRange(min=0, min_open=True),
-              help="Rotation rate for column times of frames without a stored rotation cycle (default 2).")
+              help="Rotation rate (Hz) for column times of frames without a stored rotation cycle. Dataset form: the "
+                   "frame stamp is the middle of the rotation (default 2). Standalone: each TUM row's columns span "
+                   "1/Hz from its stamp (default: to the next row's stamp); a rotation longer than the rows' spacing "
+                   "is an error.")
 @click.option("--codec", type=click.Choice(["lz4", "zstd"]), default="lz4", show_default=True,
               help="Blosc codec (with shuffle) of the gt arrays: lz4 encodes ~2x faster, zstd files are ~25% smaller.")
 @click.option("--shard-frames", default=None, type=click.IntRange(1),
@@ -107,7 +110,8 @@ def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_
     with cluster(workers, scheduler) as client:
         if standalone:
             summary = raytrace_standalone(mesh, poses, out, human=human, human_dir=human_dir, scene_id=scene_id,
-                                          cfg=cfg, quiet=quiet, processes=processes, client=client)
+                                          cfg=cfg, quiet=quiet, processes=processes, client=client,
+                                          rotation_hz=rotation_hz)
         else:
             summary = raytrace_dataset(dataset, list(scenes) or None, cfg=cfg, quiet=quiet, processes=processes,
                                        client=client)
@@ -117,7 +121,8 @@ def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_
         for s in summary["scenes"]:
             click.echo(f"{summary['out']}: scene {s['scene']}: {plural(s['frames'], 'frame')}, "
                        f"{plural(s['shards_written'], 'shard')} written, {s['shards_skipped']} already done "
-                       f"({s['seconds']} s; beams from the {s['origin_model']})")
+                       f"({s['seconds']} s; beams from the {s['origin_model']}"
+                       + (f": {s['column_times']})" if s.get("column_times") else ")"))
 
 
 COMMANDS = [raytrace_gt]

@@ -12,7 +12,10 @@ Beam origins (:mod:`holodata.beams`, recorded in scene attrs ``gt.origin_model``
 model the recording states (scene attrs ``sensors.radar.beam_origin``, written by ingest), else
 docs/format.md §2's default — the rotation centre, each column at its own time within the rotation (from
 ``radar/cycle_ns`` when stored) with the pose SLERP-interpolated from the trajectory. A
-``GTConfig.origin`` (the CLI's ``--rotation-radius``/``--column-time``) overrides it.
+``GTConfig.origin`` (the CLI's ``--rotation-radius``/``--column-time``) overrides it. In the
+standalone form (a TUM trajectory, no rotation cycles) each row's stamp is the start of its frame's
+rotation and the columns span the time to the next row, or ``1/rotation_hz`` when the rate is given
+(:func:`standalone_cycles`).
 
 Arrays are Blosc lz4 + shuffle by default (this stage is CPU-bound; ``codec="zstd"`` gives ~25%
 smaller files at ~2x the encoding time).
@@ -202,14 +205,44 @@ def _write_shard(arrays: dict, k: int, todo: list, bufs: dict) -> None:
         arrays[name].write_shard(k, bufs[name])
 
 
+def standalone_cycles(traj: Trajectory, rotation_hz: float | None = None,
+                      where: str = "poses") -> tuple[np.ndarray | None, str]:
+    """Each frame's rotation (start, end) in int64 ns for per-column times in the standalone form,
+    and one line saying which model gave them. A TUM row's stamp is the start of its frame's
+    rotation (column j at ``start + (j + 0.5)/W · (end − start)``, :func:`holodata.beams.column_times`);
+    its columns span the time to the next row (the last row: the previous spacing; the pose
+    interpolation holds the last pose there) unless ``rotation_hz`` is given, then
+    ``1/rotation_hz`` s. Why: a trajectory of one row per frame says how often frames come, not how
+    fast the radar turns; the dataset form's 2 Hz default on 0.1 s rows SLERPed each column across
+    five frames (0.6 m off the stated pose). A rotation longer than the spacing of two rows would
+    overlap the next frame's: InputError naming ``where``. One row: (None, every column at its pose)."""
+    t = np.asarray(traj.timestamp_ns, np.int64)
+    if len(t) < 2:
+        return None, "one frame: every column at its pose"
+    gap = np.diff(t)
+    if rotation_hz is None:
+        start = t
+        end = np.append(t[1:], t[-1] + gap[-1])
+        return np.stack([start, end], axis=1), "columns span each frame's stamp to the next frame's"
+    period = int(round(1e9 / rotation_hz))
+    k = int(np.argmin(gap))
+    if period > gap[k] + 1000:   # 1 µs: stamps in text written to the microsecond
+        raise InputError(f"{where}: a {rotation_hz:g} Hz rotation lasts {period / 1e9:g} s, longer than the "
+                         f"{gap[k] / 1e9:g} s between rows {k + 1} and {k + 2}, so its columns would overlap the next "
+                         f"frame's (leave out --rotation-hz to span each frame to the next)")
+    return np.stack([t, t + period], axis=1), f"columns span {period / 1e9:g} s ({rotation_hz:g} Hz) from each frame's stamp"
+
+
 def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *,
                         human: str | Path | HumanSource | None = None, human_dir: str | Path | None = None,
                         scene_id: str = "scene", cfg: GTConfig | None = None, quiet: bool = True, processes: int = 0,
-                        client=None) -> dict:
+                        client=None, rotation_hz: float | None = None) -> dict:
     """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a docs/format.md §3 dataset
     (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards.
     ``human``: one mesh file for every frame, or (Python API) any :class:`HumanSource`, e.g. a
-    dataset scene's per-frame surfaces (:class:`HumanDataset`) indexed by the TUM rows."""
+    dataset scene's per-frame surfaces (:class:`HumanDataset`) indexed by the TUM rows.
+    ``rotation_hz``: the radar's rotation rate for per-column times (None: each frame's columns span
+    the time to the next frame; :func:`standalone_cycles`)."""
     cfg = cfg or GTConfig()
     from .raytrace import available_backends
 
@@ -219,6 +252,10 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
         raise InputError("give either --human or --human-dir, not both")
     mesh = read_mesh(mesh_path)
     traj = read_tum(poses_path)
+    origin = cfg.origin or OriginModel()
+    cycles, columns = None, None
+    if origin.column_time:
+        cycles, columns = standalone_cycles(traj, rotation_hz, str(poses_path))
     hsrc: HumanSource = HumanSource()
     if isinstance(human, HumanSource):
         hsrc = human
@@ -238,26 +275,33 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
                        shard_frames=cfg.shard_frames or 32)
     T = len(traj)
     sc = w.scene(scene_id, n_frames=T, attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"})
-    _write_frame_meta(sc, traj)
+    _write_frame_meta(sc, traj, cycles)
     sc.write_array(MESH_VERTICES, mesh.vertices)
     sc.write_array(MESH_FACES, mesh.faces)
     if mesh.face_class is not None:
         sc.write_array(MESH_FACE_CLASS, mesh.face_class)
-    summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, gt_attrs(scene, cfg, mhash, hsrc), quiet=quiet,
-                             processes=processes, client=client)
-    return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": (cfg.origin or OriginModel()).describe(),
-                                         **summary}]}
+    attrs = gt_attrs(scene, cfg, mhash, hsrc, column_times=columns)
+    summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, attrs, quiet=quiet, processes=processes, client=client,
+                             cycles=cycles)
+    return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": origin.describe(),
+                                         "column_times": columns, **summary}]}
 
 
-def _write_frame_meta(sc, traj: Trajectory) -> None:
+def _write_frame_meta(sc, traj: Trajectory, cycles: np.ndarray | None = None) -> None:
+    """time/timestamp_ns and pose/T_world_radar of the standalone output, and ``cycles`` as
+    radar/cycle_ns (the rotations the column times were taken from), so that ``evaluate`` and a
+    later ``raytrace-gt DATASET`` place every column at the time this trace did."""
     ta = sc.frame_array(TIME_TIMESTAMP_NS, per_frame_shape=())
     pa = sc.frame_array(POSE_T_WORLD_RADAR, per_frame_shape=(4, 4))
+    ca = None if cycles is None else sc.frame_array(RADAR_CYCLE_NS, per_frame_shape=(2,))
     for k in range(ta.n_shards):
         sl = ta.frames(k)
         if not ta.is_done(k):
             ta.write_shard(k, np.asarray(traj.timestamp_ns[sl], dtype=np.int64))
         if not pa.is_done(k):
             pa.write_shard(k, np.asarray(traj.poses[sl], dtype=np.float64))
+        if ca is not None and not ca.is_done(k):
+            ca.write_shard(k, np.asarray(cycles[sl], dtype=np.int64))
 
 
 def _missing_hint(missing: list[str]) -> str:
@@ -324,7 +368,8 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         attrs = gt_attrs(scene, scfg, mesh_sha256(v, f), hsrc, origin_source, cycles is not None)
         summary = write_scene_gt(sc, mesh_args, scfg, traj, hsrc, attrs, quiet=quiet, label=f"raytrace-gt {sid}",
                                  processes=processes, client=client, cycles=cycles)
-        out.append({"scene": sid, "origin_model": origin.describe(), "origin_source": origin_source, **summary})
+        out.append({"scene": sid, "origin_model": origin.describe(), "origin_source": origin_source,
+                    "column_times": attrs["column_times_from"], **summary})
     return {"out": str(url), "scenes": out}
 
 
@@ -403,5 +448,6 @@ def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quie
 
 __all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "column_rays_soa", "points_to_mesh", "trace_frame",
            "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "gt_attrs", "raytrace_standalone",
-           "raytrace_dataset", "HumanSource", "HumanDir", "HumanFile", "HumanDataset", "GT_ARRAYS", "TracingError",
+           "raytrace_dataset", "standalone_cycles",
+           "HumanSource", "HumanDir", "HumanFile", "HumanDataset", "GT_ARRAYS", "TracingError",
            "MESH_EXTS", "HUMAN_SPLAT_RADIUS_M", "file_sha256", "mesh_sha256", "auto_processes", "POOL_MIN_FRAMES"]

@@ -381,3 +381,56 @@ def test_standalone_takes_a_human_source_object(inputs):
     assert np.isin(lab, [Label.LOS_HUMAN, Label.NLOS_HUMAN]).any()
     np.testing.assert_array_equal(np.asarray(a["gt/range"][...]), np.asarray(b["gt/range"][...]))
     np.testing.assert_array_equal(np.asarray(a["gt/label"][...]), lab)
+
+
+@needs_dataset
+def test_standalone_columns_span_the_time_to_the_next_frame(tmp_path):
+    """A TUM trajectory one frame per line 0.1 s apart (0.5 m per frame): each frame's columns span its
+    stamp to the next one's, so the middle frame's column j sits at x_k + 0.5 m·(j + 0.5)/W, never
+    beyond the next frame (the dataset form's 2 Hz default SLERPed the columns across five frames);
+    the last frame keeps its own pose; --rotation-hz 20 spans 0.05 s; --rotation-hz 2 (0.5 s > 0.1 s)
+    is a one-line error; the summary line names the model."""
+    v, f = box((-3.0, -3.0, -1.5), (5.0, 3.0, 1.5))
+    write_ply(tmp_path / "box.ply", Mesh(v, f))
+    xs = 0.5 * np.arange(5)
+    t0 = 10**9
+    write_tum(tmp_path / "radar.tum", Trajectory(t0 + np.arange(5) * 100_000_000, np.stack([pose(x, 0.0) for x in xs])))
+    g = Grid(8, 32)
+    scene = RayScene(v, f)
+
+    def run(name, *extra):
+        return CliRunner().invoke(cli, ["raytrace-gt", "--mesh", str(tmp_path / "box.ply"), "--poses",
+                                        str(tmp_path / "radar.tum"), "--out", str(tmp_path / name), "--grid", "8x32",
+                                        "--max-bounces", "1", *extra])
+
+    def bounce1(name):
+        return np.asarray(hds.open_dataset(str(tmp_path / name)).scene("scene")["gt/range"][...])[:, 0]
+
+    def expected(x0, span_m):
+        """Bounce 1 with column j's pose at x0 + span_m·(j + 0.5)/W, traced column by column."""
+        cols = np.stack([pose(x0 + span_m * (j + 0.5) / g.W, 0.0) for j in range(g.W)])
+        o, d = beam_rays(g, np.eye(4), OriginModel(), cols)
+        return scene.trace(o, d, max_bounces=1).range[:, 0].reshape(g.H, g.W)
+
+    r = run("next.zarr")
+    assert r.exit_code == 0, r.output
+    assert "columns span each frame's stamp to the next frame's" in r.output.strip().splitlines()[-1], r.output
+    got = bounce1("next.zarr")
+    np.testing.assert_allclose(got[2], expected(xs[2], 0.5), atol=1e-4)       # 0.1 mm, every column
+    np.testing.assert_allclose(got[4], expected(xs[4], 0.0), atol=1e-4)       # the last frame: its own pose
+    gt = hds.open_dataset(str(tmp_path / "next.zarr")).scene("scene").attrs["gt"]
+    assert gt["column_times_from"] == "columns span each frame's stamp to the next frame's"
+    # the rotations it used are stored, so evaluate places each column where the GT did
+    cyc = np.asarray(hds.open_dataset(str(tmp_path / "next.zarr")).scene("scene")["radar/cycle_ns"][...])
+    assert cyc.tolist() == [[t0 + k * 10**8, t0 + (k + 1) * 10**8] for k in range(5)]
+    assert hds.validate_dataset(str(tmp_path / "next.zarr"))["ok"]
+    r = run("still.zarr", "--no-column-time")
+    assert r.exit_code == 0, r.output
+    np.testing.assert_allclose(bounce1("still.zarr")[2], expected(xs[2], 0.0), atol=1e-4)
+    r = run("fast.zarr", "--rotation-hz", "20")
+    assert r.exit_code == 0 and "columns span 0.05 s (20 Hz) from each frame's stamp" in r.output, r.output
+    np.testing.assert_allclose(bounce1("fast.zarr")[2], expected(xs[2], 0.25), atol=1e-4)
+    r = run("slow.zarr", "--rotation-hz", "2")
+    assert r.exit_code == 1 and len(r.output.strip().splitlines()) == 1 and "Traceback" not in r.output, r.output
+    assert "radar.tum: a 2 Hz rotation lasts 0.5 s, longer than the 0.1 s between rows 1 and 2" in r.output, r.output
+    assert not (tmp_path / "slow.zarr").exists()

@@ -134,16 +134,24 @@ def gt_array_specs(grid: Grid, B: int) -> dict:
 
 
 def gt_attrs(scene, cfg: GTConfig, mesh_hash: str, human: HumanSource, origin_source: str | None = None,
-             cycles: bool = False) -> dict:
+             cycles: bool = False, column_times: str | None = None) -> dict:
     """Scene attrs ``gt``: how the ground truth was traced. ``origin_source``: where the beam-origin
     model came from ("flags", "recording" or "default"; :func:`holodata.beams.scene_origin_model`);
-    ``cycles``: column times were taken from radar/cycle_ns."""
+    ``cycles``: column times were taken from radar/cycle_ns; ``column_times``: else the model that
+    gave them (the standalone form's, :func:`holodata.groundtruth.standalone_cycles`), default the
+    frame stamp as the middle of a ``rotation_hz`` rotation."""
     origin = cfg.origin or OriginModel()
+    if not origin.column_time:
+        columns = None
+    elif cycles:
+        columns = RADAR_CYCLE_NS
+    else:
+        columns = column_times or f"frame stamps (the middle of a {origin.rotation_hz:g} Hz rotation)"
     return {
         "backend": cfg.backend, "max_bounces": int(cfg.max_bounces), "max_range_m": float(cfg.max_range),
         "origin_model": origin.to_attrs(),
         "origin_source": origin_source or ("flags" if cfg.origin is not None else "default"),
-        "column_times_from": (RADAR_CYCLE_NS if cycles else "frame stamps") if origin.column_time else None,
+        "column_times_from": columns,
         "mesh_sha256": mesh_hash, "human": human.describe(),
         "los_tolerance_m": LOS_TOLERANCE_M, "class_source": scene.class_source,
         "class_table": {str(k): v for k, v in scene.class_names.items()}, "human_class": int(scene.human_class),
