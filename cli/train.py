@@ -59,7 +59,8 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
             from holodata.torch.pretrained import resolve
             from holodata.torch.train import load_checkpoint
 
-            base = dict(load_checkpoint(resolve(init)).get("train_config") or {})
+            init = resolve(init)
+            base = dict(load_checkpoint(init).get("train_config") or {})
         if config_file:
             cfg = TrainConfig.from_file(config_file, **flags)
             base.update({k: v for k, v in cfg.to_dict().items() if v != getattr(TrainConfig(), k)})

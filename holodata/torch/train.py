@@ -310,7 +310,7 @@ def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet:
           init=None) -> RunResult:
     """Train the multi-return model on the ``train`` split of the dataset at ``dataset_url`` into
     ``out_dir`` (resuming when ``out_dir/checkpoint.pt`` exists). ``init``: a stage-one checkpoint
-    (file, run directory or "pretrained") a fresh run fine-tunes from, with its heatmap
+    (file or run directory; :func:`holodata.torch.pretrained.resolve` names the shipped one) a fresh run fine-tunes from, with its heatmap
     normalisation; it must match the dataset's grid and range bins. Returns a :class:`RunResult`."""
     from holodata.dataset import open_dataset
 
@@ -322,9 +322,7 @@ def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet:
     ck_path = Path(out_dir) / CHECKPOINT
     init_ck, init_path = None, None
     if init is not None:
-        from .pretrained import resolve
-
-        init_path = resolve(init)
+        init_path = Path(init)
         init_ck = load_checkpoint(init_path)
         check_stage1(init_ck, ds, init_path)
         norm = HeatmapNorm.from_dict(init_ck["norm"])
