@@ -311,7 +311,8 @@ def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet:
     """Train the multi-return model on the ``train`` split of the dataset at ``dataset_url`` into
     ``out_dir`` (resuming when ``out_dir/checkpoint.pt`` exists). ``init``: a stage-one checkpoint
     (file or run directory; :func:`holodata.torch.pretrained.resolve` names the shipped one) a fresh
-    run fine-tunes from, with its heatmap normalisation; it must match the dataset's grid and range bins. Returns a :class:`RunResult`."""
+    run fine-tunes from, with its heatmap normalisation; it must match the dataset's grid and range
+    bins. Returns a :class:`RunResult`."""
     from holodata.dataset import open_dataset
 
     from .data import HeatmapDataset
