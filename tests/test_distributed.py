@@ -314,7 +314,9 @@ def test_shard_task_rerun_is_idempotent(tmp_path, monkeypatch):
     traj = read_tum(tmp_path / "radar.tum")
     payload = {"mesh": (m.vertices, m.faces, None, None), "cfg": gtm.GTConfig(grid=Grid.parse("16x64", "-45,45")),
                "traj": traj, "human": gtm.HumanDir(tmp_path / "humans", len(traj)), "url": str(out),
-               "grid": ds.grid, "range_bins": ds.range_bins, "scene_id": "scene"}
+               "grid": ds.grid, "range_bins": ds.range_bins, "scene_id": "scene",
+               # the column times the command traced with: the rotations it stored as radar/cycle_ns
+               "cycles": gtm.standalone_cycles(traj)[0]}
     traced = []
     real = gtm.trace_shard
     monkeypatch.setattr(gtm, "trace_shard", lambda tr, frames, names: traced.append(list(names)) or real(tr, frames, names))
