@@ -46,7 +46,8 @@ def score(run_dir: Path, test_url: str, estimators) -> dict:
 
     from holodata.metrics import range_image_metrics
     from holodata.torch.data import HeatmapDataset, HeatmapNorm, SampleTransform
-    from holodata.torch.train import load_checkpoint, model_from_checkpoint
+    from holodata.torch.checkpoint import load_checkpoint
+    from holodata.torch.train import model_from_checkpoint
 
     ck = load_checkpoint(run_dir)
     model = model_from_checkpoint(ck)

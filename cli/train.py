@@ -55,9 +55,16 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         flags = {"epochs": epochs, "device": device, "batch_size": batch_size, "lr": lr, "seed": seed,
                  "num_workers": num_workers, "range_loss": range_loss}
         base = {}
+        from pathlib import Path
+
+        from holodata.torch.checkpoint import CHECKPOINT, load_checkpoint
+
+        if (Path(out) / CHECKPOINT).exists():
+            # the run resumes from it: loaded here first, as tensors and plain data only (a file that
+            # pickles other objects is refused before training reads it)
+            load_checkpoint(Path(out) / CHECKPOINT)
         if init is not None:
             from holodata.torch.pretrained import resolve
-            from holodata.torch.train import load_checkpoint
 
             init = resolve(init)
             base = dict(load_checkpoint(init).get("train_config") or {})

@@ -31,6 +31,7 @@ import numpy as np
 from .dataset.layout import (CAMERA_POINTS, GT_LABEL, GT_RANGE, LIDAR_POINTS, LIDAR_POINT_TIME_NS, RADAR_CYCLE_NS,
                              RADAR_HEATMAP, TIME_TIMESTAMP_NS)
 from .errors import DatasetError, InputError
+from .safe_io import check_name
 
 FORMATS = ("panoradar", "hdf5")
 # arrays the HDF5 reader's layout carries itself (not copied again under holodata/)
@@ -185,6 +186,8 @@ def export_dataset(url, fmt: str, out, scene_ids=None, split: str | None = None,
         raise InputError(f"export format must be one of {', '.join(FORMATS)}, got {fmt!r}")
     ds = open_dataset(url)
     todo = _scenes(ds, scene_ids, split)
+    for sid in todo:   # each names a folder/file under OUT (a split list is the dataset's, from elsewhere)
+        check_name(sid, "scene id", ds.url)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     done = []

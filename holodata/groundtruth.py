@@ -43,6 +43,7 @@ from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .parallel import cpus
 from .progress import track
+from .safe_io import check_name
 from .raytrace.frames import (
     FrameTracer,
     GTConfig,
@@ -250,6 +251,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
         raise InputError(f"ray-tracing backend {cfg.backend!r} is not available (have: {', '.join(available_backends())})")
     if human is not None and human_dir is not None:
         raise InputError("give either --human or --human-dir, not both")
+    check_name(scene_id, "--scene-id")   # names folders/keys under the output: never outside it
     mesh = read_mesh(mesh_path)
     traj = read_tum(poses_path)
     origin = cfg.origin or OriginModel()

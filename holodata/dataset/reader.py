@@ -7,6 +7,7 @@ import numpy as np
 
 from ..conventions import FORMAT_VERSION, Grid, RangeBins
 from ..errors import DatasetError
+from ..safe_io import name_problem
 from . import shards as sh
 from .store import Store
 
@@ -129,7 +130,10 @@ class Dataset:
         return [n for n in self.store.list("scenes") if self.store.is_file(f"scenes/{n}/zarr.json")]
 
     def scene(self, scene_id: str) -> "Scene":
-        meta = _read_json(self.store, f"scenes/{scene_id}/zarr.json") if scene_id and "/" not in scene_id else None
+        why = name_problem(scene_id)   # '..' would be the dataset root, 'a\\b' a nested group
+        if why is not None:
+            raise DatasetError(f"{self.url}: scene id {scene_id!r} refused: {why}")
+        meta = _read_json(self.store, f"scenes/{scene_id}/zarr.json")
         if meta is None:
             raise DatasetError(f"{self.url}: no scene {scene_id!r} (have: {', '.join(self.scenes) or 'none'})")
         return Scene(self, scene_id, meta)

@@ -42,7 +42,8 @@ class Predictor:
     def load(cls, checkpoint, device: str = "cpu", estimator: str | None = None, oracle: bool = False) -> "Predictor":
         """Load ``checkpoint`` (a run directory or its checkpoint file); ``oracle``: no model."""
         from holodata.torch.data import HeatmapNorm
-        from holodata.torch.train import load_checkpoint, model_from_checkpoint, resolve_device
+        from holodata.torch.checkpoint import load_checkpoint
+        from holodata.torch.train import model_from_checkpoint, resolve_device
 
         dev = resolve_device(device)
         if oracle:

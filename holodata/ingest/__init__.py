@@ -61,6 +61,7 @@ from ..conventions import Grid, RangeBins
 from ..errors import HolodataError, InputError, RecordingError
 from ..readers import open_recording
 from ..readers.base import Recording
+from ..safe_io import check_name
 from .roles import RADAR_SUFFIX, TopicMap, _one_line, load_topics_file, map_topics
 from .radar_streams import radar_stream
 from .plan import Plan, _grid_of, _limit_malloc_arenas, _scene_id, plan_recording
@@ -92,6 +93,8 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         scene_ids = list(scene_ids)
         if len(scene_ids) != len(recordings):
             raise InputError(f"{len(scene_ids)} --scene-id for {len(recordings)} recordings (give one per recording)")
+        for sid in scene_ids:   # a scene id names folders/keys under the output: never outside it
+            check_name(sid, "--scene-id")
     if tolerance_ms is not None and tolerance_ms <= 0:
         raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
     failed: list[dict] = []

@@ -489,8 +489,12 @@ def _storage_files(path: Path) -> list[Path]:
             import yaml
 
             info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
-            files = [path / Path(p).name for p in info.get("relative_file_paths", [])]
-            if files and all(f.exists() for f in files):
+            from ..safe_io import name_problem
+
+            names = [Path(str(p)).name for p in info.get("relative_file_paths", [])]
+            # storage files are the folder's own ('..' would be the folder above): else the folder listing
+            files = [path / n for n in names] if not any(name_problem(n) for n in names) else []
+            if files and all(f.is_file() for f in files):
                 return files
         except Exception:  # noqa: BLE001 - damaged metadata: look at the folder instead
             pass

@@ -104,8 +104,9 @@ def write_lidar_instances(path: Path, rows: list, n_walkers: int, hidden_human: 
 
 def read_lidar_instances(path: Path) -> dict:
     """``truth/lidar_instances.npz`` → {"stamp_ns" (S,), "masks": callable i -> (H,W) uint16, ...}."""
-    with np.load(path) as z:
-        d = {k: z[k] for k in z.files}
+    from ..safe_io import load_npz
+
+    d = load_npz(path, "LiDAR instance file")
     H, W = (int(x) for x in d["shape"])
     order = np.argsort(d["scan"], kind="stable")
     scan, pixel, inst = d["scan"][order], d["pixel"][order], d["instance"][order]

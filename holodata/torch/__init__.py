@@ -9,7 +9,8 @@ from .losses import LossWeights, masked_gradient_loss, masked_l1, multi_return_l
 from .model import ModelConfig, MultiReturnUNet
 from .stage2_infer import load_stage2
 from .stage2_train import Stage2Config, train_stage2
-from .train import RunResult, TrainConfig, fit, load_checkpoint, model_from_checkpoint, train
+from .checkpoint import load_checkpoint
+from .train import RunResult, TrainConfig, fit, model_from_checkpoint, train
 
 __all__ = [
     "ArrayFrames", "HeatmapDataset", "HeatmapNorm", "SampleTransform", "split_scenes",

@@ -16,6 +16,7 @@ import torch
 
 from holodata.conventions import Grid, is_human, is_los
 from holodata.errors import InputError
+from holodata.safe_io import load_torch
 
 from .stage2 import (CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig,
                      VoxelRefiner, voxel_point_mean, voxelize)
@@ -150,10 +151,7 @@ def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
         p = p / STAGE2_CHECKPOINT
     if not p.exists():
         raise InputError(f"{p}: no such stage-two checkpoint (train it: holodata train DATASET --out RUN)")
-    try:
-        ck = torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as err:  # noqa: BLE001
-        raise InputError(f"{p}: not a holodata stage-two checkpoint ({err.__class__.__name__})") from err
+    ck = load_torch(p, "stage-two checkpoint")
     rt = RayTracer(RayTracerConfig(**ck["rt_config"]))
     rt.load_state_dict(ck["rt_state"])
     ref = None

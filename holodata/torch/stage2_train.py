@@ -32,6 +32,7 @@ from holodata.conventions import Grid, is_human, reduced_grid
 from holodata.dataset.layout import GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, POSE_T_WORLD_RADAR, RADAR_HEATMAP
 from holodata.errors import InputError
 from holodata.progress import track
+from holodata.safe_io import load_torch
 
 from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
@@ -329,7 +330,7 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
     ck_path = out / STAGE2_CHECKPOINT
     start, history, opt_state = 0, [], None
     if resume and ck_path.exists():
-        ck = torch.load(ck_path, map_location="cpu", weights_only=False)
+        ck = load_torch(ck_path, "stage-two checkpoint")
         same = {k: v for k, v in ck["stage2_config"].items() if k not in ("device", "epochs_rt", "epochs_refine")}
         want = {k: v for k, v in cfg.to_dict().items() if k not in ("device", "epochs_rt", "epochs_refine")}
         if same != want or ck["stage2_config"]["epochs_rt"] != cfg.epochs_rt:
@@ -396,7 +397,7 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
             fh.write(json.dumps(row) + "\n")
     keep = None
     if cfg.epochs_refine > 0 and ck_path.exists():
-        ck = torch.load(ck_path, map_location="cpu", weights_only=False)
+        ck = load_torch(ck_path, "stage-two checkpoint")
         keep = ck.get("keep")
         if keep is None:  # the operating point of the refined cloud, on the training frames
             keep = calibrate_keep(Stage2(rt, ref, dev), frames, grid)
@@ -415,7 +416,7 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
     outside ``out_dir`` it is copied there as ``checkpoint.pt`` so the run is self-contained."""
     from holodata.dataset import open_dataset
 
-    from .train import CHECKPOINT, load_checkpoint
+    from .checkpoint import CHECKPOINT, load_checkpoint
 
     cfg = cfg if isinstance(cfg, Stage2Config) else Stage2Config.from_dict(cfg or {})
     out = Path(out_dir)

@@ -50,8 +50,7 @@ def scores(doc: dict) -> dict:
 def install(run: Path, record: dict, dest: Path = WEIGHTS) -> Path:
     """Copy ``run``'s checkpoint.pt and stage2.pt into ``dest`` without optimiser state, with
     ``record`` (command, commit, data settings, scores) under the key ``"pretrained"``."""
-    import torch
-
+    from holodata.safe_io import load_torch
     from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
     from holodata.torch.train import CHECKPOINT, _atomic_save
 
@@ -59,7 +58,7 @@ def install(run: Path, record: dict, dest: Path = WEIGHTS) -> Path:
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     for name in (CHECKPOINT, STAGE2_CHECKPOINT):
-        ck = torch.load(Path(run) / name, map_location="cpu", weights_only=False)
+        ck = load_torch(Path(run) / name, name)
         ck.pop("optimizer_state", None)
         ck["pretrained"] = record
         _atomic_save(ck, tmp / name)
