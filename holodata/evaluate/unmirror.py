@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from holodata.conventions import Grid
+from holodata.geometry.planes import agreeing_planes, window_plane_normals
 
 
 def _reflect(v: np.ndarray, n: np.ndarray) -> np.ndarray:
@@ -42,8 +43,14 @@ def _tangent(R: np.ndarray, P: np.ndarray, axis: int, periodic: bool) -> np.ndar
     return np.where(pick_f[..., None], fwd_p, bwd_p)
 
 
+# how normals_from_range estimates a normal: "planes" (the finite-difference normal refined by a
+# robust window fit, then by the planes of the image, see normals_from_range) or "difference" (eq. 4's
+# finite differences alone)
+NORMAL_METHODS = ("planes", "difference")
+
+
 @np.errstate(invalid="ignore", divide="ignore")
-def normals_from_range(R, grid: Grid, origins=None, directions=None) -> np.ndarray:
+def normals_from_range(R, grid: Grid, origins=None, directions=None, method: str = "planes") -> np.ndarray:
     """Surface normals (…,H,W,3), radar frame, unit, facing the beam, of range image(s) R (…,H,W) m
     whose beams start at ``origins`` (H,W,3; None = 0) along ``directions`` (H,W,3; None = the grid's).
 
@@ -52,7 +59,17 @@ def normals_from_range(R, grid: Grid, origins=None, directions=None) -> np.ndarr
     product of the tangents ``∂p/∂φ × ∂p/∂θ``. We evaluate that cross product with finite
     differences of neighbouring points (exact on planes, unlike finite differences of R inserted
     into eq. 4, which carry an O(Δ) error). NaN where R or both neighbours along an axis are missing.
+
+    ``method="planes"`` (default) refines that normal for a *predicted* image, whose range noise
+    (a couple of cm between beams a few degrees apart) leaves finite-difference normals degrees off,
+    which un-mirroring turns into decimetres on the hidden side: first the robust plane of each
+    pixel's 3×9 window (:func:`holodata.geometry.planes.window_plane_normals`), then, per image, the
+    normal of the plane the pixel belongs to among the image's largest planes (walls, floor,
+    ceiling, box sides: :func:`holodata.geometry.planes.agreeing_planes`). Exact images keep their
+    exact normals on planes. ``"difference"``: the finite-difference normal alone.
     """
+    if method not in NORMAL_METHODS:
+        raise ValueError(f"normal method must be one of {', '.join(NORMAL_METHODS)}, got {method!r}")
     R = np.asarray(R, dtype=np.float64)
     d = grid.directions() if directions is None else np.asarray(directions, np.float64)
     P = R[..., None] * d
@@ -63,7 +80,16 @@ def normals_from_range(R, grid: Grid, origins=None, directions=None) -> np.ndarr
     n = np.cross(t_ph, t_th)
     n = n / np.linalg.norm(n, axis=-1, keepdims=True)
     flip = np.sum(n * d, axis=-1, keepdims=True) > 0
-    return np.where(flip, -n, n)  # face the incoming ray
+    n = np.where(flip, -n, n)  # face the incoming ray
+    if method == "difference":
+        return n
+    n = window_plane_normals(P, n)
+    flat_p, flat_n = P.reshape((-1,) + P.shape[-3:]), n.reshape((-1,) + n.shape[-3:])
+    for img_p, img_n in zip(flat_p, flat_n):   # views: planes are per image
+        ok = np.isfinite(img_p).all(-1) & np.isfinite(img_n).all(-1)
+        if ok.sum() >= 3:
+            img_n[ok] = agreeing_planes(img_p[ok], img_n[ok])
+    return np.where(np.sum(n * d, axis=-1, keepdims=True) > 0, -n, n)  # the fits keep n0's side; face the ray
 
 
 @np.errstate(invalid="ignore", divide="ignore")

@@ -31,6 +31,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -81,6 +82,26 @@ def normals_from_range_t(R: torch.Tensor, directions: torch.Tensor, origins: tor
     n = n / torch.linalg.norm(n, dim=-1, keepdim=True)
     flip = (n * d).sum(-1, keepdim=True) > 0
     return torch.where(flip, -n, n)
+
+
+def analytic_normals(R: torch.Tensor, directions: torch.Tensor, origins: torch.Tensor | None = None,
+                     method: str = "planes") -> torch.Tensor:
+    """The analytic branch's (mirrored) normals (N,B,H,W,3) of range images R (N,B,H,W):
+    ``"difference"`` is :func:`normals_from_range_t` (eq. 4's finite differences, in torch);
+    ``"planes"`` is :func:`holodata.evaluate.unmirror.normals_from_range` per image (the finite-difference
+    normal refined by robust window and image-plane fits: what makes a *predicted* image's normals
+    fractions of a degree rather than degrees off on walls), computed in numpy, not differentiable.
+    ``directions``/``origins`` (N|1,1,H,W,3)."""
+    if method == "difference":
+        return normals_from_range_t(R, directions, origins)
+    from holodata.evaluate.unmirror import normals_from_range
+
+    Rn = R.detach().cpu().numpy()
+    d = directions.detach().cpu().numpy()
+    o = None if origins is None else origins.detach().cpu().numpy()
+    out = np.stack([normals_from_range(Rn[i], None, None if o is None else o[min(i, len(o) - 1), 0],
+                                       d[min(i, len(d) - 1), 0], method=method) for i in range(len(Rn))])
+    return torch.from_numpy(out).to(device=R.device, dtype=R.dtype)
 
 
 def local_frame(directions: torch.Tensor) -> torch.Tensor:
@@ -231,13 +252,17 @@ class HybridNormalBlock(nn.Module):
 @dataclass
 class RayTracerConfig:
     """channels / res_blocks / fusion_blocks of each hybrid block (paper: 4 and 4·2 residual
-    blocks); max_range (m) scales the range inputs; hybrid False = analytic branch only."""
+    blocks); max_range (m) scales the range inputs; hybrid False = analytic branch only; normals: how
+    the analytic branch estimates a normal (:func:`analytic_normals`; checkpoints without the key are
+    "difference", what they were trained with)."""
 
     channels: int = 32
     res_blocks: int = 4
     fusion_blocks: int = 2
     max_range: float = 9.6
     hybrid: bool = True
+    normals: str = "planes"  # the analytic branch: holodata.evaluate.unmirror.NORMAL_METHODS
+
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -267,8 +292,8 @@ class RayTracer(nn.Module):
         valid = torch.isfinite(R)
         chain = torch.cumprod(valid.to(dt), 1) > 0  # R_1..R_b all present
         with torch.no_grad():  # float64 like the numpy version (float32 ties pick other tangents)
-            n_an_rad = normals_from_range_t(R.double(), dirs[:, None].double(),
-                                            None if org is None else org[:, None].double()).to(dt)
+            n_an_rad = analytic_normals(R.double(), dirs[:, None].double(),
+                                        None if org is None else org[:, None].double(), self.cfg.normals).to(dt)
         frame = local_frame(dirs)  # (N|1,H,W,3,3)
         n_an = torch.nan_to_num(to_local(n_an_rad, frame[:, None]), nan=0.0)
         an_ok = torch.isfinite(n_an_rad).all(-1) & chain

@@ -152,7 +152,7 @@ def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
     if not p.exists():
         raise InputError(f"{p}: no such stage-two checkpoint (train it: holodata train DATASET --out RUN)")
     ck = load_torch(p, "stage-two checkpoint")
-    rt = RayTracer(RayTracerConfig(**ck["rt_config"]))
+    rt = RayTracer(RayTracerConfig(**{"normals": "difference", **ck["rt_config"]}))  # before the key: eq. 4 alone
     rt.load_state_dict(ck["rt_state"])
     ref = None
     if ck.get("refiner_state") is not None and ck["epoch"] > ck["stage2_config"]["epochs_rt"]:
