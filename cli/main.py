@@ -40,6 +40,12 @@ class HolodataGroup(click.Group):
 
     def invoke(self, ctx: click.Context):
         try:
+            return self._invoke(ctx)
+        finally:
+            close_filesystems()
+
+    def _invoke(self, ctx: click.Context):
+        try:
             result = super().invoke(ctx)
         except (click.exceptions.Exit, click.exceptions.Abort, click.ClickException):
             raise
@@ -55,6 +61,20 @@ class HolodataGroup(click.Group):
         # only turn exit 0 into "killed by SIGINT" over a finished result
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         return result
+
+
+def close_filesystems() -> None:
+    """Close the object-store HTTP sessions the command opened (s3fs's, in this process) before the
+    interpreter shuts down, which would otherwise leave aiohttp to print "Unclosed client session" on
+    stderr after the result (issue 43 point 5; :func:`holodata.dataset.store.close_filesystems`)."""
+    if "s3fs" not in sys.modules:     # no object store was used
+        return
+    from holodata.dataset.store import close_filesystems as close
+
+    try:
+        close()
+    except Exception:  # noqa: BLE001 - the command's result and exit code stand
+        pass
 
 
 def one_line(err: BaseException) -> str:

@@ -213,3 +213,47 @@ class Store:
 
     def __str__(self) -> str:
         return self.url
+
+
+def close_filesystems(timeout: float = 5.0) -> int:
+    """Close the HTTP sessions of this process's s3fs filesystems and drop them from fsspec's instance
+    cache; returns how many sessions were closed. Call it when a command is done with its object store.
+
+    Left to interpreter shutdown, aiohttp prints "Unclosed client session" / "client_session:
+    <aiohttp.client.ClientSession ...>" on stderr for every session that is collected unclosed: s3fs
+    closes a synchronous filesystem's session at exit only if that takes under 0.1 s (its fallback
+    does not reach aiobotocore's connector any more), and never closes the asynchronous filesystems
+    that zarr's ``FsspecStore`` opens to read arrays (their session lives on zarr's event loop). Here
+    each session is closed on the event loop it was made on, while that loop still runs. A filesystem
+    made later (the next command in this process) opens a new session."""
+    import sys
+
+    if "s3fs" not in sys.modules:
+        return 0
+    import asyncio
+
+    import s3fs
+    from fsspec.asyn import sync
+
+    zarr_loop = None
+    if "zarr.core.sync" in sys.modules:
+        zloop = sys.modules["zarr.core.sync"].loop[0]
+        zarr_loop = zloop if zloop is not None and zloop.is_running() else None
+    closed = 0
+    for fs in list(s3fs.S3FileSystem._cache.values()):
+        creator = getattr(fs, "_s3creator", None)
+        if getattr(fs, "_s3", None) is None or creator is None:
+            continue
+        try:
+            if not fs.asynchronous:          # its session lives on fsspec's IO loop
+                sync(fs.loop, creator.__aexit__, None, None, None, timeout=timeout)
+            elif zarr_loop is not None:      # zarr's FsspecStore: its session lives on zarr's loop
+                asyncio.run_coroutine_threadsafe(creator.__aexit__(None, None, None), zarr_loop).result(timeout)
+            else:
+                continue
+        except Exception:  # noqa: BLE001 - a session that cannot be closed now is left as it was
+            continue
+        fs._s3 = None
+        closed += 1
+    s3fs.S3FileSystem.clear_instance_cache()
+    return closed
