@@ -12,7 +12,7 @@ from pathlib import Path
 from holodata.errors import InputError
 from holodata.safe_io import load_torch
 
-CHECKPOINT = "checkpoint.pt"   # the stage-one file of a run directory (holodata.torch.train.CHECKPOINT)
+CHECKPOINT = "checkpoint.pt"   # the stage-one file of a run directory
 
 
 def checkpoint_file(path) -> Path:

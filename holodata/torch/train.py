@@ -22,11 +22,11 @@ from holodata.errors import InputError
 from holodata.progress import track
 
 from . import ddp
+from .checkpoint import CHECKPOINT, load_checkpoint
 from .data import HeatmapNorm, SampleTransform
 from .losses import LossWeights, multi_return_loss
 from .model import ModelConfig, MultiReturnUNet
 
-CHECKPOINT = "checkpoint.pt"
 METRICS_LOG = "metrics.jsonl"
 
 
@@ -166,19 +166,6 @@ def _atomic_save(obj, path: Path) -> None:
     tmp = path.with_name(path.name + ".tmp")
     torch.save(obj, tmp)
     os.replace(tmp, path)
-
-
-def load_checkpoint(path) -> dict:
-    """Load a checkpoint file, or ``RUN/checkpoint.pt`` when given a run directory."""
-    p = Path(path)
-    if p.is_dir():
-        p = p / CHECKPOINT
-    if not p.exists():
-        raise InputError(f"{p}: no such checkpoint")
-    try:
-        return torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as err:  # noqa: BLE001 - corrupt/truncated file
-        raise InputError(f"{p}: not a holodata checkpoint ({err.__class__.__name__})") from err
 
 
 def check_stage1(ck: dict, ds, where) -> None:
