@@ -110,9 +110,11 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     w = create_dataset(url)
     scw = w.scene(scene_id)
     hm_meta = sc.nodes().get(RADAR_HEATMAP, (None, {}))[1].get("attributes", {})
-    if hm_meta.get("beamform_fingerprint") == fp and all(sc.is_done(RADAR_HEATMAP, k)
-                                                         for k in range(hm_meta.get("holodata", {}).get("n_shards", 0))):
+    if hm_meta.get("beamform_fingerprint") == fp and "beamform" not in sc.unfinished and \
+            all(sc.is_done(RADAR_HEATMAP, k) for k in range(hm_meta.get("holodata", {}).get("n_shards", 0))):
         return {"scene": scene_id, "frames": T, "motion": motion, "skipped": "already imaged with these parameters"}
+    # marked unfinished before the first write, finished with the scene's new source.beamform after the last
+    scw.begin("beamform", rerun=f"rerun holodata beamform DATASET --scene {scene_id} with the same settings to finish it")
     if hm_meta.get("beamform_fingerprint") != fp and RADAR_HEATMAP in sc:
         scw.remove(RADAR_HEATMAP)
     R = params.n_range or chirp.n_samples
@@ -130,7 +132,7 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
         run_tasks(client, _image_shard_task, [(worker_path(url), scene_id, k, job) for k in todo],
                   [f"beamform-{scene_id}-shard{k}-{fp}" for k in todo], description=f"beamform {scene_id}", quiet=quiet)
     src_new = {**attrs, "rebeamformed": {"by": "holodata beamform", "motion": motion, "fingerprint": fp}}
-    scw.set_attrs({"source": {**(sc.attrs.get("source") or {}), "beamform": src_new}})
+    scw.finish("beamform", {"source": {**(sc.attrs.get("source") or {}), "beamform": src_new}})
     return {"scene": scene_id, "frames": T, "motion": motion, "n_syn": attrs["n_syn"],
             "seconds": round(time.perf_counter() - t0, 2)}
 

@@ -167,6 +167,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     ingest([str(recs[s].recording) for s in ids] + [str(recs[s].mapping_recording) for s in maps], str(url),
            scene_ids=ids + list(maps.values()), quiet=quiet, beamform=cfg.beamform())
     w = create_dataset(str(url), grid=cfg.grid, range_bins=cfg.range_bins, created_by="holodata demo")
+    w.begin("demo", rerun="rerun holodata demo with the same --out to finish it")   # the root: until the splits
     for sid in ids:
         w.scene(sid).set_attrs(truth_scene_attrs(recs[sid].truth_dir))
     stage("ingest", t0)
@@ -188,6 +189,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     # the beams the recordings state (synth: from the rotation centre, each column at its own time)
     raytrace_dataset(str(url), ids, GTConfig(), quiet=quiet)
     w.set_splits(train=ids[: -cfg.n_test], test=ids[-cfg.n_test:])
+    w.finish("demo")
     stage("raytrace-gt", t0)
 
     t0 = time.perf_counter()
@@ -301,13 +303,20 @@ def truth_scene_attrs(truth_dir: Path) -> dict:
 def map_from_truth(sc, truth_dir: Path) -> None:
     """Oracle mapping: radar poses, static mesh (with classes) and per-frame human meshes of a
     scene from its synthetic ``truth/`` folder, written as slam/register would write them."""
-    from .meshio import read_mesh
     from .trajectory import read_tum
 
     truth_dir = Path(truth_dir)
     traj = read_tum(truth_dir / "trajectory_radar.tum")
     if len(traj) != sc.n_frames:
         raise InputError(f"{truth_dir / 'trajectory_radar.tum'}: {len(traj)} poses for {sc.n_frames} frames")
+    with sc.stage("demo", rerun="rerun holodata demo --mapping truth with the same --out to finish it"):
+        _write_truth_mapping(sc, truth_dir, traj)
+
+
+def _write_truth_mapping(sc, truth_dir: Path, traj) -> None:
+    """:func:`map_from_truth`'s writes."""
+    from .meshio import read_mesh
+
     sc.remove(POSE_T_WORLD_RADAR)  # ingest's odometry poses drift; the oracle replaces them
     poses = sc.frame_array(POSE_T_WORLD_RADAR, (4, 4), attrs={"source": "truth (oracle mapping)"})
     for k in range(poses.n_shards):

@@ -276,7 +276,10 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
                                    "poses_sha256": file_sha256(poses_path)},
                        shard_frames=cfg.shard_frames or 32)
     T = len(traj)
-    sc = w.scene(scene_id, n_frames=T, attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"})
+    # marked unfinished in the put that makes (or reopens) the scene; finished after the last gt shard
+    sc = w.scene(scene_id, n_frames=T, attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"},
+                 stage="raytrace-gt", rerun="rerun the same holodata raytrace-gt --mesh ... --poses ... --out command "
+                                            "to finish it")
     _write_frame_meta(sc, traj, cycles)
     sc.write_array(MESH_VERTICES, mesh.vertices)
     sc.write_array(MESH_FACES, mesh.faces)
@@ -285,6 +288,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     attrs = gt_attrs(scene, cfg, mhash, hsrc, column_times=columns)
     summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, attrs, quiet=quiet, processes=processes, client=client,
                              cycles=cycles)
+    sc.finish("raytrace-gt")
     return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": origin.describe(),
                                          "column_times": columns, **summary}]}
 
@@ -365,11 +369,13 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         scfg = GTConfig(**{**cfg.__dict__, "grid": grid, "origin": origin})
         mesh_args = (v, f, fc, s.attrs.get("class_names"))
         scene = _make_scene(*mesh_args, scfg)
-        sc = w.scene(sid, n_frames=len(traj))
+        sc = w.scene(sid, n_frames=len(traj), stage="raytrace-gt",
+                     rerun=f"rerun holodata raytrace-gt DATASET --scene {sid} to finish it")
         hsrc = HumanDataset(url, sid, s)
         attrs = gt_attrs(scene, scfg, mesh_sha256(v, f), hsrc, origin_source, cycles is not None)
         summary = write_scene_gt(sc, mesh_args, scfg, traj, hsrc, attrs, quiet=quiet, label=f"raytrace-gt {sid}",
                                  processes=processes, client=client, cycles=cycles)
+        sc.finish("raytrace-gt")
         out.append({"scene": sid, "origin_model": origin.describe(), "origin_source": origin_source,
                     "column_times": attrs["column_times_from"], **summary})
     return {"out": str(url), "scenes": out}

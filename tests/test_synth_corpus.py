@@ -79,7 +79,7 @@ def test_interrupted_corner_never_validates_and_resumes_identically(small, tmp_p
     with pytest.raises(KeyboardInterrupt):
         synth_corpus(url2, CorpusConfig(corners=2, **SMALL), processes=1, quiet=True)
     rep = validate_dataset(url2, quiet=True)
-    assert not rep["ok"] and any("ingest did not finish" in p["line"] for p in rep["problems"])
+    assert not rep["ok"] and any("synth did not finish" in p["line"] for p in rep["problems"])
     monkeypatch.undo()
     res = synth_corpus(url2, CorpusConfig(corners=2, **SMALL), processes=1, quiet=True)
     assert res["written"] == 2 and validate_dataset(url2, quiet=True)["ok"]

@@ -5,7 +5,7 @@ import numpy as np
 
 from ..beams import origin_summary
 from . import shards as sh
-from .reader import list_nodes, open_dataset
+from .reader import list_nodes, open_dataset, unfinished_line
 
 
 def stored_bytes(store, path: str, kind: str, meta: dict) -> int:
@@ -77,11 +77,11 @@ def dataset_info(path_or_url) -> dict:
             tot_stored += stored
         attrs = {k: v for k, v in s.attrs.items() if k not in ("gt",)}
         scenes.append({"scene": sid, "frames": s.n_frames, "attrs": attrs, "arrays": arrays,
-                       "ingest_complete": s.ingest_complete,
+                       "ingest_complete": s.ingest_complete, "unfinished": s.unfinished,
                        "beam_origin": origin_summary(dict(s.attrs))})
     return {"dataset": ds.url, "format_version": ds.format_version, "created_by": ds.meta.get("created_by"),
             "grid": ds.meta.get("grid"), "range_bins": ds.meta.get("range_bins"),
-            "grid_source": ds.meta.get("grid_source"), "splits": ds.splits,
+            "grid_source": ds.meta.get("grid_source"), "splits": ds.splits, "unfinished": ds.unfinished,
             "scenes": scenes, "frames": sum(s["frames"] for s in scenes),
             "raw_bytes": tot_raw, "stored_bytes": tot_stored,
             "compression_ratio": round(tot_raw / tot_stored, 2) if tot_stored else None}
@@ -108,10 +108,14 @@ def format_info(summary: dict) -> str:
              f"{plural(len(summary['scenes']), 'scene')}, {plural(summary['frames'], 'frame')}; stored "
              f"{_mb(summary['stored_bytes'])} "
              f"of {_mb(summary['raw_bytes'])} raw (ratio {summary['compression_ratio']})"]
+    for stage, rec in sorted((summary.get("unfinished") or {}).items()):
+        lines.append(f"INCOMPLETE: {unfinished_line(stage, rec).split(': ', 1)[1]}")
     for s in summary["scenes"]:
         extra = ", ".join(f"{k}={v}" for k, v in s["attrs"].items() if k != "n_frames" and not isinstance(v, (dict, list)))
         lines.append(f"scene {s['scene']}: {plural(s['frames'], 'frame')}" + (f" ({extra})" if extra else ""))
-        if not s.get("ingest_complete", True):
+        for stage, rec in sorted((s.get("unfinished") or {}).items()):
+            lines.append(f"  INCOMPLETE: {unfinished_line(stage, rec).split(': ', 1)[1]}")
+        if not s.get("unfinished") and not s.get("ingest_complete", True):
             lines.append("  INCOMPLETE: ingest did not finish (rerun holodata ingest with the same recording and "
                          "--scene-id to resume)")
         bo = s.get("beam_origin")

@@ -82,6 +82,16 @@ def list_nodes(store: Store, path: str) -> dict[str, tuple[str, dict]]:
     return out
 
 
+def unfinished_line(stage: str, rec: dict) -> str:
+    """The validate line of a stage that marked its scene (or the dataset) unfinished."""
+    if stage == "ingest" and (rec or {}).get("legacy"):
+        return ("unfinished: ingest did not finish (scene attrs ingest.complete is false: rerun holodata ingest "
+                "with the same recording and --scene-id to resume)")
+    since = f" since {rec['since']}" if isinstance(rec, dict) and rec.get("since") else ""
+    hint = (rec or {}).get("rerun") if isinstance(rec, dict) else None
+    return f"unfinished: {stage} did not finish (interrupted, or still running{since}): {hint or f'rerun holodata {stage}'}"
+
+
 def open_dataset(path_or_url) -> "Dataset":
     """Open a dataset read-only and lazily. Bad paths raise a one-line :class:`DatasetError`."""
     return Dataset(path_or_url)
@@ -115,6 +125,7 @@ class Dataset:
         self.range_bins = RangeBins.from_attrs(self.meta["range_bins"])
         self.splits = {k: list(v) for k, v in (self.meta.get("splits") or {}).items()}
         self.provenance = self.meta.get("provenance") or {}
+        self.unfinished = dict(self.meta.get("unfinished") or {})   # root marks (DatasetWriter.begin)
         self._zgroup = None
 
     @property
@@ -186,18 +197,38 @@ class Scene:
         return self._get_ragged(name)[frame]
 
     @property
-    def ingest_complete(self) -> bool:
-        """False while the ``ingest`` that made this scene has not finished (scene attrs
-        ``ingest.complete``; interrupted, or still running); True for scenes made by other writers."""
+    def unfinished(self) -> dict:
+        """{stage: {since, rerun}}: the stages that marked this scene unfinished before their first
+        write and have not cleared the mark after their last (interrupted, or still running; scene
+        attribute ``unfinished``, :meth:`holodata.dataset.SceneWriter.begin`). Scenes written before
+        the mark existed: an ``ingest`` whose ``ingest.complete`` is false counts as unfinished."""
+        out = dict(self.attrs.get("unfinished") or {})
         ing = self.attrs.get("ingest")
-        return not isinstance(ing, dict) or bool(ing.get("complete", True))
+        if isinstance(ing, dict) and not ing.get("complete", True) and "ingest" not in out:
+            by = str(ing.get("by") or "ingest")
+            out["ingest"] = {"rerun": f"rerun {'holodata ' if not by.startswith('holodata') else ''}{by} with the same "
+                                      f"inputs to finish it", "legacy": "ingest.complete false"}
+        return out
+
+    @property
+    def ingest_complete(self) -> bool:
+        """False while the ``ingest`` that made this scene has not finished (interrupted, or still
+        running); True for scenes made by other writers."""
+        return "ingest" not in self.unfinished
 
     def require_complete(self, stage: str) -> None:
-        """Raise :class:`DatasetError` (one line) when :attr:`ingest_complete` is False: ``stage``
-        would otherwise run on a scene that lacks arrays ingest had not written yet."""
-        if not self.ingest_complete:
+        """Raise :class:`DatasetError` (one line) when another stage left this scene unfinished
+        (:attr:`unfinished`): ``stage`` would otherwise run on arrays that stage had not finished
+        writing. A mark of ``stage`` itself does not stop it: its rerun resumes and clears it."""
+        left = {k: v for k, v in self.unfinished.items() if k != stage}
+        if not left:
+            return
+        if "ingest" in left:
             raise DatasetError(f"{self.ds.url}: scene {self.id!r} was not ingested completely (interrupted?): rerun "
                                f"holodata ingest with the same recording and --scene-id to finish it before {stage}")
+        name, rec = next(iter(sorted(left.items())))
+        raise DatasetError(f"{self.ds.url}: scene {self.id!r} is unfinished: {name} did not finish (interrupted?): "
+                           f"{(rec or {}).get('rerun') or f'rerun holodata {name}'} before {stage}")
 
     def is_done(self, name: str, k: int) -> bool:
         """Shard ``k`` of frame/ragged array ``name`` is committed."""

@@ -65,10 +65,12 @@ def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range
     rng = np.random.default_rng(seed)
     specs = array_specs(grid, n_range)
     names = arrays or list(specs)
+    w.begin("toy dataset", rerun="write the toy dataset again")   # the root: until its splits
     for i, sid in enumerate(scenes):
         sc = w.scene(sid, n_frames=n_frames, attrs={"corner_type": ["L", "T", "cross", "oblique"][i % 4],
                                                     "width_m": 1.0 + i, "frame_sensor": "radar",
-                                                    "source": {"recording": f"{sid}.mcap", "sha256": "0" * 64}})
+                                                    "source": {"recording": f"{sid}.mcap", "sha256": "0" * 64}},
+                     stage="toy dataset", rerun="write the toy dataset again")
         arrs = {n: sc.frame_array(n, **specs[n]) for n in names}
         first = arrs[names[0]]
         for k in range(first.n_shards):
@@ -84,5 +86,7 @@ def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range
                 fr = rag.frames(k)
                 rag.write_shard(k, [rng.normal(size=(int(rng.integers(0, 50)), 3)).astype(np.float32)
                                     for _ in range(fr.start, fr.stop)])
+        sc.finish("toy dataset")
     w.set_splits(train=list(scenes[:-1]) or list(scenes), test=list(scenes[-1:]))
+    w.finish("toy dataset")
     return str(url)

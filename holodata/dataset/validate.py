@@ -21,7 +21,7 @@ from .info import stored_bytes
 from .layout import (CAMERA_POINTS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, HUMAN_FACES,
                      HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, POSE_PREFIX, RADAR_HEATMAP,
                      TIME_TIMESTAMP_NS, spec)
-from .reader import Dataset, list_nodes, open_dataset
+from .reader import Dataset, Scene, list_nodes, open_dataset, unfinished_line
 from .schemas import schema_errors
 from .writer import ragged_digest
 
@@ -99,6 +99,8 @@ def validate_dataset(path_or_url, quiet: bool = True) -> dict:
     rep = _Report(ds.url)
     for e in schema_errors("dataset", ds.meta):
         rep.add(None, None, None, "schema", f"root attributes: {e}")
+    for stage, rec in sorted(ds.unfinished.items()):
+        rep.add(None, None, None, "unfinished", unfinished_line(stage, rec))
     scenes = ds.scenes
     if not scenes:
         rep.add(None, None, None, "presence", "no scenes (an ingest that did not get as far as its first scene, "
@@ -135,10 +137,8 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> tuple[str, dict, int] | 
     attrs = meta.get("attributes", {})
     for e in schema_errors("scene", attrs):
         rep.add(sid, None, None, "schema", f"scene attributes: {e}")
-    ing = attrs.get("ingest")
-    if isinstance(ing, dict) and not ing.get("complete", True):
-        rep.add(sid, None, None, "incomplete", "ingest did not finish (scene attrs ingest.complete is false: "
-                                               "rerun holodata ingest with the same recording and --scene-id to resume)")
+    for stage, rec in sorted(Scene(ds, sid, meta).unfinished.items()):
+        rep.add(sid, None, None, "unfinished", unfinished_line(stage, rec))
     T = attrs.get("n_frames")
     if not isinstance(T, int) or T < 0:
         return None

@@ -15,12 +15,24 @@ Ragged arrays (``lidar/points``, ``camera/points``, ``human/vertices`` ...): a g
 ``offsets[0] = 0`` and ``offsets[T] = N``. Shards (same frame grouping) are appended in order:
 resize + write the new rows, rewrite ``offsets`` (one chunk), then the manifest record
 {rows: [r0, r1], sha256 of the rows' bytes + their offsets}. Readers trust only committed shards.
+
+Unfinished stages (docs/format.md §3, "Unfinished scenes"): every command that writes a scene marks it
+unfinished before its first write and finished after its last, in the scene attribute ``unfinished``
+= {stage: {since, rerun}} (:meth:`SceneWriter.begin` / :meth:`SceneWriter.finish`, or
+:meth:`SceneWriter.stage`; a command writing the dataset root too, e.g. its splits, marks the root
+attribute ``holodata.unfinished`` the same way). ``validate`` rejects a marked scene and names the
+stage; the stage's rerun resumes and clears its mark, other stages refuse the scene until then. Every
+write of this module, the marks included, is one atomic :meth:`Store.put` (or a delete): scene and
+root attributes are rewritten as a whole ``zarr.json`` (read-modify-write), never through zarr's
+in-place writes, so a writer killed at any point leaves the store exactly as its completed puts made it.
 """
 from __future__ import annotations
 
 import json
 import math
-from typing import Any
+import time
+from contextlib import contextmanager
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -61,9 +73,47 @@ def _fresh_node(store: Store, path: str) -> None:
 
 
 def _put_group(store: Store, path: str, attributes: dict) -> None:
-    """A new group's ``zarr.json`` (Zarr v3: node_type group + attributes), one atomic put."""
-    store.put(f"{path}/zarr.json", json.dumps({"attributes": attributes, "zarr_format": 3, "node_type": "group"},
-                                              indent=2).encode())
+    """A new group's ``zarr.json`` (Zarr v3: node_type group + attributes), one atomic put
+    (``path`` "": the root group)."""
+    store.put(f"{path}/zarr.json" if path else "zarr.json",
+              json.dumps({"attributes": attributes, "zarr_format": 3, "node_type": "group"}, indent=2).encode())
+
+
+def _update_group_attrs(store: Store, key: str, update, url: str) -> dict:
+    """Rewrite the group metadata ``key`` (a ``zarr.json``) with its attributes passed through
+    ``update`` (dict -> new dict): one read and one atomic put of the whole document. Returns the new
+    attributes."""
+    meta = _json(store, key)
+    if meta is None or not isinstance(meta.get("attributes", {}), dict):
+        raise DatasetError(f"{url}: {key} is missing or has no attributes (damaged group metadata)")
+    attrs = update(dict(meta.get("attributes") or {}))
+    meta["attributes"] = attrs
+    store.put(key, json.dumps(meta, indent=2).encode())
+    return attrs
+
+
+UNFINISHED = "unfinished"   # scene attribute / root ``holodata`` key: {stage: {since, rerun}}
+
+
+def unfinished_mark(stage: str, rerun: str | None = None) -> dict:
+    """The record of stage ``stage`` in an ``unfinished`` attribute: when it started (UTC) and what
+    finishes it (``rerun``; default "rerun holodata <stage>")."""
+    return {"since": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "rerun": rerun or f"rerun holodata {stage}"}
+
+
+def _with_mark(attrs: dict, stage: str, rerun: str | None) -> dict:
+    marks = dict(attrs.get(UNFINISHED) or {})
+    marks[stage] = unfinished_mark(stage, rerun)
+    return {**attrs, UNFINISHED: marks}
+
+
+def _without_mark(attrs: dict, stage: str) -> dict:
+    marks = {k: v for k, v in (attrs.get(UNFINISHED) or {}).items() if k != stage}
+    out = {k: v for k, v in attrs.items() if k != UNFINISHED}
+    if marks:
+        out[UNFINISHED] = marks
+    return out
 
 
 def _put_array(store: Store, path: str, **kw) -> None:
@@ -75,6 +125,25 @@ def _put_array(store: Store, path: str, **kw) -> None:
     ms = zarr.storage.MemoryStore()
     zarr.create_array(ms, name="a", **kw)
     store.put(f"{path}/zarr.json", ms._store_dict["a/zarr.json"].to_bytes())
+
+
+def _put_small_array(store: Store, path: str, data: np.ndarray, **kw) -> None:
+    """A whole small array: encoded by zarr into a MemoryStore (its chunks and ``zarr.json``, the
+    ``holodata`` checksum attributes included), then put object by object, chunks first and the
+    metadata last (an array without its ``zarr.json`` is no node: readers skip it). What
+    ``zarr.create_array`` + ``a[...] = data`` + ``attrs.update`` write, through atomic puts."""
+    import zarr
+
+    ms = zarr.storage.MemoryStore()
+    a = zarr.create_array(ms, name="a", **kw)
+    if data.size:
+        a[...] = data
+    objs = {k[2:]: v.to_bytes() for k, v in ms._store_dict.items() if k.startswith("a/")}
+    _fresh_node(store, path)
+    for k, b in sorted(objs.items()):
+        if k != "zarr.json":
+            store.put(f"{path}/{k}", b)
+    store.put(f"{path}/zarr.json", objs["zarr.json"])
 
 
 def create_dataset(url, grid: Grid | None = None, range_bins: RangeBins | None = None,
@@ -96,8 +165,6 @@ GRID_ARRAYS = ("radar/", "gt/")  # arrays shaped by the radar grid: a dataset ho
 
 class DatasetWriter:
     def __init__(self, url, grid, range_bins, created_by, provenance, shard_frames, codec, clevel):
-        import zarr
-
         if shard_frames < 1:
             raise DatasetError(f"{url}: shard_frames must be >= 1, got {shard_frames}")
         self.store = Store(url)
@@ -117,8 +184,8 @@ class DatasetWriter:
             meta = {"format_version": FORMAT_VERSION, "created_by": created_by, "grid": grid.to_attrs(),
                     "range_bins": range_bins.to_attrs(), "grid_source": "given" if given else "default",
                     "splits": {"train": [], "test": []}, "provenance": provenance, "shard_frames": self.shard_frames}
-            g = zarr.open_group(self.zstore, mode="w", attributes={"holodata": meta})
-            g.require_group("scenes")
+            _put_group(self.store, "", {"holodata": meta})
+            _put_group(self.store, "scenes", {})
         else:
             from .reader import check_root
 
@@ -131,9 +198,8 @@ class DatasetWriter:
                 raise DatasetError(f"{self.url}: dataset grid is {have_g}, writer asked for {grid}")
             elif not adopt and have_rb != range_bins:
                 raise DatasetError(f"{self.url}: dataset has {have_rb}, writer asked for {range_bins}")
-            g = zarr.open_group(self.zstore, mode="r+")
-            if "scenes" not in g:
-                g.require_group("scenes")
+            if not self.store.is_file("scenes/zarr.json"):
+                _put_group(self.store, "scenes", {})
             if provenance and meta.get("provenance") != provenance:
                 hist = dict(meta.get("provenance") or {})
                 runs = hist.setdefault("later_runs", [])
@@ -155,20 +221,32 @@ class DatasetWriter:
         return True
 
     # -- root attributes --------------------------------------------------------------------------
-    def _root_group(self):
-        import zarr
-
-        return zarr.open_group(self.zstore, mode="r+")
+    def _update_root(self, fn) -> dict:
+        """Root attribute ``holodata`` passed through ``fn`` (dict -> dict): one atomic ``zarr.json`` put."""
+        return _update_group_attrs(self.store, "zarr.json",
+                                   lambda a: {**a, "holodata": fn(dict(a.get("holodata") or {}))}, self.url)
 
     def _set_root(self, updates: dict) -> None:
-        g = self._root_group()
-        meta = dict(g.attrs["holodata"])
-        meta.update(updates)
-        g.attrs.update({"holodata": meta})  # one zarr.json rewrite (atomic put)
+        self._update_root(lambda meta: {**meta, **updates})
 
     @property
     def attrs(self) -> dict:
-        return dict(self._root_group().attrs)
+        return dict((_json(self.store, "zarr.json") or {}).get("attributes") or {})
+
+    def begin(self, stage: str, rerun: str | None = None) -> None:
+        """Mark the dataset unfinished by ``stage`` (root attribute ``holodata.unfinished``; one
+        atomic put) before the first write of a command that also writes the root (its splits):
+        ``validate`` rejects the dataset until :meth:`finish`. ``rerun``: what finishes it."""
+        self._update_root(lambda meta: _with_mark(meta, stage, rerun))
+
+    def finish(self, stage: str) -> None:
+        """Clear ``stage``'s root mark (:meth:`begin`) after the command's last write."""
+        self._update_root(lambda meta: _without_mark(meta, stage))
+
+    @property
+    def unfinished(self) -> dict:
+        """{stage: {since, rerun}} of the commands that marked the root and have not finished."""
+        return dict((self.attrs.get("holodata") or {}).get(UNFINISHED) or {})
 
     def set_splits(self, **splits: list[str]) -> None:
         """``set_splits(train=[...], test=[...])``; every name must be an existing scene."""
@@ -177,9 +255,8 @@ class DatasetWriter:
             missing = [n for n in names if n not in have]
             if missing:
                 raise DatasetError(f"{self.url}: split {split!r} names unknown scene(s) {', '.join(missing)}")
-        cur = dict(self._root_group().attrs["holodata"].get("splits") or {})
-        cur.update({k: list(v) for k, v in splits.items()})
-        self._set_root({"splits": cur})
+        self._update_root(lambda meta: {**meta, "splits": {**(meta.get("splits") or {}),
+                                                            **{k: list(v) for k, v in splits.items()}}})
 
     def set_provenance(self, provenance: dict) -> None:
         self._set_root({"provenance": provenance})
@@ -187,10 +264,12 @@ class DatasetWriter:
     def scene_ids(self) -> list[str]:
         return [n for n in self.store.list("scenes") if self.store.is_file(f"scenes/{n}/zarr.json")]
 
-    def scene(self, scene_id: str, n_frames: int | None = None, attrs: dict | None = None) -> "SceneWriter":
-        """Create scene ``scene_id`` with ``n_frames`` frames, or reopen it (same ``n_frames``)."""
-        import zarr
-
+    def scene(self, scene_id: str, n_frames: int | None = None, attrs: dict | None = None, stage: str | None = None,
+              rerun: str | None = None) -> "SceneWriter":
+        """Create scene ``scene_id`` with ``n_frames`` frames, or reopen it (same ``n_frames``).
+        ``stage``: the command about to write it marks it unfinished (:meth:`SceneWriter.begin`) in the
+        same atomic put that creates the scene or merges ``attrs``; it calls
+        :meth:`SceneWriter.finish` after its last write."""
         if not scene_id or "/" in scene_id or scene_id.startswith("."):
             raise DatasetError(f"{self.url}: bad scene id {scene_id!r} (no '/', not empty)")
         path = f"scenes/{scene_id}"
@@ -199,15 +278,18 @@ class DatasetWriter:
             if n_frames is None or n_frames < 0:
                 raise DatasetError(f"{self.url}: new scene {scene_id!r} needs n_frames >= 0")
             a = {"n_frames": int(n_frames), **(attrs or {})}
+            if stage is not None:
+                a = _with_mark(a, stage, rerun)
             _check_scene_attrs(self.url, scene_id, a)
-            zarr.open_group(self.zstore, path=path, mode="w", attributes=a)
+            _fresh_node(self.store, path)   # (what a killed writer left before the scene's zarr.json)
+            _put_group(self.store, path, a)
         else:
             have = cur.get("attributes", {}).get("n_frames")
             if n_frames is not None and have != n_frames:
                 raise DatasetError(f"{self.url}: scene {scene_id!r} has {have} frames, writer asked for {n_frames}")
         sc = SceneWriter(self, scene_id)
-        if cur is not None and attrs:
-            sc.set_attrs(attrs)
+        if cur is not None and (attrs or stage is not None):
+            sc._update(attrs or {}, mark=stage, rerun=rerun)
         return sc
 
     def open(self):
@@ -230,23 +312,62 @@ class SceneWriter:
         self.path = f"scenes/{scene_id}"
         self.n_frames = int(_json(ds.store, f"{self.path}/zarr.json")["attributes"]["n_frames"])
 
-    def _group(self):
-        import zarr
-
-        return zarr.open_group(self.ds.zstore, path=self.path, mode="r+")
-
     @property
     def attrs(self) -> dict:
-        return dict(self._group().attrs)
+        return dict((_json(self.ds.store, f"{self.path}/zarr.json") or {}).get("attributes") or {})
 
     def set_attrs(self, attrs: dict) -> None:
-        """Merge ``attrs`` into the scene attributes (checked against schemas/scene.schema.json)."""
-        g = self._group()
-        new = {**g.attrs, **attrs}
-        if new.get("n_frames") != self.n_frames:
-            raise DatasetError(f"{self.ds.url}: scene {self.id!r}: n_frames cannot change")
-        _check_scene_attrs(self.ds.url, self.id, new)
-        g.attrs.update(attrs)
+        """Merge ``attrs`` into the scene attributes (checked against schemas/scene.schema.json): one
+        atomic put of the scene's ``zarr.json``."""
+        self._update(attrs)
+
+    def _update(self, attrs: dict, mark: str | None = None, unmark: str | None = None, rerun: str | None = None) -> None:
+        """Merge ``attrs``, add the unfinished mark of stage ``mark`` and/or drop that of ``unmark``, in
+        one read-modify-write of the scene's ``zarr.json`` (one atomic put)."""
+        if UNFINISHED in attrs:
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r}: the {UNFINISHED!r} attribute is set by "
+                               f"begin()/finish() only")
+
+        def update(cur: dict) -> dict:
+            new = {**cur, **attrs}
+            if unmark is not None:
+                new = _without_mark(new, unmark)
+            if mark is not None:
+                new = _with_mark(new, mark, rerun)
+            if new.get("n_frames") != self.n_frames:
+                raise DatasetError(f"{self.ds.url}: scene {self.id!r}: n_frames cannot change")
+            _check_scene_attrs(self.ds.url, self.id, new)
+            return new
+
+        _update_group_attrs(self.ds.store, f"{self.path}/zarr.json", update, self.ds.url)
+
+    # -- unfinished stages (module docstring) ------------------------------------------------------
+    def begin(self, stage: str, rerun: str | None = None, attrs: dict | None = None) -> None:
+        """Mark the scene unfinished by ``stage`` before the stage's first write (scene attribute
+        ``unfinished[stage]``, with ``attrs`` merged in the same atomic put): ``validate`` rejects the
+        scene, and other stages refuse it, until :meth:`finish`. ``rerun``: what finishes it (shown by
+        validate; default "rerun holodata <stage>")."""
+        self._update(attrs or {}, mark=stage, rerun=rerun)
+
+    def finish(self, stage: str, attrs: dict | None = None) -> None:
+        """Clear ``stage``'s mark after its last write, merging ``attrs`` (the stage's own record of
+        its result) in the same atomic put."""
+        self._update(attrs or {}, unmark=stage)
+
+    @contextmanager
+    def stage(self, stage: str, rerun: str | None = None) -> Iterator["SceneWriter"]:
+        """``with sc.stage("raytrace-gt"): ...writes...``: :meth:`begin` on entry, :meth:`finish` when
+        the block completes (unless it finished the stage itself); an exception or a kill leaves the
+        mark."""
+        self.begin(stage, rerun)
+        yield self
+        if stage in self.unfinished:
+            self.finish(stage)
+
+    @property
+    def unfinished(self) -> dict:
+        """{stage: {since, rerun}} of the stages that marked the scene and have not finished."""
+        return dict(self.attrs.get(UNFINISHED) or {})
 
     def _parents(self, name: str) -> None:
         parts = name.split("/")[:-1]
@@ -301,11 +422,10 @@ class SceneWriter:
     def write_array(self, name: str, data, dims=None, units: str | None = None, attrs: dict | None = None,
                     dtype=None) -> None:
         """Write a small non-frame array (mesh, calibration) whole; replaces an existing one. Its
-        sha256 (of the C-order bytes) goes into attrs after the data, so validate sees a torn write.
+        sha256 (of the C-order bytes) is in its ``zarr.json``, which is put after the chunks: a torn
+        write leaves no array (validate finds its chunks unchecked otherwise).
         ``data`` is stored as ``dtype``; ``dtype``, ``dims`` and ``units`` are the layout's for the
         arrays it knows (for others the data's dtype, ``dim_0, ...`` and "1")."""
-        import zarr
-
         self._check_name(name)
         dims, units, dtype, _ = _layout_facts(name, dims, units, dtype)
         data = np.ascontiguousarray(data if dtype is None else np.asarray(data).astype(dtype, copy=False))
@@ -318,15 +438,12 @@ class SceneWriter:
         chunks = (max(1, min(len(data) if data.ndim else 1, SMALL_CHUNK_BYTES // row)),) + data.shape[1:] \
             if data.ndim else ()
         self._parents(name)
-        base = {"dims": list(dims), "units": units, **(attrs or {})}
-        a = zarr.create_array(self.ds.zstore, name=path, shape=data.shape, dtype=data.dtype,
-                              chunks=chunks if data.ndim and data.size else None,  # type: ignore[arg-type]
-                              compressors=sh.compressor(self.ds.codec, self.ds.clevel), attributes=base,
-                              fill_value=0, overwrite=True)
-        if data.size:
-            a[...] = data
-        a.attrs.update({"holodata": {"kind": "array", "sha256": sh.sha256(data.tobytes()),
-                                     "shape": list(data.shape), "dtype": str(data.dtype)}})
+        base = {"dims": list(dims), "units": units, **(attrs or {}),
+                "holodata": {"kind": "array", "sha256": sh.sha256(data.tobytes()), "shape": list(data.shape),
+                             "dtype": str(data.dtype)}}
+        _put_small_array(self.ds.store, path, data, shape=data.shape, dtype=data.dtype,
+                         chunks=chunks if data.ndim and data.size else None,  # type: ignore[arg-type]
+                         compressors=sh.compressor(self.ds.codec, self.ds.clevel), attributes=base, fill_value=0)
 
     def ragged_array(self, name: str, width: int | None = None, dtype=None, units: str | None = None, dims=None,
                      shard_frames: int | None = None, codec: str | None = None) -> "RaggedWriter":
@@ -560,6 +677,11 @@ class RaggedWriter(_Sharded):
         if vmeta["shape"][0] != r1:
             if fast and r1 > vmeta["shape"][0]:   # growing is a metadata change only: one atomic put
                 self.store.put(vkey, json.dumps({**vmeta, "shape": [r1, self.width]}, indent=2).encode())
+            elif fast:   # shrinking (resume after a torn append): the chunks past the end go, as zarr's resize
+                rows = int(vmeta["chunk_grid"]["configuration"]["chunk_shape"][0])
+                self.store.put(vkey, json.dumps({**vmeta, "shape": [r1, self.width]}, indent=2).encode())
+                for c in range(-(-r1 // rows), -(-int(vmeta["shape"][0]) // rows)):
+                    self.store.delete(f"{self.path}/values/c/{c}/0")
             else:
                 va = zarr.open_array(zs, path=f"{self.path}/values", mode="r+")
                 va.resize((r1, self.width))   # shrinking (resume after a torn append): zarr drops chunks

@@ -155,7 +155,9 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     attrs = {"frame_sensor": fs, "source": source, "sensors": sensor_attrs(plan),
              "extrinsics": extrinsics(plan),
              "ingest": {"complete": False, "topics": plan.tmap.to_dict(), "fingerprint": fingerprint}}
-    sc = ds.scene(plan.scene_id, n_frames=T, attrs=attrs)
+    # marked unfinished in the put that makes (or reopens) the scene; finished with the final attributes
+    sc = ds.scene(plan.scene_id, n_frames=T, attrs=attrs, stage="ingest",
+                  rerun="rerun holodata ingest with the same recording and --scene-id to finish it")
     arrays: list[str] = []
 
     def frame_arr(name, shape, dtype=None, codec=codec, **kw):
@@ -184,11 +186,11 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
         if note:
             warnings.append(note)
     sync = _sync_summary(plan)
-    sc.set_attrs({"source": {**source, SOURCE_HASH: _digests(plan)},
-                  "ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
-                             "time_source": plan.tmap.time,
-                             "counts": plan.counts, "decoded": dec.decoded, "dropped": plan.dropped, "sync": sync,
-                             "notes": plan.notes[:20], "warnings": warnings[:50]}})
+    sc.finish("ingest", {"source": {**source, SOURCE_HASH: _digests(plan)},
+                         "ingest": {"complete": True, "fingerprint": fingerprint, "topics": plan.tmap.to_dict(),
+                                    "time_source": plan.tmap.time,
+                                    "counts": plan.counts, "decoded": dec.decoded, "dropped": plan.dropped,
+                                    "sync": sync, "notes": plan.notes[:20], "warnings": warnings[:50]}})
     return {"scene": plan.scene_id, "recording": str(plan.rec.path), "frames": T, "frame_sensor": fs,
             "arrays": sorted(set(arrays)), "counts": plan.counts, "decoded": dec.decoded, "dropped": plan.dropped,
             "sync": sync, "truncated": bool(plan.rec.truncated), "warnings": warnings, "notes": plan.notes,
@@ -253,7 +255,7 @@ def _resumed_scene_done(plan: Plan, ds, sizes: list, fingerprint: str) -> bool:
     if prev and prev != fingerprint:
         raise DatasetError(f"{ds.url}: scene {plan.scene_id!r} was started with other topics/tolerance; rerun with "
                            f"the same options or choose another --scene-id")
-    return bool((cur.get("ingest") or {}).get("complete"))
+    return bool((cur.get("ingest") or {}).get("complete")) and "ingest" not in (cur.get("unfinished") or {})
 
 
 def _write_stamps(w, values: np.ndarray) -> None:

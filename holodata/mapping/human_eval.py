@@ -366,14 +366,15 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
     rad = read_tum(truth_dir / "trajectory_radar.tum")
     w = open_dataset(url, "r+")
     sw = w.scene(scene_id)
-    for name, poses in ((POSE_T_WORLD_LIDAR, P), (POSE_T_WORLD_RADAR, rad.poses if len(rad) == sc.n_frames else None)):
-        if poses is None:
-            continue
-        if name in sw.arrays():
-            sw.remove(name)
-        a = sw.frame_array(name, (4, 4), attrs={"world_frame": "map", "source": "truth"})
-        for s in range(a.n_shards):
-            a.write_shard(s, poses[a.frames(s)])
+    with sw.stage("truth-poses", rerun="rerun holodata.mapping.human_eval.write_truth_poses to finish it"):
+        for name, poses in ((POSE_T_WORLD_LIDAR, P), (POSE_T_WORLD_RADAR, rad.poses if len(rad) == sc.n_frames else None)):
+            if poses is None:
+                continue
+            if name in sw.arrays():
+                sw.remove(name)
+            a = sw.frame_array(name, (4, 4), attrs={"world_frame": "map", "source": "truth"})
+            for s in range(a.n_shards):
+                a.write_shard(s, poses[a.frames(s)])
 
 
 def evaluate_register(url: str, scene_id: str, truth_dir: str | Path, out_dir: str | Path | None = None) -> dict:

@@ -24,9 +24,11 @@ through:
   robot is.
 
 Each corner is one scene ``c<i>_<kind>``, written by one task (a local process, or a Dask task):
-the scene is marked unfinished (attrs ``ingest.complete`` false, which ``validate`` rejects) before
-its first write and finished after its GT; a rerun skips finished scenes and redoes the others
-(same seed, same bytes). Splits: the last ``n_test`` corners are the test split, the rest train.
+the scene is marked unfinished by stage ``synth`` (scene attribute ``unfinished``, which ``validate``
+rejects) in the put that creates it and finished after its GT; a rerun skips finished scenes and
+redoes the others (same seed, same bytes). Splits: the last ``n_test`` corners are the test split,
+the rest train; the dataset root is marked unfinished by ``synth`` from the start of the command to
+after the splits, so a corpus whose command did not finish never validates either.
 """
 from __future__ import annotations
 
@@ -39,6 +41,7 @@ from ..errors import InputError
 from .worlds import CORNER_TYPES
 
 CREATED_BY = "holodata synth --corners"
+RERUN = "rerun the same holodata synth --corners command (same --out and settings) to finish it"
 SCENE_TRIES = 8  # draws of a corner's seed until the person can hide from the robot's whole path
 
 
@@ -142,7 +145,7 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
 
     sid = scene_id(index)
     ds = open_dataset(url)
-    if sid in ds.scenes and ds.scene(sid).ingest_complete:
+    if sid in ds.scenes and not ds.scene(sid).unfinished:
         return ds.scene(sid).attrs["synth"]
     spec, sc = build_corner(cfg, index)
     w = create_dataset(url, grid=cfg.grid, range_bins=cfg.range_bins, created_by=CREATED_BY)
@@ -153,8 +156,8 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
         "frame_sensor": "radar", "corner_type": world.corner, "width_m": float(world.width), "building": "synthetic",
         "source": f"{CREATED_BY} (seed {cfg.seed}, corner {index})",
         "sensors": {"radar": {"beam_origin": origin.to_attrs()}},
-        "class_names": {str(k): v for k, v in world.class_names.items()},
-        "ingest": {"complete": False, "by": CREATED_BY}, "synth": info})
+        "class_names": {str(k): v for k, v in world.class_names.items()}, "synth": info},
+        stage="synth", rerun=RERUN)
     t, cycles, poses = frame_timing(sc)
     traj = Trajectory(t, poses)
     sensors = Sensors(sc)
@@ -183,7 +186,8 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     if att is not None:
         s.set_attrs({"attenuation_db": att})
     raytrace_dataset(url, [sid], GTConfig(nthreads=1), quiet=True, processes=1, unfinished_ok=True)
-    s.set_attrs({"ingest": {"complete": True, "by": CREATED_BY}})
+    # (a scene begun by an older holodata carries ingest.complete false as its mark: finished here too)
+    s.finish("synth", {"ingest": {"complete": True, "by": CREATED_BY}} if "ingest" in s.attrs else None)
     return info
 
 
@@ -263,14 +267,16 @@ def synth_corpus(url: str, cfg: CorpusConfig, processes: int = 0, client=None, q
         have = open_dataset(url)
     except DatasetError as err:
         raise InputError(str(err)) from err
+    w.begin("synth", rerun=RERUN)   # the root: until the splits are written
     todo = [i for i in range(cfg.corners)
-            if not (scene_id(i) in have.scenes and have.scene(scene_id(i)).ingest_complete)]
+            if not (scene_id(i) in have.scenes and not have.scene(scene_id(i)).unfinished)]
     rows = _run(url, cfg, todo, processes, client, quiet)
     done = {r["index"]: r for r in rows}
     for i in set(range(cfg.corners)) - set(todo):
         done[i] = have.scene(scene_id(i)).attrs["synth"]
     ids = [scene_id(i) for i in range(cfg.corners)]
     w.set_splits(train=ids[: cfg.corners - cfg.n_test], test=ids[cfg.corners - cfg.n_test:])
+    w.finish("synth")
     rows = [done[i] for i in range(cfg.corners)]
     return {"dataset": str(url), "corners": rows, "written": len(todo), "span": span_lines(rows),
             "seconds": round(time.perf_counter() - t0, 2)}

@@ -59,7 +59,7 @@ import numpy as np
 from ...dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, CAMERA_TIMESTAMP_NS, HUMAN_FACES, HUMAN_POINTS,
                                HUMAN_VERTICES, LIDAR_INSTANCE, MAP_POINTS, MESH_FACES, MESH_VERTICES, POSE_T_WORLD_LIDAR,
                                TIME_TIMESTAMP_NS)
-from ...errors import InputError
+from ...errors import HolodataError, InputError
 from ...parallel import cpus, fork_call, release_free_memory
 from .config import RegisterConfig, Registration, RegistrationError
 from ...geometry.voxels import voxel_average
@@ -305,7 +305,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     where = f"{url}: scene {scene.id!r}"
     scene.require_complete("register")
     fingerprint = register_fingerprint(scene, cfg, init, segment_cfg)
-    skipped = None if force else stored_report(scene, cfg, fingerprint)
+    resuming = "register" in scene.unfinished    # an interrupted run: its outputs are not to be trusted
+    skipped = None if force or resuming else stored_report(scene, cfg, fingerprint)
     if skipped is not None:
         return skipped
     release_free_memory()      # (before the forks below)
@@ -313,6 +314,11 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     LidarScans.open(scene, url)   # checks the LiDAR arrays and poses before any work starts
     T_init, init_source = initial_guess(scene, url, _parse_init(init))
     processes = register_processes(cfg)
+    # marked unfinished before the first write (lidar/instance, by the LiDAR half), finished with the
+    # ``register`` report after the last
+    sw = open_dataset(url, "r+").scene(scene.id)
+    sw.begin("register", rerun=f"rerun holodata register DATASET --scene {scene.id} to finish it")
+    outputs_touched = False
     # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
     # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
     stored_map, lidar = lidar_half(scene, cfg, segment_cfg, processes, quiet, where)
@@ -337,7 +343,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             raise RegistrationError(registration_failure(where, reg, cfg, init_source))
         T, eye, f_px = reg.T, reg.T[:3, 3], float(cam.K[0, 0])
         # 4. humans (camera/points_world written by a second process meanwhile)
-        sw = open_dataset(url, "r+").scene(scene.id)
+        outputs_touched = True
         clear_outputs(sw, cfg)
         cam_world = fork_call(camera_world, scene, T, label=f"{where}: camera/points_world",
                               enabled=processes > 1) if cfg.write_camera_world else None
@@ -367,10 +373,14 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         timings["segment_wait_s"] = time.perf_counter() - t1
         report = register_report(reg, init_source, T_init, stored_map is not None, surfaces, cand.carved,
                                  picks.repicked, cfg, shift, time.perf_counter() - t0, timings, fingerprint)
-        sw.set_attrs({"register": report})
-    except BaseException:
+        sw.finish("register", {"register": report})
+    except BaseException as err:
         if lidar is not None:
             lidar.join()   # it must not write on after register has failed
+        if isinstance(err, HolodataError) and not outputs_touched and not resuming:
+            # refused before its outputs were touched (lidar/instance, if written, is whole: its shards
+            # committed): the scene is as consistent as before, so the refusal leaves no mark
+            sw.finish("register")
         raise
     out = {"scene": scene.id, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
     if seg_summary:

@@ -125,8 +125,19 @@ def background_and_segment(scene, cfg: SegmentConfig | None = None, quiet: bool 
     bg, kept = _background_pass(scans, cfg, traj, quiet, keep=True)
     if not segment:
         return bg, None, kept
-    return bg, write_instances(scene, cfg, quiet, overwrite, background=bg, world_points=kept, scans=scans,
-                               traj=traj), kept
+    with _segment_stage(scene):
+        return bg, write_instances(scene, cfg, quiet, overwrite, background=bg, world_points=kept, scans=scans,
+                                   traj=traj), kept
+
+
+def _segment_stage(scene):
+    """The scene marked unfinished by ``segment`` while the segmentation's API entry points write
+    ``lidar/instance`` (:meth:`holodata.dataset.SceneWriter.stage`); ``holodata register``, which writes it
+    through :func:`write_instances` too, holds its own mark over it."""
+    from ...dataset import open_dataset
+
+    return open_dataset(scene.ds.url, "r+").scene(scene.id).stage(
+        "segment", rerun=f"rerun holodata.mapping.segment.segment_scene on scene {scene.id!r} to finish it")
 
 
 def surely_without_foreground(bg, points_world32: np.ndarray, cfg: SegmentConfig) -> bool:
@@ -204,8 +215,10 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
     from ...dataset import open_dataset
 
     ds = open_dataset(url)
-    return write_instances(ds.scene(_scene_id(ds, url, scene_id)), cfg, quiet, overwrite, background=background,
-                           world_points=world_points, masks=masks)
+    scene = ds.scene(_scene_id(ds, url, scene_id))
+    with _segment_stage(scene):
+        return write_instances(scene, cfg, quiet, overwrite, background=background, world_points=world_points,
+                               masks=masks)
 
 
 def write_instances(scene, cfg: SegmentConfig | None = None, quiet: bool = True, overwrite: bool = False,

@@ -63,8 +63,11 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
     meta = ds.meta
     w = open_dataset(url, "r+", created_by="holodata slam", shard_frames=int(meta.get("shard_frames") or 32))
     sc = w.scene(scene_id)
-    if (sc.attrs.get("slam") or {}).get("complete"):
-        sc.set_attrs({"slam": {**sc.attrs["slam"], "complete": False}})  # a crash below must not look done
+    prev = sc.attrs.get("slam") or {}
+    # marked unfinished before the first write (a crash below must not look done), finished with the
+    # ``slam`` attribute after the last
+    sc.begin("slam", rerun=f"rerun holodata slam DATASET --scene {scene_id} to finish it",
+             attrs={"slam": {**prev, "complete": False}} if prev.get("complete") else None)
     names = set(sc.arrays())
     stale = sorted(n for n in names if n.startswith("gt/"))
     for n in stale:  # ray-traced from the previous mesh/poses: would be silently wrong (raytrace-gt resumes)
@@ -89,9 +92,9 @@ def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor
         if MESH_FACE_CLASS in names:
             sc.remove(MESH_FACE_CLASS)
         write_static_map(sc, res.mesh[0], res.mesh[1], res.map_points, "slam")
-    sc.set_attrs({"slam": {"complete": True, "fingerprint": fp, "config": cfg.to_attrs(),
-                           "mesh_config": mesh_cfg.to_attrs() if cfg.mesh else None,
-                           "anchor": anchor, "summary": json_safe(res.summary), **(mode or {})}})
+    sc.finish("slam", {"slam": {"complete": True, "fingerprint": fp, "config": cfg.to_attrs(),
+                                "mesh_config": mesh_cfg.to_attrs() if cfg.mesh else None,
+                                "anchor": anchor, "summary": json_safe(res.summary), **(mode or {})}})
 
 
 def write_static_map(sc, vertices: np.ndarray, faces: np.ndarray, points: np.ndarray | None, source: str) -> None:
