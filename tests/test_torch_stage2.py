@@ -230,3 +230,34 @@ def test_cli_stage2_errors_are_one_line(dataset, tmp_path):
     assert r.exit_code == 0, r.output
     s = json.loads(r.output)
     assert s["stage2"]["epochs"] == 2 and (tmp_path / "r" / "stage2.pt").exists() and (tmp_path / "r" / "checkpoint.pt").exists()
+
+
+def test_confidence_gate_drops_the_unsure_bounce(dataset):
+    """Stage one right and sure on bounces 1-2, wrong and unsure on bounce 3: the gate calibrated on
+    those frames drops bounce 3 (its best score beats keeping it) and keeps bounce 2."""
+    from holodata.torch.stage2_infer import GATE_CANDIDATES, calibrate_gate
+
+    frames, grid = load_frames(dataset, "train", 1)
+    s1 = frames.range.astype(np.float64).copy()
+    s1[:, 2] += np.random.default_rng(0).uniform(0.5, 1.5, s1[:, 2].shape)   # bounce 3 decimetres off
+    conf = np.ones(s1.shape)
+    conf[:, 2] = 0.3
+    gate = calibrate_gate(s1, conf, frames, grid)
+    assert gate["min_confidence"][0] == 0.0 and gate["min_confidence"][1] == 0.0
+    assert gate["min_confidence"][2] > 0.3
+    b3 = gate["scores"]["b3"]
+    assert set(b3) == set(GATE_CANDIDATES) and b3[gate["min_confidence"][2]] > b3[0.0]
+
+
+def test_model_predict_applies_the_gate():
+    from holodata.torch.model import ModelConfig, MultiReturnUNet
+
+    m = MultiReturnUNet(ModelConfig(in_channels=16, depth=2, base_channels=4, max_channels=4, blocks=1)).eval()
+    x = torch.randn(1, 16, 8, 32)
+    free = m.predict(x, valid_threshold=0.0)
+    conf = free["confidence"]
+    assert conf.shape == (1, 3, 8, 32) and bool(((conf > 0) & (conf <= 1 + 1e-6)).all())
+    cut = float(conf[0, 2].median())
+    gated = m.predict(x, valid_threshold=0.0, min_confidence=[0.0, 0.0, cut])
+    assert torch.equal(gated["valid"][:, :2], free["valid"][:, :2])
+    assert torch.equal(gated["valid"][:, 2], conf[:, 2] >= cut)

@@ -80,7 +80,8 @@ class Predictor:
 
     def ranges(self, heatmaps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Stage one on linear heatmaps (n_range, H, W) each → (range (B,3,H',W') m NaN = none,
-        human probability (B,3,H',W')) on the run's strided grid."""
+        human probability (B,3,H',W')) on the run's strided grid; returns below the confidence gate
+        the run's stage two was calibrated with are dropped (``Stage2.min_confidence``)."""
         import torch
 
         from holodata.torch.data import apply_transform
@@ -89,7 +90,8 @@ class Predictor:
         z = np.zeros((3,) + heatmaps[0].shape[1:], np.float32)
         x = np.stack([norm(apply_transform(hm, z, z.astype(np.uint8), model_tf)[0]) for hm in heatmaps])
         with torch.no_grad():
-            pred = self.model.predict(torch.from_numpy(x).to(self.device), estimator=self.estimator)
+            pred = self.model.predict(torch.from_numpy(x).to(self.device), estimator=self.estimator,
+                                      min_confidence=getattr(self.stage2, "min_confidence", None))
         return pred["range"].float().cpu().numpy(), pred["human_prob"].float().cpu().numpy()
 
     def points(self, rng: np.ndarray, human: np.ndarray | None, geo: FrameGeometry, grid: Grid) -> dict:

@@ -133,14 +133,19 @@ class MultiReturnUNet(nn.Module):
         return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1]}
 
     @torch.no_grad()
-    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str | None = None) -> dict:
+    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str | None = None,
+                min_confidence=None) -> dict:
         """Inference: range with NaN where P(return) < threshold; human probability.
 
         With the soft-argmax head, ``estimator`` picks the point estimate of each beam's range-bin
         distribution (None: ``cfg.estimator``, the one the model was trained for): "mean" (the
         soft-argmax L1 training uses), "median" (minimises the
         expected absolute error) or "mode" (soft-argmax within ±``MODE_HALF_BINS`` bins of the most likely bin:
-        sharpest where the model is confident, but a wrong peak where it is not)."""
+        sharpest where the model is confident, but a wrong peak where it is not).
+
+        ``confidence`` (B,3,H,W), with the soft-argmax head: :func:`mode_confidence`. ``min_confidence``
+        (one per bounce, or None): a return whose confidence is below its bounce's is dropped (NaN,
+        not valid) — the operating point :func:`holodata.torch.stage2_infer.calibrate_gate` chooses."""
         estimator = estimator or self.cfg.estimator
         out = self.forward(x)
         rng = out["range"]
@@ -154,12 +159,31 @@ class MultiReturnUNet(nn.Module):
             dr = self.cfg.max_range / p.shape[2]
             rng = ((k.float() + frac) * dr).squeeze(2)
         elif "bin_logits" in out and estimator == "mode":
-            lg = out["bin_logits"]
-            idx = torch.arange(lg.shape[2], device=lg.device).view(1, 1, -1, 1, 1)
-            lg = lg.masked_fill((idx - lg.argmax(2, keepdim=True)).abs() > MODE_HALF_BINS, float("-inf"))
+            lg = out["bin_logits"].masked_fill(~mode_window(out["bin_logits"]), float("-inf"))
             rng = (torch.softmax(lg, dim=2) * self.centres).sum(2)
         elif estimator not in ESTIMATORS:
             raise ValueError(f"estimator must be 'mean', 'median' or 'mode', got {estimator!r}")
         valid = torch.sigmoid(out["valid_logit"]) >= valid_threshold
+        res = {}
+        if "bin_logits" in out:
+            res["confidence"] = conf = mode_confidence(out["bin_logits"])
+            if min_confidence is not None:
+                valid = valid & (conf >= torch.as_tensor(min_confidence, dtype=conf.dtype,
+                                                         device=conf.device).view(1, -1, 1, 1))
         rng = torch.where(valid, rng, torch.full_like(rng, float("nan")))
-        return {"range": rng, "human_prob": torch.sigmoid(out["human_logit"]), "valid": valid}
+        return {"range": rng, "human_prob": torch.sigmoid(out["human_logit"]), "valid": valid, **res}
+
+
+def mode_confidence(bin_logits: torch.Tensor) -> torch.Tensor:
+    """(B,3,H,W) probability mass of each beam's range-bin distribution (softmax of ``bin_logits``
+    (B,3,n_bins,H,W)) within ±``MODE_HALF_BINS`` bins of its most likely bin: the model's own
+    probability that the mode estimate is the return's bin. With the per-bin likelihood (loss "ce")
+    it is calibrated: on held-out corners bounce-3 returns of confidence < 0.2 are within 10 cm for
+    a fifth of beams, ≥ 0.65 for nearly all (docs/design/stage2.md)."""
+    return (torch.softmax(bin_logits, dim=2) * mode_window(bin_logits)).sum(2)
+
+
+def mode_window(bin_logits: torch.Tensor) -> torch.Tensor:
+    """(B,3,n_bins,H,W) bool: the bins within ±``MODE_HALF_BINS`` of each beam's most likely bin."""
+    idx = torch.arange(bin_logits.shape[2], device=bin_logits.device).view(1, 1, -1, 1, 1)
+    return (idx - bin_logits.argmax(2, keepdim=True)).abs() <= MODE_HALF_BINS

@@ -56,11 +56,15 @@ def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: 
 class Stage2:
     """A trained stage two: ``ray_tracer`` (RayTracer) and ``refiner`` (VoxelRefiner or None).
     ``keep_threshold``: a refined voxel is kept when its P(empty) is below it (calibrated on the
-    training frames after training, :func:`calibrate_keep`; 0.5 = the arg-max class)."""
+    training frames after training, :func:`calibrate_keep`; 0.5 = the arg-max class); ``min_confidence``
+    (per bounce or None): the gate on stage one's returns this stage two was calibrated with
+    (:func:`calibrate_gate`), applied by whoever runs stage one for it (``Predictor.ranges``)."""
 
-    def __init__(self, ray_tracer: RayTracer, refiner: VoxelRefiner | None, device="cpu", keep_threshold: float = 0.5):
+    def __init__(self, ray_tracer: RayTracer, refiner: VoxelRefiner | None, device="cpu", keep_threshold: float = 0.5,
+                 min_confidence=None):
         self.rt, self.refiner, self.device = ray_tracer.eval(), (refiner.eval() if refiner is not None else None), device
         self.keep_threshold = float(keep_threshold)
+        self.min_confidence = None if min_confidence is None else [float(c) for c in min_confidence]
 
     @torch.no_grad()
     def predict(self, R: np.ndarray, human: np.ndarray | None, directions: np.ndarray, origins: np.ndarray,
@@ -107,6 +111,47 @@ class Stage2:
 
 
 KEEP_CANDIDATES = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
+GATE_CANDIDATES = (0.0, 0.2, 0.35, 0.5, 0.65, 0.8, 1.01)
+
+
+def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, grid: Grid, tau: float = 0.10,
+                   max_frames: int = 40, candidates=GATE_CANDIDATES) -> dict:
+    """Stage one's confidence gate for bounces 2 and 3: the ``min_confidence`` per bounce below which
+    a return is dropped, chosen to maximise the mean of the LOS and NLOS F-scores at ``tau`` m of the
+    un-mirrored points (:func:`holodata.evaluate.unmirror.unmirror` with normals from the range images,
+    LOS from the first bounce, as evaluate scores them) over up to ``max_frames`` evenly spaced
+    training frames: bounce 3 first (bounce 2 ungated), then bounce 2 given it. ``s1_range`` /
+    ``s1_conf`` (T,3,H,W): stage one's ungated ranges (m) and :func:`holodata.torch.model.mode_confidence`.
+    Why: a wrong bounce-3 return costs precision on the hidden side more than a right one adds recall
+    (on held-out corners most of them are decimetres off), and stage one knows which it is unsure of.
+    Bounce 1 is never gated (it carries the LOS surface and every later bounce's normal). Returns
+    {"min_confidence": [0, c2, c3], "scores": {"b2"|"b3": {candidate: mean F}}}."""
+    from holodata import metrics as M
+    from holodata.evaluate.unmirror import los_mask, unmirror
+
+    idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
+    gts = []
+    for k in idx:
+        gp, lab = frames.gt_point[k].astype(np.float64), frames.label[k]
+        ok, glos = np.isfinite(gp).all(-1), is_los(lab)
+        gts.append({"los": gp[ok & glos], "nlos": gp[ok & ~glos]})
+
+    def score(gate) -> float:
+        f = []
+        for k, gt in zip(idx, gts):
+            R = np.where(s1_conf[k] >= np.asarray(gate)[:, None, None], s1_range[k], np.nan)
+            P = unmirror(R, frames.directions[k], grid=grid, origins=frames.origins[k])["point"]
+            los = los_mask(P, R[0], grid, origins=frames.origins[k])
+            ok = np.isfinite(P).all(-1)
+            f.append(np.mean([M.point_cloud_metrics(P[ok & sel], gt[part], tau)["f_score"]
+                              for part, sel in (("los", los), ("nlos", ~los))]))
+        return float(np.mean(f))
+
+    gate, scores = [0.0, 0.0, 0.0], {}
+    for b in (2, 1):
+        scores[f"b{b + 1}"] = {float(c): score(gate[:b] + [float(c)] + gate[b + 1:]) for c in candidates}
+        gate[b] = max(scores[f"b{b + 1}"], key=scores[f"b{b + 1}"].get)
+    return {"min_confidence": gate, "scores": scores}
 
 
 def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10, max_frames: int = 40,
@@ -164,4 +209,5 @@ def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
                              f"--stage 2 --out RUN)") from err
         ref = ref.to(device)
     keep = (ck.get("keep") or {}).get("threshold", 0.5)
-    return Stage2(rt.to(device), ref, device, keep_threshold=keep), ck
+    gate = (ck.get("gate") or {}).get("min_confidence")
+    return Stage2(rt.to(device), ref, device, keep_threshold=keep, min_confidence=gate), ck

@@ -37,7 +37,7 @@ from holodata.safe_io import load_torch
 from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
-from .stage2_infer import STAGE2_CHECKPOINT, Frames, Stage2, calibrate_keep, los_flags
+from .stage2_infer import STAGE2_CHECKPOINT, Frames, Stage2, calibrate_gate, calibrate_keep, los_flags
 
 STAGE2_LOG = "stage2_metrics.jsonl"
 
@@ -177,8 +177,9 @@ def load_frames(dataset_url, split: str, f: int, frames_per_scene: int | None = 
 
 
 def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", batch_size: int = 4,
-                       quiet: bool = True) -> tuple[np.ndarray, np.ndarray]:
-    """The stage-one model's (range, human prob) (T,3,H,W) for the frames ``keys`` [(scene, k)]."""
+                       quiet: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stage-one model's (range, human prob, confidence) (T,3,H,W) for the frames ``keys``
+    [(scene, k)]; no confidence gate applied (:func:`holodata.torch.model.mode_confidence`)."""
     from holodata.dataset import open_dataset
 
     from .data import HeatmapNorm, SampleTransform, apply_transform
@@ -189,7 +190,7 @@ def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", b
     tf = ck.get("transform") or {}
     t = SampleTransform(downsample=int(tf.get("downsample", 1)), range_pool=int(tf.get("range_pool", 1)))
     ds = open_dataset(str(dataset_url))
-    rs, hs = [], []
+    rs, hs, cs = [], [], []
     for i0 in track(range(0, len(keys), batch_size), total=math.ceil(len(keys) / batch_size),
                     description="stage-one predictions", quiet=quiet):
         xs = []
@@ -202,7 +203,8 @@ def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", b
             p = model.predict(torch.from_numpy(np.stack(xs)).to(device))
         rs.append(p["range"].float().cpu().numpy())
         hs.append(p["human_prob"].float().cpu().numpy())
-    return np.concatenate(rs), np.concatenate(hs)
+        cs.append(p["confidence"].float().cpu().numpy() if "confidence" in p else np.ones_like(rs[-1]))
+    return np.concatenate(rs), np.concatenate(hs), np.concatenate(cs)
 
 
 def make_batch(fr: Frames, idx, cfg: Stage2Config, rng: np.random.Generator | None, device) -> dict:
@@ -315,10 +317,11 @@ def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: G
 
 
 def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, grid: Grid, meta: dict | None = None,
-               quiet: bool = False, resume: bool = True) -> dict:
+               quiet: bool = False, resume: bool = True, confidence_gate: dict | None = None) -> dict:
     """Train stage two on ``frames`` (on the beam ``grid``) into ``out_dir``/stage2.pt; resumes from
-    it when present (same configuration required). Returns {"checkpoint", "epochs",
-    "resumed_from", "history"}."""
+    it when present (same configuration required); ``confidence_gate``: stage one's confidence gate
+    (:func:`calibrate_gate`), stored with the checkpoint. Returns {"checkpoint", "epochs",
+    "resumed_from", "history", "keep", "gate"}."""
     from .train import resolve_device, seed_everything
 
     out = Path(out_dir)
@@ -396,14 +399,18 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
         with open(out / STAGE2_LOG, "a") as fh:
             fh.write(json.dumps(row) + "\n")
     keep = None
-    if cfg.epochs_refine > 0 and ck_path.exists():
+    if ck_path.exists():
         ck = load_torch(ck_path, "stage-two checkpoint")
-        keep = ck.get("keep")
-        if keep is None:  # the operating point of the refined cloud, on the training frames
+        keep, changed = ck.get("keep"), confidence_gate is not None and ck.get("gate") != confidence_gate
+        if confidence_gate is not None:
+            ck["gate"] = confidence_gate
+        if cfg.epochs_refine > 0 and keep is None:  # the operating point of the refined cloud, on the training frames
             keep = calibrate_keep(Stage2(rt, ref, dev), frames, grid)
-            ck["keep"] = keep
+            ck["keep"], changed = keep, True
+        if changed:
             _atomic_save(ck, ck_path)
-    return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history, "keep": keep}
+    return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history, "keep": keep,
+            "gate": confidence_gate}
 
 
 def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, stage1=None,
@@ -430,9 +437,13 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
         shutil.copy2(src_file, out / CHECKPOINT)
     f = int((ck1.get("transform") or {}).get("downsample", 1))
     frames, grid = load_frames(dataset_url, "train", f, cfg.frames_per_scene, quiet=quiet)
-    if cfg.p_stage1 > 0:
-        frames.s1_range, frames.s1_human = stage1_predictions(dataset_url, ck1, frames.keys, device=cfg.device, quiet=quiet)
+    # stage one's own predictions of the training frames: its confidence gate is calibrated on them
+    # (calibrate_gate), then they are gated as at inference, for the keep threshold and p_stage1
+    s1_range, frames.s1_human, s1_conf = stage1_predictions(dataset_url, ck1, frames.keys, device=cfg.device,
+                                                            quiet=quiet)
+    gate = calibrate_gate(s1_range, s1_conf, frames, grid)
+    frames.s1_range = np.where(s1_conf >= np.asarray(gate["min_confidence"])[None, :, None, None], s1_range, np.nan)
     meta = {"dataset": str(dataset_url), "grid": ds.grid.to_attrs(), "range_bins": ds.range_bins.to_attrs(),
             "downsample": f, "stage1": str(src_file), "stage1_epoch": int(ck1.get("epoch", 0)),
             "train_frames": len(frames)}
-    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid, meta=meta, quiet=quiet)
+    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid, meta=meta, quiet=quiet, confidence_gate=gate)
