@@ -42,9 +42,13 @@ def demo(out, quick, mapping, radar_output, focus, quiet, as_json) -> None:
 
         click.echo(json.dumps({"out": str(res.out_dir), "dataset": str(res.dataset), "report": str(res.report),
                                "mapping": res.mapping, "timings": res.timings,
-                               "metrics": res.metrics}, indent=2, default=str))
+                               "metrics": res.metrics, "pretrained": res.pretrained}, indent=2, default=str))
         return
     click.echo(format_tables(res.metrics))
+    if res.pretrained is not None:
+        click.echo("\nThe shipped pretrained weights on the same test corners (holodata evaluate DATASET "
+                   "--checkpoint pretrained):")
+        click.echo(format_tables(res.pretrained))
     click.echo(f"dataset: {res.dataset}  (holodata info {res.dataset})")
     click.echo(f"report:  {res.report}")
 

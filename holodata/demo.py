@@ -113,7 +113,8 @@ def demo_config(quick: bool) -> DemoConfig:
 class DemoResult:
     """Where the demo's outputs are and what it measured. ``metrics``: the metrics.json document;
     ``timings``: seconds per stage; ``mapping``: "slam" or "truth"; ``warnings``: one line per
-    scene whose mapping was incomplete."""
+    scene whose mapping was incomplete; ``pretrained``: the metrics document of the shipped weights on
+    the same test split (:func:`evaluate_pretrained`), or None."""
 
     out_dir: Path
     dataset: Path
@@ -124,6 +125,7 @@ class DemoResult:
     timings: dict
     validation: dict
     warnings: list = field(default_factory=list)
+    pretrained: dict | None = None
 
 
 def scene_id(corner: str, seed: int) -> str:
@@ -216,10 +218,34 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     report_dir = out / "report"
     doc = evaluate(str(url), run_dir, report_dir, split="test", quiet=quiet)
     stage("evaluate", t0)
+    t0 = time.perf_counter()
+    pretrained = evaluate_pretrained(url, out / "report_pretrained", quiet, say)
+    if pretrained is not None:
+        stage("evaluate:pretrained", t0)
     (out / "demo.json").write_text(json.dumps({"mapping": mapping, "timings": timings, "warnings": warnings,
                                                "scenes": ids, "test": ids[-cfg.n_test:]}, indent=2))
     return DemoResult(out_dir=out, dataset=url, run_dir=run_dir, report=report_dir / "report.html",
-                      mapping=mapping, metrics=doc, timings=timings, validation=report, warnings=warnings)
+                      mapping=mapping, metrics=doc, timings=timings, validation=report, warnings=warnings,
+                      pretrained=pretrained)
+
+
+def evaluate_pretrained(url, out_dir: Path, quiet: bool, say) -> dict | None:
+    """The shipped weights (holodata.torch.pretrained, trained on hundreds of other corners) scored
+    on the demo's test split beside the model the demo trains, when the dataset has the grid and range
+    bins they were trained for (the quick demo's); None otherwise (said in one line)."""
+    from .dataset import open_dataset
+    from .evaluate import evaluate
+    from .torch.pretrained import resolve
+    from .torch.checkpoint import load_checkpoint
+    from .torch.train import check_stage1
+
+    try:
+        weights = resolve("pretrained")
+        check_stage1(load_checkpoint(weights), open_dataset(str(url)), weights)
+    except InputError as err:
+        say(f"pretrained weights not evaluated: {err}")
+        return None
+    return evaluate(str(url), "pretrained", out_dir, split="test", quiet=quiet)
 
 
 MAPPINGS = ("slam", "truth")

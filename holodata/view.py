@@ -109,8 +109,8 @@ class _Predictions:
             rng = np.asarray(self.sc[GT_RANGE][k], np.float32)[:, ::f, ::f]
             p = oracle_points(rng, np.asarray(self.sc[GT_LABEL][k], np.uint8)[:, ::f, ::f], geo, self.grid)
         else:
-            rng, hum = self.run.ranges([np.asarray(self.sc[RADAR_HEATMAP][k], np.float32)])
-            p = self.run.points(rng[0], hum[0], geo, self.grid)
+            _rng, hum, cloud = self.run.ranges([np.asarray(self.sc[RADAR_HEATMAP][k], np.float32)])
+            p = self.run.points(cloud[0], hum[0], geo, self.grid)
         P = np.asarray(p["point"], np.float64).reshape(-1, 3)
         ok = np.isfinite(P).all(-1)
         ids = label_of(np.asarray(p["los"], bool).reshape(-1), np.asarray(p["human"], bool).reshape(-1))

@@ -27,7 +27,8 @@ def test_demo_runs_every_stage_and_resumes(tmp_path):
     lines = []
     res = run_demo(tmp_path / "demo", mapping="truth", quiet=True, config=TINY, log=lines.append)
     assert [ln.split()[0] for ln in lines] == ["synth", "ingest", "mapping:truth", "raytrace-gt", "validate",
-                                               "train", "train:stage2", "evaluate"]
+                                               "train", "train:stage2", "evaluate", "pretrained"]
+    assert "grid" in lines[-1] and res.pretrained is None  # the shipped weights are for the quick demo's grid
     assert validate_dataset(str(res.dataset))["ok"]
     ds = open_dataset(str(res.dataset))
     assert ds.splits == {"train": ["L_1", "T_2"], "test": ["oblique_3"]}

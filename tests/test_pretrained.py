@@ -1,5 +1,5 @@
 """The weights holodata ships (holodata.torch.pretrained): loading them and scoring the held-out
-check set gives the numbers recorded when benchmarks/pretrain.py trained them; a dataset of another
+check set gives the numbers recorded when benchmarks/nlos.py --install trained them; a dataset of another
 grid, and an --init that does not exist, are one-line errors."""
 import subprocess
 import sys
@@ -17,7 +17,7 @@ HOLODATA = [sys.executable, "-m", "holodata.cli.main"]
 def test_weights_record_how_they_were_made():
     ck = load_checkpoint(WEIGHTS)
     rec = ck["pretrained"]
-    assert rec["command"].startswith("python benchmarks/pretrain.py") and len(rec["commit"]) == 40
+    assert rec["command"].startswith("python benchmarks/nlos.py") and len(rec["commit"]) == 40
     assert rec["heldout_check"]["seed"] == CHECK_SET["seed"] != rec["train_corpus"]["seed"]
     assert "optimizer_state" not in ck
     assert sum(p.stat().st_size for p in WEIGHTS.iterdir()) <= 20 * 2**20

@@ -249,15 +249,16 @@ def test_confidence_gate_drops_the_unsure_bounce(dataset):
     assert set(b3) == set(GATE_CANDIDATES) and b3[gate["min_confidence"][2]] > b3[0.0]
 
 
-def test_model_predict_applies_the_gate():
+def test_model_confidence_and_the_gate():
     from holodata.torch.model import ModelConfig, MultiReturnUNet
+    from holodata.torch.stage2_infer import apply_gate
 
     m = MultiReturnUNet(ModelConfig(in_channels=16, depth=2, base_channels=4, max_channels=4, blocks=1)).eval()
-    x = torch.randn(1, 16, 8, 32)
-    free = m.predict(x, valid_threshold=0.0)
-    conf = free["confidence"]
-    assert conf.shape == (1, 3, 8, 32) and bool(((conf > 0) & (conf <= 1 + 1e-6)).all())
-    cut = float(conf[0, 2].median())
-    gated = m.predict(x, valid_threshold=0.0, min_confidence=[0.0, 0.0, cut])
-    assert torch.equal(gated["valid"][:, :2], free["valid"][:, :2])
-    assert torch.equal(gated["valid"][:, 2], conf[:, 2] >= cut)
+    pred = m.predict(torch.randn(1, 16, 8, 32), valid_threshold=0.0)
+    conf, rng = pred["confidence"].numpy()[0], pred["range"].numpy()[0]
+    assert conf.shape == (3, 8, 32) and bool(((conf > 0) & (conf <= 1 + 1e-6)).all())
+    cut = float(np.median(conf[2]))
+    gated = apply_gate(rng, conf, [0.0, 0.0, cut])
+    np.testing.assert_array_equal(gated[:2], rng[:2])
+    np.testing.assert_array_equal(np.isfinite(gated[2]), conf[2] >= cut)
+    assert apply_gate(rng, conf, None) is rng

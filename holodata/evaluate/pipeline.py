@@ -84,15 +84,18 @@ def _scene_row(acc: _Acc, scene: str) -> dict:
 
 
 def score_frame(acc: _Acc, scene: str, pred_range, pred_human, gt_range, gt_clouds, grid: Grid,
-                tau: float, taus, max_range: float, geo: FrameGeometry, normals=None, los=None) -> dict:
+                tau: float, taus, max_range: float, geo: FrameGeometry, normals=None, los=None,
+                cloud_range=None) -> dict:
     """Add one frame's prediction (3,H,W) range (+ (3,H,W) human prob or None) to ``acc``; its beams
     start at ``geo.origins`` along ``geo.directions``. ``normals`` (3,H,W,3) / ``los`` (3,H,W) bool
-    override the estimated ones (oracle runs)."""
+    override the estimated ones (oracle runs); ``cloud_range`` (3,H,W): the ranges to un-mirror into
+    the point cloud when they differ from the scored range images (``Predictor.ranges``' gate)."""
     row = _scene_row(acc, scene)
     _score_ranges(acc, row, pred_range, gt_range)
-    P = unmirror(pred_range, geo.directions, normals=normals, grid=grid, origins=geo.origins)["point"]
+    cloud_range = pred_range if cloud_range is None else cloud_range
+    P = unmirror(cloud_range, geo.directions, normals=normals, grid=grid, origins=geo.origins)["point"]
     if los is None:
-        los = los_mask(P, pred_range[0], grid, origins=geo.origins)
+        los = los_mask(P, cloud_range[0], grid, origins=geo.origins)
     pc = _clouds(P, los)
     hum = np.zeros(P.shape[:-1], bool) if pred_human is None else (pred_human >= 0.5)
     _score_clouds(acc, row, pc, _human_points(P, hum), gt_clouds, tau, taus)
@@ -222,7 +225,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
         items = list(range(i0, min(i0 + batch_size, len(index))))
         raws = [data.read(i) for i in items]
         if model is not None:
-            p_rng, p_hum = run.ranges([hm for hm, _, _ in raws])
+            p_rng, p_hum, p_cloud = run.ranges([hm for hm, _, _ in raws])
         for j, i in enumerate(items):
             sid, k = index[i]
             hm, g_rng, g_lab = apply_transform(*raws[j], base_tf)
@@ -244,12 +247,13 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                                   normals=g_nrm, los=g_los)
             elif stage2 is None:
                 p_j = p_rng[j]
-                pcm = score_frame(accs["model"], sid, p_j, p_hum[j], g_rng, gc, grid, tau, taus, max_range, geo)
+                pcm = score_frame(accs["model"], sid, p_j, p_hum[j], g_rng, gc, grid, tau, taus, max_range, geo,
+                                  cloud_range=p_cloud[j])
             else:
                 p_j = p_rng[j]
                 pcs = {"model_analytic": score_frame(accs["model_analytic"], sid, p_j, p_hum[j], g_rng, gc, grid,
-                                                     tau, taus, max_range, geo)}
-                s2m = stage2.predict(p_j, p_hum[j], geo.directions, geo.origins, grid)
+                                                     tau, taus, max_range, geo, cloud_range=p_cloud[j])}
+                s2m = stage2.predict(p_cloud[j], p_hum[j], geo.directions, geo.origins, grid)
                 s2g = stage2.predict(g_rng, is_human(g_lab).astype(np.float32), geo.directions,
                                      geo.origins, grid)
                 pcs["model_no_refine"] = score_points(accs["model_no_refine"], sid, s2m["no_refine"], p_j, g_rng, gc, tau, taus)

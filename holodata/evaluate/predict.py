@@ -80,8 +80,10 @@ class Predictor:
 
     def ranges(self, heatmaps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
         """Stage one on linear heatmaps (n_range, H, W) each → (range (B,3,H',W') m NaN = none,
-        human probability (B,3,H',W')) on the run's strided grid; returns below the confidence gate
-        the run's stage two was calibrated with are dropped (``Stage2.min_confidence``)."""
+        human probability (B,3,H',W'), cloud range (B,3,H',W')) on the run's strided grid. The range
+        images are stage one's (what Table 1 scores: a dropped return counts as a miss); the cloud
+        ranges are what stage two un-mirrors: the same without the returns below the confidence gate
+        the run's stage two was calibrated with (``Stage2.min_confidence``; the range images when none)."""
         import torch
 
         from holodata.torch.data import apply_transform
@@ -90,9 +92,13 @@ class Predictor:
         z = np.zeros((3,) + heatmaps[0].shape[1:], np.float32)
         x = np.stack([norm(apply_transform(hm, z, z.astype(np.uint8), model_tf)[0]) for hm in heatmaps])
         with torch.no_grad():
-            pred = self.model.predict(torch.from_numpy(x).to(self.device), estimator=self.estimator,
-                                      min_confidence=getattr(self.stage2, "min_confidence", None))
-        return pred["range"].float().cpu().numpy(), pred["human_prob"].float().cpu().numpy()
+            pred = self.model.predict(torch.from_numpy(x).to(self.device), estimator=self.estimator)
+        from holodata.torch.stage2_infer import apply_gate
+
+        rng = pred["range"].float().cpu().numpy()
+        gate = getattr(self.stage2, "min_confidence", None) if "confidence" in pred else None
+        cloud = apply_gate(rng, pred["confidence"].float().cpu().numpy() if gate else None, gate)
+        return rng, pred["human_prob"].float().cpu().numpy(), cloud
 
     def points(self, rng: np.ndarray, human: np.ndarray | None, geo: FrameGeometry, grid: Grid) -> dict:
         """Stage two of the "model" row for one frame: {point (…,3) radar frame, los (…) bool,

@@ -133,8 +133,7 @@ class MultiReturnUNet(nn.Module):
         return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1]}
 
     @torch.no_grad()
-    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str | None = None,
-                min_confidence=None) -> dict:
+    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str | None = None) -> dict:
         """Inference: range with NaN where P(return) < threshold; human probability.
 
         With the soft-argmax head, ``estimator`` picks the point estimate of each beam's range-bin
@@ -143,9 +142,8 @@ class MultiReturnUNet(nn.Module):
         expected absolute error) or "mode" (soft-argmax within ±``MODE_HALF_BINS`` bins of the most likely bin:
         sharpest where the model is confident, but a wrong peak where it is not).
 
-        ``confidence`` (B,3,H,W), with the soft-argmax head: :func:`mode_confidence`. ``min_confidence``
-        (one per bounce, or None): a return whose confidence is below its bounce's is dropped (NaN,
-        not valid) — the operating point :func:`holodata.torch.stage2_infer.calibrate_gate` chooses."""
+        ``confidence`` (B,3,H,W), with the soft-argmax head: :func:`mode_confidence` (what stage two's
+        gate reads, :func:`holodata.torch.stage2_infer.apply_gate`)."""
         estimator = estimator or self.cfg.estimator
         out = self.forward(x)
         rng = out["range"]
@@ -164,12 +162,7 @@ class MultiReturnUNet(nn.Module):
         elif estimator not in ESTIMATORS:
             raise ValueError(f"estimator must be 'mean', 'median' or 'mode', got {estimator!r}")
         valid = torch.sigmoid(out["valid_logit"]) >= valid_threshold
-        res = {}
-        if "bin_logits" in out:
-            res["confidence"] = conf = mode_confidence(out["bin_logits"])
-            if min_confidence is not None:
-                valid = valid & (conf >= torch.as_tensor(min_confidence, dtype=conf.dtype,
-                                                         device=conf.device).view(1, -1, 1, 1))
+        res = {"confidence": mode_confidence(out["bin_logits"])} if "bin_logits" in out else {}
         rng = torch.where(valid, rng, torch.full_like(rng, float("nan")))
         return {"range": rng, "human_prob": torch.sigmoid(out["human_logit"]), "valid": valid, **res}
 

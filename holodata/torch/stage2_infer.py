@@ -114,6 +114,14 @@ KEEP_CANDIDATES = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
 GATE_CANDIDATES = (0.0, 0.2, 0.35, 0.5, 0.65, 0.8, 1.01)
 
 
+def apply_gate(rng: np.ndarray, confidence: np.ndarray, min_confidence) -> np.ndarray:
+    """Stage one's ranges (…,3,H,W) m without the returns whose confidence (…,3,H,W) is below their
+    bounce's ``min_confidence`` (3 values; None: unchanged): what stage two un-mirrors."""
+    if min_confidence is None:
+        return rng
+    return np.where(confidence >= np.asarray(min_confidence, np.float32)[:, None, None], rng, np.nan)
+
+
 def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, grid: Grid, tau: float = 0.10,
                    max_frames: int = 40, candidates=GATE_CANDIDATES) -> dict:
     """Stage one's confidence gate for bounces 2 and 3: the ``min_confidence`` per bounce below which
@@ -124,25 +132,27 @@ def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, gr
     ``s1_conf`` (T,3,H,W): stage one's ungated ranges (m) and :func:`holodata.torch.model.mode_confidence`.
     Why: a wrong bounce-3 return costs precision on the hidden side more than a right one adds recall
     (on held-out corners most of them are decimetres off), and stage one knows which it is unsure of.
-    Bounce 1 is never gated (it carries the LOS surface and every later bounce's normal). Returns
+    Bounce 1 is never gated (it carries the LOS surface and every later bounce's normal), so the LOS
+    flags stay; the points are un-mirrored once per frame, with the normals of the ungated images
+    (a gated image's planes lose a few points; 13 gates cost one un-mirroring). Returns
     {"min_confidence": [0, c2, c3], "scores": {"b2"|"b3": {candidate: mean F}}}."""
     from holodata import metrics as M
     from holodata.evaluate.unmirror import los_mask, unmirror
 
     idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
-    gts = []
+    cache = []   # per frame: the ungated points, their LOS flags, confidences and the GT clouds
     for k in idx:
         gp, lab = frames.gt_point[k].astype(np.float64), frames.label[k]
         ok, glos = np.isfinite(gp).all(-1), is_los(lab)
-        gts.append({"los": gp[ok & glos], "nlos": gp[ok & ~glos]})
+        P = unmirror(s1_range[k], frames.directions[k], grid=grid, origins=frames.origins[k])["point"]
+        los = los_mask(P, s1_range[k][0], grid, origins=frames.origins[k])
+        cache.append((P, los, s1_conf[k], {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}))
 
     def score(gate) -> float:
         f = []
-        for k, gt in zip(idx, gts):
-            R = np.where(s1_conf[k] >= np.asarray(gate)[:, None, None], s1_range[k], np.nan)
-            P = unmirror(R, frames.directions[k], grid=grid, origins=frames.origins[k])["point"]
-            los = los_mask(P, R[0], grid, origins=frames.origins[k])
-            ok = np.isfinite(P).all(-1)
+        for P, los, conf, gt in cache:
+            # a gated return removes its point and every later bounce's (un-mirroring needs the chain)
+            ok = np.cumprod(conf >= np.asarray(gate)[:, None, None], axis=0).astype(bool) & np.isfinite(P).all(-1)
             f.append(np.mean([M.point_cloud_metrics(P[ok & sel], gt[part], tau)["f_score"]
                               for part, sel in (("los", los), ("nlos", ~los))]))
         return float(np.mean(f))

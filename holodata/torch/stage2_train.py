@@ -37,7 +37,7 @@ from holodata.safe_io import load_torch
 from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
-from .stage2_infer import STAGE2_CHECKPOINT, Frames, Stage2, calibrate_gate, calibrate_keep, los_flags
+from .stage2_infer import STAGE2_CHECKPOINT, Frames, Stage2, apply_gate, calibrate_gate, calibrate_keep, los_flags
 
 STAGE2_LOG = "stage2_metrics.jsonl"
 
@@ -442,7 +442,7 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
     s1_range, frames.s1_human, s1_conf = stage1_predictions(dataset_url, ck1, frames.keys, device=cfg.device,
                                                             quiet=quiet)
     gate = calibrate_gate(s1_range, s1_conf, frames, grid)
-    frames.s1_range = np.where(s1_conf >= np.asarray(gate["min_confidence"])[None, :, None, None], s1_range, np.nan)
+    frames.s1_range = apply_gate(s1_range, s1_conf, gate["min_confidence"])
     meta = {"dataset": str(dataset_url), "grid": ds.grid.to_attrs(), "range_bins": ds.range_bins.to_attrs(),
             "downsample": f, "stage1": str(src_file), "stage1_epoch": int(ck1.get("epoch", 0)),
             "train_frames": len(frames)}

@@ -1,4 +1,4 @@
-"""The weights holodata ships: a stage-one + stage-two run trained by ``benchmarks/pretrain.py`` at
+"""The weights holodata ships: a stage-one + stage-two run trained by ``benchmarks/nlos.py --install`` at
 the quick demo's settings (32×128 beams, the default range bins) on a synthetic training corpus
 (:mod:`holodata.synth.corpus`), stored here as a run directory (``weights/checkpoint.pt``,
 ``weights/stage2.pt``) without optimiser state. ``checkpoint["pretrained"]`` records the command,
@@ -16,7 +16,7 @@ from pathlib import Path
 NAME = "pretrained"
 WEIGHTS = Path(__file__).resolve().parent / "weights"
 # the held-out corners tests/test_pretrained.py rebuilds (CorpusConfig fields; corpus seed 1000000 is
-# the held-out rule of benchmarks/stage1_loss.py and benchmarks/pretrain.py, never trained or tuned on)
+# the held-out rule of benchmarks/stage1_loss.py and benchmarks/nlos.py, never trained or tuned on)
 CHECK_SET = {"corners": 2, "frames": 2, "seed": 1_000_000, "n_test": 2}
 # the numbers recorded per method of ``holodata evaluate``'s metrics document (see :func:`scores`)
 SCORE_KEYS = ("b1_median_cm", "b2_median_cm", "b3_median_cm", "los_f", "nlos_f", "human_f")
@@ -30,7 +30,7 @@ def resolve(spec) -> Path:
         return Path(spec)
     if not (WEIGHTS / "checkpoint.pt").exists():
         raise InputError(f"{WEIGHTS}: holodata's pretrained weights are not installed "
-                         "(benchmarks/pretrain.py writes them)")
+                         "(benchmarks/nlos.py --install writes them)")
     return WEIGHTS
 
 
