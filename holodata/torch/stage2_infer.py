@@ -168,9 +168,11 @@ def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10
                    candidates=KEEP_CANDIDATES) -> dict:
     """The refiner's keep threshold on P(empty) that maximises the mean of the refined cloud's LOS
     and NLOS F-scores at ``tau`` m (holodata.metrics, as evaluate scores them) over up to
-    ``max_frames`` evenly spaced training frames, each fed twice when stage-one predictions are
-    present (the GT ranges and human mask, and stage one's): the training objective (eq. 7, class
-    weights) fixes the classes, not the F-optimal operating point of the cloud. Returns
+    ``max_frames`` evenly spaced training frames, fed what the refiner is given at inference: stage
+    one's (gated) predictions and human probabilities when ``frames`` holds them, else the GT ranges
+    and human mask. The training objective (eq. 7, class weights) fixes the classes, not the
+    F-optimal operating point of the cloud, and that point differs between exact inputs (where most
+    voxels are real) and stage one's (where the wrong ones are what the threshold is for). Returns
     {"threshold", "scores": {threshold: mean F}}."""
     from holodata import metrics as M
 
@@ -184,9 +186,8 @@ def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10
         ok = np.isfinite(gp).all(-1)
         glos = is_los(lab)
         gt = {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}
-        inputs = [(frames.range[k], is_human(lab).astype(np.float32))]
-        if frames.s1_range is not None:
-            inputs.append((frames.s1_range[k], frames.s1_human[k]))
+        inputs = [(frames.range[k], is_human(lab).astype(np.float32)) if frames.s1_range is None
+                  else (frames.s1_range[k], frames.s1_human[k])]
         for R, H in inputs:
             r = stage2.predict(R, H, frames.directions[k], frames.origins[k], grid, all_voxels=True)["refined"]
             for c in candidates:
