@@ -170,9 +170,8 @@ class MultiReturnUNet(nn.Module):
 def mode_confidence(bin_logits: torch.Tensor) -> torch.Tensor:
     """(B,3,H,W) probability mass of each beam's range-bin distribution (softmax of ``bin_logits``
     (B,3,n_bins,H,W)) within ±``MODE_HALF_BINS`` bins of its most likely bin: the model's own
-    probability that the mode estimate is the return's bin. With the per-bin likelihood (loss "ce")
-    it is calibrated: on held-out corners bounce-3 returns of confidence < 0.2 are within 10 cm for
-    a fifth of beams, ≥ 0.65 for nearly all (docs/design/stage2.md)."""
+    probability that the mode estimate is the return's bin; trained with the per-bin likelihood
+    (loss "ce") it tracks how often the return is right (measured in docs/design/stage2.md)."""
     return (torch.softmax(bin_logits, dim=2) * mode_window(bin_logits)).sum(2)
 
 
