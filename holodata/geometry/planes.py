@@ -115,8 +115,9 @@ def window_plane_normals(P: np.ndarray, n0: np.ndarray, rows: int = 1, cols: int
     Moments are accumulated offset by offset, relative to the pixel's own point."""
     P = np.asarray(P, np.float64)
     n = np.asarray(n0, np.float64)
-    rel = [np.nan_to_num(q - P) for q in _window(P, rows, cols)]     # neighbours about the pixel
-    fin = [np.isfinite(q).all(-1) & np.isfinite(P).all(-1) for q in _window(P, rows, cols)]
+    window = _window(P, rows, cols)
+    rel = [np.nan_to_num(q - P) for q in window]                     # neighbours about the pixel
+    fin = [np.isfinite(q).all(-1) & np.isfinite(P).all(-1) for q in window]
     c = np.zeros_like(P)                                              # plane point, about the pixel
     for _ in range(iterations):
         nz = np.nan_to_num(n)
