@@ -234,7 +234,7 @@ def test_bad_scheduler_address_is_one_line_error(tmp_path, monkeypatch):
 
 
 def test_worker_killed_mid_job_still_completes_identically(tmp_path):
-    T, S = 32, 2
+    T, S = 96, 2   # 48 tasks: enough that a worker is still busy after the first one commits
     make_inputs(tmp_path, T)
     args = gt_args(tmp_path, tmp_path / "ref.zarr", grid="24x96", shard_frames=S)
     r = CliRunner().invoke(cli, args)
