@@ -78,7 +78,7 @@ class Predictor:
         f, pool = int(tf.get("downsample", 1)), int(tf.get("range_pool", 1))
         return SampleTransform(downsample=f, range_pool=pool), SampleTransform(downsample=f, range_pool=1)
 
-    def ranges(self, heatmaps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    def ranges(self, heatmaps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stage one on linear heatmaps (n_range, H, W) each → (range (B,3,H',W') m NaN = none,
         human probability (B,3,H',W'), cloud range (B,3,H',W')) on the run's strided grid. The range
         images are stage one's (what Table 1 scores: a dropped return counts as a miss); the cloud
