@@ -439,3 +439,27 @@ def test_compiled_meets_box_equals_the_numpy_slab_test():
         got = _kernels.meets_box(rays, tk, box_)
         assert 300 < len(ref) < 19000
         assert np.array_equal(got, ref)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_fixed_rays_equal_a_full_cast_for_every_human_pose(backend):
+    """A fixed camera's rays (:class:`FixedRays`: the static scene cast once, then only the rays that may
+    meet the human's box) give exactly what casting every ray against scene + human gives, for a
+    human walking across the view, touching the camera's origin, out of view, and none at all."""
+    rng = np.random.default_rng(11)
+    sc = RayScene(*l_corridor(), backend=backend)
+    o = np.tile([1.0, 1.0, 0.2], (4000, 1))
+    d = random_dirs(4000, 12)
+    d[::5, 2] = 0.0                                    # horizontal rays: one zero component
+    fixed = sc.fixed_rays(o, d)
+    hv0, hf = box([-0.2, -0.2, -1.0], [0.2, 0.2, 0.8])
+    seen = 0
+    for x, y in ((3.0, 1.0), (5.5, 0.7), (8.9, 4.0), (1.1, 1.0), (40.0, 40.0)):
+        hv = hv0 + [x, y, 0.0] + rng.normal(scale=0.02, size=hv0.shape)
+        got, want = fixed.cast((hv, hf)), sc.cast(o, d, dynamic=(hv, hf))
+        seen += int(want.hit_dynamic.sum())
+        for k in ("t", "normal", "face", "hit_dynamic"):
+            assert _equal(getattr(got, k), getattr(want, k)), (x, y, k)
+    assert seen > 100                                  # the human was in view
+    for k in ("t", "normal", "face", "hit_dynamic"):
+        assert _equal(getattr(fixed.cast(None), k), getattr(sc.cast(o, d), k)), k

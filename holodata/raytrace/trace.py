@@ -244,6 +244,11 @@ class RayScene:
         n = np.where(s[:, None] > 0, -n, n)
         return CastResult(t.astype(np.float32), n.astype(np.float32), face, is_dyn)
 
+    def fixed_rays(self, origins, directions) -> "FixedRays":
+        """The same rays cast again and again with a different dynamic mesh each time (a fixed camera
+        watching a walking person): :class:`FixedRays`."""
+        return FixedRays(self, origins, directions)
+
     # ------------------------------------------------------------------ tracing
     def trace(self, origins, directions, max_bounces: int = DEFAULT_MAX_BOUNCES,
               max_range: float = DEFAULT_MAX_RANGE_M, dynamic=None, labels: bool = True) -> TraceResult:
@@ -503,6 +508,45 @@ def _meets_box(o: np.ndarray, d: np.ndarray, tmax, box: np.ndarray) -> np.ndarra
             enter = lo if enter is None else np.fmax(enter, lo, out=enter)
             leave = hi if leave is None else np.fmin(leave, hi, out=leave)
     return np.flatnonzero((enter <= leave) & (leave >= 0) & (enter <= tmax))
+
+
+class FixedRays:
+    """Rays ``origins``, ``directions`` (N,3) cast against ``scene`` once per dynamic mesh:
+    :meth:`cast` returns exactly ``scene.cast(origins, directions, dynamic)``, but the static mesh is
+    cast once, here, and each call casts again only the rays whose segment up to their static hit
+    meets the dynamic mesh's grown box, the test the full cast culls with (:func:`_meets_box`). Every
+    other ray gets, in the full cast, its static result; a ray's result never depends on the other
+    rays of its batch. A VGA depth camera at a fixed pose (``holodata.synth``) casts a few thousand
+    rays a frame instead of 250 000."""
+
+    def __init__(self, scene: RayScene, origins, directions):
+        self.scene = scene
+        self.origins = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        self.directions = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        self.static = scene.cast(self.origins, self.directions)
+        d = _unit(self.directions)
+        self._rays = np.empty((len(d), 6), dtype=np.float32)   # as :meth:`RayScene._first_hit` builds them
+        self._rays[:, :3] = self.origins + 0.0 * d
+        self._rays[:, 3:] = d
+        # the full cast culls with the backend's float32 distance; the refined one kept here is within
+        # 1 mm of it (RayScene._first_hit), so this bound keeps every ray that test keeps, and more
+        self._tmax = self.static.t + np.float32(2e-3)
+
+    def cast(self, dynamic=None) -> CastResult:
+        """:meth:`RayScene.cast` of the rays with ``dynamic`` = (vertices, faces), a prepared mesh or None."""
+        st, sc = self.static, self.scene
+        dyn = sc._dynamic(dynamic)
+        if dyn is not None and not sc.cull_dynamic:
+            return sc.cast(self.origins, self.directions, dyn)
+        out = CastResult(st.t.copy(), st.normal.copy(), st.face.copy(), st.hit_dynamic.copy())
+        if dyn is None:
+            return out
+        sub = _kernels.meets_box(self._rays, self._tmax, dyn.box)
+        if len(sub):
+            part = sc.cast(self.origins[sub], self.directions[sub], dyn)
+            out.t[sub], out.normal[sub], out.face[sub], out.hit_dynamic[sub] = (part.t, part.normal, part.face,
+                                                                             part.hit_dynamic)
+        return out
 
 
 def _unit(d: np.ndarray) -> np.ndarray:

@@ -52,15 +52,21 @@ class CameraModel:
         self.T = T_world_optical
         u, v = np.meshgrid(np.arange(cfg.width), np.arange(cfg.height))
         self.rays = np.stack([(u - cfg.cx) / cfg.fx, (v - cfg.cy) / cfg.fy, np.ones_like(u, float)], -1)  # z = 1
+        self._fixed: tuple | None = None   # (scene, its FixedRays, ray lengths per unit depth): the static scene cast once
 
     def frame(self, scene, human, rng: np.random.Generator) -> tuple[np.ndarray, dict]:
-        """Depth image (h, w) float32 m (NaN invalid) in the optical frame, and stats."""
+        """Depth image (h, w) float32 m (NaN invalid) in the optical frame, and stats. The camera does
+        not move: the static scene is cast once per ``scene`` and each frame casts only the pixels whose
+        view may meet ``human`` (:class:`holodata.raytrace.FixedRays`; the same depths as a full cast)."""
         cfg = self.cfg
-        d_loc = self.rays.reshape(-1, 3)
-        norm = np.linalg.norm(d_loc, axis=1)
-        d_w = (d_loc / norm[:, None]) @ self.T[:3, :3].T
-        o_w = np.broadcast_to(self.T[:3, 3], d_w.shape)
-        hit = scene.cast(o_w, d_w, dynamic=human)
+        if self._fixed is None or self._fixed[0] is not scene:
+            d_loc = self.rays.reshape(-1, 3)
+            norm = np.linalg.norm(d_loc, axis=1)
+            d_w = (d_loc / norm[:, None]) @ self.T[:3, :3].T
+            o_w = np.broadcast_to(self.T[:3, 3], d_w.shape)
+            self._fixed = (scene, scene.fixed_rays(o_w, d_w), norm)
+        _, fixed, norm = self._fixed
+        hit = fixed.cast(human)
         t = hit.t.astype(np.float64)
         z = t / norm  # depth along the optical axis
         ok = np.isfinite(z) & (z >= cfg.min_depth_m) & (z <= cfg.max_depth_m)
