@@ -161,3 +161,33 @@ def test_synth_iq_recording_ingests_into_a_dataset_that_validates(tmp_path):
         strong = lb > lb.max() - 40
         assert np.corrcoef(la[strong], lb[strong])[0, 1] > 0.5
         assert abs(np.median(la) - np.median(lb)) < 3.0      # the same noise floor
+
+
+def test_rotations_share_their_neighbouring_chirps_and_keep_their_own():
+    """The raw samples of consecutive rotations are one chirp stream, as a rig records it: the n_syn/2
+    chirps before rotation k are rotation k−1's last ones and those after it rotation k+1's first ones,
+    the same samples. A rotation's own chirps (and the first rotation's before, the last one's after)
+    are what RadarModel.iq gives for its paths over its whole window with its noise stream."""
+    import dataclasses
+
+    from holodata.synth.scene import Sensors, _rng, build_scenario
+
+    sc = build_scenario("L", frames=3, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(12, 20),
+                        radar_chirps=64)
+    s = Sensors(dataclasses.replace(sc, radar_output="iq"))
+    msgs = [s.radar_rotation(k)[0] for k in range(3)]
+    N, pad = msgs[0]["n_rotation"], msgs[0]["n_before"]
+    assert N == 64 and pad == msgs[0]["n_after"] > 0
+    c = [m["chirps"] for m in msgs]
+    assert all(x.shape == (N + 2 * pad, 8, 256) for x in c)
+    for k in (1, 2):
+        assert np.array_equal(c[k][:pad], c[k - 1][N:N + pad])           # before = the previous one's last
+        assert np.array_equal(c[k - 1][N + pad:], c[k][pad:2 * pad])     # after = the next one's first
+    for k in range(3):      # the whole window from the rotation's own paths and noise stream
+        paths, O, D = s._radar_paths(k)
+        start, end = sc.radar_cycle(k)
+        n = np.arange(-pad, N + pad)
+        poses = sc.truth.interpolate(start + np.round((n + 0.5) / N * (end - start)).astype(np.int64)) @ sc.T_base_radar
+        whole = s.radar.iq(paths, O, D, poses, n, _rng(sc.seed, "radar", k))
+        own = slice(0 if k == 0 else pad, N + 2 * pad if k == 2 else N + pad)
+        assert np.array_equal(c[k][own], whole[own])

@@ -312,9 +312,15 @@ class RadarModel:
         if cfg.leakage_amplitude > 0:
             out += np.complex64(cfg.leakage_amplitude * scale)
         if rng is not None and noise > 0:
-            w = rng.standard_normal(2 * out.size, dtype=np.float32) * np.float32(noise / np.sqrt(2))
-            out += w.view(np.complex64).reshape(out.shape)
+            out += self.raw_noise(rng, out.shape)
         return out
+
+    def raw_noise(self, rng: np.random.Generator, shape: tuple) -> np.ndarray:
+        """(C, V, S) complex64 thermal noise of raw samples drawn from ``rng`` (circular Gaussian, the
+        per-sample std of :meth:`raw_scale`), as :meth:`iq` adds it."""
+        _, noise = self.raw_scale()
+        w = rng.standard_normal(2 * int(np.prod(shape)), dtype=np.float32) * np.float32(noise / np.sqrt(2))
+        return w.view(np.complex64).reshape(shape)
 
     def _noise_bank(self, n: int) -> np.ndarray:
         """Thermal noise: a bank of n independent circular complex Gaussian samples (drawn once per

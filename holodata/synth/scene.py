@@ -256,6 +256,7 @@ class Sensors:
                                 MATERIAL_ID["human"], CLASS_ID["ceiling"])
         self.camera = CameraModel(sc.camera_cfg, sc.T_world_cam_link @ T_LINK_OPTICAL)
         self.cast_log: list | None = None  # set to [] to record the radar's backend casts (benchmarks)
+        self._rotations: dict = {}   # raw samples of the cycles radar_rotation still needs (_rotation_chirps)
         self.stereo = StereoModel(sc.camera_cfg, sc.T_world_cam_link @ T_LINK_OPTICAL,
                                   [m.lidar_reflectivity for m in w.materials], w.face_material,
                                   w.materials[MATERIAL_ID["human"]].lidar_reflectivity) if sc.stereo else None
@@ -286,22 +287,50 @@ class Sensors:
         """Raw samples of cycle k (``radar_output="iq"``) and per-frame stats: {chirps (nb+N+na, V, S)
         complex64, n_before, n_rotation, n_after, travel_per_chirp m, heading rad}. The rotation's N
         chirps (chirp n at ``start + (n + ½)/N`` of the cycle) come with the n_syn/2 chirps before and
-        after it that its first and last beams need; the motion fields are the odometry's (what the
+        after it that its first and last beams need: the previous rotation's last chirps and the next
+        one's first, the same samples in both messages, as a rig records each chirp once (cycles are
+        contiguous, so those chirps' times coincide); before the first rotation and after the last they
+        are synthesised from that rotation's own paths. The motion fields are the odometry's (what the
         robot knows): its displacement over the cycle, in the radar frame at the cycle start."""
         sc, cfg = self.sc, self.sc.radar_cfg
-        paths, O, D = self._radar_paths(k)
+        N, pad = cfg.chirps_per_rotation, cfg.imaging()[1] // 2
+
+        def rows(j, n0, n1):    # chirps n0 .. n1 - 1 of cycle j
+            c, lo, _ = self._rotation_chirps(j)
+            return c[n0 - lo:n1 - lo]
+
+        stats = self._rotation_chirps(k)[2]
+        before = rows(k, -pad, 0) if k == 0 else rows(k - 1, N - pad, N)
+        after = rows(k, N, N + pad) if k == sc.frames - 1 else rows(k + 1, 0, pad)
+        chirps = np.concatenate([before, rows(k, 0, N), after])
+        for old in [j for j in self._rotations if j < k]:
+            del self._rotations[old]
         start, end = sc.radar_cycle(k)
-        _, n_syn = cfg.imaging()
-        N, pad = cfg.chirps_per_rotation, n_syn // 2
-        n = np.arange(-pad, N + pad)
-        t = start + np.round((n + 0.5) / N * (end - start)).astype(np.int64)
-        poses = sc.truth.interpolate(t) @ sc.T_base_radar
-        chirps = self.radar.iq(paths, O, D, poses, n, _rng(sc.seed, "radar", k))
         a, b = sc.odom.interpolate(np.array([start, end])) @ sc.T_base_radar
         d = a[:3, :3].T @ (b[:3, 3] - a[:3, 3])
         return {"chirps": chirps, "n_before": pad, "n_rotation": N, "n_after": pad,
-                "travel_per_chirp": float(np.hypot(d[0], d[1]) / N), "heading": float(np.arctan2(d[1], d[0]))}, \
-            path_stats(paths)
+                "travel_per_chirp": float(np.hypot(d[0], d[1]) / N), "heading": float(np.arctan2(d[1], d[0]))}, stats
+
+    def _rotation_chirps(self, k: int) -> tuple[np.ndarray, int, dict]:
+        """(chirps, lo, stats): the raw samples of cycle k's own chirps ``lo`` .. N − 1 from its paths
+        (``lo`` = −n_syn/2 for the first cycle, else 0; up to N − 1 + n_syn/2 for the last), and the
+        paths' stats. Thermal noise is drawn for chirps −n_syn/2 .. N − 1 + n_syn/2 from the cycle's
+        own stream and each chirp takes its own draw. Kept until :meth:`radar_rotation` has used them."""
+        if k in self._rotations:
+            return self._rotations[k]
+        sc, cfg = self.sc, self.sc.radar_cfg
+        paths, O, D = self._radar_paths(k)
+        start, end = sc.radar_cycle(k)
+        N, pad = cfg.chirps_per_rotation, cfg.imaging()[1] // 2
+        lo, hi = (-pad if k == 0 else 0), (N + pad if k == sc.frames - 1 else N)
+        n = np.arange(lo, hi)
+        t = start + np.round((n + 0.5) / N * (end - start)).astype(np.int64)
+        poses = sc.truth.interpolate(t) @ sc.T_base_radar
+        chirps = self.radar.iq(paths, O, D, poses, n, None)
+        if cfg.noise_amplitude > 0:
+            chirps += self.radar.raw_noise(_rng(sc.seed, "radar", k), (N + 2 * pad,) + chirps.shape[1:])[lo + pad:hi + pad]
+        self._rotations[k] = (chirps, lo, path_stats(paths))
+        return self._rotations[k]
 
     def trace(self, O, D, human, max_bounces: int, max_range: float):
         """Multi-bounce trace through the static world plus this frame's human. The human is merged
