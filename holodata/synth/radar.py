@@ -174,7 +174,7 @@ class RadarModel:
         self.kappa = np.array([m.rf_diffuse for m in materials], np.float64)
         self.face_material = np.asarray(face_material, np.int64)
         self.human_material = int(human_material)
-        self.az_spectrum, self.el_matrix = beamformer_psf(cfg)
+        self._psf: tuple | None = None   # beamformer_psf(cfg), made when a heatmap first needs it (raw samples never do)
         taps = np.arange(cfg.range_taps + 1) / 1.0
         lk = np.zeros(self.R)
         if cfg.leakage_amplitude > 0:
@@ -247,11 +247,14 @@ class RadarModel:
         if self.cfg.leakage_amplitude > 0:
             cube += self.leakage[:, None, None]
         if self.cfg.psf:
+            if self._psf is None:
+                self._psf = beamformer_psf(self.cfg)
+            az_spectrum, el_matrix = self._psf
             X = sfft.fft(cube, axis=2, workers=2, overwrite_x=True)
-            X *= self.az_spectrum
+            X *= az_spectrum
             X = sfft.ifft(X, axis=2, workers=2, overwrite_x=True)
             fl = X.view(np.float32).reshape(R, H, 2 * W)
-            np.matmul(self.el_matrix, fl, out=self._buf2)
+            np.matmul(el_matrix, fl, out=self._buf2)
             cube = self._buf2.view(np.complex64).reshape(R, H, W)
         if rng is not None and self.cfg.noise_amplitude > 0:
             bank = self._noise_bank(cube.size)
