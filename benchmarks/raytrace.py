@@ -4,7 +4,8 @@ Builds a T-junction mesh from subdivided planes (~10 cm triangles, like a SLAM m
 box-and-prism human (one mesh per frame via --human-dir), a radar trajectory through the junction,
 then:
   1. runs the whole standalone pipeline (read inputs, trace 64x512 beams x 3 bounces + LOS checks,
-     write gt/* shards) and reports frames/s;
+     write gt/* shards) and reports frames/s (in this process, which has cast already: a helper
+     process, when raytrace-gt takes one, is spawned here, forked by the command in 3.);
   2. replays, on a sample of frames, the ray batches of the straightforward trace (the tracer with
      its human culling switched off: every ray also against the human) through bare open3d
      ``RaycastingScene.cast_rays`` / ``test_occlusions`` (the LOS checks) (static scene built once,
@@ -215,7 +216,8 @@ def main() -> None:
               f"ms/frame -> CPU ratio {bare_cpu / (cpu / a.frames):.2f} (insensitive to other load on the machine)")
         sm = summary["scenes"][0]
         steady = (sm["seconds"] - sm["first_frame_s"]) / (a.frames - 1)
-        print(f"  of which start-up (inputs, {sm['processes']} tracing processes, first frame): "
+        helper = f", helper process {sm['helper']}ed" if sm.get("helper") else ""
+        print(f"  of which start-up (inputs, {sm['processes']} tracing processes{helper}, first frame): "
               f"{dt - sm['seconds'] + sm['first_frame_s']:.2f} s; steady state {1e3 * steady:.1f} ms/frame "
               f"-> steady-state ratio {bare / steady:.2f}")
         print(f"extrapolated to 28000 frames: {(dt + 27999 * steady) / 60:.1f} min "

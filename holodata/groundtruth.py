@@ -65,7 +65,7 @@ from .raytrace.humans import (
     mesh_sha256,
     points_to_mesh,
 )
-from .raytrace.pool import _bounded_imap, _slot_bytes, _slot_views, _worker_init
+from .raytrace.pool import Helper, _bounded_imap, _slot_bytes, _slot_views, _worker_init, run_with_helper
 from .trajectory import Trajectory, read_tum
 
 
@@ -74,6 +74,7 @@ class TracingError(HolodataError, RuntimeError):
 
 
 POOL_MIN_FRAMES = 1000
+HELPER_MIN_FRAMES = 200
 
 
 def auto_processes(n_frames: int) -> int:
@@ -85,16 +86,27 @@ def auto_processes(n_frames: int) -> int:
     return 1 if n_frames < POOL_MIN_FRAMES or n_cpus < 2 else min(n_cpus, 4)
 
 
+def auto_helper(n_frames: int, processes: int = 0) -> bool:
+    """Whether an in-process run of ``n_frames`` frames gets a :class:`~holodata.raytrace.pool.Helper`
+    process beside its tracing threads: with the automatic choice (``processes`` 0), on two cores or
+    more, from HELPER_MIN_FRAMES frames up to where the pool takes over. Its start-up (a fork: its
+    static scene and compiled kernels, ~0.3-0.5 s of CPU; spawned ~1.5 s) is what shorter runs do
+    not earn back (docs/design/raytrace.md)."""
+    return processes <= 0 and cpus() >= 2 and auto_processes(n_frames) == 1 and n_frames >= HELPER_MIN_FRAMES
+
+
 def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
                    quiet: bool = True, label: str = "raytrace-gt", processes: int = 1, client=None,
-                   cycles=None) -> dict:
+                   cycles=None, helper: Helper | None = None) -> dict:
     """Trace every frame of ``traj`` and write gt/* shard by shard into dataset scene ``sc``
     (skipping shards already written; a shard's arrays are written only once all its frames are
     traced). ``processes`` > 1 traces in that many spawned processes (the static scene is built once
     per worker); writing stays in this process, with a bounded number of frames in flight, so
-    memory does not grow with the frame count. ``client`` (a ``distributed.Client``): one Dask task
-    per shard instead, each worker writing its shards (:mod:`holodata.distributed`). ``cycles``
-    (T,2) int64: each frame's rotation start/end for per-column times. Returns a summary dict."""
+    memory does not grow with the frame count. In-process runs trace in two threads and, when
+    :func:`auto_helper` says so, with a helper process beside them (``helper``: one the caller
+    started early for this scene, else one is started here). ``client`` (a ``distributed.Client``):
+    one Dask task per shard instead, each worker writing its shards (:mod:`holodata.distributed`).
+    ``cycles`` (T,2) int64: each frame's rotation start/end for per-column times. Returns a summary dict."""
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
     extra = {"codec": cfg.codec} if cfg.codec else {}
     arrays = {name: sc.frame_array(name, **spec, **extra) for name, spec in specs.items()}
@@ -112,6 +124,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
     t0 = time.perf_counter()
     clock: dict = {}
     dask_info = None
+    helper_info = None
     if client is not None:
         if n_traced:
             dask_info = trace_scene_dask(client, sc, mesh, cfg, traj, human, plan, quiet=quiet, label=label,
@@ -119,10 +132,24 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
         for a in arrays.values():  # fold the workers' manifest records into attrs (idempotent)
             a._consolidate()
     elif workers == 1 or n_traced == 0:
-        tracer = FrameTracer(mesh, cfg, traj, human, cycles) if n_traced else None
-        results = (tracer.run((f for _, _, frames in plan for f in frames), threads=min(2, cpus())) if tracer
-                   else iter(()))
-        _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock, copy=False)
+        own = Helper(mesh, cfg, traj, human, cycles) if helper is None and n_traced and auto_helper(n_traced, processes) \
+            else None
+        helper = helper or own
+        try:
+            tracer = FrameTracer(mesh, cfg, traj, human, cycles) if n_traced else None
+            todo = [f for _, _, frames in plan for f in frames]
+            threads = min(2, cpus())
+            results = (iter(()) if tracer is None else run_with_helper(tracer, todo, threads, helper) if helper
+                       else tracer.run(todo, threads=threads))
+            try:
+                _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock, copy=False)
+            finally:
+                getattr(results, "close", lambda: None)()   # stop the tracing threads before the helper goes
+        finally:
+            if own is not None:
+                own.close()
+        if helper is not None and n_traced:
+            workers, helper_info = 2, helper.method
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
@@ -159,7 +186,7 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
         extra_info = {"dask_workers": dask_info["workers"] if dask_info else None,
                       "ray_threads_per_worker": dask_info["ray_threads"] if dask_info else None}
     return {"frames": len(traj), "shards": first.n_shards, "shards_written": len(plan), "shards_skipped": skipped,
-            "frames_traced": n_traced, "processes": workers, **extra_info, "seconds": round(dt, 3),
+            "frames_traced": n_traced, "processes": workers, "helper": helper_info, **extra_info, "seconds": round(dt, 3),
             "frames_per_s": round(n_traced / dt, 3) if n_traced and dt > 0 else None,
             "first_frame_s": round(clock["first"] - t0, 3) if "first" in clock else None}
 
@@ -267,7 +294,21 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
         hsrc = HumanDir(human_dir, len(traj))
     mesh_args = (mesh.vertices, mesh.faces, mesh.face_class, mesh.class_names)
     scene = _make_scene(*mesh_args, cfg)
-    # inputs are valid: only now create (or reopen) the output
+    # inputs are valid: the helper process starts now (forked before this process casts, with the
+    # compiled kernels the scene loaded), so that its start-up overlaps the output's creation
+    helper = Helper(mesh_args, cfg, traj, hsrc, cycles) if client is None and auto_helper(len(traj), processes) \
+        else None
+    try:
+        return _standalone(mesh_path, poses_path, out, mesh, mesh_args, scene, traj, hsrc, cycles, columns, origin,
+                           scene_id, cfg, quiet, processes, client, helper)
+    finally:
+        if helper is not None:
+            helper.close()
+
+
+def _standalone(mesh_path, poses_path, out, mesh, mesh_args, scene, traj, hsrc, cycles, columns, origin, scene_id, cfg,
+                quiet, processes, client, helper) -> dict:
+    # only now create (or reopen) the output
     from .dataset import create_dataset
 
     mhash = file_sha256(mesh_path) if Path(mesh_path).is_file() else mesh_sha256(mesh.vertices, mesh.faces)
@@ -287,7 +328,7 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
         sc.write_array(MESH_FACE_CLASS, mesh.face_class)
     attrs = gt_attrs(scene, cfg, mhash, hsrc, column_times=columns)
     summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, attrs, quiet=quiet, processes=processes, client=client,
-                             cycles=cycles)
+                             cycles=cycles, helper=helper)
     sc.finish("raytrace-gt")
     return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": origin.describe(),
                                          "column_times": columns, **summary}]}

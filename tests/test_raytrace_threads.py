@@ -3,13 +3,18 @@ written by a background thread give the arrays the sequential trace gives, in or
 surface where they did."""
 from __future__ import annotations
 
+import os
+import signal
 import threading
+import time
+from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 import pytest
 
 import holodata.dataset as hds
 from holodata.conventions import Grid, Label
+from holodata.errors import InputError
 from holodata.groundtruth import FrameTracer, GTConfig, HumanDir, HumanFile, HumanSource, raytrace_standalone
 from holodata.meshio import Mesh, write_ply
 from holodata.raytrace import RayScene
@@ -112,3 +117,146 @@ def test_background_writer_error_surfaces_and_the_rerun_completes(inputs, monkey
     for name in ("gt/range", "gt/point", "gt/normal", "gt/label", "gt/semantic", "gt/human_center"):
         x, y = np.asarray(a[name][...]), np.asarray(b[name][...])
         assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), name
+
+
+# -- a helper process beside the threads (holodata.raytrace.pool.run_with_helper) ----------------------
+class DieInChild(HumanSource):
+    """No human; kills the process that asks for frame ``frame`` unless it is the one that made it
+    (as a signal or the OOM killer would kill a helper), which is slow (the helper takes frames)."""
+
+    def __init__(self, frame):
+        self.frame, self.parent = frame, os.getpid()
+
+    def __call__(self, k):
+        if os.getpid() == self.parent:
+            time.sleep(0.2)
+        elif k == self.frame:
+            os.kill(os.getpid(), signal.SIGKILL)
+        return None
+
+
+class BadAt(HumanSource):
+    def __call__(self, k):
+        if k == 5:
+            raise ValueError("bad human at 5")
+        return None
+
+
+def _helper(inputs, human, method="spawn"):
+    from holodata.raytrace.pool import Helper
+
+    v, f = l_corridor()
+    return Helper((v, f, None, None), GTConfig(grid=Grid(16, 64)), read_tum(inputs / "radar.tum"), human,
+                  method=method)
+
+
+def test_helper_process_gives_the_sequential_frames_to_the_bit(inputs):
+    from holodata.raytrace.pool import run_with_helper
+
+    human = HumanDir(inputs / "humans", T)
+    want = [_tracer(inputs, human)(f) for f in range(T)]
+    order = [3, 0, 8, 1, 7, 2, 6, 4, 5]  # any order of frames comes out in that order
+    with _helper(inputs, human) as helper:
+        helper.ready.result()   # started: it takes part from the first frame
+        got = list(run_with_helper(_tracer(inputs, human), order, 1, helper))
+        by_helper = helper.pool.submit(os.getpid).result()
+    assert by_helper != os.getpid()
+    assert len(got) == T
+    for f, g in zip(order, got):
+        assert want[f].keys() == g.keys()
+        for name in g:
+            assert want[f][name].dtype == g[name].dtype and want[f][name].tobytes() == g[name].tobytes(), name
+
+
+def test_helper_frames_error_is_raised_in_order(inputs):
+    from holodata.raytrace.pool import run_with_helper
+
+    seen = []
+    with _helper(inputs, BadAt()) as helper:
+        helper.ready.result()
+        with pytest.raises(ValueError, match="bad human at 5"):
+            for out in run_with_helper(_tracer(inputs, BadAt()), range(T), 2, helper):
+                seen.append(out)
+    assert len(seen) == 5  # frames 0-4 came out, in order, before the error
+
+
+def test_a_killed_helper_leaves_its_frames_to_this_process(inputs):
+    """The helper dies (SIGKILL) on frame 4: the frames it held are traced here, every frame comes
+    out once, in order, as the sequential trace."""
+    from holodata.raytrace.pool import run_with_helper
+
+    want = [_tracer(inputs, HumanSource())(f) for f in range(T)]
+    with _helper(inputs, DieInChild(4)) as helper:
+        helper.ready.result()
+        got = list(run_with_helper(_tracer(inputs, DieInChild(4)), range(T), 1, helper))
+        with pytest.raises(BrokenProcessPool):   # it did die
+            helper.pool.submit(os.getpid)
+    assert len(got) == T
+    for w, g in zip(want, got):
+        for name in w:
+            assert w[name].tobytes() == g[name].tobytes(), name
+
+
+def test_a_helper_that_cannot_start_leaves_every_frame_here(inputs):
+    from holodata.raytrace.pool import Helper, run_with_helper
+
+    v, f = l_corridor()
+    traj = read_tum(inputs / "radar.tum")
+    bad = Helper((v, f[:, :2], None, None), GTConfig(grid=Grid(16, 64)), traj, HumanSource(), method="spawn")
+    with bad:
+        with pytest.raises(InputError, match="scene mesh"):
+            bad.ready.result()   # its scene cannot be built: the error is its task's, no traceback printed
+        got = list(run_with_helper(_tracer(inputs, HumanSource()), range(T), 2, bad))
+    want = [_tracer(inputs, HumanSource())(f) for f in range(T)]
+    assert all(w[n].tobytes() == g[n].tobytes() for w, g in zip(want, got) for n in w)
+
+
+STANDALONE = '''
+import json, sys
+import holodata.groundtruth as gt
+from holodata.conventions import Grid
+gt.HELPER_MIN_FRAMES = 4
+d = sys.argv[1]
+s = gt.raytrace_standalone(d + "/scene.ply", d + "/radar.tum", sys.argv[2], human_dir=d + "/humans",
+                           cfg=gt.GTConfig(grid=Grid(16, 64), shard_frames=2), quiet=True, processes=int(sys.argv[3]))
+print(json.dumps(s["scenes"][0]))
+'''
+
+
+def test_standalone_forks_a_helper_and_writes_the_in_process_arrays(inputs):
+    """A fresh process running raytrace_standalone (as the command does) forks its helper before it
+    casts, and writes every gt array as ``processes=1`` (threads only) does."""
+    import json
+    import subprocess
+    import sys
+
+    script = inputs / "standalone.py"
+    script.write_text(STANDALONE)
+    runs = {}
+    for name, processes in (("threads", 1), ("helper", 0)):
+        r = subprocess.run([sys.executable, str(script), str(inputs), str(inputs / f"{name}.zarr"), str(processes)],
+                           capture_output=True, text=True, check=True)
+        runs[name] = json.loads(r.stdout.strip().splitlines()[-1])
+        assert r.stderr == ""
+    assert runs["threads"]["helper"] is None and runs["threads"]["processes"] == 1
+    assert runs["helper"]["helper"] == "fork" and runs["helper"]["processes"] == 2
+    a, b = (hds.open_dataset(str(inputs / f"{n}.zarr")).scene("scene") for n in ("threads", "helper"))
+    for name in ("gt/range", "gt/point", "gt/normal", "gt/label", "gt/semantic", "gt/human_center"):
+        x, y = np.asarray(a[name][...]), np.asarray(b[name][...])
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), name
+
+
+def test_no_fork_once_open3d_has_cast():
+    import subprocess
+    import sys
+
+    code = ("from holodata.raytrace.pool import can_fork\n"
+            "from holodata.raytrace import RayScene\n"
+            "import numpy as np\n"
+            "from test_raytrace import l_corridor\n"
+            "a = can_fork('open3d')\n"
+            "RayScene(*l_corridor()).trace(np.zeros((4, 3)), np.tile([1.0, 0, 0], (4, 1)))\n"
+            "print(a, can_fork('open3d'), can_fork('embreex'))\n")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                       cwd=os.path.dirname(__file__))
+    assert r.stdout.split() == ["True", "False", "False"]

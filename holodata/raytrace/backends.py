@@ -20,6 +20,14 @@ import numpy as np
 
 BACKENDS: dict[str, Callable] = {}
 DEFAULT_BACKEND = "open3d"
+_OPEN3D_CAST = [False]   # open3d has cast in this process: its thread pool runs, a fork would lose it
+
+
+def open3d_has_cast() -> bool:
+    """open3d cast rays in this process (its first cast starts the thread pool Embree runs on, which a
+    forked child would not have, with its locks in whatever state the fork found them); a process
+    that has not cast may fork a tracing process (:class:`holodata.raytrace.pool.Helper`)."""
+    return _OPEN3D_CAST[0]
 
 
 def register_backend(name: str):
@@ -99,12 +107,14 @@ class Open3DBackend:
         )
 
     def cast6(self, rays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        _OPEN3D_CAST[0] = True
         ans = self.scene.cast_rays(self._o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, dtype=np.float32)),
                                    nthreads=self.nthreads)
         return ans["t_hit"].numpy(), ans["primitive_ids"].numpy()
 
     def occluded6(self, rays: np.ndarray) -> np.ndarray:
         """(N,) bool: anything hit with ray parameter in (0, 1) (directions carry the segment length)."""
+        _OPEN3D_CAST[0] = True
         ans = self.scene.test_occlusions(self._o3d.core.Tensor.from_numpy(np.ascontiguousarray(rays, dtype=np.float32)),
                                          tnear=0.0, tfar=1.0, nthreads=self.nthreads)
         return ans.numpy().astype(bool)
