@@ -198,6 +198,13 @@ def test_tiny_training_run_decreases_loss_and_resumes(dataset, tmp_path):
     assert s2.keep_threshold == keep["threshold"]
     allv = s2.predict(fr.range[0], None, fr.directions[0], fr.origins[0], grid, all_voxels=True)["refined"]
     assert len(p["refined"]["point"]) == int((allv["p_empty"] < keep["threshold"]).sum())
+    # the refined cloud is the ray-traced points the refiner keeps, where the ray tracer put them:
+    # keeping every voxel gives the no_refine points (and their LOS flags) exactly
+    nr = p["no_refine"]
+    ok = np.isfinite(nr["point"]).all(-1)
+    assert np.array_equal(allv["point"], nr["point"][ok]) and np.array_equal(allv["los"], nr["los"][ok])
+    kept = allv["p_empty"] < keep["threshold"]
+    assert np.array_equal(p["refined"]["point"], nr["point"][ok][kept])
     # resume: the same config with more refiner epochs continues after epoch 5
     res2 = fit_stage2(frames, tmp_path / "run", Stage2Config(epochs_rt=3, epochs_refine=3, **TINY2), 9.6, grid,
                       quiet=True)

@@ -61,6 +61,13 @@ def _human_points(points, human):
     return points[ok]
 
 
+def person_hidden(label) -> bool:
+    """Whether a frame's person is hidden: ``label`` (3,H,W) GT labels hold human returns and none
+    of them is line-of-sight (the person is seen only through bounces 2-3, the case NLOS imaging is for)."""
+    hum = is_human(label)
+    return bool(hum.any() and not (hum & is_los(label)).any())
+
+
 def _score_ranges(acc: _Acc, row: dict, pred_range, gt_range) -> None:
     for b in range(3):
         e = M.range_errors(pred_range[b], gt_range[b])
@@ -104,7 +111,7 @@ def score_frame(acc: _Acc, scene: str, pred_range, pred_human, gt_range, gt_clou
 
 def score_points(acc: _Acc, scene: str, pred: dict, pred_range, gt_range, gt_clouds, tau: float, taus) -> dict:
     """Add one frame of stage-two output to ``acc``: ``pred`` {point (…,3), los (…) bool, human (…)
-    bool} (a refined voxel cloud or ray-traced point images), scored against ``gt_clouds``; range
+    bool} (a refined cloud or ray-traced point images), scored against ``gt_clouds``; range
     errors are those of ``pred_range`` (3,H,W), the range images stage two was given."""
     row = _scene_row(acc, scene)
     _score_ranges(acc, row, pred_range, gt_range)
@@ -123,7 +130,10 @@ def _mean_curve(curves: list) -> dict:
     return out
 
 
-def summarise(acc: _Acc, gt_centres: list, scene_info: dict, max_range: float) -> dict:
+def summarise(acc: _Acc, gt_centres: list, scene_info: dict, max_range: float, hidden=None) -> dict:
+    """One method's metrics document; ``hidden`` (one bool per frame, :func:`person_hidden`) selects
+    the frames scored again as ``human_hidden`` (None: no frame)."""
+    hid = [False] * len(gt_centres) if hidden is None else list(hidden)
     rng = {}
     for b in range(3):
         e = np.concatenate(acc.errors[b]) if acc.errors[b] else np.zeros(0)
@@ -145,6 +155,8 @@ def summarise(acc: _Acc, gt_centres: list, scene_info: dict, max_range: float) -
         "points": {p: M.mean_cloud_metrics(acc.cloud[p]) for p in ("los", "nlos")},
         "prf_curve": {p: _mean_curve(acc.curve[p]) for p in ("los", "nlos")},
         "human": M.human_detection_metrics(acc.pred_centres, gt_centres),
+        "human_hidden": M.human_detection_metrics([c for c, h in zip(acc.pred_centres, hid) if h],
+                                                  [c for c, h in zip(gt_centres, hid) if h]),
         "breakdown": M.breakdown(per_scene, keys=("cd", "mhd", "f_score")),
         "per_scene": per_scene,
     }
@@ -216,7 +228,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     max_range = float(rb.max_range)
     index = data.index[:max_frames] if max_frames else data.index
     accs = {m: _Acc() for m in rows}
-    gt_centres, scene_info, beams, gt_nlos_points = [], {}, {}, []
+    gt_centres, hidden, scene_info, beams, gt_nlos_points = [], [], {}, {}, []
     example = None
     ex_pick = len(index) // 2
 
@@ -240,6 +252,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
             g_los = is_los(g_lab)
             gc = _clouds(G, g_los)
             gt_centres.append(M.human_centroids(_human_points(G, is_human(g_lab))))
+            hidden.append(person_hidden(g_lab))
             b_rng = strongest_peaks(hm, rb, k=3)
             if model is None:  # oracle: the ground truth is the prediction
                 p_j, h_j = g_rng, is_human(g_lab).astype(np.float32)
@@ -268,7 +281,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                 if stage2 is not None:
                     example["clouds"].update(pcs)
 
-    methods = {m: summarise(accs[m], gt_centres, scene_info, max_range) for m in rows}
+    methods = {m: summarise(accs[m], gt_centres, scene_info, max_range, hidden) for m in rows}
     doc = {
         "format": "holodata-metrics-1",
         "dataset": str(dataset_url), "split": split, "checkpoint": "oracle" if oracle else str(checkpoint),
@@ -280,7 +293,8 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                      "train_epochs": int(ck.get("epoch", 0)), "estimator": run.point_estimator,
                      "beam_origin": {sid: b.origin.to_attrs() for sid, b in beams.items()},
                      "stage2": _stage2_settings(ck2),
-                     "gt_nlos_points_per_frame": float(np.mean(gt_nlos_points)) if gt_nlos_points else 0.0},
+                     "gt_nlos_points_per_frame": float(np.mean(gt_nlos_points)) if gt_nlos_points else 0.0,
+                     "frames_hidden_person": int(sum(hidden))},
         "methods": methods,
         "figures": [],
     }
@@ -307,7 +321,7 @@ def _stage2_settings(ck2) -> str:
     refined = ck2["epoch"] > c["epochs_rt"]
     return (f"learned: hybrid ray tracer ({c['epochs_rt']} epochs)"
             + (f" + voxel refiner ({ck2['epoch'] - c['epochs_rt']} epochs, {c['voxel'] * 100:.0f} cm voxels, "
-               f"kept where P(empty) < {(ck2.get('keep') or {}).get('threshold', 0.5):g})" if refined else ""))
+               f"points kept where P(empty) < {(ck2.get('keep') or {}).get('threshold', 0.5):g})" if refined else ""))
 
 
 def _sample(e: np.ndarray) -> np.ndarray:

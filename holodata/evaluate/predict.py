@@ -102,7 +102,7 @@ class Predictor:
 
     def points(self, rng: np.ndarray, human: np.ndarray | None, geo: FrameGeometry, grid: Grid) -> dict:
         """Stage two of the "model" row for one frame: {point (…,3) radar frame, los (…) bool,
-        human (…) bool} — the refined voxel cloud (or the learned ray tracer's points) when the run
+        human (…) bool} — the refined cloud (or the learned ray tracer's points) when the run
         has a learned stage two, else the analytic un-mirroring with the free-space LOS test.
         ``grid``: the run's strided grid (:func:`holodata.conventions.reduced_grid`)."""
         if self.stage2 is not None:

@@ -284,9 +284,10 @@ def format_tables(doc: dict) -> str:
         keys = ("mean_cm", "median_cm", "p90_cm")
         cells = "   ".join(" ".join(f(r["range"][f"bounce_{b}"][k]) for k in keys) for b in (1, 2, 3))
         lines.append(f"  {m:<15} {cells}")
-    lines.append("point clouds             LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F %")
+    lines.append("point clouds             LOS CD cm / MHD cm / F %     NLOS CD cm / MHD cm / F %     human F % (all / hidden)")
     for m, r in doc["methods"].items():
         p = r["points"]
         lines.append(f"  {m:<15} " + " ".join(f(p["los"][k], 100) for k in ("cd", "mhd", "f_score")) + "   "
-                     + " ".join(f(p["nlos"][k], 100) for k in ("cd", "mhd", "f_score")) + "   " + f(r["human"]["f_score"], 100))
+                     + " ".join(f(p["nlos"][k], 100) for k in ("cd", "mhd", "f_score")) + "   " + f(r["human"]["f_score"], 100)
+                     + " / " + f(r.get("human_hidden", {}).get("f_score"), 100))
     return "\n".join(lines)

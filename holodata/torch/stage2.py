@@ -19,6 +19,8 @@ Shapes: ``R`` (N,3,H,W) accumulated travel distance per bounce (NaN = none), ``o
   per-voxel class (empty / human / structure) + offset; loss eq. 7 with the EDT distance term.
   A refined voxel's LOS flag and human probability are the means over its input points
   (:func:`voxel_point_mean`): LOS is geometry (visible in the first-bounce image), not learned.
+  At inference the refined cloud is the input points of the kept voxels
+  (:meth:`holodata.torch.stage2_infer.Stage2.predict`); the offset head is a training target only.
 
 Local beam frame: per pixel ``[d, e_φ, e_θ]`` with ``e_φ = normalize(ẑ × d)`` and
 ``e_θ = d × e_φ`` (the directions of increasing azimuth and elevation of a grid beam). The

@@ -43,6 +43,22 @@ class Frames:
     def __len__(self) -> int:
         return len(self.range)
 
+    def subset(self, idx) -> "Frames":
+        """The frames ``idx`` (indices into this set), stage-one predictions included."""
+        idx = np.asarray(idx, int)
+        pick = lambda a: None if a is None else a[idx]  # noqa: E731
+        return Frames(self.range[idx], self.label[idx], self.gt_point[idx], self.gt_normal[idx], self.origins[idx],
+                      self.directions[idx], pick(self.s1_range), pick(self.s1_human), [self.keys[i] for i in idx])
+
+
+CALIBRATION_FRAMES = 40
+
+
+def calibration_index(n: int, max_frames: int = CALIBRATION_FRAMES) -> np.ndarray:
+    """The evenly spaced frames (of ``n``) the operating points are calibrated on (:func:`calibrate_gate`,
+    :func:`calibrate_keep`): at most ``max_frames``, first and last included."""
+    return np.unique(np.linspace(0, n - 1, min(max_frames, n)).astype(int))
+
 
 def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: np.ndarray | None = None) -> np.ndarray:
     """(3,H,W) LOS flags of ray-traced points (3,H,W,3): visible in the first-bounce range image
@@ -55,7 +71,7 @@ def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: 
 
 class Stage2:
     """A trained stage two: ``ray_tracer`` (RayTracer) and ``refiner`` (VoxelRefiner or None).
-    ``keep_threshold``: a refined voxel is kept when its P(empty) is below it (calibrated on the
+    ``keep_threshold``: a point is kept when its voxel's P(empty) is below it (calibrated on the
     training frames after training, :func:`calibrate_keep`; 0.5 = the arg-max class); ``min_confidence``
     (per bounce or None): the gate on stage one's returns this stage two was calibrated with
     (:func:`calibrate_gate`), applied by whoever runs stage one for it (``Predictor.ranges``)."""
@@ -71,10 +87,15 @@ class Stage2:
                 grid: Grid, all_voxels: bool = False) -> dict:
         """One frame: R (3,H,W) m NaN = none, human (3,H,W) probability or None, directions/origins
         (H,W,3) → {"no_refine": {point (3,H,W,3), los (3,H,W), human (3,H,W)},
-        "refined": {point (M,3), los (M,), human (M,)} (None without a refiner)}. A refined voxel is
-        LOS when most of its input points are (:func:`los_flags`), human when its input points'
-        mean human probability is ≥ 0.5 or the refiner classes it human. ``all_voxels``: keep every
-        voxel and add ``p_empty`` (M,) (for :func:`calibrate_keep`)."""
+        "refined": {point (M,3), los (M,), human (M,)} (None without a refiner)}.
+
+        The refined cloud is the ray-traced points whose voxel the refiner keeps (P(empty) below
+        ``keep_threshold``), each where the ray tracer put it, LOS as its own flag (:func:`los_flags`),
+        human when its voxel is (its points' mean human probability ≥ 0.5, or the refiner classes it
+        human). Why points and not one refined point per voxel (centre + offset, the paper's output):
+        the F-score at 10 cm measures what a 10 cm voxel's single point gives away on dense surfaces,
+        while the refiner's skill is telling wrong voxels from right ones (docs/design/stage2.md).
+        ``all_voxels``: keep every point and add ``p_empty`` (M,), its voxel's (for :func:`calibrate_keep`)."""
         dev = self.device
         Rt = torch.from_numpy(np.asarray(R, np.float32))[None].to(dev)
         d = torch.from_numpy(np.asarray(directions, np.float32)).to(dev)
@@ -100,12 +121,12 @@ class Stage2:
         prob = torch.softmax(ro["cls_logit"], -1)
         p_empty = prob[:, CLASS_EMPTY].cpu().numpy().astype(np.float64)
         hum = (voxel_point_mean(vox, hf) >= 0.5) | (prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE])
-        ref = {"point": (ro["centre"] + ro["offset"]).cpu().numpy().astype(np.float64),
-               "los": (voxel_point_mean(vox, lf) >= 0.5).cpu().numpy(), "human": hum.cpu().numpy()}
+        pv = vox.point_voxel.cpu().numpy()
+        ref = {"point": P[ok], "los": los[ok], "human": hum.cpu().numpy()[pv]}
         if all_voxels:
-            res["refined"] = {**ref, "p_empty": p_empty}
+            res["refined"] = {**ref, "p_empty": p_empty[pv]}
         else:
-            keep = p_empty < self.keep_threshold
+            keep = p_empty[pv] < self.keep_threshold
             res["refined"] = {k: v[keep] for k, v in ref.items()}
         return res
 
@@ -123,7 +144,7 @@ def apply_gate(rng: np.ndarray, confidence: np.ndarray, min_confidence) -> np.nd
 
 
 def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, grid: Grid, tau: float = 0.10,
-                   max_frames: int = 40, candidates=GATE_CANDIDATES) -> dict:
+                   max_frames: int = CALIBRATION_FRAMES, candidates=GATE_CANDIDATES) -> dict:
     """Stage one's confidence gate for bounces 2 and 3: the ``min_confidence`` per bounce below which
     a return is dropped, chosen to maximise the mean of the LOS and NLOS F-scores at ``tau`` m of the
     un-mirrored points (:func:`holodata.evaluate.unmirror.unmirror` with normals from the range images,
@@ -139,7 +160,7 @@ def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, gr
     from holodata import metrics as M
     from holodata.evaluate.unmirror import los_mask, unmirror
 
-    idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
+    idx = calibration_index(len(frames), max_frames)
     cache = []   # per frame: the ungated points, their LOS flags, confidences and the GT clouds
     for k in idx:
         gp, lab = frames.gt_point[k].astype(np.float64), frames.label[k]
@@ -164,7 +185,7 @@ def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, gr
     return {"min_confidence": gate, "scores": scores}
 
 
-def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10, max_frames: int = 40,
+def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10, max_frames: int = CALIBRATION_FRAMES,
                    candidates=KEEP_CANDIDATES) -> dict:
     """The refiner's keep threshold on P(empty) that maximises the mean of the refined cloud's LOS
     and NLOS F-scores at ``tau`` m (holodata.metrics, as evaluate scores them) over up to
@@ -178,7 +199,7 @@ def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10
 
     if stage2.refiner is None:
         return {"threshold": stage2.keep_threshold, "scores": {}}
-    idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).astype(int))
+    idx = calibration_index(len(frames), max_frames)
     sums = {c: [] for c in candidates}
     for k in idx:
         gp = frames.gt_point[k].astype(np.float64)

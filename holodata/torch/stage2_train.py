@@ -37,7 +37,8 @@ from holodata.safe_io import load_torch
 from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
-from .stage2_infer import STAGE2_CHECKPOINT, Frames, Stage2, apply_gate, calibrate_gate, calibrate_keep, los_flags
+from .stage2_infer import (STAGE2_CHECKPOINT, Frames, Stage2, apply_gate, calibrate_gate, calibrate_keep,
+                           calibration_index, los_flags)
 
 STAGE2_LOG = "stage2_metrics.jsonl"
 
@@ -317,11 +318,13 @@ def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: G
 
 
 def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, grid: Grid, meta: dict | None = None,
-               quiet: bool = False, resume: bool = True, confidence_gate: dict | None = None) -> dict:
+               quiet: bool = False, resume: bool = True, confidence_gate: dict | None = None,
+               calibration: Frames | None = None) -> dict:
     """Train stage two on ``frames`` (on the beam ``grid``) into ``out_dir``/stage2.pt; resumes from
     it when present (same configuration required); ``confidence_gate``: stage one's confidence gate
-    (:func:`calibrate_gate`), stored with the checkpoint. Returns {"checkpoint", "epochs",
-    "resumed_from", "history", "keep", "gate"}."""
+    (:func:`calibrate_gate`), stored with the checkpoint; ``calibration``: the frames the keep
+    threshold is calibrated on (:func:`calibrate_keep`; default ``frames``). Returns {"checkpoint",
+    "epochs", "resumed_from", "history", "keep", "gate"}."""
     from .train import resolve_device, seed_everything
 
     out = Path(out_dir)
@@ -405,7 +408,7 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
         if confidence_gate is not None:
             ck["gate"] = confidence_gate
         if cfg.epochs_refine > 0 and keep is None:  # the operating point of the refined cloud, on the training frames
-            keep = calibrate_keep(Stage2(rt, ref, dev), frames, grid)
+            keep = calibrate_keep(Stage2(rt, ref, dev), frames if calibration is None else calibration, grid)
             ck["keep"], changed = keep, True
         if changed:
             _atomic_save(ck, ck_path)
@@ -437,13 +440,18 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
         shutil.copy2(src_file, out / CHECKPOINT)
     f = int((ck1.get("transform") or {}).get("downsample", 1))
     frames, grid = load_frames(dataset_url, "train", f, cfg.frames_per_scene, quiet=quiet)
-    # stage one's own predictions of the training frames: its confidence gate is calibrated on them
-    # (calibrate_gate), then they are gated as at inference, for the keep threshold and p_stage1
-    s1_range, frames.s1_human, s1_conf = stage1_predictions(dataset_url, ck1, frames.keys, device=cfg.device,
-                                                            quiet=quiet)
-    gate = calibrate_gate(s1_range, s1_conf, frames, grid)
-    frames.s1_range = apply_gate(s1_range, s1_conf, gate["min_confidence"])
+    # stage one's own predictions: its confidence gate is calibrated on them (calibrate_gate), then
+    # they are gated as at inference, for the keep threshold; only the calibration frames need them
+    # unless some are fed to stage two as inputs (p_stage1 > 0)
+    pred = np.arange(len(frames)) if cfg.p_stage1 > 0 else calibration_index(len(frames))
+    cal = frames.subset(pred)
+    s1_range, cal.s1_human, s1_conf = stage1_predictions(dataset_url, ck1, cal.keys, device=cfg.device, quiet=quiet)
+    gate = calibrate_gate(s1_range, s1_conf, cal, grid)
+    cal.s1_range = apply_gate(s1_range, s1_conf, gate["min_confidence"])
+    if cfg.p_stage1 > 0:
+        frames = cal
     meta = {"dataset": str(dataset_url), "grid": ds.grid.to_attrs(), "range_bins": ds.range_bins.to_attrs(),
             "downsample": f, "stage1": str(src_file), "stage1_epoch": int(ck1.get("epoch", 0)),
             "train_frames": len(frames)}
-    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid, meta=meta, quiet=quiet, confidence_gate=gate)
+    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid, meta=meta, quiet=quiet,
+                      confidence_gate=gate, calibration=cal)
