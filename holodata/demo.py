@@ -176,14 +176,13 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
 
     t0 = time.perf_counter()
     warnings: list[str] = []
-    for sid in ids:
-        if mapping == "slam":
-            note = map_with_slam(str(url), sid, quiet=quiet, map_scene=maps.get(sid),
-                                 mesh_poisson_depth=cfg.mesh_poisson_depth)
+    if mapping == "slam":
+        for note in map_scenes_with_slam(str(url), ids, maps, quiet=quiet, mesh_poisson_depth=cfg.mesh_poisson_depth):
             if note:
                 warnings.append(note)
                 say(f"warning: {note}")
-        else:
+    else:
+        for sid in ids:
             map_from_truth(w.scene(sid), recs[sid].truth_dir)
     stage(f"mapping:{mapping}", t0)
 
@@ -376,6 +375,32 @@ def _write_truth_mapping(sc, truth_dir: Path, traj) -> None:
         hf.write_shard(k, faces)
 
 
+def map_scenes_with_slam(url: str, ids: list[str], maps: dict, quiet: bool = True,
+                         mesh_poisson_depth: int | None = None, processes: int | None = None) -> list[str | None]:
+    """:func:`map_with_slam` of every scene of ``ids`` (``maps``: {scene id: its mapping pass}); returns
+    the warning lines (or None) in the order of ``ids``. With ``processes`` >= 2 (default: 2 on two or
+    more CPUs) that many Python processes started fresh (``spawn``) map the scenes, each taking the next
+    one when it is done: one scene's mapping leaves the second core mostly idle (the Poisson
+    reconstruction runs on one thread, and open3d holds the GIL, so threads would not help;
+    ``docs/design/performance.md``, the quick demo). Not forked: slam's open3d runs OpenMP
+    threads, and a process forked from one that ran them can hang (:mod:`holodata.parallel`). Scenes are
+    independent: each process writes only the scene it maps and its mapping pass."""
+    from .parallel import cpus
+
+    procs = min(processes if processes is not None else 2, cpus(), len(ids))
+    if procs < 2:
+        return [map_with_slam(url, sid, quiet, maps.get(sid), mesh_poisson_depth) for sid in ids]
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    pool = ProcessPoolExecutor(max_workers=procs, mp_context=mp.get_context("spawn"))
+    try:
+        futs = [pool.submit(map_with_slam, url, sid, quiet, maps.get(sid), mesh_poisson_depth) for sid in ids]
+        return [f.result() for f in futs]
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
 def map_with_slam(url: str, sid: str, quiet: bool = True, map_scene: str | None = None,
                   mesh_poisson_depth: int | None = None) -> str | None:
     """holodata's own mapping: ``slam`` (LiDAR poses, radar poses, static mesh; with ``map_scene``
@@ -397,5 +422,6 @@ def map_with_slam(url: str, sid: str, quiet: bool = True, map_scene: str | None 
     return None
 
 
-__all__ = ["DemoConfig", "DemoResult", "demo_config", "run_demo", "map_from_truth", "map_with_slam", "map_scene_id",
+__all__ = ["DemoConfig", "DemoResult", "demo_config", "run_demo", "map_from_truth", "map_with_slam",
+           "map_scenes_with_slam", "map_scene_id",
            "synthesize_corners", "truth_scene_attrs", "DEMO_CORNERS"]
