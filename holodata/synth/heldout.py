@@ -19,6 +19,16 @@ This family differs where real recordings do (issue 23):
 * a walking person, human-shaped (:func:`holodata.synth.human.human_mesh`) or a box
   (``person="box"``), in the camera's view.
 
+A second family (issue 43 point 4; ``corner="T"``, ``camera="wall"``, ``walk="across"``) differs from
+both the tuned corners and the one above in corner kind, camera mounting and the person's motion: a
+**T junction**; the robot drives up the approach corridor, stops ``stop_short_m`` before the junction
+and waits ``dwell_s``; the camera is **wall-mounted high** (2.2-2.5 m, below the ceiling) over the
+approach corridor, 1.2-2.0 m before the junction, pitched down across it; the person walks **along the
+T's bar, across the camera's view** (from one branch through the junction into the other), so the
+corridor's corners hide them at each end of the walk (partial views) and they cross the robot's view.
+Its random draws beyond the first family's come from a stream of their own, so the first family's
+recordings are unchanged.
+
 Truth (``truth/``): ``extrinsics.json`` (``T_world_camera_optical`` true, ``T_map_camera_link_tf``
 the guess), ``trajectory_lidar.tum`` (true T_world_lidar at each scan's header stamp),
 ``human/<k:06d>.ply`` (the person at scan k's stamp: frame k of a LiDAR-framed scene),
@@ -59,12 +69,13 @@ class HeldOutConfig:
     """One held-out recording (see the module docstring). Lengths m, angles deg, times s."""
 
     seed: int = 0
+    corner: str = "L"                   # "L" | "T" (the T: walk="across", camera="wall")
     width: float | None = None          # approach corridor width (None: drawn by make_world)
     lidar_rows: int = 64
     lidar_cols: int = 512
     lidar_fov_deg: float = 45.0
     lidar_hz: float = 10.0
-    camera: str = "hidden"              # "hidden" | "robot"
+    camera: str = "hidden"              # "hidden" | "robot" | "wall" (high over the approach corridor)
     camera_output: str = "depth16"      # "depth16" | "cloud"
     camera_shape: tuple = (240, 320)    # (h, w); hfov 87 deg (D435-like)
     camera_hz: float = 15.0
@@ -78,10 +89,19 @@ class HeldOutConfig:
     start_back_m: float | None = None   # robot start this far behind the junction (None: the corridor's end)
     into_hidden_m: float = 1.8          # ... driving this far up the hidden leg
     speed_mps: float = 0.6
+    walk: str = "hidden"                # "hidden": up and down the hidden leg; "across": along the T's bar
+    stop_short_m: float | None = None   # the robot stops this far before the junction (None: drives through)
+    dwell_s: float = 5.0                # ... and waits this long there
 
     def check(self) -> None:
-        if self.camera not in ("hidden", "robot"):
-            raise InputError(f"camera must be 'hidden' or 'robot', got {self.camera!r}")
+        if self.corner not in ("L", "T"):
+            raise InputError(f"corner must be 'L' or 'T', got {self.corner!r}")
+        if self.camera not in ("hidden", "robot", "wall"):
+            raise InputError(f"camera must be 'hidden', 'robot' or 'wall', got {self.camera!r}")
+        if self.walk not in ("hidden", "across"):
+            raise InputError(f"walk must be 'hidden' or 'across', got {self.walk!r}")
+        if self.walk == "across" and self.corner != "T":
+            raise InputError("walk='across' walks along a T junction's bar: it needs corner='T'")
         if self.camera_output not in ("depth16", "cloud"):
             raise InputError(f"camera_output must be 'depth16' or 'cloud', got {self.camera_output!r}")
         if self.person not in ("human", "box"):
@@ -162,7 +182,8 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
     truth_dir = out_dir / "truth"
     (truth_dir / "human").mkdir(parents=True, exist_ok=False)
     rng = np.random.default_rng([int(cfg.seed), 23])
-    world, furniture = _furnished(make_world("L", cfg.width, cfg.seed), cfg.furniture, rng)
+    world, furniture = _furnished(make_world(cfg.corner, cfg.width, cfg.seed), cfg.furniture, rng)
+    rng2 = np.random.default_rng([int(cfg.seed), 43])   # the second family's own draws (module docstring)
     sgn = -1.0 if world.mirrored else 1.0
     hw, w2 = world.width / 2, world.hidden_width
     origin, u, L, bw = world.hidden_axis
@@ -170,8 +191,11 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
     la = -float(world.floor_polygon[:, 0].min())
     back = min(la - 1.0, cfg.start_back_m if cfg.start_back_m is not None else la - 1.0)
     path = np.array([[-back, 0.0], [w2 / 2, 0.0], [w2 / 2, sgn * (hw + cfg.into_hidden_m)]])
+    t_end = 0.6
+    if cfg.stop_short_m is not None:      # up the approach corridor, then waiting short of the junction
+        path, t_end = np.array([[-back, 0.0], [-min(float(cfg.stop_short_m), back - 0.5), 0.0]]), float(cfg.dwell_s)
     t0 = (1_700_000_000 + int(cfg.seed) * 3600) * 1_000_000_000
-    truth, tinfo = path_trajectory(path, t0, rng, speed=cfg.speed_mps, t_start=0.6, t_end=0.6)
+    truth, tinfo = path_trajectory(path, t0, rng, speed=cfg.speed_mps, t_start=0.6, t_end=t_end)
     odom, oinfo = odometry(truth, rng, rate_hz=TF_HZ, scale_error=float(rng.choice([-1, 1])) * cfg.odom_scale,
                            yaw_bias_dps=float(rng.uniform(-0.1, 0.1)))
     T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
@@ -184,6 +208,10 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
     s_b = min(s_a + float(rng.uniform(1.5, 2.5)), L - 1.6)
     walk = HumanWalk(origin + u * s_a + nrm * lat, origin + u * max(s_b, s_a + 0.5) + nrm * lat,
                      float(rng.uniform(0.5, 1.1)), height, float(rng.uniform(0, 1)))
+    if cfg.walk == "across":   # along the T's bar: from the other branch, through the junction, up this one
+        x = w2 / 2 + min(0.25 * w2, 0.3) * float(rng2.uniform(0.0, 1.0))
+        ya, yb = -(hw + float(rng2.uniform(1.2, 2.0))), hw + float(rng2.uniform(1.2, 2.0))
+        walk = HumanWalk(np.array([x, sgn * ya]), np.array([x, sgn * yb]), walk.speed, height, walk.phase0)
     person = walk if cfg.person == "human" else _BoxPerson(walk)
     # the camera
     if cfg.camera == "hidden":
@@ -192,6 +220,10 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
     else:
         eye = np.r_[w2 - 0.25, sgn * (-hw + 0.25), float(rng.uniform(1.2, 1.8))]
         target = np.r_[origin + u * (0.5 * L), 0.7]
+    if cfg.camera == "wall":   # high over the approach corridor, pitched down across the junction
+        eye = np.r_[-float(rng2.uniform(1.2, 2.0)), float(rng2.uniform(-0.3, 0.3)) * hw,
+                    min(float(rng2.uniform(2.2, 2.5)), world.height - 0.15)]
+        target = np.r_[0.55 * w2, 0.0, 0.9]
     T_world_link = look_at(eye, target)
     T_world_opt = T_world_link @ T_LINK_OPTICAL
     T_guess_link = T_world_link @ _perturbation(rng, cfg.guess_cm, cfg.guess_deg)
