@@ -65,7 +65,7 @@ from .raytrace.humans import (
     mesh_sha256,
     points_to_mesh,
 )
-from .raytrace.pool import Helper, _bounded_imap, _slot_bytes, _slot_views, _worker_init, run_with_helper
+from .raytrace.pool import Helper, _bounded_imap, _slot_bytes, _slot_views, _worker_init, can_fork, run_with_helper
 from .trajectory import Trajectory, read_tum
 
 
@@ -74,7 +74,8 @@ class TracingError(HolodataError, RuntimeError):
 
 
 POOL_MIN_FRAMES = 1000
-HELPER_MIN_FRAMES = 200
+HELPER_MIN_FRAMES = 200          # a forked helper process: its static scene to build
+HELPER_SPAWN_MIN_FRAMES = 600    # a spawned one: an interpreter and the imports too (docs/design/raytrace.md)
 
 
 def auto_processes(n_frames: int) -> int:
@@ -86,13 +87,15 @@ def auto_processes(n_frames: int) -> int:
     return 1 if n_frames < POOL_MIN_FRAMES or n_cpus < 2 else min(n_cpus, 4)
 
 
-def auto_helper(n_frames: int, processes: int = 0) -> bool:
+def auto_helper(n_frames: int, processes: int = 0, backend: str = "open3d") -> bool:
     """Whether an in-process run of ``n_frames`` frames gets a :class:`~holodata.raytrace.pool.Helper`
     process beside its tracing threads: with the automatic choice (``processes`` 0), on two cores or
-    more, from HELPER_MIN_FRAMES frames up to where the pool takes over. Its start-up (a fork: its
-    static scene and compiled kernels, ~0.3-0.5 s of CPU; spawned ~1.5 s) is what shorter runs do
-    not earn back (docs/design/raytrace.md)."""
-    return processes <= 0 and cpus() >= 2 and auto_processes(n_frames) == 1 and n_frames >= HELPER_MIN_FRAMES
+    more, up to where the pool takes over, from HELPER_MIN_FRAMES frames when this process may fork
+    it (:func:`holodata.raytrace.pool.can_fork`), else from HELPER_SPAWN_MIN_FRAMES. Its start-up is
+    what shorter runs do not earn back (docs/design/raytrace.md)."""
+    if processes > 0 or cpus() < 2 or auto_processes(n_frames) != 1:
+        return False
+    return n_frames >= (HELPER_MIN_FRAMES if can_fork(backend) else HELPER_SPAWN_MIN_FRAMES)
 
 
 def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
@@ -132,8 +135,8 @@ def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: Huma
         for a in arrays.values():  # fold the workers' manifest records into attrs (idempotent)
             a._consolidate()
     elif workers == 1 or n_traced == 0:
-        own = Helper(mesh, cfg, traj, human, cycles) if helper is None and n_traced and auto_helper(n_traced, processes) \
-            else None
+        own = Helper(mesh, cfg, traj, human, cycles) \
+            if helper is None and n_traced and auto_helper(n_traced, processes, cfg.backend) else None
         helper = helper or own
         try:
             tracer = FrameTracer(mesh, cfg, traj, human, cycles) if n_traced else None
@@ -296,8 +299,8 @@ def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str,
     scene = _make_scene(*mesh_args, cfg)
     # inputs are valid: the helper process starts now (forked before this process casts, with the
     # compiled kernels the scene loaded), so that its start-up overlaps the output's creation
-    helper = Helper(mesh_args, cfg, traj, hsrc, cycles) if client is None and auto_helper(len(traj), processes) \
-        else None
+    helper = Helper(mesh_args, cfg, traj, hsrc, cycles) \
+        if client is None and auto_helper(len(traj), processes, cfg.backend) else None
     try:
         return _standalone(mesh_path, poses_path, out, mesh, mesh_args, scene, traj, hsrc, cycles, columns, origin,
                            scene_id, cfg, quiet, processes, client, helper)
@@ -499,4 +502,5 @@ __all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "column_rays_
            "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "gt_attrs", "raytrace_standalone",
            "raytrace_dataset", "standalone_cycles",
            "HumanSource", "HumanDir", "HumanFile", "HumanDataset", "GT_ARRAYS", "TracingError",
-           "MESH_EXTS", "HUMAN_SPLAT_RADIUS_M", "file_sha256", "mesh_sha256", "auto_processes", "POOL_MIN_FRAMES"]
+           "MESH_EXTS", "HUMAN_SPLAT_RADIUS_M", "file_sha256", "mesh_sha256", "auto_processes", "POOL_MIN_FRAMES",
+           "auto_helper", "HELPER_MIN_FRAMES", "HELPER_SPAWN_MIN_FRAMES"]

@@ -121,16 +121,16 @@ def test_background_writer_error_surfaces_and_the_rerun_completes(inputs, monkey
 
 # -- a helper process beside the threads (holodata.raytrace.pool.run_with_helper) ----------------------
 class DieInChild(HumanSource):
-    """No human; kills the process that asks for frame ``frame`` unless it is the one that made it
-    (as a signal or the OOM killer would kill a helper), which is slow (the helper takes frames)."""
+    """No human; kills any other process that asks for a frame (as a signal or the OOM killer would
+    kill a helper); slow in the process that made it, so that the helper is handed frames."""
 
-    def __init__(self, frame):
-        self.frame, self.parent = frame, os.getpid()
+    def __init__(self):
+        self.parent = os.getpid()
 
     def __call__(self, k):
         if os.getpid() == self.parent:
             time.sleep(0.2)
-        elif k == self.frame:
+        else:
             os.kill(os.getpid(), signal.SIGKILL)
         return None
 
@@ -181,14 +181,14 @@ def test_helper_frames_error_is_raised_in_order(inputs):
 
 
 def test_a_killed_helper_leaves_its_frames_to_this_process(inputs):
-    """The helper dies (SIGKILL) on frame 4: the frames it held are traced here, every frame comes
-    out once, in order, as the sequential trace."""
+    """The helper dies (SIGKILL) on the first frame it is handed: the frames it held are traced
+    here, every frame comes out once, in order, as the sequential trace."""
     from holodata.raytrace.pool import run_with_helper
 
     want = [_tracer(inputs, HumanSource())(f) for f in range(T)]
-    with _helper(inputs, DieInChild(4)) as helper:
-        helper.ready.result()
-        got = list(run_with_helper(_tracer(inputs, DieInChild(4)), range(T), 1, helper))
+    with _helper(inputs, DieInChild()) as helper:
+        helper.ready.result()   # started: its feeders hand it frames 1 and 2 while frame 0 is traced here
+        got = list(run_with_helper(_tracer(inputs, DieInChild()), range(T), 1, helper))
         with pytest.raises(BrokenProcessPool):   # it did die
             helper.pool.submit(os.getpid)
     assert len(got) == T
@@ -260,3 +260,17 @@ def test_no_fork_once_open3d_has_cast():
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                        cwd=os.path.dirname(__file__))
     assert r.stdout.split() == ["True", "False", "False"]
+
+
+def test_auto_helper_frame_counts(monkeypatch):
+    import holodata.groundtruth as gt
+
+    monkeypatch.setattr(gt, "cpus", lambda: 2)
+    monkeypatch.setattr(gt, "can_fork", lambda backend: True)
+    assert [gt.auto_helper(n) for n in (gt.HELPER_MIN_FRAMES - 1, gt.HELPER_MIN_FRAMES, gt.POOL_MIN_FRAMES - 1,
+                                         gt.POOL_MIN_FRAMES)] == [False, True, True, False]
+    assert not gt.auto_helper(500, processes=1) and not gt.auto_helper(500, processes=2)
+    monkeypatch.setattr(gt, "can_fork", lambda backend: False)   # spawned: it has to earn an interpreter back
+    assert [gt.auto_helper(n) for n in (gt.HELPER_SPAWN_MIN_FRAMES - 1, gt.HELPER_SPAWN_MIN_FRAMES)] == [False, True]
+    monkeypatch.setattr(gt, "cpus", lambda: 1)
+    assert not gt.auto_helper(gt.HELPER_SPAWN_MIN_FRAMES)

@@ -115,7 +115,7 @@ def can_fork(backend: str) -> bool:
     thread pool in the child's way (the full ``open3d`` package, torch) is loaded. A fork copies only
     the calling thread: a pool started before would be missing in the child, its locks in whatever
     state the fork found them (numpy's and scipy's OpenBLAS reset theirs at a fork). Forking costs the
-    helper no interpreter and no imports (~1 s of CPU when spawned)."""
+    helper no interpreter and no imports (docs/design/raytrace.md: its start-up, forked and spawned)."""
     return (sys.platform.startswith("linux") and backend == "open3d" and not open3d_has_cast()
             and threading.active_count() == 1 and not any(m in sys.modules for m in ("open3d", "torch")))
 
