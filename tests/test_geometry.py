@@ -1,5 +1,7 @@
 """Analytic tests of the geometry core (holodata/geometry): voxel keys and averaging, plane fits,
-the point-to-plane Gauss-Newton step and ICP (exact recovery, held directions)."""
+the per-neighbourhood plane projection and its compiled ball sums (against brute force and the
+sparse-matrix road they replace), the point-to-plane Gauss-Newton step and ICP (exact recovery, held
+directions)."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,9 +10,10 @@ from scipy.spatial.transform import Rotation
 
 from holodata.geometry import (about_origin, centred_offset, cell_keys, dense_box, first_per_voxel, fit_height_plane,
                                fit_plane, flat_index, gauss_newton_step, hold_at, moved_by, point_to_plane_icp,
-                               ransac_plane, tukey_weights, unique_voxels, unpack_keys, voxel_average, voxel_index,
-                               voxel_keys)
+                               local_plane_projection, ransac_plane, tukey_weights, unique_voxels, unpack_keys,
+                               voxel_average, voxel_index, voxel_keys)
 from holodata.geometry import voxels as V
+from holodata.geometry._ball_kernel import ball_moments
 
 
 def _pose(t, rotvec_deg) -> np.ndarray:
@@ -102,6 +105,64 @@ def test_ransac_plane_of_an_exact_plane_among_outliers_is_that_plane():
     s = np.sign(n @ nrm)
     np.testing.assert_allclose(s * n, nrm, atol=1e-12)
     assert s * d == pytest.approx(0.5, abs=1e-12) and k == 3000
+
+
+def _csr_plane_projection(X, radius, ratio=0.1, min_nn=6, only=None):
+    """local_plane_projection as it was written before the compiled kernel: neighbour pairs from
+    scipy's cKDTree, moments by a sorted sparse matrix times the points (the reference to the bit)."""
+    from scipy.sparse import csr_matrix
+    from scipy.spatial import cKDTree
+
+    idx = np.arange(len(X)) if only is None else np.flatnonzero(only)
+    nb = cKDTree(X[idx]).sparse_distance_matrix(cKDTree(X), radius, output_type="ndarray")
+    A = csr_matrix((np.ones(len(nb)), (nb["i"], nb["j"])), shape=(len(idx), len(X)))
+    cnt = np.asarray(A.sum(1)).ravel()
+    mu = (A @ X) / cnt[:, None]
+    C = ((A @ (X[:, :, None] * X[:, None, :]).reshape(-1, 9)) / cnt[:, None]).reshape(-1, 3, 3) \
+        - mu[:, :, None] * mu[:, None, :]
+    w, V_ = np.linalg.eigh(C)
+    n = V_[:, :, 0]
+    ok = (cnt >= min_nn) & (w[:, 0] < ratio * w[:, 1])
+    out = X.copy()
+    out[idx[ok]] -= np.einsum("ij,ij->i", X[idx] - mu, n)[ok, None] * n[ok]
+    return out
+
+
+def test_ball_moments_are_the_brute_force_sums_over_each_ball():
+    """Counts, sums and second moments of every query's ball against all pairs' distances in numpy;
+    a lattice puts many pairs exactly at the radius (included, as cKDTree includes them), and a
+    cloud spread over 1e8 m widens the grid's cells beyond the radius (still every neighbour)."""
+    rng = np.random.default_rng(5)
+    clouds = [(rng.uniform(-1, 1, (1500, 3)) * [1.0, 2.0, 0.5], 0.2),
+              (np.round(rng.uniform(0, 1, (800, 3)) * 10) / 10, 0.1),
+              (np.concatenate([rng.uniform(0, 1, (300, 3)), rng.uniform(0, 1, (300, 3)) + 1e8]), 0.3)]
+    for X, r in clouds:
+        q = rng.choice(len(X), len(X) // 3, replace=False)
+        cnt, s1, s2 = ball_moments(X, r, q)
+        d2 = (((X[q, None, :] - X[None, :, :]) ** 2)).sum(-1)
+        inside = d2 <= r * r
+        assert np.array_equal(cnt, inside.sum(1)) and (cnt >= 1).all()
+        np.testing.assert_allclose(s1, inside @ X, rtol=1e-12, atol=1e-9)
+        np.testing.assert_allclose(s2, inside @ (X[:, :, None] * X[:, None, :]).reshape(-1, 9), rtol=1e-12, atol=1e-6)
+    cnt, s1, s2 = ball_moments(np.zeros((0, 3)), 0.1)
+    assert cnt.shape == (0,) and s1.shape == (0, 3) and s2.shape == (0, 9)
+
+
+def test_local_plane_projection_equals_the_sparse_matrix_road_to_the_bit():
+    """The compiled neighbourhood sums take each ball's points in ascending index order, as the
+    sorted CSR product did: the projected cloud is the same bits (random clutter, noisy planes and a
+    lattice with pairs at exactly the radius; all points and a subset)."""
+    rng = np.random.default_rng(6)
+    xy = rng.uniform(0, 3, (4000, 2))
+    planes = np.concatenate([np.c_[xy, 0.01 * rng.normal(size=len(xy))],
+                             np.c_[xy[:, :1], np.full(len(xy), 3.0) + 0.01 * rng.normal(size=len(xy)), xy[:, 1:]]])
+    for X, r in ((rng.uniform(0, 2, (5000, 3)), 0.15), (planes + [10.0, -20.0, 1.5], 0.3),
+                 (np.round(rng.uniform(0, 1, (3000, 3)) * 20) / 20, 0.1)):
+        only = rng.uniform(size=len(X)) < 0.4
+        for sel in (None, only):
+            got = local_plane_projection(X, r, only=sel)
+            assert np.array_equal(got, _csr_plane_projection(X, r, only=sel))
+            assert (got != X).any()
 
 
 # ------------------------------------------------------------------------------------ ICP

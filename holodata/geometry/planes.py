@@ -50,32 +50,22 @@ def ransac_plane(points: np.ndarray, dist: float, iterations: int, rng) -> tuple
 
 
 def local_plane_projection(points: np.ndarray, radius: float, ratio: float = 0.1, min_nn: int = 6,
-                           only: np.ndarray | None = None, chunk: int = 4096) -> np.ndarray:
+                           only: np.ndarray | None = None) -> np.ndarray:
     """Denoised copy of a point cloud (N,3): each point moved along the normal of the plane fitted
     (PCA) to its neighbours within ``radius`` onto that plane, where the neighbourhood is planar (smallest
     covariance eigenvalue < ``ratio`` × the middle one) and holds >= ``min_nn`` points; other points
     (edges, corners, clutter) stay. ``only`` (N,) bool: project just those (their neighbourhoods still
-    span every point). Vectorised: neighbour pairs (scipy ``sparse_distance_matrix``), first and second
-    moments by a sparse product, batched 3×3 eigen-decompositions."""
-    from scipy.sparse import csr_matrix
-    from scipy.spatial import cKDTree
+    span every point). The neighbourhoods' first and second moments come from a compiled grid search
+    (:func:`holodata.geometry._ball_kernel.ball_moments`: a 0.3 m ball on a 4 cm map holds ~400
+    points, 17 M pairs for 41 k points, which a sparse neighbour matrix held and sorted in memory),
+    then batched 3×3 eigen-decompositions."""
+    from ._ball_kernel import ball_moments
 
     X = np.asarray(points, np.float64).reshape(-1, 3)
     idx = np.arange(len(X)) if only is None else np.flatnonzero(only)
     if len(idx) == 0 or radius <= 0:
         return X.copy()
-    # neighbours (itself included) of just the projected points, a chunk at a time: a 0.3 m ball on
-    # a 4 cm map holds ~400 points (17 M pairs for 41 k points; 1.5 GB at once)
-    tree = cKDTree(X)
-    XX = (X[:, :, None] * X[:, None, :]).reshape(-1, 9)
-    cnt, mu, C = np.empty(len(idx)), np.empty((len(idx), 3)), np.empty((len(idx), 9))
-    for s in range(0, len(idx), chunk):
-        q = idx[s:s + chunk]
-        nb = cKDTree(X[q]).sparse_distance_matrix(tree, radius, output_type="ndarray")
-        A = csr_matrix((np.ones(len(nb)), (nb["i"], nb["j"])), shape=(len(q), len(X)))
-        cnt[s:s + len(q)] = np.asarray(A.sum(1)).ravel()
-        mu[s:s + len(q)] = A @ X
-        C[s:s + len(q)] = A @ XX
+    cnt, mu, C = ball_moments(X, radius, idx)
     mu /= cnt[:, None]
     C = (C / cnt[:, None]).reshape(-1, 3, 3) - mu[:, :, None] * mu[:, None, :]
     w, V = np.linalg.eigh(C)
