@@ -210,7 +210,8 @@ def pixel_runs(rows: np.ndarray, cols: np.ndarray, gap: int = 1) -> tuple[np.nda
 
 def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, eye: np.ndarray,
                  fx: float, lo: float, hi: float, gap: int = 2, floor_z: float | None = None,
-                 floor_reach_m: float = 0.35, back_frac: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                 floor_reach_m: float = 0.35, back_frac: float = 0.0,
+                 side_frac: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The solid behind a person's visible front, one horizontal column per human pixel.
 
     ``points_world`` (N,3) the pixels' points (map frame), ``rows``/``cols`` (N,) their pixels,
@@ -233,7 +234,10 @@ def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, d
     person's far foot, hidden behind the near one in stride). ``back_frac``:
     every column's far end goes ``back_frac`` · D further back (the front stays): a person walking along
     the view hides the far leg and arm behind the near ones (register: ``walk_back_frac`` scaled by
-    :func:`radial_speed`)."""
+    :func:`radial_speed`). ``side_frac``: the far end of the columns of a run that is alone in its image
+    row goes ``side_frac`` · D further back (a person walking across the view, :func:`side_back`: the
+    far arm, shoulder and leg hidden behind the near ones); where a row shows several runs (legs apart
+    in stride, an arm beside the torso) each is a limb seen whole, as deep as wide."""
     p = np.asarray(points_world, np.float64).reshape(-1, 3)
     n = len(p)
     z = np.asarray(depth, np.float64)
@@ -265,8 +269,10 @@ def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, d
     # (an even run whose two middle values lie more than ``hi`` apart has none near its median: the median)
     centre = np.where(n_near > 0, np.bincount(rid, est * near, minlength=nr) / np.maximum(n_near, 1), med)
     off = centre[rid] - rho
+    run_row = rows[order][start]                      # each run's image row
+    alone = (np.bincount(run_row - run_row.min(), minlength=1)[run_row - run_row.min()] == 1)[rid]
     span = np.empty((n, 2))
-    span[order] = np.stack([off - h, off + h + back_frac * D], 1)
+    span[order] = np.stack([off - h, off + h + (back_frac + side_frac * alone) * D], 1)
     down = np.full(n, np.nan)
     if floor_z is not None and np.isfinite(floor_z):
         oc = np.lexsort((-rows, cols))              # per image column, the lowest pixel (largest row) first
@@ -523,6 +529,63 @@ def radial_speed(centroids: np.ndarray, cam_ts: np.ndarray, eye: np.ndarray,
                 if np.linalg.norm(v) <= max_speed:
                     out[k] = max(out[k], abs(float(v @ u)) / nu)
     return out
+
+
+def track_heading_velocity(centroids: np.ndarray, t_ns: np.ndarray, half_window_s: float = 0.5,
+                           max_speed: float = RegisterConfig.max_speed_mps) -> np.ndarray:
+    """(T,2) plan velocity (m/s) of the centroid track ``centroids`` (T,3) (NaN: no detection) at stamps
+    ``t_ns`` (T,) (0: none): the least-squares slope of the detections within ``half_window_s`` either
+    side (at least three, spanning at least half of ``half_window_s``: one-sided at the track's ends),
+    zero where there are fewer or it is faster than ``max_speed``. A slope over a second averages a
+    far person's per-frame centroid noise that central differences over two frames (:func:`track_velocity`)
+    would turn into a velocity: the direction is the person's heading, not the noise's."""
+    c = np.asarray(centroids, float)
+    out = np.zeros((len(c), 2))
+    t_all = np.asarray(t_ns, np.int64)
+    idx = np.flatnonzero(np.isfinite(c).all(1) & (t_all != 0))
+    if len(idx) < 3:
+        return out
+    t = (t_all[idx] - t_all[idx[0]]) / 1e9
+    xy = c[idx, :2]
+    lo = np.searchsorted(t, t - half_window_s, "left")
+    hi = np.searchsorted(t, t + half_window_s, "right")
+    for j, k in enumerate(idx):
+        tt, pp = t[lo[j]:hi[j]], xy[lo[j]:hi[j]]
+        if len(tt) < 3 or tt[-1] - tt[0] < 0.5 * half_window_s:
+            continue
+        dt = tt - tt.mean()
+        v = dt @ (pp - pp.mean(0)) / (dt @ dt)
+        if np.linalg.norm(v) <= max_speed:
+            out[k] = v
+    return out
+
+
+def side_back(centroids: np.ndarray, t_ns: np.ndarray, eye: np.ndarray, ratio: float,
+              heading_speed: float = RegisterConfig.heading_speed_mps,
+              max_speed: float = RegisterConfig.max_speed_mps) -> np.ndarray:
+    """(T,) how much deeper than its visible width's model a walking body is along the camera's view,
+    as a fraction of that model's depth (:func:`body_columns`' ``back_frac``).
+
+    A body's cross-section is about an ellipse ``ratio`` (breadth across the shoulders / depth, about
+    2) times as wide across the person's heading as along it. :func:`body_columns` models the depth
+    along the view from what the camera sees, the front: a torso capped at its depth, limbs as deep as
+    wide. That is right for a person facing the camera or walking along its view; one walking across
+    it shows their side, and the far arm, leg and shoulder are hidden behind the near ones. The ellipse
+    with axes ``ratio`` · B (across the heading) and B (along it) is sqrt(``ratio``² sin²ψ + cos²ψ) · B
+    deep along a view at angle ψ to the heading: the far end goes that, less 1, times the model's depth
+    further back. ψ is between the plan direction from ``eye`` (3,) to each centroid (``centroids``
+    (T,3), NaN: none; stamps ``t_ns`` (T,)) and the track's heading (:func:`track_heading_velocity`),
+    weighted by min(1, speed / ``heading_speed``): a person standing still has no heading, and gets 0."""
+    c = np.asarray(centroids, float)
+    v = track_heading_velocity(c, t_ns, max_speed=max_speed)
+    u = c[:, :2] - np.asarray(eye, float)[:2]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u /= np.linalg.norm(u, axis=1, keepdims=True)
+        speed = np.linalg.norm(v, axis=1)
+        cos = np.abs(np.sum(u * v, axis=1)) / speed
+    sin2 = np.clip(1.0 - np.nan_to_num(cos, nan=1.0) ** 2, 0.0, 1.0)
+    deeper = np.sqrt(ratio ** 2 * sin2 + (1.0 - sin2)) - 1.0
+    return np.where(speed > 0, deeper * np.minimum(1.0, speed / heading_speed), 0.0)
 
 
 def column_centroid(points_world: np.ndarray, eye: np.ndarray, span: np.ndarray, pixel_m: np.ndarray,

@@ -17,8 +17,8 @@ from ...parallel import fork_call
 from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
                      static_depth)
 from .config import RegisterConfig, Registration
-from .humans import (body_columns, closed_surface, column_centroid, pick_human, radial_speed, static_residual,
-                     track_jumps, track_prediction, velocity_shift)
+from .humans import (body_columns, closed_surface, column_centroid, pick_human, radial_speed, side_back,
+                     static_residual, track_jumps, track_prediction, velocity_shift)
 from .tracks import track_smooth
 
 # the floor under a person: the FLOOR_PERCENTILE-th percentile of the map's heights within
@@ -183,9 +183,15 @@ def floor_below(M: np.ndarray, centre: np.ndarray | None) -> float | None:
 def body_only(qw: np.ndarray, hm: np.ndarray, eye: np.ndarray, floor_z: float | None, cfg: RegisterConfig) -> np.ndarray:
     """The pick ``hm`` (N,) bool of the world points ``qw`` (N,3) without stereo streaks along the rays
     (a body is at most ``max_depth_spread_m`` deep along the view from ``eye``) and floor returns at
-    the feet (``floor_margin_m`` above ``floor_z``)."""
+    the feet (``floor_margin_m`` above ``floor_z``).
+
+    The depth along the view is the plan (horizontal) distance from the eye, as in :func:`body_columns`:
+    a standing body is a vertical column, and its depth is horizontal. The 3-D range also grows with
+    the height below a camera mounted above the person (2.5 m away in plan under a camera 2.4 m up, the
+    feet are 0.6 m farther than the torso), so a cut on it takes the legs away and lifts the solid
+    (issue 43; docs/design/register.md, "A camera above the person")."""
     if hm.any():
-        rng_ = np.linalg.norm(qw - eye, axis=1)
+        rng_ = np.linalg.norm(qw[:, :2] - eye[:2], axis=1)
         mid = np.median(rng_[hm])
         hm &= np.abs(rng_ - mid) <= cfg.max_depth_spread_m
         if floor_z is not None:
@@ -246,11 +252,13 @@ def pick_track(cand: list, M: np.ndarray, eye: np.ndarray, f_px: float, t_cam: n
 
 def body_columns_of(picks: Picks, eye: np.ndarray, f_px: float, cts: np.ndarray, cfg: RegisterConfig) -> list:
     """Step 5, the solid behind each frame's visible front (:func:`body_columns`): deeper behind a
-    person walking along the view (the far leg) by ``walk_back_frac`` at ``walk_back_speed_mps``."""
+    person walking along the view (the far leg) by ``walk_back_frac`` at ``walk_back_speed_mps``, and
+    behind one walking across it (the far side, :func:`side_back`: ``breadth_m`` / ``thickness_m``)."""
     cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in picks.points], float)
     walk = cfg.walk_back_frac * np.minimum(1.0, radial_speed(cen, cts, eye, cfg.max_speed_mps) / cfg.walk_back_speed_mps)
+    side = side_back(cen, cts, eye, cfg.breadth_m / cfg.thickness_m, cfg.heading_speed_mps, cfg.max_speed_mps)
     return [body_columns(qh, vh, uh, dh, eye, f_px, cfg.min_thickness_m, cfg.thickness_m, cfg.surface_gap_px,
-                         picks.floor_z, cfg.floor_reach_m, float(walk[k]))
+                         picks.floor_z, cfg.floor_reach_m, float(walk[k]), float(side[k]))
             for k, (qh, vh, uh, dh) in enumerate(picks.pixels)]
 
 
