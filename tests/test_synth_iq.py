@@ -12,7 +12,7 @@ import pytest
 from holodata.conventions import Grid, RangeBins
 from holodata.radar import BeamformParams
 from holodata.radar._iq_kernel import beat_samples
-from holodata.radar.chirp import ChirpConfig
+from holodata.radar.chirp import SPEED_OF_LIGHT, ChirpConfig
 from holodata.radar.simulate import antenna_positions, simulate_chirps
 from holodata.synth.radar import RadarConfig, RadarModel
 from holodata.synth.worlds import MATERIAL_ID, MATERIALS
@@ -29,10 +29,17 @@ def test_gridded_beat_samples_equal_the_direct_sum():
     idx = np.arange(0, 1024, 41)
     ref = simulate_chirps(P, a, ch, chirp_index=idx)
     phi = -2 * np.pi * idx / 1024
-    got = beat_samples(antenna_positions(ch, idx, 1024), np.zeros((idx.size, 3)),
+    ant = antenna_positions(ch, idx, 1024)
+    got = beat_samples(ant, np.zeros((idx.size, 3)),
                        np.stack([np.cos(phi), np.sin(phi)], 1), P, a, start_frequency_hz=ch.start_frequency_hz,
                        slope_hz_per_s=ch.slope_hz_per_s, sample_rate_hz=ch.sample_rate_hz, n_samples=ch.n_samples)
     assert np.abs(got - ref).max() <= 1e-4 * np.abs(ref).max()
+    # both of the kernel's roads are taken: a scatterer whose taps start at the same cell for every
+    # antenna of the chirp, and one whose antennas straddle a cell boundary (about 1 in 10 here)
+    u = np.linalg.norm(P[None, None] - ant[:, :, None], axis=-1) * (
+        2 * ch.slope_hz_per_s / (SPEED_OF_LIGHT * ch.sample_rate_hz) * 2 * ch.n_samples)
+    straddle = np.floor(u).min(1) != np.floor(u).max(1)
+    assert 0 < straddle.sum() < straddle.size
 
 
 def _model(grid=G, **kw):
