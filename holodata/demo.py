@@ -379,26 +379,46 @@ def map_scenes_with_slam(url: str, ids: list[str], maps: dict, quiet: bool = Tru
                          mesh_poisson_depth: int | None = None, processes: int | None = None) -> list[str | None]:
     """:func:`map_with_slam` of every scene of ``ids`` (``maps``: {scene id: its mapping pass}); returns
     the warning lines (or None) in the order of ``ids``. With ``processes`` >= 2 (default: 2 on two or
-    more CPUs) that many Python processes started fresh (``spawn``) map the scenes, each taking the next
-    one when it is done: one scene's mapping leaves the second core mostly idle (the Poisson
-    reconstruction runs on one thread, and open3d holds the GIL, so threads would not help;
-    ``docs/design/performance.md``, the quick demo). Not forked: slam's open3d runs OpenMP
-    threads, and a process forked from one that ran them can hang (:mod:`holodata.parallel`). Scenes are
-    independent: each process writes only the scene it maps and its mapping pass."""
+    more CPUs) that many Python processes started fresh (``spawn``) map the scenes: one scene's mapping
+    leaves the second core mostly idle (the Poisson reconstruction runs on one thread, and open3d holds
+    the GIL, so threads would not help; ``docs/design/performance.md``, the quick demo). Each scene is
+    two tasks, its slam and then its register (queued when its slam is done, behind the slams still
+    waiting), so the two processes end within about one register of each other rather than one whole
+    scene. Not forked: slam's open3d runs worker threads, and a process forked from one that ran them
+    can hang (:mod:`holodata.parallel`). Scenes are independent: a task writes only its scene (slam also
+    the scene's mapping pass)."""
     from .parallel import cpus
 
     procs = min(processes if processes is not None else 2, cpus(), len(ids))
     if procs < 2:
         return [map_with_slam(url, sid, quiet, maps.get(sid), mesh_poisson_depth) for sid in ids]
     import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    pool = ProcessPoolExecutor(max_workers=procs, mp_context=mp.get_context("spawn"))
+    pool = ProcessPoolExecutor(max_workers=procs, mp_context=mp.get_context("spawn"), initializer=_mapping_worker)
     try:
-        futs = [pool.submit(map_with_slam, url, sid, quiet, maps.get(sid), mesh_poisson_depth) for sid in ids]
-        return [f.result() for f in futs]
+        slams = {pool.submit(_slam, url, sid, quiet, maps.get(sid), mesh_poisson_depth): sid for sid in ids}
+        registers = {}
+        for f in as_completed(slams):
+            f.result()
+            registers[slams[f]] = pool.submit(_register, url, slams[f], quiet)
+        return [registers[sid].result() for sid in ids]
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _mapping_worker() -> None:
+    """Start of a mapping process (:func:`map_scenes_with_slam`): import what slam and register use,
+    then freeze those objects out of the garbage collector's generations (``gc.freeze``): the
+    collections the stages start with (:func:`holodata.parallel.release_free_memory`) and the
+    automatic ones then skip the ~100 k objects the imports made (0.19 -> 0.02 s of collection per
+    scene, docs/design/performance.md)."""
+    import gc
+
+    from .mapping import register, slam  # noqa: F401  (imported for their objects)
+
+    gc.collect()
+    gc.freeze()
 
 
 def map_with_slam(url: str, sid: str, quiet: bool = True, map_scene: str | None = None,
@@ -408,11 +428,23 @@ def map_with_slam(url: str, sid: str, quiet: bool = True, map_scene: str | None 
     extrinsic, per-frame human surfaces). When the camera cannot be registered the scene keeps its
     mesh and poses but has no human: returns that as a warning line (else None). ``mesh_poisson_depth``:
     :class:`~holodata.mapping.mesh.MeshConfig` ``poisson_depth``."""
+    _slam(url, sid, quiet, map_scene, mesh_poisson_depth)
+    return _register(url, sid, quiet)
+
+
+def _slam(url: str, sid: str, quiet: bool, map_scene: str | None, mesh_poisson_depth: int | None) -> None:
+    """:func:`map_with_slam`'s first half: ``holodata slam`` of the scene."""
     from .mapping.mesh import MeshConfig
-    from .mapping.register import RegisterConfig, RegistrationError, register_scene
     from .mapping.slam import slam_scene
 
     slam_scene(url, sid, quiet=quiet, map_scene=map_scene, mesh_config=MeshConfig(poisson_depth=mesh_poisson_depth))
+
+
+def _register(url: str, sid: str, quiet: bool) -> str | None:
+    """:func:`map_with_slam`'s second half: ``holodata register`` of the scene (after its slam); the
+    warning line or None."""
+    from .mapping.register import RegisterConfig, RegistrationError, register_scene
+
     try:
         # the synth recordings' TF camera pose is the true one (holodata.synth writes truth/extrinsics.json's
         # pose as TF): along a direction the camera's view leaves open, the guess is good to 1 cm
