@@ -411,8 +411,8 @@ def _mapping_worker() -> None:
     """Start of a mapping process (:func:`map_scenes_with_slam`): import what slam and register use,
     then freeze those objects out of the garbage collector's generations (``gc.freeze``): the
     collections the stages start with (:func:`holodata.parallel.release_free_memory`) and the
-    automatic ones then skip the ~100 k objects the imports made (0.19 -> 0.02 s of collection per
-    scene, docs/design/performance.md)."""
+    automatic ones then skip the objects the imports made (the time it saves:
+    docs/design/performance.md, the quick demo)."""
     import gc
 
     from .mapping import register, slam  # noqa: F401  (imported for their objects)

@@ -11,8 +11,8 @@ binary search). The kernel walks the points ``j`` in ascending order and adds ea
 of every query within ``r`` of it, so each query's sums run over its neighbours in ascending index
 order, and the squared distance is summed over x, y, z in that order as scipy's ``cKDTree`` does:
 the sums equal those of a sparse neighbour matrix with sorted rows times the points (scipy's CSR
-product, what this replaces) to the bit. Why: that road built and sorted ~30 M neighbour pairs for a
-quick-demo scene's map, 2.1 s of CPU against 0.3 s here (docs/design/performance.md).
+product, what this replaces) to the bit. Why: that road built and sorted every neighbour pair in
+memory, tens of millions for a quick-demo scene's map (the times: docs/design/performance.md).
 Arrays in, arrays out: no I/O. numba compiles it on first use and caches the machine code next to
 this file.
 """

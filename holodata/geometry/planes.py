@@ -57,9 +57,9 @@ def local_plane_projection(points: np.ndarray, radius: float, ratio: float = 0.1
     covariance eigenvalue < ``ratio`` × the middle one) and holds >= ``min_nn`` points; other points
     (edges, corners, clutter) stay. ``only`` (N,) bool: project just those (their neighbourhoods still
     span every point). The neighbourhoods' first and second moments come from a compiled grid search
-    (:func:`holodata.geometry._ball_kernel.ball_moments`: a 0.3 m ball of a quick-demo map holds ~260
-    points, 31.5 M pairs for ``cross_21``'s 120 k projected points, which a sparse neighbour matrix
-    held and sorted), then batched 3×3 eigen-decompositions."""
+    (:func:`holodata.geometry._ball_kernel.ball_moments`: a 0.3 m ball of a 4 cm map holds hundreds
+    of points, which a sparse neighbour matrix held and sorted pair by pair), then batched 3×3
+    eigen-decompositions."""
     from ._ball_kernel import ball_moments
 
     X = np.asarray(points, np.float64).reshape(-1, 3)

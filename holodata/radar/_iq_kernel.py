@@ -21,7 +21,7 @@ are summed (a scatterer behind the board is not seen). Compiled with numba (para
 The grid keeps a chirp's antennas side by side per cell (C, cells, V): the antennas of one chirp are
 millimetres apart, so a scatterer's taps mostly start at the same cell for all of them and its
 spread is one pass over adjacent memory (the sums, in the same order, are those of one row per
-antenna to the bit; 11 % less kernel time on a quick-demo rotation, docs/design/performance.md).
+antenna to the bit; the time it saves: docs/design/performance.md, the quick demo).
 """
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ def _spread(ant, cen, facing, pts, amp, cos_cut, power, k0, u_per_m, shift_per_m
                 bv[v] = m0 + taps                        # the grid is padded by ``taps`` cells each side
                 if bv[v] != bv[0]:
                     same = False
-            if same:                                     # (86 % of a quick-demo rotation: the antennas are mm apart)
+            if same:                                     # (mostly: the antennas are mm apart)
                 base = bv[0]
                 for j in range(taps):
                     row = oc[base + j]
