@@ -122,3 +122,26 @@ def test_report_loads_in_headless_chromium(dataset, tmp_path):
     assert res["images_ok"] and res["console_errors"] == []
     png = screenshot(out / "report.html", out / "report.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_person_hidden_and_the_human_hidden_row():
+    """A frame's person is hidden when its GT holds human returns and none is LOS; ``human_hidden``
+    scores detection on those frames only."""
+    from holodata.conventions import Label
+    from holodata.evaluate.pipeline import _Acc, person_hidden, summarise
+
+    lab = np.full((3, 4, 8), Label.LOS_STRUCTURE, np.uint8)
+    assert not person_hidden(lab)                       # nobody
+    lab[1, 1, 2] = Label.NLOS_HUMAN
+    assert person_hidden(lab)                           # seen only through a bounce
+    lab[0, 2, 3] = Label.LOS_HUMAN
+    assert not person_hidden(lab)                       # also in sight
+
+    acc = _Acc()
+    person = np.array([[2.0, 1.0, 0.0]])
+    acc.pred_centres = [person, np.zeros((0, 3)), person]           # found in frames 0 and 2
+    gt = [person, person, person]
+    s = summarise(acc, gt, {}, 10.0, hidden=[False, True, True])
+    assert s["human"]["tp"] == 2 and s["human"]["n_gt"] == 3
+    assert s["human_hidden"]["n_gt"] == 2 and s["human_hidden"]["tp"] == 1
+    assert s["human_hidden"]["recall"] == pytest.approx(0.5) and s["human_hidden"]["precision"] == 1.0
