@@ -143,6 +143,22 @@ def apply_gate(rng: np.ndarray, confidence: np.ndarray, min_confidence) -> np.nd
     return np.where(confidence >= np.asarray(min_confidence, np.float32)[:, None, None], rng, np.nan)
 
 
+def _gt_clouds(frames: Frames, k: int) -> dict:
+    """Frame ``k``'s GT points (M,3) m split into {"los", "nlos"} by their labels."""
+    gp = frames.gt_point[k].astype(np.float64)
+    ok, glos = np.isfinite(gp).all(-1), is_los(frames.label[k])
+    return {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}
+
+
+def _mean_f(points: np.ndarray, los: np.ndarray, gt: dict, tau: float) -> float:
+    """Mean of the LOS and NLOS F-scores at ``tau`` m of predicted ``points`` (M,3) flagged ``los``
+    (M,) against :func:`_gt_clouds` (holodata.metrics, as evaluate scores them)."""
+    from holodata import metrics as M
+
+    return float(np.mean([M.point_cloud_metrics(points[sel], gt[part], tau)["f_score"]
+                          for part, sel in (("los", los), ("nlos", ~los))]))
+
+
 def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, grid: Grid, tau: float = 0.10,
                    max_frames: int = CALIBRATION_FRAMES, candidates=GATE_CANDIDATES) -> dict:
     """Stage one's confidence gate for bounces 2 and 3: the ``min_confidence`` per bounce below which
@@ -157,25 +173,21 @@ def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, gr
     flags stay; the points are un-mirrored once per frame, with the normals of the ungated images
     (a gated image's planes lose a few points; 13 gates cost one un-mirroring). Returns
     {"min_confidence": [0, c2, c3], "scores": {"b2"|"b3": {candidate: mean F}}}."""
-    from holodata import metrics as M
     from holodata.evaluate.unmirror import los_mask, unmirror
 
     idx = calibration_index(len(frames), max_frames)
     cache = []   # per frame: the ungated points, their LOS flags, confidences and the GT clouds
     for k in idx:
-        gp, lab = frames.gt_point[k].astype(np.float64), frames.label[k]
-        ok, glos = np.isfinite(gp).all(-1), is_los(lab)
         P = unmirror(s1_range[k], frames.directions[k], grid=grid, origins=frames.origins[k])["point"]
         los = los_mask(P, s1_range[k][0], grid, origins=frames.origins[k])
-        cache.append((P, los, s1_conf[k], {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}))
+        cache.append((P, los, s1_conf[k], _gt_clouds(frames, k)))
 
     def score(gate) -> float:
         f = []
         for P, los, conf, gt in cache:
             # a gated return removes its point and every later bounce's (un-mirroring needs the chain)
             ok = np.cumprod(conf >= np.asarray(gate)[:, None, None], axis=0).astype(bool) & np.isfinite(P).all(-1)
-            f.append(np.mean([M.point_cloud_metrics(P[ok & sel], gt[part], tau)["f_score"]
-                              for part, sel in (("los", los), ("nlos", ~los))]))
+            f.append(_mean_f(P[ok], los[ok], gt, tau))
         return float(np.mean(f))
 
     gate, scores = [0.0, 0.0, 0.0], {}
@@ -195,28 +207,18 @@ def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10
     F-optimal operating point of the cloud, and that point differs between exact inputs (where most
     voxels are real) and stage one's (where the wrong ones are what the threshold is for). Returns
     {"threshold", "scores": {threshold: mean F}}."""
-    from holodata import metrics as M
-
     if stage2.refiner is None:
         return {"threshold": stage2.keep_threshold, "scores": {}}
     idx = calibration_index(len(frames), max_frames)
     sums = {c: [] for c in candidates}
     for k in idx:
-        gp = frames.gt_point[k].astype(np.float64)
-        lab = frames.label[k]
-        ok = np.isfinite(gp).all(-1)
-        glos = is_los(lab)
-        gt = {"los": gp[ok & glos], "nlos": gp[ok & ~glos]}
-        inputs = [(frames.range[k], is_human(lab).astype(np.float32)) if frames.s1_range is None
-                  else (frames.s1_range[k], frames.s1_human[k])]
-        for R, H in inputs:
-            r = stage2.predict(R, H, frames.directions[k], frames.origins[k], grid, all_voxels=True)["refined"]
-            for c in candidates:
-                keep = r["p_empty"] < c
-                f = []
-                for part, sel in (("los", r["los"]), ("nlos", ~r["los"])):
-                    f.append(M.point_cloud_metrics(r["point"][keep & sel], gt[part], tau)["f_score"])
-                sums[c].append(float(np.mean(f)))
+        gt = _gt_clouds(frames, k)
+        R, H = ((frames.range[k], is_human(frames.label[k]).astype(np.float32)) if frames.s1_range is None
+                else (frames.s1_range[k], frames.s1_human[k]))
+        r = stage2.predict(R, H, frames.directions[k], frames.origins[k], grid, all_voxels=True)["refined"]
+        for c in candidates:
+            keep = r["p_empty"] < c
+            sums[c].append(_mean_f(r["point"][keep], r["los"][keep], gt, tau))
     scores = {float(c): float(np.mean(v)) if v else 0.0 for c, v in sums.items()}
     return {"threshold": max(scores, key=scores.get), "scores": scores}
 
