@@ -8,7 +8,8 @@ the solid must be as deep as the body is broad (side_back), where it was as deep
 import numpy as np
 
 from holodata.mapping.register import RegisterConfig
-from holodata.mapping.register.humans import body_columns, column_centroid, side_back, track_heading_velocity
+from holodata.mapping.register.humans import body_columns, column_centroid
+from holodata.mapping.register.tracks import side_back, track_heading_velocity
 from holodata.mapping.register.steps import body_only
 
 CFG = RegisterConfig()

@@ -69,8 +69,8 @@ from .camera import (_camera_points_through, camera_points_world, camera_seen_th
                      depth_noise_model, noise_coefficient, static_depth, static_depth_of)
 from .steps import (all_surfaces, body_columns_of, clear_outputs, human_candidates, human_shift, initial_guess,
                     pick_track, registration_failure, static_camera, track_smoothing, write_outputs)
-from .humans import (body_columns, closed_surface, cluster_points, pick_human, pixel_runs, radial_speed,
-                     static_residual, track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
+from .humans import body_columns, closed_surface, cluster_points, pick_human, pixel_runs, static_residual, voxel_boundary
+from .tracks import radial_speed, track_jumps, track_prediction, track_velocity, velocity_shift
 
 
 # ------------------------------------------------------------------------------------ pipeline

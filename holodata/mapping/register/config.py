@@ -86,7 +86,7 @@ class RegisterConfig:
     walk_back_speed_mps: float = 1.0
     breadth_m: float = 0.45     # a body's breadth across the shoulders, about twice its depth thickness_m: a person
                                 # walking across the view shows their side, the far half hidden behind the near
-                                # (humans.side_back; docs/design/register.md, seen side-on)
+                                # (tracks.side_back; docs/design/register.md, seen side-on)
     heading_speed_mps: float = 0.3   # above this plan speed the track's direction is the person's heading
     segment_lidar: bool = True
     slam_map: bool = True       # slam's stored static map (map/points) as the map, when built from these poses

@@ -17,9 +17,8 @@ from ...parallel import fork_call
 from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
                      static_depth)
 from .config import RegisterConfig, Registration
-from .humans import (body_columns, closed_surface, column_centroid, pick_human, radial_speed, side_back,
-                     static_residual, track_jumps, track_prediction, velocity_shift)
-from .tracks import track_smooth
+from .humans import body_columns, closed_surface, column_centroid, pick_human, static_residual
+from .tracks import radial_speed, side_back, track_jumps, track_prediction, track_smooth, velocity_shift
 
 # the floor under a person: the FLOOR_PERCENTILE-th percentile of the map's heights within
 # FLOOR_RADIUS_M (plan) of the track (low outliers aside), from more than FLOOR_MIN_POINTS points
