@@ -67,8 +67,8 @@ from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, icp, map_n
                         pose_uncertainty, register_extrinsic)
 from .camera import (_camera_points_through, camera_points_world, camera_seen_through, camera_swept, CameraFrames,
                      depth_noise_model, noise_coefficient, static_depth, static_depth_of)
-from .steps import (all_surfaces, body_columns_of, clear_outputs, human_candidates, human_shift, initial_guess,
-                    pick_track, registration_failure, static_camera, track_smoothing, write_outputs)
+from .steps import (all_surfaces, body_columns_of, clear_outputs, frame_cuts, human_candidates, human_shift,
+                    initial_guess, pick_track, registration_failure, static_camera, track_smoothing, write_outputs)
 from .humans import body_columns, closed_surface, cluster_points, pick_human, pixel_runs, static_residual, voxel_boundary
 from .tracks import radial_speed, track_jumps, track_prediction, track_velocity, velocity_shift
 
@@ -356,7 +356,8 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                            noise_coefficient(static.med, static.mad))
         shift = human_shift(picks.points, cts, ts, cfg)
         columns = body_columns_of(picks, eye, f_px, cts, cfg)
-        shift = shift + track_smoothing(picks.points, columns, shift, eye, ts, cfg)
+        cuts = frame_cuts(picks, static.med, cfg)
+        shift = shift + track_smoothing(picks.points, columns, shift, eye, ts, cfg, cuts)
         picks.pixels = []
         timings["picks_s"] = time.perf_counter() - t2 - timings["candidates_s"]
         if cam_world is not None:
@@ -372,7 +373,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
             timings.update(lidar_timings)
         timings["segment_wait_s"] = time.perf_counter() - t1
         report = register_report(reg, init_source, T_init, stored_map is not None, surfaces, cand.carved,
-                                 picks.repicked, cfg, shift, time.perf_counter() - t0, timings, fingerprint)
+                                 picks.repicked, cfg, shift, time.perf_counter() - t0, timings, fingerprint, cuts)
         sw.finish("register", {"register": report})
     except BaseException as err:
         if lidar is not None:
@@ -418,13 +419,16 @@ def stored_report(scene, cfg: RegisterConfig, fingerprint: str) -> dict | None:
 
 def register_report(reg: Registration, init_source: str, T_init: np.ndarray, slam_map: bool, surfaces: list,
                     carved: np.ndarray, repicked: int, cfg: RegisterConfig, shift: np.ndarray, seconds: float,
-                    timings: dict, fingerprint: str) -> dict:
+                    timings: dict, fingerprint: str, cuts: np.ndarray | None = None) -> dict:
     """The scene attribute ``register``: the extrinsic's report, where the guess and the map came
-    from, frames with a person, the settings, timings and the fingerprint."""
+    from, frames with a person (and those partly hidden, placed from the track: ``frames_cut``, with
+    each frame's cut share ``cut_share``), the settings, timings and the fingerprint."""
     n = len(surfaces)
+    cuts = np.zeros(n) if cuts is None else np.asarray(cuts, float)
     return {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
             "map": "slam (map/points)" if slam_map else "built from the LiDAR scans",
             "frames_with_human": int(sum(len(s[1]) > 0 for s in surfaces)), "frames": n,
+            "frames_cut": np.flatnonzero(cuts >= cfg.cut_share).tolist(), "cut_share": np.round(cuts, 3).tolist(),
             "map_points_seen_through": int(carved.sum()), "frames_repicked": repicked, "params": cfg.to_attrs(),
             "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
                        "visible front (closed)",

@@ -71,6 +71,10 @@ class RegisterConfig:
     track_smooth: bool = True   # the person's centroid smoothed along the track, as far as its own noise
                                 # allows (tracks.smooth_window; docs/design/register.md)
     walk_speed_mps: float = 1.5
+    cut_reach_px: int = 3       # a silhouette ends against a nearer static surface within this many pixels
+    cut_share: float = 0.5      # a frame whose silhouette is cut on this share of its rows is partly hidden:
+                                # placed from the track's whole frames (humans.silhouette_cut, tracks.cut_prediction)
+    cut_window_s: float = 1.0   # ... those within this many seconds either side
     max_depth_spread_m: float = 0.35
     floor_margin_m: float = 0.04
     max_speed_mps: float = 2.5

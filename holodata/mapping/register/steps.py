@@ -17,8 +17,9 @@ from ...parallel import fork_call
 from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
                      static_depth)
 from .config import RegisterConfig, Registration
-from .humans import body_columns, closed_surface, column_centroid, pick_human, static_residual
-from .tracks import radial_speed, side_back, track_jumps, track_prediction, track_smooth, velocity_shift
+from .humans import body_columns, closed_surface, column_centroid, pick_human, silhouette_cut, static_residual
+from .tracks import (cut_prediction, radial_speed, side_back, track_jumps, track_prediction, track_smooth,
+                     velocity_shift)
 
 # the floor under a person: the FLOOR_PERCENTILE-th percentile of the map's heights within
 # FLOOR_RADIUS_M (plan) of the track (low outliers aside), from more than FLOOR_MIN_POINTS points
@@ -308,16 +309,30 @@ def write_outputs(sw, surfaces: list, points: list, T: np.ndarray) -> None:
                    attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
 
 
+def frame_cuts(picks: Picks, static_depth: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
+    """(T,) share of each frame's silhouette rows cut by a nearer static surface or the image's side
+    (:func:`silhouette_cut`, ``cut_reach_px``, ``fg_min_m``)."""
+    return np.array([silhouette_cut(vv, uu, dv, static_depth, cfg.cut_reach_px, cfg.fg_min_m)
+                     for (_, vv, uu, dv) in picks.pixels], float)
+
+
 def track_smoothing(points: list, columns: list, shift: np.ndarray, eye: np.ndarray, ts: np.ndarray,
-                    cfg: RegisterConfig) -> np.ndarray:
+                    cfg: RegisterConfig, cuts: np.ndarray | None = None) -> np.ndarray:
     """(T,3) the shifts that move each frame's solid (its :func:`column_centroid` moved by its
     velocity ``shift`` (T,3)) onto the smoothed track (:func:`track_smooth`, its window from the
     track's noise and speed, frame stamps ``ts`` (T,) ns, weights the frame's returns); zero where a
-    frame has no person or ``track_smooth`` is off."""
+    frame has no person or ``track_smooth`` is off. A frame whose silhouette is cut on ``cut_share``
+    of its rows or more (``cuts`` (T,), :func:`frame_cuts`: the person partly hidden) takes no part in
+    the fit and is placed on the line through the whole frames around it (:func:`cut_prediction`)
+    where there are enough, its visible part's centre being no estimate of the person's."""
     if not cfg.track_smooth:
         return np.zeros((len(points), 3))
     cen = np.array([column_centroid(p, eye, span, px, down) if len(p) else np.full(3, np.nan)
                     for p, (span, px, down) in zip(points, columns)], float) + shift
     n = np.array([len(p) for p in points], float)
-    out = track_smooth(cen, n, ts) - cen
+    cut = np.zeros(len(points), bool) if cuts is None else np.asarray(cuts) >= cfg.cut_share
+    target = track_smooth(cen, np.where(cut, 0.0, n), ts)
+    pred = cut_prediction(cen, ts, cut, cfg.cut_window_s)
+    target = np.where(np.isfinite(pred), pred, target)
+    out = target - cen
     return np.where(np.isfinite(out), out, 0.0)

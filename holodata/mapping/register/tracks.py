@@ -279,3 +279,26 @@ def side_back(centroids: np.ndarray, t_ns: np.ndarray, eye: np.ndarray, ratio: f
     sin2 = np.clip(1.0 - np.nan_to_num(cos, nan=1.0) ** 2, 0.0, 1.0)
     deeper = np.sqrt(ratio ** 2 * sin2 + (1.0 - sin2)) - 1.0
     return np.where(speed > 0, deeper * np.minimum(1.0, speed / heading_speed), 0.0)
+
+
+def cut_prediction(centroids: np.ndarray, t_ns: np.ndarray, cut: np.ndarray, half_window_s: float = 0.5) -> np.ndarray:
+    """(T,3) where the person of each ``cut`` frame (T,) bool (partly hidden:
+    :func:`~.humans.silhouette_cut`) is, from the whole frames' centroids around it: the least-squares
+    line in time through the uncut detections within ``half_window_s`` either side (at least three,
+    spanning at least a quarter of ``half_window_s``), evaluated at the frame's stamp — one-sided as the
+    person walks into or out of sight behind a corner, where the cut frames are. NaN where there are
+    fewer, for uncut frames, and where a frame has no detection. ``centroids`` (T,3), NaN = none;
+    ``t_ns`` (T,) ns."""
+    c = np.asarray(centroids, float)
+    out = np.full_like(c, np.nan)
+    t = np.asarray(t_ns, np.int64).astype(np.float64) / 1e9
+    whole = np.isfinite(c).all(1) & ~np.asarray(cut, bool)
+    for k in np.flatnonzero(np.asarray(cut, bool) & np.isfinite(c).all(1)):
+        near = whole & (np.abs(t - t[k]) <= half_window_s)
+        tt = t[near]
+        if len(tt) < 3 or tt.max() - tt.min() < 0.25 * half_window_s:
+            continue
+        A = np.stack([np.ones(len(tt)), tt - t[k]], 1)
+        coef, *_ = np.linalg.lstsq(A, c[near], rcond=None)
+        out[k] = coef[0]
+    return out
