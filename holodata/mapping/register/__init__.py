@@ -352,11 +352,11 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         timings["candidates_s"] = time.perf_counter() - t2
         ts = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
         cts = np.asarray(scene[CAMERA_TIMESTAMP_NS][...], np.int64) if CAMERA_TIMESTAMP_NS in scene.arrays() else ts
-        picks = pick_track(cand.frames, M, eye, f_px, np.where(cts != 0, cts, ts), cfg,
-                           noise_coefficient(static.med, static.mad))
+        sigma_a = noise_coefficient(static.med, static.mad)
+        picks = pick_track(cand.frames, M, eye, f_px, np.where(cts != 0, cts, ts), cfg, sigma_a)
         shift = human_shift(picks.points, cts, ts, cfg)
         columns = body_columns_of(picks, eye, f_px, cts, cfg)
-        cuts = frame_cuts(picks, static.med, cfg)
+        cuts = frame_cuts(picks, static.med, cfg, sigma_a)
         shift = shift + track_smoothing(picks.points, columns, shift, eye, ts, cfg, cuts)
         picks.pixels = []
         timings["picks_s"] = time.perf_counter() - t2 - timings["candidates_s"]

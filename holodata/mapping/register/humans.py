@@ -448,14 +448,15 @@ def column_centroid(points_world: np.ndarray, eye: np.ndarray, span: np.ndarray,
 
 
 def silhouette_cut(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, static_depth: np.ndarray,
-                   reach_px: int, margin_m: float) -> float:
+                   reach_px: int, margin_m) -> float:
     """Share (0-1) of a person's image rows whose silhouette ends against a nearer static surface or the
     image's side: the person is partly hidden there (behind a corner, a pillar) or leaves the view.
 
     ``rows``/``cols`` (N,) the person's pixels, ``depth`` (N,) their depths (m), ``static_depth`` (H,W)
     the camera's static depth (m, NaN none). A row's run ends at its leftmost and rightmost pixel; it is
     cut on a side when, within ``reach_px`` pixels beyond that end, the static depth is nearer than the
-    end's depth by more than ``margin_m`` (the occluder in front of the person), or the image ends.
+    end's depth by more than ``margin_m`` (m, scalar or (N,) per pixel: the end's depth noise; the
+    occluder in front of the person), or the image ends.
     The visible part of a cut person is not the person: its centre lies toward the visible side and
     the body model (:func:`body_columns`) cannot say how much is missing (issue 43;
     docs/design/register.md, "A person half behind a corner"). 0 for no pixels."""
@@ -465,7 +466,8 @@ def silhouette_cut(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, static
     c, d = np.asarray(cols, np.int64), np.asarray(depth, float)
     H, W = static_depth.shape
     order = np.lexsort((c, r))
-    r, c, d = r[order], c[order], d[order]
+    r, c = r[order], c[order]
+    d = (d - np.broadcast_to(np.asarray(margin_m, float), d.shape))[order]   # nearer than this: in front
     starts = np.flatnonzero(np.r_[True, r[1:] != r[:-1]])
     ends = np.r_[starts[1:], len(r)] - 1
     cut = np.zeros(len(starts), bool)
@@ -478,5 +480,5 @@ def silhouette_cut(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, static
             sd = np.full(len(ck), np.nan)
             sd[inside] = static_depth[rr[inside], ck[inside]]
             with np.errstate(invalid="ignore"):
-                cut |= sd < dd - margin_m
+                cut |= sd < dd
     return float(cut.mean())

@@ -309,10 +309,16 @@ def write_outputs(sw, surfaces: list, points: list, T: np.ndarray) -> None:
                    attrs={"frame": "camera points frame (optical for depth images)", "source": "holodata register"})
 
 
-def frame_cuts(picks: Picks, static_depth: np.ndarray, cfg: RegisterConfig) -> np.ndarray:
+def frame_cuts(picks: Picks, static_depth: np.ndarray, cfg: RegisterConfig, sigma_a: float | None = None) -> np.ndarray:
     """(T,) share of each frame's silhouette rows cut by a nearer static surface or the image's side
-    (:func:`silhouette_cut`, ``cut_reach_px``, ``fg_min_m``)."""
-    return np.array([silhouette_cut(vv, uu, dv, static_depth, cfg.cut_reach_px, cfg.fg_min_m)
+    (:func:`silhouette_cut`, ``cut_reach_px``): nearer than a silhouette end's depth by more than the
+    foreground test's margin there, max(``fg_min_m``, ``fg_sigma`` σ), σ = ``sigma_a`` z² the
+    camera's depth noise (:func:`~.camera.noise_coefficient`; ``fg_min_m`` alone without it): a far
+    person on a noisy camera is not cut by noise in front of them."""
+    def margin(d):
+        return cfg.fg_min_m if sigma_a is None else np.maximum(cfg.fg_min_m, cfg.fg_sigma * sigma_a * np.asarray(d) ** 2)
+
+    return np.array([silhouette_cut(vv, uu, dv, static_depth, cfg.cut_reach_px, margin(dv))
                      for (_, vv, uu, dv) in picks.pixels], float)
 
 
