@@ -464,7 +464,7 @@ def silhouette_cut(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, static
     if len(r) == 0:
         return 0.0
     c, d = np.asarray(cols, np.int64), np.asarray(depth, float)
-    H, W = static_depth.shape
+    W = static_depth.shape[1]
     order = np.lexsort((c, r))
     r, c = r[order], c[order]
     d = (d - np.broadcast_to(np.asarray(margin_m, float), d.shape))[order]   # nearer than this: in front

@@ -281,7 +281,8 @@ def side_back(centroids: np.ndarray, t_ns: np.ndarray, eye: np.ndarray, ratio: f
     return np.where(speed > 0, deeper * np.minimum(1.0, speed / heading_speed), 0.0)
 
 
-def cut_prediction(centroids: np.ndarray, t_ns: np.ndarray, cut: np.ndarray, half_window_s: float = 0.5) -> np.ndarray:
+def cut_prediction(centroids: np.ndarray, t_ns: np.ndarray, cut: np.ndarray,
+                   half_window_s: float = RegisterConfig.cut_window_s) -> np.ndarray:
     """(T,3) where the person of each ``cut`` frame (T,) bool (partly hidden:
     :func:`~.humans.silhouette_cut`) is, from the whole frames' centroids around it: the least-squares
     line in time through the uncut detections within ``half_window_s`` either side (at least three,
