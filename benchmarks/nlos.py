@@ -6,7 +6,7 @@ acceptance floors at the largest point. ``--install`` ships the largest point's 
 pretrained weights (``holodata evaluate DS --checkpoint pretrained``), with this command, the commit,
 the corpora and the scores recorded in it.
 
-    .venv/bin/python benchmarks/nlos.py [--out DIR] [--corners 4,16,64,256] [--frames 4] [--steps 1000]
+    .venv/bin/python benchmarks/nlos.py [--out DIR] [--corners 4,16,64,256] [--frames 4] [--steps 2000]
         [--stage2-frames 64] [--device cpu|cuda] [--install]
 
 Data: ``holodata synth --corners`` corpora at the quick demo's 32×128 beams and range bins
@@ -86,7 +86,7 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="/tmp/holodata-bench-nlos")
     ap.add_argument("--corners", default="4,16,64,256", help="training corners at each point of the curve")
     ap.add_argument("--frames", type=int, default=4, help="radar rotations per corner")
-    ap.add_argument("--steps", type=int, default=1000, help="stage-one gradient steps (batch 4) at every point")
+    ap.add_argument("--steps", type=int, default=2000, help="stage-one gradient steps (batch 4) at every point")
     ap.add_argument("--stage2-frames", type=int, default=64, help="stage-two training frames (>= 1 per corner)")
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     ap.add_argument("--install", action="store_true", help="ship the largest point's run as the pretrained weights")
