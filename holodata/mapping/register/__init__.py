@@ -419,12 +419,12 @@ def stored_report(scene, cfg: RegisterConfig, fingerprint: str) -> dict | None:
 
 def register_report(reg: Registration, init_source: str, T_init: np.ndarray, slam_map: bool, surfaces: list,
                     carved: np.ndarray, repicked: int, cfg: RegisterConfig, shift: np.ndarray, seconds: float,
-                    timings: dict, fingerprint: str, cuts: np.ndarray | None = None) -> dict:
+                    timings: dict, fingerprint: str, cuts: np.ndarray) -> dict:
     """The scene attribute ``register``: the extrinsic's report, where the guess and the map came
     from, frames with a person (and those partly hidden, placed from the track: ``frames_cut``, with
     each frame's cut share ``cut_share``), the settings, timings and the fingerprint."""
     n = len(surfaces)
-    cuts = np.zeros(n) if cuts is None else np.asarray(cuts, float)
+    cuts = np.asarray(cuts, float)
     return {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
             "map": "slam (map/points)" if slam_map else "built from the LiDAR scans",
             "frames_with_human": int(sum(len(s[1]) > 0 for s in surfaces)), "frames": n,
