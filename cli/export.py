@@ -14,12 +14,15 @@ import click
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False), help="Output folder.")
 @click.option("--scene", "scenes", multiple=True, help="Scene id (repeatable; default: every scene, or --split's).")
 @click.option("--split", default=None, help="Only the scenes of this split (train, test, ...).")
+@click.option("--force", is_flag=True,
+              help="Replace a scene's folder or file in --out that holodata did not write (never a symlink).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def export(dataset, fmt, out, scenes, split, quiet, as_json):
+def export(dataset, fmt, out, scenes, split, force, quiet, as_json):
     """Write scenes of DATASET for other tools: PanoRadar's processed trajectory folders (which
     holodata's own npy reader ingests back) or HDF5 files (holodata's HDF5 reader layout). Each scene
-    is written under a .partial name and renamed when complete.
+    is written under a temp name and moved in place when complete; it replaces only what an earlier
+    export wrote (.holodata-manifest.json in --out), else refuses unless --force.
 
     \b
     Example:
@@ -28,7 +31,8 @@ def export(dataset, fmt, out, scenes, split, quiet, as_json):
     """
     from holodata.export import export_dataset
 
-    r = export_dataset(dataset, fmt, out, scene_ids=list(scenes) or None, split=split, quiet=quiet or as_json)
+    r = export_dataset(dataset, fmt, out, scene_ids=list(scenes) or None, split=split, quiet=quiet or as_json,
+                      force=force)
     if as_json:
         click.echo(json.dumps(r, indent=2))
         return

@@ -12,16 +12,20 @@ import click
 @click.option("--frames", default=None, metavar="A:B", help="Frames A..B-1 (default: all).")
 @click.option("--save", type=click.Path(dir_okay=False), default=None,
               help="Write an .rrd file (open it later with `rerun FILE.rrd`; needs no display).")
-@click.option("--web", is_flag=True, help="Serve Rerun's web viewer on 127.0.0.1 (offline: it ships with the SDK).")
-@click.option("--port", type=click.IntRange(1024, 65534), default=None,
-              help="Web viewer port (its data server takes the next one; default 9090 / 9876).")
+@click.option("--web", is_flag=True,
+              help="Serve the scene to a viewer over gRPC, on 127.0.0.1 only (it prints how to open it: the desktop "
+                   "viewer, a browser, or an SSH tunnel from another machine).")
+@click.option("--port", type=click.IntRange(1024, 65535), default=None, help="The data server's port (default 9876).")
+@click.option("--bind", default="127.0.0.1", show_default=True,
+              help="Address of the data server. Anything but loopback opens the scene to the network without "
+                   "authentication (and serves Rerun's web viewer page on every interface, port 9090).")
 @click.option("--checkpoint", type=click.Path(exists=True), default=None,
               help="A trained run (RUN or RUN/checkpoint.pt): draw its predicted points per frame.")
 @click.option("--report", type=click.Path(exists=True, file_okay=False), default=None,
               help="An evaluation's --out directory: draw the predicted points of the run it scored.")
 @click.option("--device", default="cpu", show_default=True, help="Torch device for --checkpoint/--report.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def view(dataset, scene, frames, save, web, port, checkpoint, report, device, as_json):
+def view(dataset, scene, frames, save, web, port, bind, checkpoint, report, device, as_json):
     """Look at a scene in Rerun: per frame (timeline `time`) the radar heatmap (range-azimuth slice
     at 0° elevation, maximum over range), GT range and label images per bounce, the GT returns
     mirrored (where the radar sees them) and un-mirrored (hit points) coloured by label, the LiDAR
@@ -31,13 +35,13 @@ def view(dataset, scene, frames, save, web, port, checkpoint, report, device, as
     \b
     Example:
       holodata view holodata-demo/dataset.zarr --scene L_16 --save L_16.rrd
-      holodata view holodata-demo/dataset.zarr --web --port 9090
+      holodata view holodata-demo/dataset.zarr --web --port 9876
       holodata view holodata-demo/dataset.zarr --report holodata-demo/report --save pred.rrd
     """
     import os
 
     from holodata.errors import InputError
-    from holodata.view import view_scene
+    from holodata.view import view_scene, web_instructions
 
     if save and web:
         raise click.UsageError("--save or --web, not both")
@@ -50,15 +54,18 @@ def view(dataset, scene, frames, save, web, port, checkpoint, report, device, as
     except ImportError as err:
         raise InputError("holodata view needs the Rerun SDK: pip install -e '.[view]' (scripts/setup.sh installs it)") from err
     r = view_scene(dataset, scene, frames, save=save, web=web, port=port, checkpoint=checkpoint, report=report,
-                   device=device)
+                   device=device, bind=bind)
     stream = r.pop("stream", None)   # noqa: F841 - held: the web viewer's data server lives as long as it
     if as_json:
         click.echo(json.dumps(r, indent=2))
     else:
-        where = save or ("the web viewer: http://127.0.0.1:%d" % (port or 9090) if web else "the viewer")
+        where = save or ("the data server" if web else "the viewer")
         click.echo(f"{r['scene']}: {r['frames']} frame(s), {len(r['entities'])} entities -> {where}")
         for n in r["notes"]:
             click.echo(f"note: {n}")
+        if web:
+            for line in web_instructions(port, bind):
+                click.echo(line)
     if web:
         click.echo("serving; Ctrl-C to stop")
         import time

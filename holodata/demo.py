@@ -23,6 +23,7 @@ import numpy as np
 
 from .conventions import Grid, RangeBins
 from .errors import InputError
+from .ownership import claim_folder, remove_folder
 from .dataset.layout import (HUMAN_FACES, HUMAN_VERTICES, MESH_FACES, MESH_FACE_CLASS, MESH_VERTICES,
                              POSE_T_WORLD_RADAR)
 
@@ -151,7 +152,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     mapping = resolve_mapping(mapping)
     say = log or (lambda _msg: None)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_folder(out, "holodata demo")   # a new or empty folder, or an earlier demo's (holodata.ownership)
     url = out / "dataset.zarr"
     timings: dict[str, float] = {}
 
@@ -277,9 +278,7 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> di
                                  mapping_recording=d / "mapping" if cfg.mapping_pass else None)
             continue
         if d.exists():  # a recording cut off half-way: start that corner again
-            import shutil
-
-            shutil.rmtree(d)
+            remove_folder(d, "holodata demo")
         jobs.append((sid, d, corner, seed))
     if len(jobs) > 1 and cpus() >= 2:
         other = fork_call(_synth_jobs, jobs[1::2], cfg, True, label="demo: synth (second process)")

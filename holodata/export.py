@@ -23,14 +23,13 @@ offsets and stamps), and every other array of the scene under ``holodata/<name>`
 from __future__ import annotations
 
 import json
-import shutil
-from pathlib import Path
 
 import numpy as np
 
 from .dataset.layout import (CAMERA_POINTS, GT_LABEL, GT_RANGE, LIDAR_POINTS, LIDAR_POINT_TIME_NS, RADAR_CYCLE_NS,
                              RADAR_HEATMAP, TIME_TIMESTAMP_NS)
 from .errors import DatasetError, InputError
+from .ownership import OutputDir
 from .safe_io import check_name
 
 FORMATS = ("panoradar", "hdf5")
@@ -60,12 +59,14 @@ def _ragged_frames(sc, name: str):
         yield r[f]
 
 
-def export_panoradar(sc, folder: Path, grid, range_bins) -> dict:
-    """One scene as a PanoRadar processed trajectory folder (see the module docstring)."""
+def export_panoradar(sc, out: OutputDir, grid, range_bins, force: bool = False) -> dict:
+    """One scene as a PanoRadar processed trajectory folder ``out/<scene id>`` (see the module
+    docstring), written under a temp name and moved in place when complete; an existing folder of that
+    name is replaced only when holodata wrote it (or ``force``: :mod:`holodata.ownership`)."""
     if RADAR_HEATMAP not in sc:
         raise DatasetError(f"scene {sc.id!r} has no radar/heatmap: nothing to export as PanoRadar rf_npy")
-    tmp = folder.with_name(folder.name + ".partial")
-    shutil.rmtree(tmp, ignore_errors=True)
+    out.check_free(sc.id, force)
+    tmp = out.temp(sc.id, folder=True)
     dirs = {"rf": tmp / "rf_npy"}
     has_gt = GT_RANGE in sc
     if has_gt:
@@ -95,17 +96,19 @@ def export_panoradar(sc, folder: Path, grid, range_bins) -> dict:
             "timestamps_ns": ([int(t) for t in np.asarray(sc[TIME_TIMESTAMP_NS][...])]
                               if TIME_TIMESTAMP_NS in sc else None)}
     (tmp / "holodata.json").write_text(json.dumps(meta, indent=1))
-    if folder.exists():
-        shutil.rmtree(folder)
-    tmp.rename(folder)
+    folder = out.install(tmp, sc.id, force)
     return {"scene": sc.id, "out": str(folder), "frames": sc.n_frames, "gt": has_gt}
 
 
-def export_hdf5(sc, path: Path, grid, range_bins) -> dict:
-    """One scene as an HDF5 file in holodata's HDF5 reader layout plus every array (module docstring)."""
+def export_hdf5(sc, out: OutputDir, grid, range_bins, force: bool = False) -> dict:
+    """One scene as an HDF5 file ``out/<scene id>.h5`` in holodata's HDF5 reader layout plus every
+    array (module docstring); replaces only a file holodata wrote (or ``force``), like
+    :func:`export_panoradar`."""
     import h5py
 
-    tmp = path.with_name(path.name + ".partial")
+    fname = f"{sc.id}.h5"
+    out.check_free(fname, force)
+    tmp = out.temp(fname)
     arrays = sc.arrays()
     nodes = sc.nodes()
     with h5py.File(tmp, "w") as h:
@@ -172,13 +175,16 @@ def export_hdf5(sc, path: Path, grid, range_bins) -> dict:
             else:                                                                  # small or whole arrays
                 h.create_dataset(g, data=np.asarray(sc[name][...]), compression="lzf" if len(sc[name].shape) else None)
             h[g].attrs["holodata_attrs"] = json.dumps(meta.get("attributes", {}), default=str)
-    tmp.replace(path)
+    path = out.install(tmp, fname, force)
     return {"scene": sc.id, "out": str(path), "frames": sc.n_frames, "arrays": len(arrays)}
 
 
-def export_dataset(url, fmt: str, out, scene_ids=None, split: str | None = None, quiet: bool = True) -> dict:
+def export_dataset(url, fmt: str, out, scene_ids=None, split: str | None = None, quiet: bool = True,
+                   force: bool = False) -> dict:
     """Export scenes of dataset ``url`` (``scene_ids``, or a split's, or all) as ``fmt`` into folder
-    ``out`` (created). Each scene is written under a ``.partial`` name and renamed when complete."""
+    ``out`` (created). Each scene is written under a temp name and moved in place when complete; a
+    scene's folder or file already in ``out`` is replaced only when holodata wrote it, or with
+    ``force`` when it is a plain file or folder (never a symlink): :mod:`holodata.ownership`."""
     from .dataset import open_dataset
     from .progress import track
 
@@ -188,8 +194,9 @@ def export_dataset(url, fmt: str, out, scene_ids=None, split: str | None = None,
     todo = _scenes(ds, scene_ids, split)
     for sid in todo:   # each names a folder/file under OUT (a split list is the dataset's, from elsewhere)
         check_name(sid, "scene id", ds.url)
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = OutputDir(out, "holodata export")
+    for sid in todo:   # refuse before writing anything
+        out.check_free(sid if fmt == "panoradar" else f"{sid}.h5", force)
     done = []
     skipped = []
     for sid in track(todo, total=len(todo), description=f"export {fmt}", quiet=quiet, unit="scenes"):
@@ -199,7 +206,7 @@ def export_dataset(url, fmt: str, out, scene_ids=None, split: str | None = None,
             skipped.append({"scene": sid, "why": "no radar/heatmap (a LiDAR-only scene, e.g. a mapping pass)"})
             continue
         if fmt == "panoradar":
-            done.append(export_panoradar(sc, out / sid, ds.grid, ds.range_bins))
+            done.append(export_panoradar(sc, out, ds.grid, ds.range_bins, force))
         else:
-            done.append(export_hdf5(sc, out / f"{sid}.h5", ds.grid, ds.range_bins))
-    return {"dataset": ds.url, "format": fmt, "out": str(out), "scenes": done, "skipped": skipped}
+            done.append(export_hdf5(sc, out, ds.grid, ds.range_bins, force))
+    return {"dataset": ds.url, "format": fmt, "out": str(out.path), "scenes": done, "skipped": skipped}

@@ -1,7 +1,7 @@
 """``holodata view``: one scene in Rerun (desktop viewer, web viewer, or an ``.rrd`` file).
 
-Steps (:func:`view_scene`): open a Rerun recording stream (saved to a file, served to the web
-viewer on 127.0.0.1, or sent to a spawned desktop viewer); log what never changes once (the class
+Steps (:func:`view_scene`): open a Rerun recording stream (saved to a file, served by a gRPC data
+server bound to 127.0.0.1 only, or sent to a spawned desktop viewer); log what never changes once (the class
 table as an annotation context, the static mesh, the camera's extrinsic); then frame by frame, on
 the ``time`` timeline (``time/timestamp_ns``), read only that frame's arrays and log
 
@@ -57,18 +57,58 @@ def parse_frames(spec: str | None, n: int) -> range:
     return range(lo, hi)
 
 
-def _stream(save, web: bool, port: int | None, scene_id: str):
+DATA_PORT = 9876        # the gRPC data server's default port (Rerun's)
+PAGE_PORT = 9090        # the SDK's web viewer page, served only with a non-loopback --bind
+LOOPBACK = "127.0.0.1"
+
+
+def is_loopback(host: str) -> bool:
+    import ipaddress
+
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return host == "localhost"
+
+
+def _stream(save, web: bool, port: int | None, scene_id: str, bind: str = LOOPBACK):
+    """The recording stream: saved to ``save``, spawned in a desktop viewer, or (``web``) served by a
+    gRPC data server bound to ``bind`` only (loopback by default: nobody else reaches the scene).
+
+    The SDK's page server (``rr.serve_web_viewer``, rerun-sdk 0.41) binds every interface and takes
+    no address, so it runs only when ``bind`` is not loopback, i.e. when the user asked for the network."""
     import rerun as rr
 
     rec = rr.RecordingStream("holodata", recording_id=f"holodata-{scene_id}")
     if save:
         rec.save(str(save))
     elif web:
-        uri = rec.serve_grpc(grpc_port=(port + 1) if port else None)
-        rr.serve_web_viewer(web_port=port, open_browser=False, connect_to=uri)
+        sink = rr.GrpcServerSink(bind_ip=bind, port=port or DATA_PORT)
+        rec.set_sinks(sink)
+        if not is_loopback(bind):
+            rr.serve_web_viewer(web_port=PAGE_PORT, open_browser=False, connect_to=sink.uri)
     else:
         rec.spawn()
     return rec
+
+
+def web_instructions(port: int | None, bind: str = LOOPBACK) -> list[str]:
+    """How to look at a scene served by :func:`_stream` (``web``): lines for the terminal."""
+    import urllib.parse
+
+    import rerun as rr
+
+    host = LOOPBACK if is_loopback(bind) else bind
+    uri = f"rerun+http://{host}:{port or DATA_PORT}/proxy"
+    if not is_loopback(bind):
+        return [f"data server on {bind}:{port or DATA_PORT} (reachable from the network, no authentication)",
+                f"web viewer page: http://{host}:{PAGE_PORT} (every interface)"]
+    hosted = f"https://app.rerun.io/version/{rr.__version__}/?url={urllib.parse.quote(uri, safe='')}"
+    return [f"data server on {uri} (this machine only)",
+            f"open it with the desktop viewer: rerun {uri}",
+            f"or in a browser on this machine: {hosted} (the page comes from rerun.io; the scene stays here)",
+            f"from another machine: ssh -L {port or DATA_PORT}:127.0.0.1:{port or DATA_PORT} THIS_HOST first, "
+            f"or holodata view --save SCENE.rrd and open that file with rerun"]
 
 
 def run_of_report(report_dir) -> tuple[str | None, bool, str]:
@@ -118,7 +158,7 @@ class _Predictions:
 
 
 def view_scene(url: str, scene_id: str | None = None, frames: str | None = None, save=None, web: bool = False,
-               port: int | None = None, checkpoint=None, report=None, device: str = "cpu") -> dict:
+               port: int | None = None, checkpoint=None, report=None, device: str = "cpu", bind: str = LOOPBACK) -> dict:
     """Log scene ``scene_id`` (default: the first with a radar) of dataset ``url`` to Rerun; returns
     {scene, frames, entities, notes} (and, with ``web``, ``stream``: the recording stream whose
     gRPC server the web viewer reads from — it stops when the stream is dropped). ``checkpoint``
@@ -154,7 +194,7 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
             notes.append(f"no {need[0]}: the run's predicted points left out")
         else:
             pred = _Predictions(ck, oracle, est, ds, sc, device)
-    rec = _stream(save, web, port, scene_id)
+    rec = _stream(save, web, port, scene_id, bind)
     entities: set[str] = set()
 
     def log(path, obj, static=False):

@@ -50,31 +50,48 @@ def test_bad_input_is_one_line(traced, tmp_path):
     assert r.exit_code == 1 and "--save" in r.output
 
 
-def test_web_keeps_its_data_server_alive_while_the_stream_is_held(traced):
+def _listening(port: int) -> set[str]:
+    """Local addresses (IPv4 dotted / IPv6 hex) with a TCP socket listening on ``port`` (/proc/net/tcp*)."""
+    import socket
+    import struct
+
+    out = set()
+    for f, fam in (("/proc/net/tcp", 4), ("/proc/net/tcp6", 6)):
+        try:
+            rows = open(f).read().splitlines()[1:]
+        except FileNotFoundError:
+            continue
+        for row in rows:
+            local, state = row.split()[1], row.split()[3]
+            addr, p = local.split(":")
+            if state != "0A" or int(p, 16) != port:   # 0A: LISTEN
+                continue
+            out.add(socket.inet_ntoa(struct.pack("<I", int(addr, 16))) if fam == 4 else addr)
+    return out
+
+
+def test_web_serves_on_loopback_only_while_the_stream_is_held(traced):
+    """Issue 50 point 1: the data server binds 127.0.0.1 (not every interface, as rerun's serve_grpc
+    does), and no page server is started on every interface."""
     import socket
 
-    from holodata.view import view_scene
+    from holodata.view import PAGE_PORT, view_scene, web_instructions
 
-    def free_pair() -> int:
-        """A port P with P + 1 free too (the web viewer takes P, its data server P + 1)."""
-        for _ in range(50):
-            with socket.socket() as a:
-                a.bind(("0.0.0.0", 0))
-                port = a.getsockname()[1]
-                try:
-                    with socket.socket() as b:
-                        b.bind(("0.0.0.0", port + 1))
-                except OSError:
-                    continue
-            return port
-        raise AssertionError("no two consecutive free ports")
-
-    port = free_pair()
+    with socket.socket() as a:
+        a.bind(("127.0.0.1", 0))
+        port = a.getsockname()[1]
+    page_before = _listening(PAGE_PORT)
     r = view_scene(traced, "room_a", "0:2", web=True, port=port)
-    assert r["stream"] is not None
-    with socket.create_connection(("127.0.0.1", port + 1), timeout=5):   # the gRPC data server answers
-        pass
-    r["stream"].disconnect()
+    try:
+        assert r["stream"] is not None
+        with socket.create_connection(("127.0.0.1", port), timeout=5):   # the gRPC data server answers
+            pass
+        assert _listening(port) == {"127.0.0.1"}, _listening(port)
+        assert _listening(PAGE_PORT) == page_before
+        lines = web_instructions(port)
+        assert any(f"rerun rerun+http://127.0.0.1:{port}/proxy" in x for x in lines) and any("ssh -L" in x for x in lines)
+    finally:
+        r["stream"].disconnect()
 
 
 def test_an_oracle_report_draws_the_gt_hit_points_as_predictions(traced, tmp_path):

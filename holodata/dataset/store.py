@@ -71,6 +71,45 @@ class Store:
             return self.root / key if key else self.root
         return f"{self.root}/{key}" if key else self.root
 
+    _real_root: str | None = None
+
+    def _w(self, key: str):
+        """Path of ``key`` for a write or delete: on a local root, refused (one :class:`DatasetError`
+        line) when a symlink under the root lies on the way, which could lead the write outside the
+        dataset (a ``scenes`` linked to ``../..``, say). The root itself may be a link (the user's
+        choice of where the dataset lives)."""
+        if ".." in key.split("/"):
+            raise DatasetError(f"{self.url}: key {key!r} refused: '..' would name a path outside the dataset")
+        p = self._p(key)
+        if self.local and key:
+            if self._real_root is None:
+                self._real_root = os.path.realpath(self.root)
+            want = os.path.join(self._real_root, os.path.normpath(key))
+            if os.path.realpath(p) != want:
+                raise DatasetError(f"{self.url}: {key} goes through a symlink inside the dataset (to "
+                                   f"{os.path.realpath(p)}); holodata does not write or delete through it")
+        return p
+
+    def walk(self, key: str) -> tuple[list[str], list[str]]:
+        """(files, symlinks) under folder ``key``, as keys relative to it; symlinks are not followed
+        (object stores have none)."""
+        files: list[str] = []
+        links: list[str] = []
+        if self.local:
+            base = self._p(key)
+            for d, dirs, names in os.walk(base, followlinks=False):
+                rel = os.path.relpath(d, base)
+                for n in dirs + names:
+                    r = n if rel == "." else f"{rel}/{n}"
+                    if os.path.islink(os.path.join(d, n)):
+                        links.append(r)
+                    elif n in names:
+                        files.append(r)
+        else:
+            base = self._fresh(key).rstrip("/")
+            files = [f[len(base) + 1:] for f in self.fs.find(base)]
+        return sorted(files), sorted(links)
+
     def get(self, key: str) -> bytes | None:
         try:
             if self.local:
@@ -87,7 +126,7 @@ class Store:
         if isinstance(data, (list, tuple)) and not self.local:
             data = b"".join(data)
         if self.local:
-            p = self.root / key
+            p = self._w(key)
             if self._dirs is None:
                 self._dirs = set()
             if p.parent not in self._dirs:   # one mkdir per folder, not per put
@@ -142,7 +181,7 @@ class Store:
     def delete(self, key: str) -> None:
         try:
             if self.local:
-                (self.root / key).unlink()
+                self._w(key).unlink()
             else:
                 self.fs.rm_file(self._p(key))
         except FileNotFoundError:
@@ -154,7 +193,10 @@ class Store:
 
         if self.local:
             self._dirs = None
-            shutil.rmtree(self.root / key, ignore_errors=True)
+            p = self._w(key)
+            if p.is_symlink():
+                raise DatasetError(f"{self.url}: {key} is a symlink; holodata does not delete through it")
+            shutil.rmtree(p, ignore_errors=True)
         elif self.fs.exists(self._p(key)):
             self.fs.rm(self._p(key), recursive=True)
 
@@ -180,7 +222,7 @@ class Store:
                 else:
                     mtime = self.fs.modified(p).timestamp()
                 if now - mtime > older_than_s:
-                    p.unlink() if self.local else self.fs.rm_file(p)
+                    self._w(str(p.relative_to(self.root))).unlink() if self.local else self.fs.rm_file(p)
                     n += 1
             except FileNotFoundError:   # finished or swept by another process meanwhile
                 pass

@@ -25,6 +25,7 @@ import numpy as np
 
 from holodata import metrics as M
 from holodata.conventions import Grid, RangeBins, is_human, is_los, reduced_grid
+from holodata.ownership import claim_folder
 from holodata.progress import track
 
 from .baseline import strongest_peaks
@@ -210,7 +211,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
 
     checkpoint = None if oracle else resolve(checkpoint)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_folder(out, "holodata evaluate")   # a new or empty folder, or a report holodata wrote
     run = Predictor.load(checkpoint, device=device, estimator=estimator, oracle=oracle)
     model, stage2, ck, ck2 = run.model, run.stage2, run.checkpoint, run.stage2_checkpoint
     rows = STAGE2_ROWS if stage2 is not None else METHODS

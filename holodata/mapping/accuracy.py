@@ -401,8 +401,9 @@ def evaluate_slam(estimate: Trajectory, mesh: tuple | None, truth_dir, out_dir=N
             res["coverage"] = mesh_coverage(v, mesh[1], tmesh.vertices, tmesh.faces[keep], read_tum(tr).poses,
                                             grid_from_scene_json(truth_dir))
     if out_dir is not None:
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
+        from ..ownership import claim_folder
+
+        out_dir = claim_folder(out_dir, "holodata slam --report").path   # new, empty or holodata's
         plot_cumulative(curves, out_dir / "ate_cumulative.png", "absolute position error (cm)",
                         "LiDAR trajectory: cumulative APE (Umeyama-aligned)")
         if mesh is not None:

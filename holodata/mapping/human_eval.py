@@ -402,8 +402,9 @@ def evaluate_register(url: str, scene_id: str, truth_dir: str | Path, out_dir: s
     if (truth_dir / "lidar_instances.npz").is_file() and LIDAR_INSTANCE in sc.arrays():
         out["segmentation"] = segmentation_ap50(url, scene_id, truth_dir)
     if out_dir is not None:
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
+        from ..ownership import claim_folder
+
+        out_dir = claim_folder(out_dir, "holodata register --report").path   # new, empty or holodata's
         (out_dir / "register_accuracy.json").write_text(json.dumps(out, indent=2, default=float))
         plot_centroid_errors({label: out[k]["per_frame_cm"] for k, label in
                               (("human_centroid", "world frame"), ("human_centroid_radar", "radar frame")) if k in out},

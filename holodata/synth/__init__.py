@@ -34,7 +34,6 @@ messages are written in log-time order.
 """
 from __future__ import annotations
 
-import os
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +41,7 @@ from pathlib import Path
 
 from ..conventions import Grid, RangeBins
 from ..errors import InputError
+from ..ownership import OutputDir
 from . import truth as truthio
 
 TOPICS = {
@@ -58,7 +58,7 @@ TOPICS = {
 # ``radar_output="iq"``: raw samples of every rotation instead of the heatmaps
 RAW_TOPIC = "/radar/raw"
 RADAR_OUTPUTS = ("heatmap", "iq")
-PARTIAL = ".synth-partial"  # where synthesize writes until everything is in place
+PARTIAL_NAME = "synth"  # OUT/.synth.<uuid>.partial: where synthesize writes until everything is in place
 # the mapping pass's recording (``mapping_pass=True``): LiDAR and odometry only
 MAPPING_TOPICS = {t: TOPICS[t] for t in ("/ouster/points", "/ouster/metadata", "/tf", "/tf_static", "/odom")}
 # with ``stereo_images=True``: the rectified pair behind the depth camera (mono8, textured scene)
@@ -184,21 +184,20 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         raise InputError(f"robot_stop_x must be within -3..0 m (the junction starts at 0), got {robot_stop_x}")
     if mapping_scan_hz is not None and not 0.1 <= mapping_scan_hz <= 10.0:
         raise InputError(f"mapping_scan_hz must be within 0.1-10 Hz, got {mapping_scan_hz}")
-    if rec.exists() and not force:
+    # OUT may hold the user's own files: synth replaces only what a synth run wrote there (its
+    # manifest, holodata.ownership), the recording only with force; everything is written under a
+    # temp folder and moved into OUT at the end, the recording last: an interrupted run leaves no
+    # recording that looks complete, and a rerun starts over (same arguments, same files)
+    od = OutputDir(out_dir, "holodata synth")
+    if (rec.exists() or rec.is_symlink()) and not force:
         raise InputError(f"{out_dir}: already holds a recording ({rec.name}); choose an empty --out, or --force "
                          f"to replace it")
-    # everything is written under OUT/.synth-partial and moved into OUT at the end, the recording
-    # last: an interrupted run leaves no recording that looks complete, and a rerun starts over
-    # (same arguments, same files) — also after an interrupt between the moves
-    tmp = out_dir / PARTIAL
-    mp_rec = recording_path(out_dir, format, "mapping")
-    if (out_dir / "truth").is_dir() and not (out_dir / "truth" / "scene.json").exists():
-        raise InputError(f"{out_dir}: holds a truth/ folder that synth did not write; choose an empty --out")
-    for left in (tmp, out_dir / "truth", mp_rec) + ((rec,) if force else ()):
-        if left.is_dir():
-            shutil.rmtree(left)
-        elif left.exists():
-            left.unlink()
+    mp_name = recording_path(out_dir, format, "mapping").name
+    names = ["truth", rec.name] + ([mp_name] if mapping_pass else [])
+    for name in names:
+        od.check_free(name, force=force and name == rec.name)
+    if not mapping_pass and od.owns(mp_name):   # an earlier run's mapping pass of another data pass
+        od.remove(mp_name)
     need = estimate_bytes(frames, grid, range_bins, lidar_shape, camera_shape, radar_encoding, stereo_images,
                           radar_output, radar_chirps)
     probe = next((q for q in (out_dir, *out_dir.parents) if q.exists()), Path("."))
@@ -206,7 +205,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
     if free < need * 1.1:
         raise InputError(f"{out_dir}: the recording needs ~{need / 1e9:.2f} GB and {probe} has {free / 1e9:.2f} GB free "
                          f"(fewer --frames or smaller --grid/--lidar/--camera)")
-    tmp.mkdir(parents=True)
+    tmp = od.temp(PARTIAL_NAME, folder=True)
     sc = build_scenario(corner=corner, width=width, frames=frames, seed=seed, human=human,
                         grid=grid or Grid(), range_bins=range_bins or RangeBins(), lidar_shape=lidar_shape,
                         camera_shape=camera_shape, radar_encoding=radar_encoding, stereo_images=stereo_images,
@@ -229,7 +228,7 @@ def synthesize(out_dir, corner: str = "L", width: float | None = None, frames: i
         res.trajectory_lidar_mapping = res.truth_dir / "mapping_trajectory_lidar.tum"
     rec_tmp = recording_path(tmp, format)
     for child in sorted(tmp.iterdir(), key=lambda c: c == rec_tmp):  # the recording last
-        os.replace(child, out_dir / child.name)
+        od.install(child, child.name, force=force and child.name == rec.name)
     tmp.rmdir()
     for k, v in vars(res).items():  # paths into OUT, not the partial folder
         if isinstance(v, Path) and (v == tmp or tmp in v.parents):

@@ -34,6 +34,7 @@ from holodata.errors import InputError
 from holodata.progress import track
 from holodata.safe_io import load_torch
 
+from ..ownership import claim_folder
 from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
@@ -435,7 +436,7 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
     ck1 = load_checkpoint(src_file)
     ds = open_dataset(str(dataset_url))
     check_stage1(ck1, ds, src_file)
-    out.mkdir(parents=True, exist_ok=True)
+    claim_folder(out, "holodata train")   # a new or empty folder, or a run holodata wrote
     if (out / CHECKPOINT).resolve() != src_file.resolve() and not (out / CHECKPOINT).exists():
         shutil.copy2(src_file, out / CHECKPOINT)
     f = int((ck1.get("transform") or {}).get("downsample", 1))

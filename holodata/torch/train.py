@@ -19,6 +19,7 @@ import torch
 from torch.utils.data import DataLoader
 
 from holodata.errors import InputError
+from holodata.ownership import claim_folder
 from holodata.progress import track
 
 from . import ddp
@@ -197,8 +198,8 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
     """
     out = Path(out_dir)
     ctx, dev_name = ddp.setup(config.device, config.batch_size)
-    if ctx.main:
-        out.mkdir(parents=True, exist_ok=True)
+    if ctx.main:   # a new or empty folder, or a run holodata wrote (holodata.ownership)
+        claim_folder(out, "holodata train")
     device = resolve_device(dev_name)
     mcfg = ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
                        max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range),
