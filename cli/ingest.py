@@ -14,7 +14,8 @@ from holodata.cli.options import dask_options
 @click.option("--topics", "topics_file", type=click.Path(dir_okay=False),
               help="YAML file mapping roles to topics (see examples/topics.yaml).")
 @click.option("--scene-id", "scene_ids", multiple=True,
-              help="Scene id, once per recording (default: the recording's file or folder name).")
+              help="Scene id, once per RECORDING argument (default: its file or folder name). A holodata synth "
+                   "output folder is its data pass <ID> and its mapping pass <ID>_map.")
 @click.option("--msg-dir", type=click.Path(file_okay=False),
               help="Folder of .msg files for message types the recording does not define.")
 @click.option("--meta", type=click.Path(dir_okay=False),

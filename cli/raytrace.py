@@ -53,12 +53,15 @@ from holodata.cli.options import dask_options
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML/JSON file of stage settings (section gt; examples/holodata.yaml); flags "
                    "given here win.")
+@click.option("--force", is_flag=True,
+              help="Dataset form: trace every scene again. Without it, a scene whose GT was traced from other inputs "
+                   "(a person registered since, a new mesh or poses, other settings) is traced again, others resume.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
 def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
                 max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, workers,
-                scheduler, config_file, quiet, as_json):
+                scheduler, config_file, force, quiet, as_json):
     """Ray-trace multi-bounce ground truth (gt/range, gt/normal, gt/point, gt/label, gt/semantic,
     gt/human_center) for every frame, shard by shard (an interrupted run resumes).
 
@@ -81,6 +84,8 @@ def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_
             raise click.UsageError("give either DATASET [--scene] or --mesh/--poses/--out, not both")
         if poses is None or out is None:
             raise click.UsageError("standalone form needs --mesh, --poses and --out")
+        if force:
+            raise click.UsageError("--force belongs to the dataset form")
     else:
         if dataset is None:
             raise click.UsageError("give DATASET, or --mesh/--poses/--out for the standalone form")
@@ -114,11 +119,14 @@ def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_
                                           rotation_hz=rotation_hz)
         else:
             summary = raytrace_dataset(dataset, list(scenes) or None, cfg=cfg, quiet=quiet, processes=processes,
-                                       client=client)
+                                       client=client, force=force)
     if as_json:
         click.echo(json.dumps(summary))
     elif not quiet:
         for s in summary["scenes"]:
+            if s.get("retraced"):
+                why = "--force" if s["retraced"] == ["--force"] else f"its inputs changed ({', '.join(s['retraced'])})"
+                click.echo(f"{summary['out']}: scene {s['scene']}: traced again: {why}")
             click.echo(f"{summary['out']}: scene {s['scene']}: {plural(s['frames'], 'frame')}, "
                        f"{plural(s['shards_written'], 'shard')} written, {s['shards_skipped']} already done "
                        f"({s['seconds']} s; beams from the {s['origin_model']}"

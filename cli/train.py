@@ -10,7 +10,8 @@ import click
 @click.option("--out", "out", required=True, type=click.Path(file_okay=False),
               help="Run directory (checkpoint.pt, stage2.pt, config.json, metrics.jsonl). An existing run resumes.")
 @click.option("--epochs", type=click.IntRange(min=1), default=None,
-              help="Total stage-one epochs (default 20, or the config file's).")
+              help="Total stage-one epochs (default 20, or the config file's); also bounds each stage-two phase "
+                   "unless --stage2-epochs or --stage2-config says otherwise.")
 @click.option("--device", type=click.Choice(["cpu", "cuda"]), default=None, help="Training device (default cpu).")
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML/JSON file of TrainConfig fields (flags win).")
@@ -50,6 +51,10 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     from holodata.torch.stage2_train import Stage2Config, train_stage2
     from holodata.torch.train import TrainConfig, train as run_train
 
+    from holodata.dataset import open_dataset
+    from holodata.dataset.splits import split_scenes
+
+    split_scenes(open_dataset(dataset), "train")   # a missing or empty split, or leakage: one line before any work
     summary = {}
     if stage in ("1", "all"):
         flags = {"epochs": epochs, "device": device, "batch_size": batch_size, "lr": lr, "seed": seed,
@@ -81,28 +86,38 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     if not ctx.main:
         return  # stage two and the summary: rank 0 alone
     if summary and not as_json:
-        start = f" (resumed after epoch {res.resumed_from})" if res.resumed_from else ""
-        click.echo(f"trained {res.epochs} epochs{start}; final loss {res.final_loss:.4g}; checkpoint {res.checkpoint}")
+        click.echo(_done_line("stage one", res.epochs, res.resumed_from, res.final_loss, res.checkpoint))
     if stage in ("2", "all"):
         s2 = _read_mapping(stage2_file) if stage2_file else {}
+        told = stage2_epochs is not None or bool({"epochs_rt", "epochs_refine"} & set(s2))
         for k, v in {"device": device, "seed": seed, "epochs_rt": stage2_epochs, "epochs_refine": stage2_epochs}.items():
             if v is not None:
                 s2[k] = v
-        r2 = train_stage2(dataset, out, Stage2Config.from_dict(s2, source=str(stage2_file or "stage-two options")),
-                          stage1=stage1 if stage == "2" else None, quiet=quiet)
+        s2cfg = Stage2Config.from_dict(s2, source=str(stage2_file or "stage-two options"))
+        if epochs is not None and not told:   # --epochs bounds each stage-two phase too
+            s2cfg.epochs_rt, s2cfg.epochs_refine = min(s2cfg.epochs_rt, epochs), min(s2cfg.epochs_refine, epochs)
+        r2 = train_stage2(dataset, out, s2cfg, stage1=stage1 if stage == "2" else None, quiet=quiet)
         last = r2["history"][-1] if r2["history"] else {}
         summary.setdefault("run", str(out))
         summary["stage2"] = {"checkpoint": str(r2["checkpoint"]), "epochs": r2["epochs"],
                              "resumed_from": r2["resumed_from"], "final_loss": last.get("loss")}
         if not as_json:
-            start = f" (resumed after epoch {r2['resumed_from']})" if r2["resumed_from"] else ""
-            fl = last.get("loss")
-            click.echo(f"stage two: trained {r2['epochs']} epochs{start}; final loss "
-                       f"{'n/a' if fl is None else f'{fl:.4g}'}; checkpoint {r2['checkpoint']}")
+            click.echo(_done_line("stage two", r2["epochs"], r2["resumed_from"], last.get("loss"), r2["checkpoint"]))
     if as_json:
         import json
 
         click.echo(json.dumps(summary, indent=2))
+
+
+def _done_line(stage: str, epochs: int, resumed_from: int, loss, checkpoint) -> str:
+    """What a stage did: trained (how many epochs this run), or nothing when its checkpoint already had them."""
+    from holodata.dataset.info import plural
+
+    fl = "n/a" if loss is None else f"{loss:.4g}"
+    if resumed_from >= epochs:
+        return f"{stage}: nothing to train ({checkpoint} already has {plural(epochs, 'epoch')}; final loss {fl})"
+    start = f" (epochs {resumed_from + 1}-{epochs}: resumed after epoch {resumed_from})" if resumed_from else ""
+    return f"{stage}: trained {plural(epochs - resumed_from, 'epoch')}{start}; final loss {fl}; checkpoint {checkpoint}"
 
 
 def _read_mapping(path) -> dict:

@@ -72,11 +72,21 @@ def test_heatmap_norm_and_transform():
     np.testing.assert_array_equal(s["range"].numpy(), R[0][:, ::2, ::2][..., :8])
 
 
-def test_split_by_scene():
-    ids = [f"c{i}" for i in range(8)]
-    tr, te = split_scenes(ids, None, "train"), split_scenes(ids, None, "test")
-    assert set(tr).isdisjoint(te) and sorted(tr + te) == ids and len(te) == 2
-    assert split_scenes(ids, {"train": ["c1"], "test": ["c2"]}, "test") == ["c2"]
+def test_split_by_scene(tmp_path):
+    """Splits are the dataset's, set explicitly; a missing or empty split is an error (issue 55)."""
+    from holodata.dataset import create_dataset, open_dataset
+    from holodata.errors import DatasetError
+
+    url = str(tmp_path / "d.zarr")
+    w = create_dataset(url)
+    for i in range(3):
+        w.scene(f"c{i}", n_frames=1)
+    with pytest.raises(DatasetError, match="split 'train' is empty.*holodata split"):
+        split_scenes(open_dataset(url), "train")
+    w.set_splits(train=["c0", "c1"], test=["c2"])
+    ds = open_dataset(url)
+    assert split_scenes(ds, "test") == ["c2"] and split_scenes(ds, "train") == ["c0", "c1"]
+    assert split_scenes(ds, "all") == ["c0", "c1", "c2"]
 
 
 def test_config_file_and_flags(tmp_path):

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..conventions import Grid, RangeBins
 from ..errors import HolodataError, InputError, RecordingError
-from ..readers import synth_output_folder
+from ..readers import SYNTH_MAPPING, synth_output_folder
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
 from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, _one_line, map_topics
 from .radar_streams import RadarStream, RawRadarStream, radar_stream
@@ -75,7 +75,10 @@ def _reject_reason(rec: Recording, infos: list[TopicInfo], tmap: TopicMap, notes
 def _scene_id(path: Path) -> str:
     """Scene id from a recording's file or folder name; a synth recording (``OUT/recording``
     beside ``OUT/truth/``) or a synth output folder is named after ``OUT``."""
-    p = synth_output_folder(path) or Path(path)
+    p = Path(path)
+    if p.name in SYNTH_MAPPING and (p.parent / "truth").is_dir():   # a synth mapping pass: <OUT>_map
+        return f"{_scene_id(p.parent)}_map"
+    p = synth_output_folder(path) or p
     name = p.name if p.is_dir() else p.stem
     sid = re.sub(r"[^A-Za-z0-9_.-]+", "_", name).strip("._") or "scene"
     return sid

@@ -152,7 +152,10 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
     fingerprint = _fingerprint(plan)
     if plan.scene_id in ds.scene_ids() and _resumed_scene_done(plan, ds, sizes, fingerprint):
         return {"scene": plan.scene_id, "frames": T, "skipped": "already ingested"}
-    attrs = {"frame_sensor": fs, "source": source, "sensors": sensor_attrs(plan),
+    from ..dataset.splits import scene_role
+
+    attrs = {"frame_sensor": fs, "role": scene_role({"frame_sensor": fs}), "source": source,
+             "sensors": sensor_attrs(plan),
              "extrinsics": extrinsics(plan),
              "ingest": {"complete": False, "topics": plan.tmap.to_dict(), "fingerprint": fingerprint}}
     # marked unfinished in the put that makes (or reopens) the scene; finished with the final attributes

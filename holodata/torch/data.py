@@ -15,6 +15,7 @@ import torch
 from torch.utils.data import Dataset
 
 from holodata.dataset.layout import GT_LABEL, GT_RANGE, RADAR_HEATMAP
+from holodata.dataset.splits import split_scenes
 from holodata.errors import DatasetError
 
 
@@ -90,24 +91,6 @@ def apply_transform(hm: np.ndarray, rng: np.ndarray, lab: np.ndarray, t: SampleT
     return hm, rng, lab
 
 
-def split_scenes(scenes: list[str], splits: dict | None, split: str, test_fraction: float = 0.25) -> list[str]:
-    """Scene ids of ``split``: the dataset's recorded splits when present, else a deterministic
-    split BY SCENE (sorted ids, the last ``test_fraction`` — at least one when there are ≥ 2 — go to
-    test). Frames of one scene never land on both sides."""
-    if splits and split in splits and splits[split]:
-        missing = [s for s in splits[split] if s not in scenes]
-        if missing:
-            raise DatasetError(f"split {split!r} names unknown scene(s): {', '.join(missing)}")
-        return list(splits[split])
-    if split not in ("train", "test", "all"):
-        raise DatasetError(f"dataset has no split {split!r}")
-    ids = sorted(scenes)
-    if split == "all" or len(ids) < 2:
-        return ids
-    n_test = max(1, int(round(len(ids) * test_fraction)))
-    return ids[-n_test:] if split == "test" else ids[:-n_test]
-
-
 class EpochAugment:
     """Per-sample augmentation draws keyed by (seed, epoch, sample index): the crop/roll of sample i
     in epoch e is the same whichever process, DataLoader worker or data-parallel rank reads it, so
@@ -172,7 +155,7 @@ class HeatmapDataset(EpochAugment, Dataset):
                 self.url = str(self.url)
         self._ds, self._pid = ds, os.getpid()
         self.split = split
-        self.scenes = list(scenes) if scenes is not None else split_scenes(list(ds.scenes), getattr(ds, "splits", None), split)
+        self.scenes = list(scenes) if scenes is not None else split_scenes(ds, split)
         self.index: list[tuple[str, int]] = []
         for sid in self.scenes:
             sc = ds.scene(sid)

@@ -154,11 +154,11 @@ def load_frames(dataset_url, split: str, f: int, frames_per_scene: int | None = 
     """The ``split`` frames of a dataset at downsample ``f`` (GT arrays, beam geometry)."""
     from holodata.dataset import open_dataset
 
-    from .data import split_scenes
+    from holodata.dataset.splits import split_scenes
 
     ds = open_dataset(str(dataset_url))
     grid = reduced_grid(ds.grid, f)
-    scenes = split_scenes(list(ds.scenes), getattr(ds, "splits", None), split)
+    scenes = split_scenes(ds, split)
     cols = {k: [] for k in ("range", "label", "gt_point", "gt_normal", "origins", "directions")}
     keys = []
     for sid in scenes:
