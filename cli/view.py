@@ -9,9 +9,12 @@ import click
 @click.command("view")
 @click.argument("dataset")
 @click.option("--scene", default=None, help="Scene id (default: the first scene with a radar).")
-@click.option("--frames", default=None, metavar="A:B", help="Frames A..B-1 (default: all).")
-@click.option("--save", type=click.Path(dir_okay=False), default=None,
-              help="Write an .rrd file (open it later with `rerun FILE.rrd`; needs no display).")
+@click.option("--frames", default=None, metavar="A:B", callback=lambda c, p, v: _frames_spec(v),
+              help="Frames A..B-1 (default: all).")
+@click.option("--save", type=click.Path(dir_okay=False), default=None, callback=lambda c, p, v: _file_name(v),
+              help="Write an .rrd file (open it later with `rerun FILE.rrd`; needs no display). It replaces only an "
+                   ".rrd holodata wrote there.")
+@click.option("--force", is_flag=True, help="Replace a --save file holodata did not write (never a symlink).")
 @click.option("--web", is_flag=True,
               help="Serve the scene to a viewer over gRPC, on 127.0.0.1 only (it prints how to open it: the desktop "
                    "viewer, a browser, or an SSH tunnel from another machine).")
@@ -25,7 +28,7 @@ import click
               help="An evaluation's --out directory: draw the predicted points of the run it scored.")
 @click.option("--device", default="cpu", show_default=True, help="Torch device for --checkpoint/--report.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-def view(dataset, scene, frames, save, web, port, bind, checkpoint, report, device, as_json):
+def view(dataset, scene, frames, save, force, web, port, bind, checkpoint, report, device, as_json):
     """Look at a scene in Rerun: per frame (timeline `time`) the radar heatmap (range-azimuth slice
     at 0° elevation, maximum over range), GT range and label images per bounce, the GT returns
     mirrored (where the radar sees them) and un-mirrored (hit points) coloured by label, the LiDAR
@@ -54,7 +57,7 @@ def view(dataset, scene, frames, save, web, port, bind, checkpoint, report, devi
     except ImportError as err:
         raise InputError("holodata view needs the Rerun SDK: pip install -e '.[view]' (scripts/setup.sh installs it)") from err
     r = view_scene(dataset, scene, frames, save=save, web=web, port=port, checkpoint=checkpoint, report=report,
-                   device=device, bind=bind)
+                   device=device, bind=bind, force=force)
     stream = r.pop("stream", None)   # noqa: F841 - held: the web viewer's data server lives as long as it
     if as_json:
         click.echo(json.dumps(r, indent=2))
@@ -72,6 +75,25 @@ def view(dataset, scene, frames, save, web, port, bind, checkpoint, report, devi
 
         while True:
             time.sleep(3600)
+
+
+def _frames_spec(v):
+    """``A:B`` with integers on either side (usage error, exit 2, otherwise)."""
+    import re
+
+    if v is not None and not re.fullmatch(r"\s*\d*\s*(:\s*\d*\s*)?", v):
+        raise click.BadParameter(f"{v!r}: give A:B (frames A..B-1, e.g. 0:40), A: or :B", param_hint="--frames")
+    return v
+
+
+def _file_name(v):
+    """A file name for --save, not a folder."""
+    import os
+
+    if v is not None and (v.endswith(("/", os.sep)) or os.path.isdir(v)):
+        raise click.BadParameter(f"{v!r} is a folder: give a file name, e.g. {os.path.join(v, 'scene.rrd')}",
+                                 param_hint="--save")
+    return v
 
 
 COMMANDS = [view]

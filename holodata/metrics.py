@@ -19,6 +19,8 @@ from holodata.conventions import DEFAULT_MAX_RANGE_M
 
 DEFAULT_TAU_M = 0.10
 HUMAN_MATCH_M = 0.50
+HUMAN_CLUSTER_M = 0.30   # human points closer than this are one person (single linkage)
+HUMAN_MIN_POINTS = 5     # a person is a cluster of at least this many human points
 DEFAULT_TAUS_M = (0.02, 0.05, 0.10, 0.15, 0.20, 0.30, 0.50)
 
 
@@ -176,7 +178,7 @@ def mean_cloud_metrics(rows: Iterable[Mapping]) -> dict:
 
 # ---------------------------------------------------------------------------------------------
 # humans
-def human_centroids(points, radius: float = 0.30, min_points: int = 5) -> np.ndarray:
+def human_centroids(points, radius: float = HUMAN_CLUSTER_M, min_points: int = HUMAN_MIN_POINTS) -> np.ndarray:
     """Cluster human points (N,3) (single linkage, ``radius`` metres) → (K,3) centroids of the
     clusters with at least ``min_points`` points."""
     from scipy.sparse import coo_matrix

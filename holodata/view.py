@@ -158,7 +158,8 @@ class _Predictions:
 
 
 def view_scene(url: str, scene_id: str | None = None, frames: str | None = None, save=None, web: bool = False,
-               port: int | None = None, checkpoint=None, report=None, device: str = "cpu", bind: str = LOOPBACK) -> dict:
+               port: int | None = None, checkpoint=None, report=None, device: str = "cpu", bind: str = LOOPBACK,
+               force: bool = False) -> dict:
     """Log scene ``scene_id`` (default: the first with a radar) of dataset ``url`` to Rerun; returns
     {scene, frames, entities, notes} (and, with ``web``, ``stream``: the recording stream whose
     gRPC server the web viewer reads from — it stops when the stream is dropped). ``checkpoint``
@@ -194,6 +195,15 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
             notes.append(f"no {need[0]}: the run's predicted points left out")
         else:
             pred = _Predictions(ck, oracle, est, ds, sc, device)
+    saved = None
+    if save:   # written under a temp name, moved in place when complete; replaces only an .rrd holodata wrote
+        from pathlib import Path
+
+        from .ownership import OutputDir
+
+        od, name = OutputDir(Path(save).parent, "holodata view"), Path(save).name
+        od.check_free(name, force)
+        saved, save = (od, name), od.temp(name)
     rec = _stream(save, web, port, scene_id, bind)
     entities: set[str] = set()
 
@@ -262,8 +272,9 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
             pts, ids = pred.frame(f)
             log("world/pred/points", rr.Points3D(pts, class_ids=ids, radii=0.02))
     rec.flush()
-    if save:
+    if saved is not None:
         rec.disconnect()
+        saved[0].install(save, saved[1], force)
     out = {"scene": scene_id, "frames": len(fr), "entities": sorted(entities), "notes": notes,
            "grid": f"{g.H}x{g.W}", "range_bins": rb.n}
     if web:

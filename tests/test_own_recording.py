@@ -95,3 +95,35 @@ def test_train_epochs_bound_both_stages_and_a_rerun_says_nothing_was_trained(tmp
     assert r.exit_code == 0, r.output
     assert "stage one: nothing to train" in r.output and "stage two: nothing to train" in r.output
     assert "trained 1 epoch" not in r.output
+
+
+def test_errors_a_user_meets_are_one_clear_line(tmp_path):
+    """Issue 55 point 9: view --save DIR/ and --frames 3-5 are usage errors (exit 2); a checkpoint of
+    another grid is named in words (no Python dicts, no install path)."""
+    import _eval_dataset as E
+
+    url = str(tmp_path / "d.zarr")
+    E.build(url, frames=2)
+    (tmp_path / "views").mkdir()
+    for args, words in ((["--save", str(tmp_path / "new") + "/"], "is a folder"),
+                        (["--save", str(tmp_path / "views")], "is a directory"),
+                        (["--save", str(tmp_path / "v.rrd"), "--frames", "3-5"], "give A:B")):
+        r = CliRunner().invoke(cli, ["view", url] + args)
+        assert r.exit_code == 2 and words in r.output and "Traceback" not in r.output, r.output
+    pytest.importorskip("torch")
+    r = CliRunner().invoke(cli, ["evaluate", url, "--checkpoint", "pretrained", "--out", str(tmp_path / "rep"),
+                                 "--split", "all", "--quiet"])
+    _one_line(r, 1, "the pretrained weights holodata ships were trained on 32x128 beams", "the dataset has 16x64 beams")
+    assert "{" not in r.output and "site-packages" not in r.output
+
+
+def test_an_undefined_human_score_is_explained():
+    from holodata.evaluate.report import format_tables
+
+    rng = {f"bounce_{b}": {"mean_cm": 1.0, "median_cm": 1.0, "p90_cm": 1.0} for b in (1, 2, 3)}
+    cloud = {"cd": 0.1, "mhd": 0.1, "f_score": 0.5}
+    doc = {"split": "test", "n_frames": 2, "scenes": ["a"], "settings": {},
+           "methods": {"model": {"range": rng, "points": {"los": cloud, "nlos": cloud},
+                                 "human": {"f_score": None, "n_gt": 0}}}}
+    text = format_tables(doc)
+    assert "human F –: no frame of the split holds a person" in text

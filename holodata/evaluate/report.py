@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MIN_POINTS
+
 COLORS = {"gt": "0.25", "model": "tab:blue", "baseline": "tab:orange", "model_no_refine": "tab:cyan",
           "model_analytic": "tab:brown", "oracle_stage1": "tab:olive"}
 BEV_ORDER = ("gt", "model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1")
@@ -290,4 +292,8 @@ def format_tables(doc: dict) -> str:
         lines.append(f"  {m:<15} " + " ".join(f(p["los"][k], 100) for k in ("cd", "mhd", "f_score")) + "   "
                      + " ".join(f(p["nlos"][k], 100) for k in ("cd", "mhd", "f_score")) + "   " + f(r["human"]["f_score"], 100)
                      + " / " + f(r.get("human_hidden", {}).get("f_score"), 100))
+    hum = next(iter(doc["methods"].values()), {}).get("human") or {}
+    if hum.get("n_gt") == 0:
+        lines.append("  human F –: no frame of the split holds a person in the ground truth (a person counts from "
+                     f"{HUMAN_MIN_POINTS} human-labelled GT returns within {HUMAN_CLUSTER_M * 100:.0f} cm of each other)")
     return "\n".join(lines)

@@ -173,9 +173,26 @@ def check_stage1(ck: dict, ds, where) -> None:
     """InputError unless the stage-one checkpoint's grid and range bins are the dataset's."""
     meta = ck.get("meta") or {}
     if meta.get("grid") != ds.grid.to_attrs() or meta.get("range_bins") != ds.range_bins.to_attrs():
-        raise InputError(f"{where}: stage-one checkpoint grid {meta.get('grid')} / range bins "
-                         f"{meta.get('range_bins')} differ from the dataset's {ds.grid.to_attrs()} / "
-                         f"{ds.range_bins.to_attrs()}")
+        from holodata.torch.pretrained import WEIGHTS
+
+        p = Path(where).resolve()
+        name = "the pretrained weights holodata ships" if WEIGHTS.resolve() in (p, p.parent) else where
+        raise InputError(f"{name} were trained on {_grid_text(meta.get('grid'), meta.get('range_bins'))}, the dataset "
+                         f"has {_grid_text(ds.grid.to_attrs(), ds.range_bins.to_attrs())}: train a model on this "
+                         f"grid (holodata train) or use a dataset of that grid")
+
+
+def _grid_text(grid: dict | None, bins: dict | None) -> str:
+    """``32x128 beams (+45..-45 deg), 256 range bins of 3.75 cm`` from grid / range-bin attributes."""
+    try:
+        g = f"{grid['H']}x{grid['W']} beams ({grid['elev_deg'][0]:+g}..{grid['elev_deg'][1]:+g} deg)"
+    except (TypeError, KeyError, IndexError):
+        g = "an unrecorded beam grid"
+    try:
+        b = f"{bins['n']} range bins of {bins['dr'] * 100:g} cm"
+    except (TypeError, KeyError):
+        b = "unrecorded range bins"
+    return f"{g}, {b}"
 
 
 def model_from_checkpoint(ck: dict, device: str = "cpu") -> MultiReturnUNet:
