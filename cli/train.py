@@ -54,7 +54,9 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     from holodata.dataset import open_dataset
     from holodata.dataset.splits import split_scenes
 
-    split_scenes(open_dataset(dataset), "train")   # a missing or empty split, or leakage: one line before any work
+    def check_split() -> None:   # a missing or empty split, or leakage: one line before any training
+        split_scenes(open_dataset(dataset), "train")
+
     summary = {}
     if stage in ("1", "all"):
         flags = {"epochs": epochs, "device": device, "batch_size": batch_size, "lr": lr, "seed": seed,
@@ -78,6 +80,7 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
             base.update({k: v for k, v in cfg.to_dict().items() if v != getattr(TrainConfig(), k)})
         base.update({k: v for k, v in flags.items() if v is not None})
         cfg = TrainConfig.from_dict(base)
+        check_split()
         res = run_train(dataset, out, cfg, quiet=quiet, init=init)
         summary = {"run": str(res.out_dir), "checkpoint": str(res.checkpoint), "epochs": res.epochs,
                    "resumed_from": res.resumed_from, "final_loss": res.final_loss}
@@ -94,6 +97,8 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
             if v is not None:
                 s2[k] = v
         s2cfg = Stage2Config.from_dict(s2, source=str(stage2_file or "stage-two options"))
+        if stage == "2":
+            check_split()
         if epochs is not None and not told:   # --epochs bounds each stage-two phase too
             s2cfg.epochs_rt, s2cfg.epochs_refine = min(s2cfg.epochs_rt, epochs), min(s2cfg.epochs_refine, epochs)
         r2 = train_stage2(dataset, out, s2cfg, stage1=stage1 if stage == "2" else None, quiet=quiet)

@@ -95,6 +95,7 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
             raise InputError(f"{len(scene_ids)} --scene-id for {len(recordings)} recordings (give one per recording)")
         for sid in scene_ids:   # a scene id names folders/keys under the output: never outside it
             check_name(sid, "--scene-id")
+    recordings, scene_ids = _passes(recordings, scene_ids)
     if tolerance_ms is not None and tolerance_ms <= 0:
         raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
     failed: list[dict] = []
@@ -148,14 +149,12 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
         scenes = []
         if client is not None:  # the dataset exists before the workers write their scenes into it
-            _create(out, grid, rb, opts)
+            made = _create(out, grid, rb, opts)
             scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
             failed += more
             todo = []
-            if not scenes and existing is None:   # created for the workers, nothing landed: leave no empty dataset
-                from ..dataset.store import Store
-
-                Store(out).delete_tree("")
+            if not scenes:   # nothing landed: leave no empty dataset, if (and only if) this run created it
+                made.discard()
         for (i, r, _), sid in zip(todo, ids):
             try:
                 rec = opened.pop(i) if i in opened else open_for_ingest(r, opts)
@@ -250,6 +249,20 @@ class IngestOptions:
     motion: str | None = None
     shard_frames: int | None = None
     provenance: dict = dataclasses.field(default_factory=dict)
+
+
+def _passes(recordings: list[Path], scene_ids: list[str] | None) -> tuple[list[Path], list[str] | None]:
+    """Each ``holodata synth`` output folder given as its recordings: the data pass, then its mapping
+    pass (scene id ``<id>_map``, the id given or the folder's); other recordings as given."""
+    from ..readers import synth_passes
+
+    out, ids = [], []
+    for i, r in enumerate(recordings):
+        passes = synth_passes(r)
+        out += passes
+        if scene_ids is not None:
+            ids += [scene_ids[i]] + [f"{scene_ids[i]}_map"] * (len(passes) - 1)
+    return out, (ids if scene_ids is not None else None)
 
 
 def _create(out, grid, range_bins, opts: IngestOptions):

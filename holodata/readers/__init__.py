@@ -105,8 +105,9 @@ def _open_mcap(p: Path, msg_dir=None, **_):
         try:
             from rosbags.rosbag2 import Reader
 
-            from .rosbag import RosbagsRecording
+            from .rosbag import RosbagsRecording, bound_rosbags_mcap
 
+            bound_rosbags_mcap()          # its chunks decompressed in bounded steps (ros2_cdr checked their sizes)
             reader = Reader(path)
             reader.open()
             return RosbagsRecording(path, reader, 2, "mcap", msg_dir)
@@ -160,6 +161,7 @@ for _spec in (
 
 
 SYNTH_RECORDINGS = ("recording", "recording.bag")  # holodata synth: OUT/recording[.bag] beside OUT/truth/
+SYNTH_MAPPING = ("mapping", "mapping.bag")         # its mapping pass: OUT/mapping[.bag]
 
 
 def synth_output_folder(path) -> Path | None:
@@ -171,6 +173,15 @@ def synth_output_folder(path) -> Path | None:
     if p.is_dir() and (p / "truth").is_dir() and any((p / n).exists() for n in SYNTH_RECORDINGS):
         return p
     return None
+
+
+def synth_passes(path) -> list[Path]:
+    """The recordings of a ``holodata synth`` output folder ``path``: its data pass, then its mapping
+    pass when it has one; ``[path]`` for any other path (a recording itself)."""
+    p, out = Path(path), synth_output_folder(path)
+    if out is None or p != out:
+        return [p]
+    return [synth_output_recording(p)] + [out / n for n in SYNTH_MAPPING if (out / n).exists()][:1]
 
 
 def synth_output_recording(path) -> Path:

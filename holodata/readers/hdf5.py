@@ -17,7 +17,11 @@ pipelines to HDF5 instead of bags. Every group is optional, but at least radar o
 
 Messages are read lazily, one frame/scan slice at a time (streaming, flat memory). A file that
 h5py cannot open, or groups that break the layout (shapes, missing timestamps), give a one-line
-RecordingError naming the dataset path in the file.
+RecordingError naming the dataset path in the file. So does a dataset whose shape declares more
+bytes than the file stores for it (:func:`.sizes.declared_size`; a compressed dataset: more than
+:func:`.sizes.inflated_room` of its stored bytes), checked before any of it is read: an HDF5 dataset
+that was never written reads as its fill value, whatever size it declares. Datasets stored outside
+the file (external or virtual layouts) store nothing in it and are refused alike.
 """
 from __future__ import annotations
 
@@ -30,6 +34,7 @@ from ..dataset.layout import RADAR_CYCLE_NS, RADAR_HEATMAP  # the file names its
 from ..errors import RecordingError
 from .base import (POINTS_TYPE, RADAR_MSG, Header, PointsMsg, RadarHeatmapMsg, RawMessage, Recording, TopicInfo,
                    rate_of)
+from .sizes import declared_size, inflated_room
 
 
 def _h5py():
@@ -62,25 +67,42 @@ class Hdf5Recording(Recording):
     def _need(self, name: str):
         if name not in self.f:
             raise RecordingError(f"{self.path}: {name} is missing (see holodata.readers.hdf5 for the layout)")
-        return self.f[name]
+        return self._dataset(name)
+
+    def _dataset(self, name: str):
+        """Dataset ``name`` once the bytes its shape declares (whole, and per chunk: HDF5 reads a
+        chunk whole) are checked against the bytes the file stores for it, before any is read."""
+        ds = self.f[name]
+        if not isinstance(ds, _h5py().Dataset):
+            raise RecordingError(f"{self.path}: {name} is a group, not a dataset (see holodata.readers.hdf5 for the layout)")
+        item = ds.dtype.itemsize
+        need = max(int(np.prod(ds.shape, dtype=object)), int(np.prod(ds.chunks, dtype=object)) if ds.chunks else 0) * item
+        stored = int(ds.id.get_storage_size())
+        if ds.id.get_create_plist().get_nfilters():      # compressed: the believed ratio
+            room, held = inflated_room(stored), f"its {stored} stored (filtered) bytes can hold at most"
+        else:
+            room, held = stored, "the file stores for it"
+        declared_size(self.path, f"{name} {tuple(ds.shape)} {ds.dtype}", need, room, held)
+        return ds
 
     def _stamps(self, name: str, n: int) -> np.ndarray:
-        ts = np.asarray(self._need(name)[...], dtype=np.int64)
-        if ts.shape != (n,):
-            raise RecordingError(f"{self.path}: {name} has shape {ts.shape}, expected ({n},)")
-        return ts
+        ds = self._need(name)
+        if ds.shape != (n,):
+            raise RecordingError(f"{self.path}: {name} has shape {ds.shape}, expected ({n},)")
+        return np.asarray(ds[...], dtype=np.int64)
 
     def _check(self) -> None:
         f = self.f
         if RADAR_HEATMAP in f:
-            hm = f[RADAR_HEATMAP]
+            hm = self._dataset(RADAR_HEATMAP)
             if hm.ndim != 4 or hm.dtype.kind != "f":
                 raise RecordingError(f"{self.path}: radar/heatmap must be (T, R, H, W) float, got {hm.shape} {hm.dtype}")
             ts = self._stamps("radar/timestamp_ns", hm.shape[0])
             if RADAR_CYCLE_NS in f:
-                cyc = np.asarray(f[RADAR_CYCLE_NS][...], np.int64)
-                if cyc.shape != (hm.shape[0], 2):
-                    raise RecordingError(f"{self.path}: radar/cycle_ns has shape {cyc.shape}, expected ({hm.shape[0]}, 2)")
+                c = self._dataset(RADAR_CYCLE_NS)
+                if c.shape != (hm.shape[0], 2):
+                    raise RecordingError(f"{self.path}: radar/cycle_ns has shape {c.shape}, expected ({hm.shape[0]}, 2)")
+                cyc = np.asarray(c[...], np.int64)
             else:
                 half = int(np.median(np.diff(ts)) // 2) if len(ts) > 1 else 250_000_000
                 cyc = np.stack([ts - half, ts + half], 1)
@@ -93,9 +115,11 @@ class Hdf5Recording(Recording):
         for role in ("lidar", "camera"):
             if f"{role}/points" not in f:
                 continue
-            pts = f[f"{role}/points"]
+            pts = self._dataset(f"{role}/points")
             if pts.ndim != 2 or pts.shape[1] != 3:
                 raise RecordingError(f"{self.path}: {role}/points must be (N, 3), got {pts.shape}")
+            if f"{role}/point_time_ns" in f:
+                self._dataset(f"{role}/point_time_ns")      # read per scan later: its size checked now
             off = np.asarray(self._need(f"{role}/offsets")[...], np.int64)
             if off.ndim != 1 or len(off) < 1 or off[0] != 0 or off[-1] != pts.shape[0] or np.any(np.diff(off) < 0):
                 raise RecordingError(f"{self.path}: {role}/offsets must start at 0, never decrease and end at "

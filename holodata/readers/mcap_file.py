@@ -7,6 +7,12 @@ Channels whose message encoding is ``cdr`` (schemas ``ros2msg``/``ros2idl``) or 
 the conformance suite's ``a``) are listed by ``topics()`` and yielded undecoded. A file without a
 summary is read linearly; a file that ends early is read up to its last complete record and marked
 ``truncated``. Channels whose schema id is 0 or unknown count as ``schema: None`` (undecodable).
+
+Sizes the file declares are checked before they are read or decompressed (:mod:`.sizes`):
+:func:`check_mcap` checks every chunk's declared uncompressed size against its compressed bytes
+when a file is opened (RecordingError naming the file), the library reads through a
+:class:`.sizes.BoundedFile`, and chunks are decompressed here, in bounded steps
+(:func:`.sizes.inflate`), not by the library.
 """
 from __future__ import annotations
 
@@ -15,6 +21,7 @@ from pathlib import Path
 
 from ..errors import RecordingError
 from .base import MCAP_MAGIC, MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
+from .sizes import BoundedFile, declared_size, inflate, inflated_room, open_bounded
 
 _SCHEMA_FMT = {"ros2msg": "msg", "ros2idl": "idl", "ros1msg": "msg"}
 
@@ -28,7 +35,7 @@ def _summary(f):
     from mcap.reader import SeekingReader
 
     try:
-        s = SeekingReader(f).get_summary()
+        s = SeekingReader(f if isinstance(f, BoundedFile) else BoundedFile(f)).get_summary()
     except Exception:  # noqa: BLE001 - no footer, cut short, ...
         return None
     return s
@@ -40,7 +47,7 @@ def topic_times_mcap(path: Path) -> dict[str, tuple[int, int]]:
     from mcap.stream_reader import StreamReader
 
     out: dict[str, list[int]] = {}
-    with open(path, "rb") as f:
+    with open_bounded(path) as f:
         s = _summary(f)
         if s is None or not s.chunk_indexes:
             return {}
@@ -82,17 +89,21 @@ class McapMessageTable:
         import numpy as np
 
         try:
-            with open(path, "rb") as f:
+            with open_bounded(path) as f:
                 s = _summary(f)
                 if s is None or not s.chunk_indexes or any(ci.compression for ci in s.chunk_indexes):
                     return None
                 logs, offs, chans, cks, chunks = [], [], [], [], []
                 for c_i, ci in enumerate(s.chunk_indexes):
                     base = ci.chunk_start_offset + 9 + 40 + len(ci.compression)   # chunk records start
+                    start = ci.chunk_start_offset + ci.chunk_length
+                    # what the index declares must lie in the file: the records in their chunk, the
+                    # message indexes after it (else read the file the usual way)
+                    if base + ci.uncompressed_size > start or start + ci.message_index_length > f.size:
+                        return None
                     chunks.append((ci.chunk_start_offset, base, ci.uncompressed_size))
                     # the chunk's MessageIndex records (opcode 0x07, u64 length, u16 channel, u32 bytes,
                     # (u64 log time, u64 offset) pairs) follow it in one block of message_index_length
-                    start = ci.chunk_start_offset + ci.chunk_length
                     f.seek(start)
                     block = f.read(ci.message_index_length)
                     for ch_id, off in ci.message_index_offsets.items():
@@ -146,7 +157,9 @@ class McapMessageTable:
                 op, length, cid, _, t = struct.unpack_from("<BQHIQ", b)
                 if op != 0x05 or cid != ch or t != log or length < 22:
                     raise ValueError(f"record at byte {off} is not the indexed message (opcode {op:#x})")
-                size = length - 22
+                _, base, n = self.chunks[ck]      # the message lies in its chunk's records (RecordingError: a ValueError)
+                size = declared_size(self.path, f"message at byte {off}", length - 22, base + n - off - 31,
+                                     "its chunk holds from there")
                 if not head and self._damaged(fd, ck):      # its payload is refused when it is asked for
                     yield topic, log, os.pread(fd, min(size, self.HEAD), off + 31), (off + 31, size, ck)
                     continue
@@ -210,11 +223,130 @@ def check_magic(fh, path) -> None:
         raise RecordingError(f"{path}: not an MCAP file (bad magic)")
 
 
+def _chunk_problem(f, path, pos: int, n: int, index=None) -> str | None:
+    """Check the chunk record at byte ``pos`` (``n`` bytes after its opcode and length) of the open
+    bounded file ``f``: RecordingError when the uncompressed size it declares (or its summary chunk
+    ``index`` declares) is more than its compressed bytes can hold; a reason when the record is
+    damaged (its data runs past the record, the index points elsewhere); None when it is sound."""
+    import struct
+
+    where = f"chunk at byte {pos}"
+    if n < 40:
+        return f"{where} is too short for a chunk record ({n} bytes)"
+    f.seek(pos + 9)
+    head = f.read(32)
+    if len(head) < 32:
+        return f"{where} is cut short"
+    _, _, usize, _, clen = struct.unpack("<QQQII", head)
+    if clen > n - 40:
+        return f"{where} declares a {clen}-byte compression name, its record holds {n - 40}"
+    comp = f.read(clen).decode("utf-8", "replace")
+    b = f.read(8)
+    if len(b) < 8:
+        return f"{where} is cut short"
+    (dlen,) = struct.unpack("<Q", b)
+    if dlen > n - 40 - clen:
+        return f"{where} declares {dlen} bytes of data, its record holds {n - 40 - clen}"
+    if comp:
+        declared_size(path, f"{where} ({comp})", usize, inflated_room(dlen),
+                      f"its {dlen} compressed bytes can hold at most")
+    if index is not None:
+        if index.compressed_size != dlen or index.compression != comp:
+            return f"the summary's index of the {where} does not match the chunk"
+        if comp:
+            declared_size(path, f"summary index of the {where} ({comp})", index.uncompressed_size,
+                          inflated_room(dlen), f"its {dlen} compressed bytes can hold at most")
+    return None
+
+
+def check_mcap(path: Path) -> str | None:
+    """Check the sizes an MCAP file declares where a reader (holodata's, the mcap library's,
+    rosbags') would read or reserve them, before any does: every chunk's uncompressed size — the
+    chunk record's and its summary index's — against its compressed bytes (a
+    :class:`RecordingError` naming the file when more than they can hold, :func:`.sizes.declared_size`),
+    and the lengths the records and the summary declare against the bytes the file holds.
+
+    The chunks are those of the summary's chunk indexes, or of a linear walk over the records when
+    the file has no usable summary. Returns None for a sound file; else a one-line reason (records
+    that run past the end of the file, a damaged summary): such a file is read linearly, by
+    :class:`McapRecording`, up to where it breaks, not by rosbags."""
+    import struct
+    from io import BytesIO
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import ChunkIndex
+
+    with open_bounded(path) as f:
+        size = f.size
+        if f.read(8) != MCAP_MAGIC:
+            return "not an MCAP file (bad magic)"
+        why = None
+        indexes: list | None = None
+        schemas = False
+        data_end = size
+        if size >= 8 + 37:
+            f.seek(size - 37)
+            foot = f.read(37)
+            if foot[0] == 0x02 and foot[1:9] == struct.pack("<Q", 20) and foot[-8:] == MCAP_MAGIC:
+                data_end = size - 37
+                (start,) = struct.unpack_from("<Q", foot, 9)
+                if start and not 8 <= start <= size - 37:
+                    why = f"summary offset {start} lies outside the file"
+                elif start:
+                    data_end, indexes, pos = start, [], start
+                    while pos < size - 37:
+                        if pos + 9 > size - 37:
+                            why = f"summary record at byte {pos} is cut short"
+                            break
+                        f.seek(pos)
+                        head = f.read(9)
+                        op, n = head[0], struct.unpack_from("<Q", head, 1)[0]
+                        if n > size - 37 - pos - 9:
+                            why = f"summary record at byte {pos} declares {n} bytes, {size - 37 - pos - 9} left"
+                            break
+                        if op == 0x08:
+                            try:
+                                indexes.append(ChunkIndex.read(ReadDataStream(BytesIO(f.read(n)))))
+                            except Exception:  # noqa: BLE001 - a damaged record
+                                why = f"summary chunk index at byte {pos} is damaged"
+                                break
+                        schemas = schemas or op == 0x03
+                        pos += 9 + n
+        if indexes and why is None:
+            for ci in indexes:
+                pos, n = ci.chunk_start_offset, ci.chunk_length - 9
+                if not 8 <= pos <= pos + ci.chunk_length + ci.message_index_length <= data_end or n < 0:
+                    why = f"the summary indexes a chunk at byte {pos} past the end of the file"
+                    break
+                why = _chunk_problem(f, path, pos, n, ci)
+                if why:
+                    break
+            if why is None and schemas:
+                return None              # every reader goes by the summary's chunk indexes
+        # no (usable) summary: readers walk the records from the start (rosbags also without schemas)
+        pos = 8
+        while pos + 9 <= data_end:
+            f.seek(pos)
+            head = f.read(9)
+            op, n = head[0], struct.unpack_from("<Q", head, 1)[0]
+            if n > size - pos - 9:
+                return why or f"record at byte {pos} declares {n} bytes, {size - pos - 9} left in the file"
+            if op == 0x06:
+                why = why or _chunk_problem(f, path, pos, n)
+            elif op == 0x02:
+                break
+            pos += 9 + n
+    return why
+
+
 def ros2_cdr(path: Path) -> bool:
-    """True when the MCAP file ``path`` (magic checked: RecordingError) has a summary with chunk
-    indexes and every channel CDR-encoded: a ROS 2 file rosbags can read."""
-    with open(path, "rb") as fh:
+    """True when the MCAP file ``path`` (magic checked: RecordingError) is sound (:func:`check_mcap`:
+    RecordingError when a chunk declares more than it holds), has a summary with chunk indexes and
+    every channel CDR-encoded: a ROS 2 file rosbags can read."""
+    with open_bounded(path) as fh:
         check_magic(fh, path)
+        if check_mcap(path):
+            return False
         s = _summary(fh)
     return bool(s is not None and s.chunk_indexes and s.channels
                 and all(c.message_encoding == "cdr" for c in s.channels.values()))
@@ -237,7 +369,8 @@ class McapRecording(Recording):
         ros1 = False
         for i, f in enumerate(self.files):
             self._check_magic(f)
-            with open(f, "rb") as fh:
+            check_mcap(f)      # RecordingError when a chunk declares more than it holds; damage is read past
+            with open_bounded(f) as fh:
                 s = _summary(fh)
             self.summaries.append(s)
             if s is not None:
@@ -367,7 +500,7 @@ class McapRecording(Recording):
                     break
                 if isinstance(rec, Chunk):
                     try:
-                        yield from breakup_chunk(rec, validate_crc=True)
+                        yield from breakup_chunk(_inflated(f, pos, rec), validate_crc=True)
                     except CRCValidationError:    # damaged bytes inside: its messages are dropped, counted
                         self._skip_chunk(f, pos, rec)
                     except Exception as err:  # noqa: BLE001 - corrupt chunk: keep its readable records
@@ -391,7 +524,7 @@ class McapRecording(Recording):
         if (f, pos) in self.bad_chunks:
             return
         try:
-            recs = breakup_chunk(chunk)
+            recs = breakup_chunk(_inflated(f, pos, chunk))
         except Exception:  # noqa: BLE001 - framing damaged too: the messages cannot even be counted
             recs = []
         self.bad_chunks[(f, pos)] = Counter(r.channel_id for r in recs if isinstance(r, Message))
@@ -415,22 +548,42 @@ class McapRecording(Recording):
     def _topics(self) -> list[TopicInfo]:
         return [TopicInfo(**vars(t)) for t in self._infos]
 
-    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
-        from mcap.reader import SeekingReader
+    def _indexed(self, f: Path, s, ids: set[int]):
+        """(channel id, Message) of the channels ``ids`` in log-time order (ties: chunk offset, then
+        place in the chunk), chunk by chunk from the summary's chunk indexes — the order of the mcap
+        library's ``SeekingReader.iter_messages``; chunks are read and decompressed here (bounded,
+        :func:`_read_chunk`). Raises on a damaged chunk (CRC, framing)."""
+        import heapq
 
+        from mcap.records import Message
+        from mcap.stream_reader import breakup_chunk
+
+        heap = [(ci.message_start_time, ci.chunk_start_offset, -1, ci) for ci in s.chunk_indexes
+                if not ci.message_index_offsets or ids.intersection(ci.message_index_offsets)]
+        heapq.heapify(heap)
+        with open_bounded(f) as fh:
+            while heap:
+                _, off, k, item = heapq.heappop(heap)
+                if k >= 0:
+                    yield item.channel_id, item
+                    continue
+                for j, rec in enumerate(breakup_chunk(_read_chunk(fh, f, off), validate_crc=True)):
+                    if isinstance(rec, Message) and rec.channel_id in ids:
+                        heapq.heappush(heap, (rec.log_time, off, j, rec))
+
+    def raw_messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
         want = None if topics is None else set(topics)
         for i, (f, s) in enumerate(zip(self.files, self.summaries)):
             if s is not None and s.chunk_indexes:
-                names = [c.topic for c in s.channels.values() if want is None or c.topic in want]
-                if not names:
+                ids = {cid for cid, c in s.channels.items() if want is None or c.topic in want}
+                if not ids:
                     continue
-                with open(f, "rb") as fh:
-                    try:
-                        for _, ch, msg in SeekingReader(fh, validate_crcs=True).iter_messages(topics=names):
-                            topic, ty, enc = self.channels[(i, ch.id)]
-                            yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
-                    except Exception as err:  # noqa: BLE001
-                        self.mark_truncated(f"{f}: stopped at a damaged chunk ({_one_line(err)[:120]})")
+                try:
+                    for cid, msg in self._indexed(f, s, ids):
+                        topic, ty, enc = self.channels[(i, cid)]
+                        yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
+                except Exception as err:  # noqa: BLE001
+                    self.mark_truncated(f"{f}: stopped at a damaged chunk ({_one_line(err)[:120]})")
                 continue
             for what, ch, msg in self._stream(i, f):
                 if what != "message":
@@ -440,8 +593,42 @@ class McapRecording(Recording):
                     yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
 
 
+def _inflated(path, pos: int, chunk):
+    """``chunk`` (an mcap ``Chunk`` at byte ``pos`` of ``path``) with its records decompressed here,
+    in bounded steps up to the size it declares (:func:`.sizes.inflate`; the mcap library would
+    reserve that size, or the size its zstd frame declares, first): a Chunk with compression ''."""
+    from mcap.records import Chunk
+
+    comp = chunk.compression
+    raw = inflate(path, f"chunk at byte {pos}", comp or "none", chunk.data, chunk.uncompressed_size if comp else None)
+    return Chunk(compression="", data=raw, message_end_time=chunk.message_end_time,
+                 message_start_time=chunk.message_start_time, uncompressed_crc=chunk.uncompressed_crc,
+                 uncompressed_size=len(raw))
+
+
+def _read_chunk(fh, path, pos: int):
+    """The chunk record at byte ``pos`` of the open bounded file ``fh``, decompressed (:func:`_inflated`);
+    ValueError naming ``path`` when there is none or it runs past the end of the file."""
+    import io
+    import struct
+
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Chunk
+
+    fh.seek(pos)
+    head = fh.read(9)
+    if len(head) < 9 or head[0] != 0x06:
+        raise ValueError(f"{path}: no chunk record at byte {pos}")
+    (n,) = struct.unpack_from("<Q", head, 1)
+    body = fh.read(n)             # bounded: at most what the file holds
+    if len(body) < n:
+        raise ValueError(f"{path}: chunk at byte {pos} runs past the end of the file")
+    return _inflated(path, pos, Chunk.read(ReadDataStream(io.BytesIO(body))))
+
+
 def _salvage_chunk(body: bytes):
-    """Complete records of a chunk record body that is cut short or damaged (partial decompression)."""
+    """Complete records of a chunk record body that is cut short or damaged (partial decompression,
+    at most the size the chunk declares)."""
     import io
     import struct as st
 
@@ -449,21 +636,15 @@ def _salvage_chunk(body: bytes):
     from mcap.records import Channel, Message, Schema
 
     try:
+        (usize,) = st.unpack_from("<Q", body, 16)
         o = 8 + 8 + 8 + 4
         (clen,) = st.unpack_from("<I", body, o)
         comp = body[o + 4:o + 4 + clen].decode()
         o += 4 + clen + 8
         data = body[o:]
-        if comp == "zstd":
-            import zstandard
-
-            data = zstandard.ZstdDecompressor().decompressobj().decompress(data)
-        elif comp == "lz4":
-            import lz4.frame
-
-            data = lz4.frame.LZ4FrameDecompressor().decompress(data)
-        elif comp:
+        if comp not in ("", "zstd", "lz4"):
             return
+        data = inflate(None, "chunk", comp or "none", data, usize if comp else None, partial=True)
     except Exception:  # noqa: BLE001 - nothing salvageable
         return
     stream = ReadDataStream(io.BytesIO(data))

@@ -25,6 +25,7 @@ from ..conventions import DEFAULT_RANGE_RESOLUTION_M, RADAR_ROTATION_HZ, RADAR_R
 from ..errors import RecordingError
 from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, Recording,
                    TopicInfo, rate_of)
+from .sizes import check_npy
 
 RF_TOPIC = "/panoradar/rf"
 LIDAR_TOPIC = "/panoradar/lidar_range"
@@ -75,6 +76,7 @@ class NpyFolderRecording(Recording):
         return out
 
     def _load(self, p: Path, ndim: int) -> np.ndarray:
+        check_npy(p)      # the shape its header declares against the bytes after it, before np.load reserves it
         try:
             a = np.load(p, allow_pickle=False)
         except (OSError, ValueError, EOFError) as err:

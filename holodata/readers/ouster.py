@@ -29,6 +29,7 @@ import numpy as np
 
 from ..errors import RecordingError
 from .base import RawMessage, Recording, TopicInfo, rate_of
+from .sizes import open_bounded
 
 SCAN_TOPIC = "/ouster/lidar_scans"
 SCAN_TYPE = "ouster/LidarScan"
@@ -285,7 +286,7 @@ def pcap_udp_summary(path: Path, limit: int = 20000) -> tuple[Counter, int]:
     messages only (Ethernet / IPv4 / UDP, classic pcap)."""
     out: Counter = Counter()
     n = 0
-    with open(path, "rb") as f:
+    with open_bounded(path) as f:      # a record's declared length is read only as far as the file goes
         gh = f.read(24)
         if len(gh) < 24:
             return out, 0
@@ -297,6 +298,8 @@ def pcap_udp_summary(path: Path, limit: int = 20000) -> tuple[Counter, int]:
                 break
             _, _, incl, _ = struct.unpack(e + "IIII", rh)
             pkt = f.read(incl)
+            if len(pkt) < incl:
+                break
             n += 1
             if len(pkt) < 42 or pkt[12:14] != b"\x08\x00":
                 continue

@@ -41,6 +41,7 @@ from ..radar.beamform import beamform, beamform_attrs, static_reflection
 from ..radar.chirp import ChirpConfig
 from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, DecodeError, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, RawRotation,
                    Recording, TopicInfo, rate_of)
+from .sizes import check_npy, check_npz
 
 RADAR_TOPIC = "/panoradar/radar"
 LIDAR_TOPIC = "/panoradar/lidar"
@@ -73,6 +74,7 @@ def motion_rule(folder, override: str | None = None) -> tuple[bool, str]:
 
 
 def _load_npy(path: Path, mmap: bool = True) -> np.ndarray:
+    check_npy(path)      # the shape its header declares against the bytes after it, before np.load reserves it
     try:
         return np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)
     except FileNotFoundError as err:
@@ -131,6 +133,7 @@ class PanoRadarRawRecording(Recording):
         self.radar = raw.reshape(raw.shape[0], -1, raw.shape[-1])      # (C, V, S), a view of the memory map
         C, V, S = self.radar.shape
         self.radar_ts = _load_stamps(p / "radar_ts.txt", C, "chirp frame")
+        check_npz(p / "data_params.npz")
         try:
             with np.load(p / "data_params.npz", allow_pickle=False) as z:
                 params = {k: z[k] for k in z.files}
@@ -246,6 +249,7 @@ class PanoRadarRawRecording(Recording):
 
     # -- motion -------------------------------------------------------------------------------------
     def _motion(self, path: Path, n_rot: int) -> dict:
+        check_npz(path)
         try:
             with np.load(path, allow_pickle=False) as z:
                 v = np.asarray(z["v_esti"], np.float64).reshape(-1)

@@ -7,6 +7,12 @@ linear scan over its chunks with rosbags' record parser until the first unreadab
 recording is then marked ``truncated`` and holds the readable prefix. rosbag2 storage files that
 rosbags cannot open are handed to the sqlite3 / MCAP fallbacks (:mod:`.sqlite`, :mod:`.mcap_file`),
 which do the same.
+
+Sizes the file declares (record header and data lengths, a chunk's uncompressed size) are checked
+against the bytes the file holds before they are read or decompressed (:mod:`.sizes`): rosbags' ROS 1
+reader is opened only after :func:`ros1_chunk_sizes` walked the records it reads, and its chunks are
+decompressed in bounded steps up to the size their headers declare; rosbags' MCAP chunks likewise
+(:func:`bound_rosbags_mcap`).
 """
 from __future__ import annotations
 
@@ -18,6 +24,7 @@ from pathlib import Path
 
 from ..errors import RecordingError
 from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
+from .sizes import declared_size, inflate, inflated_room, open_bounded
 
 
 def _one_line(err: BaseException) -> str:
@@ -345,8 +352,8 @@ class Ros1ScanRecording(Recording):
                 self.conns[cid] = (header.get_string("topic"), normalize_msgtype(info.get_string("type")),
                                    info.get_string("message_definition") if "message_definition" in info else "")
 
-        size = os.path.getsize(self.path)
-        with open(self.path, "rb") as f:
+        with open_bounded(self.path) as f:     # reads of declared lengths stop at the end of the file
+            size = f.size
             try:
                 magic = f.readline()
                 if not magic.startswith(b"#ROSBAG V2.0"):
@@ -354,6 +361,7 @@ class Ros1ScanRecording(Recording):
                 Header.read(f, RecordType.BAGHEADER)
                 f.seek(read_uint32(f), os.SEEK_CUR)
                 while f.tell() < size:
+                    pos = f.tell()
                     header = Header.read(f)
                     op = header.get_uint8("op")
                     want = read_uint32(f)
@@ -361,13 +369,11 @@ class Ros1ScanRecording(Recording):
                     cut = len(data) < want
                     if op == RecordType.CHUNK:
                         comp = header.get_string("compression")
-                        if cut:
-                            data = _partial_decompress(comp, data)
-                        else:
-                            data = decompressors[comp](data)
-                            if "size" in header and len(data) != header.get_uint32("size"):
-                                raise ReaderError(f"chunk holds {len(data)} bytes, its header says "
-                                                  f"{header.get_uint32('size')}")
+                        if comp not in decompressors:
+                            raise ReaderError(f"chunk compression {comp!r} is not supported")
+                        usize = header.get_uint32("size") if "size" in header else None
+                        # bounded: stops at the declared size (RecordingError if the data cannot hold it)
+                        data = inflate(self.path, f"chunk at byte {pos}", comp, data, usize, partial=cut)
                         inner = BytesIO(data)
                         n_inner = len(data)
                         try:
@@ -408,22 +414,136 @@ class Ros1ScanRecording(Recording):
                 yield RawMessage(topic, ty, t, data, "ros1")
 
 
-def _partial_decompress(compression: str, data: bytes) -> bytes:
-    """As much of a cut-short chunk as its compression lets us recover."""
+# --------------------------------------------------------------------------------------------------
+# declared sizes of ROS 1 bags: what rosbags' Reader.open() and messages() would read
+
+class _Unusable(Exception):
+    """The bag's index cannot be read as declared (rosbags would fail on it too)."""
+
+
+def ros1_chunk_sizes(path: Path) -> dict[int, tuple[str, int | None]] | str:
+    """Walk the records rosbags' ``Reader.open()`` reads — the bag header, the connection and chunk
+    info records at ``index_pos``, every chunk's header and the index data records after it — and
+    check every length they declare against the bytes left in the file, before rosbags reads (and
+    reserves) them. Returns {chunk position: (compression, uncompressed size its header declares or
+    None)}, or a one-line reason when the index cannot be read as declared (the bag is then read by
+    a linear scan). A chunk whose declared uncompressed size its compressed bytes cannot hold is a
+    :class:`RecordingError` (:func:`.sizes.declared_size`)."""
+    import struct
+
+    out: dict[int, tuple[str, int | None]] = {}
+    with open_bounded(path) as f:
+        size = f.size
+
+        def u32(what: str) -> int:
+            b = f.read(4)
+            if len(b) != 4:
+                raise _Unusable(f"{what} at byte {f.tell() - len(b)} cut short")
+            return struct.unpack("<I", b)[0]
+
+        def length(what: str) -> int:
+            at = f.tell()
+            n = u32(what)
+            if n > size - at - 4:
+                raise _Unusable(f"{what} at byte {at} declares {n} bytes, {size - at - 4} left in the file")
+            return n
+
+        def header(what: str) -> dict[bytes, bytes]:
+            b = f.read(length(f"{what} header"))
+            fields, i = {}, 0
+            while i < len(b):
+                if i + 4 > len(b):
+                    raise _Unusable(f"{what} header is damaged")
+                (n,) = struct.unpack_from("<I", b, i)
+                name, eq, value = b[i + 4:i + 4 + n].partition(b"=")
+                if not eq or i + 4 + n > len(b):
+                    raise _Unusable(f"{what} header is damaged")
+                fields[name] = value
+                i += 4 + n
+            return fields
+
+        def uint(fields: dict, name: bytes, fmt: str = "<I") -> int:
+            try:
+                return struct.unpack(fmt, fields[name])[0]
+            except (KeyError, struct.error) as err:
+                raise _Unusable(f"record field {name.decode()!r} missing or damaged") from err
+
+        try:
+            if not f.readline().startswith(b"#ROSBAG V2.0"):
+                return "not a ROS 1 bag v2.0"
+            bag = header("bag header")
+            index_pos, conns, chunks = uint(bag, b"index_pos", "<Q"), uint(bag, b"conn_count"), uint(bag, b"chunk_count")
+            if index_pos == 0 or chunks == 0:
+                return out                  # rosbags reads nothing more (unindexed bags: its own error)
+            if index_pos > size:
+                return f"index position {index_pos} lies past the end of the file ({size} bytes)"
+            f.seek(index_pos)
+            for _ in range(conns):
+                header("connection record")
+                f.seek(length("connection record data"), os.SEEK_CUR)
+            infos = []
+            for _ in range(chunks):
+                h = header("chunk info record")
+                n = uint(h, b"count")
+                length("chunk info record data")
+                b = f.read(8 * n)
+                if len(b) != 8 * n:
+                    raise _Unusable("chunk info record cut short")
+                infos.append((uint(h, b"chunk_pos", "<Q"), len(dict(struct.iter_unpack("<II", b)))))
+            for pos, n_index in infos:
+                if pos >= size:
+                    raise _Unusable(f"chunk position {pos} lies past the end of the file")
+                f.seek(pos)
+                h = header("chunk")
+                comp = h.get(b"compression", b"none").decode("utf-8", "replace")
+                datasize = length("chunk data")
+                usize = uint(h, b"size") if b"size" in h else None
+                if comp != "none" and usize is not None:
+                    declared_size(path, f"chunk at byte {pos}: its {comp} data", usize, inflated_room(datasize),
+                                  f"its {datasize} compressed bytes can hold at most")
+                out[pos] = (comp, usize)
+                f.seek(datasize, os.SEEK_CUR)
+                for _ in range(n_index):
+                    header("index data record")
+                    f.seek(length("index data record data"), os.SEEK_CUR)
+        except _Unusable as err:
+            return str(err)
+    return out
+
+
+def _bounded_chunks(path: Path, reader, sizes: dict[int, tuple[str, int | None]]) -> None:
+    """rosbags decompresses a chunk in full (``bz2.decompress``, ``lz4.frame.decompress``): give each
+    compressed chunk of ``reader`` a decompressor that stops at the size its header declares."""
+    from functools import partial
+
+    for pos, chunk in list(reader.chunks.items()):
+        comp, usize = sizes.get(pos, ("none", None))
+        if comp != "none":
+            reader.chunks[pos] = chunk._replace(
+                decompressor=partial(inflate, path, f"chunk at byte {pos}", comp, size=usize))
+
+
+_ROSBAGS_MCAP_BOUNDED = False
+
+
+def bound_rosbags_mcap() -> None:
+    """rosbags' MCAP storage decompresses each chunk in full before it compares the size (its
+    ``DECOMPRESSORS`` table, called with the chunk's declared uncompressed size): swap in
+    :func:`.sizes.inflate`, which stops there. The sizes were checked against the chunks' bytes
+    first (:func:`.mcap_file.check_mcap`)."""
+    global _ROSBAGS_MCAP_BOUNDED
+    if _ROSBAGS_MCAP_BOUNDED:
+        return
     try:
-        if compression == "none":
-            return data
-        if compression == "bz2":
-            import bz2
-
-            return bz2.BZ2Decompressor().decompress(data)
-        if compression == "lz4":
-            import lz4.frame
-
-            return lz4.frame.LZ4FrameDecompressor().decompress(data)
-    except Exception:  # noqa: BLE001
-        pass
-    return b""
+        from rosbags.rosbag2 import storage_mcap
+    except ImportError:
+        return
+    table = getattr(storage_mcap, "DECOMPRESSORS", None)
+    if isinstance(table, dict):
+        for codec in ("lz4", "zstd"):
+            if codec in table:
+                table[codec] = lambda data, size, _c=codec: inflate(None, "MCAP chunk", _c, data, size)
+    _ROSBAGS_MCAP_BOUNDED = True
 
 
 # --------------------------------------------------------------------------------------------------
@@ -441,11 +561,15 @@ def open_rosbag1(path: Path, msg_dir: Path | None = None) -> Recording:
     if not head.startswith(b"#ROSBAG V2.0"):
         raise RecordingError(f"{path}: ROS 1 bag version {head[9:12].decode('ascii', 'replace')} is not supported "
                              f"(only 2.0; convert it with `rosbag fix`)")
+    sizes = ros1_chunk_sizes(Path(path))     # before rosbags reads what the index declares
+    if isinstance(sizes, str):
+        return Ros1ScanRecording(path, sizes[:120], msg_dir)
     reader = Reader(path)
     try:
         reader.open()
     except Exception as err:  # noqa: BLE001 - rosbags raises ReaderError, struct/unicode errors
         return Ros1ScanRecording(path, _one_line(err)[:120], msg_dir)
+    _bounded_chunks(Path(path), reader, sizes)
     return RosbagsRecording(path, reader, 1, "rosbag1", msg_dir)
 
 
@@ -453,9 +577,16 @@ def open_rosbag2(path: Path, msg_dir: Path | None = None) -> Recording:
     """rosbag2 folder with metadata.yaml, or a bare ``.db3`` / ROS 2 ``.mcap`` storage file."""
     from rosbags.rosbag2 import Reader
 
+    from .mcap_file import check_mcap
+
     path = Path(path)
     files = _storage_files(path)
+    # MCAP sizes checked before rosbags reads them (RecordingError when a chunk declares more than it holds)
+    unsound = [(f, why) for f in files if f.suffix == ".mcap" and f.is_file() and (why := check_mcap(f))]
     try:
+        if unsound:
+            raise RecordingError(f"{unsound[0][0].name}: {unsound[0][1]}")
+        bound_rosbags_mcap()
         reader = Reader(path)
         reader.open()
     except Exception as err:  # noqa: BLE001 - fall back to the storage files themselves
