@@ -30,7 +30,8 @@ import click
 @click.option("--map-scene", "map_scene", default=None, metavar="MAPID",
               help="Localisation mode: a mapping pass of the same corner (its own LiDAR-only scene, e.g. ingested "
               "from a separate recording) is slammed first; the --scene scans are localised against its map and "
-              "get its mesh. The map scene is marked role=mapping (no train/test split, no raytrace-gt).")
+              "get its mesh. The map scene is marked role=mapping (no train/test split, no raytrace-gt). Default: the "
+              "scene's own mapping pass <ID>_map when the dataset holds one (ingest of a synth output folder).")
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML/JSON file of stage settings (sections slam, mesh, ...; examples/holodata.yaml); flags given "
                    "here win.")

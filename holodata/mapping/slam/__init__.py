@@ -273,10 +273,26 @@ def slam_dataset(dataset_url, scene_ids=None, single_exports: bool = False, map_
         raise InputError(f"{dataset_url}: no scene has lidar/points (nothing for slam)")
     if single_exports and len(ids) > 1 and (kwargs.get("tum") or kwargs.get("ply")):
         raise InputError(f"{dataset_url}: {len(ids)} scenes; --ply/--tum need one (give --scene)")
-    # a scene localised against a mapping pass before stays localised against it
-    prev = {sid: (ds.scene(sid).attrs.get("slam") or {}).get("map_scene") for sid in ids}
-    return [slam_scene(dataset_url, sid, map_scene=prev[sid] if prev[sid] in ds.scenes else None, **kwargs)
-            for sid in ids]
+    # a scene localised against a mapping pass before stays localised against it; a data pass whose own
+    # mapping pass is in the dataset (<id>_map, role mapping: ingest of a synth folder) is localised in it
+    cfg = kwargs.get("config") or SlamConfig()
+    prev = {sid: (ds.scene(sid).attrs.get("slam") or {}).get("map_scene")
+            or (own_mapping_pass(ds, sid) if cfg.refine and cfg.mesh else None) for sid in ids}
+    prev = {sid: m if m in ds.scenes else None for sid, m in prev.items()}
+    if not scene_ids:   # a mapping pass is slammed as the map of the scenes localised in it, not on its own
+        ids = [s for s in ids if s not in set(prev.values())]
+    return [slam_scene(dataset_url, sid, map_scene=prev[sid], **kwargs) for sid in ids]
+
+
+def own_mapping_pass(ds, scene_id: str) -> str | None:
+    """``<scene_id>_map`` when reader dataset ``ds`` holds it as a mapping pass (scene role, see
+    :mod:`holodata.dataset.splits`) and ``scene_id`` is a data pass; else None."""
+    from ...dataset.splits import DATA, MAPPING, scene_role
+
+    m = f"{scene_id}_map"
+    if m in ds.scenes and scene_role(ds.scene(m).attrs) == MAPPING and scene_role(ds.scene(scene_id).attrs) == DATA:
+        return m
+    return None
 
 
 __all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine",
