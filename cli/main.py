@@ -3,10 +3,14 @@
 Each command lives in its own module under ``cli/`` and is listed in ``COMMAND_MODULES``;
 heavy imports happen inside command bodies so ``holodata --help`` stays fast.
 Errors: :class:`holodata.errors.HolodataError` (and any other exception) becomes one line on
-stderr and exit code 1; ``--debug`` shows the traceback instead. Usage errors exit 2.
+stderr and exit code 1; ``--debug`` shows the traceback instead. Usage errors exit 2. A command whose
+extra is not installed (``pip install holodata`` is the dataset core) says which one in one line, exit 1:
+checked before it starts (:data:`holodata.extras.COMMAND_EXTRAS`, s3:// arguments, --workers/--scheduler),
+and a missing module of an extra met later is named by its extra (:func:`holodata.extras.missing_extra_line`).
 """
 from __future__ import annotations
 
+import functools
 import importlib
 import signal
 import sys
@@ -27,6 +31,7 @@ COMMAND_MODULES: list[str] = [
     "register",
     "export",
     "view",
+    "split",
 ]
 
 
@@ -55,7 +60,11 @@ class HolodataGroup(click.Group):
         except Exception as err:  # noqa: BLE001 - the CLI's single error boundary
             if ctx.obj and ctx.obj.get("debug"):
                 raise
-            click.echo(f"error: {one_line(err)}", err=True)
+            from holodata.extras import missing_extra_line
+
+            # a module of an extra that is not installed: which extra to install, not the module's traceback
+            line = missing_extra_line(err, ctx.invoked_subcommand)
+            click.echo(f"error: {line or one_line(err)}", err=True)
             sys.exit(1)
         # the command's work is done (and committed): a Ctrl-C during interpreter shutdown would
         # only turn exit 0 into "killed by SIGINT" over a finished result
@@ -100,9 +109,27 @@ def cli(ctx: click.Context, debug: bool) -> None:
     ctx.obj["debug"] = debug
 
 
+def needs_extras(name: str, callback):
+    """``callback`` (a command's body) that first checks the extras ``holodata <name>`` needs with its
+    parsed options (:func:`holodata.extras.check_command`): a missing one is one line and exit 1 before
+    any work, while ``--help`` and usage errors never get here."""
+
+    @functools.wraps(callback)
+    def run(*args, **kwargs):
+        from holodata.extras import check_command
+
+        check_command(name, kwargs)
+        return callback(*args, **kwargs)
+
+    run.holodata_checks_extras = True
+    return run
+
+
 for _name in COMMAND_MODULES:
     _mod = importlib.import_module(f"holodata.cli.{_name}")
     for _cmd in _mod.COMMANDS:
+        if _cmd.callback is not None and not getattr(_cmd.callback, "holodata_checks_extras", False):
+            _cmd.callback = needs_extras(_cmd.name, _cmd.callback)
         cli.add_command(_cmd)
 
 

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Set up holodata on a fresh Debian machine: system library for open3d, a virtual environment
-# in .venv with holodata, its training extra (torch==2.13.0, CPU wheel) and test tools.
+# in .venv with holodata and every extra (`all`: ingest, synth, mapping, gt, train with torch==2.13.0's
+# CPU wheel, view, export, dask, s3; docs/install.md) and the test tools (`dev`).
 # Idempotent: rerunning only installs what is missing.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -21,7 +22,7 @@ PY=${PYTHON:-python3}
 stamp=.venv/.holodata-installed
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     .venv/bin/python -m pip install -q --upgrade pip
-    .venv/bin/python -m pip install -q -e ".[train,dev,view]"
+    .venv/bin/python -m pip install -q -e ".[all,dev]"
     # Ouster's SDK reads Ouster pcap + json; it pins rosbags==0.9.23 (holodata needs >= 0.10 for
     # rosbag2 MCAP), so it goes in without its pins, with the two helpers its readers import. The
     # list lives in holodata.readers.ouster.SDK_REQUIREMENTS (its error message names the same).

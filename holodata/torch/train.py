@@ -173,10 +173,7 @@ def check_stage1(ck: dict, ds, where) -> None:
     """InputError unless the stage-one checkpoint's grid and range bins are the dataset's."""
     meta = ck.get("meta") or {}
     if meta.get("grid") != ds.grid.to_attrs() or meta.get("range_bins") != ds.range_bins.to_attrs():
-        from holodata.torch.pretrained import WEIGHTS
-
-        p = Path(where).resolve()
-        name = "the pretrained weights holodata ships" if WEIGHTS.resolve() in (p, p.parent) else where
+        name = "the pretrained weights holodata ships" if ck.get("pretrained") else where   # (install's record)
         raise InputError(f"{name} were trained on {_grid_text(meta.get('grid'), meta.get('range_bins'))}, the dataset "
                          f"has {_grid_text(ds.grid.to_attrs(), ds.range_bins.to_attrs())}: train a model on this "
                          f"grid (holodata train) or use a dataset of that grid")
