@@ -33,11 +33,10 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, focus, motion,
     Every parameter goes into the scene attrs (source.beamform). Rerun to resume.
 
     \b
-    Example:
-      holodata ingest panoradar_walk --out raw.zarr --keep-iq
-      holodata slam raw.zarr && holodata beamform raw.zarr --motion slam
-      holodata beamform raw.zarr --fov 60 --window hamming
-      holodata beamform raw.zarr --focus near
+    \b
+    Examples (lab/raw.zarr: `holodata ingest --help`):
+      holodata beamform lab/raw.zarr --fov 60 --window hamming
+      holodata beamform lab/raw.zarr --focus near
     """
     from holodata.dataset import open_dataset
     from holodata.dataset.layout import RADAR_IQ

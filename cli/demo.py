@@ -24,8 +24,10 @@ def demo(out, quick, mapping, radar_output, focus, quiet, as_json) -> None:
     multi-bounce ground truth, validate the dataset, train both stages of the bundled model and
     evaluate every Table-2 row against the strongest-peaks baseline. Prints where the report is.
 
-    Example: holodata demo --quick --out demo_run
-             holodata demo --quick --radar-output heatmap --out demo_hm
+    \b
+    Examples:
+      holodata demo --quick
+      holodata demo --quick --radar-output heatmap --out holodata-demo-heatmaps
     """
     import dataclasses
 

@@ -26,9 +26,12 @@ def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estima
     """Evaluate a trained checkpoint and the strongest-peaks baseline on DATASET's split.
 
     \b
-    Example: holodata evaluate demo/dataset.zarr --checkpoint runs/unet --out runs/unet/report
+    \b
+    Examples:
+      holodata evaluate lab/ds.zarr --checkpoint lab/run --out lab/report
+      holodata evaluate lab/ds.zarr --checkpoint pretrained --out lab/report-pretrained
     The ground truth through the same stage two (a check of origins, frames and metrics):
-             holodata evaluate demo/dataset.zarr --oracle --out oracle-report
+      holodata evaluate lab/ds.zarr --oracle --out lab/report-oracle
     """
     from holodata.evaluate import evaluate as run_evaluate
 

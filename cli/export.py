@@ -26,8 +26,8 @@ def export(dataset, fmt, out, scenes, split, force, quiet, as_json):
 
     \b
     Example:
-      holodata export holodata-demo/dataset.zarr --format panoradar --out panoradar/ --split test
-      holodata export holodata-demo/dataset.zarr --format hdf5 --out h5/
+      holodata export lab/ds.zarr --format panoradar --out lab/panoradar --split test
+      holodata export lab/ds.zarr --format hdf5 --out lab/h5
     """
     from holodata.export import export_dataset
 

@@ -10,7 +10,10 @@ import click
 def info(dataset: str, as_json: bool) -> None:
     """Summarise DATASET: scenes, frames, arrays, sizes, compression, splits.
 
-    Example: holodata info demo/dataset.zarr
+    \b
+    Examples:
+      holodata info lab/ds.zarr
+      holodata info holodata-demo/dataset.zarr
     """
     from holodata.dataset import dataset_info, format_info
 
@@ -34,7 +37,10 @@ def validate(dataset: str, as_json: bool, quiet: bool) -> None:
 
     Prints one line per problem (scene, array, frame); exit 0 when clean, 1 otherwise.
 
-    Example: holodata validate demo/dataset.zarr --json > report.json
+    \b
+    Examples:
+      holodata validate lab/ds.zarr
+      holodata validate holodata-demo/dataset.zarr --json
     """
     import sys
 

@@ -55,15 +55,13 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
 
     Exit 0 when every recording was ingested (warnings go to stderr), 1 when one could not be.
 
-    Examples:
-
-      holodata ingest --list drive.bag
-
-      holodata ingest corner_01/ corner_02.mcap --out data.zarr --topics topics.yaml
-
-      holodata ingest panoradar_traj/ --out data.zarr --beamform-grid 64x512
-
-      holodata ingest --list lab_run/exp-000 --beamform-motion static
+    \b
+    Examples (the recordings of `holodata synth --help`):
+      holodata ingest --list lab/c1
+      holodata ingest lab/c1 lab/c2 --out lab/ds.zarr
+      holodata ingest lab/raw --out lab/raw.zarr --beamform-grid 32x128 --beamform-focus near --keep-iq
+    A lab's own bags, topics named in a file (examples/topics.yaml):
+      holodata ingest corner_01.bag corner_01_map.bag --out data.zarr --scene-id c1 --scene-id c1_map --topics topics.yaml
     """
     import json
     import sys

@@ -46,10 +46,10 @@ def slam(ctx, dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_me
     writes pose/T_world_lidar, pose/T_world_radar, mesh/vertices, mesh/faces into the scene.
 
     \b
-    Example:
-      holodata slam data.zarr --scene corner_03 --ply corner_03.ply
-      holodata slam data.zarr --truth synth_L/truth --report slam_report/
-      holodata slam data.zarr --scene corner_03 --map-scene corner_03_map
+    Examples (each data pass of lab/ds.zarr is localised in its mapping pass <ID>_map):
+      holodata slam lab/ds.zarr
+      holodata slam lab/ds.zarr --scene c1 --map-scene c1_map --ply lab/c1.ply
+      holodata slam lab/ds.zarr --scene c1 --truth lab/c1/truth --report lab/slam-report
     """
     from holodata.config_file import build, explicit_flags
     from holodata.mapping.slam import slam_dataset

@@ -19,9 +19,9 @@ def split(dataset, test, train, as_json):
     these splits; a dataset without them is refused rather than split by a guess.
 
     \b
-    Example:
-      holodata split data.zarr --test corner_07
-      holodata split data.zarr --test corner_07 --test corner_08 --train corner_01 --train corner_02
+    Examples:
+      holodata split lab/ds.zarr --test c2
+      holodata split lab/ds.zarr --test c2 --train c1
     """
     from holodata.dataset.splits import set_splits
 

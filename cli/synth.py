@@ -75,18 +75,14 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     walking human on the hidden side) as a real ROS recording, plus truth/ (mesh, trajectories,
     human meshes, scene description).
 
-    Example: holodata synth --out synth_L --corner L --frames 20 --seed 3
-
-    With the mapping pass (default): holodata ingest synth_L/recording synth_L/mapping --out d.zarr
-    --scene-id L --scene-id L_map; holodata slam d.zarr --scene L --map-scene L_map
-
-    Raw radar samples instead of heatmaps (ingest beamforms them): holodata synth --out synth_L
-    --radar-output iq --grid 32x128; holodata ingest synth_L/recording --out d.zarr --beamform-grid 32x128
-
-    Many recordings on a Dask cluster: holodata synth --out corners/ --count 32 --workers 2
-
-    A training dataset of 256 varied corners x 4 rotations (the last 16 for testing):
-    holodata synth --corners 256 --frames 4 --grid 32x128 --test 16 --out train.zarr
+    \b
+    Examples (README "Your own recording" ingests lab/c1 and lab/c2: a data and a mapping pass each):
+      holodata synth --out lab/c1 --corner L --frames 6 --grid 32x128 --seed 1
+      holodata synth --out lab/c2 --corner T --frames 6 --grid 32x128 --seed 2
+    Raw radar samples instead of heatmaps (ingest beamforms them):
+      holodata synth --out lab/raw --corner T --frames 2 --grid 32x128 --radar-output iq --no-mapping-pass
+    A training dataset of 16 varied corners x 2 rotations, the last 4 for testing:
+      holodata synth --corners 16 --frames 2 --grid 32x128 --test 4 --out lab/corpus.zarr
     """
     from holodata.conventions import Grid, RangeBins
     from holodata.synth import synthesize
@@ -140,8 +136,8 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     click.echo(f"truth:     {res.truth_dir} (corner {res.corner}, width {res.width_m:.2f} m, "
                f"human {'yes' if res.human else 'no'})")
     if res.mapping_recording is not None:
-        click.echo(f"mapping:   {res.mapping_recording} (the empty corner, LiDAR + odometry; ingest it as its own scene "
-                   f"and use holodata slam --map-scene)")
+        click.echo(f"mapping:   {res.mapping_recording} (the empty corner, LiDAR + odometry; `holodata ingest "
+                   f"{res.out_dir}` ingests both passes, and slam localises the data pass in this one)")
 
 
 def _corpus(out, corners, frames, grid, range_bins, seed, n_test, human, processes, workers, scheduler, quiet,

@@ -38,14 +38,15 @@ import click
 def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, range_loss, stage, stage1,
           stage2_file, stage2_epochs, init, quiet, as_json):
     """Train stage one (the multi-return range-image UNet) and stage two (hybrid ray tracer +
-    volumetric refiner, stored in RUN/stage2.pt) on DATASET's train split (split by scene).
+    volumetric refiner, stored in RUN/stage2.pt) on DATASET's train split (`holodata split`).
 
-    Example: holodata train demo/dataset.zarr --out runs/unet --epochs 30 --device cuda
-
-    Example: holodata train demo/dataset.zarr --out runs/s2 --stage 2 --stage1 runs/unet
-
-    Data-parallel: torchrun --nproc-per-node 2 -m holodata.cli.main train DS --out RUN (same global
-    batch and seed; rank 0 writes the checkpoints and trains stage two).
+    \b
+    Examples:
+      holodata train lab/ds.zarr --out lab/run --epochs 2
+      holodata train lab/ds.zarr --out lab/finetuned --init pretrained --epochs 2
+      holodata train lab/ds.zarr --out lab/run-s2 --stage 2 --stage1 lab/run --stage2-epochs 1
+    On a GPU: add --device cuda. Data-parallel: torchrun --nproc-per-node 2 -m holodata.cli.main train
+    DS --out RUN (same global batch and seed; rank 0 writes the checkpoints and trains stage two).
     """
     from holodata.torch import ddp
     from holodata.torch.stage2_train import Stage2Config, train_stage2

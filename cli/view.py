@@ -36,10 +36,10 @@ def view(dataset, scene, frames, save, force, web, port, bind, checkpoint, repor
     --checkpoint or --report, the run's predicted points too (world/pred/points).
 
     \b
-    Example:
-      holodata view holodata-demo/dataset.zarr --scene L_16 --save L_16.rrd
-      holodata view holodata-demo/dataset.zarr --web --port 9876
-      holodata view holodata-demo/dataset.zarr --report holodata-demo/report --save pred.rrd
+    Examples:
+      holodata view lab/ds.zarr --scene c2 --save lab/c2.rrd
+      holodata view lab/ds.zarr --scene c2 --report lab/report --save lab/c2-pred.rrd
+      holodata view lab/ds.zarr --scene c2 --web
     """
     import os
 
