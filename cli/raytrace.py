@@ -70,7 +70,7 @@ def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_
       holodata raytrace-gt lab/ds.zarr
       holodata raytrace-gt lab/ds.zarr --scene c1 --force
     Standalone (a mesh and a TUM trajectory; --human-dir holds one mesh per frame):
-      holodata raytrace-gt --mesh lab/c1.ply --poses lab/c1/truth/trajectory_radar.tum --out lab/gt.zarr --scene-id c1 --grid 32x128
+      holodata raytrace-gt --mesh lab/c1.ply --poses lab/c1/truth/trajectory_radar.tum --out lab/gt.zarr --grid 32x128
     On a Dask cluster, writing to S3 (AWS_* variables in the workers' environment):
       holodata raytrace-gt s3://lab-bucket/data.zarr --scheduler tcp://head:8786
     """
