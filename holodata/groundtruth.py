@@ -37,9 +37,9 @@ import numpy as np
 
 from .beams import OriginModel, beam_rays, column_times, scene_origin_model
 from .conventions import RangeBins
-from .dataset.inputs import inputs_record, stale_inputs
-from .dataset.layout import (GT_ARRAYS, GT_RANGE, HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES, MESH_FACES, MESH_FACE_CLASS,
-                             MESH_VERTICES, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, TIME_TIMESTAMP_NS)
+from .dataset.inputs import gt_inputs, stale_inputs
+from .dataset.layout import (GT_ARRAYS, GT_RANGE, MESH_FACES, MESH_FACE_CLASS, MESH_VERTICES, POSE_T_WORLD_RADAR,
+                             RADAR_CYCLE_NS, TIME_TIMESTAMP_NS)
 from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .parallel import cpus
@@ -365,18 +365,6 @@ def _missing_hint(missing: list[str]) -> str:
     return "ingest the recording again"
 
 
-# the arrays a scene's ground truth is traced from (scene attrs gt.inputs records their digests)
-GT_INPUTS = (MESH_VERTICES, MESH_FACES, MESH_FACE_CLASS, POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS, RADAR_CYCLE_NS,
-             HUMAN_VERTICES, HUMAN_FACES, HUMAN_POINTS)
-
-
-def gt_inputs(scene, attrs: dict) -> dict:
-    """The record of what ``scene``'s ground truth is traced from (:mod:`holodata.dataset.inputs`):
-    the digests of :data:`GT_INPUTS` and of the tracing settings ``attrs`` (scene attrs ``gt`` less
-    the codec, which changes no value)."""
-    return inputs_record(scene, GT_INPUTS, {k: v for k, v in attrs.items() if k not in ("codec", "inputs")})
-
-
 def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig | None = None,
                      quiet: bool = True, processes: int = 0, client=None, unfinished_ok: bool = False,
                      force: bool = False) -> dict:
@@ -433,7 +421,7 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
                      rerun=f"rerun holodata raytrace-gt DATASET --scene {sid} to finish it")
         hsrc = HumanDataset(url, sid, s)
         attrs = gt_attrs(scene, scfg, mesh_sha256(v, f), hsrc, origin_source, cycles is not None)
-        attrs["inputs"] = gt_inputs(s, attrs)
+        attrs["inputs"] = gt_inputs(s.nodes(), attrs)
         old = [n for n in s.arrays() if n.startswith("gt/")]
         changed = stale_inputs((s.attrs.get("gt") or {}).get("inputs"), attrs["inputs"]) if old else []
         if old and (force or changed):   # traced from other inputs (or asked to): trace again, whole

@@ -70,3 +70,25 @@ def test_gt_is_traced_again_when_the_mesh_changes(tmp_path):
     assert MESH_VERTICES in out["retraced"]
     r = np.asarray(open_dataset(url).scene("room")["gt/range"][0, 0])
     assert np.nanmax(r) < 4.0     # the 2 m room, not the 3 m one
+
+
+def test_validate_names_stale_gt_and_bad_splits(tmp_path):
+    """GT traced before the person was registered fails validate until raytrace-gt reruns; a mapping
+    pass in a split and a scene in both splits are problems."""
+    from holodata.dataset import validate_dataset
+    from holodata.groundtruth import raytrace_dataset
+
+    url = str(tmp_path / "ds.zarr")
+    w, sc = _room(url)
+    raytrace_dataset(url, ["room"])
+    assert validate_dataset(url)["ok"]
+    _add_person(sc)
+    lines = [p["line"] for p in validate_dataset(url)["problems"]]
+    assert any("other inputs" in ln and "human/vertices" in ln and "raytrace-gt" in ln for ln in lines), lines
+    raytrace_dataset(url, ["room"])
+    assert validate_dataset(url)["ok"], validate_dataset(url)["problems"]
+    m = w.scene("room_map", n_frames=1, attrs={"frame_sensor": "lidar", "role": "mapping"})
+    m.frame_array(TIME_TIMESTAMP_NS, dtype="int64").write_shard(0, np.ones(1, np.int64))
+    w.set_splits(train=["room", "room_map"], test=["room"])
+    lines = [p["line"] for p in validate_dataset(url)["problems"]]
+    assert any("mapping pass 'room_map'" in ln for ln in lines) and any("leakage" in ln for ln in lines), lines

@@ -16,6 +16,9 @@ from __future__ import annotations
 import hashlib
 import json
 
+from .layout import (HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES, MESH_FACE_CLASS, MESH_FACES, MESH_VERTICES,
+                     POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, TIME_TIMESTAMP_NS)
+
 
 def array_digest(meta: dict) -> str | None:
     """Digest of one array from its ``zarr.json`` dict (``meta``): the recorded whole-array sha256 or
@@ -31,14 +34,26 @@ def array_digest(meta: dict) -> str | None:
     return hashlib.sha256(json.dumps(basis, sort_keys=True).encode()).hexdigest()
 
 
-def inputs_record(scene, names, config: dict | None = None) -> dict:
-    """{name: digest or None} for each input array ``names`` of ``scene`` (a reader Scene), plus
-    ``"config"``: a digest of the settings that shape the output (``config``), when given."""
-    nodes = scene.nodes()
+def inputs_record(nodes: dict, names, config: dict | None = None) -> dict:
+    """{name: digest or None} for each input array ``names`` of a scene whose arrays are ``nodes``
+    ({name: (kind, zarr.json dict)}: ``Scene.nodes()``), plus ``"config"``: a digest of the settings
+    that shape the output (``config``), when given."""
     rec = {n: (array_digest(nodes[n][1]) if n in nodes else None) for n in names}
     if config is not None:
         rec["config"] = hashlib.sha256(json.dumps(config, sort_keys=True, default=str).encode()).hexdigest()
     return rec
+
+
+# the arrays a scene's ground truth is traced from (scene attrs gt.inputs records their digests)
+GT_INPUTS = (MESH_VERTICES, MESH_FACES, MESH_FACE_CLASS, POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS, RADAR_CYCLE_NS,
+             HUMAN_VERTICES, HUMAN_FACES, HUMAN_POINTS)
+
+
+def gt_inputs(nodes: dict, gt_attrs: dict) -> dict:
+    """The record of what a scene's ground truth is traced from: the digests of :data:`GT_INPUTS`
+    among ``nodes`` and of the tracing settings ``gt_attrs`` (scene attrs ``gt`` less the codec, which
+    changes no value, and the record itself)."""
+    return inputs_record(nodes, GT_INPUTS, {k: v for k, v in gt_attrs.items() if k not in ("codec", "inputs")})
 
 
 def stale_inputs(recorded: dict | None, now: dict) -> list[str]:

@@ -177,21 +177,36 @@ def _fast_chunks(meta: dict, n: int, blob: bytes | memoryview) -> tuple[Any, Any
     return codec, per, dt, fill, index
 
 
+def blosc_sizes(chunk) -> tuple[int, int] | None:
+    """(uncompressed, compressed) bytes a Blosc chunk's header states (bytes 4-8 and 12-16, uint32
+    LE), None when it is too short to hold a header."""
+    if len(chunk) < 16:
+        return None
+    mv = memoryview(chunk)
+    return int.from_bytes(mv[4:8], "little"), int.from_bytes(mv[12:16], "little")
+
+
 def _decode_frames(codec, per, dt, fill, index, blob, start: int, stop: int) -> np.ndarray:
+    """Frames ``start:stop`` of a fast-layout shard. Every chunk's Blosc header is checked against the
+    frame size the metadata declares before anything is allocated: metadata declaring larger frames
+    than the chunks hold raises ValueError instead of allocating what it declares."""
+    want = int(np.prod(per, dtype=np.int64)) * dt.itemsize
+    mv = memoryview(blob)
+    for i in range(start, stop):
+        if index[i, 0] == _EMPTY:
+            continue
+        o, nb = int(index[i, 0]), int(index[i, 1])
+        if blosc_sizes(mv[o:o + nb]) != (want, nb):
+            raise ValueError(f"chunk {i} of the shard is damaged (Blosc header does not match its size: "
+                             f"{want} bytes a frame declared)")
     out = np.empty((stop - start,) + per, dt)
     flat = out.reshape(stop - start, -1)
-    want = flat.shape[1] * dt.itemsize
-    mv = memoryview(blob)
     for i in range(start, stop):
         if index[i, 0] == _EMPTY:
             flat[i - start] = fill
             continue
         o, nb = int(index[i, 0]), int(index[i, 1])
-        chunk = mv[o:o + nb]
-        # Blosc header: bytes 4-8 uncompressed size, 12-16 compressed size (uint32 LE)
-        if nb < 16 or int.from_bytes(chunk[4:8], "little") != want or int.from_bytes(chunk[12:16], "little") != nb:
-            raise ValueError(f"chunk {i} of the shard is damaged (Blosc header does not match its size)")
-        codec.decode(chunk, out=flat[i - start])
+        codec.decode(mv[o:o + nb], out=flat[i - start])
     return out
 
 
@@ -224,14 +239,58 @@ def decode_shard_blocks(meta: dict, n: int, blob: bytes, block: int):
         yield i, a[i:i + block]
 
 
-def manifest_record(k: int, frames: slice, blob, shape: tuple, dtype) -> dict:
-    """Commit record of shard ``k``; ``blob``: the shard object's bytes or its parts in order."""
+def manifest_record(k: int, frames: slice, blob, shape: tuple, dtype, meta: dict | None = None,
+                    grid: str | None = None) -> dict:
+    """Commit record of shard ``k``; ``blob``: the shard object's bytes or its parts in order.
+    ``meta``: the array's parsed ``zarr.json`` (its :func:`meta_digest` is recorded as ``meta_sha256``);
+    ``grid``: the dataset's :func:`grid_digest` (``grid_sha256``), for the arrays shaped by the grid."""
     parts = blob if isinstance(blob, (list, tuple)) else [blob]
     h = hashlib.sha256()
     for b in parts:
         h.update(b)
-    return {"shard": k, "frames": [frames.start, frames.stop], "sha256": h.hexdigest(),
-            "nbytes": sum(len(b) for b in parts), "shape": list(shape), "dtype": str(np.dtype(dtype))}
+    rec = {"shard": k, "frames": [frames.start, frames.stop], "sha256": h.hexdigest(),
+           "nbytes": sum(len(b) for b in parts), "shape": list(shape), "dtype": str(np.dtype(dtype))}
+    if meta is not None:
+        rec["meta_sha256"] = meta_digest(meta)
+    if grid is not None:
+        rec["grid_sha256"] = grid
+    return rec
+
+
+# The zarr.json fields that decide what a stored chunk decodes to (the dtype, the chunk grid, the codecs
+# and their settings, the fill value of absent chunks); ``attributes`` and ``dimension_names`` do not.
+VALUE_FIELDS = ("zarr_format", "node_type", "data_type", "chunk_grid", "chunk_key_encoding", "fill_value", "codecs",
+                "storage_transformers")
+
+
+def value_fields(meta: dict, rows_grow: bool = False) -> dict:
+    """The :data:`VALUE_FIELDS` and the shape of a parsed ``zarr.json``; ``rows_grow``: an array whose
+    first axis grows by appends (ragged ``values``): its length is left out (the records' rows say it)."""
+    shape = list(meta.get("shape") or [])
+    return {**{k: meta.get(k) for k in VALUE_FIELDS}, "shape": shape[1:] if rows_grow else shape}
+
+
+def _digest(obj) -> str:
+    return sha256(json.dumps(obj, sort_keys=True, separators=(",", ":")).encode())
+
+
+def meta_digest(meta: dict) -> str:
+    """sha256 of a frame array's value fields (:func:`value_fields`), canonical JSON: recorded beside
+    each shard's checksum, so that an edit of its dtype, codecs, fill value or chunks is found."""
+    return _digest(value_fields(meta))
+
+
+def ragged_meta_digest(values_meta: dict, offsets_meta: dict) -> str:
+    """:func:`meta_digest` of a ragged array: its ``values`` (without their growing length) and ``offsets``."""
+    return _digest({"values": value_fields(values_meta, rows_grow=True), "offsets": value_fields(offsets_meta)})
+
+
+def grid_digest(grid, range_bins) -> str:
+    """sha256 of the dataset's beam grid and range bins (H, W, elevation limits; n, dr): what the
+    radar and gt arrays' values are laid out on, recorded beside their shard checksums."""
+    return _digest({"H": int(grid.H), "W": int(grid.W),
+                    "elev_deg": [float(grid.elev_max_deg), float(grid.elev_min_deg)],
+                    "n": int(range_bins.n), "dr": float(range_bins.dr)})
 
 
 def compressor(codec: str = "zstd", clevel: int | None = None):

@@ -3,7 +3,9 @@
 Commit protocol of a frame array shard ``k`` (docs/format.md §3):
 1. encode the whole shard in memory (:func:`shards.encode_shard`), put it under ``c/k/0/...`` in
    one atomic step (temp file + rename locally; one PUT on object stores);
-2. put ``<array>/manifest/<k>.json`` = {shard, frames, sha256, nbytes, shape, dtype}.
+2. put ``<array>/manifest/<k>.json`` = {shard, frames, sha256, nbytes, shape, dtype, meta_sha256
+   (of the zarr.json fields that decide the decoded values: :func:`shards.meta_digest`), and for the
+   ``radar/`` and ``gt/`` arrays grid_sha256 (the dataset's grid and range bins: :func:`shards.grid_digest`)}.
 A shard is *done* iff its manifest record exists; a killed writer leaves at most an uncommitted
 shard object, which the rerun rewrites. Done shards are never rewritten. Per-shard records (not
 one attribute rewritten per shard) keep concurrent shard writers (Dask workers) from losing each
@@ -14,7 +16,8 @@ Ragged arrays (``lidar/points``, ``camera/points``, ``human/vertices`` ...): a g
 ``values`` (N, width) and ``offsets`` (T+1,) int64, frame ``i`` = ``values[offsets[i]:offsets[i+1]]``;
 ``offsets[0] = 0`` and ``offsets[T] = N``. Shards (same frame grouping) are appended in order:
 resize + write the new rows, rewrite ``offsets`` (one chunk), then the manifest record
-{rows: [r0, r1], sha256 of the rows' bytes + their offsets}. Readers trust only committed shards.
+{rows: [r0, r1], sha256 of the rows' bytes + their offsets, dtype, meta_sha256 of values' and offsets'
+zarr.json (:func:`shards.ragged_meta_digest`)}. Readers trust only committed shards.
 
 Unfinished stages (docs/format.md §3, "Unfinished scenes"): every command that writes a scene marks it
 unfinished before its first write and finished after its last, in the scene attribute ``unfinished``
@@ -67,9 +70,32 @@ def _json(store: Store, key: str) -> Any:
 
 
 def _fresh_node(store: Store, path: str) -> None:
-    """Remove whatever is left at ``path`` (what zarr's ``mode="w"`` / ``overwrite=True`` do)."""
-    if store.is_dir(path):
-        store.delete_tree(path)
+    """Remove what a killed writer left at ``path`` before the node's ``zarr.json`` (what zarr's
+    ``mode="w"`` / ``overwrite=True`` do), but only what holodata can prove it wrote: Zarr node
+    objects (``zarr.json``, chunks under ``c/``), shard records (``manifest/``) and put temps
+    (``.*.partial``), no symlink among them. Anything else (a user's folder that shares a scene's
+    name) is one :class:`DatasetError` line, and stays."""
+    if not store.is_dir(path):
+        return
+    files, links = store.walk(path)
+    foreign = links or [f for f in files if not _node_object(f)]
+    if foreign:
+        raise DatasetError(f"{store.url}: {path} holds {foreign[0]!r}, which holodata did not write; it will not "
+                           f"delete it (move it out of the dataset, or choose another scene id)")
+    store.delete_tree(path)
+
+
+def _node_object(rel: str) -> bool:
+    """``rel`` (a path under a node's folder) is an object a holodata writer puts there."""
+    parts = rel.split("/")
+    name = parts[-1]
+    if name.startswith(".") and name.endswith(".partial"):
+        return True
+    if name == "zarr.json":
+        return True
+    if "c" in parts[:-1]:                               # chunk / shard objects: c/<i>/<j>...
+        return all(p.isdigit() for p in parts[parts.index("c") + 1:])
+    return len(parts) >= 2 and parts[-2] == sh.MANIFEST_DIR and name.endswith(".json")
 
 
 def _put_group(store: Store, path: str, attributes: dict) -> None:
@@ -178,12 +204,18 @@ class DatasetWriter:
             raise DatasetError(f"{self.url}: is a file, not a dataset folder")
         root = _json(self.store, "zarr.json")
         self.zstore = self.store.zarr_store(read_only=False)
+        self.created_run: str | None = None   # this writer created the dataset: its token in the root
         if root is None:
             if self.store.is_dir() and self.store.list(""):
                 raise DatasetError(f"{self.url}: folder exists, is not empty and is not a holodata dataset")
+            import uuid
+
+            self.created_run = uuid.uuid4().hex
+            self._made_folder = self.store.local and not self.store.root.exists()
             meta = {"format_version": FORMAT_VERSION, "created_by": created_by, "grid": grid.to_attrs(),
                     "range_bins": range_bins.to_attrs(), "grid_source": "given" if given else "default",
-                    "splits": {"train": [], "test": []}, "provenance": provenance, "shard_frames": self.shard_frames}
+                    "splits": {"train": [], "test": []}, "provenance": provenance, "shard_frames": self.shard_frames,
+                    "created_run": self.created_run}
             _put_group(self.store, "", {"holodata": meta})
             _put_group(self.store, "scenes", {})
         else:
@@ -208,6 +240,25 @@ class DatasetWriter:
                     self._set_root({"provenance": hist})
             if adopt:   # the first radar of a LiDAR-only dataset sets its grid
                 self._set_root({"grid": grid.to_attrs(), "range_bins": range_bins.to_attrs(), "grid_source": "given"})
+
+    def discard(self) -> bool:
+        """Delete the dataset again when this writer created it (its ``created_run`` token is still the
+        root's: no other writer re-created it meanwhile) and it holds no scene, e.g. an ingest whose every
+        recording failed; only the two group documents it put go. Returns whether it was deleted; a
+        dataset this writer did not create, or that another writer put a scene into, is never touched."""
+        root = _json(self.store, "zarr.json")
+        token = ((root or {}).get("attributes") or {}).get("holodata", {}).get("created_run")
+        if self.created_run is None or token != self.created_run or self.store.list("scenes") != ["zarr.json"]:
+            return False
+        self.store.delete("scenes/zarr.json")
+        self.store.delete("zarr.json")
+        if self.store.local:   # the folders it made, once empty (never a folder holding anything else)
+            for d in (self.store.root / "scenes", self.store.root)[:2 if self._made_folder else 1]:
+                try:
+                    d.rmdir()
+                except OSError:
+                    break
+        return True
 
     def _grid_unset(self, meta: dict) -> bool:
         """The dataset's grid is the default nobody chose and no array is shaped by it yet."""
@@ -562,6 +613,8 @@ class FrameArrayWriter(_Sharded):
         self.shape = tuple(meta["shape"])
         self.dtype = np.dtype(meta["data_type"])
         self._init_shards(sc, name, int(meta["attributes"]["holodata"]["shard_frames"]))
+        # the arrays laid out on the radar grid record the grid (and range bins) they were written on
+        self._grid_sha256 = sh.grid_digest(sc.ds.grid, sc.ds.range_bins) if name.startswith(GRID_ARRAYS) else None
 
     def write_shard(self, k: int, data) -> bool:
         """Write shard ``k`` whole: ``data`` (len(frames(k)),) + per-frame shape, or a list of
@@ -591,7 +644,7 @@ class FrameArrayWriter(_Sharded):
         blob = sh.encode_shard_parts(self.meta, [f.astype(self.dtype, copy=False) for f in frames]
                                      if frames is not None else data.astype(self.dtype, copy=False))
         self.store.put(sh.shard_key(self.path, k, len(self.shape)), blob)
-        rec = sh.manifest_record(k, sl, blob, self.shape, self.dtype)
+        rec = sh.manifest_record(k, sl, blob, self.shape, self.dtype, meta=self.meta, grid=self._grid_sha256)
         self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
         self._done.add(k)
         if len(self._done) == self.n_shards:
@@ -710,7 +763,8 @@ class RaggedWriter(_Sharded):
         else:
             oa[...] = off
         rec = {"shard": k, "frames": [sl.start, sl.stop], "rows": [r0, r1], "sha256": ragged_digest(vals, seg),
-               "nbytes": int(vals.nbytes), "shape": [r1, self.width], "dtype": str(self.dtype)}
+               "nbytes": int(vals.nbytes), "shape": [r1, self.width], "dtype": str(self.dtype),
+               "meta_sha256": sh.ragged_meta_digest(vmeta, ometa)}
         self.store.put(sh.manifest_key(self.path, k), json.dumps(rec).encode())
         self._done.add(k)
         if len(self._done) == self.n_shards:
