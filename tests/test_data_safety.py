@@ -137,17 +137,25 @@ def test_synth_replaces_its_own_outputs_with_force_and_a_user_truth_folder_never
 
 
 # -- point 4: symlinks and foreign folders inside a dataset -----------------------------------------
-def test_a_symlinked_scenes_folder_leads_no_write_or_delete_outside_the_dataset(tmp_path):
+def _linked_dataset(tmp_path):
+    """(home, its Documents/notes.txt, home/work/ds.zarr whose ``scenes`` is a symlink to ``../..``: home)."""
+    import shutil
+
     from holodata.dataset import create_dataset
 
     home = tmp_path / "home"
     mine = _user_folder(home / "Documents")
     url = home / "work" / "ds.zarr"
     create_dataset(str(url))
-    import shutil
-
     shutil.rmtree(url / "scenes")
-    (url / "scenes").symlink_to("../..")     # scenes -> home
+    (url / "scenes").symlink_to("../..")
+    return home, mine, url
+
+
+def test_a_symlinked_scenes_folder_leads_no_write_or_delete_outside_the_dataset(tmp_path):
+    from holodata.dataset import create_dataset
+
+    home, mine, url = _linked_dataset(tmp_path)
     for sid in ("Documents", "fresh"):
         with pytest.raises(DatasetError, match="symlink"):
             create_dataset(str(url)).scene(sid, n_frames=2)
@@ -164,17 +172,9 @@ def test_raytrace_gt_standalone_refuses_a_symlinked_scenes_folder(tmp_path):
     import numpy as np
 
     import _eval_dataset as E
-    from holodata.dataset import create_dataset
     from holodata.meshio import Mesh, write_ply
 
-    home = tmp_path / "home"
-    mine = _user_folder(home / "Documents")
-    ds = home / "work" / "ds.zarr"
-    create_dataset(str(ds))
-    import shutil
-
-    shutil.rmtree(ds / "scenes")
-    (ds / "scenes").symlink_to("../..")
+    _, mine, ds = _linked_dataset(tmp_path)
     V, F = E.box((-3, -3, -1), (3, 3, 2))
     write_ply(tmp_path / "room.ply", Mesh(V, F))
     (tmp_path / "poses.tum").write_text("".join(f"{t} 0 0 0 0 0 0 1\n" for t in np.arange(2) * 0.5))
