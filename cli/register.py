@@ -22,7 +22,8 @@ def _init(value: str | None):
 
 @click.command("register")
 @click.argument("dataset")
-@click.option("--scene", "scene", default=None, help="Scene id (default: the only scene).")
+@click.option("--scene", "scenes", multiple=True,
+              help="Scene id (repeatable; default: every scene with a camera, i.e. not a LiDAR-only mapping pass).")
 @click.option("--init", "init", default=None, metavar="X,Y,Z,ROLL,PITCH,YAW",
               help="Initial guess of T_world_camera (camera points frame, metres and degrees, extrinsic xyz Euler); "
                    "default: the camera's TF pose in the map.")
@@ -37,7 +38,8 @@ def _init(value: str | None):
               help="Processes (0: two on a machine with two or more CPUs; 1: all in this process).")
 @click.option("--guess-std", "guess_std", type=click.FloatRange(min=0.0), default=5.0, show_default=True, metavar="CM",
               help="How good the guess (TF pose or --init) is along directions the camera's view does not constrain: "
-                   "the result there is the guess, with this uncertainty; accepted only if <= 2 cm.")
+                   "the result there is the guess, reported and accepted with this uncertainty (the measured "
+                   "directions must be within 2 cm).")
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML/JSON file of stage settings (sections register, segment, ...; examples/holodata.yaml); flags "
                    "given here win.")
@@ -45,24 +47,31 @@ def _init(value: str | None):
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
 @click.pass_context
-def register(ctx, dataset, scene, init, no_segment, camera_world, truth, report, processes, guess_std, config_file, force,
+def register(ctx, dataset, scenes, init, no_segment, camera_world, truth, report, processes, guess_std, config_file, force,
              quiet, as_json) -> None:
     """Register the depth camera to the LiDAR map (needs pose/T_world_lidar from `holodata slam`):
     point-to-plane ICP of the camera's static cloud onto the map from the TF guess or --init,
     FPFH+RANSAC fallback accepted only if it passes the fitness/RMSE check; then the human in every
     frame (points + a closed surface, world frame) and the LiDAR-grid human instance masks.
 
+    A camera that cannot be registered costs its scene the person, not the scene: the scene keeps
+    its mesh and poses (raytrace-gt traces it without a person), its attribute register_failed holds
+    the numbers (--json prints them), and the command exits 1 with one line per such scene. --json
+    prints one scene's summary, or {"dataset", "scenes": [...]} for several.
+
     \b
-    Example:
-      holodata register data.zarr --scene corner_03
-      holodata register data.zarr --init 0.7,-8.1,1.2,-95,0,-9.5 --json
-      holodata register data.zarr --truth synth_T/truth --report register_report/
+    Examples (every scene of lab/ds.zarr with a camera, i.e. each data pass, not its mapping pass):
+      holodata register lab/ds.zarr
+      holodata register lab/ds.zarr --scene c1 --truth lab/c1/truth --report lab/register-report
+      holodata register lab/ds.zarr --scene c2 --json
     """
+    from holodata import open_dataset
     from holodata.config_file import build, explicit_flags, read
-    from holodata.mapping.register import register_scene
+    from holodata.mapping.register import RegistrationError, camera_scenes, register_scene
 
     if report and not truth:
         raise click.UsageError("--report needs --truth")
+    init = _init(init)
     flags = {"segment_lidar": "no_segment", "write_camera_world": "camera_world", "processes": "processes",
              "guess_std_m": "guess_std"}
     cfg = build("register", config_file, dict(segment_lidar=not no_segment, write_camera_world=camera_world,
@@ -70,14 +79,46 @@ def register(ctx, dataset, scene, init, no_segment, camera_world, truth, report,
                 explicit_flags(ctx, flags))
     seg = build("segment", config_file) if config_file and "segment" in read(config_file) else None
     seg = None if seg is None or seg == type(seg)() else seg     # the defaults: the same fingerprint as without a file
-    res = register_scene(dataset, scene, init=_init(init), cfg=cfg, quiet=quiet, force=force, segment_cfg=seg)
-    if truth:
-        from holodata.mapping.human_eval import evaluate_register
+    ids = list(dict.fromkeys(scenes))
+    if not ids:
+        ds = open_dataset(dataset)
+        ids = camera_scenes(ds)
+        if not ids:     # (register_scene says so in one line)
+            ids = [None]
+        elif len(ids) < len(ds.scenes):
+            rest = [s for s in ds.scenes if s not in ids]
+            click.echo(f"{dataset}: registering the scene(s) with a camera: {', '.join(ids)} ({', '.join(rest)}: no "
+                       f"camera)", err=True)
+    if (truth or init is not None) and len(ids) > 1:
+        raise click.UsageError(f"--truth/--init belong to one scene: give --scene (scenes with a camera: {', '.join(ids)})")
+    results, failed = [], []
+    for sid in ids:
+        try:
+            res = register_scene(dataset, sid, init=init, cfg=cfg, quiet=quiet, force=force, segment_cfg=seg)
+        except RegistrationError as err:
+            if len(ids) == 1 and not as_json:
+                raise                       # one line on stderr, exit 1
+            failed.append(str(err))
+            results.append(err.report or {"scene": sid, "registered": False})
+            continue
+        if truth:
+            from holodata.mapping.human_eval import evaluate_register
 
-        res["accuracy"] = evaluate_register(dataset, res["scene"], truth, report)
+            res["accuracy"] = evaluate_register(dataset, res["scene"], truth, report)
+        results.append(res)
+        if not as_json:
+            _echo(dataset, res, cfg, camera_world, truth, quiet)
     if as_json:
-        click.echo(json.dumps(res, indent=2, default=str))
-        return
+        click.echo(json.dumps(results[0] if len(results) == 1 else {"dataset": dataset, "scenes": results},
+                              indent=2, default=str))
+    for line in failed:
+        click.echo(f"error: {' '.join(line.split())}", err=True)
+    if failed:
+        ctx.exit(1)
+
+
+def _echo(dataset: str, res: dict, cfg, camera_world: bool, truth, quiet: bool) -> None:
+    """The lines of one registered scene ``res`` (register_scene's summary)."""
     if res.get("skipped"):
         click.echo(f"{dataset}: scene {res['scene']}: {res['skipped']}", err=quiet)
     e = res["extrinsic"]

@@ -104,7 +104,7 @@ def test_slam_world_is_the_tf_world_and_register_uses_the_organised_cloud(heldou
     from holodata import open_dataset
     from holodata.ingest import ingest
     from holodata.mapping.human_eval import extrinsic_error, human_centroid_errors, truth_camera_extrinsic
-    from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene
+    from holodata.mapping.register import RegisterConfig, register_scene
     from holodata.mapping.slam import slam_scene
     from holodata.trajectory import read_tum
 
@@ -130,11 +130,11 @@ def test_slam_world_is_the_tf_world_and_register_uses_the_organised_cloud(heldou
     assert tilt.max() < 0.05 and np.abs(Pe[:, 2, 3] - truth[:, 2, 3]).max() < 0.01
     g = sc.attrs["slam"]["summary"]["tf_agreement"]            # TF's odometry drifts 1 % of the distance
     assert g["scans"] >= 0.9 * np.isfinite(P[:, 0, 0]).sum() and 0 < g["position_max_m"] < 0.15, g
-    # the camera looks down the hidden leg and sees little across it: that direction is the guess's
-    with pytest.raises(RegistrationError, match=r"does not constrain 1 direction\(s\) \(translation along "
-                                                r"\(-?0\.0\d, 1\.00, 0\.00\)\): held at the guess, good to \d+\.\d cm "
-                                                r"\(5\.0 cm --guess-std"):
-        register_scene(url, sc.id, quiet=True)
+    # the camera looks down the hidden leg and sees little across it: that direction is the guess's,
+    # accepted at the guess's stated precision (--guess-std, 5 cm by default; issue 55)
+    res = register_scene(url, sc.id, quiet=True)
+    held = res["extrinsic"]["attempts"][0]
+    assert held["uncertainty_m"] == pytest.approx(0.05) and held["pose_std_m"] < 0.005
     # "good to 2 cm": taken at the user's word; the map's possible turn about its anchor, which the
     # data could not read here (the guess's yaw is off too), is reported beside it as a bound
     res = register_scene(url, sc.id, cfg=RegisterConfig(guess_std_m=0.02), quiet=True)

@@ -19,8 +19,12 @@ frame, with the intrinsics in ``sensors.camera.intrinsics``), the LiDAR map (``m
    near the camera (:func:`mesh_surface_samples`), from ``--init`` or the TF pose. Directions the overlap does not
    pin down are held at the guess (or where the SLAM map's own turn puts it, :func:`anchored_guess`)
    instead of sliding. Accepted only when overlap, fitness, RMSE and the pose's standard deviation
-   (:func:`pose_uncertainty`) pass; else FPFH + RANSAC then the same ICP and check; else register
-   fails with the numbers.
+   along the directions the data measured (:func:`pose_uncertainty`) pass; a held direction is
+   accepted at the guess's stated precision (``guess_std_m``, ``--guess-std``; reported as its
+   uncertainty: the data can neither confirm nor improve the guess there, :func:`~.extrinsic.check_held`).
+   Else FPFH + RANSAC then the same ICP and check; else the camera is not registered: the scene is
+   finished without a person (mesh, poses and ``lidar/instance`` kept; scene attrs
+   ``register_failed`` with every attempt's numbers) and :class:`RegistrationError` says why in one line.
 4. **Human points per frame** (:func:`frame_candidates`, :func:`pick_human`): returns in front of
    the static depth (a moving person) or on no large plane of the static cloud (a person standing
    still), not explained by the map; the largest person-like cluster near the track, outliers
@@ -56,10 +60,10 @@ import time
 
 import numpy as np
 
-from ...dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, CAMERA_TIMESTAMP_NS, HUMAN_FACES, HUMAN_POINTS,
-                               HUMAN_VERTICES, LIDAR_INSTANCE, MAP_POINTS, MESH_FACES, MESH_VERTICES, POSE_T_WORLD_LIDAR,
-                               TIME_TIMESTAMP_NS)
-from ...errors import HolodataError, InputError
+from ...dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS, CAMERA_POINTS_WORLD, CAMERA_TIMESTAMP_NS, HUMAN_FACES,
+                               HUMAN_POINTS, HUMAN_VERTICES, LIDAR_INSTANCE, MAP_POINTS, MESH_FACES, MESH_VERTICES,
+                               POSE_T_WORLD_LIDAR, TIME_TIMESTAMP_NS)
+from ...errors import InputError
 from ...parallel import cpus, fork_call, release_free_memory
 from .config import RegisterConfig, Registration, RegistrationError
 from ...geometry.voxels import voxel_average
@@ -256,6 +260,9 @@ def map_frame_problem(scene, world: str) -> str | None:
 
 
 REGISTER_OUTPUTS = (CALIB_T_WORLD_CAMERA, HUMAN_VERTICES, HUMAN_FACES, HUMAN_POINTS)
+# scene attribute of a camera that could not be registered: register's report, ``registered`` False
+# (the scene finished without a person, :func:`unregistered`); cleared by a registration that passes
+REGISTER_FAILED = "register_failed"
 # Switches deleted (issue 25: off by default, never used) after datasets were registered with them:
 # their only value stays in the fingerprint, so a scene registered before still reads as done.
 RETIRED_PARAMS = {"noise_weights": False, "max_std_m": 0.0, "search_m": 0.0, "mesh_keep_map_m": 0.0}
@@ -286,11 +293,31 @@ def register_fingerprint(scene, cfg: RegisterConfig, init, segment_cfg=None) -> 
     return h.hexdigest()[:16]
 
 
+def camera_scenes(ds) -> list[str]:
+    """The scenes of dataset ``ds`` (a read handle) that have a camera (``camera/points``): the ones
+    register can register. A mapping pass (LiDAR + odometry only, ``role: mapping``) has none."""
+    return [sid for sid in ds.scenes if CAMERA_POINTS in set(ds.scene(sid).arrays())]
+
+
+def only_camera_scene(ds, url: str) -> str:
+    """The one scene of ``ds`` with a camera (:func:`camera_scenes`); InputError (one line) with none or
+    several."""
+    cams = camera_scenes(ds)
+    if len(cams) == 1:
+        return cams[0]
+    if not cams:
+        raise InputError(f"{url}: no scene has a camera (camera/points) to register; scenes: {', '.join(ds.scenes) or 'none'}")
+    raise InputError(f"{url}: {len(cams)} scenes have a camera ({', '.join(cams)}); pick one with --scene")
+
+
 def register_scene(url: str, scene_id: str | None = None, init=None, cfg: RegisterConfig | None = None,
                    quiet: bool = True, force: bool = False, segment_cfg=None) -> dict:
     """``holodata register``: extrinsic + human points/surfaces for one scene (see the module
     docstring); ``segment_cfg``: the LiDAR segmentation's :class:`~holodata.mapping.segment.SegmentConfig`
-    (None: its defaults). Returns a summary dict; raises :class:`RegistrationError` if no registration passes.
+    (None: its defaults). Returns a summary dict; raises :class:`RegistrationError` (one line; its
+    ``report`` the summary) if no registration passes, after finishing the scene without a person
+    (:func:`unregistered`): a camera that cannot be registered costs the scene its person, not the
+    scene. ``scene_id`` None: the one scene with a camera (:func:`camera_scenes`).
     A scene registered before from the same inputs and settings (:func:`register_fingerprint`, every
     output present) is not registered again unless ``force``: the stored report comes back with
     ``skipped`` set, as slam does. The steps are :mod:`.steps`'."""
@@ -301,7 +328,7 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     t0 = time.perf_counter()
     timings: dict = {}
     ds = open_dataset(url)
-    scene = ds.scene(_scene_id(ds, url, scene_id))
+    scene = ds.scene(_scene_id(ds, url, scene_id) if scene_id is not None else only_camera_scene(ds, url))
     where = f"{url}: scene {scene.id!r}"
     scene.require_complete("register")
     fingerprint = register_fingerprint(scene, cfg, init, segment_cfg)
@@ -340,7 +367,15 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
                                  anchor=slam_anchor(scene) if init_source == "tf" else None)
         timings["extrinsic_s"], t2 = time.perf_counter() - t1, time.perf_counter()
         if not reg.accepted:
-            raise RegistrationError(registration_failure(where, reg, cfg, init_source))
+            # the scene stays usable (mesh, poses, lidar/instance) and finished, without a person
+            outputs_touched = True
+            line = registration_failure(where, reg, cfg, init_source)
+            report, seg_summary = unregistered(sw, reg, lidar, line, init_source, T_init, stored_map is not None, cfg,
+                                               scene.n_frames, time.perf_counter() - t0, timings, fingerprint)
+            out = {"scene": scene.id, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
+            if seg_summary:
+                out["segment"] = seg_summary
+            raise RegistrationError(line, report=out)
         T, eye, f_px = reg.T, reg.T[:3, 3], float(cam.K[0, 0])
         # 4. humans (camera/points_world written by a second process meanwhile)
         outputs_touched = True
@@ -374,19 +409,45 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         timings["segment_wait_s"] = time.perf_counter() - t1
         report = register_report(reg, init_source, T_init, stored_map is not None, surfaces, cand.carved,
                                  picks.repicked, cfg, shift, time.perf_counter() - t0, timings, fingerprint, cuts)
-        sw.finish("register", {"register": report})
+        sw.finish("register", {"register": report, REGISTER_FAILED: None})
     except BaseException as err:
         if lidar is not None:
             lidar.join()   # it must not write on after register has failed
-        if isinstance(err, HolodataError) and not outputs_touched and not resuming:
-            # refused before its outputs were touched (lidar/instance, if written, is whole: its shards
-            # committed): the scene is as consistent as before, so the refusal leaves no mark
+        if isinstance(err, Exception) and not outputs_touched and not resuming:
+            # refused (or failed on an error of its own) before its outputs were touched (lidar/instance,
+            # if written, is whole: its shards committed, the LiDAR process joined): the scene is as
+            # consistent as before, so the failure leaves no mark; an interrupt (Ctrl-C) does
             sw.finish("register")
         raise
     out = {"scene": scene.id, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
     if seg_summary:
         out["segment"] = seg_summary
     return out
+
+
+def unregistered(sw, reg: Registration, lidar, line: str, init_source: str, T_init: np.ndarray, slam_map: bool,
+                 cfg: RegisterConfig, n_frames: int, seconds: float, timings: dict,
+                 fingerprint: str) -> tuple[dict, dict | None]:
+    """A camera that cannot be registered (``reg`` not accepted; ``line`` the one-line reason,
+    :func:`registration_failure`) costs the scene its person, not the scene: a previous run's person
+    and extrinsic (made from other inputs or settings) are removed, the LiDAR half (``lidar``, or
+    None) finishes the segmentation, and the scene is finished through scene writer ``sw`` with the
+    report in the scene attribute :data:`REGISTER_FAILED` (``registered`` False, ``warning``: ``line``,
+    every attempt's numbers) and no ``register`` attribute (it declares register's outputs). Its mesh
+    and poses stay: raytrace-gt traces it without a person, validate accepts it. Returns (the report,
+    the segmentation summary or None)."""
+    clear_outputs(sw, cfg, calib=True)
+    seg_summary = None
+    if lidar is not None:
+        _, seg_summary, lidar_timings = lidar()
+        timings.update(lidar_timings)
+    report = {"registered": False, "warning": line, "extrinsic": reg.to_attrs(), "init": init_source,
+              "T_init": np.asarray(T_init).tolist(), "map": "slam (map/points)" if slam_map else "built from the LiDAR scans",
+              "frames_with_human": 0, "frames": int(n_frames), "params": cfg.to_attrs(), "seconds": seconds,
+              "timings": timings, "fingerprint": fingerprint}
+    # (not under ``register``: that attribute declares register's outputs, which validate then requires)
+    sw.finish("register", {"register": None, REGISTER_FAILED: report})
+    return report, seg_summary
 
 
 def lidar_half(scene, cfg: RegisterConfig, segment_cfg, processes: int, quiet: bool, where: str):
@@ -425,7 +486,7 @@ def register_report(reg: Registration, init_source: str, T_init: np.ndarray, sla
     each frame's cut share ``cut_share``), the settings, timings and the fingerprint."""
     n = len(surfaces)
     cuts = np.asarray(cuts, float)
-    return {"extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
+    return {"registered": True, "extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
             "map": "slam (map/points)" if slam_map else "built from the LiDAR scans",
             "frames_with_human": int(sum(len(s[1]) > 0 for s in surfaces)), "frames": n,
             "frames_cut": np.flatnonzero(cuts >= cfg.cut_share).tolist(), "cut_share": np.round(cuts, 3).tolist(),
@@ -443,4 +504,5 @@ __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extr
            "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
            "track_jumps", "track_velocity", "radial_speed", "mesh_surface_samples",
            "scene_mesh", "held_directions", "anchored_guess", "static_depth_of",
-           "register_fingerprint", "scene_map", "slam_anchor", "camera_seen_through", "camera_swept"]
+           "register_fingerprint", "scene_map", "slam_anchor", "camera_seen_through", "camera_swept",
+           "camera_scenes", "only_camera_scene", "REGISTER_FAILED"]

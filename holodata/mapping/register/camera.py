@@ -43,7 +43,8 @@ class CameraFrames:
     def open(cls, scene, url: str = "") -> "CameraFrames":
         where = f"{url}: scene {scene.id!r}"
         if CAMERA_POINTS not in set(scene.arrays()):
-            raise InputError(f"{where} has no camera/points (nothing to register)")
+            raise InputError(f"{where} has no camera (camera/points): a LiDAR-only scene, e.g. a mapping pass, has "
+                             f"nothing to register")
         intr = ((scene.attrs.get("sensors") or {}).get("camera") or {}).get("intrinsics")
         if not intr or "K" not in intr:
             raise InputError(f"{where}: camera has no intrinsics (sensors.camera.intrinsics); register needs a "

@@ -10,7 +10,14 @@ from ...errors import HolodataError
 
 
 class RegistrationError(HolodataError, RuntimeError):
-    """Camera-to-map registration did not pass its acceptance check."""
+    """Camera-to-map registration did not pass its acceptance check. Raised by
+    :func:`~holodata.mapping.register.register_scene` after it finished the scene without a person
+    (mesh and poses kept; scene attrs ``register_failed`` with the numbers);
+    ``report``: that summary (dict), or None."""
+
+    def __init__(self, message: str, report: dict | None = None):
+        super().__init__(message)
+        self.report = report
 
 
 @dataclass(frozen=True)
@@ -31,9 +38,12 @@ class RegisterConfig:
     mesh_target: bool = True
     mesh_sample_m: float = 0.02
     mesh_degenerate_ratio: float = 0.025
-    max_pose_std_m: float = 0.02
+    max_pose_std_m: float = 0.02   # the pose's standard deviation along every direction the data measured
+                                   # (and the result's slide off the guess along the held ones) must be within this
     guess_std_m: float = 0.05   # accuracy of the guess (TF / --init) along directions the data does not
-                                # constrain (held at it): a hand-measured mount is good to a few cm
+                                # constrain (held at it): a hand-measured mount is good to a few cm. Reported
+                                # as their uncertainty and accepted as stated (extrinsic.check_held): the data
+                                # can neither confirm nor improve the guess there; it changes no result
     hold_m: float = 0.05        # directions the ICP holds stay within this of the guess (docs/design/register.md, 3.)
     anchor_max_deg: float = 0.5    # TF guess, slam map: held directions follow a map turn up to this
                                    # (docs/design/register.md, 3.)

@@ -12,7 +12,6 @@ import numpy as np
 from ...conventions import transform_points
 from ...dataset.layout import CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ...errors import InputError
-from ...geometry.icp import STOP_TRANSLATION_M
 from ...parallel import fork_call
 from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
                      static_depth)
@@ -84,46 +83,54 @@ def static_camera(cam: CameraFrames, cfg: RegisterConfig, quiet: bool) -> Static
     return StaticCamera(med, mad, cnt, rays, okm, points, sigma, static_residual(points, cfg), images)
 
 
-def _held_text(x: dict, cfg: RegisterConfig) -> str:
-    """What an attempt ``x`` says of the directions it held at the guess: their names, the uncertainty
-    it reported (the --guess-std share, any slide) and the map turn's reach as a bound; "" for none."""
-    if not x.get("held_directions"):
-        return ""
+def attempt_problem(x: dict, cfg: RegisterConfig) -> str:
+    """The check an attempt ``x`` (one of :class:`Registration`'s ``attempts``) failed, in a few words
+    with the limit it missed: the overlap, the fitness, the RMSE, a fallback's distance from the guess,
+    the pose's standard deviation along a measured direction, or its slide off the guess along a
+    held one (:func:`~.extrinsic.check_held`)."""
+    if "prior_shift_m" in x and (x["prior_shift_m"] > cfg.fallback_max_shift_m
+                                 or x["prior_rot_deg"] > cfg.fallback_max_rot_deg):
+        return (f"{x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the guess (at most "
+                f"{cfg.fallback_max_shift_m:g} m / {cfg.fallback_max_rot_deg:g} deg)")
+    if x["overlap"] < cfg.min_overlap_points:
+        return f"{x['overlap']} camera points on the map (at least {cfg.min_overlap_points})"
+    if x["fitness"] < cfg.min_fitness:
+        return f"fitness {x['fitness']:.2f} (at least {cfg.min_fitness:g})"
+    if x["rmse"] > cfg.max_rmse_m:
+        return f"rmse {x['rmse'] * 100:.1f} cm (at most {cfg.max_rmse_m * 100:g} cm)"
+    std = x.get("pose_std_m", float("nan"))
+    if not std <= cfg.max_pose_std_m:
+        return f"pose std {std * 100:.1f} cm (at most {cfg.max_pose_std_m * 100:g} cm)"
     slide = max((abs(v) for v in x.get("held_slide_m") or []), default=0.0)
-    parts = [f"{cfg.guess_std_m * 100:.1f} cm --guess-std"]
-    if slide >= STOP_TRANSLATION_M:
-        parts.append(f"{slide * 100:.1f} cm slid")
-    text = (f", the data does not constrain {len(x['held_directions'])} direction(s) "
-            f"({', '.join(x['held_directions'])}): held at the guess, good to "
-            f"{x.get('uncertainty_m', cfg.guess_std_m) * 100:.1f} cm ({' + '.join(parts)})")
-    if x.get("map_turn_reach_m"):
-        text += (f", and up to {max(x['map_turn_reach_m']) * 100:.1f} cm more if slam's map is turned "
-                 f"about its anchor by anchor_max_deg")
-    return text
+    if slide > cfg.max_pose_std_m:
+        return (f"{slide * 100:.1f} cm off the guess along a direction the data does not constrain (at most "
+                f"{cfg.max_pose_std_m * 100:g} cm)")
+    return "failed its check"
+
+
+ATTEMPT_NAMES = {"icp": "ICP", "fpfh+icp": "FPFH fallback"}
 
 
 def registration_failure(where: str, reg: Registration, cfg: RegisterConfig, init_source: str) -> str:
     """The one-line message of a registration whose attempts all failed their check (``where``: the
-    dataset and scene)."""
-    a = "; ".join(f"{x['method']}: overlap {x['overlap']} pts, fitness {x['fitness']:.2f}, "
-                  f"rmse {x['rmse'] * 100:.1f} cm, "
-                  f"pose std {x.get('pose_std_m', float('nan')) * 100:.1f} cm" + _held_text(x, cfg)
-                  + (f", {x['prior_shift_m']:.1f} m / {x['prior_rot_deg']:.0f} deg from the {init_source} guess"
-                     if "prior_shift_m" in x else "")
-                  for x in reg.attempts)
-    return (f"{where}: camera-to-map registration failed its check ({a}; need "
-            f">= {cfg.min_overlap_points} pts, fitness >= {cfg.min_fitness}, rmse <= "
-            f"{cfg.max_rmse_m * 100:.1f} cm, pose std <= {cfg.max_pose_std_m * 100:.1f} cm); "
-            f"give a better --init (or --guess-std if the guess is that good)")
+    dataset and scene): what failed, each attempt's missed check (:func:`attempt_problem`), what the
+    scene is left with and what the user can do. The numbers of every check are in the scene's
+    ``register_failed`` attribute (and ``--json``), not in the line."""
+    what = "; ".join(f"{ATTEMPT_NAMES.get(x['method'], x['method'])}"
+                     f"{' from the ' + init_source + ' guess' if x['method'] == 'icp' else ''}: {attempt_problem(x, cfg)}"
+                     for x in reg.attempts)
+    return (f"{where}: the camera could not be registered to the LiDAR map ({what}); the scene is kept without a "
+            f"person; give --init X,Y,Z,ROLL,PITCH,YAW nearer the camera's pose (details: --json)")
 
 
-def clear_outputs(sw, cfg: RegisterConfig) -> None:
-    """Remove a previous run's human arrays and camera copy from scene writer ``sw``; make
-    ``camera/points_world`` when ``write_camera_world`` (filled by :func:`camera_world`)."""
-    for name in (HUMAN_VERTICES, HUMAN_FACES, HUMAN_POINTS, CAMERA_POINTS_WORLD):
+def clear_outputs(sw, cfg: RegisterConfig, calib: bool = False) -> None:
+    """Remove a previous run's human arrays and camera copy (with ``calib`` also
+    ``calib/T_world_camera``) from scene writer ``sw``; make ``camera/points_world`` when
+    ``write_camera_world`` and not ``calib`` (filled by :func:`camera_world`)."""
+    for name in (HUMAN_VERTICES, HUMAN_FACES, HUMAN_POINTS, CAMERA_POINTS_WORLD) + ((CALIB_T_WORLD_CAMERA,) if calib else ()):
         if name in sw.arrays():
             sw.remove(name)
-    if cfg.write_camera_world:
+    if cfg.write_camera_world and not calib:
         sw.ragged_array(CAMERA_POINTS_WORLD)
 
 
