@@ -239,6 +239,18 @@ class OutputDir:
         return self.write_bytes(name, text.encode(), force)
 
 
+def write_file(path, command: str, write, force: bool = False) -> Path:
+    """Write the single output file ``path`` with ``write(temp_path)``: under a temp name beside it,
+    moved in place when complete, replacing only a file holodata wrote there (or ``force``): the
+    :class:`OutputDir` rule for a command's one file (``slam --ply``, ``view --save`` ...)."""
+    p = Path(path).expanduser()
+    od = OutputDir(p.parent, command)
+    od.check_free(p.name, force)
+    tmp = od.temp(p.name)
+    write(tmp)
+    return od.install(tmp, p.name, force)
+
+
 def claim_folder(path, command: str) -> OutputDir:
     """The whole folder ``path`` for ``command`` (a run, a report, the demo): new, empty or already
     holodata's, else one :class:`InputError` line."""

@@ -232,13 +232,16 @@ def _scans_and_poses(scene, config: SlamConfig, health: dict, timings: dict, qui
 
 def _export(res: SlamResult, tum, ply) -> SlamResult:
     """Write the optional exports of ``res``: its LiDAR trajectory as TUM (``tum``) and its mesh as PLY
-    (``ply``, when it has one); returns ``res``."""
+    (``ply``, when it has one); returns ``res``. Each replaces only a file holodata wrote
+    (:func:`holodata.ownership.write_file`)."""
+    from ...ownership import write_file
+
     if tum is not None:
-        write_tum(tum, res.trajectory())
+        write_file(tum, "holodata slam --tum", lambda p: write_tum(p, res.trajectory()))
     if ply is not None and res.mesh is not None:
         from ...meshio import Mesh, write_ply
 
-        write_ply(ply, Mesh(res.mesh[0], res.mesh[1]))
+        write_file(ply, "holodata slam --ply", lambda p: write_ply(p, Mesh(res.mesh[0], res.mesh[1])))
     return res
 
 

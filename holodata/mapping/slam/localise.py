@@ -10,7 +10,6 @@ import numpy as np
 from ...conventions import rotation_angle_deg
 from ...errors import DatasetError, InputError
 from ...geometry.voxels import first_per_voxel
-from ...trajectory import write_tum
 from .config import SlamConfig, SlamResult
 from .odometry import KissStream, _Fixed
 from .points import _o3d_cloud
@@ -85,7 +84,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     from ...dataset import open_dataset
     from ...parallel import release_free_memory
     from ..mesh import MeshConfig
-    from . import slam_scene
+    from . import _export, slam_scene
 
     t_all = time.perf_counter()
     mesh_config = mesh_config or MeshConfig()
@@ -108,10 +107,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     done = scene.attrs.get("slam") or {}
     if (write and not force and done.get("complete") and done.get("fingerprint") == fp
             and POSE_T_WORLD_LIDAR in scene and MESH_FACES in scene and MAP_POINTS in scene):
-        res = _stored_result(scene, done)
-        if tum is not None:
-            write_tum(tum, res.trajectory())
-        return res
+        return _export(_stored_result(scene, done), tum, ply)   # done before: the exports still asked for
     release_free_memory()
     imports = _import_in_background(("open3d",))
     t0 = time.perf_counter()
@@ -134,12 +130,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     if write:
         _write(dataset_url, ds, scene_id, res, replace(config, mesh=True), mesh_config, anchor, finfo, fp,
                mode={"mode": "localisation", "map_scene": map_scene})
-    if tum is not None:
-        write_tum(tum, res.trajectory())
-    if ply is not None:
-        from ...meshio import Mesh, write_ply
-
-        write_ply(ply, Mesh(mres.mesh[0], mres.mesh[1]))
+    _export(res, tum, ply)
     summary["timings"]["total_s"] = round(time.perf_counter() - t_all, 3)
     return res
 
