@@ -91,7 +91,8 @@ def slam(ctx, dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_me
         if s.get("skipped"):
             click.echo(f"{dataset}: scene {s['scene']}: {s['skipped']}", err=quiet)
             continue
-        click.echo(f"{dataset}: scene {s['scene']}: {s['scans']} scans, {s['frames']} frames posed, "
+        where = f" in mapping pass {s['map_scene']}'s map" if s.get("map_scene") else ""
+        click.echo(f"{dataset}: scene {s['scene']}: {s['scans']} scans, {s['frames']} frames posed{where}, "
                    f"mesh {m.get('faces', 0)} faces ({s['timings'].get('total_s')} s)", err=quiet)
         if s.get("tf_agreement"):
             g = s["tf_agreement"]

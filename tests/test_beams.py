@@ -141,7 +141,7 @@ def test_oracle_cli_and_bad_input(synth_dir, tmp_path):
 
     bare = str(tmp_path / "bare.zarr")
     ingest([str(synth_dir / "rec_32x128" / "recording")], bare, scene_ids=["L_16"], quiet=True)
-    r = CliRunner().invoke(cli, ["evaluate", bare, "--oracle", "--out", str(tmp_path / "rep3"), "--split", "train"])
+    r = CliRunner().invoke(cli, ["evaluate", bare, "--oracle", "--out", str(tmp_path / "rep3"), "--split", "all"])
     assert r.exit_code == 1 and "gt/range" in r.output and "Traceback" not in r.output
     assert len(r.output.strip().splitlines()) == 1
 

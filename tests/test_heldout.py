@@ -78,9 +78,11 @@ def test_a_direction_the_view_does_not_constrain_is_named_and_carries_the_guess_
     cam = corridor[(corridor[:, 0] > 1.5) & (corridor[:, 0] < 4.5)] - T_true[:3, 3]
     init = T_true.copy()
     init[:3, 3] += [0.04, 0.0, 0.0]        # the guess is 4 cm off along the corridor
-    refused = register_extrinsic(cam, corridor, init, RegisterConfig(mesh_target=False), allow_fallback=False)
-    a = refused.attempts[0]
-    assert not refused.accepted and a["frozen_directions"] >= 1
+    # the view cannot tell along the corridor: the result there is the guess, accepted at the guess's
+    # stated precision (5 cm by default) and reported as such (issue 55)
+    held = register_extrinsic(cam, corridor, init, RegisterConfig(mesh_target=False), allow_fallback=False)
+    a = held.attempts[0]
+    assert held.accepted and a["frozen_directions"] >= 1
     assert any(h.startswith("translation along (1.00, 0.0") for h in a["held_directions"]), a["held_directions"]
     assert a["uncertainty_m"] == pytest.approx(0.05)            # not the sub-millimetre pose_std_m
     ok = register_extrinsic(cam, corridor, init, RegisterConfig(mesh_target=False, guess_std_m=0.01),
