@@ -38,6 +38,8 @@ METHODS = ("model", "baseline")
 # baseline, and the GT range images through the trained stage two (stage-one error removed)
 STAGE2_ROWS = ("model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1")
 ERR_SAMPLE = 200_000  # errors kept per bounce for the CDF figure
+REPORT_FRAMES = 6       # held-out frames drawn one large picture each in the report (the hidden side)
+REPORT_POINTS = 6000    # points kept per cloud part for those pictures
 
 
 @dataclass
@@ -232,6 +234,9 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
     gt_centres, hidden, scene_info, beams, gt_nlos_points = [], [], {}, {}, []
     example = None
     ex_pick = len(index) // 2
+    # the report's hidden-side pictures: up to REPORT_FRAMES frames spread over the split
+    frame_picks = set(np.linspace(0, len(index) - 1, min(REPORT_FRAMES, len(index))).round().astype(int).tolist())
+    frames = []
 
     for i0 in track(range(0, len(index), batch_size), total=math.ceil(len(index) / batch_size),
                     description=f"evaluate {split}", quiet=quiet):
@@ -276,6 +281,10 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
                                                     g_rng, g_rng, gc, tau, taus)
             pcb = score_frame(accs["baseline"], sid, b_rng, None, g_rng, gc, grid, tau, taus, max_range, geo)
             gt_nlos_points.append(int(len(gc["nlos"])))
+            if i in frame_picks:
+                am = accs["model"]
+                frames.append(_report_frame(sid, k, gc, _human_points(G, is_human(g_lab)), pcm, gt_centres[-1],
+                                            am.pred_centres[-1], am.cloud["nlos"][-1], hidden[-1]))
             if i == ex_pick:
                 example = {"scene": sid, "frame": k, "gt": g_rng, "model": p_j, "baseline": b_rng,
                            "clouds": {"gt": gc, "model": pcm, "baseline": pcb}}
@@ -309,7 +318,7 @@ def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", *, device: s
         if not oracle:
             run_dir = Path(checkpoint) if Path(checkpoint).is_dir() else Path(checkpoint).parent
             log = run_dir / "metrics.jsonl"
-        doc["figures"] = write_report(out, doc, example, errs, log)
+        doc["figures"] = write_report(out, doc, example, errs, log, frames=frames)
     validate_metrics(doc)
     (out / "metrics.json").write_text(json.dumps(doc, indent=2) + "\n")
     return doc
@@ -323,6 +332,26 @@ def _stage2_settings(ck2) -> str:
     return (f"learned: hybrid ray tracer ({c['epochs_rt']} epochs)"
             + (f" + voxel refiner ({ck2['epoch'] - c['epochs_rt']} epochs, {c['voxel'] * 100:.0f} cm voxels, "
                f"points kept where P(empty) < {(ck2.get('keep') or {}).get('threshold', 0.5):g})" if refined else ""))
+
+
+def _subsample(p: np.ndarray, n: int = REPORT_POINTS) -> np.ndarray:
+    p = np.asarray(p, np.float32).reshape(-1, 3)
+    if len(p) <= n:
+        return p
+    return p[np.sort(np.random.default_rng(0).choice(len(p), n, replace=False))]
+
+
+def _report_frame(scene, frame, gt_clouds, gt_human, pred_clouds, gt_centres, pred_centres, nlos_score, hidden) -> dict:
+    """One held-out frame for the report's hidden-side picture (radar frame, subsampled clouds)."""
+    return {"scene": scene, "frame": int(frame), "hidden_person": bool(hidden),
+            "gt": {"los": _subsample(gt_clouds["los"]), "nlos": _subsample(gt_clouds["nlos"]),
+                   "human": _subsample(gt_human)},
+            "pred": {"los": _subsample(pred_clouds["los"]), "nlos": _subsample(pred_clouds["nlos"])},
+            "gt_centres": np.asarray(gt_centres, float).reshape(-1, 3),
+            "pred_centres": np.asarray(pred_centres, float).reshape(-1, 3),
+            "nlos_f_score": nlos_score.get("f_score"), "nlos_cd": nlos_score.get("cd"),
+            "counts": {"gt_los": len(gt_clouds["los"]), "gt_nlos": len(gt_clouds["nlos"]), "gt_human": len(gt_human),
+                       "pred_los": len(pred_clouds["los"]), "pred_nlos": len(pred_clouds["nlos"])}}
 
 
 def _sample(e: np.ndarray) -> np.ndarray:

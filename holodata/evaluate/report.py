@@ -1,232 +1,187 @@
-"""report.html + PNG figures (matplotlib, Agg backend) for an evaluation."""
+"""report.html + PNG figures (:mod:`holodata.evaluate.figures`) for an evaluation.
+
+The page, top to bottom: the hidden side first (one large bird's-eye picture per held-out frame:
+GT and predicted LOS/NLOS points, the person's true and predicted centres), then the tables
+(scene reconstruction, NLOS by corner shape / width / attenuation in the paper's Table-3 layout,
+human detection, range images per bounce), then the other figures. Laid out for a 1280 px window:
+a 1200 px column, tables that fit it, figures about 1170 px wide (checked by
+tests/test_report_browser.py through :func:`check_layout`)."""
 from __future__ import annotations
 
 import html
 import json
 from pathlib import Path
 
-import numpy as np
-
 from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MIN_POINTS
 
-COLORS = {"gt": "0.25", "model": "tab:blue", "baseline": "tab:orange", "model_no_refine": "tab:cyan",
-          "model_analytic": "tab:brown", "oracle_stage1": "tab:olive"}
-BEV_ORDER = ("gt", "model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1")
+from .figures import (BEV_ORDER, COLORS, fig_bev, fig_error_cdf, fig_hidden_side, fig_prf,  # noqa: F401
+                      fig_range_images, fig_training)
 
+# the paper's Table 3 rows, in its order: (group, band, label); bands the split lacks show "–"
+TABLE3_ROWS = (
+    ("shape", "T", "T-shaped"), ("shape", "cross", "Cross-shaped"), ("shape", "L", "L-shaped"),
+    ("width", "narrow", "Narrow (< 1.5 m)"), ("width", "medium", "Medium (1.5–3 m)"), ("width", "wide", "Wide (> 3 m)"),
+    ("attenuation", "high", "High (> 20 dB)"), ("attenuation", "medium", "Medium (10–20 dB)"),
+    ("attenuation", "low", "Low (< 10 dB)"),
+)
+GROUP_LABELS = {"shape": "Shape", "width": "Size", "attenuation": "Signal atten."}
 
-def _plt():
-    import matplotlib
-
-    matplotlib.use("Agg", force=True)
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def fig_range_images(path: Path, ex: dict, max_range: float) -> None:
-    plt = _plt()
-    cols = ("gt", "model", "baseline")
-    fig, axes = plt.subplots(3, 3, figsize=(13, 6.5), squeeze=False)
-    for b in range(3):
-        for c, name in enumerate(cols):
-            ax = axes[b, c]
-            img = np.ma.masked_invalid(ex[name][b])
-            im = ax.imshow(img, vmin=0, vmax=max_range, cmap="viridis", aspect="auto", interpolation="nearest")
-            ax.set_title(f"bounce {b + 1}: {'ground truth' if name == 'gt' else name}", fontsize=9)
-            ax.set_xticks([])
-            ax.set_yticks([])
-    fig.colorbar(im, ax=axes, shrink=0.8, label="range R_b (m)")
-    fig.suptitle(f"scene {ex['scene']}, frame {ex['frame']} (white = no return)")
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def fig_error_cdf(path: Path, errs: dict) -> None:
-    plt = _plt()
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.6), sharey=True)
-    for b in range(3):
-        ax = axes[b]
-        for m, e in errs.items():
-            e = np.sort(np.asarray(e[b])) * 100
-            if e.size:
-                ax.plot(e, np.arange(1, e.size + 1) / e.size, label=m, color=COLORS.get(m))
-        ax.set_xscale("symlog", linthresh=1.0)
-        ax.set_xlabel("absolute range error (cm)")
-        ax.set_title(f"bounce {b + 1}")
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("fraction of GT pixels")
-    axes[0].legend()
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def fig_bev(path: Path, ex: dict) -> None:
-    plt = _plt()
-    names = [n for n in BEV_ORDER if n in ex["clouds"]]
-    fig, axes = plt.subplots(1, len(names), figsize=(4.4 * len(names), 4.6), sharex=True, sharey=True, squeeze=False)
-    axes = axes[0]
-    for ax, name in zip(axes, names):
-        cl = ex["clouds"][name]
-        for part, col in (("los", "tab:green"), ("nlos", "tab:purple")):
-            p = cl[part]
-            if len(p):
-                ax.scatter(p[:, 0], p[:, 1], s=1, c=col, label=f"{part.upper()} ({len(p)})", rasterized=True)
-        ax.plot([0], [0], "k^", ms=6)
-        ax.set_title("ground truth" if name == "gt" else name)
-        ax.set_aspect("equal", adjustable="box")
-        ax.set_xlabel("x (m, radar frame)")
-        ax.legend(loc="upper right", fontsize=7, markerscale=6)
-    axes[0].set_ylabel("y (m)")
-    fig.suptitle(f"bird's-eye view, scene {ex['scene']} frame {ex['frame']}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def fig_prf(path: Path, doc: dict) -> None:
-    plt = _plt()
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.8), sharey=True)
-    for ax, part in zip(axes, ("los", "nlos")):
-        for m, res in doc["methods"].items():
-            c = res["prf_curve"][part]
-            t = np.array(c["tau"]) * 100
-            for key, ls in (("precision", ":"), ("recall", "--"), ("f_score", "-")):
-                v = np.array([np.nan if x is None else x for x in c[key]], float)
-                ax.plot(t, v, ls, color=COLORS.get(m), label=f"{m} {key}")
-        ax.axvline(doc["settings"]["tau_m"] * 100, color="0.6", lw=0.8)
-        ax.set_xlabel("threshold τ (cm)")
-        ax.set_title(f"{part.upper()} point cloud")
-        ax.set_ylim(0, 1.02)
-        ax.grid(alpha=0.3)
-    axes[0].set_ylabel("precision / recall / F")
-    axes[1].legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def fig_training(path: Path, log: Path) -> bool:
-    rows = []
-    for line in log.read_text().splitlines():
-        try:
-            rows.append(json.loads(line))
-        except ValueError:
-            pass
-    if not rows:
-        return False
-    plt = _plt()
-    fig, ax = plt.subplots(figsize=(6, 3.4))
-    ep = [r["epoch"] for r in rows]
-    for key in ("loss", "l1", "grad", "valid", "human"):
-        if key in rows[0]:
-            ax.plot(ep, [r.get(key) for r in rows], label=key)
-    ax.set_yscale("log")
-    ax.set_xlabel("epoch")
-    ax.set_ylabel("training loss")
-    ax.legend(fontsize=7)
-    ax.grid(alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return True
+CSS = ("*{box-sizing:border-box}body{font-family:sans-serif;max-width:1200px;margin:1.5em auto;padding:0 0.5em;"
+       "color:#222;line-height:1.4}"
+       ".tw{max-width:100%;overflow-x:auto}"
+       "table{border-collapse:collapse;margin:0.6em 0 1.4em;font-size:13px}"
+       "td,th{border:1px solid #bbb;padding:2px 6px;text-align:right;white-space:nowrap}"
+       "th{background:#eee}th[colspan]{text-align:center}td.l,th.l{text-align:left}tr.g td{border-top:2px solid #888}"
+       "figure{margin:1.2em 0 2em}img{max-width:100%;height:auto;display:block}figcaption{color:#555}"
+       "p.note{color:#444;font-size:14px}caption{caption-side:bottom;text-align:left;color:#555;font-size:13px;"
+       "padding-top:4px}")
 
 
 def _f(v, nd=2, scale=1.0):
     return "–" if v is None else f"{v * scale:.{nd}f}"
 
 
+def _table(rows: list[str]) -> str:
+    return "<div class=tw><table>" + "".join(rows) + "</table></div>"
+
+
+def _table3(M: dict) -> str:
+    """NLOS reconstruction by corner shape, width and attenuation: the paper's Table 3 (rows = the
+    bands, columns = CD / MHD / F-score), one column group per method."""
+    first = next(iter(M))
+    seen = {(g, b) for g, bands in M[first]["breakdown"].items() for b in bands}
+    rows = list(TABLE3_ROWS) + [(g, b, b) for g, b in sorted(seen) if (g, b) not in {(r[0], r[1]) for r in TABLE3_ROWS}]
+    rows.sort(key=lambda r: list(GROUP_LABELS).index(r[0]) if r[0] in GROUP_LABELS else 99)
+    h = ["<caption>NLOS point clouds per band of the held-out scenes: CD and MHD in cm (lower is better), "
+         "F-score in % (higher is better); bands the split lacks show –.</caption>"
+         "<tr><th class=l rowspan=2>setting</th><th class=l rowspan=2>variation</th><th rowspan=2>scenes /<br>frames</th>"
+         + "".join(f"<th colspan=3>{html.escape(m)}</th>" for m in M) + "</tr><tr>"
+         + "<th>CD</th><th>MHD</th><th>F</th>" * len(M) + "</tr>"]
+    last = None
+    for group, band, label in rows:
+        cell = M[first]["breakdown"].get(group, {}).get(band)
+        new = group != last
+        span = sum(1 for r in rows if r[0] == group)
+        h.append(f"<tr{' class=g' if new and last is not None else ''}>"
+                 + (f"<td class=l rowspan={span}>{html.escape(GROUP_LABELS.get(group, group))}</td>" if new else "")
+                 + f"<td class=l>{html.escape(label)}</td>"
+                 f"<td>{cell['n_scenes'] if cell else 0} / {cell['n_frames'] if cell else 0}</td>")
+        for m in M:
+            c = M[m]["breakdown"].get(group, {}).get(band) or {}
+            h.append(f"<td>{_f(c.get('cd'), 1, 100)}</td><td>{_f(c.get('mhd'), 1, 100)}</td>"
+                     f"<td>{_f(c.get('f_score'), 1, 100)}</td>")
+        h.append("</tr>")
+        last = group
+    return _table(h)
+
+
 def _tables(doc: dict) -> str:
     M = doc["methods"]
-    h = ["<h2>Multi-return range images (stage 1)</h2><table><tr><th rowspan=2>method</th>"]
-    h += [f"<th colspan=4>bounce {b}</th>" for b in (1, 2, 3)] + ["</tr><tr>"]
-    h += ["<th>mean cm</th><th>median cm</th><th>90th cm</th><th>PSNR dB</th>"] * 3 + ["</tr>"]
+    out = ["<h2>Scene reconstruction (un-mirrored point clouds)</h2>"]
+    h = ["<tr><th class=l rowspan=2>method</th><th colspan=3>LOS</th><th colspan=3>NLOS (hidden side)</th></tr><tr>"
+         + "<th>CD cm ↓</th><th>MHD cm ↓</th><th>F % ↑</th>" * 2 + "</tr>"]
     for m, r in M.items():
-        h.append(f"<tr><td>{m}</td>")
-        for b in (1, 2, 3):
-            x = r["range"][f"bounce_{b}"]
-            h.append("".join(f"<td>{_f(x[k])}</td>" for k in ("mean_cm", "median_cm", "p90_cm", "psnr_db")))
-        h.append("</tr>")
-    h.append("</table>")
-    h.append("<h2>Scene reconstruction (un-mirrored point clouds)</h2><table><tr><th rowspan=2>method</th>"
-             "<th colspan=3>LOS</th><th colspan=3>NLOS</th></tr><tr>"
-             + "<th>CD cm</th><th>MHD cm</th><th>F-score %</th>" * 2 + "</tr>")
-    for m, r in M.items():
-        h.append(f"<tr><td>{m}</td>")
+        h.append(f"<tr><td class=l>{html.escape(m)}</td>")
         for p in ("los", "nlos"):
             x = r["points"][p]
             h.append(f"<td>{_f(x['cd'], 1, 100)}</td><td>{_f(x['mhd'], 1, 100)}</td><td>{_f(x['f_score'], 1, 100)}</td>")
         h.append("</tr>")
-    h.append("</table>")
-    h.append("<h2>Human detection (50 cm matching)</h2><table><tr><th>method</th><th>precision %</th><th>recall %</th>"
-             "<th>F-score %</th><th>loc. mean cm</th><th>loc. median cm</th><th>pred / GT</th></tr>")
+    out.append(_table(h))
+    out.append("<h2>NLOS reconstruction by corner shape, size and signal attenuation (paper Table 3)</h2>")
+    out.append(_table3(M))
+    out.append("<h2>Human detection (50 cm matching)</h2>")
+    h = ["<tr><th class=l>method</th><th>precision %</th><th>recall %</th><th>F-score %</th><th>loc. mean cm</th>"
+         "<th>loc. median cm</th><th>pred / GT</th><th>hidden person: F %</th><th>pred / GT</th></tr>"]
     for m, r in M.items():
-        x = r["human"]
-        h.append(f"<tr><td>{m}</td><td>{_f(x['precision'], 1, 100)}</td><td>{_f(x['recall'], 1, 100)}</td>"
-                 f"<td>{_f(x['f_score'], 1, 100)}</td><td>{_f(x['loc_mean_cm'], 1)}</td>"
-                 f"<td>{_f(x['loc_median_cm'], 1)}</td><td>{x['n_pred']} / {x['n_gt']}</td></tr>")
-    h.append("</table>")
-    h.append("<h2>NLOS breakdown</h2><table><tr><th>group</th><th>band</th><th>scenes</th><th>frames</th>"
-             + "".join(f"<th>{m} CD cm</th><th>{m} MHD cm</th><th>{m} F %</th>" for m in M) + "</tr>")
-    first = next(iter(M))
-    for group, bands in M[first]["breakdown"].items():
-        for band, cell in bands.items():
-            h.append(f"<tr><td>{group}</td><td>{html.escape(band)}</td><td>{cell['n_scenes']}</td><td>{cell['n_frames']}</td>")
-            for m in M:
-                c = M[m]["breakdown"][group].get(band, {})
-                h.append(f"<td>{_f(c.get('cd'), 1, 100)}</td><td>{_f(c.get('mhd'), 1, 100)}</td>"
-                         f"<td>{_f(c.get('f_score'), 1, 100)}</td>")
-            h.append("</tr>")
-    h.append("</table>")
-    return "\n".join(h)
+        x, y = r["human"], r.get("human_hidden") or {}
+        h.append(f"<tr><td class=l>{html.escape(m)}</td><td>{_f(x['precision'], 1, 100)}</td>"
+                 f"<td>{_f(x['recall'], 1, 100)}</td><td>{_f(x['f_score'], 1, 100)}</td><td>{_f(x['loc_mean_cm'], 1)}</td>"
+                 f"<td>{_f(x['loc_median_cm'], 1)}</td><td>{x['n_pred']} / {x['n_gt']}</td>"
+                 f"<td>{_f(y.get('f_score'), 1, 100)}</td><td>{y.get('n_pred', '–')} / {y.get('n_gt', '–')}</td></tr>")
+    out.append(_table(h))
+    out.append("<h2>Multi-return range images (stage 1)</h2>")
+    h = ["<tr><th class=l rowspan=2>method</th>"] + [f"<th colspan=4>bounce {b}</th>" for b in (1, 2, 3)] + ["</tr><tr>"]
+    h += ["<th>mean cm</th><th>median cm</th><th>90th cm</th><th>PSNR dB</th>"] * 3 + ["</tr>"]
+    for m, r in M.items():
+        h.append(f"<tr><td class=l>{html.escape(m)}</td>")
+        for b in (1, 2, 3):
+            x = r["range"][f"bounce_{b}"]
+            h.append("".join(f"<td>{_f(x[k])}</td>" for k in ("mean_cm", "median_cm", "p90_cm", "psnr_db")))
+        h.append("</tr>")
+    out.append(_table(h))
+    return "\n".join(out)
 
 
-def write_report(out: Path, doc: dict, example: dict | None, errs: dict, train_log: Path | None = None) -> list[str]:
-    """Write the PNG figures and report.html into ``out``; returns the figure file names."""
+def _figure(name: str, cap: str) -> str:
+    return (f"<figure><img src=\"{name}\" alt=\"{html.escape(cap)}\"><figcaption>{html.escape(cap)}</figcaption></figure>")
+
+
+def write_report(out: Path, doc: dict, example: dict | None, errs: dict, train_log: Path | None = None,
+                 frames: list[dict] | None = None) -> list[str]:
+    """Write the PNG figures and report.html into ``out``; returns the figure file names.
+    ``frames``: held-out frames for the hidden-side pictures (pipeline ``_report_frame``), first on the page."""
+    out = Path(out)
+    s = doc["settings"]
+    oracle = doc.get("checkpoint") == "oracle"
+    method = "model"
+    hidden: list[tuple[str, str]] = []
+    for n, fr in enumerate(frames or []):
+        name = f"hidden_side_{n + 1}.png"
+        fig_hidden_side(out / name, fr, method)
+        hidden.append((name, f"Held-out frame {n + 1} of {len(frames)}: scene {fr['scene']}, frame {fr['frame']}, "
+                             f"from above. Grey / purple: ground-truth LOS / NLOS points; green / red ×: the {method}'s "
+                             f"LOS / NLOS points; star: the person's true centre; blue X: the {method}'s centre."))
     figs: list[tuple[str, str]] = []
-    mr = doc["settings"]["max_range_m"]
     if example is not None:
-        fig_range_images(out / "range_images.png", example, mr)
-        figs.append(("range_images.png", "Predicted vs true range images per bounce (example frame)"))
+        fig_bev(out / "bev_clouds.png", example)
+        figs.append(("bev_clouds.png", "Every row's LOS (green) and NLOS (purple) points of one frame, from above"))
+    fig_prf(out / "prf_curves.png", doc)
+    figs.append(("prf_curves.png", "Precision / recall / F-score over the distance threshold τ (grey line: the τ of the tables)"))
     fig_error_cdf(out / "error_cdf.png", errs)
     figs.append(("error_cdf.png", "Cumulative distribution of absolute range errors per bounce"))
     if example is not None:
-        fig_bev(out / "bev_clouds.png", example)
-        figs.append(("bev_clouds.png", "Bird's-eye view of LOS (green) and NLOS (purple) point clouds"))
-    fig_prf(out / "prf_curves.png", doc)
-    figs.append(("prf_curves.png", "Precision / recall / F-score over the distance threshold τ"))
+        fig_range_images(out / "range_images.png", example, s["max_range_m"])
+        figs.append(("range_images.png", "Predicted vs true range images per bounce (example frame)"))
     if train_log is not None and train_log.exists() and fig_training(out / "training_loss.png", train_log):
         figs.append(("training_loss.png", "Training losses per epoch"))
-    s = doc["settings"]
+    nl = s.get("gt_nlos_points_per_frame")
     body = [
-        "<!DOCTYPE html><html lang=en><head><meta charset=utf-8><title>holodata evaluation</title>",
-        "<style>body{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}"
-        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}"
-        "th{background:#eee}figure{margin:1.5em 0}img{max-width:100%}figcaption{color:#555}</style></head><body>",
+        "<!DOCTYPE html><html lang=en><head><meta charset=utf-8>"
+        "<meta name=viewport content=\"width=device-width, initial-scale=1\"><title>holodata evaluation</title>",
+        f"<style>{CSS}</style></head><body>",
         "<h1>holodata evaluation</h1>",
-        f"<p>dataset <code>{html.escape(doc['dataset'])}</code>, split <b>{html.escape(doc['split'])}</b> "
-        f"({doc['n_frames']} frames, scenes {html.escape(', '.join(doc['scenes']))}); checkpoint "
-        f"<code>{html.escape(doc['checkpoint'])}</code> ({s['train_epochs']} epochs). Baseline: {html.escape(s['baseline'])}. "
-        f"CD = sum of the two directed mean distances, MHD = their max, F-score at τ = {s['tau_m'] * 100:.0f} cm. "
+        f"<p>Split <b>{html.escape(doc['split'])}</b> of <code>{html.escape(doc['dataset'])}</code>: {doc['n_frames']} "
+        f"held-out frames, scenes {html.escape(', '.join(doc['scenes']))}; checkpoint "
+        f"<code>{html.escape(doc['checkpoint'])}</code>"
+        + (" (the ground truth scored as the prediction: a check of the metrics)" if oracle else
+           f" ({s['train_epochs']} epochs)")
+        + (f"; {nl:.0f} ground-truth NLOS points per frame" if nl is not None else "") + ".</p>",
+    ]
+    if hidden:
+        body.append("<h2>The hidden side, frame by frame</h2>"
+                    f"<p class=note>{len(hidden)} held-out frames, spread over the split, seen from above in the radar's "
+                    f"frame (the radar is the black triangle). What matters is the purple ground truth behind the corner "
+                    f"(NLOS) and whether the {method}'s red × points land on it; the dashed circle around the "
+                    f"person's true centre is the {s.get('human_match_m', 0.5) * 100:.0f} cm within which a predicted "
+                    f"centre counts as a detection.</p>")
+        body += [_figure(n, c) for n, c in hidden]
+    body.append(
+        f"<p class=note>CD = sum of the two directed mean distances, MHD = their max, F-score at τ = {s['tau_m'] * 100:.0f} cm. "
+        f"Baseline: {html.escape(s['baseline'])}. "
         f"Stage two: {html.escape(str(s.get('stage2', 'analytic (normals from the range images, paper eq. 2-5)')))}"
         + (" (rows: model = refined, model_no_refine = the learned ray tracer's points, model_analytic = eq. 2–5 "
            "on the model's ranges, oracle_stage1 = GT range images through the learned stage two)"
-           if "oracle_stage1" in doc["methods"] else "")
-        + (f". GT NLOS points per frame: "
-           f"{s['gt_nlos_points_per_frame']:.0f}" if s.get("gt_nlos_points_per_frame") is not None else "")
-        + ".</p>",
-        _tables(doc),
-    ]
-    for name, cap in figs:
-        body.append(f"<figure><img src=\"{name}\" "
-                    f"alt=\"{html.escape(cap)}\"><figcaption>{html.escape(cap)}</figcaption></figure>")
+           if "oracle_stage1" in doc["methods"] else "") + ".</p>")
+    body.append(_tables(doc))
+    body.append("<h2>Figures</h2>")
+    body += [_figure(n, c) for n, c in figs]
     body.append("<p>Machine-readable numbers: <a href=\"metrics.json\">metrics.json</a>.</p>")
     # marks the page once every figure decoded: <body data-images-ok="yes|no"> (checked headless)
     body.append("<script>window.addEventListener('load',function(){var bad=0;for(var i=0;i<document.images.length;i++)"
                 "{var im=document.images[i];if(!im.complete||im.naturalWidth===0)bad++;}"
                 "document.body.setAttribute('data-images-ok',bad===0?'yes':'no');});</script></body></html>")
     (out / "report.html").write_text("\n".join(body) + "\n")
-    return [n for n, _ in figs]
+    return [n for n, _ in hidden + figs]
 
 
 CHROMIUM_NAMES = ("chromium-headless-shell", "chromium", "chromium-browser", "google-chrome", "chrome")
@@ -297,3 +252,45 @@ def format_tables(doc: dict) -> str:
         lines.append("  human F –: no frame of the split holds a person in the ground truth (a person counts from "
                      f"{HUMAN_MIN_POINTS} human-labelled GT returns within {HUMAN_CLUSTER_M * 100:.0f} cm of each other)")
     return "\n".join(lines)
+
+
+# measures the rendered page: every <img> (src, natural and on-page width), every table's right edge,
+# the document's scroll width against the viewport; written as JSON into <pre id="holodata-layout">
+_LAYOUT_JS = """<script>window.addEventListener('load',function(){
+var vw=document.documentElement.clientWidth,imgs=[],tables=[];
+for(var i=0;i<document.images.length;i++){var im=document.images[i];
+imgs.push({src:im.getAttribute('src'),complete:im.complete,natural_width:im.naturalWidth,
+client_width:im.getBoundingClientRect().width});}
+var ts=document.getElementsByTagName('table');
+for(var j=0;j<ts.length;j++){var r=ts[j].getBoundingClientRect();
+tables.push({index:j,left:r.left,right:r.right,width:r.width});}
+var p=document.createElement('pre');p.id='holodata-layout';p.hidden=true;
+p.textContent=JSON.stringify({viewport_width:vw,inner_width:window.innerWidth,
+scroll_width:document.documentElement.scrollWidth,images:imgs,tables:tables});
+document.body.appendChild(p);});</script>"""
+
+
+def check_layout(html_path: Path, width: int = 1280, height: int = 900) -> dict:
+    """Render the report in headless Chromium at ``width`` × ``height`` px and measure it:
+    {"viewport_width", "inner_width", "scroll_width", "images": [{src, complete, natural_width,
+    client_width}], "tables": [{index, left, right, width}]} (sizes in CSS px). The page is measured
+    through a copy beside it (so that its relative image paths resolve), removed afterwards."""
+    import re
+    import subprocess
+
+    from holodata.errors import HolodataError
+
+    html_path = Path(html_path)
+    probe = html_path.with_name(f".layout-probe-{html_path.stem}.html")
+    text = html_path.read_text()
+    text = text.replace("</body>", _LAYOUT_JS + "</body>") if "</body>" in text else text + _LAYOUT_JS
+    probe.write_text(text)
+    try:
+        cmd = _chromium_cmd(probe, "--dump-dom", f"--window-size={width},{height}")
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    finally:
+        probe.unlink(missing_ok=True)
+    m = re.search(r'<pre id="holodata-layout"[^>]*>(.*?)</pre>', r.stdout, re.S)
+    if m is None:
+        raise HolodataError(f"headless Chromium did not measure {html_path} (exit {r.returncode}): {r.stderr[-500:]}")
+    return json.loads(html.unescape(m.group(1)))
