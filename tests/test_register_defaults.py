@@ -13,17 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from holodata.conventions import Grid, RangeBins, transform_points
-
-
-def _corridor(rng: np.random.Generator, n: int = 20000) -> np.ndarray:
-    """(n,3) m: a corridor along x, walls y = ±1, floor z = 0, ceiling z = 2.5, no end wall."""
-    x = rng.uniform(0.0, 6.0, n)
-    s = rng.uniform(0.0, 1.0, n)
-    side = rng.integers(0, 4, n)
-    return np.where(side[:, None] == 0, np.c_[x, -np.ones(n), 2.5 * s],
-                    np.where(side[:, None] == 1, np.c_[x, np.ones(n), 2.5 * s],
-                             np.where(side[:, None] == 2, np.c_[x, 2 * s - 1, np.zeros(n)],
-                                      np.c_[x, 2 * s - 1, np.full(n, 2.5)])))
+from _corridor import corridor as make_corridor
 
 
 def test_pose_uncertainty_without_inliers_is_a_failed_check_not_a_crash():
@@ -54,7 +44,7 @@ def test_a_held_direction_is_accepted_at_the_default_guess_precision():
     from holodata.mapping.register import RegisterConfig, register_extrinsic
     from holodata.mapping.register.extrinsic import check_held
 
-    corridor = _corridor(np.random.default_rng(1))
+    corridor = make_corridor(np.random.default_rng(1))
     T_true = np.eye(4)
     T_true[:3, 3] = [0.5, 0.2, 1.2]
     near = (corridor[:, 0] > 1.5) & (corridor[:, 0] < 4.5)
