@@ -20,3 +20,10 @@ class DatasetError(HolodataError, ValueError):
 
 class RecordingError(HolodataError, ValueError):
     """A recording that cannot be read or holds nothing usable."""
+
+
+def one_line(err: BaseException, limit: int | None = None) -> str:
+    """``err``'s message on one line (whitespace runs folded; at most ``limit`` characters), or its
+    class name when it has none: what an error line quotes of the error that caused it."""
+    msg = " ".join(str(err).split())[:limit]
+    return msg or err.__class__.__name__

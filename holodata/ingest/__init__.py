@@ -58,11 +58,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..conventions import Grid, RangeBins
-from ..errors import HolodataError, InputError, RecordingError
+from ..errors import HolodataError, InputError, RecordingError, one_line
 from ..readers import open_recording
 from ..readers.base import Recording
 from ..safe_io import check_name
-from .roles import RADAR_SUFFIX, TopicMap, _one_line, load_topics_file, map_topics
+from .roles import RADAR_SUFFIX, TopicMap, load_topics_file, map_topics
 from .radar_streams import radar_stream
 from .plan import Plan, _grid_of, _limit_malloc_arenas, _scene_id, plan_recording
 from .listing import format_listing, list_recording
@@ -124,12 +124,12 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
                 try:
                     rec = open_for_ingest(r, opts)
                 except (HolodataError, OSError) as err:
-                    failed.append({"recording": str(r), "error": _one_line(err)})
+                    failed.append({"recording": str(r), "error": one_line(err)})
                     continue
                 try:
                     todo.append((i, r, radar_grid(rec, topics, beamform)))
                 except (HolodataError, OSError) as err:
-                    failed.append({"recording": str(r), "error": _one_line(err)})
+                    failed.append({"recording": str(r), "error": one_line(err)})
                     rec.close()
                     continue
                 if client is None:
@@ -179,8 +179,8 @@ def _error_line(recording, out, err: BaseException) -> str:
     OSError (the disk filled up under a writer thread, a permission) gets the recording and dataset."""
     if isinstance(err, OSError) and not isinstance(err, HolodataError):
         where = f" ({err.filename})" if getattr(err, "filename", None) else ""
-        return f"{recording}: ingest into {out} failed{where}: {err.strerror or _one_line(err)}"
-    return _one_line(err)
+        return f"{recording}: ingest into {out} failed{where}: {err.strerror or one_line(err)}"
+    return one_line(err)
 
 
 def _failures(failed: list[dict]) -> str:
@@ -221,7 +221,7 @@ def radar_grid(rec: Recording, topics=None, beamform=None) -> tuple[Grid, RangeB
         close = getattr(msgs, "close", None)   # leave no reader generator suspended mid-file
         if close is not None:
             close()
-    raise RecordingError(f"{rec.path}: no decodable radar message on {tmap.radar} ({_one_line(last) if last else 'none'})")
+    raise RecordingError(f"{rec.path}: no decodable radar message on {tmap.radar} ({one_line(last) if last else 'none'})")
 
 
 

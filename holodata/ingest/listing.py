@@ -3,9 +3,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..errors import HolodataError
+from ..errors import HolodataError, one_line
 from ..readers import open_recording
-from .roles import ROLES, TopicMap, _one_line, load_topics_file, map_topics
+from .roles import ROLES, TopicMap, load_topics_file, map_topics
 from .plan import _reject_reason
 
 
@@ -22,7 +22,7 @@ def list_recording(path, msg_dir=None, meta=None, topics=None, beamform=None, mo
         try:
             tmap, notes = map_topics(rec, topics, infos)
         except HolodataError as err:
-            tmap, notes = TopicMap(), [_one_line(err)]
+            tmap, notes = TopicMap(), [one_line(err)]
         roles = {}
         for r in ROLES:
             v = getattr(tmap, r)

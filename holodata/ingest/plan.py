@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from ..conventions import Grid, RangeBins
-from ..errors import HolodataError, InputError, RecordingError
+from ..errors import HolodataError, InputError, RecordingError, one_line
 from ..readers import SYNTH_MAPPING, synth_output_folder
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
-from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, _one_line, map_topics
+from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, map_topics
 from .radar_streams import RadarStream, RawRadarStream, radar_stream
 from .streams import (CameraCloudStream, CloudStream, DepthStream, GridStream, OusterPacketStream, OusterScanStream,
                       PointsStream, StereoStream, _Stream)
@@ -209,7 +209,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
                 load_info(text)
             except HolodataError as err:
                 raise RecordingError(f"{rec.path}: Ouster packets on {tmap.lidar} cannot be decoded: "
-                                     f"{_one_line(err)}") from err
+                                     f"{one_line(err)}") from err
             streams["lidar"] = OusterPacketStream(rec, tmap.lidar, tmap.time, text)
         elif ty == PC2:
             streams["lidar"] = CloudStream(rec, tmap.lidar, tmap.time, "lidar")
@@ -224,14 +224,14 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
                 st.load_first_info()
                 streams["camera"] = st
             except HolodataError as err:
-                warnings.append(f"{_one_line(err)}; camera not used")
+                warnings.append(f"{one_line(err)}; camera not used")
         elif ty == IMAGE:
             st = DepthStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride)
             try:
                 st.load_first_info()
                 streams["camera"] = st
             except HolodataError as err:
-                warnings.append(f"{_one_line(err)}; camera not used")
+                warnings.append(f"{one_line(err)}; camera not used")
         elif ty == PC2:
             st = CameraCloudStream(rec, tmap.camera, tmap.time, tmap.camera_info)
             note = st.load_model()
@@ -278,7 +278,7 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
         try:
             items = st.feed(raw, decode=False, check=(st.role == frame_sensor))
         except HolodataError as err:
-            failed[st.role][getattr(err, "item", -1)] = _one_line(err)
+            failed[st.role][getattr(err, "item", -1)] = one_line(err)
             continue
         if st.role != "radar" and st.layout is None:
             st.try_layout(raw)

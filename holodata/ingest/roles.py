@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import HolodataError, InputError
+from ..errors import HolodataError, InputError, one_line
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
 
 
@@ -32,8 +32,6 @@ SHARD_TARGET_BYTES = 32 << 20
 BULK_CODEC = "lz4"
 
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or err.__class__.__name__
 
 
 # ==================================================================================================
@@ -73,7 +71,7 @@ def load_topics_file(path) -> dict:
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-        what = getattr(err, "problem", None) or _one_line(err)
+        what = getattr(err, "problem", None) or one_line(err)
         raise InputError(f"{p}: not valid YAML{where}: {what}") from err
     if data is None:
         return {}
@@ -191,7 +189,7 @@ def _probe_depth(rec: Recording, topic: str) -> tuple[bool, str]:
     except StopIteration:
         return False, f"topic {topic}: no messages"
     except HolodataError as err:
-        return False, f"{_one_line(err)}; topic skipped"
+        return False, f"{one_line(err)}; topic skipped"
     return True, ""
 
 

@@ -12,9 +12,9 @@ import numpy as np
 from ..dataset.layout import (LIDAR_POINT_TIME_NS, LIDAR_RANGE, POINTS_OF, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS,
                               RADAR_HEATMAP, RADAR_IQ, RADAR_IQ_MOTION, RADAR_IQ_SPAN, RADAR_IQ_STATIC, STAMPS_OF,
                               TF_T_WORLD_LIDAR, TIME_TIMESTAMP_NS)
-from ..errors import DatasetError, HolodataError, RecordingError
+from ..errors import DatasetError, HolodataError, RecordingError, one_line
 from ..readers.base import DecodeError
-from .roles import BULK_CODEC, SHARD_TARGET_BYTES, _one_line
+from .roles import BULK_CODEC, SHARD_TARGET_BYTES
 from .plan import SOURCE_HASH, Plan, _head_topics, _limit_malloc_arenas, file_digests, file_sha256
 from .sensors import extrinsics, sensor_attrs, sensor_frame, world_frame
 
@@ -376,7 +376,7 @@ class _Decoded:
     def fail(self, role: str, idx: int, err) -> None:
         """Item ``idx`` did not decode: its frames expect nothing from the role's arrays."""
         self.failed[role] += 1
-        self.fail_msg.setdefault(role, _one_line(err))
+        self.fail_msg.setdefault(role, one_line(err))
         for f in self.exp[role].get(idx, []):
             for n, o in self.outs.items():
                 if n.startswith(role + "/"):

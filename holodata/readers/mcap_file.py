@@ -19,15 +19,13 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from ..errors import RecordingError
+from ..errors import RecordingError, one_line
 from .base import MCAP_MAGIC, MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
 from .sizes import BoundedFile, declared_size, inflate, inflated_room, open_bounded
 
 _SCHEMA_FMT = {"ros2msg": "msg", "ros2idl": "idl", "ros1msg": "msg"}
 
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or err.__class__.__name__
 
 
 def _summary(f):
@@ -496,7 +494,7 @@ class McapRecording(Recording):
                 except StopIteration:
                     continue
                 except Exception as err:  # noqa: BLE001
-                    reason = f"unreadable record at byte {pos} ({_one_line(err)[:80]})"
+                    reason = f"unreadable record at byte {pos} ({one_line(err)[:80]})"
                     break
                 if isinstance(rec, Chunk):
                     try:
@@ -505,7 +503,7 @@ class McapRecording(Recording):
                         self._skip_chunk(f, pos, rec)
                     except Exception as err:  # noqa: BLE001 - corrupt chunk: keep its readable records
                         yield from _salvage_chunk(body)
-                        reason = f"damaged chunk at byte {pos} ({_one_line(err)[:80]})"
+                        reason = f"damaged chunk at byte {pos} ({one_line(err)[:80]})"
                         break
                 elif isinstance(rec, Footer):
                     return
@@ -583,7 +581,7 @@ class McapRecording(Recording):
                         topic, ty, enc = self.channels[(i, cid)]
                         yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
                 except Exception as err:  # noqa: BLE001
-                    self.mark_truncated(f"{f}: stopped at a damaged chunk ({_one_line(err)[:120]})")
+                    self.mark_truncated(f"{f}: stopped at a damaged chunk ({one_line(err)[:120]})")
                 continue
             for what, ch, msg in self._stream(i, f):
                 if what != "message":

@@ -22,13 +22,11 @@ from collections.abc import Iterable, Iterator
 from io import BytesIO
 from pathlib import Path
 
-from ..errors import RecordingError
+from ..errors import RecordingError, one_line
 from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
 from .sizes import declared_size, inflate, inflated_room, open_bounded
 
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or err.__class__.__name__
 
 
 def _defs(conn) -> tuple[str, str | None, str]:
@@ -125,7 +123,7 @@ class RosbagsRecording(Recording):
             for c, t, data in self.reader.messages(connections=conns):
                 yield RawMessage(c.topic, c.msgtype, t, data, enc[c.id])
         except Exception as err:  # noqa: BLE001 - damaged data past the index
-            self.mark_truncated(f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})")
+            self.mark_truncated(f"{self.path}: stopped reading at a damaged record ({one_line(err)[:160]})")
 
     _table = None
 
@@ -165,7 +163,7 @@ class RosbagsRecording(Recording):
             for topic, log, data, ref in table.messages(conns, set(heads)):
                 yield RawMessage(topic, conns[topic].msgtype, log, data, enc[topic], ref=ref)
         except (ValueError, OSError) as err:
-            self.mark_truncated(f"{self.path}: stopped reading at a damaged record ({_one_line(err)[:160]})")
+            self.mark_truncated(f"{self.path}: stopped reading at a damaged record ({one_line(err)[:160]})")
 
     def full(self, raw: RawMessage) -> RawMessage:
         if raw.ref is None:
@@ -401,7 +399,7 @@ class Ros1ScanRecording(Recording):
                 raise
             except (ReaderError, KeyError, OSError, ValueError, EOFError) as err:
                 self.mark_truncated(f"{self.path}: file ends in a damaged or partial record at byte {f.tell()} of "
-                                    f"{size} ({_one_line(err)[:100]}); the readable part is used")
+                                    f"{size} ({one_line(err)[:100]}); the readable part is used")
 
     def _topics(self) -> list[TopicInfo]:
         return [TopicInfo(**vars(t)) for t in self._infos]
@@ -568,7 +566,7 @@ def open_rosbag1(path: Path, msg_dir: Path | None = None) -> Recording:
     try:
         reader.open()
     except Exception as err:  # noqa: BLE001 - rosbags raises ReaderError, struct/unicode errors
-        return Ros1ScanRecording(path, _one_line(err)[:120], msg_dir)
+        return Ros1ScanRecording(path, one_line(err)[:120], msg_dir)
     _bounded_chunks(Path(path), reader, sizes)
     return RosbagsRecording(path, reader, 1, "rosbag1", msg_dir)
 
@@ -590,7 +588,7 @@ def open_rosbag2(path: Path, msg_dir: Path | None = None) -> Recording:
         reader = Reader(path)
         reader.open()
     except Exception as err:  # noqa: BLE001 - fall back to the storage files themselves
-        reason = _one_line(err)[:160]
+        reason = one_line(err)[:160]
         if not files:
             raise RecordingError(f"{path}: rosbag2 folder without readable storage files ({reason})") from err
         suffixes = {f.suffix for f in files}

@@ -24,7 +24,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-from ..errors import RecordingError
+from ..errors import RecordingError, one_line
 
 MAX_RATIO = 1024           # the most a compressed chunk is believed to expand ...
 BELIEVED = 64 * 2 ** 20    # ... unless what it declares is below this (a mostly-zero chunk compresses far more)
@@ -102,8 +102,6 @@ def open_bounded(path) -> BoundedFile:
 # --------------------------------------------------------------------------------------------------
 # decompression
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split())[:100] or err.__class__.__name__
 
 
 def _pieces(codec: str, data, limit: int) -> Iterator[bytes]:
@@ -181,7 +179,7 @@ def inflate(path, what: str, codec: str | None, data, size: int | None, partial:
             n += len(piece)
     except Exception as err:  # noqa: BLE001 - each codec raises its own kind
         if not partial:
-            raise ValueError(f"{what} does not decompress ({codec}: {_one_line(err)})") from err
+            raise ValueError(f"{what} does not decompress ({codec}: {one_line(err, 100)})") from err
     raw = b"".join(out)
     if partial:
         return raw[:limit]
@@ -214,7 +212,7 @@ def _npy_header(fp, path, what: str):
             raise ValueError(f"version {version} is not supported")
     except (ValueError, OSError, EOFError, SyntaxError, TypeError) as err:
         raise RecordingError(f"{path}: {what + ' is ' if what else ''}not a readable .npy array, truncated? "
-                             f"({_one_line(err)})") from err
+                             f"({one_line(err, 100)})") from err
     n = int(np.prod(shape, dtype=object)) * dtype.itemsize
     return shape, dtype, n
 
@@ -259,7 +257,7 @@ def check_npz(path) -> None:
             try:
                 fp = z.open(info)
             except (zipfile.BadZipFile, OSError, NotImplementedError, RuntimeError) as err:
-                raise RecordingError(f"{path}: {what} unreadable ({_one_line(err)})") from err
+                raise RecordingError(f"{path}: {what} unreadable ({one_line(err, 100)})") from err
             with fp:
                 shape, dtype, n = _npy_header(fp, path, what)
                 head = fp.tell() if hasattr(fp, "tell") else 0

@@ -9,7 +9,7 @@ import sqlite3
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from ..errors import RecordingError
+from ..errors import RecordingError, one_line
 from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
 
 
@@ -28,8 +28,6 @@ def topic_times_sqlite(path: Path) -> dict[str, tuple[int, int]]:
     return {r[0]: (int(r[1]), int(r[2])) for r in rows if r[1] is not None}
 
 
-def _one_line(err: BaseException) -> str:
-    return " ".join(str(err).split()) or err.__class__.__name__
 
 
 class SqliteRecording(Recording):
@@ -45,7 +43,7 @@ class SqliteRecording(Recording):
                 con = _connect(f)
                 rows = con.execute("SELECT id, name, type, serialization_format FROM topics").fetchall()
             except sqlite3.Error as err:
-                raise RecordingError(f"{f}: not a readable rosbag2 sqlite3 database ({_one_line(err)})") from err
+                raise RecordingError(f"{f}: not a readable rosbag2 sqlite3 database ({one_line(err)})") from err
             self.topics_by_id.append({r[0]: (r[1], r[2], r[3] or "cdr") for r in rows})
             try:
                 for ty, enc, text in con.execute("SELECT topic_type, encoding, encoded_message_definition "
@@ -96,7 +94,7 @@ class SqliteRecording(Recording):
                     except sqlite3.Error as err:
                         if order and n == 0:
                             continue  # sorting needs every page: retry in storage order
-                        self.mark_truncated(f"{f}: database damaged after {n} readable messages ({_one_line(err)}); "
+                        self.mark_truncated(f"{f}: database damaged after {n} readable messages ({one_line(err)}); "
                                             f"the readable part is used")
                         break
             finally:
