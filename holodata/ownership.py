@@ -200,16 +200,13 @@ class OutputDir:
         """Move ``tmp`` (from :meth:`temp`, or any path on the same file system) to entry ``name``,
         replacing what was there if the command may (:meth:`check_free`), and record it."""
         p = self.check_free(name, force)
-        if p.exists():
-            if p.is_dir() and not p.is_symlink():
-                old = self.path / f".{name}.{uuid.uuid4().hex}.old.partial"
-                self.data["pending"][old.name] = self.command
-                self._save()
-                os.replace(p, old)
-                os.replace(tmp, p)
-                shutil.rmtree(old)
-            else:
-                os.replace(tmp, p)
+        if p.is_dir() and not p.is_symlink():   # os.replace cannot replace a folder: the old one goes aside first
+            old = self.path / f".{name}.{uuid.uuid4().hex}.old.partial"
+            self.data["pending"][old.name] = self.command
+            self._save()
+            os.replace(p, old)
+            os.replace(tmp, p)
+            shutil.rmtree(old)
         else:
             os.replace(tmp, p)
         self.record(name)
@@ -228,21 +225,11 @@ class OutputDir:
             pend.pop(t)
         self._save()
 
-    def write_bytes(self, name: str, data: bytes, force: bool = False) -> Path:
-        """Write file ``name`` atomically (temp sibling + rename) and record it."""
-        self.check_free(name, force)
-        tmp = self.temp(name)
-        tmp.write_bytes(data)
-        return self.install(tmp, name, force)
-
-    def write_text(self, name: str, text: str, force: bool = False) -> Path:
-        return self.write_bytes(name, text.encode(), force)
-
 
 def write_file(path, command: str, write, force: bool = False) -> Path:
     """Write the single output file ``path`` with ``write(temp_path)``: under a temp name beside it,
     moved in place when complete, replacing only a file holodata wrote there (or ``force``): the
-    :class:`OutputDir` rule for a command's one file (``slam --ply``, ``view --save`` ...)."""
+    :class:`OutputDir` rule for a command's one file (``slam --ply``, ``slam --tum``)."""
     p = Path(path).expanduser()
     od = OutputDir(p.parent, command)
     od.check_free(p.name, force)

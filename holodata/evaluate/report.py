@@ -277,14 +277,17 @@ def check_layout(html_path: Path, width: int = 1280, height: int = 900) -> dict:
     through a copy beside it (so that its relative image paths resolve), removed afterwards."""
     import re
     import subprocess
+    import uuid
 
     from holodata.errors import HolodataError
 
     html_path = Path(html_path)
-    probe = html_path.with_name(f".layout-probe-{html_path.stem}.html")
+    # a new name of its own beside the page ("x": never an existing file, nor through a symlink)
+    probe = html_path.with_name(f".{html_path.stem}.layout-probe.{uuid.uuid4().hex}.html")
     text = html_path.read_text()
     text = text.replace("</body>", _LAYOUT_JS + "</body>") if "</body>" in text else text + _LAYOUT_JS
-    probe.write_text(text)
+    with open(probe, "x") as fh:
+        fh.write(text)
     try:
         cmd = _chromium_cmd(probe, "--dump-dom", f"--window-size={width},{height}")
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
