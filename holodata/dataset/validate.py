@@ -28,6 +28,7 @@ import numpy as np
 
 from ..conventions import Label, is_rigid
 from . import shards as sh
+from .bounded import READ_BYTES, Rows, is_int, read_offsets
 from .info import stored_bytes
 from .inputs import gt_inputs, stale_inputs
 from .layout import (CAMERA_POINTS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, HUMAN_FACES,
@@ -40,8 +41,6 @@ MAX_LINES_PER_RULE = 10
 GT_CORE = (GT_RANGE, GT_LABEL, GT_NORMAL, GT_POINT)
 RAGGED_KNOWN = {LIDAR_POINTS: 3, CAMERA_POINTS: 3, HUMAN_VERTICES: 3, HUMAN_FACES: 3}
 MAX_FRAME_BYTES = 2**31 - 16   # the most one Blosc chunk (one frame of a frame array) can hold
-READ_BYTES = 8 << 20           # rows of small arrays and ragged values decoded at a time (at least one chunk)
-MAX_FILL_BYTES = 64 << 20      # an absent chunk is filled (zarr's rule) only up to this size
 FOREIGN_RATIO = 1000           # arrays holodata did not write: declared bytes at most this x stored (+ 1 GiB)
 
 
@@ -176,10 +175,6 @@ class _Plan:
         return sum(len(w.listed) for w in (*self.frame.values(), *self.ragged.values()))
 
 
-def _int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
 def _listed(store, path: str) -> list[int]:
     """Indices of the shards whose manifest record the store lists (what it holds, not what is declared)."""
     return sorted(int(n[:-5]) for n in store.list(f"{path}/{sh.MANIFEST_DIR}") if n.endswith(".json")
@@ -240,7 +235,7 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> _Plan | None:
         if kind == "ragged":
             continue
         shape = m.get("shape")
-        if not isinstance(shape, list) or not all(_int(v) and v >= 0 for v in shape):
+        if not isinstance(shape, list) or not all(is_int(v) and v >= 0 for v in shape):
             rep.add(sid, name, None, "shape", f"shape {shape!r} in zarr.json is not a list of sizes")
             continue
         shape, dtype = tuple(shape), str(m.get("data_type"))
@@ -280,7 +275,7 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> _Plan | None:
             else:
                 _check_layout(rep, sid, name, a)
             S = a.get("holodata", {}).get("shard_frames", 1)
-            if not _int(S) or S < 1:
+            if not is_int(S) or S < 1:
                 rep.add(sid, name, None, "layout", f"shard_frames {S!r} is not a frame count")
                 continue
             plan.ragged[name] = _Walk(m, S, T, _listed(store, f"{path}/{name}"))
@@ -481,7 +476,7 @@ def _read_shard(ds, sid, name, w: _Walk, k, fr, rep: _Deferred, grid: str) -> np
         rep.add(sid, name, fr.start, "missing", f"shard {k} (frames {fr.start}-{fr.stop - 1}) is missing")
         return None
     nbytes = rec.get("nbytes")
-    if _int(nbytes) and size != nbytes:
+    if is_int(nbytes) and size != nbytes:
         rep.bytes_stored += size
         rep.add(sid, name, fr.start, "checksum", f"shard {k}: {size} bytes, recorded {nbytes} (truncated?)")
         return None
@@ -640,16 +635,6 @@ def _range_nan(ds, sid, fr, decoded) -> np.ndarray | None:
 
 
 
-def _fill(meta: dict, dt: np.dtype):
-    f = meta.get("fill_value", 0)
-    if isinstance(f, str):
-        try:
-            return float(f)
-        except ValueError:
-            return 0
-    return 0 if f is None else f
-
-
 def _check_small(ds, sid, name, meta, rep) -> None:
     """A whole array (mesh, calibration): its declared shape and dtype against the writer's record
     first, then read a chunk at a time into its sha256 (never whole)."""
@@ -718,91 +703,6 @@ def _check_foreign(ds, sid, name, meta, rep) -> None:
         rep.add(sid, name, None, "decode", f"cannot be decoded ({err.__class__.__name__})")
 
 
-BLOSC_OVERHEAD = 16   # a Blosc chunk is at most its data + a 16-byte header (incompressible data: copied)
-
-
-def _get_chunk(store, key: str, want: int, what: str) -> bytes | None:
-    """The Blosc chunk object ``key`` that decodes to ``want`` bytes: its size asked of the store
-    first, so that an object larger than such a chunk can be is never read (None: absent)."""
-    try:
-        size = store.size(key)
-    except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
-        return None
-    if size > want + BLOSC_OVERHEAD:
-        raise ValueError(f"{what} object holds {size} bytes, more than a Blosc chunk of {want} bytes can; not read")
-    return store.get(key)
-
-
-class _Rows:
-    """Rows of a ragged array's ``values``, read a chunk at a time. holodata's layout (``bytes`` +
-    ``blosc``, whole rows per chunk) is read object by object, each chunk's Blosc header checked
-    against the declared chunk size before it is decoded; any other through zarr, in row blocks."""
-
-    def __init__(self, ds, path: str, vm: dict):
-        self.ds, self.store, self.path = ds, ds.store, path
-        self.dt = np.dtype(vm["data_type"])
-        self.width = int(vm["shape"][1])
-        cs = list(((vm.get("chunk_grid") or {}).get("configuration") or {}).get("chunk_shape") or [])
-        self.rows = int(cs[0]) if cs and _int(cs[0]) and cs[0] > 0 else 0
-        self.codec = sh.chunk_codec(vm) if self.rows and cs[1:] == [self.width] else None
-        self.fill = _fill(vm, self.dt)
-        self._cache: tuple = (None, None)
-
-    def read(self, r0: int, r1: int):
-        if r1 <= r0:
-            return
-        if self.codec is None:
-            z = self.ds.zgroup[self.path]
-            step = max(1, READ_BYTES // max(1, self.width * self.dt.itemsize))
-            for i in range(r0, r1, step):
-                yield np.ascontiguousarray(np.asarray(z[i:min(r1, i + step)]))
-            return
-        for c in range(r0 // self.rows, (r1 - 1) // self.rows + 1):
-            lo = c * self.rows
-            yield self._chunk(c)[max(r0, lo) - lo:min(r1, lo + self.rows) - lo]
-
-    def _chunk(self, c: int) -> np.ndarray:
-        if self._cache[0] == c:
-            return self._cache[1]
-        want = self.rows * self.width * self.dt.itemsize
-        b = _get_chunk(self.store, f"{self.path}/c/{c}/0", want, f"values chunk {c}")
-        if b is None:   # zarr reads an absent chunk as the fill value
-            if want > MAX_FILL_BYTES:
-                raise ValueError(f"values chunk {c} is absent and declared {want} bytes")
-            a = np.full((self.rows, self.width), self.fill, self.dt)
-        else:
-            if sh.blosc_sizes(b) != (want, len(b)):
-                raise ValueError(f"values chunk {c} is damaged or not what zarr.json declares (its Blosc header "
-                                 f"does not state {self.rows} rows of {self.width} {self.dt})")
-            a = np.empty((self.rows, self.width), self.dt)
-            assert self.codec is not None   # (read() comes here only with one)
-            self.codec.decode(b, out=a)
-        self._cache = (c, a)
-        return a
-
-
-def _read_offsets(ds, path: str, om: dict, T: int) -> np.ndarray:
-    """offsets (T+1,) int64 of a ragged array; its one chunk's Blosc header is checked against the
-    T+1 offsets the metadata declares before anything is allocated."""
-    want = (T + 1) * 8
-    codec = sh.chunk_codec(om)
-    cs = ((om.get("chunk_grid") or {}).get("configuration") or {}).get("chunk_shape")
-    if codec is not None and cs == om.get("shape"):
-        b = _get_chunk(ds.store, f"{path}/offsets/c/0", want, "the offsets chunk")
-        if b is None:
-            raise ValueError("its chunk is missing")
-        got = sh.blosc_sizes(b)
-        if got != (want, len(b)):
-            raise ValueError(f"its chunk holds {got[0] if got else 0} bytes, zarr.json declares {T + 1} offsets "
-                             f"({want} bytes)")
-        out = np.empty(T + 1, "<i8")
-        codec.decode(b, out=out)
-        return out
-    if want > MAX_FILL_BYTES * 16:
-        raise ValueError(f"{T + 1} offsets declared in a layout read through zarr: too many to read")
-    return np.asarray(ds.zgroup[f"{path}/offsets"][...])
-
-
 def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
     path = f"scenes/{sid}/{name}"
     hd = w.meta.get("attributes", {}).get("holodata", {})
@@ -816,7 +716,7 @@ def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
     vshape = vm.get("shape")
     try:
         vdt = np.dtype(vm.get("data_type"))
-        if not vm or not om or not isinstance(vshape, list) or not all(_int(v) and v >= 0 for v in vshape):
+        if not vm or not om or not isinstance(vshape, list) or not all(is_int(v) and v >= 0 for v in vshape):
             raise TypeError
     except TypeError:
         rep.add(sid, name, None, "decode", "values/offsets zarr.json missing or unreadable")
@@ -835,7 +735,7 @@ def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
                                             f"expected ({T + 1},) int64")
         return skip()
     try:
-        off = _read_offsets(ds, path, om, T)
+        off = read_offsets(ds, path, om, T)
     except Exception as err:  # noqa: BLE001
         why = f": {err}" if isinstance(err, ValueError) else ""
         rep.add(sid, name, None, "offsets", f"offsets cannot be read ({err.__class__.__name__}{why})")
@@ -848,7 +748,7 @@ def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
     rep.bump(sid, name, "offsets", len(dec) - MAX_LINES_PER_RULE)
     if off[-1] != vshape[0]:
         rep.add(sid, name, None, "offsets", f"offsets end at {off[-1]}, values has {vshape[0]} rows")
-    rows = _Rows(ds, f"{path}/values", vm)
+    rows = Rows(ds, f"{path}/values", vm)
     digest = sh.ragged_meta_digest(vm, om)
     changed = 0
     ks = _missing_shards(rep, sid, name, w)
