@@ -288,3 +288,28 @@ def test_ownership_manifest_sweeps_only_the_temps_it_names(tmp_path):
     assert not t.exists() and user_partial.read_text() == "mine"
     data = json.loads((tmp_path / "o" / MANIFEST).read_text())
     assert data["pending"] == {}
+
+
+def test_single_output_files_leave_a_user_file_in_the_way(traced, tmp_path):
+    """view --save and slam --ply/--tum (holodata.ownership.write_file) replace only a file holodata
+    wrote: a user's file of that name stays, with a one-line refusal; --force replaces a plain file,
+    never a symlink."""
+    from holodata.ownership import write_file
+
+    mine = tmp_path / "scene.rrd"
+    mine.write_text("my recording")
+    r = CliRunner().invoke(cli, ["view", traced, "--scene", "room_a", "--frames", "0:1", "--save", str(mine)])
+    _refused(r, str(mine), "not written by holodata", "--force")
+    assert mine.read_text() == "my recording"
+    ply = tmp_path / "mesh.ply"
+    ply.write_text("my mesh")
+    with pytest.raises(InputError, match="not written by holodata"):
+        write_file(ply, "holodata slam --ply", lambda p: p.write_text("holodata's mesh"))
+    assert ply.read_text() == "my mesh"
+    write_file(tmp_path / "new.ply", "holodata slam --ply", lambda p: p.write_text("first"))
+    write_file(tmp_path / "new.ply", "holodata slam --ply", lambda p: p.write_text("second"))   # its own: replaced
+    assert (tmp_path / "new.ply").read_text() == "second"
+    (tmp_path / "link.ply").symlink_to(ply)
+    with pytest.raises(InputError, match="symlink"):
+        write_file(tmp_path / "link.ply", "holodata slam --ply", lambda p: p.write_text("x"), force=True)
+    assert ply.read_text() == "my mesh"
