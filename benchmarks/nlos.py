@@ -38,6 +38,7 @@ sys.path.insert(0, str(ROOT))
 TRAIN_SEED = 0
 HELDOUT_SEED = 1_000_000
 HELDOUT_CORNERS = 16
+CROP_W = 128   # azimuth columns of a stage-one training crop on grids wider than this (PanoRadar rolls the ring)
 ROWS = ("model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1")
 
 
@@ -89,9 +90,13 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=2000, help="stage-one gradient steps (batch 4) at every point")
     ap.add_argument("--stage2-frames", type=int, default=64, help="stage-two training frames (>= 1 per corner)")
     ap.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    ap.add_argument("--grid", default="32x128", help="beam grid HxW: 32x128 (the quick demo's) or 64x512 (the paper's: "
+                                                   "uint8 log-amplitude corpora, stage one trained on 128-column azimuth "
+                                                   "crops and run on the whole ring)")
     ap.add_argument("--install", action="store_true", help="ship the largest point's run as the pretrained weights")
     a = ap.parse_args(argv)
 
+    from holodata.conventions import Grid
     from holodata.evaluate.pipeline import evaluate
     from holodata.synth.corpus import CorpusConfig, synth_corpus
     from holodata.torch import TrainConfig, train
@@ -99,6 +104,10 @@ def main(argv=None) -> int:
     from holodata.torch.stage2_train import Stage2Config, train_stage2
 
     points = sorted({int(n) for n in a.corners.split(",")})
+    grid = Grid.parse(a.grid)
+    paper = grid.W > CROP_W      # train on azimuth crops, store log codes
+    grid_kw = {"grid": grid, "heatmap_dtype": "uint8" if paper else "float16"}
+    tag = "" if a.grid == "32x128" else f"_{grid.H}x{grid.W}"
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -107,32 +116,33 @@ def main(argv=None) -> int:
           f"{a.steps} stage-one steps of batch 4 at every N", flush=True)
 
     def corpus(name: str, cc) -> str:
-        url = str(out / f"{name}_s{cc.seed}_{cc.corners}x{cc.frames}.zarr")
+        url = str(out / f"{name}_s{cc.seed}_{cc.corners}x{cc.frames}{tag}.zarr")
         r = synth_corpus(url, cc, quiet=True)
         if r["written"]:
             print(f"  corpus {Path(url).name}: {r['seconds']:.0f} s", flush=True)
         return url
 
-    report_cc = CorpusConfig(corners=HELDOUT_CORNERS, frames=a.frames, seed=HELDOUT_SEED, n_test=HELDOUT_CORNERS)
-    check_cc = CorpusConfig(**CHECK_SET)
+    report_cc = CorpusConfig(corners=HELDOUT_CORNERS, frames=a.frames, seed=HELDOUT_SEED, n_test=HELDOUT_CORNERS,
+                             **grid_kw)
+    check_cc = CorpusConfig(**{**CHECK_SET, **grid_kw})
     report, check = corpus("report", report_cc), corpus("check", check_cc)
     timings, docs, runs = {}, {}, {}
     for n in points:
-        train_cc = CorpusConfig(corners=n, frames=a.frames, seed=TRAIN_SEED, n_test=0)
+        train_cc = CorpusConfig(corners=n, frames=a.frames, seed=TRAIN_SEED, n_test=0, **grid_kw)
         url = corpus("train", train_cc)
         frames = n * a.frames
         epochs = max(1, math.ceil(a.steps * 4 / frames))
         cfg = TrainConfig(epochs=epochs, depth=6, base_channels=8, max_channels=64, range_pool=2, range_loss="ce",
-                          device=a.device)
+                          device=a.device, crop_w=CROP_W if paper else None)
         s2 = Stage2Config(epochs_rt=3, epochs_refine=2, channels=16, device=a.device,
                           frames_per_scene=max(1, min(a.frames, a.stage2_frames // n)))
-        run = out / f"run_{n}x{a.frames}_{a.steps}"
+        run = out / f"run_{n}x{a.frames}_{a.steps}{tag}"
         t1 = time.perf_counter()
         train(url, run, cfg, quiet=True)
         t2 = time.perf_counter()
         train_stage2(url, run, s2, quiet=True)
         t3 = time.perf_counter()
-        docs[n] = evaluate(report, run, out / f"eval_{n}", split="test", quiet=True, report=False)
+        docs[n] = evaluate(report, run, out / f"eval_{n}{tag}", split="test", quiet=True, report=False)
         t4 = time.perf_counter()
         timings[n] = {"stage_one_s": t2 - t1, "stage_two_s": t3 - t2, "evaluate_s": t4 - t3,
                       "steps": epochs * math.ceil(frames / cfg.batch_size)}

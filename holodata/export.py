@@ -26,6 +26,7 @@ import json
 
 import numpy as np
 
+from .dataset.heatmap import read_heatmap
 from .dataset.layout import (CAMERA_POINTS, GT_LABEL, GT_RANGE, LIDAR_POINTS, LIDAR_POINT_TIME_NS, RADAR_CYCLE_NS,
                              RADAR_HEATMAP, TIME_TIMESTAMP_NS)
 from .errors import DatasetError, InputError
@@ -73,11 +74,11 @@ def export_panoradar(sc, out: OutputDir, grid, range_bins, force: bool = False) 
         dirs.update(lidar=tmp / "lidar_npy", gt=tmp / "gt_npy", label=tmp / "label_npy")
     for d in dirs.values():
         d.mkdir(parents=True)
-    hm, gr = sc[RADAR_HEATMAP], sc[GT_RANGE] if has_gt else None
+    gr = sc[GT_RANGE] if has_gt else None
     lab = sc[GT_LABEL] if GT_LABEL in sc else None
     for f in range(sc.n_frames):
         name = f"{f:05d}.npy"
-        a = np.asarray(hm[f], np.float32)
+        a = read_heatmap(sc, f)
         np.save(dirs["rf"] / name, (np.log10(np.maximum(a, 0) + 1e-3) / 3).astype(np.float32))
         if has_gt:
             r = np.asarray(gr[f], np.float32)
@@ -121,11 +122,12 @@ def export_hdf5(sc, out: OutputDir, grid, range_bins, force: bool = False) -> di
             t = ((np.arange(sc.n_frames) + 0.5) * 5e8).astype(np.int64)
             h.attrs["timestamps"] = "synthesised: frame i at (i + 0.5) x 0.5 s (the scene has no time/timestamp_ns)"
         if RADAR_HEATMAP in sc:
-            src = sc[RADAR_HEATMAP]
-            d = h.create_dataset(RADAR_HEATMAP, shape=src.shape, dtype=src.dtype, chunks=(1,) + src.shape[1:],
+            src = sc[RADAR_HEATMAP]   # linear amplitude, as the format states (uint8 codes decoded)
+            dt = src.dtype if src.dtype.kind == "f" else np.dtype(np.float32)
+            d = h.create_dataset(RADAR_HEATMAP, shape=src.shape, dtype=dt, chunks=(1,) + src.shape[1:],
                                  compression="lzf")
             for f in range(sc.n_frames):
-                d[f] = np.asarray(src[f])
+                d[f] = read_heatmap(sc, f).astype(dt, copy=False)
             d.attrs.update({"range_resolution_m": range_bins.dr, "elevation_max_deg": grid.elev_max_deg,
                             "elevation_min_deg": grid.elev_min_deg, "scaling": "linear",
                             "range_origin": "rotation_centre", "frame_id": "radar"})

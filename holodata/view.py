@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .dataset.heatmap import read_heatmap
 from .dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS, GT_LABEL, GT_POINT, GT_RANGE, HUMAN_FACES,
                              HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, POSE_T_WORLD_LIDAR,
                              POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
@@ -149,7 +150,7 @@ class _Predictions:
             rng = np.asarray(self.sc[GT_RANGE][k], np.float32)[:, ::f, ::f]
             p = oracle_points(rng, np.asarray(self.sc[GT_LABEL][k], np.uint8)[:, ::f, ::f], geo, self.grid)
         else:
-            _rng, hum, cloud = self.run.ranges([np.asarray(self.sc[RADAR_HEATMAP][k], np.float32)])
+            _rng, hum, cloud = self.run.ranges([read_heatmap(self.sc, k)])
             p = self.run.points(cloud[0], hum[0], geo, self.grid)
         P = np.asarray(p["point"], np.float64).reshape(-1, 3)
         ok = np.isfinite(P).all(-1)
@@ -235,7 +236,7 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
     for f in fr:
         rec.set_time("time", timestamp=np.datetime64(int(t[f]), "ns"))
         if RADAR_HEATMAP in has:
-            hm = np.asarray(sc[RADAR_HEATMAP][f], np.float32)
+            hm = read_heatmap(sc, f)
             log("radar/range_azimuth", rr.Image(_db_image(hm[:, el0, :])))
             log("radar/elevation_azimuth", rr.Image(_db_image(hm[beyond_rig:].max(axis=0))))
         P = poses[f] if poses is not None else np.eye(4)

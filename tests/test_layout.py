@@ -31,7 +31,7 @@ def test_every_entry_is_consistent():
 
 def test_expected_shapes_follow_the_grid_and_range_bins():
     g, rb = Grid(8, 32), RangeBins(128, 0.05)
-    assert expected_spec("radar/heatmap", 5, g, rb) == ((5, 128, 8, 32), ("float16", "float32"))
+    assert expected_spec("radar/heatmap", 5, g, rb) == ((5, 128, 8, 32), ("float16", "float32", "uint8"))
     assert expected_spec("gt/normal", 5, g, rb) == ((5, None, 8, 32, 3), ("float16", "float32"))
     assert expected_spec("gt/semantic", 5, g, rb) == ((5, None, 8, 32), ("uint8",))
     assert expected_spec("mesh/faces", 5, g, rb)[0] == (None, 3)

@@ -103,7 +103,7 @@ _POSE = ("frame", "row", "col")
 LAYOUT: dict[str, ArraySpec] = {s.name: s for s in (
     ArraySpec(TIME_TIMESTAMP_NS, "frame", ("T",), ("int64",), ("frame",), "ns", "ingest",
               ("slam", "register", "raytrace-gt", "train"), required_if=("scene",)),
-    ArraySpec(RADAR_HEATMAP, "frame", ("T", "R", "H", "W"), ("float16", "float32"),
+    ArraySpec(RADAR_HEATMAP, "frame", ("T", "R", "H", "W"), ("float16", "float32", "uint8"),
               ("frame", "range", "elevation", "azimuth"), "1", "ingest", ("train", "evaluate"), NAN,
               required_if=("radar",)),
     ArraySpec(RADAR_CYCLE_NS, "frame", ("T", 2), ("int64",), ("frame", "start_end"), "ns", "ingest",

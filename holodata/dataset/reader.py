@@ -164,6 +164,7 @@ class Scene:
         self.n_frames = int(self.attrs.get("n_frames", 0))
         self._nodes: dict[str, tuple[str, dict]] | None = None
         self._ragged: dict[str, Ragged] = {}
+        self._shard_index: dict = {}   # shard key -> its parsed index (read_frame)
 
     def nodes(self) -> dict[str, tuple[str, dict]]:
         if self._nodes is None:
@@ -184,6 +185,27 @@ class Scene:
         if nodes[name][0] == "ragged":
             return self._get_ragged(name)
         return self.ds.zgroup[f"{self.path}/{name}"]
+
+    def frame(self, name: str, k: int) -> np.ndarray:
+        """Frame ``k`` of array ``name`` as stored (its own dtype: a uint8 heatmap stays codes,
+        :func:`holodata.dataset.heatmap.read_heatmap` decodes). Holodata's frame arrays are read
+        chunk by chunk straight from the shard (:func:`holodata.dataset.shards.read_frame`), any
+        other array through zarr. A damaged shard raises a one-line DatasetError."""
+        nodes = self.nodes()
+        if name not in nodes or nodes[name][0] == "ragged":
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r} has no frame array {name!r}")
+        kind, meta = nodes[name]
+        if not 0 <= int(k) < int(meta["shape"][0]):
+            raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r} has no frame {k} "
+                               f"({meta['shape'][0]} frames)")
+        if kind == "frame":
+            try:
+                out = sh.read_frame(self.ds.store, f"{self.path}/{name}", meta, int(k), self._shard_index)
+            except ValueError as err:
+                raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r} frame {k}: {err}") from err
+            if out is not None:
+                return out
+        return np.asarray(self[name][int(k)])
 
     def _get_ragged(self, name: str) -> "Ragged":
         if name not in self._ragged:

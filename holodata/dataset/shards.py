@@ -210,6 +210,57 @@ def _decode_frames(codec, per, dt, fill, index, blob, start: int, stop: int) -> 
     return out
 
 
+def read_frame(store, array_path: str, meta: dict, k: int, index_cache: dict | None = None) -> np.ndarray | None:
+    """Frame ``k`` of a fast-layout frame array (module docstring) read straight from its shard:
+    the shard's index (its last ``16·S + 4`` bytes, crc32c checked; kept in ``index_cache`` by shard
+    key) and the one chunk, Blosc-decoded into the result. The loader's path: zarr's reads of
+    a 64×512×256 heatmap go through asyncio and a copy (benchmarks/loader.py has both).
+    None when the layout is not the fast one (read through zarr then). A frame of an absent shard
+    or chunk is the fill value, as zarr reads it; a damaged shard raises ValueError."""
+    fast = _fast_layout(meta)
+    if fast is None:
+        return None
+    codec, S, per = fast
+    dt = np.dtype(meta["data_type"])
+    s, i = divmod(int(k), S)
+    key = shard_key(array_path, s, len(meta["shape"]))
+    cache = index_cache if index_cache is not None else {}
+    if key not in cache:
+        try:
+            size = store.size(key)
+        except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
+            size = None
+        if size is None:
+            cache[key] = None
+        else:
+            ilen = 16 * S + 4
+            if size < ilen:
+                raise ValueError(f"{key}: shard object of {size} bytes is shorter than its index ({ilen} bytes)")
+            tail = store.get_range(key, size - ilen, size)
+            ib = bytes(tail[:-4])
+            if _crc32c(ib) != int.from_bytes(tail[-4:], "little"):
+                raise ValueError(f"{key}: shard index crc32c does not match")
+            index = np.frombuffer(ib, dtype="<u8").reshape(S, 2)
+            full = index[:, 0] != _EMPTY
+            end = size - ilen
+            if np.any(full & ((index[:, 0] > end) | (index[:, 1] > end - np.minimum(index[:, 0], end)))):
+                raise ValueError(f"{key}: shard index points outside the shard object")
+            cache[key] = index
+    index = cache[key]
+    fill = meta.get("fill_value", 0)
+    fill = float(fill) if isinstance(fill, str) else fill
+    if index is None or index[i, 0] == _EMPTY:
+        return np.full(per, fill, dt)
+    o, nb = int(index[i, 0]), int(index[i, 1])
+    chunk = store.get_range(key, o, o + nb)
+    want = int(np.prod(per, dtype=np.int64)) * dt.itemsize
+    if blosc_sizes(chunk) != (want, nb) or len(chunk) != nb:
+        raise ValueError(f"{key}: chunk {i} is damaged (Blosc header does not match the {want} bytes of a frame)")
+    out = np.empty(per, dt)
+    codec.decode(chunk, out=out.reshape(-1))
+    return out
+
+
 def decode_shard(meta: dict, n: int, blob: bytes) -> np.ndarray:
     """Inverse of :func:`encode_shard`: ``(n,) + per-frame shape`` array. Raises on corrupt bytes."""
     from zarr.core.buffer.cpu import Buffer

@@ -118,6 +118,15 @@ class Store:
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             return None
 
+    def get_range(self, key: str, start: int, stop: int) -> bytes:
+        """Bytes ``start:stop`` of object ``key`` (a shard's index or one chunk of it, without
+        reading the rest); fewer when the object is shorter. FileNotFoundError when absent."""
+        if self.local:
+            with open(self.root / key, "rb") as f:
+                f.seek(start)
+                return f.read(max(stop - start, 0))
+        return self.fs.cat_file(self._p(key), start=start, end=stop)
+
     _dirs: set | None = None
 
     def put(self, key: str, data) -> None:

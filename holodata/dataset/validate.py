@@ -29,6 +29,7 @@ import numpy as np
 from ..conventions import Label, is_rigid
 from . import shards as sh
 from .bounded import READ_BYTES, Rows, is_int, read_offsets
+from .heatmap import code_of_meta
 from .info import stored_bytes
 from .inputs import gt_inputs, stale_inputs
 from .layout import (CAMERA_POINTS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, HUMAN_FACES,
@@ -252,6 +253,11 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> _Plan | None:
                 rep.add(sid, name, None, "shape", f"shape {shape}, expected {want} from n_frames and the grid")
             if dtype not in dts:
                 rep.add(sid, name, None, "dtype", f"dtype {dtype}, expected {' or '.join(dts)}")
+            elif name == RADAR_HEATMAP:
+                try:   # uint8 codes need their LogCode, linear amplitude must not claim one
+                    code_of_meta(m)
+                except ValueError as err:
+                    rep.add(sid, name, None, "attrs", f"heatmap {err}")
             if name.startswith("gt/") and pat[1] is None and len(shape) > 1 and name != GT_HUMAN_CENTER:
                 if B is None:
                     B = shape[1]

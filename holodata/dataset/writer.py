@@ -59,8 +59,10 @@ def _layout_facts(name: str, dims=None, units=None, dtype=None, fill=None) -> tu
     s = spec(name)
     if s is None:
         return dims, units if units is not None else "1", dtype, fill
-    return (list(s.dims) if dims is None else dims, s.units if units is None else units,
-            s.dtype if dtype is None else dtype, s.fill if fill is None else fill)
+    dtype = s.dtype if dtype is None else dtype
+    if fill is None:   # NaN is the float arrays' "no data"; an integer dtype (a uint8 heatmap's codes) has 0
+        fill = 0 if isinstance(s.fill, float) and s.fill != s.fill and np.dtype(dtype).kind in "iu" else s.fill
+    return (list(s.dims) if dims is None else dims, s.units if units is None else units, dtype, fill)
 
 
 def _json(store: Store, key: str) -> Any:

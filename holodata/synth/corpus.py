@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..conventions import Grid, RangeBins
+from ..conventions import Grid, LogCode, RangeBins
 from ..errors import InputError
 from .worlds import CORNER_TYPES
 
@@ -50,7 +50,8 @@ class CorpusConfig:
     """A corpus: ``corners`` N ≥ 1 scenes of ``frames`` K ≥ 1 radar rotations (2 Hz) on ``grid`` ×
     ``range_bins``; ``seed`` the corpus seed; ``n_test`` the last corners form the test split;
     ``hidden_person`` / ``visible_walkers`` the fractions of corners with a hidden person / people
-    in the robot's corridor; ``heatmap_dtype`` float16 or float32 (linear amplitude)."""
+    in the robot's corridor; ``heatmap_dtype`` float16 or float32 (linear amplitude) or uint8
+    (log-amplitude codes, :class:`holodata.conventions.LogCode`)."""
 
     corners: int
     frames: int = 4
@@ -67,6 +68,8 @@ class CorpusConfig:
             raise InputError(f"--corners must be >= 1, got {self.corners}")
         if self.frames < 1:
             raise InputError(f"--frames must be >= 1, got {self.frames}")
+        if self.heatmap_dtype not in ("float16", "float32", "uint8"):
+            raise InputError(f"heatmap dtype must be float16, float32 or uint8, got {self.heatmap_dtype!r}")
         if not 0 <= self.n_test <= self.corners:
             raise InputError(f"--test must be within 0..{self.corners} corners, got {self.n_test}")
 
@@ -139,6 +142,7 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     from ..dataset import create_dataset, open_dataset
     from ..dataset.layout import (HUMAN_FACES, HUMAN_VERTICES, MESH_FACE_CLASS, MESH_FACES, MESH_VERTICES,
                                   POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
+    from ..dataset.heatmap import ENCODING_ATTR
     from ..groundtruth import GTConfig, raytrace_dataset
     from ..trajectory import Trajectory
     from .scene import Sensors, attenuation_db, drop_medians
@@ -162,16 +166,18 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     traj = Trajectory(t, poses)
     sensors = Sensors(sc)
     heat, humans, stats = [], [], []
+    code = LogCode() if cfg.heatmap_dtype == "uint8" else None
     for k in range(cfg.frames):
         T_cols = column_poses(traj, k, cfg.grid, origin, cycles[k])   # the poses raytrace-gt will trace from
         hm, st = sensors.radar_frame(k, T_cols)
-        heat.append(hm.astype(cfg.heatmap_dtype))
+        heat.append(code.encode(hm) if code is not None else hm.astype(cfg.heatmap_dtype))
         stats.append(st)
         humans.append(sc.dynamic_mesh(int(t[k]))[0])   # None without anybody
     for name, shape, data in ((TIME_TIMESTAMP_NS, (), t), (RADAR_CYCLE_NS, (2,), cycles),
                               (POSE_T_WORLD_RADAR, (4, 4), poses)):
         _write_frames(s.frame_array(name, per_frame_shape=shape), data)
-    _write_frames(s.frame_array(RADAR_HEATMAP, per_frame_shape=heat[0].shape, dtype=cfg.heatmap_dtype), heat)
+    _write_frames(s.frame_array(RADAR_HEATMAP, per_frame_shape=heat[0].shape, dtype=cfg.heatmap_dtype,
+                                attrs={ENCODING_ATTR: code.to_attrs()} if code is not None else None), heat)
     s.write_array(MESH_VERTICES, world.vertices.astype(np.float32))
     s.write_array(MESH_FACES, world.faces.astype(np.int32))
     s.write_array(MESH_FACE_CLASS, world.face_class.astype(np.uint8))

@@ -1,9 +1,10 @@
 """Torch datasets over radar heatmaps and multi-return ground truth.
 
-Samples are dicts: ``heatmap`` (N_r', H', W') float32 normalised to [−1, 1], ``range`` (3, H', W')
-float32 metres (NaN = none), ``label`` (3, H', W') uint8, ``scene`` (str), ``frame`` (int).
-The normalisation is a recorded transform (:class:`HeatmapNorm`): stored heatmaps stay linear
-amplitude; the parameters travel in the checkpoint.
+Samples are dicts: ``heatmap`` (N_r', H', W') float32 (or float16, when asked) normalised to
+[−1, 1], ``range`` (3, H', W') float32 metres (NaN = none), ``label`` (3, H', W') uint8, ``scene``
+(str), ``frame`` (int). The normalisation is a recorded transform (:class:`HeatmapNorm`) of the
+linear amplitude, whatever the storage (:mod:`holodata.dataset.heatmap`); the parameters travel in
+the checkpoint.
 """
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from holodata.dataset.heatmap import heatmap_code, read_heatmap
 from holodata.dataset.layout import GT_LABEL, GT_RANGE, RADAR_HEATMAP
 from holodata.dataset.splits import split_scenes
 from holodata.errors import DatasetError
@@ -127,7 +129,8 @@ class ArrayFrames(EpochAugment, Dataset):
 
 
 def _sample(hm, rng, lab, scene, frame) -> dict:
-    return {"heatmap": torch.from_numpy(np.ascontiguousarray(hm, dtype=np.float32)),
+    hm = np.ascontiguousarray(hm, dtype=hm.dtype if hm.dtype in (np.float16, np.float32) else np.float32)
+    return {"heatmap": torch.from_numpy(hm),
             "range": torch.from_numpy(np.ascontiguousarray(rng, dtype=np.float32)),
             "label": torch.from_numpy(np.ascontiguousarray(lab, dtype=np.uint8)),
             "scene": scene, "frame": int(frame)}
@@ -138,12 +141,14 @@ class HeatmapDataset(EpochAugment, Dataset):
 
     Safe with multi-process DataLoader workers: the Zarr store is (re)opened lazily in each
     process (handles are dropped when pickled). ``norm`` defaults to one fitted on a few training
-    frames; pass the checkpoint's norm at evaluation time.
+    frames; pass the checkpoint's norm at evaluation time. ``dtype`` of the samples' heatmap:
+    float16 halves what DataLoader workers hand over (the trainer casts on its device; a 64×512
+    code's normalised value is exact in float16's 11 bits).
     """
 
     def __init__(self, ds, split: str = "train", norm: HeatmapNorm | None = None,
                  transform: SampleTransform | None = None, scenes: list[str] | None = None,
-                 frames_per_scene: int | None = None, with_label: bool = True):
+                 frames_per_scene: int | None = None, with_label: bool = True, dtype=np.float32):
         from holodata.dataset import open_dataset
 
         if isinstance(ds, (str, os.PathLike)):
@@ -154,6 +159,9 @@ class HeatmapDataset(EpochAugment, Dataset):
             if self.url is not None:
                 self.url = str(self.url)
         self._ds, self._pid = ds, os.getpid()
+        self._scenes: dict = {}
+        self._scenes_of = None
+        self._tables: dict = {}
         self.split = split
         self.scenes = list(scenes) if scenes is not None else split_scenes(ds, split)
         self.index: list[tuple[str, int]] = []
@@ -171,6 +179,7 @@ class HeatmapDataset(EpochAugment, Dataset):
         if not self.index:
             raise DatasetError(f"split {split!r} of {self.url or 'dataset'} has no frames")
         self.with_label = with_label
+        self.dtype = np.dtype(dtype)
         self.transform = transform or SampleTransform()
         self.norm = norm or self._fit_norm()
         self.grid = ds.grid
@@ -188,31 +197,76 @@ class HeatmapDataset(EpochAugment, Dataset):
     def __getstate__(self):
         state = dict(self.__dict__)
         if self.url is not None:
-            state["_ds"] = None
+            state["_ds"] = state["_scenes_of"] = None
+            state["_scenes"] = {}
         return state
+
+    def _scene(self, sid: str):
+        """Scene ``sid`` of this process's dataset handle, opened once (its array listing and shard
+        indexes are reused by every read)."""
+        ds = self._dataset()
+        if self._scenes_of is not ds:
+            self._scenes, self._scenes_of = {}, ds
+        if sid not in self._scenes:
+            self._scenes[sid] = ds.scene(sid)
+        return self._scenes[sid]
 
     def _fit_norm(self) -> HeatmapNorm:
         picks = self.index[:: max(len(self.index) // 4, 1)][:4]
-        hm = [np.asarray(self._dataset().scene(s)[RADAR_HEATMAP][k]) for s, k in picks]
+        hm = [read_heatmap(self._scene(s), k) for s, k in picks]
         return HeatmapNorm.fit(np.stack(hm))
 
     def __len__(self) -> int:
         return len(self.index)
 
-    def read(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Raw (heatmap linear, range, label) of item i, before transform and normalisation."""
-        sid, k = self.index[i]
-        sc = self._dataset().scene(sid)
-        hm = np.asarray(sc[RADAR_HEATMAP][k])
-        rng = np.asarray(sc[GT_RANGE][k], dtype=np.float32)
-        if self.with_label and GT_LABEL in set(sc.arrays()):
-            lab = np.asarray(sc[GT_LABEL][k], dtype=np.uint8)
+    def _gt(self, sc, k: int) -> tuple[np.ndarray, np.ndarray]:
+        rng = sc.frame(GT_RANGE, k).astype(np.float32, copy=False)
+        if self.with_label and GT_LABEL in sc.nodes():
+            lab = sc.frame(GT_LABEL, k).astype(np.uint8, copy=False)
         else:
             lab = np.zeros(rng.shape, np.uint8)
-        return hm, rng, lab
+        return rng, lab
+
+    def read(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Raw (heatmap linear amplitude float32, range, label) of item i, before transform and
+        normalisation."""
+        sid, k = self.index[i]
+        sc = self._scene(sid)
+        return (read_heatmap(sc, k), *self._gt(sc, k))
 
     def __getitem__(self, i: int) -> dict:
-        hm, rng, lab = self.read(i)
-        hm, rng, lab = apply_transform(hm, rng, lab, self.transform, self.sample_gen(i))
+        """The training sample of item i. Stored uint8 codes and float16 values are cropped as
+        stored, then range-pooled and normalised in one table-lookup pass
+        (:func:`holodata.torch._lut_kernel.pool_lookup`: the values :class:`HeatmapNorm` gives the
+        decoded amplitude); float32 goes through the norm."""
+        from dataclasses import replace
+
+        from ._lut_kernel import pool_lookup
+
         sid, k = self.index[i]
-        return _sample(self.norm(hm), rng, lab, sid, k)
+        sc = self._scene(sid)
+        raw = sc.frame(RADAR_HEATMAP, k)
+        rng, lab = self._gt(sc, k)
+        gen = self.sample_gen(i)
+        if raw.dtype in (np.uint8, np.float16):
+            codes = raw if raw.dtype == np.uint8 else raw.view(np.uint16)
+            codes, rng, lab = apply_transform(codes, rng, lab, replace(self.transform, range_pool=1), gen)
+            x = pool_lookup(codes, self._values(sc), max(self.transform.range_pool, 1), self.dtype)
+        else:
+            hm, rng, lab = apply_transform(raw, rng, lab, self.transform, gen)
+            x = self.norm(hm).astype(self.dtype, copy=False)
+        return _sample(x, rng, lab, sid, k)
+
+    def _values(self, sc) -> np.ndarray:
+        """The normalised input of every stored code (float32): (256,) for uint8 log codes (their
+        LogCode), (65536,) for float16 bit patterns (NaN and negative patterns where the norm
+        puts them); one per code and norm, kept."""
+        code = heatmap_code(sc)
+        key = (code, self.norm.eps, self.norm.lo, self.norm.hi)
+        if key not in self._tables:
+            if code is None:
+                with np.errstate(invalid="ignore"):   # the NaN and -inf patterns map as the norm maps them
+                    self._tables[key] = self.norm(np.arange(65536, dtype=np.uint32).astype(np.uint16).view(np.float16))
+            else:
+                self._tables[key] = self.norm(code.table())
+        return self._tables[key]

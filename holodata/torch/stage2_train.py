@@ -29,7 +29,8 @@ import numpy as np
 import torch
 
 from holodata.conventions import Grid, is_human, reduced_grid
-from holodata.dataset.layout import GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, POSE_T_WORLD_RADAR, RADAR_HEATMAP
+from holodata.dataset.heatmap import read_heatmap
+from holodata.dataset.layout import GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, POSE_T_WORLD_RADAR
 from holodata.errors import InputError
 from holodata.progress import track
 from holodata.safe_io import load_torch
@@ -198,7 +199,7 @@ def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", b
         xs = []
         for sid, k in keys[i0:i0 + batch_size]:
             sc = ds.scene(sid)
-            hm = np.asarray(sc[RADAR_HEATMAP][k])
+            hm = read_heatmap(sc, k)
             r = np.asarray(sc[GT_RANGE][k], np.float32)
             xs.append(norm(apply_transform(hm, r, np.zeros(r.shape, np.uint8), t)[0]))
         with torch.no_grad():

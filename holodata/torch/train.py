@@ -157,9 +157,11 @@ def resolve_device(device: str) -> torch.device:
 
 
 def _collate(batch: list[dict]) -> dict:
-    return {"heatmap": torch.stack([b["heatmap"] for b in batch]),
-            "range": torch.stack([b["range"] for b in batch]),
-            "label": torch.stack([b["label"] for b in batch]),
+    """Stack a batch's tensors (torch's default_collate: in a DataLoader worker it stacks straight
+    into shared memory, one copy instead of two); scene ids and frame numbers stay lists."""
+    from torch.utils.data import default_collate
+
+    return {**{k: default_collate([b[k] for b in batch]) for k in ("heatmap", "range", "label")},
             "scene": [b["scene"] for b in batch], "frame": [b["frame"] for b in batch]}
 
 
@@ -260,7 +262,7 @@ def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels:
         n_seen, t0 = 0, time.perf_counter()
         for batch in track(loader, total=len(loader), description=f"epoch {epoch + 1}/{config.epochs}",
                            quiet=quiet or not ctx.main):
-            x = batch["heatmap"].to(device, non_blocking=True)
+            x = batch["heatmap"].to(device, non_blocking=True).float()   # float16 from the loader
             y = batch["range"].to(device, non_blocking=True)
             lab = batch["label"].to(device, non_blocking=True)
             loss, parts = multi_return_loss(model(x), y, lab, weights, max_range=mcfg.max_range)
@@ -332,7 +334,8 @@ def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet:
     if ck_path.exists():
         norm = HeatmapNorm.from_dict(load_checkpoint(ck_path)["norm"])
     train_set = HeatmapDataset(ds if getattr(ds, "url", None) else str(dataset_url), split="train", norm=norm,
-                               transform=cfg.sample_transform(train=True), frames_per_scene=cfg.frames_per_scene)
+                               transform=cfg.sample_transform(train=True), frames_per_scene=cfg.frames_per_scene,
+                               dtype=np.float16)
     if train_set.url is None:
         train_set.url = str(dataset_url)
     n_in = int(ds.range_bins.n) // max(cfg.range_pool, 1)
