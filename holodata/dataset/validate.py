@@ -15,34 +15,32 @@ Value rules (docs/format.md §2/§3): gt/range finite >= 0 or NaN, R1 < R2 < R3 
 after a missing one); gt/label in 0..4 and 0 exactly where gt/range is NaN; gt/normal unit length
 (±1e-3; ±2e-3 when stored as float16) where gt/range is finite; time/timestamp_ns int64 strictly
 increasing; pose/* rigid and NaN-free; radar/heatmap finite >= 0 (linear amplitude); ragged offsets
-start at 0, never decrease and end at len(values).
+start at 0, never decrease and end at len(values). The frame arrays' value rules are in
+:mod:`holodata.dataset.value_rules`, the whole, foreign and ragged arrays' checks in
+:mod:`holodata.dataset.array_checks`.
 """
 from __future__ import annotations
 
-import hashlib
-import json
 import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from ..conventions import Label, is_rigid
 from . import shards as sh
-from .bounded import READ_BYTES, Rows, is_int, read_offsets
+from .array_checks import (MAX_LINES_PER_RULE, _check_foreign, _check_ragged, _check_small, _metadata_line,
+                           _missing_shards, _Walk, sh_json)
+from .bounded import is_int
 from .heatmap import code_of_meta
 from .info import stored_bytes
 from .inputs import gt_inputs, stale_inputs
-from .layout import (CAMERA_POINTS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, HUMAN_FACES,
-                     HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, POSE_PREFIX, RADAR_HEATMAP,
-                     TIME_TIMESTAMP_NS, required_arrays, spec)
+from .layout import (GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, RADAR_HEATMAP, TIME_TIMESTAMP_NS,
+                     required_arrays, spec)
 from .reader import Dataset, Scene, list_nodes, open_dataset, unfinished_line
 from .schemas import schema_errors
+from .value_rules import _value_rules, frames_not_finite_nonneg  # noqa: F401 - re-exported (ingest)
 
-MAX_LINES_PER_RULE = 10
 GT_CORE = (GT_RANGE, GT_LABEL, GT_NORMAL, GT_POINT)
-RAGGED_KNOWN = {LIDAR_POINTS: 3, CAMERA_POINTS: 3, HUMAN_VERTICES: 3, HUMAN_FACES: 3}
 MAX_FRAME_BYTES = 2**31 - 16   # the most one Blosc chunk (one frame of a frame array) can hold
-FOREIGN_RATIO = 1000           # arrays holodata did not write: declared bytes at most this x stored (+ 1 GiB)
 
 
 @dataclass
@@ -149,18 +147,6 @@ def validate_dataset(path_or_url, quiet: bool = True) -> dict:
         "bytes_decoded": rep.bytes_decoded, "bytes_stored": rep.bytes_stored,
         "seconds": round(time.perf_counter() - t0, 3),
     }
-
-
-@dataclass
-class _Walk:
-    """A frame or ragged array's shards to read: those the store lists a commit record of."""
-    meta: dict
-    S: int                       # frames per shard
-    n: int                       # frames (a frame array's frame axis; n_frames for a ragged one)
-    listed: list[int]            # shard indices with a manifest record, ascending (any index)
-    frame_bytes: int = 0
-    digest: str | None = None    # shards.meta_digest of the zarr.json now
-    changed: int = 0             # shards whose record's meta digest differs
 
 
 @dataclass
@@ -313,42 +299,6 @@ def _frame_walk(ds, sid, name, m: dict, shape: tuple, rep) -> _Walk | None:
     return _Walk(m, S, shape[0], _listed(ds.store, f"scenes/{sid}/{name}"), frame_bytes, sh.meta_digest(m))
 
 
-def _missing_shards(rep, sid: str, name: str, w: _Walk) -> list[int]:
-    """Report the declared shards without a commit record (the first few by line, the rest counted,
-    never one step per declared shard) and records past the declared ones; the shards to read."""
-    n_decl = -(-w.n // w.S)
-    ks = [k for k in w.listed if k < n_decl]
-    beyond = len(w.listed) - len(ks)
-    if beyond:
-        rep.add(sid, name, None, "shape", f"{beyond} shard record(s) past the {n_decl} shards of {w.n} frames "
-                                          f"(the frame axis in zarr.json shrunk?)")
-    missing = n_decl - len(ks)
-    if missing > MAX_LINES_PER_RULE:   # one line, counted: never a step per declared shard
-        first = next(k for k in range(len(ks) + 1) if k >= len(ks) or ks[k] != k)
-        rep.add(sid, name, first * w.S, "incomplete", f"{missing} of {n_decl} shards not written, the first shard "
-                                                      f"{first} (frames from {first * w.S}): a half-written dataset "
-                                                      f"(rerun the writer to resume), or a frame axis of {w.n} in "
-                                                      f"zarr.json longer than what was written")
-        return ks
-    have, k = set(ks), 0
-    while missing:
-        if k not in have:
-            rep.add(sid, name, k * w.S, "incomplete", f"shard {k} (frames {k * w.S}-{min((k + 1) * w.S, w.n) - 1}) "
-                                                      f"not written (half-written dataset: rerun the writer to resume)")
-            missing -= 1
-        k += 1
-    return ks
-
-
-def sh_json(store, key):
-    b = store.get(key)
-    try:
-        d = json.loads(b) if b is not None else {}
-    except ValueError:
-        return {}
-    return d if isinstance(d, dict) else {}
-
-
 BLOCK_BYTES = 64 << 20  # shards decoding to more than this are decoded and checked in frame blocks
 PREFETCH = 2  # shards read + decoded ahead in worker threads (blosc and numpy release the GIL)
 CROSS = (GT_RANGE, GT_LABEL, GT_NORMAL)  # arrays whose rules look at another array's shard
@@ -387,12 +337,6 @@ def _tasks(frame: dict[str, _Walk], todo: dict[str, list[int]]):
             for name in order:
                 if k in sets[name]:
                     yield S, k, slice(k * S, min((k + 1) * S, frame[name].n)), name
-
-
-def _metadata_line(rep, sid, name, n: int) -> None:
-    rep.add(sid, name, None, "metadata", f"zarr.json differs from the metadata {n} shard(s) were written with "
-                                         f"(data_type, codecs, fill_value or chunk grid edited?): the stored bytes "
-                                         f"would decode to other values; not decoded")
 
 
 def _check_scene(ds: Dataset, plan: _Plan, rep: _Report, bar, grid: str) -> None:
@@ -510,296 +454,6 @@ def _read_shard(ds, sid, name, w: _Walk, k, fr, rep: _Deferred, grid: str) -> np
         why = f": {err}" if isinstance(err, ValueError) else ""
         rep.add(sid, name, fr.start, "decode", f"shard {k} cannot be decoded ({err.__class__.__name__}{why})")
         return None
-
-
-def _frames_where(bad: np.ndarray) -> np.ndarray:
-    """Indices (within the shard) of frames with any True in ``bad`` (frame axis first)."""
-    return np.flatnonzero(bad.reshape(bad.shape[0], -1).any(axis=1))
-
-
-def _report_frames(rep, sid, name, fr, bad, rule, msg_fn) -> None:
-    for i in _frames_where(bad):
-        rep.add(sid, name, fr.start + i, rule, msg_fn(i))
-
-
-def _aligned(ds, sid, name, fr, decoded) -> np.ndarray | None:
-    """``name`` over frames ``fr`` (from this shard walk, else read via zarr)."""
-    if name in decoded:
-        return decoded[name]
-    try:
-        return np.asarray(ds.scene(sid)[name][fr])
-    except Exception:  # noqa: BLE001 - its own problems are reported when it is walked
-        return None
-
-
-_EXP_BITS = {2: (np.uint16, 0x7C00), 4: (np.uint32, 0x7F800000), 8: (np.uint64, 0x7FF0000000000000)}
-
-
-def frames_not_finite_nonneg(a: np.ndarray) -> np.ndarray:
-    """Frame indices where a float array holds NaN, inf or negative values. Fast path: as unsigned
-    bits, a positive finite float is below the exponent mask, so one integer max per frame decides
-    (float16 min/max in numpy is slow); flagged frames are re-checked exactly (-0.0 is fine)."""
-    n = a.shape[0]
-    ut, exp = _EXP_BITS[a.dtype.itemsize]
-    cand = np.flatnonzero(a.view(ut).reshape(n, -1).max(axis=1) >= exp)
-    out = []
-    for i in cand:
-        f = a[i]
-        with np.errstate(invalid="ignore"):
-            if not (np.isfinite(f).all() and (f >= 0).all()):
-                out.append(i)
-    return np.asarray(out, dtype=np.int64)
-
-
-def _value_rules(ds, sid, name, a, fr, decoded, rep, state) -> None:
-    n = a.shape[0] if a.ndim else 0
-    if name == GT_RANGE:
-        if a.dtype.kind != "f":
-            return
-        a2 = a.reshape(n, -1)
-        with np.errstate(invalid="ignore"):
-            badf = (np.fmin.reduce(a2, axis=1) < 0) | (np.fmax.reduce(a2, axis=1) == np.inf)
-        for i in np.flatnonzero(badf):
-            with np.errstate(invalid="ignore"):
-                cnt = int(((a[i] < 0) | np.isinf(a[i])).sum())
-            rep.add(sid, name, fr.start + i, "range", f"{cnt} ranges not finite >= 0 or NaN "
-                                                      f"(min {np.nanmin(a[i]):.3g})")
-        nan = np.isnan(a)
-        decoded["gt/range:nan"] = nan
-        if a.ndim == 4 and a.shape[1] > 1:
-            with np.errstate(invalid="ignore"):
-                order = ~(a[:, 1:] > a[:, :-1])
-            order &= ~nan[:, 1:]
-            if order.any():
-                _report_frames(rep, sid, name, fr, order, "bounce_order",
-                               lambda i: f"{int(order[i].sum())} beams break R1 < R2 < R3 (a later bounce "
-                                         f"not beyond the previous one, or after a missing one)")
-    elif name == GT_LABEL:
-        if a.dtype.kind not in "ui":
-            return
-        a2 = a.reshape(n, -1)
-        badf = a2.max(axis=1) > max(Label)
-        if a.dtype.kind == "i":
-            badf |= a2.min(axis=1) < 0
-        for i in np.flatnonzero(badf):
-            rep.add(sid, name, fr.start + i, "label",
-                    f"{int(((a[i] > max(Label)) | (a[i] < 0)).sum())} labels outside 0..4")
-        nan = _range_nan(ds, sid, fr, decoded)
-        if nan is not None and nan.shape == a.shape:
-            mism = np.not_equal(a == 0, nan)
-            if mism.any():
-                _report_frames(rep, sid, name, fr, mism, "label_range",
-                               lambda i: f"{int(mism[i].sum())} beams where label is 0 but range is not NaN, "
-                                         f"or label is set without a range")
-    elif name == GT_NORMAL:
-        nan = _range_nan(ds, sid, fr, decoded)
-        if a.dtype.kind != "f" or nan is None or nan.shape != a.shape[:-1]:
-            return
-        tol = 1e-3 if a.dtype.itemsize >= 4 else 2e-3
-        n32 = a.astype(np.float32, copy=False)
-        norm2 = np.einsum("...k,...k->...", n32, n32)
-        with np.errstate(invalid="ignore"):
-            bad = ~((norm2 >= (1 - tol) ** 2) & (norm2 <= (1 + tol) ** 2))
-        bad &= ~nan
-        if bad.any():
-            _report_frames(rep, sid, name, fr, bad, "normal_unit",
-                           lambda i: f"{int(bad[i].sum())} normals not unit length (±{tol:g}) where range is finite")
-    elif name == TIME_TIMESTAMP_NS:
-        if a.dtype != np.int64:
-            rep.add(sid, name, fr.start, "timestamps", f"dtype {a.dtype}, expected int64")
-            return
-        prev = state.get(("ts", sid))
-        full = a if prev is None else np.concatenate([[prev], a])
-        bad = np.flatnonzero(np.diff(full) <= 0)
-        off = fr.start - (0 if prev is None else 1)
-        for i in bad:
-            rep.add(sid, name, off + i + 1, "timestamps", f"timestamp {full[i + 1]} not after the previous {full[i]}")
-        if len(a):
-            state[("ts", sid)] = a[-1]
-    elif name.startswith(POSE_PREFIX):
-        if a.ndim != 3 or a.shape[1:] != (4, 4):
-            return
-        ok = is_rigid(a)
-        for i in np.flatnonzero(~ok):
-            what = ("has NaN/inf" if not np.isfinite(a[i]).all()
-                    else "is not rigid (rotation not orthonormal or last row not 0 0 0 1)")
-            rep.add(sid, name, fr.start + i, "pose", f"pose {what}")
-    elif name == RADAR_HEATMAP:
-        if a.dtype.kind != "f" or a.dtype.itemsize not in _EXP_BITS:
-            return
-        for i in frames_not_finite_nonneg(a):
-            rep.add(sid, name, fr.start + i, "heatmap", "heatmap has NaN/inf or negative amplitudes "
-                                                        "(stored as linear amplitude >= 0)")
-
-
-def _range_nan(ds, sid, fr, decoded) -> np.ndarray | None:
-    if "gt/range:nan" in decoded:
-        return decoded["gt/range:nan"]
-    rng = _aligned(ds, sid, GT_RANGE, fr, decoded)
-    return None if rng is None else np.isnan(rng)
-
-
-
-
-def _check_small(ds, sid, name, meta, rep) -> None:
-    """A whole array (mesh, calibration): its declared shape and dtype against the writer's record
-    first, then read a chunk at a time into its sha256 (never whole)."""
-    hd = meta.get("attributes", {}).get("holodata", {})
-    shape, dtype = meta.get("shape"), meta.get("data_type")
-    if "sha256" not in hd:
-        rep.add(sid, name, None, "incomplete", "no checksum in attrs (write interrupted?)")
-        return
-    if str(hd.get("dtype")) != str(dtype) or list(hd.get("shape") or []) != list(shape or []):
-        rep.add(sid, name, None, "dtype", f"metadata says {tuple(shape or ())} {dtype}, written as "
-                                          f"{tuple(hd.get('shape') or ())} {hd.get('dtype')}; not read")
-        return
-    h = hashlib.sha256()
-    lo = hi = None
-    try:
-        z = ds.zgroup[f"scenes/{sid}/{name}"]
-        if z.ndim == 0:
-            blocks = iter([np.asarray(z[...])])
-        else:
-            row = int(np.prod(z.shape[1:], dtype=np.int64)) * z.dtype.itemsize
-            step = max(1, min(int(z.chunks[0]), READ_BYTES // max(1, row)))
-            blocks = (np.asarray(z[i:i + step]) for i in range(0, z.shape[0], step))
-        for a in blocks:
-            a = np.ascontiguousarray(a)
-            h.update(a.data if a.ndim else a.tobytes())
-            rep.bytes_decoded += a.nbytes
-            if name == MESH_FACES and a.size:
-                lo = a.min() if lo is None else min(lo, a.min())
-                hi = a.max() if hi is None else max(hi, a.max())
-    except Exception as err:  # noqa: BLE001
-        rep.add(sid, name, None, "decode", f"cannot be decoded ({err.__class__.__name__})")
-        return
-    if h.hexdigest() != hd["sha256"]:
-        rep.add(sid, name, None, "checksum", "sha256 mismatch (corrupted)")
-    if lo is not None and MESH_VERTICES in ds.scene(sid):
-        nv = (ds.scene(sid).nodes()[MESH_VERTICES][1].get("shape") or [0])[0]
-        if lo < 0 or hi >= nv:
-            rep.add(sid, name, None, "mesh", f"face indices outside 0..{nv - 1}")
-
-
-def _check_foreign(ds, sid, name, meta, rep) -> None:
-    """A plain zarr array holodata did not write: decodable, in blocks; declared bytes capped against
-    the bytes its chunks hold (no checksum to compare with)."""
-    path = f"scenes/{sid}/{name}"
-    try:
-        shape = [int(v) for v in meta.get("shape") or []]
-        declared = int(np.prod(shape, dtype=object)) * np.dtype(meta.get("data_type")).itemsize
-    except (TypeError, ValueError):
-        rep.add(sid, name, None, "decode", f"zarr.json declares shape {meta.get('shape')!r} "
-                                           f"{meta.get('data_type')!r}: not an array")
-        return
-    stored = stored_bytes(ds.store, path, "zarr", meta)
-    if declared > FOREIGN_RATIO * stored + (1 << 30):
-        rep.add(sid, name, None, "shape", f"declares {declared} bytes, its chunks hold {stored} bytes; not read")
-        return
-    try:
-        z = ds.zgroup[path]
-        if z.ndim == 0:
-            rep.bytes_decoded += np.asarray(z[...]).nbytes
-            return
-        row = int(np.prod(z.shape[1:], dtype=np.int64)) * z.dtype.itemsize
-        step = max(1, min(int(z.chunks[0]) * 8, READ_BYTES // max(1, row)))
-        for i in range(0, z.shape[0], step):
-            rep.bytes_decoded += np.asarray(z[i:i + step]).nbytes
-    except Exception as err:  # noqa: BLE001
-        rep.add(sid, name, None, "decode", f"cannot be decoded ({err.__class__.__name__})")
-
-
-def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
-    path = f"scenes/{sid}/{name}"
-    hd = w.meta.get("attributes", {}).get("holodata", {})
-    S = w.S
-
-    def skip() -> None:
-        for _ in w.listed:
-            next(bar, None)
-
-    vm, om = sh_json(ds.store, f"{path}/values/zarr.json"), sh_json(ds.store, f"{path}/offsets/zarr.json")
-    vshape = vm.get("shape")
-    try:
-        vdt = np.dtype(vm.get("data_type"))
-        if not vm or not om or not isinstance(vshape, list) or not all(is_int(v) and v >= 0 for v in vshape):
-            raise TypeError
-    except TypeError:
-        rep.add(sid, name, None, "decode", "values/offsets zarr.json missing or unreadable")
-        return skip()
-    width = hd.get("width")
-    if len(vshape) != 2 or (width is not None and vshape[1] != width):
-        rep.add(sid, name, None, "shape", f"values shape {tuple(vshape)}, expected (N, {width})")
-        return skip()
-    if name in RAGGED_KNOWN and vshape[1] != RAGGED_KNOWN[name]:
-        rep.add(sid, name, None, "shape", f"values width {vshape[1]}, expected {RAGGED_KNOWN[name]}")
-    s = spec(name)
-    if s is not None and str(vdt) not in s.dtypes:
-        rep.add(sid, name, None, "dtype", f"values dtype {vdt}, expected {' or '.join(s.dtypes)} (the layout)")
-    if om.get("shape") != [T + 1] or om.get("data_type") != "int64":
-        rep.add(sid, name, None, "offsets", f"offsets {tuple(om.get('shape') or ())} {om.get('data_type')}, "
-                                            f"expected ({T + 1},) int64")
-        return skip()
-    try:
-        off = read_offsets(ds, path, om, T)
-    except Exception as err:  # noqa: BLE001
-        why = f": {err}" if isinstance(err, ValueError) else ""
-        rep.add(sid, name, None, "offsets", f"offsets cannot be read ({err.__class__.__name__}{why})")
-        return skip()
-    if off[0] != 0:
-        rep.add(sid, name, 0, "offsets", f"offsets start at {off[0]}, not 0")
-    dec = np.flatnonzero(np.diff(off) < 0)
-    for i in dec[:MAX_LINES_PER_RULE]:
-        rep.add(sid, name, int(i), "offsets", f"offsets decrease ({off[i]} -> {off[i + 1]})")
-    rep.bump(sid, name, "offsets", len(dec) - MAX_LINES_PER_RULE)
-    if off[-1] != vshape[0]:
-        rep.add(sid, name, None, "offsets", f"offsets end at {off[-1]}, values has {vshape[0]} rows")
-    rows = Rows(ds, f"{path}/values", vm)
-    digest = sh.ragged_meta_digest(vm, om)
-    changed = 0
-    ks = _missing_shards(rep, sid, name, w)
-    skip_bar = len(w.listed) - len(ks)
-    for _ in range(skip_bar):
-        next(bar, None)
-    for k in ks:
-        next(bar, None)
-        fr = slice(k * S, min((k + 1) * S, T))
-        rec = sh_json(ds.store, sh.manifest_key(path, k)) or None
-        rep.shards += 1
-        if rec is None:
-            rep.add(sid, name, fr.start, "incomplete", f"shard {k} (frames {fr.start}-{fr.stop - 1}) not written "
-                                                       f"(half-written dataset: rerun the writer to resume)")
-            continue
-        if "meta_sha256" in rec and rec["meta_sha256"] != digest:
-            changed += 1
-            continue
-        if "dtype" in rec and rec["dtype"] != str(vdt):
-            rep.add(sid, name, fr.start, "dtype", f"shard {k}: values written as {rec['dtype']}, zarr.json says {vdt}")
-            continue
-        r0, r1 = int(off[fr.start]), int(off[fr.stop])
-        if [r0, r1] != list(rec.get("rows", [])) or len(dec) or r1 > vshape[0]:
-            rep.add(sid, name, fr.start, "offsets", f"shard {k}: offsets give rows {r0}..{r1}, "
-                                                    f"record says {rec.get('rows')}")
-            continue
-        h = hashlib.sha256()
-        finite = True
-        try:
-            for v in rows.read(r0, r1):
-                h.update(v)
-                rep.bytes_decoded += v.nbytes
-                if finite and v.dtype.kind == "f" and not np.isfinite(v).all():
-                    finite = False
-        except Exception as err:  # noqa: BLE001
-            why = f": {err}" if isinstance(err, ValueError) else ""
-            rep.add(sid, name, fr.start, "decode", f"shard {k} values cannot be decoded ({err.__class__.__name__}{why})")
-            continue
-        h.update(np.ascontiguousarray(off[fr.start:fr.stop + 1], dtype="<i8").tobytes())   # writer.ragged_digest
-        if h.hexdigest() != rec.get("sha256"):
-            rep.add(sid, name, fr.start, "checksum", f"shard {k}: sha256 mismatch (corrupted values)")
-        if not finite:
-            rep.add(sid, name, fr.start, "ragged", f"shard {k}: values hold NaN/inf")
-    if changed:
-        _metadata_line(rep, sid, name, changed)
 
 
 def format_report(report: dict) -> str:

@@ -9,10 +9,10 @@ summary is read linearly; a file that ends early is read up to its last complete
 ``truncated``. Channels whose schema id is 0 or unknown count as ``schema: None`` (undecodable).
 
 Sizes the file declares are checked before they are read or decompressed (:mod:`.sizes`):
-:func:`check_mcap` checks every chunk's declared uncompressed size against its compressed bytes
+:func:`.containers.check_mcap` checks every chunk's declared uncompressed size against its compressed bytes
 when a file is opened (RecordingError naming the file), the library reads through a
-:class:`.sizes.BoundedFile`, and chunks are decompressed here, in bounded steps
-(:func:`.sizes.inflate`), not by the library.
+:class:`.sizes.BoundedFile`, and chunks are decompressed by holodata, in bounded steps
+(:func:`.containers._inflated`, :func:`.sizes.inflate`), not by the library.
 """
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ from pathlib import Path
 
 from ..errors import RecordingError, one_line
 from .base import MCAP_MAGIC, MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
-from .sizes import BoundedFile, declared_size, inflate, inflated_room, open_bounded
+from .containers import _inflated, _read_chunk, check_mcap, read_message
+from .sizes import BoundedFile, declared_size, inflate, open_bounded
 
 _SCHEMA_FMT = {"ros2msg": "msg", "ros2idl": "idl", "ros1msg": "msg"}
 
@@ -203,12 +204,9 @@ class McapMessageTable:
             why = self._damaged(fd, ck)
             if why:
                 raise DecodeError(f"{why}; message at byte {off} dropped")
-            data = os.pread(fd, size, off)
+            return read_message(fd, off, size)
         finally:
             os.close(fd)
-        if len(data) != size:
-            raise ValueError(f"message at byte {off} is cut short")
-        return data
 
 
 def check_magic(fh, path) -> None:
@@ -219,122 +217,6 @@ def check_magic(fh, path) -> None:
         raise RecordingError(f"{path}: file is empty")
     if head != MCAP_MAGIC:
         raise RecordingError(f"{path}: not an MCAP file (bad magic)")
-
-
-def _chunk_problem(f, path, pos: int, n: int, index=None) -> str | None:
-    """Check the chunk record at byte ``pos`` (``n`` bytes after its opcode and length) of the open
-    bounded file ``f``: RecordingError when the uncompressed size it declares (or its summary chunk
-    ``index`` declares) is more than its compressed bytes can hold; a reason when the record is
-    damaged (its data runs past the record, the index points elsewhere); None when it is sound."""
-    import struct
-
-    where = f"chunk at byte {pos}"
-    if n < 40:
-        return f"{where} is too short for a chunk record ({n} bytes)"
-    f.seek(pos + 9)
-    head = f.read(32)
-    if len(head) < 32:
-        return f"{where} is cut short"
-    _, _, usize, _, clen = struct.unpack("<QQQII", head)
-    if clen > n - 40:
-        return f"{where} declares a {clen}-byte compression name, its record holds {n - 40}"
-    comp = f.read(clen).decode("utf-8", "replace")
-    b = f.read(8)
-    if len(b) < 8:
-        return f"{where} is cut short"
-    (dlen,) = struct.unpack("<Q", b)
-    if dlen > n - 40 - clen:
-        return f"{where} declares {dlen} bytes of data, its record holds {n - 40 - clen}"
-    if comp:
-        declared_size(path, f"{where} ({comp})", usize, inflated_room(dlen),
-                      f"its {dlen} compressed bytes can hold at most")
-    if index is not None:
-        if index.compressed_size != dlen or index.compression != comp:
-            return f"the summary's index of the {where} does not match the chunk"
-        if comp:
-            declared_size(path, f"summary index of the {where} ({comp})", index.uncompressed_size,
-                          inflated_room(dlen), f"its {dlen} compressed bytes can hold at most")
-    return None
-
-
-def check_mcap(path: Path) -> str | None:
-    """Check the sizes an MCAP file declares where a reader (holodata's, the mcap library's,
-    rosbags') would read or reserve them, before any does: every chunk's uncompressed size — the
-    chunk record's and its summary index's — against its compressed bytes (a
-    :class:`RecordingError` naming the file when more than they can hold, :func:`.sizes.declared_size`),
-    and the lengths the records and the summary declare against the bytes the file holds.
-
-    The chunks are those of the summary's chunk indexes, or of a linear walk over the records when
-    the file has no usable summary. Returns None for a sound file; else a one-line reason (records
-    that run past the end of the file, a damaged summary): such a file is read linearly, by
-    :class:`McapRecording`, up to where it breaks, not by rosbags."""
-    import struct
-    from io import BytesIO
-
-    from mcap.data_stream import ReadDataStream
-    from mcap.records import ChunkIndex
-
-    with open_bounded(path) as f:
-        size = f.size
-        if f.read(8) != MCAP_MAGIC:
-            return "not an MCAP file (bad magic)"
-        why = None
-        indexes: list | None = None
-        schemas = False
-        data_end = size
-        if size >= 8 + 37:
-            f.seek(size - 37)
-            foot = f.read(37)
-            if foot[0] == 0x02 and foot[1:9] == struct.pack("<Q", 20) and foot[-8:] == MCAP_MAGIC:
-                data_end = size - 37
-                (start,) = struct.unpack_from("<Q", foot, 9)
-                if start and not 8 <= start <= size - 37:
-                    why = f"summary offset {start} lies outside the file"
-                elif start:
-                    data_end, indexes, pos = start, [], start
-                    while pos < size - 37:
-                        if pos + 9 > size - 37:
-                            why = f"summary record at byte {pos} is cut short"
-                            break
-                        f.seek(pos)
-                        head = f.read(9)
-                        op, n = head[0], struct.unpack_from("<Q", head, 1)[0]
-                        if n > size - 37 - pos - 9:
-                            why = f"summary record at byte {pos} declares {n} bytes, {size - 37 - pos - 9} left"
-                            break
-                        if op == 0x08:
-                            try:
-                                indexes.append(ChunkIndex.read(ReadDataStream(BytesIO(f.read(n)))))
-                            except Exception:  # noqa: BLE001 - a damaged record
-                                why = f"summary chunk index at byte {pos} is damaged"
-                                break
-                        schemas = schemas or op == 0x03
-                        pos += 9 + n
-        if indexes and why is None:
-            for ci in indexes:
-                pos, n = ci.chunk_start_offset, ci.chunk_length - 9
-                if not 8 <= pos <= pos + ci.chunk_length + ci.message_index_length <= data_end or n < 0:
-                    why = f"the summary indexes a chunk at byte {pos} past the end of the file"
-                    break
-                why = _chunk_problem(f, path, pos, n, ci)
-                if why:
-                    break
-            if why is None and schemas:
-                return None              # every reader goes by the summary's chunk indexes
-        # no (usable) summary: readers walk the records from the start (rosbags also without schemas)
-        pos = 8
-        while pos + 9 <= data_end:
-            f.seek(pos)
-            head = f.read(9)
-            op, n = head[0], struct.unpack_from("<Q", head, 1)[0]
-            if n > size - pos - 9:
-                return why or f"record at byte {pos} declares {n} bytes, {size - pos - 9} left in the file"
-            if op == 0x06:
-                why = why or _chunk_problem(f, path, pos, n)
-            elif op == 0x02:
-                break
-            pos += 9 + n
-    return why
 
 
 def ros2_cdr(path: Path) -> bool:
@@ -589,39 +471,6 @@ class McapRecording(Recording):
                 topic, ty, enc = ch
                 if want is None or topic in want:
                     yield RawMessage(topic, ty, msg.log_time, msg.data, enc)
-
-
-def _inflated(path, pos: int, chunk):
-    """``chunk`` (an mcap ``Chunk`` at byte ``pos`` of ``path``) with its records decompressed here,
-    in bounded steps up to the size it declares (:func:`.sizes.inflate`; the mcap library would
-    reserve that size, or the size its zstd frame declares, first): a Chunk with compression ''."""
-    from mcap.records import Chunk
-
-    comp = chunk.compression
-    raw = inflate(path, f"chunk at byte {pos}", comp or "none", chunk.data, chunk.uncompressed_size if comp else None)
-    return Chunk(compression="", data=raw, message_end_time=chunk.message_end_time,
-                 message_start_time=chunk.message_start_time, uncompressed_crc=chunk.uncompressed_crc,
-                 uncompressed_size=len(raw))
-
-
-def _read_chunk(fh, path, pos: int):
-    """The chunk record at byte ``pos`` of the open bounded file ``fh``, decompressed (:func:`_inflated`);
-    ValueError naming ``path`` when there is none or it runs past the end of the file."""
-    import io
-    import struct
-
-    from mcap.data_stream import ReadDataStream
-    from mcap.records import Chunk
-
-    fh.seek(pos)
-    head = fh.read(9)
-    if len(head) < 9 or head[0] != 0x06:
-        raise ValueError(f"{path}: no chunk record at byte {pos}")
-    (n,) = struct.unpack_from("<Q", head, 1)
-    body = fh.read(n)             # bounded: at most what the file holds
-    if len(body) < n:
-        raise ValueError(f"{path}: chunk at byte {pos} runs past the end of the file")
-    return _inflated(path, pos, Chunk.read(ReadDataStream(io.BytesIO(body))))
 
 
 def _salvage_chunk(body: bytes):

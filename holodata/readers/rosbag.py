@@ -10,7 +10,7 @@ which do the same.
 
 Sizes the file declares (record header and data lengths, a chunk's uncompressed size) are checked
 against the bytes the file holds before they are read or decompressed (:mod:`.sizes`): rosbags' ROS 1
-reader is opened only after :func:`ros1_chunk_sizes` walked the records it reads, and its chunks are
+reader is opened only after :func:`.containers.ros1_chunk_sizes` walked the records it reads, and its chunks are
 decompressed in bounded steps up to the size their headers declare; rosbags' MCAP chunks likewise
 (:func:`bound_rosbags_mcap`).
 """
@@ -24,7 +24,8 @@ from pathlib import Path
 
 from ..errors import RecordingError, one_line
 from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
-from .sizes import declared_size, inflate, inflated_room, open_bounded
+from .containers import check_mcap, read_message, ros1_chunk_sizes
+from .sizes import inflate, open_bounded
 
 
 
@@ -240,9 +241,7 @@ class Ros1MessageTable:
                 if start + size <= at + len(b):
                     data = b[start - at:start - at + size]
                 else:
-                    data = os.pread(fd, size, start)
-                if len(data) != size:
-                    raise ValueError(f"message at byte {start} is cut short")
+                    data = read_message(fd, start, size)
                 yield c, log, data, None
         finally:
             os.close(fd)
@@ -295,12 +294,9 @@ class Ros1MessageTable:
         off, size = ref
         fd = os.open(self.path, os.O_RDONLY)
         try:
-            data = os.pread(fd, size, off)
+            return read_message(fd, off, size)
         finally:
             os.close(fd)
-        if len(data) != size:
-            raise ValueError(f"message at byte {off} is cut short")
-        return data
 
 
 # --------------------------------------------------------------------------------------------------
@@ -413,101 +409,7 @@ class Ros1ScanRecording(Recording):
 
 
 # --------------------------------------------------------------------------------------------------
-# declared sizes of ROS 1 bags: what rosbags' Reader.open() and messages() would read
-
-class _Unusable(Exception):
-    """The bag's index cannot be read as declared (rosbags would fail on it too)."""
-
-
-def ros1_chunk_sizes(path: Path) -> dict[int, tuple[str, int | None]] | str:
-    """Walk the records rosbags' ``Reader.open()`` reads — the bag header, the connection and chunk
-    info records at ``index_pos``, every chunk's header and the index data records after it — and
-    check every length they declare against the bytes left in the file, before rosbags reads (and
-    reserves) them. Returns {chunk position: (compression, uncompressed size its header declares or
-    None)}, or a one-line reason when the index cannot be read as declared (the bag is then read by
-    a linear scan). A chunk whose declared uncompressed size its compressed bytes cannot hold is a
-    :class:`RecordingError` (:func:`.sizes.declared_size`)."""
-    import struct
-
-    out: dict[int, tuple[str, int | None]] = {}
-    with open_bounded(path) as f:
-        size = f.size
-
-        def u32(what: str) -> int:
-            b = f.read(4)
-            if len(b) != 4:
-                raise _Unusable(f"{what} at byte {f.tell() - len(b)} cut short")
-            return struct.unpack("<I", b)[0]
-
-        def length(what: str) -> int:
-            at = f.tell()
-            n = u32(what)
-            if n > size - at - 4:
-                raise _Unusable(f"{what} at byte {at} declares {n} bytes, {size - at - 4} left in the file")
-            return n
-
-        def header(what: str) -> dict[bytes, bytes]:
-            b = f.read(length(f"{what} header"))
-            fields, i = {}, 0
-            while i < len(b):
-                if i + 4 > len(b):
-                    raise _Unusable(f"{what} header is damaged")
-                (n,) = struct.unpack_from("<I", b, i)
-                name, eq, value = b[i + 4:i + 4 + n].partition(b"=")
-                if not eq or i + 4 + n > len(b):
-                    raise _Unusable(f"{what} header is damaged")
-                fields[name] = value
-                i += 4 + n
-            return fields
-
-        def uint(fields: dict, name: bytes, fmt: str = "<I") -> int:
-            try:
-                return struct.unpack(fmt, fields[name])[0]
-            except (KeyError, struct.error) as err:
-                raise _Unusable(f"record field {name.decode()!r} missing or damaged") from err
-
-        try:
-            if not f.readline().startswith(b"#ROSBAG V2.0"):
-                return "not a ROS 1 bag v2.0"
-            bag = header("bag header")
-            index_pos, conns, chunks = uint(bag, b"index_pos", "<Q"), uint(bag, b"conn_count"), uint(bag, b"chunk_count")
-            if index_pos == 0 or chunks == 0:
-                return out                  # rosbags reads nothing more (unindexed bags: its own error)
-            if index_pos > size:
-                return f"index position {index_pos} lies past the end of the file ({size} bytes)"
-            f.seek(index_pos)
-            for _ in range(conns):
-                header("connection record")
-                f.seek(length("connection record data"), os.SEEK_CUR)
-            infos = []
-            for _ in range(chunks):
-                h = header("chunk info record")
-                n = uint(h, b"count")
-                length("chunk info record data")
-                b = f.read(8 * n)
-                if len(b) != 8 * n:
-                    raise _Unusable("chunk info record cut short")
-                infos.append((uint(h, b"chunk_pos", "<Q"), len(dict(struct.iter_unpack("<II", b)))))
-            for pos, n_index in infos:
-                if pos >= size:
-                    raise _Unusable(f"chunk position {pos} lies past the end of the file")
-                f.seek(pos)
-                h = header("chunk")
-                comp = h.get(b"compression", b"none").decode("utf-8", "replace")
-                datasize = length("chunk data")
-                usize = uint(h, b"size") if b"size" in h else None
-                if comp != "none" and usize is not None:
-                    declared_size(path, f"chunk at byte {pos}: its {comp} data", usize, inflated_room(datasize),
-                                  f"its {datasize} compressed bytes can hold at most")
-                out[pos] = (comp, usize)
-                f.seek(datasize, os.SEEK_CUR)
-                for _ in range(n_index):
-                    header("index data record")
-                    f.seek(length("index data record data"), os.SEEK_CUR)
-        except _Unusable as err:
-            return str(err)
-    return out
-
+# rosbags' decompressors bounded (the sizes they declare are walked first: :mod:`.containers`)
 
 def _bounded_chunks(path: Path, reader, sizes: dict[int, tuple[str, int | None]]) -> None:
     """rosbags decompresses a chunk in full (``bz2.decompress``, ``lz4.frame.decompress``): give each
@@ -528,7 +430,7 @@ def bound_rosbags_mcap() -> None:
     """rosbags' MCAP storage decompresses each chunk in full before it compares the size (its
     ``DECOMPRESSORS`` table, called with the chunk's declared uncompressed size): swap in
     :func:`.sizes.inflate`, which stops there. The sizes were checked against the chunks' bytes
-    first (:func:`.mcap_file.check_mcap`)."""
+    first (:func:`.containers.check_mcap`)."""
     global _ROSBAGS_MCAP_BOUNDED
     if _ROSBAGS_MCAP_BOUNDED:
         return
@@ -574,8 +476,6 @@ def open_rosbag1(path: Path, msg_dir: Path | None = None) -> Recording:
 def open_rosbag2(path: Path, msg_dir: Path | None = None) -> Recording:
     """rosbag2 folder with metadata.yaml, or a bare ``.db3`` / ROS 2 ``.mcap`` storage file."""
     from rosbags.rosbag2 import Reader
-
-    from .mcap_file import check_mcap
 
     path = Path(path)
     files = _storage_files(path)
