@@ -8,7 +8,16 @@ imports). Relative imports are resolved against the importing module's package; 
 name`` is an edge to ``pkg.name`` when that is a module, else to ``pkg``; ``import a.b`` is an edge to
 ``a.b``. A module's own parent packages are left out: importing ``holodata.x.y`` runs
 ``holodata/__init__.py`` and ``holodata/x/__init__.py`` first whoever imports it, so counting those
-would make every package ``__init__`` that re-exports its modules a cycle.
+would make every package ``__init__`` that re-exports its modules a cycle. Except where the module
+imports a *name* from one of them (``from holodata.x import f`` or ``from . import f`` in
+``holodata/x/y.py``, not a submodule): then it needs that package's code, which its ``__init__``
+usually re-exports from the module's siblings or from the module itself, so that is an edge like any
+other (issue 25: three such lazy imports hid the cycles ``synth`` <-> ``synth.data_pass``,
+``mapping.slam`` <-> ``mapping.slam.localise`` and ``mapping.register`` <-> ``mapping.register.steps``).
+:func:`parent_package_imports` lists every import of a module's own (direct) parent package,
+which :func:`test_no_module_imports_its_own_parent_package` forbids outright, cycle or not: a package
+face holds no code of its own (:func:`test_package_faces_hold_no_code`), so what a module wants from
+it lives in a sibling module, to be imported from there.
 
 A strongly connected component of more than one module is a cycle; the test fails naming each, with
 one concrete loop through it (edges marked ``[function]`` / ``[TYPE_CHECKING]`` when that is how the
@@ -78,9 +87,59 @@ def import_graph(root: Path = ROOT) -> dict[str, dict[str, str]]:
                 continue
             how = "TYPE_CHECKING" if id(n) in typing_only else "function" if id(n) in in_function else "module"
             for t in targets:
-                if t in mods and t != m and not m.startswith(t + "."):
+                # a parent package counts when a name is imported from it (``plain``: its code), not when
+                # it is only run first (``import holodata.x.y``, ``from holodata.x import y`` of a module)
+                parent_code = isinstance(n, ast.ImportFrom) and t == base and bool(plain)
+                if t in mods and t != m and (parent_code or not m.startswith(t + ".")):
                     edges[m].setdefault(t, how)
     return edges
+
+
+def parent_package_imports(root: Path = ROOT) -> list[str]:
+    """``"module:line [how]: statement"`` for every import of a module's own parent package, at
+    module level, in a function or under ``TYPE_CHECKING``: a name from it (``from . import f``,
+    ``from holodata.x import f`` in ``holodata/x/y.py``) or the package itself (``import holodata.x``,
+    ``from holodata import x``). A package's ``__init__`` is the module of the package itself: its
+    parent is the package above."""
+    mods = modules(root)
+    out = []
+    for m, p in mods.items():
+        if "." not in m:
+            continue
+        parent = m.rsplit(".", 1)[0]
+        pkg = m.split(".") if p.name == "__init__.py" else m.split(".")[:-1]
+        tree = ast.parse(p.read_text(), filename=str(p))
+        typing_only, in_function = _typing_only(tree), _in_function(tree)
+        for n in ast.walk(tree):
+            if isinstance(n, ast.ImportFrom):
+                prefix = pkg[:len(pkg) - n.level + 1] if n.level else []
+                base = ".".join(prefix + ([n.module] if n.module else []))
+                hit = any(f"{base}.{a.name}" == parent or (base == parent and f"{base}.{a.name}" not in mods)
+                          for a in n.names)
+            elif isinstance(n, ast.Import):
+                hit = any(a.name == parent for a in n.names)
+            else:
+                continue
+            if hit:
+                how = "TYPE_CHECKING" if id(n) in typing_only else "function" if id(n) in in_function else "module"
+                out.append(f"{m}:{n.lineno} [{how}]: {ast.unparse(n)}")
+    return out
+
+
+# Package faces (``__init__.py``) that still hold code, and why. Every other face holds only its
+# docstring, imports, ``__all__`` and constants (test_package_faces_hold_no_code).
+FACES_WITH_CODE = {
+    # PEP 562 face: subpackages imported on first attribute access, ``open_dataset`` without importing
+    # the dataset stack, so that ``import holodata`` stays fast
+    "holodata/__init__.py",
+    # ``open_dataset``'s mode switch ("r" reader / "r+" writer) and lazy trampolines to .info and
+    # .validate, which keep ``import holodata.dataset`` from importing validate's dependencies
+    "holodata/dataset/__init__.py",
+    # ``evaluate``: a lazy trampoline to .pipeline, so ``import holodata.evaluate`` imports no torch
+    "holodata/evaluate/__init__.py",
+    # the pretrained-weights package: its code (resolve, scores, install) beside its weights/ folder
+    "holodata/torch/pretrained/__init__.py",
+}
 
 
 def cycles(edges) -> list[frozenset]:
@@ -181,3 +240,80 @@ def test_no_import_cycle_in_holodata():
     assert "holodata.radar.beamform" in g and "holodata.evaluate.pipeline" in g     # the walk saw the package
     found = cycles(g)
     assert not found, "import cycle(s) in holodata/:\n" + "\n".join(describe(g, c) for c in found)
+
+
+def test_import_graph_counts_names_imported_from_a_parent_package(tmp_path):
+    pkg = tmp_path / "holodata"
+    (pkg / "sub").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("VERSION = '1'\n")
+    (pkg / "sub" / "__init__.py").write_text("from .core import run\nfrom .leaf import thing\n")
+    (pkg / "sub" / "core.py").write_text("def run():\n    from . import thing\n    from .. import VERSION\n")
+    (pkg / "sub" / "leaf.py").write_text("import holodata.sub\nfrom holodata import sub\nthing = 1\n")
+    g = import_graph(pkg)
+    assert g["holodata.sub.core"] == {"holodata.sub": "function", "holodata": "function"}
+    assert g["holodata.sub.leaf"] == {}      # the package only run first (or bound), no name taken from it
+    assert cycles(g) == [frozenset({"holodata.sub", "holodata.sub.core"})]
+    assert describe(g, cycles(g)[0]) == ("2 modules ['holodata.sub', 'holodata.sub.core']: "
+                                         "holodata.sub -> holodata.sub.core -> holodata.sub [function]")
+    assert parent_package_imports(pkg) == [
+        "holodata.sub.core:2 [function]: from . import thing",
+        "holodata.sub.leaf:1 [module]: import holodata.sub",
+        "holodata.sub.leaf:2 [module]: from holodata import sub",
+    ]                                         # ``from .. import VERSION``: the grandparent, a graph edge only
+
+
+def test_no_module_imports_its_own_parent_package():
+    found = parent_package_imports()
+    assert not found, ("module(s) importing their own parent package (import from the sibling module that "
+                       "holds the code instead):\n" + "\n".join(found))
+
+
+def _face_code(path: Path) -> list[str]:
+    """What a package ``__init__`` holds besides its docstring, imports, ``__all__`` and constants
+    (names bound to a literal: ``ast.literal_eval`` reads it): ``"line: statement"`` each."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    out = []
+    for i, stmt in enumerate(tree.body):
+        if i == 0 and isinstance(stmt, ast.Expr) and isinstance(stmt.value, ast.Constant) \
+                and isinstance(stmt.value.value, str):
+            continue
+        if isinstance(stmt, (ast.Import, ast.ImportFrom)):
+            continue
+        if isinstance(stmt, (ast.Assign, ast.AnnAssign)) and stmt.value is not None:
+            names = stmt.targets if isinstance(stmt, ast.Assign) else [stmt.target]
+            if all(isinstance(t, ast.Name) for t in names):
+                try:
+                    ast.literal_eval(stmt.value)
+                    continue
+                except ValueError:
+                    pass
+        out.append(f"{stmt.lineno}: {ast.unparse(stmt).splitlines()[0][:80]}")
+    return out
+
+
+def test_face_code_finder(tmp_path):
+    f = tmp_path / "__init__.py"
+    f.write_text('"""Doc."""\nfrom __future__ import annotations\nimport os\nfrom .a import b as b\n'
+                 'X = (1, "a")\nY: dict = {"k": [1.0, None]}\n__all__ = ["b", "X"]\n')
+    assert _face_code(f) == []
+    f.write_text('"""Doc."""\nZ = {t: 1 for t in "ab"}\ndef f():\n    pass\nclass C:\n    pass\n'
+                 'for _x in ():\n    pass\n"""not the docstring"""\n')
+    assert _face_code(f) == ["2: Z = {t: 1 for t in 'ab'}", "3: def f():", "5: class C:", "7: for _x in ():",
+                             "9: 'not the docstring'"]
+
+
+def test_package_faces_hold_no_code():
+    """Every ``__init__.py`` under holodata/ is its package's face: the docstring (the package's
+    documentation), imports from its modules, ``__all__`` and constants; the code lives in named
+    modules (issue 25: register, segment, ingest, slam, synth and readers held their stage code
+    there). The few faces that still hold code are :data:`FACES_WITH_CODE`, each with its reason; one
+    that no longer does leaves that list."""
+    faces = {p.relative_to(ROOT.parent).as_posix(): p for p in sorted(ROOT.rglob("__init__.py"))}
+    assert "holodata/mapping/register/__init__.py" in faces
+    assert FACES_WITH_CODE <= set(faces), f"allowed faces that are gone: {sorted(FACES_WITH_CODE - set(faces))}"
+    code = {name: _face_code(p) for name, p in faces.items()}
+    bad = {name: c for name, c in code.items() if c and name not in FACES_WITH_CODE}
+    assert not bad, "package __init__.py holding code (move it into a named module of the package):\n" + \
+        "\n".join(f"{name}: {'; '.join(c)}" for name, c in bad.items())
+    stale = sorted(name for name in FACES_WITH_CODE if not code[name])
+    assert not stale, f"faces in FACES_WITH_CODE that hold no code any more (remove them from it): {stale}"

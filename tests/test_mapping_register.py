@@ -715,7 +715,7 @@ def test_register_process_killed_is_a_one_line_error(tmp_path, monkeypatch):
     from holodata.mapping import register as R
 
     url, _, _ = _copy_small_corner(tmp_path)
-    monkeypatch.setattr(R, "lidar_map", _killed)
+    monkeypatch.setattr("holodata.mapping.register.lidar_side.lidar_map", _killed)   # where lidar_half forks it
     from holodata.parallel import WorkerError
 
     with pytest.raises(WorkerError, match="LiDAR map: its worker process died .*--processes 1"):

@@ -192,7 +192,7 @@ def test_an_error_of_register_before_its_outputs_leaves_no_mark(data_and_map, tm
     _, src = data_and_map
     url = str(tmp_path / "ds.zarr")
     shutil.copytree(src, url)
-    monkeypatch.setattr(R, "register_extrinsic", boom)
+    monkeypatch.setattr("holodata.mapping.register.pipeline.register_extrinsic", boom)   # where register_scene calls it
     with pytest.raises(ZeroDivisionError):
         R.register_scene(url, "c", cfg=R.RegisterConfig(processes=1), quiet=True)
     assert open_dataset(url).scene("c").unfinished == {}

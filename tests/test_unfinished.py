@@ -177,7 +177,7 @@ def test_slam_killed_at_every_write(tiny_recording, tmp_path, monkeypatch):
     runs once and is replayed: the sweep checks what slam commits and how its rerun resumes."""
     import copy
 
-    import holodata.mapping.slam as slam
+    import holodata.mapping.slam.pipeline as slam   # where slam_scene's steps are looked up
     from holodata.ingest import ingest
     from holodata.mapping.slam import slam_scene
 

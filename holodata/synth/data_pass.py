@@ -14,6 +14,7 @@ from . import truth as truthio
 from .camera import T_LINK_OPTICAL
 from .lidar import ouster_metadata
 from .radar import encode_heatmap
+from .result import SynthResult
 from .scene import (
     CAMERA_START_S,
     FRAME_BASE,
@@ -29,6 +30,7 @@ from .scene import (
     drop_medians,
     _trans,
 )
+from .topics import RAW_TOPIC, STEREO_TOPICS, TOPICS
 from .worlds import CLASS_ID
 
 
@@ -62,7 +64,6 @@ def _schedule(sc: Scenario) -> list[tuple[int, int, str, int, int]]:
 
 def write_recording(sc: Scenario, out_dir: Path, fmt: str, quiet: bool = False):
     from ..messages import RADAR_RAW_TYPE as RAW_TYPE
-    from . import RAW_TOPIC, STEREO_TOPICS, TOPICS, SynthResult
     from .recording import BagWriter, recording_path
 
     out_dir = Path(out_dir)

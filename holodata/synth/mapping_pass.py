@@ -25,6 +25,7 @@ from .scene import (
     counting_put,
     _rng,
 )
+from .topics import MAPPING_TOPICS
 from .worlds import World
 
 # ---------------------------------------------------------------------------------- mapping pass
@@ -102,8 +103,6 @@ def write_mapping_recording(sc: Scenario, mp: MappingPass, out_dir: Path, fmt: s
     out_dir = Path(out_dir)
     sensors = Sensors(sc)
     rec = recording_path(out_dir, fmt, name="mapping")
-    from . import MAPPING_TOPICS
-
     topics = dict(MAPPING_TOPICS)
     counts = {t: 0 for t in topics}
     t_end = int(mp.truth.timestamp_ns[-1])

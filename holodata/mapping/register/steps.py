@@ -1,4 +1,4 @@
-"""The named steps :func:`~holodata.mapping.register.register_scene` runs (module doc of
+"""The named steps :func:`~holodata.mapping.register.pipeline.register_scene` runs (module doc of
 :mod:`holodata.mapping.register`): the stored report of a scene done before, the initial guess, the
 static camera cloud (step 1), the failure message of the extrinsic's check (step 3), the human
 candidates, picks and track (step 4), the closed surfaces (step 5) and the writes. Each gets what it
@@ -17,6 +17,7 @@ from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_nois
                      static_depth)
 from .config import RegisterConfig, Registration
 from .humans import body_columns, closed_surface, column_centroid, pick_human, silhouette_cut, static_residual
+from .scene_inputs import camera_tf_guess, map_frame_problem
 from .tracks import (cut_prediction, radial_speed, side_back, track_jumps, track_prediction, track_smooth,
                      velocity_shift)
 
@@ -30,8 +31,6 @@ def initial_guess(scene, url: str, T_init: np.ndarray | None) -> tuple[np.ndarra
     """(T_world_camera guess (4,4), its source "--init" or "tf"): ``T_init`` when given, else the
     camera's TF pose in the map's world frame. InputError (one line) without one, or when the TF
     world is not the frame the LiDAR map is in."""
-    from . import camera_tf_guess, map_frame_problem
-
     if T_init is not None:
         return T_init, "--init"
     world, tf = camera_tf_guess(scene)

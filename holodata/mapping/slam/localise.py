@@ -12,6 +12,7 @@ from ...errors import DatasetError, InputError
 from ...geometry.voxels import first_per_voxel
 from .config import SlamConfig, SlamResult
 from .odometry import KissStream, _Fixed
+from .pipeline import _export, run_slam
 from .points import _o3d_cloud
 from .refine import VoxelMap, _TargetCache, icp, refine
 from .scans import _import_in_background, data_max_range, load_scans
@@ -84,7 +85,6 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     from ...dataset import open_dataset
     from ...parallel import release_free_memory
     from ..mesh import MeshConfig
-    from . import _export, slam_scene
 
     t_all = time.perf_counter()
     mesh_config = mesh_config or MeshConfig()
@@ -92,8 +92,8 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     timings: dict = {}
     t0 = time.perf_counter()
     # (seeded by its odometry/TF where it has them: a mapping pass is often throttled to a few scans a second)
-    mres = slam_scene(dataset_url, map_scene, config=replace(config, seed_poses="tf"), mesh_config=mesh_config,
-                      quiet=quiet, write=write, force=force)
+    mres = run_slam(dataset_url, map_scene, config=replace(config, seed_poses="tf"), mesh_config=mesh_config,
+                    quiet=quiet, write=write, force=force)
     timings["map_scene_s"] = time.perf_counter() - t0
     ds = open_dataset(dataset_url)
     mscene, scene = ds.scene(map_scene), ds.scene(scene_id)
