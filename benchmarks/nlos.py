@@ -43,7 +43,7 @@ ROWS = ("model", "model_no_refine", "model_analytic", "baseline", "oracle_stage1
 
 
 def _f(v, scale=1.0, w=6, nd=1):
-    return " " * (w - 1) + "–" if v is None else f"{v * scale:{w}.{nd}f}"
+    return " " * (w - 1) + "–" if v is None or v != v else f"{v * scale:{w}.{nd}f}"
 
 
 def print_point(n: int, steps: int, doc: dict) -> None:
@@ -52,7 +52,7 @@ def print_point(n: int, steps: int, doc: dict) -> None:
     print(f"\n{n} training corners ({steps} steps), {doc['n_frames']} held-out frames; stage two: "
           f"{doc['settings'].get('stage2')}")
     print("  row               b1 med / p90 cm   b2 med / p90 cm   b3 med / p90 cm    LOS CD cm / F %   "
-          "NLOS CD cm / F %   human F % all / hidden")
+          "NLOS CD cm / F %   human (50 cm) all: P / R / F %, loc med cm | hidden: P / R / F %, loc med cm")
     for m in ROWS:
         if m not in M:
             continue
@@ -60,8 +60,9 @@ def print_point(n: int, steps: int, doc: dict) -> None:
         rng = "  ".join(_f(r[f"bounce_{b}"]["median_cm"]) + " " + _f(r[f"bounce_{b}"]["p90_cm"]) + "    "
                         for b in (1, 2, 3))
         print(f"  {m:<16}{rng}  {_f(p['los']['cd'], 100)} {_f(p['los']['f_score'], 100)}    "
-              f"{_f(p['nlos']['cd'], 100)} {_f(p['nlos']['f_score'], 100)}    {_f(M[m]['human']['f_score'], 100)} "
-              f"{_f(M[m]['human_hidden']['f_score'], 100)}")
+              f"{_f(p['nlos']['cd'], 100)} {_f(p['nlos']['f_score'], 100)}    " + " |".join(
+                  " ".join(_f(x.get(k), 100) for k in ("precision", "recall", "f_score")) + " " + _f(x.get("loc_median_cm"))
+                  for x in (M[m]["human"], M[m].get("human_hidden") or {})))
 
 
 def floors(doc: dict) -> list[str]:

@@ -72,11 +72,19 @@ class Predictor:
     def transforms(self):
         """(model transform, baseline transform): the run's strides and range pooling, and the same
         strides without pooling (what the scores and the baseline read)."""
-        from holodata.torch.data import SampleTransform
+        from dataclasses import replace
 
-        tf = self.checkpoint.get("transform") or {}
-        f, pool = int(tf.get("downsample", 1)), int(tf.get("range_pool", 1))
-        return SampleTransform(downsample=f, range_pool=pool), SampleTransform(downsample=f, range_pool=1)
+        from holodata.torch.checkpoint import inference_transform
+
+        tf = inference_transform(self.checkpoint)[0]
+        return tf, replace(tf, range_pool=1)
+
+    @property
+    def window(self) -> int | None:
+        """The azimuth crop width stage one was trained on (None: whole rings)."""
+        from holodata.torch.checkpoint import inference_transform
+
+        return inference_transform(self.checkpoint)[1]
 
     def ranges(self, heatmaps: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Stage one on linear heatmaps (n_range, H, W) each → (range (B,3,H',W') m NaN = none,
@@ -92,7 +100,7 @@ class Predictor:
         z = np.zeros((3,) + heatmaps[0].shape[1:], np.float32)
         x = np.stack([norm(apply_transform(hm, z, z.astype(np.uint8), model_tf)[0]) for hm in heatmaps])
         with torch.no_grad():
-            pred = self.model.predict(torch.from_numpy(x).to(self.device), estimator=self.estimator)
+            pred = self.model.predict(torch.from_numpy(x).to(self.device), estimator=self.estimator, window=self.window)
         from holodata.torch.stage2_infer import apply_gate
 
         rng = pred["range"].float().cpu().numpy()

@@ -28,3 +28,15 @@ def load_checkpoint(path) -> dict:
     if not p.exists():
         raise InputError(f"{p}: no such checkpoint")
     return load_torch(p, "checkpoint")
+
+
+def inference_transform(ck: dict):
+    """(SampleTransform, window) stage one is run with on whole frames: the run's strides and range
+    pooling (no crop, no augmentation), and the azimuth crop width it was trained on (None: whole
+    rings), which :meth:`holodata.torch.model.MultiReturnUNet.ring_forward` tiles the ring with."""
+    from .data import SampleTransform
+
+    tf = ck.get("transform") or {}
+    crop = tf.get("crop_w")
+    return (SampleTransform(downsample=int(tf.get("downsample", 1)), range_pool=int(tf.get("range_pool", 1))),
+            int(crop) if crop else None)

@@ -132,8 +132,32 @@ class MultiReturnUNet(nn.Module):
         rng = self.cfg.max_range * torch.sigmoid(outs[:, :, 0])
         return {"range": rng, "valid_logit": outs[:, :, -2], "human_logit": outs[:, :, -1]}
 
+    def ring_forward(self, x: torch.Tensor, window: int | None = None) -> dict:
+        """:meth:`forward` on whole azimuth rings (B, N_r, H, W) by a model trained on ``window``-column
+        azimuth crops: the ring is cut into windows of that width every ``window // 2`` columns,
+        wrapping around (the ring has no edge), all run as one batch, and each output column is
+        taken from the window it sits in the middle half of. So every column is predicted with
+        at least ``window // 4`` real columns either side, as in training, and the convolutions'
+        padding and the per-window group-norm statistics are those of the crops the model learnt
+        on. ``window`` None, or one that does not tile the ring: the plain forward."""
+        W = x.shape[-1]
+        if not window or window >= W or W % (window // 2) or window % 4:
+            return self.forward(x)
+        step, q = window // 2, window // 4
+        starts = torch.arange(0, W, step, device=x.device) - q                   # (n,) window starts
+        cols = (starts[:, None] + torch.arange(window, device=x.device)) % W     # (n, window)
+        B, n = x.shape[0], len(starts)
+        xs = x[..., cols].permute(0, 3, 1, 2, 4).reshape(B * n, *x.shape[1:3], window)
+        out = self.forward(xs)
+        res = {}
+        for k, v in out.items():   # keep columns q .. q+step of each window: they tile the ring in order
+            v = v[..., q:q + step].reshape(B, n, *v.shape[1:-1], step)
+            res[k] = torch.movedim(v, 1, -2).reshape(B, *v.shape[2:-1], n * step)
+        return res
+
     @torch.no_grad()
-    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str | None = None) -> dict:
+    def predict(self, x: torch.Tensor, valid_threshold: float = 0.5, estimator: str | None = None,
+                window: int | None = None) -> dict:
         """Inference: range with NaN where P(return) < threshold; human probability.
 
         With the soft-argmax head, ``estimator`` picks the point estimate of each beam's range-bin
@@ -143,9 +167,10 @@ class MultiReturnUNet(nn.Module):
         sharpest where the model is confident, but a wrong peak where it is not).
 
         ``confidence`` (B,3,H,W), with the soft-argmax head: :func:`mode_confidence` (what stage two's
-        gate reads, :func:`holodata.torch.stage2_infer.apply_gate`)."""
+        gate reads, :func:`holodata.torch.stage2_infer.apply_gate`). ``window``: the azimuth crop
+        width the model was trained on (:meth:`ring_forward`)."""
         estimator = estimator or self.cfg.estimator
-        out = self.forward(x)
+        out = self.ring_forward(x, window)
         rng = out["range"]
         if "bin_logits" in out and estimator == "median":
             p = torch.softmax(out["bin_logits"], dim=2)

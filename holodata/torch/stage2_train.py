@@ -185,13 +185,13 @@ def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", b
     [(scene, k)]; no confidence gate applied (:func:`holodata.torch.model.mode_confidence`)."""
     from holodata.dataset import open_dataset
 
-    from .data import HeatmapNorm, SampleTransform, apply_transform
+    from .checkpoint import inference_transform
+    from .data import HeatmapNorm, apply_transform
     from .train import model_from_checkpoint
 
     model = model_from_checkpoint(ck, device=device)
     norm = HeatmapNorm.from_dict(ck["norm"])
-    tf = ck.get("transform") or {}
-    t = SampleTransform(downsample=int(tf.get("downsample", 1)), range_pool=int(tf.get("range_pool", 1)))
+    t, window = inference_transform(ck)
     ds = open_dataset(str(dataset_url))
     rs, hs, cs = [], [], []
     for i0 in track(range(0, len(keys), batch_size), total=math.ceil(len(keys) / batch_size),
@@ -203,7 +203,7 @@ def stage1_predictions(dataset_url, ck: dict, keys: list, device: str = "cpu", b
             r = np.asarray(sc[GT_RANGE][k], np.float32)
             xs.append(norm(apply_transform(hm, r, np.zeros(r.shape, np.uint8), t)[0]))
         with torch.no_grad():
-            p = model.predict(torch.from_numpy(np.stack(xs)).to(device))
+            p = model.predict(torch.from_numpy(np.stack(xs)).to(device), window=window)
         rs.append(p["range"].float().cpu().numpy())
         hs.append(p["human_prob"].float().cpu().numpy())
         cs.append(p["confidence"].float().cpu().numpy() if "confidence" in p else np.ones_like(rs[-1]))
