@@ -141,3 +141,16 @@ def test_heatmap_encoding_is_checked_by_validate(corpora, tmp_path):
     p.write_text(json.dumps(meta))
     rep = validate_dataset(url)
     assert not rep["ok"] and any("encoding" in p["message"] for p in rep["problems"])
+
+
+@pytest.mark.parametrize("flags, said", [(["--grid", "16x64"], "grid 8x32 (asked: 16x64)"),
+                                         (["--grid", "8x32", "--heatmap-dtype", "float16"],
+                                          "heatmap_dtype uint8 (asked: float16)")])
+def test_a_corpus_of_other_settings_is_one_line(corpora, flags, said):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "holodata.cli.main", "synth", "--corners", "3", "--frames", "2",
+                        "--out", corpora["uint8"], "--quiet", *flags], capture_output=True, text=True)
+    assert r.returncode == 1 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and said in r.stderr, r.stderr

@@ -265,8 +265,15 @@ def synth_corpus(url: str, cfg: CorpusConfig, processes: int = 0, client=None, q
         theirs = None   # no dataset there yet (create_dataset names any other problem)
     diff = [k for k in mine if k not in ("corners", "n_test") and theirs is not None and theirs.get(k) != mine[k]]
     if diff:
-        raise InputError(f"{url}: holds a corpus made with other settings ({', '.join(f'{k} {theirs.get(k)}' for k in diff)}); "
-                         f"choose a new --out")
+        def text(k, v):
+            if k == "grid" and isinstance(v, dict):
+                return f"{v.get('H')}x{v.get('W')}"
+            if k == "range_bins" and isinstance(v, dict):
+                return f"{v.get('n')} x {v.get('dr')} m"
+            return str(v)
+
+        what = ", ".join(f"{k} {text(k, theirs.get(k))} (asked: {text(k, mine[k])})" for k in diff)
+        raise InputError(f"{url}: holds a corpus made with other settings: {what}; choose a new --out")
     try:
         w = create_dataset(url, grid=cfg.grid, range_bins=cfg.range_bins, created_by=CREATED_BY,
                            provenance={"corpus": mine})
