@@ -5,7 +5,7 @@ import json
 
 import click
 
-from holodata.cli.options import dask_options
+from holodata.cli.options import dask_options, json_option, quiet_option
 
 
 @click.command("beamform")
@@ -25,8 +25,8 @@ from holodata.cli.options import dask_options
               help="Platform motion per rotation: what ingest imaged with, from slam's pose/T_world_radar, or at rest.")
 @click.option("--device", default="cpu", show_default=True, help="cpu (numpy/numba) or a torch device such as cuda.")
 @dask_options("one task per shard", "the dataset must be reachable from the workers (shared folder or s3://).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@quiet_option()
+@json_option()
 def beamform(dataset, scenes, fov, n_syn, window, static_removal, focus, motion, device, workers, scheduler, quiet, as_json):
     """Re-image the raw radar samples a scene was ingested with (`holodata ingest --keep-iq`) into
     radar/heatmap, on the dataset's grid, with other imaging parameters or the motion slam measured.

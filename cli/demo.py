@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import click
 
+from holodata.cli.options import json_option, quiet_option
+
 
 @click.command()
 @click.option("--out", "out", type=click.Path(file_okay=False), default="holodata-demo", show_default=True,
@@ -17,8 +19,8 @@ import click
 @click.option("--beamform-focus", "focus", type=click.Choice(["near", "far"]), default=None,
               help="With --radar-output iq: ingest's beamformer focuses every range bin with the exact antenna "
                    "distances (near, the default) or uses PanoRadar's far-field compensation (far).")
-@click.option("--quiet", is_flag=True, help="No progress bars.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@quiet_option("No progress bars.")
+@json_option()
 def demo(out, quick, mapping, radar_output, focus, quiet, as_json) -> None:
     """Synthesise train and test corners as MCAP recordings, ingest them, map them, ray-trace the
     multi-bounce ground truth, validate the dataset, train both stages of the bundled model and

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import click
 
+from holodata.cli.options import json_option, quiet_option
+
 
 @click.command()
 @click.argument("dataset")
@@ -20,8 +22,8 @@ import click
               help="Point estimate of each beam's range-bin distribution (soft-argmax models; auto: the one the "
                    "checkpoint was trained for).")
 @click.option("--screenshot", is_flag=True, help="Also save REPORT/report.png (headless Chromium).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print metrics.json on stdout.")
+@quiet_option()
+@json_option("Print metrics.json on stdout.")
 def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estimator, screenshot, quiet, as_json):
     """Evaluate a trained checkpoint and the strongest-peaks baseline on DATASET's split.
 

@@ -5,6 +5,8 @@ import json
 
 import click
 
+from holodata.cli.options import json_option, quiet_option
+
 
 @click.command("export")
 @click.argument("dataset")
@@ -16,8 +18,8 @@ import click
 @click.option("--split", default=None, help="Only the scenes of this split (train, test, ...).")
 @click.option("--force", is_flag=True,
               help="Replace a scene's folder or file in --out that holodata did not write (never a symlink).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@quiet_option()
+@json_option()
 def export(dataset, fmt, out, scenes, split, force, quiet, as_json):
     """Write scenes of DATASET for other tools: PanoRadar's processed trajectory folders (which
     holodata's own npy reader ingests back) or HDF5 files (holodata's HDF5 reader layout). Each scene

@@ -3,10 +3,12 @@ from __future__ import annotations
 
 import click
 
+from holodata.cli.options import json_option, quiet_option
+
 
 @click.command()
 @click.argument("dataset")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@json_option("Print the summary as JSON on stdout.")
 def info(dataset: str, as_json: bool) -> None:
     """Summarise DATASET: scenes, frames, arrays, sizes, compression, splits.
 
@@ -28,8 +30,8 @@ def info(dataset: str, as_json: bool) -> None:
 
 @click.command()
 @click.argument("dataset")
-@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@json_option("Print the report as JSON on stdout.")
+@quiet_option()
 def validate(dataset: str, as_json: bool, quiet: bool) -> None:
     """Check DATASET (local path or fsspec URL): attributes against the JSON Schemas, arrays and
     shapes implied by the grid, every shard's checksum and decoding, and the value rules (ranges,

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from holodata.cli.options import dask_options
+from holodata.cli.options import dask_options, json_option, quiet_option
 
 
 @click.command()
@@ -41,8 +41,8 @@ from holodata.cli.options import dask_options
               help="Raw radar samples: also store them (radar/iq, ~21 MB per full-size rotation) so that "
                    "`holodata beamform` can re-image them with other parameters.")
 @dask_options("one recording per task", "recordings must be readable at the same paths on the workers.")
-@click.option("--quiet", is_flag=True, help="No progress bar, no warnings.")
-@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
+@quiet_option("No progress bar, no warnings.")
+@json_option("Print the summary as JSON on stdout.")
 def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, tolerance_ms, codec, beamform_grid,
            beamform_fov, beamform_focus, motion, keep_iq, workers, scheduler, quiet, as_json):
     """Read RECORDING(s) — ROS 1 .bag, rosbag2 folder (sqlite3/mcap), .mcap, .db3, Ouster

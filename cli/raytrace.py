@@ -5,7 +5,7 @@ import json
 
 import click
 
-from holodata.cli.options import dask_options
+from holodata.cli.options import config_option, dask_options, json_option, quiet_option
 
 
 @click.command("raytrace-gt")
@@ -22,12 +22,13 @@ from holodata.cli.options import dask_options
                    ".obj/.stl also accepted).")
 @click.option("--out", help="Standalone: output dataset (local path or fsspec URL).")
 @click.option("--scene-id", default="scene", show_default=True, help="Standalone: scene id in the output.")
-@click.option("--grid", default="64x512", show_default=True, help="Standalone: beam grid HxW.")
-@click.option("--elevation-fov", default="-45,45", show_default=True, help="Standalone: elevation range in degrees (min,max).")
-@click.option("--max-bounces", default=3, show_default=True, type=click.IntRange(1, 16))
-@click.option("--max-range", default=9.6, show_default=True, type=click.FloatRange(min=0, min_open=True),
-              help="Metres of accumulated travel distance.")
-@click.option("--backend", type=click.Choice(["open3d", "embreex"]), default="open3d", show_default=True)
+@config_option("--grid", section="gt", field="grid", shown=lambda g: f"{g.H}x{g.W}", help="Standalone: beam grid HxW.")
+@config_option("--elevation-fov", section="gt", field="grid", shown=lambda g: f"{g.elev_min_deg:g},{g.elev_max_deg:g}",
+               help="Standalone: elevation range in degrees (min,max).")
+@config_option("--max-bounces", section="gt", field="max_bounces", type=click.IntRange(1, 16))
+@config_option("--max-range", section="gt", field="max_range", type=click.FloatRange(min=0, min_open=True),
+               help="Metres of accumulated travel distance.")
+@config_option("--backend", section="gt", field="backend", type=click.Choice(["open3d", "embreex"]))
 @click.option("--rotation-radius", default=None, type=click.FloatRange(min=0),
               help="Beam origin on the rotation circle of this radius (m) per column; 0 = rotation centre. Default: the model "
                    "the recording states (docs/format.md §2: the rotation centre).")
@@ -39,12 +40,12 @@ from holodata.cli.options import dask_options
                    "frame stamp is the middle of the rotation (default 2). Standalone: each TUM row's columns span "
                    "1/Hz from its stamp (default: to the next row's stamp); a rotation longer than the rows' spacing "
                    "is an error.")
-@click.option("--codec", type=click.Choice(["lz4", "zstd"]), default="lz4", show_default=True,
-              help="Blosc codec (with shuffle) of the gt arrays: lz4 encodes ~2x faster, zstd files are ~25% smaller.")
+@config_option("--codec", section="gt", field="codec", type=click.Choice(["lz4", "zstd"]),
+               help="Blosc codec (with shuffle) of the gt arrays: lz4 encodes ~2x faster, zstd files are ~25% smaller.")
 @click.option("--shard-frames", default=None, type=click.IntRange(1),
               help="Frames per shard of the gt arrays (default: the dataset's; 32 for a new one).")
-@click.option("--threads", default=0, show_default=True, type=click.IntRange(0),
-              help="Ray-casting threads per process (0 = cores / processes).")
+@config_option("--threads", section="gt", field="nthreads", type=click.IntRange(0),
+               help="Ray-casting threads per process (0 = cores / processes).")
 @click.option("--processes", default=0, show_default=True, type=click.IntRange(0),
               help="Local tracing processes (0 = one per core, max 4, for >= 1000 frames; 1 = in-process).")
 @dask_options("one task per shard",
@@ -56,10 +57,9 @@ from holodata.cli.options import dask_options
 @click.option("--force", is_flag=True,
               help="Dataset form: trace every scene again. Without it, a scene whose GT was traced from other inputs "
                    "(a person registered since, a new mesh or poses, other settings) is traced again, others resume.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-@click.pass_context
-def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
+@quiet_option()
+@json_option()
+def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, grid, elevation_fov, max_bounces,
                 max_range, backend, rotation_radius, column_time, rotation_hz, codec, shard_frames, threads, processes, workers,
                 scheduler, config_file, force, quiet, as_json):
     """Ray-trace multi-bounce ground truth (gt/range, gt/normal, gt/point, gt/label, gt/semantic,
@@ -74,6 +74,9 @@ def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_
     On a Dask cluster, writing to S3 (AWS_* variables in the workers' environment):
       holodata raytrace-gt s3://lab-bucket/data.zarr --scheduler tcp://head:8786
     """
+    from dataclasses import replace
+
+    from holodata.config_file import build
     from holodata.conventions import Grid
     from holodata.dataset.info import plural
     from holodata.groundtruth import OriginModel, raytrace_dataset, raytrace_standalone
@@ -93,23 +96,23 @@ def raytrace_gt(ctx, dataset, scenes, mesh, poses, human, human_dir, out, scene_
             raise click.UsageError("--poses/--human/--human-dir/--out belong to the standalone form (with --mesh)")
     if human is not None and human_dir is not None:
         raise click.UsageError("give either --human or --human-dir, not both")
-    try:
-        g = Grid.parse(grid, elevation_fov)
-    except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="--grid/--elevation-fov") from err
-    origin = None  # the recording's model; any origin flag replaces it (unset ones at the defaults of docs/format.md §2)
+    # GTConfig's defaults, then the --config file's section gt, then the flags given (None: not given)
+    cfg = build("gt", config_file, dict(max_bounces=max_bounces, max_range=max_range, backend=backend,
+                                        shard_frames=shard_frames, nthreads=threads, codec=codec))
+    if (grid, elevation_fov) != (None, None):   # the one given replaces its half of the file's (or default) grid
+        g = cfg.grid
+        try:
+            cfg = replace(cfg, grid=Grid.parse(grid or f"{g.H}x{g.W}",
+                                               elevation_fov or f"{g.elev_min_deg!r},{g.elev_max_deg!r}"))
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--grid/--elevation-fov") from err
     if (rotation_radius, column_time, rotation_hz) != (None, None, None):
-        d = OriginModel()
-        origin = OriginModel(d.rotation_radius if rotation_radius is None else rotation_radius,
-                             d.column_time if column_time is None else column_time,
-                             d.rotation_hz if rotation_hz is None else rotation_hz)
-    from holodata.config_file import build, explicit_flags
-
-    cfg = build("gt", config_file, dict(grid=g, max_bounces=max_bounces, max_range=max_range, backend=backend,
-                                        origin=origin, shard_frames=shard_frames, nthreads=threads, codec=codec),
-                explicit_flags(ctx, {"grid": "grid", "max_bounces": "max_bounces", "max_range": "max_range",
-                                     "backend": "backend", "shard_frames": "shard_frames", "nthreads": "threads",
-                                     "codec": "codec"}))
+        # the origin flags given replace the recording's model: the file's origin, else the defaults of
+        # docs/format.md §2, with the given fields changed
+        d = cfg.origin or OriginModel()
+        cfg = replace(cfg, origin=OriginModel(d.rotation_radius if rotation_radius is None else rotation_radius,
+                                              d.column_time if column_time is None else column_time,
+                                              d.rotation_hz if rotation_hz is None else rotation_hz))
     from holodata.distributed import cluster
 
     with cluster(workers, scheduler) as client:

@@ -7,6 +7,8 @@ import json
 
 import click
 
+from holodata.cli.options import config_option, json_option, quiet_option
+
 
 def _init(value: str | None):
     if value is None:
@@ -27,25 +29,27 @@ def _init(value: str | None):
 @click.option("--init", "init", default=None, metavar="X,Y,Z,ROLL,PITCH,YAW",
               help="Initial guess of T_world_camera (camera points frame, metres and degrees, extrinsic xyz Euler); "
                    "default: the camera's TF pose in the map.")
-@click.option("--no-segment", is_flag=True, help="Skip the LiDAR-grid human segmentation (lidar/instance).")
-@click.option("--camera-world/--no-camera-world", default=False, show_default=True,
-              help="Also write camera/points_world: the whole camera cloud in the map frame, as large as camera/points "
-                   "(holodata.mapping.register.camera_points_world gives it from calib/T_world_camera without the copy).")
+@click.option("--no-segment", is_flag=True, default=None, help="Skip the LiDAR-grid human segmentation (lidar/instance).")
+@config_option("--camera-world/--no-camera-world", section="register", field="write_camera_world",
+               shown=lambda v: "camera-world" if v else "no-camera-world",
+               help="Also write camera/points_world: the whole camera cloud in the map frame, as large as camera/points "
+                    "(holodata.mapping.register.camera_points_world gives it from calib/T_world_camera without the copy).")
 @click.option("--truth", type=click.Path(file_okay=False, exists=True),
               help="A holodata synth truth/ folder: print extrinsic, human centroid and segmentation errors against it.")
 @click.option("--report", type=click.Path(file_okay=False), help="With --truth: folder for register_accuracy.json and a PNG.")
-@click.option("--processes", type=click.IntRange(min=0), default=0, show_default=True,
-              help="Processes (0: two on a machine with two or more CPUs; 1: all in this process).")
-@click.option("--guess-std", "guess_std", type=click.FloatRange(min=0.0), default=5.0, show_default=True, metavar="CM",
-              help="How good the guess (TF pose or --init) is along directions the camera's view does not constrain: "
-                   "the result there is the guess, reported and accepted with this uncertainty (the measured "
-                   "directions must be within 2 cm).")
+@config_option("--processes", section="register", field="processes", type=click.IntRange(min=0),
+               help="Processes (0: two on a machine with two or more CPUs; 1: all in this process).")
+@config_option("--guess-std", "guess_std", section="register", field="guess_std_m", shown=lambda m: f"{m * 100:g}",
+               type=click.FloatRange(min=0.0), metavar="CM",
+               help="How good the guess (TF pose or --init) is along directions the camera's view does not constrain: "
+                    "the result there is the guess, reported and accepted with this uncertainty (the measured "
+                    "directions must be within 2 cm).")
 @click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
               help="YAML/JSON file of stage settings (sections register, segment, ...; examples/holodata.yaml); flags "
                    "given here win.")
 @click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@quiet_option()
+@json_option()
 @click.pass_context
 def register(ctx, dataset, scenes, init, no_segment, camera_world, truth, report, processes, guess_std, config_file, force,
              quiet, as_json) -> None:
@@ -66,17 +70,17 @@ def register(ctx, dataset, scenes, init, no_segment, camera_world, truth, report
       holodata register lab/ds.zarr --scene c2 --json
     """
     from holodata import open_dataset
-    from holodata.config_file import build, explicit_flags, read
+    from holodata.config_file import build, read
     from holodata.mapping.register import RegistrationError, camera_scenes, register_scene
 
     if report and not truth:
         raise click.UsageError("--report needs --truth")
     init = _init(init)
-    flags = {"segment_lidar": "no_segment", "write_camera_world": "camera_world", "processes": "processes",
-             "guess_std_m": "guess_std"}
-    cfg = build("register", config_file, dict(segment_lidar=not no_segment, write_camera_world=camera_world,
-                                              processes=processes, guess_std_m=guess_std / 100.0),
-                explicit_flags(ctx, flags))
+    # RegisterConfig's defaults, then the --config file's section register, then the flags given (None: not
+    # given; --no-segment given is True)
+    cfg = build("register", config_file, dict(segment_lidar=False if no_segment else None,
+                                              write_camera_world=camera_world, processes=processes,
+                                              guess_std_m=None if guess_std is None else guess_std / 100.0))
     seg = build("segment", config_file) if config_file and "segment" in read(config_file) else None
     seg = None if seg is None or seg == type(seg)() else seg     # the defaults: the same fingerprint as without a file
     ids = list(dict.fromkeys(scenes))
@@ -107,7 +111,7 @@ def register(ctx, dataset, scenes, init, no_segment, camera_world, truth, report
             res["accuracy"] = evaluate_register(dataset, res["scene"], truth, report)
         results.append(res)
         if not as_json:
-            _echo(dataset, res, cfg, camera_world, truth, quiet)
+            _echo(dataset, res, cfg, truth, quiet)
     if as_json:
         click.echo(json.dumps(results[0] if len(results) == 1 else {"dataset": dataset, "scenes": results},
                               indent=2, default=str))
@@ -117,7 +121,7 @@ def register(ctx, dataset, scenes, init, no_segment, camera_world, truth, report
         ctx.exit(1)
 
 
-def _echo(dataset: str, res: dict, cfg, camera_world: bool, truth, quiet: bool) -> None:
+def _echo(dataset: str, res: dict, cfg, truth, quiet: bool) -> None:
     """The lines of one registered scene ``res`` (register_scene's summary)."""
     if res.get("skipped"):
         click.echo(f"{dataset}: scene {res['scene']}: {res['skipped']}", err=quiet)
@@ -130,7 +134,7 @@ def _echo(dataset: str, res: dict, cfg, camera_world: bool, truth, quiet: bool) 
                + (f"; held at the guess (+-{cfg.guess_std_m * 100:.1f} cm, not measured): {', '.join(held)}"
                   if held else ""))
     click.echo(f"human in {res['frames_with_human']}/{res['frames']} frames -> human/vertices, human/faces, human/points"
-               f"{', camera/points_world' if camera_world else ''}; {res['seconds']:.1f} s")
+               f"{', camera/points_world' if cfg.write_camera_world else ''}; {res['seconds']:.1f} s")
     if truth:
         a = res["accuracy"]
         e, ea, c = a["extrinsic"], a["extrinsic_aligned"], a["human_centroid"]

@@ -5,22 +5,25 @@ import json
 
 import click
 
+from holodata.cli.options import config_option, json_option, quiet_option
+
 
 @click.command("slam")
 @click.argument("dataset")
 @click.option("--scene", "scenes", multiple=True, help="Scene id (repeatable; default: every scene with LiDAR scans).")
-@click.option("--voxel", default=0.15, show_default=True, type=click.FloatRange(0.02, 2.0),
-              help="kiss-icp voxel size in metres (indoor corridors: 0.1-0.2).")
+@config_option("--voxel", section="slam", field="voxel", type=click.FloatRange(0.02, 2.0),
+               help="kiss-icp voxel size in metres (indoor corridors: 0.1-0.2).")
 @click.option("--max-range", type=click.FloatRange(min=0, min_open=True), default=None,
               help="LiDAR max range in metres (default: from the data).")
-@click.option("--no-refine", is_flag=True, help="Bare kiss-icp poses (no open3d scan-to-map refinement).")
-@click.option("--global-pass", is_flag=True, help="A second refinement pass of every scan against the whole static map "
-              "(slower; mm-level gain on synthetic corners).")
-@click.option("--mesh-method", type=click.Choice(["poisson", "bpa"]), default="poisson", show_default=True,
-              help="Surface reconstruction of the static scene.")
-@click.option("--mesh-voxel", default=0.04, show_default=True, type=click.FloatRange(0.005, 0.5),
-              help="Resolution of the merged (voxel-averaged) static cloud in metres.")
-@click.option("--no-mesh", is_flag=True, help="Poses only.")
+@click.option("--no-refine", is_flag=True, default=None, help="Bare kiss-icp poses (no open3d scan-to-map refinement).")
+@click.option("--global-pass", is_flag=True, default=None,
+              help="A second refinement pass of every scan against the whole static map (slower; mm-level gain on "
+                   "synthetic corners).")
+@config_option("--mesh-method", section="mesh", field="method", type=click.Choice(["poisson", "bpa"]),
+               help="Surface reconstruction of the static scene.")
+@config_option("--mesh-voxel", section="mesh", field="voxel", type=click.FloatRange(0.005, 0.5),
+               help="Resolution of the merged (voxel-averaged) static cloud in metres.")
+@click.option("--no-mesh", is_flag=True, default=None, help="Poses only.")
 @click.option("--ply", type=click.Path(dir_okay=False), help="Also export the mesh as PLY (one scene only).")
 @click.option("--tum", type=click.Path(dir_okay=False), help="Also export the LiDAR trajectory as TUM text (one scene only).")
 @click.option("--truth", type=click.Path(file_okay=False), help="A holodata synth truth/ folder: print ATE/RPE and mesh "
@@ -36,10 +39,9 @@ import click
               help="YAML/JSON file of stage settings (sections slam, mesh, ...; examples/holodata.yaml); flags given "
                    "here win.")
 @click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
-@click.pass_context
-def slam(ctx, dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method, mesh_voxel, no_mesh, ply, tum, truth,
+@quiet_option()
+@json_option()
+def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method, mesh_voxel, no_mesh, ply, tum, truth,
          report, map_scene, config_file, force, quiet, as_json):
     """Estimate the LiDAR pose of every scan (kiss-icp, refined by scan-to-map point-to-plane ICP),
     the radar poses through the extrinsic, and a mesh of the static scene (moving points removed);
@@ -51,7 +53,7 @@ def slam(ctx, dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_me
       holodata slam lab/ds.zarr --scene c1 --map-scene c1_map --ply lab/c1.ply
       holodata slam lab/ds.zarr --scene c1 --truth lab/c1/truth --report lab/slam-report
     """
-    from holodata.config_file import build, explicit_flags
+    from holodata.config_file import build
     from holodata.mapping.slam import slam_dataset
 
     if (ply or tum or truth) and len(scenes) > 1:
@@ -60,12 +62,11 @@ def slam(ctx, dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_me
         raise click.UsageError("--report needs --truth")
     if map_scene is not None and not scenes:
         raise click.UsageError("--map-scene needs --scene (the scenes to localise against it)")
-    flags = {"voxel": "voxel", "max_range": "max_range", "refine": "no_refine", "global_pass": "global_pass",
-             "mesh": "no_mesh"}
-    cfg = build("slam", config_file, dict(voxel=voxel, max_range=max_range, refine=not no_refine,
-                                          global_pass=global_pass, mesh=not no_mesh), explicit_flags(ctx, flags))
-    mcfg = build("mesh", config_file, dict(method=mesh_method, voxel=mesh_voxel),
-                 explicit_flags(ctx, {"method": "mesh_method", "voxel": "mesh_voxel"}))
+    # the dataclasses' defaults, then the --config file's sections slam and mesh, then the flags given (None:
+    # not given; --no-refine / --global-pass / --no-mesh given are True)
+    cfg = build("slam", config_file, dict(voxel=voxel, max_range=max_range, refine=False if no_refine else None,
+                                          global_pass=global_pass, mesh=False if no_mesh else None))
+    mcfg = build("mesh", config_file, dict(method=mesh_method, voxel=mesh_voxel))
     if map_scene is not None and (not cfg.refine or not cfg.mesh):
         raise click.UsageError("--map-scene localises by scan-to-map ICP against the map scene's mesh map: "
                                "no --no-refine / --no-mesh")

@@ -5,6 +5,8 @@ import json
 
 import click
 
+from holodata.cli.options import json_option
+
 
 @click.command("split")
 @click.argument("dataset")
@@ -12,7 +14,7 @@ import click
               help="A data pass held out for evaluation (repeatable).")
 @click.option("--train", "train", multiple=True, metavar="SCENE",
               help="A data pass to train on (repeatable; default: every data pass not in --test).")
-@click.option("--json", "as_json", is_flag=True, help="Print the splits as JSON on stdout.")
+@json_option("Print the splits as JSON on stdout.")
 def split(dataset, test, train, as_json):
     """Set the train and test splits of DATASET. Splits hold data passes (radar recordings) only:
     mapping passes (LiDAR-only scenes, e.g. <ID>_map) are left out. train and evaluate use exactly

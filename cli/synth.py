@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import click
 
-from holodata.cli.options import dask_options
+from holodata.cli.options import dask_options, json_option, quiet_option
 
 
 def _shape(value: str, flag: str) -> tuple[int, int]:
@@ -71,8 +71,8 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
 @dask_options("one recording (with --count) or one corner (with --corners) per task",
               "OUT must be a folder the workers share.")
 @click.option("--force", is_flag=True, help="Replace a recording already in OUT (an interrupted run needs no --force).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@quiet_option()
+@json_option()
 def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_fov, camera, no_human, visible_walkers,
           stereo_images, mapping_pass, mapping_scan_hz, robot_stop_x, radar_output, radar_chirps, corners, n_test, processes,
           heatmap_dtype, count, workers, scheduler, force, quiet, as_json) -> None:

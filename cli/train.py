@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from holodata.cli.options import json_option, quiet_option
+
 
 @click.command()
 @click.argument("dataset")
@@ -33,8 +35,8 @@ import click
 @click.option("--init", "init", default=None,
               help="Fine-tune stage one from this checkpoint (file, run directory, or 'pretrained': the weights holodata "
                    "ships); its training settings are the defaults, flags and --config win.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@quiet_option()
+@json_option()
 def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, range_loss, stage, stage1,
           stage2_file, stage2_epochs, init, quiet, as_json):
     """Train stage one (the multi-return range-image UNet) and stage two (hybrid ray tracer +

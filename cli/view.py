@@ -5,6 +5,8 @@ import json
 
 import click
 
+from holodata.cli.options import json_option
+
 
 @click.command("view")
 @click.argument("dataset")
@@ -27,7 +29,7 @@ import click
 @click.option("--report", type=click.Path(exists=True, file_okay=False), default=None,
               help="An evaluation's --out directory: draw the predicted points of the run it scored.")
 @click.option("--device", default="cpu", show_default=True, help="Torch device for --checkpoint/--report.")
-@click.option("--json", "as_json", is_flag=True, help="Print a JSON summary on stdout.")
+@json_option()
 def view(dataset, scene, frames, save, force, web, port, bind, checkpoint, report, device, as_json):
     """Look at a scene in Rerun: per frame (timeline `time`) the radar heatmap (range-azimuth slice
     at 0° elevation, maximum over range), GT range and label images per bounce, the GT returns

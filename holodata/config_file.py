@@ -10,8 +10,10 @@ The file is a mapping of sections to fields of the stages' config dataclasses::
     train:     {epochs: 30}                         # holodata.torch.TrainConfig
 
 ``examples/holodata.yaml`` is a commented one. Precedence: a flag given on the command line, then
-the file, then the flag's default. Unknown sections or fields are a one-line error naming the
-file. The resolved configs are what the stages record in the scene attributes, as without a file.
+the file, then the dataclass's default (the commands' flags default to None, "not given", and
+:func:`build` takes only the given ones; the dataclass is the one place of every default). Unknown
+sections or fields are a one-line error naming the file. The resolved configs are what the stages
+record in the scene attributes, as without a file.
 """
 from __future__ import annotations
 
@@ -89,27 +91,19 @@ def _convert(cls, values: dict) -> dict:
     return out
 
 
-def build(section: str, path=None, flags: dict | None = None, explicit=()):
-    """The ``section`` config: ``flags`` (the command's values, defaults included) overridden by the
-    file's section, overridden again by the flags in ``explicit`` (given on the command line)."""
+def build(section: str, path=None, flags: dict | None = None):
+    """The ``section`` config: the dataclass's defaults, overridden by the file's section (``path``;
+    None: no file), overridden by the ``flags`` {field: value} that are not None (the flags given on
+    the command line; a flag not given is None)."""
     cls = config_class(section)
-    flags = dict(flags or {})
+    given = {k: v for k, v in (flags or {}).items() if v is not None}
     if path is None:
-        return cls(**flags)
+        return cls(**given)
     body = read(path).get(section, {})
     try:
-        return cls(**{**flags, **_convert(cls, body), **{k: flags[k] for k in explicit if k in flags}})
+        return cls(**{**_convert(cls, body), **given})
     except (TypeError, ValueError) as err:
         raise InputError(f"{path}: section {section!r}: {' '.join(str(err).split())[:160]}") from err
 
 
-def explicit_flags(ctx, mapping: dict) -> set:
-    """Names of ``mapping`` {config field: click parameter name} whose parameter was given on the
-    command line (or in the environment), not left at its default."""
-    from click.core import ParameterSource
-
-    given = (ParameterSource.COMMANDLINE, ParameterSource.ENVIRONMENT)
-    return {f for f, p in mapping.items() if ctx.get_parameter_source(p) in given}
-
-
-__all__ = ["SECTIONS", "read", "build", "explicit_flags", "config_class"]
+__all__ = ["SECTIONS", "read", "build", "config_class"]

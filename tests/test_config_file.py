@@ -27,14 +27,14 @@ def test_the_example_names_every_section_and_holds_the_defaults():
     assert TrainConfig.from_file(EXAMPLE) == TrainConfig()      # train reads its section of the same file
 
 
-def test_a_flag_given_wins_over_the_file_and_the_file_over_the_flag_default(tmp_path):
+def test_a_flag_given_wins_over_the_file_and_the_file_over_the_dataclass_default(tmp_path):
     f = tmp_path / "c.yaml"
     f.write_text("slam: {voxel: 0.3, icp_distances: [0.4, 0.2]}\ngt: {grid: 16x64}\n")
-    flags = {"voxel": 0.15, "refine": True}
-    assert build("slam", f, flags, explicit=set()).voxel == 0.3
-    assert build("slam", f, flags, explicit={"voxel"}).voxel == 0.15
-    assert build("slam", f, flags).icp_distances == (0.4, 0.2)               # YAML list -> the field's tuple
-    assert build("gt", f).grid.W == 64 and build("slam", None, flags).voxel == 0.15
+    assert build("slam", f, {"voxel": None, "refine": None}).voxel == 0.3     # None: the flag was not given
+    assert build("slam", f, {"voxel": 0.2}).voxel == 0.2
+    assert build("slam", f, {"voxel": 0.2}).icp_distances == (0.4, 0.2)      # YAML list -> the field's tuple
+    assert build("gt", f).grid.W == 64 and build("slam", None, {"voxel": 0.2}).voxel == 0.2
+    assert build("slam", None, {"voxel": None}) == build("slam") == config_class("slam")()
     assert {x.name for x in dataclasses.fields(config_class("register"))} >= {"guess_std_m", "max_rmse_m"}
 
 

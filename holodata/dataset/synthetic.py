@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..conventions import Grid, RangeBins
+from ..conventions import DEFAULT_MAX_RANGE_M, Grid, RangeBins
 from .layout import (GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, LIDAR_POINTS, MESH_FACES, MESH_VERTICES,
                      POSE_T_WORLD_RADAR, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
 from .writer import create_dataset
@@ -58,7 +58,7 @@ def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range
                       arrays: list[str] | None = None) -> str:
     """Write a valid dataset with ``scenes`` of ``n_frames`` frames each; returns ``url``."""
     grid = grid or Grid(8, 32)
-    rb = RangeBins(n=n_range, dr=9.6 / n_range)
+    rb = RangeBins(n=n_range, dr=DEFAULT_MAX_RANGE_M / n_range)   # the radar's range, in n_range bins
     w = create_dataset(url, grid=grid, range_bins=rb, created_by="holodata toy dataset",
                        provenance={"generator": "holodata.dataset.synthetic", "seed": seed},
                        shard_frames=shard_frames, codec=codec)

@@ -23,10 +23,11 @@ mean(acc) + mean(comp) (sum, docs/format.md §5).
 
 Coverage (:func:`mesh_coverage`): the share of the true surface *within the radar's multi-bounce
 reach* that the estimated mesh covers — the radar's beams (the recording's grid, up to 3 bounces,
-9.6 m accumulated range) traced from the true radar poses through the true mesh; the hit points
-of every bounce are that surface; covered = within 5 cm of the estimated mesh. The same beams traced
-through the estimated mesh (in the truth's frame, same poses) give the GT NLOS points per frame
-the estimate yields, compared with the true mesh's.
+the radar's maximum range ``conventions.DEFAULT_MAX_RANGE_M`` of accumulated range) traced from the
+true radar poses through the true mesh; the hit points of every bounce are that surface; covered =
+within 5 cm of the estimated mesh. The same beams traced through the estimated mesh (in the truth's
+frame, same poses) give the GT NLOS points per frame the estimate yields, compared with the true
+mesh's.
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..conventions import transform_points
+from ..conventions import DEFAULT_MAX_BOUNCES, DEFAULT_MAX_RANGE_M, transform_points
 from ..errors import InputError
 from ..trajectory import Trajectory, read_tum
 
@@ -218,8 +219,8 @@ def mesh_errors(est_vertices, est_faces, true_vertices, true_faces, sensor_poses
 COVERAGE_TAU = 0.05
 
 
-def radar_reach(vertices, faces, radar_poses: np.ndarray, grid, max_bounces: int = 3, max_range: float = 9.6,
-                max_frames: int = 60) -> dict:
+def radar_reach(vertices, faces, radar_poses: np.ndarray, grid, max_bounces: int = DEFAULT_MAX_BOUNCES,
+                max_range: float = DEFAULT_MAX_RANGE_M, max_frames: int = 60) -> dict:
     """The surface a radar reaches: its beams (``grid``, one origin per frame at the pose's
     translation, the rotation centre) from ``radar_poses`` (T,4,4) T_world_radar traced through the
     mesh with up to ``max_bounces`` specular bounces and accumulated range up to ``max_range`` m
@@ -257,7 +258,8 @@ def radar_reach(vertices, faces, radar_poses: np.ndarray, grid, max_bounces: int
 
 
 def mesh_coverage(est_vertices, est_faces, true_vertices, true_faces, radar_poses: np.ndarray, grid,
-                  tau: float = COVERAGE_TAU, max_bounces: int = 3, max_range: float = 9.6, max_frames: int = 60) -> dict:
+                  tau: float = COVERAGE_TAU, max_bounces: int = DEFAULT_MAX_BOUNCES, max_range: float = DEFAULT_MAX_RANGE_M,
+                  max_frames: int = 60) -> dict:
     """Share of the true surface within the radar's multi-bounce reach that the estimated mesh covers.
 
     "Within reach": the hit points of every bounce of the radar's beams traced from the true
