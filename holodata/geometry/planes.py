@@ -103,7 +103,28 @@ def window_plane_normals(P: np.ndarray, n0: np.ndarray, rows: int = 1, cols: int
     surface is ≫ σ off the plane), the window averages the range noise that makes finite-difference
     normals of a predicted image degrees off. Signs follow ``n0``; NaN where ``n0`` is NaN; a pixel
     with under 4 neighbours of total weight keeps ``n0``. On a noise-free plane the result is exact.
-    Moments are accumulated offset by offset, relative to the pixel's own point."""
+    Moments are accumulated offset by offset, relative to the pixel's own point.
+    Compiled with numba, pixel by pixel (:func:`holodata.geometry._planes_kernel.plane_normals`; the
+    numpy version, :func:`_window_plane_normals_numpy`, is its reference)."""
+    from ._planes_kernel import plane_normals
+
+    P = np.asarray(P, np.float64)
+    n = np.asarray(n0, np.float64)
+    shape = np.broadcast_shapes(P.shape, n.shape)
+    if len(shape) < 3 or shape[-1] != 3:
+        raise ValueError(f"expected point and normal images (...,H,W,3), got {P.shape} and {n.shape}")
+    H, W = shape[-3], shape[-2]
+    Pf = np.ascontiguousarray(np.broadcast_to(P, shape)).reshape(-1, H, W, 3)
+    nf = np.ascontiguousarray(np.broadcast_to(n, shape)).reshape(-1, H, W, 3)
+    out = np.empty(Pf.shape)
+    plane_normals(Pf, nf, int(rows), int(cols), float(sigma), int(iterations), out)
+    return out.reshape(shape)
+
+
+def _window_plane_normals_numpy(P: np.ndarray, n0: np.ndarray, rows: int = 1, cols: int = 4,
+                                sigma: float = 0.03, iterations: int = 3) -> np.ndarray:
+    """:func:`window_plane_normals` in numpy, offset by offset over whole images: the reference its
+    compiled kernel is tested against."""
     P = np.asarray(P, np.float64)
     n = np.asarray(n0, np.float64)
     window = _window(P, rows, cols)
