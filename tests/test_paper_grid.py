@@ -80,3 +80,65 @@ def test_tables_show_the_human_protocol_for_all_and_hidden_frames():
     nums = [float(v) for v in row.split()[1:]]
     np.testing.assert_allclose(nums, [90.0, 97.3, 93.5, 13.8, 12.6, 50.0, 25.0, 33.3, 21.0, 19.5], atol=0.06)
     assert "nan" not in text
+
+
+def test_stage_two_batches_crop_the_beams_but_not_the_los_image():
+    from holodata.torch.stage2_infer import Frames
+    from holodata.torch.stage2_train import Stage2Config, make_batch
+
+    T, H, W, cw = 3, 4, 16, 6
+    col = np.broadcast_to(np.arange(W, dtype=np.float32), (T, 3, H, W)) + 100 * np.arange(T)[:, None, None, None]
+    pts = np.repeat(col[..., None], 3, -1).copy()
+    geo = np.repeat(col[:, 0, ..., None], 3, -1).copy()
+    fr = Frames(range=col.copy(), label=np.zeros((T, 3, H, W), np.uint8), gt_point=pts, gt_normal=pts.copy(),
+                origins=geo, directions=geo.copy(), keys=[("s", k) for k in range(T)])
+    cfg = Stage2Config(crop_w=cw, flip=False, p_clean=1.0)
+    b = make_batch(fr, np.array([2, 0]), cfg, np.random.default_rng(0), "cpu")
+    assert tuple(b["range"].shape) == (2, 3, H, cw) and tuple(b["gt_point"].shape) == (2, 3, H, cw, 3)
+    assert tuple(b["origins"].shape) == (2, H, cw, 3) and tuple(b["los_range"].shape) == (2, H, W)
+    for j, t in enumerate((2, 0)):
+        c = b["range"][j].numpy() - 100 * t                 # the stored column numbers
+        assert np.all((c - c[..., :1]) % W == np.arange(cw))   # one window of consecutive columns, wrapping
+        np.testing.assert_array_equal(b["range_in"][j].numpy(), b["range"][j].numpy())
+        for k in ("gt_point", "gt_normal"):       # the same columns of every array
+            np.testing.assert_array_equal(b[k][j].numpy()[..., 0], b["range"][j].numpy())
+        np.testing.assert_array_equal(b["origins"][j].numpy()[..., 0], b["range"][j].numpy()[0])
+        np.testing.assert_array_equal(b["los_range"][j].numpy(), fr.range[t, 0])
+    full = make_batch(fr, np.array([1]), Stage2Config(flip=False, p_clean=1.0), np.random.default_rng(0), "cpu")
+    assert tuple(full["range"].shape) == (1, 3, H, W)
+
+
+def test_calibrate_human_picks_the_threshold_that_finds_the_person():
+    from types import SimpleNamespace
+
+    from holodata.conventions import Grid, Label
+    from holodata.torch.stage2_infer import Frames, calibrate_human
+
+    H, W = 2, 8
+    rng = np.random.default_rng(0)
+    person = np.array([3.0, 0.0, 0.0]) + rng.normal(0, 0.05, (10, 3))
+    ghost = np.array([0.0, 3.0, 0.0]) + rng.normal(0, 0.05, (10, 3))
+    wall = np.stack([np.full(20, 5.0), np.linspace(-2, 2, 20), np.zeros(20)], 1)
+
+    class FakeStage2:   # the refined cloud of every frame: a faint person, a fainter ghost, a wall
+        keep_threshold, human_threshold = 0.8, 0.5
+
+        def predict(self, R, human, directions, origins, grid, all_voxels=False):
+            P = np.concatenate([person, ghost, wall])
+            score = np.concatenate([np.full(10, 0.3), np.full(10, 0.12), np.full(20, 0.02)])
+            return {"refined": {"point": P, "p_empty": np.zeros(len(P)), "human_score": score}}
+
+    def frames(with_person: bool):
+        gp = np.full((3, 3, H, W, 3), np.nan)
+        lab = np.zeros((3, 3, H, W), np.uint8)
+        if with_person:
+            gp[:, 1, 0, :, :] = person[:W]
+            lab[:, 1, 0, :] = Label.NLOS_HUMAN
+        z = np.zeros((3, H, W, 3), np.float32)
+        return Frames(range=np.full((3, 3, H, W), np.nan, np.float32), label=lab, gt_point=gp, gt_normal=gp.copy(),
+                      origins=z, directions=z.copy(), keys=[("s", k) for k in range(3)])
+
+    got = calibrate_human(FakeStage2(), frames(True), Grid(H, W))
+    assert got["scores"][0.1] == pytest.approx(2 / 3) and got["scores"][0.4] == 0.0
+    assert got["threshold"] == 0.3 and got["scores"][0.3] == 1.0   # the highest of the best
+    assert calibrate_human(FakeStage2(), frames(False), Grid(H, W)) == {"threshold": 0.5, "scores": {}}

@@ -74,12 +74,15 @@ class Stage2:
     ``keep_threshold``: a point is kept when its voxel's P(empty) is below it (calibrated on the
     training frames after training, :func:`calibrate_keep`; 0.5 = the arg-max class); ``min_confidence``
     (per bounce or None): the gate on stage one's returns this stage two was calibrated with
-    (:func:`calibrate_gate`), applied by whoever runs stage one for it (``Predictor.ranges``)."""
+    (:func:`calibrate_gate`), applied by whoever runs stage one for it (``Predictor.ranges``);
+    ``human_threshold``: a point is human when its human score reaches it (calibrated on the
+    training frames after the keep threshold, :func:`calibrate_human`; 0.5 before)."""
 
     def __init__(self, ray_tracer: RayTracer, refiner: VoxelRefiner | None, device="cpu", keep_threshold: float = 0.5,
-                 min_confidence=None):
+                 min_confidence=None, human_threshold: float = 0.5):
         self.rt, self.refiner, self.device = ray_tracer.eval(), (refiner.eval() if refiner is not None else None), device
         self.keep_threshold = float(keep_threshold)
+        self.human_threshold = float(human_threshold)
         self.min_confidence = None if min_confidence is None else [float(c) for c in min_confidence]
 
     @torch.no_grad()
@@ -91,11 +94,13 @@ class Stage2:
 
         The refined cloud is the ray-traced points whose voxel the refiner keeps (P(empty) below
         ``keep_threshold``), each where the ray tracer put it, LOS as its own flag (:func:`los_flags`),
-        human when its voxel is (its points' mean human probability ≥ 0.5, or the refiner classes it
-        human). Why points and not one refined point per voxel (centre + offset, the paper's output):
+        human when its voxel's human score reaches ``human_threshold``: its points' mean stage-one
+        human probability, or 1 where the refiner classes the voxel human (the un-refined cloud:
+        each point's own probability). Why points and not one refined point per voxel (centre + offset, the paper's output):
         the F-score at 10 cm measures what a 10 cm voxel's single point gives away on dense surfaces,
         while the refiner's skill is telling wrong voxels from right ones (docs/design/stage2.md).
-        ``all_voxels``: keep every point and add ``p_empty`` (M,), its voxel's (for :func:`calibrate_keep`)."""
+        ``all_voxels``: keep every point and add ``p_empty`` and ``human_score`` (M,), its voxel's (for
+        :func:`calibrate_keep` and :func:`calibrate_human`)."""
         dev = self.device
         Rt = torch.from_numpy(np.asarray(R, np.float32))[None].to(dev)
         d = torch.from_numpy(np.asarray(directions, np.float32)).to(dev)
@@ -104,13 +109,13 @@ class Stage2:
         P = out["point"][0].cpu().numpy().astype(np.float64)
         los = los_flags(P, np.asarray(R)[0], grid, origins)
         hp = np.zeros(R.shape, np.float32) if human is None else np.asarray(human, np.float32)
-        res = {"no_refine": {"point": P, "los": los, "human": hp >= 0.5}, "refined": None}
+        res = {"no_refine": {"point": P, "los": los, "human": hp >= self.human_threshold}, "refined": None}
         if self.refiner is None:
             return res
         ok = np.isfinite(P).all(-1)
         if not ok.any():
             res["refined"] = {"point": np.zeros((0, 3)), "los": np.zeros(0, bool), "human": np.zeros(0, bool),
-                              "p_empty": np.zeros(0)}
+                              "p_empty": np.zeros(0), "human_score": np.zeros(0)}
             return res
         pts = torch.from_numpy(P[ok]).float().to(dev)
         b = torch.from_numpy(np.nonzero(ok)[0]).to(dev)
@@ -120,11 +125,12 @@ class Stage2:
         ro = self.refiner(vox)
         prob = torch.softmax(ro["cls_logit"], -1)
         p_empty = prob[:, CLASS_EMPTY].cpu().numpy().astype(np.float64)
-        hum = (voxel_point_mean(vox, hf) >= 0.5) | (prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE])
+        score = torch.where(prob[:, CLASS_HUMAN] > prob[:, CLASS_STRUCTURE], 1.0, voxel_point_mean(vox, hf))
+        score = score.cpu().numpy().astype(np.float64)[vox.point_voxel.cpu().numpy()]
         pv = vox.point_voxel.cpu().numpy()
-        ref = {"point": P[ok], "los": los[ok], "human": hum.cpu().numpy()[pv]}
+        ref = {"point": P[ok], "los": los[ok], "human": score >= self.human_threshold}
         if all_voxels:
-            res["refined"] = {**ref, "p_empty": p_empty[pv]}
+            res["refined"] = {**ref, "p_empty": p_empty[pv], "human_score": score}
         else:
             keep = p_empty[pv] < self.keep_threshold
             res["refined"] = {k: v[keep] for k, v in ref.items()}
@@ -132,6 +138,7 @@ class Stage2:
 
 
 KEEP_CANDIDATES = (0.5, 0.6, 0.7, 0.8, 0.9, 0.95, 1.01)
+HUMAN_CANDIDATES = (0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.4, 0.5)
 GATE_CANDIDATES = (0.0, 0.2, 0.35, 0.5, 0.65, 0.8, 1.01)
 
 
@@ -223,6 +230,42 @@ def calibrate_keep(stage2: Stage2, frames: Frames, grid: Grid, tau: float = 0.10
     return {"threshold": max(scores, key=scores.get), "scores": scores}
 
 
+def calibrate_human(stage2: Stage2, frames: Frames, grid: Grid, max_frames: int = CALIBRATION_FRAMES,
+                    candidates=HUMAN_CANDIDATES) -> dict:
+    """The human threshold on the refined cloud's human score (:meth:`Stage2.predict`) that maximises
+    human detection F (the paper's protocol as evaluate scores it: clusters of human points,
+    :func:`holodata.metrics.human_centroids`, matched within 50 cm of the GT person's,
+    :func:`holodata.metrics.human_detection_metrics`) over up to ``max_frames`` evenly spaced
+    training frames, fed stage one's (gated) predictions where ``frames`` holds them, at the keep
+    threshold already calibrated. Why: the per-beam human head is trained with a class weight
+    (holodata.torch.losses), which fixes a pixel's odds, not where clusters of a few dozen returns
+    out of 10⁴-10⁵ are best told apart; a person seen only via walls gets lower probabilities than
+    one in the open. None of the frames holding a person: 0.5 is kept. Returns {"threshold",
+    "scores": {threshold: F}}."""
+    from holodata import metrics as M
+
+    idx = calibration_index(len(frames), max_frames)
+    cache = []
+    for k in idx:
+        gp, lab = frames.gt_point[k].astype(np.float64), frames.label[k]
+        gt = M.human_centroids(gp[np.isfinite(gp).all(-1) & is_human(lab)])
+        R, H = ((frames.range[k], is_human(lab).astype(np.float32)) if frames.s1_range is None
+                else (frames.s1_range[k], frames.s1_human[k]))
+        out = stage2.predict(R, H, frames.directions[k], frames.origins[k], grid, all_voxels=True)
+        r = out["refined"] if out["refined"] is not None else {
+            "point": out["no_refine"]["point"].reshape(-1, 3), "human_score": np.asarray(H, np.float64).reshape(-1)}
+        keep = r["p_empty"] < stage2.keep_threshold if "p_empty" in r else np.isfinite(r["point"]).all(-1)
+        cache.append((r["point"][keep], r["human_score"][keep], gt))
+    if not any(len(gt) for _, _, gt in cache):
+        return {"threshold": stage2.human_threshold, "scores": {}}
+    scores = {}
+    for c in candidates:
+        pred = [M.human_centroids(P[h >= c]) for P, h, _ in cache]
+        f = M.human_detection_metrics(pred, [gt for _, _, gt in cache])["f_score"]
+        scores[float(c)] = float(f) if np.isfinite(f) else 0.0
+    return {"threshold": max(scores, key=lambda c: (scores[c], c)), "scores": scores}
+
+
 def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
     """Stage2 from ``RUN/stage2.pt`` (or the file) and its checkpoint dict; InputError when absent."""
     p = Path(path)
@@ -244,4 +287,5 @@ def load_stage2(path, device: str = "cpu") -> tuple[Stage2, dict]:
         ref = ref.to(device)
     keep = (ck.get("keep") or {}).get("threshold", 0.5)
     gate = (ck.get("gate") or {}).get("min_confidence")
-    return Stage2(rt.to(device), ref, device, keep_threshold=keep, min_confidence=gate), ck
+    human = (ck.get("human") or {}).get("threshold", 0.5)
+    return Stage2(rt.to(device), ref, device, keep_threshold=keep, min_confidence=gate, human_threshold=human), ck

@@ -39,7 +39,7 @@ from ..ownership import claim_folder
 from .train import _atomic_save, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
-from .stage2_infer import (STAGE2_CHECKPOINT, Frames, Stage2, apply_gate, calibrate_gate, calibrate_keep,
+from .stage2_infer import (STAGE2_CHECKPOINT, Frames, Stage2, apply_gate, calibrate_gate, calibrate_human, calibrate_keep,
                            calibration_index, los_flags)
 
 STAGE2_LOG = "stage2_metrics.jsonl"
@@ -57,7 +57,10 @@ class Stage2Config:
     ones, docs/design/stage2.md), ``flip`` (random y-mirror).
     Loss: eq. 6 weights ``w_sn``, ``w_point`` (+ ``w_normal``), RT loss pixels only where
     |R_in − R_gt| < ``input_gate_m``; eq. 7 weights ``w_cls``, ``w_reg``, ``w_dist``, class weights
-    ``human_weight`` / ``empty_weight``, EDT clipped at ``edt_clip`` voxels."""
+    ``human_weight`` / ``empty_weight``, EDT clipped at ``edt_clip`` voxels. ``crop_w``: train on
+    random azimuth windows of this many columns (wrapping) of each frame, as stage one does at the
+    paper's grid; inference and calibration run on whole rings (the ray tracer is convolutional,
+    the refiner works on the points it is given)."""
 
     epochs_rt: int = 20
     epochs_refine: int = 20
@@ -89,6 +92,7 @@ class Stage2Config:
     empty_weight: float = 1.0
     edt_clip: float = 8.0
     frames_per_scene: int | None = None
+    crop_w: int | None = None
 
     @classmethod
     def from_dict(cls, data: dict, source: str = "stage-two config") -> "Stage2Config":
@@ -244,9 +248,22 @@ def make_batch(fr: Frames, idx, cfg: Stage2Config, rng: np.random.Generator | No
                         a[j][..., 1] *= -1
                     lab = lab.copy()
                     lab[j] = lab[j][..., cols]
+    # LOS flags look up each point's direction in the whole first-bounce image (an un-mirrored point
+    # lies anywhere around the ring), so they keep the full ring when the beams are cropped
+    los_range, los_origins = R_in[:, 0].copy(), org.copy()
+    W = R.shape[-1]
+    if rng is not None and cfg.crop_w and cfg.crop_w < W:
+        cols = (rng.integers(W, size=len(idx))[:, None] + np.arange(cfg.crop_w)) % W   # (n, crop_w)
+
+        def crop(a, axis):   # frame j's columns cols[j] along ``axis`` of a[j]
+            return np.stack([np.take(a[j], cols[j], axis=axis) for j in range(len(a))])
+
+        R, R_in, H_in, lab, gp, gn = (crop(a, 2) for a in (R, R_in, H_in, lab, gp, gn))   # (3, H, W[, 3])
+        org, dirs = crop(org, 1), crop(dirs, 1)                                          # (H, W, 3)
     t = lambda a: torch.from_numpy(np.ascontiguousarray(a)).to(device)  # noqa: E731
     return {"range_in": t(R_in), "human_in": t(H_in), "range": t(R), "label": t(lab), "gt_point": t(gp),
-            "gt_normal": t(gn), "origins": t(org), "directions": t(dirs)}
+            "gt_normal": t(gn), "origins": t(org), "directions": t(dirs), "los_range": t(los_range),
+            "los_origins": t(los_origins)}
 
 
 # ----------------------------------------------------------------------------- refiner targets
@@ -302,9 +319,9 @@ def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: G
     P = out["point"]
     ok = torch.isfinite(P).all(-1)
     Pn = P.cpu().numpy().astype(np.float64)
-    Rin = batch["range_in"].cpu().numpy()
-    org = batch["origins"].cpu().numpy()
-    los = np.stack([los_flags(Pn[j], Rin[j, 0], grid, org[j]) for j in range(len(Pn))])
+    R1 = batch["los_range"].cpu().numpy()
+    org = batch["los_origins"].cpu().numpy()
+    los = np.stack([los_flags(Pn[j], R1[j], grid, org[j]) for j in range(len(Pn))])
     nz = torch.nonzero(ok)
     vox = voxelize(P[ok].float(), nz[:, 0], nz[:, 1], batch["human_in"][ok], cfg.voxel, rt.cfg.max_range,
                    los=torch.from_numpy(los).to(device)[ok])
@@ -409,13 +426,17 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
         keep, changed = ck.get("keep"), confidence_gate is not None and ck.get("gate") != confidence_gate
         if confidence_gate is not None:
             ck["gate"] = confidence_gate
+        cal = frames if calibration is None else calibration
         if cfg.epochs_refine > 0 and keep is None:  # the operating point of the refined cloud, on the training frames
-            keep = calibrate_keep(Stage2(rt, ref, dev), frames if calibration is None else calibration, grid)
+            keep = calibrate_keep(Stage2(rt, ref, dev), cal, grid)
             ck["keep"], changed = keep, True
+        if cfg.epochs_refine > 0 and ck.get("human") is None:   # then where its human points are told apart
+            s2 = Stage2(rt, ref, dev, keep_threshold=keep["threshold"])
+            ck["human"], changed = calibrate_human(s2, cal, grid), True
         if changed:
             _atomic_save(ck, ck_path)
     return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history, "keep": keep,
-            "gate": confidence_gate}
+            "gate": confidence_gate, "human": ck.get("human") if ck_path.exists() else None}
 
 
 def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, stage1=None,
