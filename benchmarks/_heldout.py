@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-# variants that differ from the tuned corners where real recordings do (issue 23)
+# variants that differ from the tuned corners where real recordings do
 HELDOUT_VARIANTS = {
     "hidden-depth16-64": dict(camera="hidden", camera_output="depth16", lidar_rows=64, lidar_fov_deg=45.0),
     "robot-cloud-32": dict(camera="robot", camera_output="cloud", camera_shape=(120, 160), lidar_rows=32,
@@ -29,7 +29,7 @@ HELDOUT_VARIANTS = {
                                     width=1.6, person="box"),
 }
 
-# issue 43 point 4: a second held-out family, fixed before any of it was run (holodata.synth.heldout's
+# a second held-out family, fixed before any of it was run (holodata.synth.heldout's
 # module docstring): it differs from the tuned corners and from HELDOUT_VARIANTS in corner kind (T),
 # camera mounting (high on the approach corridor's wall, pitched down across the junction) and the
 # person's motion (along the T's bar, across the camera's view, hidden by the corners at both ends);
@@ -66,8 +66,8 @@ def prepare_heldout(variant: str, seed: int, root: Path, instances: bool = False
     """Synthesise (once) the held-out recording of (``variant``, ``seed``) under ``root`` and ingest it
     (once) into ``<variant>_<seed>/<dataset>``; returns (truth folder, dataset url, scene id).
 
-    ``instances``: the truth must hold ``lidar_instances.npz`` (written by the held-out synth since
-    issue 25); a recording kept from before is synthesised again (its sensor data is byte-identical,
+    ``instances``: the truth must hold ``lidar_instances.npz`` (which older versions of the held-out
+    synth did not write); a recording kept from before is synthesised again (its sensor data is byte-identical,
     the truth gains the file) and its datasets ingested anew."""
     from holodata import open_dataset
     from holodata.ingest import ingest

@@ -13,7 +13,7 @@ field only).
 
     .venv/bin/python benchmarks/beamform.py [--repeat 3] [--reference-beams 8] [--device cuda]
 
-Floors (issue 26, on this 2-core CPU): static >= 2 rotations/s, motion-compensated >= 0.5.
+Floors (on a 2-core CPU): static >= 2 rotations/s, motion-compensated >= 0.5.
 """
 from __future__ import annotations
 
@@ -24,16 +24,16 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
+
+from holodata.radar import BeamformParams, beamform, beam_indices, static_reflection
+from holodata.radar.chirp import ChirpConfig
+from holodata.radar.simulate import point_at, simulate_rotation
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests"))   # the direct-sum reference lives with the tests
 
 from _radar_reference import beamform_direct, beamform_direct_near  # noqa: E402
-
-from holodata.radar import BeamformParams, beamform, beam_indices, static_reflection  # noqa: E402
-from holodata.radar.chirp import ChirpConfig  # noqa: E402
-from holodata.radar.simulate import point_at, simulate_rotation  # noqa: E402
 
 VELOCITY = (0.35, 0.12)   # m/s: a walking-pace robot
 
@@ -67,6 +67,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--device", default="cpu", help="also time the torch path on this device (e.g. cuda)")
     ap.add_argument("--json", action="store_true", help="print the results as JSON")
     a = ap.parse_args(argv)
+    header()
 
     chirp = ChirpConfig()
     params = BeamformParams()

@@ -1,5 +1,5 @@
-"""How well could any labelling of a model's point cloud detect a person seen only via walls (issue 42
-point 4)? An upper bound: each point of the model's cloud is labelled human exactly when it lies
+"""How well could any labelling of a model's point cloud detect a person seen only via walls?
+An upper bound: each point of the model's cloud is labelled human exactly when it lies
 within ``--radius`` of a ground-truth human point (oracle labels), then the clouds are scored as
 evaluate scores human detection (:func:`holodata.metrics.human_centroids`: clusters of >= 5 points;
 :func:`~holodata.metrics.human_detection_metrics`: matched within 0.5 m) on the frames whose person is
@@ -15,12 +15,9 @@ benchmarks/results/nlos.md, not here.
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _run import header
 
 
 def main(argv=None) -> int:
@@ -30,6 +27,7 @@ def main(argv=None) -> int:
     ap.add_argument("--split", default="test")
     ap.add_argument("--radius", default="0.15,0.3", help="comma list of oracle radii (m)")
     a = ap.parse_args(argv)
+    header()
     from scipy.spatial import cKDTree
 
     from holodata import metrics as M

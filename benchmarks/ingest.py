@@ -9,11 +9,11 @@ recording of N radar frames and one of 4N — then, in the same run:
   slices the CDR encapsulation header off its input, which copies a ``bytes`` payload): messages/s
   and MB/s of serialised payload;
 - ingest: ``holodata.ingest.ingest`` of the same recording into a fresh dataset (index pass, sync,
-  decode of the matched messages, BLAKE3 of the file (sha256 before issue 27), compressed shard
+  decode of the matched messages, BLAKE3 of the file (sha256 in older versions), compressed shard
   writes), in a child process so its peak RSS is its own;
 - ratio = ingest messages/s / bare messages/s (floor 0.5, aim 0.8), and the peak RSS of the small
   and the 4x recording (should be about equal: memory flat in recording size);
-- the physical pipeline (issue 27): the work ingest cannot avoid, each step done by the raw library
+- the physical pipeline: the work ingest cannot avoid, each step done by the raw library
   in this run — the bare read above + sha256 of the source file (hashlib) + Blosc-lz4 (numcodecs,
   byte shuffle, the dataset's own codec settings) of the very arrays ingest wrote, shard by shard,
   + writing those bytes to files; ratio = physical pipeline seconds / ingest seconds (floor 0.8).
@@ -48,6 +48,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
 
 OUSTER = np.dtype({"names": ["x", "y", "z", "intensity", "t", "reflectivity", "ring", "ambient", "range"],
                    "formats": ["<f4", "<f4", "<f4", "<f4", "<u4", "<u2", "<u2", "<u2", "<u4"],
@@ -278,7 +279,7 @@ import json, sys, time
 from holodata.ingest import ingest
 import holodata.dataset.writer, holodata.readers.rosbag, holodata.readers.pointcloud2, zarr, rosbags.highlevel  # imports
 import holodata.readers.mcap_file, holodata.readers.sqlite, holodata.readers.images, holodata.trajectory  # outside timing
-import jsonschema, rosbags.typesys.stores.ros2_humble, rosbags.typesys.stores.ros1_noetic  # ~0.3 s of module imports
+import jsonschema, rosbags.typesys.stores.ros2_humble, rosbags.typesys.stores.ros1_noetic  # (docs/design/performance.md)
 def hwm():  # this process image's own peak (VmHWM): ru_maxrss carries the forking parent's peak over exec
     return next(int(ln.split()[1]) for ln in open("/proc/self/status") if ln.startswith("VmHWM:")) / 1024
 rss0 = hwm()
@@ -310,6 +311,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1,
                     help="run bare read, ingest and the physical pipeline this many times, alternated; best of each")
     args = ap.parse_args()
+    header()
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-bench-ingest-"))
     root.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -6,10 +6,11 @@ Prints the time of holodata.metrics.point_cloud_metrics and of two cKDTree build
 """
 from __future__ import annotations
 
-import sys
+import argparse
 import time
 
 import numpy as np
+from _run import header
 from scipy.spatial import cKDTree
 
 from holodata.metrics import point_cloud_metrics, prf_curve
@@ -24,7 +25,11 @@ def best_of(fn, n=5):
     return min(ts)
 
 
-def main(n: int = 200_000) -> None:
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("n", type=int, nargs="?", default=200_000, help="points per cloud (default 200000)")
+    n = ap.parse_args(argv).n
+    header()
     rng = np.random.default_rng(0)
     # surface-like clouds: points on the walls of a 6 m x 4 m room, GT and a noisy prediction
     def room(k):
@@ -53,4 +58,4 @@ def main(n: int = 200_000) -> None:
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 200_000)
+    main()

@@ -11,18 +11,16 @@ Prints both tables of holodata evaluate.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from holodata.conventions import Grid, RangeBins
+from holodata.dataset import create_dataset
 
-from holodata.conventions import Grid, RangeBins  # noqa: E402
-from holodata.dataset import create_dataset  # noqa: E402
 
 CORNERS = [("T", 11), ("L", 12), ("cross", 13), ("oblique", 14), ("T", 15), ("L", 16)]
 
@@ -97,6 +95,7 @@ def main() -> None:
     ap.add_argument("--out", default=None)
     ap.add_argument("--head", default="softargmax", choices=["softargmax", "regress"])
     a = ap.parse_args()
+    header()
     grid = Grid.parse(a.grid)
     bins = RangeBins()
     out = Path(a.out or tempfile.mkdtemp(prefix="holodata-mvb-"))

@@ -1,5 +1,5 @@
 """The README's "Your own recording" recipe, with default settings, on 8 synthetic corners of every
-kind and widths 1.3-4.7 m (issue 55's acceptance): per step its wall time; per data pass whether
+kind and widths 1.3-4.7 m (the recipe's acceptance test): per step its wall time; per data pass whether
 register placed the person, the person's centroid error against the truth (median / p90 cm), and
 whether the ground truth holds the person in every frame where ground truth traced from the true
 mesh and person does; then evaluate's scores on the test split.
@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
 
 CORNERS = [("T", 10, 1.3), ("L", 11, 4.7), ("cross", 12, 2.3), ("oblique", 13, 3.7),
            ("T", 14, 4.2), ("L", 15, 1.8), ("cross", 16, 3.2), ("oblique", 17, 2.8)]
@@ -50,6 +51,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=6)
     ap.add_argument("--keep", action="store_true", help="keep the recordings and the dataset")
     a = ap.parse_args()
+    header()
     out, ds = a.out, str(a.out / "ds.zarr")
     ids = [f"{k}{s}" for k, s, _ in CORNERS]
     t: dict[str, float] = {"synth": 0.0}

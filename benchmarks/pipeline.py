@@ -13,7 +13,7 @@ the scan nearest each radar frame, so slam sees 400 scans; LiDAR and camera at s
   ``GTConfig()`` (64x512 beams, 3 bounces): the work of ``holodata raytrace-gt DATASET`` at the paper's
   beam grid;
 
-and prints (slam + register) / raytrace-gt as a ratio (issue 9: it must not dominate; aim < 1) and
+and prints (slam + register) / raytrace-gt as a ratio (mapping must not dominate; aim < 1) and
 slam + register's share of the four stages' wall time, with the load average before and after (2
 shared cores: compare ratios from the same run). slam's ATE
 and mesh F@5cm against ``truth/`` are printed too, so a speed-up that costs accuracy shows.
@@ -36,19 +36,16 @@ import argparse
 import json
 import os
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from holodata.conventions import Grid, RangeBins  # noqa: E402
-from holodata.dataset import create_dataset, open_dataset  # noqa: E402
-from holodata.ingest import ingest  # noqa: E402
+from holodata.conventions import Grid, RangeBins
+from holodata.dataset import create_dataset, open_dataset
+from holodata.ingest import ingest
 
 
 def cpu() -> float:
@@ -135,6 +132,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="passes of slam, register and raytrace-gt (medians printed: "
                     "this 2-core machine's wall times vary by 10-20 %% from run to run)")
     args = ap.parse_args()
+    header()
     from holodata.groundtruth import GTConfig, raytrace_standalone
     from holodata.mapping.accuracy import evaluate_slam
     from holodata.meshio import Mesh, write_ply

@@ -32,14 +32,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from holodata.conventions import Grid  # noqa: E402
-from holodata.meshio import merge_meshes  # noqa: E402
-from holodata.meshio import Mesh, write_ply  # noqa: E402
-from holodata.trajectory import Trajectory, write_tum  # noqa: E402
+from holodata.conventions import Grid
+from holodata.meshio import merge_meshes
+from holodata.meshio import Mesh, write_ply
+from holodata.trajectory import Trajectory, write_tum
 
 
 def plane(p0, u, v, nu, nv):
@@ -191,6 +189,7 @@ def main() -> None:
     if a.rss_child:
         rss_child(a.rss_child, a.rss_grid)
         return
+    header()
     d = Path(tempfile.mkdtemp(prefix="hd_bench_"))
     try:
         make_inputs(d, a.frames)

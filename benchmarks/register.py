@@ -31,14 +31,14 @@ anchor and position error, register's extrinsic (world and aligned), its reporte
 held directions, the human centroid error (median, p90) in the world and relative to the robot
 (each frame's LiDAR pose: what a radar on the robot sees) and the frames with a human.
 
-``--family crossing`` (issue 43 point 4): the same stages and columns on a second held-out family,
+``--family crossing``: the same stages and columns on a second held-out family,
 :data:`benchmarks._heldout.CROSSING_VARIANTS`, fixed before it was first run: a T junction, a camera
 high on the approach corridor's wall looking down across it (16UC1 depth or an organised cloud), the
 person walking along the T's bar across the camera's view (partial views behind the corners at both
 ends), the robot waiting short of the junction. Seeds 1 and 2 were looked at while fixing; 3-6 are
 the report seeds.
 
-``--family both`` (issue 23's table): the tuned corners (``--corners``, ``--tuned-seeds``) with slam's
+``--family both`` (both families in one table): the tuned corners (``--corners``, ``--tuned-seeds``) with slam's
 poses and the held-out recordings (``--variants``, ``--seeds``), then one table of both families in
 the same columns and judged by the same floors: extrinsic < 2 cm and < 1 deg against slam's map (the
 aligned column; the world column beside it) or a refusal naming what it did not measure, human
@@ -52,16 +52,13 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from benchmarks._heldout import CROSSING_VARIANTS, HELDOUT_VARIANTS, heldout_cells, prepare_heldout  # noqa: E402  (the held-out recordings)
+from _heldout import CROSSING_VARIANTS, HELDOUT_VARIANTS, heldout_cells, prepare_heldout  # the held-out recordings
+from _run import header
 
 
 def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
@@ -297,7 +294,7 @@ FLOORS = {"ap50": (0.9, "min"), "extrinsic_cm": (2.0, "max"), "extrinsic_deg": (
 
 
 def _floor_values(r: dict) -> dict | None:
-    """The values a cell is judged on (issue 9's floors, :data:`FLOORS`): AP50 (NaN where nobody walks
+    """The values a cell is judged on (the tuned corners' floors, :data:`FLOORS`): AP50 (NaN where nobody walks
     in the LiDAR's view), the aligned extrinsic (cm, deg) and the aligned mean centroid error (cm);
     None when the registration failed."""
     tf = r["register"]["tf"]
@@ -336,7 +333,7 @@ def _closest(rows: list) -> str:
 def centroid_figures(url: str, sid: str, truth_dir: Path) -> dict:
     """The human centroid error's median and p90 (cm) in the world (``centroid_*``) and relative to
     the robot (``robot_*``: each frame's LiDAR pose, what a radar on the robot sees), and the frames
-    with a human (``frames_found``): the columns both families are judged on (issue 23)."""
+    with a human (``frames_found``): the columns both families are judged on."""
     from holodata.mapping.human_eval import human_centroid_errors
 
     out: dict = {}
@@ -426,7 +423,7 @@ def main_heldout(args) -> int:
     return 0
 
 
-# issue 23's floors, judged the same way on both families: the extrinsic (< 2 cm and < 1 deg, or a
+# the held-out floors, judged the same way on both families: the extrinsic (< 2 cm and < 1 deg, or a
 # refusal naming the directions it did not measure) against slam's map (the aligned column, as the tuned
 # floors: the world column adds slam's drift and TF's error at the anchor, which register cannot see)
 # and the human centroid in the world (median < 8 cm, p90 < 20 cm)
@@ -446,7 +443,7 @@ def family_cell(family: str, cell: str, r: dict, refused: str | None = None) -> 
 
 
 def family_verdict(c: dict) -> str:
-    """'ok', 'refused' (named directions: an accepted answer to issue 23) or the floors missed."""
+    """'ok', 'refused' (named directions: an accepted answer for a held-out cell) or the floors missed."""
     if "refused" in c:   # a refusal must name what it did not measure
         return "refused" if "along" in c["refused"] or "about" in c["refused"] else "FAILED"
     f = FAMILY_FLOORS
@@ -458,7 +455,7 @@ def family_verdict(c: dict) -> str:
 
 
 def print_families(cells: list) -> None:
-    """The tuned and the held-out family side by side in the same columns (issue 23's table)."""
+    """The tuned and the held-out family side by side in the same columns."""
     print("\nboth families, the same columns (extrinsic from the true world and from slam's map after aligning "
           "the trajectories; unc: register's reported uncertainty, h: a direction held at the guess; human "
           "centroid in the world and relative to the robot; floors: aligned extrinsic < 2 cm and < 1 deg or a "
@@ -513,13 +510,14 @@ def main() -> int:
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--family", choices=("tuned", "heldout", "crossing", "both"), default="tuned",
                     help="heldout: the held-out recordings of holodata.synth.heldout (--variants, --seeds); crossing: "
-                         "the second held-out family (issue 43: T junction, wall camera, person crossing its view); both: "
+                         "the second held-out family (T junction, wall camera, person crossing its view); both: "
                          "the tuned corners (--corners, --tuned-seeds; slam's poses, the TF run only) and the "
                          "held-out recordings, then one table of both in the same columns")
     ap.add_argument("--tuned-seeds", default="1", help="--family both: comma list of the tuned corners' seeds")
     ap.add_argument("--variants", default=None, help=f"--family heldout: comma list of {', '.join(HELDOUT_VARIANTS)}; "
                                                       f"--family crossing: of {', '.join(CROSSING_VARIANTS)}")
     args = ap.parse_args()
+    header()
     if args.family in ("heldout", "crossing"):
         return main_heldout(args)
     demo = None

@@ -27,16 +27,12 @@ import json
 import os
 import resource
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-from raytrace import make_inputs  # noqa: E402  (benchmarks/raytrace.py)
+from _run import header
+from raytrace import make_inputs  # benchmarks/raytrace.py
 
 HOLORADAR_FRAMES = 28_000
 
@@ -94,6 +90,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=1, help="runs per configuration; the fastest counts")
     ap.add_argument("--keep", action="store_true")
     a = ap.parse_args()
+    header()
 
     from holodata.distributed import cluster
 

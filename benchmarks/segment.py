@@ -20,7 +20,7 @@ background model's build time (once per scene).
 
 ``--keep DIR`` keeps (and on a rerun reuses) the recordings and datasets.
 
-``--family heldout`` (issue 25 point 11): the same segmentation on the recordings of
+``--family heldout``: the same segmentation on the recordings of
 :mod:`holodata.synth.heldout`, a family nothing was tuned on (LiDAR-only, an L corridor driven
 through, furniture, 32/64/128 beams over 45 or 90 deg, a human-shaped or boxy person walking in the
 hidden leg; ``benchmarks/_heldout.py``: ``--variants``, ``--seeds``), scored against the held-out
@@ -42,14 +42,12 @@ import argparse
 import json
 import os
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from _run import header
 
 
 def prepare(root: Path, corner: str, fov: float, lidar: tuple, args) -> tuple[str, Path, float]:
@@ -221,7 +219,7 @@ def _segment(url: str, sid: str) -> dict:
 def run_heldout(variant: str, seed: int, poses: list, root: Path) -> dict:
     """One held-out recording: segmentation with the true LiDAR poses (a copy of the dataset,
     ``ds_truth.zarr``) and/or slam's (``ds.zarr``, as register's held-out run uses), scored."""
-    from benchmarks._heldout import prepare_heldout, write_true_lidar_poses
+    from _heldout import prepare_heldout, write_true_lidar_poses
 
     out = {"variant": variant, "seed": seed}
     for p in poses:
@@ -244,7 +242,7 @@ def _recall_text(r: dict) -> str:
 
 
 def main_heldout(args) -> int:
-    from benchmarks._heldout import heldout_cells
+    from _heldout import heldout_cells
 
     poses = [p.strip() for p in args.poses.split(",")]
     bins = " ".join(f"{a:g}-{b:g}" for a, b in zip(RANGE_BINS_M[:-1], RANGE_BINS_M[1:]))
@@ -292,6 +290,7 @@ def main() -> int:
     ap.add_argument("--seeds", default="1,2", help="--family heldout: comma list of synth seeds")
     ap.add_argument("--poses", default="truth,slam", help="--family heldout: truth and/or slam LiDAR poses")
     args = ap.parse_args()
+    header()
     if args.family == "heldout":
         return main_heldout(args)
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-bench-segment-"))

@@ -16,20 +16,20 @@ Finally slam runs on the real ROS 1 fixture ``../shared/fixtures/ros1/luminar-te
                                         [--mapping-pass]
     .venv/bin/python benchmarks/slam.py --demo quick|full [--keep DIR] [--only L_16,...]
 
-``--mapping-pass`` (issue 22): each corner is synthesised with its mapping pass, which slam maps
+``--mapping-pass``: each corner is synthesised with its mapping pass, which slam maps
 first; the data pass is localised in that map (``slam --map-scene``). ``--demo quick|full`` runs the
 demo configuration's corners (``holodata.demo.demo_config``: grids, LiDAR, frames, mesh settings)
 that way. Every row also prints the mesh's **coverage** of the true surface within the radar's
 reach (the corner's radar grid traced from the true radar poses through the true mesh, 3 bounces,
 9.6 m; covered = within 5 cm of the SLAM mesh; per bounce) and the **GT NLOS points per frame**
-through the SLAM mesh vs the true mesh (same poses). Floors (issue 22): coverage >= 0.90 on every
+through the SLAM mesh vs the true mesh (same poses). Floors: coverage >= 0.90 on every
 demo corner, NLOS per frame within 10 % of the true mesh's. Measurements:
 ``benchmarks/results/slam-mapping-pass.md``.
 
 ``--raytrace`` also times ``raytrace-gt`` (default 64x512 grid, 3 bounces) of the same frames through
 the SLAM mesh and radar poses, so the slam runtime can be compared with the stage it feeds.
 
-Floors (issue 9): ATE < 5 cm, mesh F@5cm >= 0.90 (aim ATE < 3 cm, F >= 0.95).
+Floors: ATE < 5 cm, mesh F@5cm >= 0.90 (aim ATE < 3 cm, F >= 0.95).
 
 ``--frames`` counts radar cycles (2 Hz); ingest keeps the LiDAR scan (10 Hz) nearest each radar
 frame, so slam sees one scan per cycle (400 scans for 400 cycles, 0.5 s apart).
@@ -38,7 +38,7 @@ Measurements (per date, with the load and the code they ran): ``benchmarks/resul
 
 ``benchmarks/pipeline.py`` prints the ingest / slam / register / raytrace-gt table of one corner.
 
-``--family heldout`` (issue 25 point 11): slam and its static mesh (``holodata.mapping.mesh`` +
+``--family heldout``: slam and its static mesh (``holodata.mapping.mesh`` +
 ``background``) on the recordings of :mod:`holodata.synth.heldout`, a family nothing was tuned on
 (LiDAR-only, an L corridor driven through with furniture, 32/64/128 beams, a person walking;
 ``benchmarks/_heldout.py``: ``--variants``, ``--seeds``): ATE and the mesh's F@2/5/10 cm and Chamfer
@@ -53,25 +53,24 @@ from __future__ import annotations
 import argparse
 import json
 import shutil
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
+
+from holodata.conventions import Grid, RangeBins
+from holodata.dataset import open_dataset
+from holodata.ingest import ingest
+from holodata.mapping import slam as S
+from holodata.mapping.accuracy import evaluate_slam, mesh_errors, pose_alignment, lidar_from_scene_json
+from holodata.mapping.mesh import MeshConfig
+from holodata.meshio import read_mesh
+from holodata.synth import synthesize
+from holodata.trajectory import Trajectory, read_tum
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from holodata.conventions import Grid, RangeBins  # noqa: E402
-from holodata.dataset import open_dataset  # noqa: E402
-from holodata.ingest import ingest  # noqa: E402
-from holodata.mapping import slam as S  # noqa: E402
-from holodata.mapping.accuracy import evaluate_slam, mesh_errors, pose_alignment, lidar_from_scene_json  # noqa: E402
-from holodata.mapping.mesh import MeshConfig  # noqa: E402
-from holodata.meshio import read_mesh  # noqa: E402
-from holodata.synth import synthesize  # noqa: E402
-from holodata.trajectory import Trajectory, read_tum  # noqa: E402
 
 LUMINAR = ROOT.parent / "shared" / "fixtures" / "ros1" / "luminar-test.bag"
 
@@ -283,7 +282,7 @@ def main_demo(args) -> None:
 def run_heldout(variant: str, seed: int, root: Path) -> dict:
     """One held-out recording: slam (``ds.zarr``, skipped when done) and its mesh, and the mesh step on
     the true poses (``ds_truth.zarr``), against the truth."""
-    from benchmarks._heldout import (person_ghost_m2, prepare_heldout, scene_static_mesh, scene_trajectory,
+    from _heldout import (person_ghost_m2, prepare_heldout, scene_static_mesh, scene_trajectory,
                                      write_true_lidar_poses)
     from holodata.conventions import transform_points
     from holodata.mapping.register import scene_mesh
@@ -317,7 +316,7 @@ def _mesh_cells(m: dict) -> str:
 
 
 def main_heldout(args) -> None:
-    from benchmarks._heldout import heldout_cells
+    from _heldout import heldout_cells
 
     print("held-out family (holodata.synth.heldout): static mesh vs truth/mesh.ply (occlusion-aware, as above)")
     print("  (ghost m2: mesh area > 10 cm off the true static mesh, within 30 cm of the person at some scan / elsewhere)")
@@ -362,6 +361,7 @@ def main() -> None:
     ap.add_argument("--variants", default=None, help="--family heldout: comma list (default all; benchmarks/_heldout.py)")
     ap.add_argument("--seeds", default="1,2", help="--family heldout: comma list of synth seeds")
     args = ap.parse_args()
+    header()
     if args.family == "heldout":
         main_heldout(args)
         return

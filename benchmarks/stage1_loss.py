@@ -1,4 +1,4 @@
-"""Stage one's range loss side by side (issue 42 point 2): L1 on the soft-argmax mean against the
+"""Stage one's range loss side by side: L1 on the soft-argmax mean against the
 per-bin cross-entropy with two-hot sub-bin targets, the same training corpus, the same steps, the
 same seed, scored on corners neither run trained on.
 
@@ -17,12 +17,11 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from _run import header
+
 
 HELDOUT = {"report": 1_000_000, "tune": 500}
 HELDOUT_CORNERS = 16
@@ -91,6 +90,7 @@ def main(argv=None) -> int:
     ap.add_argument("--losses", default="l1,ce")
     ap.add_argument("--heldout", choices=sorted(HELDOUT), default="report")
     a = ap.parse_args(argv)
+    header()
 
     from holodata.torch import TrainConfig, train
 

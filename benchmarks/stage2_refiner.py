@@ -11,17 +11,14 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+from _run import header
 
-import torch  # noqa: E402
-import torch.nn as nn  # noqa: E402
-import torch.nn.functional as F  # noqa: E402
-
-from holodata.torch.stage2 import RefinerConfig, VoxelRefiner, voxelize  # noqa: E402
+from holodata.torch.stage2 import RefinerConfig, VoxelRefiner, voxelize
 
 
 class DenseUNet(nn.Module):
@@ -61,6 +58,7 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=3)
     a = ap.parse_args()
+    header()
     torch.set_num_threads(a.threads)
     g = torch.Generator().manual_seed(0)
     # points on walls of a corridor within the radar's reach

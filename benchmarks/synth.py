@@ -20,20 +20,17 @@ from __future__ import annotations
 import argparse
 import resource
 import shutil
-import sys
 import tempfile
 import time
 import tracemalloc
 from pathlib import Path
 
 import numpy as np
+from _run import header
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from holodata.conventions import Grid, RangeBins  # noqa: E402
-from holodata.synth.radar import encode_heatmap  # noqa: E402
-from holodata.synth.scenario import Sensors, build_scenario  # noqa: E402
+from holodata.conventions import Grid, RangeBins
+from holodata.synth.radar import encode_heatmap
+from holodata.synth.scenario import Sensors, build_scenario
 
 
 def bare_replay(log) -> float:
@@ -100,6 +97,7 @@ def main() -> None:
     ap.add_argument("--iq-frames", type=int, default=3)
     ap.add_argument("--skip-record", action="store_true")
     args = ap.parse_args()
+    header()
     import open3d as o3d
 
     grid, rb = Grid(64, 512), RangeBins(256)

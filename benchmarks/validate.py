@@ -1,5 +1,5 @@
 """``holodata validate`` against ``sha256sum`` of the same files, in the same run, and its peak RSS
-(issue 50: validate as a CI gate; plain script, not a test).
+(validate as a CI gate; plain script, not a test).
 
 Writes a dataset of about ``--gb`` GB stored (default 10) laid out as ingest + slam + raytrace-gt write
 one, scenes of ``--frames`` frames until the size is reached: radar/heatmap float16 (R x 64 x 512,
@@ -43,6 +43,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _run import header
 
 CHILD = r"""
 import json, re, sys, time
@@ -163,6 +164,7 @@ def main() -> None:
     ap.add_argument("--out", help="folder for the dataset (default: a temp folder under /tmp)")
     ap.add_argument("--keep", action="store_true", help="keep the dataset (and reuse one already there)")
     a = ap.parse_args()
+    header()
 
     tmp = Path(a.out or tempfile.mkdtemp(prefix="holodata-validate-bench-"))
     url = str(tmp / "bench.zarr")

@@ -245,7 +245,7 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
     T = np.asarray(T, np.float64)
     P = np.asarray(points)
     out = np.empty(np.broadcast_shapes(P.shape, T.shape[:-2] + (3,)), np.float64)
-    if T.ndim == 2 and P.ndim == 2 and len(P) > _CHUNK:   # blocks that stay in cache: 2x on 1M points
+    if T.ndim == 2 and P.ndim == 2 and len(P) > _CHUNK:   # blocks that stay in cache (docs/design/performance.md)
         for a in range(0, len(P), _CHUNK):
             _transform_into(T, P[a:a + _CHUNK], out[a:a + _CHUNK])
         return out

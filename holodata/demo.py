@@ -90,13 +90,13 @@ def default_radar_output(quick: bool) -> str:
     """What ``holodata demo`` records by default: raw samples beamformed by ingest with near-field
     focusing for the quick demo (it then scores like the direct heatmaps, docs/design/radar.md
     §"Synthetic raw samples"), the direct heatmaps for the full one (320 full-size rotations of raw
-    samples take about an hour to synthesise on 2 cores). :func:`demo_config` itself keeps
+    samples are slow to synthesise: docs/design/radar.md). :func:`demo_config` itself keeps
     ``"heatmap"`` (the benchmarks that build on it measure that road)."""
     return "iq" if quick else "heatmap"
 
 
 def demo_config(quick: bool) -> DemoConfig:
-    """``quick``: small grids and few frames (about 5 min on 2 cores, README); else the paper's 64×512 grid."""
+    """``quick``: small grids and few frames (its run time: README); else the paper's 64×512 grid."""
     if quick:
         # a 2.4 m wide cross for DEMO_CORNERS' 4 m one: at the quick demo's 32x128 beams the radar
         # reaches the hidden side of the 4 m cross with few GT NLOS points (docs/design/synth.md)

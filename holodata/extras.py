@@ -1,4 +1,4 @@
-"""Which optional dependencies each task needs (issue 50), and the one line that says so.
+"""Which optional dependencies each task needs, and the one line that says so.
 
 ``pip install holodata`` is the dataset core: the format, ``holodata validate``, ``holodata info`` and
 the reader API (``holodata.open_dataset(...)[scene][array]``) need only :data:`CORE`. Every stage's

@@ -17,8 +17,8 @@ standalone form (a TUM trajectory, no rotation cycles) each row's stamp is the s
 rotation and the columns span the time to the next row, or ``1/rotation_hz`` when the rate is given
 (:func:`standalone_cycles`).
 
-Arrays are Blosc lz4 + shuffle by default (this stage is CPU-bound; ``codec="zstd"`` gives ~25%
-smaller files at ~2x the encoding time).
+Arrays are Blosc lz4 + shuffle by default (this stage is CPU-bound; ``codec="zstd"`` gives smaller
+files at a higher encoding cost: docs/design/performance.md).
 
 Human sources (:mod:`holodata.raytrace.humans`): none, one mesh for all frames, one per frame, or a
 dataset's human. This module runs the stage: inputs, the executors (in-process, the local process
@@ -82,7 +82,7 @@ HELPER_SPAWN_MIN_FRAMES = 600    # a spawned one: an interpreter and the imports
 def auto_processes(n_frames: int) -> int:
     """Tracing processes for ``n_frames``: one per core (max 4) from POOL_MIN_FRAMES frames on, else
     in-process (open3d's casts use every core in-process too). A worker costs an interpreter, the
-    imports and the static scene (~1.5 s of CPU each, docs/design/raytrace.md), which shorter runs
+    imports and the static scene (their CPU time: docs/design/raytrace.md), which shorter runs
     do not earn back."""
     n_cpus = cpus()
     return 1 if n_frames < POOL_MIN_FRAMES or n_cpus < 2 else min(n_cpus, 4)

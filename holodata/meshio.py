@@ -165,7 +165,7 @@ def _read_ply(data: bytes) -> Mesh:
     class_names = {int(t[2]): " ".join(t[3:]) for t in (line.split() for line in header)
                    if len(t) >= 4 and t[0] == "comment" and t[1] == "class"}
     elements = None
-    if fmt != "ascii":  # the common binary layout without trimesh (its import costs a command ~0.5 s of CPU)
+    if fmt != "ascii":  # the common binary layout without trimesh (slow to import: docs/design/raytrace.md)
         elements = _ply_binary_fixed(data[data.find(b"\n", end) + 1:], header,
                                      "<" if fmt.endswith("little_endian") else ">")
     try:

@@ -32,8 +32,8 @@ def release_free_memory() -> None:
     the garbage collection elsewhere). The mapping stages call it where they start, before they fork:
     a stage run after others in one process (``holodata demo``, the benchmarks) otherwise forks
     children that share the heap the earlier stages left behind, and copies it page by page as it
-    writes there again (register right after slam in one process, three alternated pairs: 10.97-11.29
-    -> 9.69-10.35 s, resident memory at its start 0.7-0.9 -> 0.34 GB)."""
+    writes there again (register right after slam in one process: benchmarks/results/pipeline.md,
+    docs/design/performance.md)."""
     import gc
 
     gc.collect()

@@ -1,4 +1,4 @@
-"""Files from elsewhere (issue 43 point 6): datasets, checkpoints and recordings come from other labs.
+"""Files from elsewhere: datasets, checkpoints and recordings come from other labs.
 
 No load path may run code from a file, and no name read from one (or given on the command line)
 may write outside the output:

@@ -143,8 +143,9 @@ def _without_mark(attrs: dict, stage: str) -> dict:
 
 def _put_array(store: Store, path: str, **kw) -> None:
     """A new array's ``zarr.json``: made by ``zarr.create_array`` in a MemoryStore (zarr writes the
-    metadata) and put with one atomic write. Creating it on the dataset's store directly costs ~3x
-    more (directory deletes and checks through zarr's event loop), per array of every scene."""
+    metadata) and put with one atomic write. Creating it on the dataset's store directly costs more
+    (directory deletes and checks through zarr's event loop, per array of every scene;
+    benchmarks/results/ingest.md)."""
     import zarr
 
     ms = zarr.storage.MemoryStore()

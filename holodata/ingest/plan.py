@@ -361,8 +361,9 @@ def _first_string(rec: Recording, topic: str | None) -> str:
 def _limit_malloc_arenas(n: int = 1) -> None:
     """glibc gives each thread that allocates under contention its own malloc arena (up to 8 per
     core); the writer threads free many ~1-2 MB buffers (message payloads, Blosc chunks) that then
-    fragment those arenas, so peak RSS crept up with recording length (4x recording: +20%,
-    benchmarks/ingest.py). One arena for the threads started from here on: +5-10%. No-op off glibc."""
+    fragment those arenas, so peak RSS crept up with recording length; one arena for the threads
+    started from here on keeps it nearly flat (docs/design/performance.md, benchmarks/results/ingest.md).
+    No-op off glibc."""
     global _ARENAS_LIMITED
     if _ARENAS_LIMITED:
         return

@@ -27,8 +27,8 @@ DEFAULT_TOLERANCE_MS = 50.0
 SHARD_TARGET_BYTES = 32 << 20
 # Codec of the bulk arrays (radar/heatmap, lidar/range, lidar|camera/points, lidar/point_time_ns)
 # unless --codec says otherwise; the small ones (time stamps, cycles, poses) keep the dataset's
-# (zstd). Blosc lz4 + byte shuffle encodes ~1-2 GB/s on one core here against ~0.3-0.45 GB/s for
-# zstd clevel 3, for ~5-10% larger output on float heatmaps and point clouds (benchmarks/ingest.py).
+# (zstd). Blosc lz4 + byte shuffle encodes several times faster than zstd clevel 3, for slightly larger
+# output on float heatmaps and point clouds (benchmarks/results/ingest.md; benchmarks/ingest.py).
 BULK_CODEC = "lz4"
 
 

@@ -16,8 +16,8 @@ segmentation (foreground = returns outside the background).
 
 Indoor scenes fit a dense grid of voxels (at most ``DENSE_MAX_CELLS`` of :mod:`holodata.geometry.voxels`,
 16.8 M: a 60×60×7 m box at 15 cm): the occupancy count is one ``count[cells] += 1`` per scan (a cell counts once per scan) and
-lookups index a boolean grid, instead of sorting keys per scan and binary searches (400 scans of
-64×512: build 8.7 → 2.6 s, the same model); larger boxes use the sorted keys.
+lookups index a boolean grid, instead of sorting keys per scan and binary searches (the same model, faster:
+docs/design/performance.md); larger boxes use the sorted keys.
 """
 from __future__ import annotations
 
@@ -48,7 +48,7 @@ def _occupancy(pts: list, voxel: float, need_inverse: bool = False, need_per_sca
     (``occ[cells] += 1`` counts a cell once per set, no sort) when it has at most
     ``DENSE_MAX_CELLS`` (:mod:`holodata.geometry.voxels`) cells, else with sorted keys."""
     nz = [p for p in pts if len(p)]
-    # per column: (N,3).min(0) is ~20x slower
+    # per column: (N,3).min(0) is slower (docs/design/performance.md)
     lo = np.floor(np.divide([min(p[:, j].min() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
     hi = np.floor(np.divide([max(p[:, j].max() for p in nz) for j in range(3)], voxel, dtype=np.float64)).astype(np.int64)
     box = dense_box(lo, hi)
@@ -141,7 +141,7 @@ class VoxelBackground:
         need_hits = min(int(min_hits), n)
         if free_space:
             # the voxels' centroids, summed scan by scan: concatenating every scan's points and voxel
-            # positions (26 M returns for 400 scans of 64x1024) cost 2.0 s of fresh memory, this 0.2 s
+            # positions first costs far more in fresh memory (docs/design/performance.md)
             V = len(keys)
             sums, cnt = np.zeros((V, 3)), np.zeros(V)
             for p, i in zip(pts, inv):

@@ -1,7 +1,7 @@
 """The tracer's per-bounce array work (:meth:`holodata.raytrace.RayScene.trace_soa`), compiled with numba.
 
-Each kernel is one pass over the rays doing what ~10-40 numpy array operations did (docs/design/
-raytrace.md: ~11-13 ms of numpy per 64x512 frame), with the same float32 operations in the same
+Each kernel is one pass over the rays doing what ~10-40 numpy array operations did (their cost:
+docs/design/raytrace.md, "Compiled per-bounce pass"), with the same float32 operations in the same
 order, so the results are identical to the bit to the numpy reference path (``RayScene.compiled =
 False``; tests/test_raytrace.py compares both on random scenes and rays):
 
@@ -218,8 +218,8 @@ def to_half(x, out):  # pragma: no cover - compiled
     """``x`` (n,) float32 rounded to IEEE binary16 bit patterns into ``out`` (n,) uint16 (a float16
     array's ``.view(np.uint16)``): ``x.astype(np.float16)`` to the bit — round to nearest, ties to
     even; overflow to inf; subnormal halves; a NaN keeps its top payload bits — in one pass
-    (numpy's cast costs ~0.7 ms per 64x512x3 frame's normals). Checked against numpy on every
-    float32 bit pattern (docs/design/raytrace.md) and on a sample in tests/test_raytrace_kernels.py."""
+    (cheaper than numpy's cast of a frame's normals). Checked against numpy on every
+    float32 bit pattern (cost and check: docs/design/raytrace.md) and on a sample in tests/test_raytrace_kernels.py."""
     u = x.view(np.uint32)
     for i in range(u.shape[0]):
         b = np.int64(u[i])

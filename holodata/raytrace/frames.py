@@ -35,8 +35,9 @@ class GTConfig:
     origin: OriginModel | None = None  # None: the scene's recorded model (ingest), else the default
     shard_frames: int | None = None  # frames per shard of new arrays (None: the dataset's, 32 when new)
     nthreads: int = 0
-    codec: str | None = "lz4"  # Blosc codec of the gt arrays: lz4 encodes ~2x faster than zstd, ~30% larger
-                               # (raytrace-gt is CPU-bound; None = the dataset's default, zstd)
+    codec: str | None = "lz4"  # Blosc codec of the gt arrays: lz4 encodes faster than zstd, larger output
+                               # (raytrace-gt is CPU-bound, docs/design/performance.md;
+                               # None = the dataset's default, zstd)
 
 
 # ---------------------------------------------------------------------------- beams
@@ -62,10 +63,11 @@ def column_rays_soa(grid: Grid, origin: OriginModel, col: np.ndarray) -> tuple[n
     """:func:`holodata.beams.beam_rays` with ``column_poses`` = ``col`` (W,4,4), as (3, H*W) float32
     origins and directions, equal to the bit to ``beam_rays``'s float64 arrays cast to float32.
 
-    beam_rays's ``einsum("wij,hwj->hwi")`` costs a frame ~7 ms; the same float64 products summed
+    beam_rays's ``einsum("wij,hwj->hwi")`` is slow per frame; the same float64 products summed
     in the same order, ``(R_i0 d_0 + R_i2 d_2) + R_i1 d_1`` (numpy's einsum order for this
-    contraction; tests/test_groundtruth.py checks it), cost ~1 ms in numpy, ~0.2 in a compiled loop
-    (:func:`holodata.raytrace._kernels.column_dirs`)."""
+    contraction; tests/test_groundtruth.py checks it), cost a fraction of it in numpy, less in a
+    compiled loop (:func:`holodata.raytrace._kernels.column_dirs`; docs/design/raytrace.md, "Per-column
+    beams", and docs/design/performance.md)."""
     H, W = grid.H, grid.W
     R, t = col[:, :3, :3], col[:, :3, 3]
     o = np.einsum("wij,wj->wi", R, local_origins(grid, origin)) + t  # (W,3), as beam_rays

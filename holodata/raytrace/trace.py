@@ -74,7 +74,7 @@ class _Geometry:
         self.n32 = np.ascontiguousarray(self.normals.T, dtype=np.float32)
         self.c32 = np.einsum("ij,ij->i", self.normals, self.v0).astype(np.float32)
         # float32 box of the vertices grown by BOX_MARGIN_M (culling, see _meets_box); per column, as numpy
-        # reduces an (n,3) array along axis 0 ~10x slower
+        # reduces an (n,3) array along axis 0 slower (docs/design/raytrace.md, "Bounding box per column")
         v = self.vertices
         self.box = np.array([[v[:, k].min() - BOX_MARGIN_M for k in range(3)], [v[:, k].max() + BOX_MARGIN_M for k in range(3)]],
                             dtype=np.float32) if len(v) else None

@@ -275,7 +275,8 @@ class MessageDecoder:
         default = typestore_for(ros_version)
         for k, v in default.fielddefs.items():
             typs.setdefault(k, v)
-        # register only what the recording's types need (building every default class costs ~0.15 s)
+        # register only what the recording's types need (building every default class is slow:
+        # docs/design/performance.md)
         roots = set(needed) if needed is not None else {m for m, _, _ in definitions}
         roots |= {"std_msgs/msg/Header", "std_msgs/msg/String", "tf2_msgs/msg/TFMessage"}
         keep = _closure(typs, roots)

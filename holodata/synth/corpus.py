@@ -1,4 +1,4 @@
-"""Training corners at scale: ``holodata synth --corners N --frames K --out DS.zarr`` (issue 42 point 1).
+"""Training corners at scale: ``holodata synth --corners N --frames K --out DS.zarr``.
 
 A model that reconstructs the hidden side of corners it never saw needs many corners, not many
 frames of a few (16 training corners beat 4 at equal steps, benchmarks/results/nlos.md). A corpus is

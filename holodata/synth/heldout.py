@@ -2,7 +2,7 @@
 
 slam and register were tuned on the demo and benchmark corners (:mod:`holodata.synth.scenario`:
 radar + LiDAR + ZED-like camera, the robot stopping short of the junction, exact TF camera pose).
-This family differs where real recordings do (issue 23):
+This family differs where real recordings do:
 
 * **LiDAR only** (no radar), an Ouster-like organised ``PointCloud2`` (ouster_ros point layout) on
   ``/ouster/points`` in ``os_sensor``; any beam count and vertical field of view;
@@ -19,7 +19,7 @@ This family differs where real recordings do (issue 23):
 * a walking person, human-shaped (:func:`holodata.synth.human.human_mesh`) or a box
   (``person="box"``), in the camera's view.
 
-A second family (issue 43 point 4; ``corner="T"``, ``camera="wall"``, ``walk="across"``) differs from
+A second family (``corner="T"``, ``camera="wall"``, ``walk="across"``) differs from
 both the tuned corners and the one above in corner kind, camera mounting and the person's motion: a
 **T junction**; the robot drives up the approach corridor, stops ``stop_short_m`` before the junction
 and waits ``dwell_s``; the camera is **wall-mounted high** (2.2-2.5 m, below the ceiling) over the

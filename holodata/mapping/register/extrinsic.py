@@ -304,7 +304,7 @@ def check_held(measured_std_m: float, slide_m: float, cfg: RegisterConfig) -> bo
     ``/tf_static`` or a hand-measured ``--init``), which is reported as the direction's uncertainty
     (``uncertainty_m``, with the direction in words) and accepted as stated: judging it against
     ``max_pose_std_m`` (a measurement's precision) refused every held direction under the default
-    5 cm guess (issue 55: 4 of 5 synthetic corners), although no registration of that data could
+    5 cm guess (benchmarks/results/register_defaults.md), although no registration of that data could
     do better than the guess and a refusal left the scene without a person. A guess known better
     (the synthetic recordings' exact TF) is stated with a smaller ``--guess-std``; the figure never
     changes the result. What is judged is what register itself did: the directions it measured, and

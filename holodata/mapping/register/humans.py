@@ -123,7 +123,7 @@ def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) ->
     arms and legs' fronts within ``plane_dist_m`` of one plane), and near the camera holds the
     share of a plane: on the synthetic L / T corners of seed 0 (6 frames, a person standing 3.1 m
     away) their front made the fifth plane, the torso was taken for a wall and the centroid sat on
-    the arms and legs, 12-20 cm off (issue 55; 0.6-1.4 cm with the parts)."""
+    the arms and legs (benchmarks/results/register_defaults.md, "A person standing still")."""
     pts = np.asarray(points, np.float64)
     keep = np.ones(len(pts), bool)
     if len(pts) < 100:
@@ -498,8 +498,8 @@ def silhouette_cut(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, static
     end's depth by more than ``margin_m`` (m, scalar or (N,) per pixel: the end's depth noise; the
     occluder in front of the person), or the image ends.
     The visible part of a cut person is not the person: its centre lies toward the visible side and
-    the body model (:func:`body_columns`) cannot say how much is missing (issue 43;
-    docs/design/register.md, "A person half behind a corner"). 0 for no pixels."""
+    the body model (:func:`body_columns`) cannot say how much is missing
+    (docs/design/register.md, "A person half behind a corner"). 0 for no pixels."""
     r = np.asarray(rows, np.int64)
     if len(r) == 0:
         return 0.0

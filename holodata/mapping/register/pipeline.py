@@ -47,7 +47,7 @@ REGISTER_OUTPUTS = (CALIB_T_WORLD_CAMERA, HUMAN_VERTICES, HUMAN_FACES, HUMAN_POI
 # scene attribute of a camera that could not be registered: register's report, ``registered`` False
 # (the scene finished without a person, :func:`unregistered`); cleared by a registration that passes
 REGISTER_FAILED = "register_failed"
-# Switches deleted (issue 25: off by default, never used) after datasets were registered with them:
+# Switches deleted (off by default, never used) after datasets were registered with them:
 # their only value stays in the fingerprint, so a scene registered before still reads as done.
 RETIRED_PARAMS = {"noise_weights": False, "max_std_m": 0.0, "search_m": 0.0, "mesh_keep_map_m": 0.0}
 RETIRED_SEGMENT_PARAMS = {"grow_pixels": 0}

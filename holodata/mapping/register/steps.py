@@ -195,7 +195,7 @@ def body_only(qw: np.ndarray, hm: np.ndarray, eye: np.ndarray, floor_z: float | 
     a standing body is a vertical column, and its depth is horizontal. The 3-D range also grows with
     the height below a camera mounted above the person (2.5 m away in plan under a camera 2.4 m up, the
     feet are 0.6 m farther than the torso), so a cut on it takes the legs away and lifts the solid
-    (issue 43; docs/design/register.md, "A camera above the person")."""
+    (docs/design/register.md, "A camera above the person")."""
     if hm.any():
         rng_ = np.linalg.norm(qw[:, :2] - eye[:2], axis=1)
         mid = np.median(rng_[hm])

@@ -122,8 +122,8 @@ def track_jumps(centroids: np.ndarray, t_ns: np.ndarray, jump_m: float = Registe
     flagged when the track passes around it: the runs either side of it reach each other, and one of
     them is at least as long; a single frame at either end of the track, cut from the rest, is
     flagged too. A single wrong frame is a run of one; so is a run of frames on another object (a
-    still box the background kept, larger than the far person while it is there: issue 23,
-    hidden-depth16-64 seed 6), which a test of each frame against its own neighbours — the other
+    still box the background kept, larger than the far person while it is there: held-out
+    hidden-depth16-64 seed 6, docs/design/register.md), which a test of each frame against its own neighbours — the other
     frames of that run — let through. A run cut on one side only (far stereo noise moving one frame
     over the limit) stays. The defaults are :class:`RegisterConfig`'s ``track_jump_m`` and
     ``walk_speed_mps`` (what register passes)."""

@@ -44,9 +44,8 @@ Points: ``lidar/points`` holds the valid pixels of ``lidar/range`` in row-major 
 (time relative to the scan stamp) the points are de-skewed with poses interpolated between scans
 (:meth:`LidarScans.deskew_points`: one transform for a scan taken at rest, one pose per column).
 
-Runtime (400-cycle corner, 400 scans of 64×512, 366 taken at rest; background model + segmentation,
-same masks as before): 20.7-22.5 s wall / 16.9-18.1 s CPU → 4.2-4.5 s on 2 shared cores at load ~4-5
-(``benchmarks/pipeline.py``) — a dense voxel grid for the occupancy count and lookups
+What keeps the background model + segmentation fast (measured with ``benchmarks/pipeline.py``, numbers
+in ``benchmarks/results/pipeline.md``): a dense voxel grid for the occupancy count and lookups
 (:mod:`.background`), ``lidar/range`` read a shard at a time, the de-skew shortcuts
 (:meth:`LidarScans.scan_world` for the background pass; :mod:`.scans`), and :func:`background_and_segment`, which
 reuses the background pass's world points so that scans without foreground are not read twice.

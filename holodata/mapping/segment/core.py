@@ -443,7 +443,7 @@ def floor_plane(points_world: list, origins, below_m: float = 0.3, min_points: i
     for q in points_world:
         q = np.asarray(q).reshape(-1, 3)
         f = np.isfinite(q)
-        q = q[f[:, 0] & f[:, 1] & f[:, 2] & (q[:, 2] < z_max)]   # (N,3).all(1) is ~10x slower
+        q = q[f[:, 0] & f[:, 1] & f[:, 2] & (q[:, 2] < z_max)]   # (N,3).all(1) is slower (docs/design/performance.md)
         low.append(q[rng.choice(len(q), cap, replace=False)] if len(q) > cap else q)
     p = np.concatenate(low).astype(np.float64) if low else np.zeros((0, 3))
     if len(p) < min_points:

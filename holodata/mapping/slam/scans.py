@@ -189,9 +189,9 @@ def data_max_range(scans: Scans, n: int = 10) -> float:
 
 def _import_in_background(modules) -> threading.Thread:
     """Start importing ``modules`` in a daemon thread and return it (join it before use). kiss-icp and
-    open3d take ~1 s CPU to import (open3d's visualization module pulls in dash and plotly), mostly
-    Python; it runs while the scans are read, whose zarr decoding leaves the GIL free at times. An
-    import error is left for the real import to raise."""
+    open3d are slow to import (open3d's visualization module pulls in dash and plotly;
+    docs/design/performance.md), mostly Python; it runs while the scans are read, whose zarr decoding
+    leaves the GIL free at times. An import error is left for the real import to raise."""
     import importlib
 
     def run():

@@ -11,10 +11,10 @@ from ...dataset.layout import (LIDAR_POINTS, LIDAR_TIMESTAMP_NS, MAP_POINTS, MES
 
 # The version of slam's method, in the fingerprint: raised with every deliberate change of slam's output
 # (its settings unchanged), so that scenes mapped by the older method are mapped again instead of read
-# as done. 2: scans deskewed to and registered at the middle of their sweep (issue 23, docs/design/slam.md).
+# as done. 2: scans deskewed to and registered at the middle of their sweep (docs/design/slam.md).
 METHOD_VERSION = 2
 
-# Settings added after datasets were mapped (issue 25: inline constants made settings): left out of
+# Settings added after datasets were mapped (inline constants made settings): left out of
 # the fingerprint at their default, so a scene mapped before still reads as done.
 ADDED_SETTINGS = ("scan_normal_radius", "scan_normal_nn", "map_normal_radius", "map_normal_nn")
 
