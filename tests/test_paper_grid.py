@@ -109,8 +109,6 @@ def test_stage_two_batches_crop_the_beams_but_not_the_los_image():
 
 
 def test_calibrate_human_picks_the_threshold_that_finds_the_person():
-    from types import SimpleNamespace
-
     from holodata.conventions import Grid, Label
     from holodata.torch.stage2_infer import Frames, calibrate_human
 
