@@ -20,6 +20,8 @@ the ``time`` timeline (``time/timestamp_ns``), read only that frame's arrays and
 ``world/pred/points``                 with a run (``checkpoint`` or an evaluation ``report``): the
                                       run's predicted points (stage one + its stage two, as
                                       ``holodata evaluate`` scores them), coloured by predicted label
+``world/person/true``, ``…/predicted`` the person's centre in the GT hit points and in the run's
+                                      points (clusters of human points, as evaluate matches them)
 ====================================  ========================================================
 
 Arrays a scene lacks are left out and listed in the returned ``notes``. Memory stays flat in the
@@ -158,6 +160,18 @@ class _Predictions:
         return geo.to_world(P[ok]).astype(np.float32), ids[ok]
 
 
+def _log_person(log, entity: str, points: np.ndarray, class_ids: np.ndarray, text: str) -> None:
+    """The person's centre(s) as evaluate finds them (:func:`holodata.metrics.human_centroids`: clusters
+    of human-labelled points, world frame) as a 0.25 m ball with a label; an empty entity when none."""
+    import rerun as rr
+
+    from .conventions import is_human
+    from .metrics import human_centroids
+
+    c = human_centroids(np.asarray(points, np.float64)[is_human(np.asarray(class_ids))]).astype(np.float32)
+    log(entity, rr.Points3D(c, radii=0.25, labels=[text] * len(c)))
+
+
 def view_scene(url: str, scene_id: str | None = None, frames: str | None = None, save=None, web: bool = False,
                port: int | None = None, checkpoint=None, report=None, device: str = "cpu", bind: str = LOOPBACK,
                force: bool = False) -> dict:
@@ -269,9 +283,12 @@ def view_scene(url: str, scene_id: str | None = None, frames: str | None = None,
             if GT_POINT in has:
                 pts = np.asarray(sc[GT_POINT][f], np.float32).reshape(R.shape[0], -1, 3)[ok]
                 log("world/gt/unmirrored", rr.Points3D(pts, class_ids=ids, radii=0.02))
+                if ids is not None:
+                    _log_person(log, "world/person/true", pts, ids, "true person")
         if pred is not None:
             pts, ids = pred.frame(f)
             log("world/pred/points", rr.Points3D(pts, class_ids=ids, radii=0.02))
+            _log_person(log, "world/person/predicted", pts, ids, "predicted person")
     rec.flush()
     if saved is not None:
         rec.disconnect()

@@ -122,7 +122,31 @@ def test_an_oracle_report_draws_the_gt_hit_points_as_predictions(traced, tmp_pat
     r = CliRunner().invoke(cli, ["view", traced, "--scene", "room_b", "--frames", "0:2", "--report", str(rep),
                                  "--save", str(out)])
     assert r.exit_code == 0, r.output
-    assert _rows(out).get("/world/pred/points") == 2
+    rows = _rows(out)
+    assert rows.get("/world/pred/points") == 2
+    assert rows.get("/world/person/true") == rows.get("/world/person/predicted") == 2   # one per frame, even empty
+
+
+def test_the_person_is_marked_where_evaluate_finds_it():
+    """``world/person/*``: the centre of each cluster of human-labelled points, as evaluate matches."""
+    pytest.importorskip("rerun")
+    import numpy as np
+
+    from holodata.conventions import Label
+    from holodata.view import _log_person
+
+    rng = np.random.default_rng(1)
+    person = np.array([2.0, 1.0, 0.9]) + rng.normal(0, 0.05, (12, 3))
+    wall = np.stack([np.full(30, 4.0), np.linspace(-2, 2, 30), np.zeros(30)], 1)
+    pts = np.concatenate([person, wall])
+    ids = np.array([int(Label.NLOS_HUMAN)] * 12 + [int(Label.NLOS_STRUCTURE)] * 30, np.uint8)
+    got = {}
+    _log_person(lambda path, obj: got.setdefault(path, obj), "world/person/true", pts, ids, "true person")
+    pos = got["world/person/true"].positions.as_arrow_array().to_numpy(zero_copy_only=False)
+    np.testing.assert_allclose(np.stack(pos).reshape(-1, 3), person.mean(0)[None], atol=1e-5)
+    got.clear()
+    _log_person(lambda path, obj: got.setdefault(path, obj), "world/person/true", wall, ids[12:], "true person")
+    assert len(got["world/person/true"].positions.as_arrow_array()) == 0
 
 
 def test_a_checkpoint_draws_its_predicted_points(traced, tmp_path):
