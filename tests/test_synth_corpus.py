@@ -1,4 +1,5 @@
 """``holodata synth --corners``: training corners at scale as one dataset (issue 42 point 1)."""
+import re
 import numpy as np
 import pytest
 from click.testing import CliRunner
@@ -118,4 +119,5 @@ def test_cli_writes_and_reports_the_span(tmp_path):
                                  "--processes", "1", "--quiet"])
     assert r.exit_code == 0, r.output
     assert "2 corners x 1 frames" in r.output and "hidden person in" in r.output
+    assert re.search(r"\((\d+) standing still, (\d+) walking;", r.output)
     assert corpus.CREATED_BY in open_dataset(out).meta["created_by"]

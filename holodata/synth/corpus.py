@@ -235,14 +235,17 @@ def span_lines(rows: list[dict]) -> list[str]:
         for k, n in r["features"].items():
             feats[k] = feats.get(k, 0) + n
     people = sum(r["human"] for r in rows)
+    standing = sum(r["human"] and r.get("person_speed_mps") == 0 for r in rows)
+    empty = sum(not r["human"] and not r["visible_walkers"] for r in rows)
     return [
         f"corners {len(rows)}: " + ", ".join(f"{k} {n}" for k, n in kinds.items()) +
         f"; mirrored {sum(r['mirrored'] for r in rows)}",
         f"width {rng_('width_m')}, hidden branch {rng_('hidden_width_m')} wide and {rng_('hidden_length_m')} long, "
         f"height {rng_('height_m')}",
         f"materials {', '.join(mats)}; clutter " + (", ".join(f"{k} {n}" for k, n in sorted(feats.items())) or "none"),
-        f"hidden person in {people} corners (height {rng_('person_height_m')}, speed {rng_('person_speed_mps', 'm/s')}), "
-        f"visible walkers in {sum(r['visible_walkers'] > 0 for r in rows)}",
+        f"hidden person in {people} corners ({standing} standing still, {people - standing} walking; height "
+        f"{rng_('person_height_m')}, speed {rng_('person_speed_mps', 'm/s')}), visible walkers in "
+        f"{sum(r['visible_walkers'] > 0 for r in rows)}, nobody in {empty}",
         f"radar height {rng_('radar_height_m')}, robot {rng_('robot_to_junction_m')} short of the junction",
     ]
 
