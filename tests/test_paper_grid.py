@@ -140,3 +140,31 @@ def test_calibrate_human_picks_the_threshold_that_finds_the_person():
     assert got["scores"][0.1] == pytest.approx(2 / 3) and got["scores"][0.4] == 0.0
     assert got["threshold"] == 0.3 and got["scores"][0.3] == 1.0   # the highest of the best
     assert calibrate_human(FakeStage2(), frames(False), Grid(H, W)) == {"threshold": 0.5, "scores": {}}
+
+
+def test_the_human_term_can_keep_only_its_hardest_pixels():
+    import torch.nn.functional as F
+
+    from holodata.conventions import Label
+    from holodata.errors import InputError
+    from holodata.torch import TrainConfig
+    from holodata.torch.losses import LossWeights, multi_return_loss
+
+    g = torch.Generator().manual_seed(0)
+    B, H, W = 2, 4, 8
+    out = {"range": torch.rand(B, 3, H, W, generator=g) * 5, "valid_logit": torch.randn(B, 3, H, W, generator=g),
+           "human_logit": torch.randn(B, 3, H, W, generator=g)}
+    gt = torch.rand(B, 3, H, W, generator=g) * 5
+    gt[:, 2, :, :4] = float("nan")
+    lab = torch.full((B, 3, H, W), int(Label.NLOS_STRUCTURE), dtype=torch.uint8)
+    lab[:, 1, :2, :3] = int(Label.NLOS_HUMAN)
+    m = torch.isfinite(gt)
+    per = F.binary_cross_entropy_with_logits(out["human_logit"][m], (lab[m] == int(Label.NLOS_HUMAN)).float(),
+                                             pos_weight=torch.tensor(10.0), reduction="none")
+    _, parts = multi_return_loss(out, gt, lab, LossWeights())
+    assert parts["human"] == pytest.approx(float(per.mean()), rel=1e-6)
+    _, parts = multi_return_loss(out, gt, lab, LossWeights(human_hard=0.25))
+    k = round(0.25 * per.numel())
+    assert parts["human"] == pytest.approx(float(per.sort(descending=True).values[:k].mean()), rel=1e-6)
+    with pytest.raises(InputError, match="human_hard"):
+        TrainConfig(human_hard=0.0)

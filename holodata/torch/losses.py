@@ -22,7 +22,9 @@ RANGE_LOSSES = ("l1", "ce")
 @dataclass
 class LossWeights:
     """Weights of :func:`multi_return_loss`'s terms; ``range_loss`` picks the range term: "l1" (L1 on
-    the soft-argmax mean) or "ce" (:func:`range_bin_nll`, a per-bin likelihood)."""
+    the soft-argmax mean) or "ce" (:func:`range_bin_nll`, a per-bin likelihood); ``human_hard``: the
+    share of return pixels the human term averages over, the hardest (largest loss) ones: 1 = all,
+    PanoRadar's segmentation keeps 0.2 (online hard example mining)."""
 
     range: float = 1.0
     gradient: float = 0.5
@@ -30,6 +32,7 @@ class LossWeights:
     human: float = 0.2
     human_pos_weight: float = 10.0
     range_loss: str = "l1"
+    human_hard: float = 1.0
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -93,7 +96,9 @@ def multi_return_loss(out: dict, gt_range: torch.Tensor, gt_label: torch.Tensor 
     The human term is BCE over the pixels with a return, human pixels weighted by
     ``w.human_pos_weight``: a hidden person is a few dozen of ~10⁴ returns, so unweighted BCE is
     minimised by never saying "human" (its probability then stays far below 0.5 everywhere).
-    With weight w the head says human (p ≥ 0.5) where the odds of a human are ≥ 1/w."""
+    With weight w the head says human (p ≥ 0.5) where the odds of a human are ≥ 1/w. With
+    ``w.human_hard`` < 1 only that share of the pixels, those with the largest loss, is averaged:
+    the many easy structure pixels stop diluting the few human ones."""
     if w.range_loss not in RANGE_LOSSES:
         raise ValueError(f"range loss must be one of {', '.join(RANGE_LOSSES)}, got {w.range_loss!r}")
     parts = {
@@ -112,6 +117,9 @@ def multi_return_loss(out: dict, gt_range: torch.Tensor, gt_label: torch.Tensor 
         if m.any():
             human = is_human(gt_label).float()
             pw = torch.tensor(float(w.human_pos_weight), device=human.device)
-            parts["human"] = F.binary_cross_entropy_with_logits(out["human_logit"][m], human[m], pos_weight=pw)
+            per = F.binary_cross_entropy_with_logits(out["human_logit"][m], human[m], pos_weight=pw, reduction="none")
+            if w.human_hard < 1.0:   # the hardest share of the pixels (at least one)
+                per = torch.topk(per, max(1, int(round(w.human_hard * per.numel())))).values
+            parts["human"] = per.mean()
             total = total + w.human * parts["human"]
     return total, {k: float(v.detach()) for k, v in parts.items()}

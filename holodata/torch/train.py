@@ -44,7 +44,8 @@ class TrainConfig:
     Data: downsample (H,W stride), range_pool (range-bin max-pool), crop_w (random azimuth
     window), frames_per_scene (cap). Optimiser: AdamW lr / weight_decay, cosine decay to
     lr·lr_floor over ``epochs``. Loss weights: w_range, w_gradient, w_valid, w_human (and
-    human_pos_weight, the weight of human pixels in that term; :func:`multi_return_loss`).
+    human_pos_weight, the weight of human pixels in that term, and human_hard, the share of hardest
+    pixels it averages; :func:`multi_return_loss`).
     range_loss: "l1" (L1 on the soft-argmax mean) or "ce" (per-bin cross-entropy against two-hot
     sub-bin targets, :func:`holodata.torch.losses.range_bin_nll`); estimator: the point estimate the
     model predicts with (None: "mode" for "ce", "mean" for "l1"), recorded in the checkpoint."""
@@ -73,6 +74,7 @@ class TrainConfig:
     w_valid: float = 0.2
     w_human: float = 0.2
     human_pos_weight: float = 10.0
+    human_hard: float = 1.0
     range_loss: str = "l1"
     estimator: str | None = None
 
@@ -80,6 +82,8 @@ class TrainConfig:
         from .losses import RANGE_LOSSES
         from .model import ESTIMATORS
 
+        if not 0 < self.human_hard <= 1:
+            raise InputError(f"human_hard is the share of pixels the human term keeps, in (0, 1]; got {self.human_hard}")
         if self.range_loss not in RANGE_LOSSES:
             raise InputError(f"range_loss must be one of {', '.join(RANGE_LOSSES)}, got {self.range_loss!r}")
         if self.estimator is not None and self.estimator not in ESTIMATORS:
@@ -116,7 +120,8 @@ class TrainConfig:
 
     def loss_weights(self) -> LossWeights:
         grad = self.w_gradient if self.w_gradient is not None else (0.0 if self.range_loss == "ce" else 0.5)
-        return LossWeights(self.w_range, grad, self.w_valid, self.w_human, self.human_pos_weight, self.range_loss)
+        return LossWeights(self.w_range, grad, self.w_valid, self.w_human, self.human_pos_weight, self.range_loss,
+                           self.human_hard)
 
     def point_estimator(self) -> str:
         """The estimator the model predicts with (:attr:`estimator`, else the one ``range_loss`` suits)."""
