@@ -13,7 +13,7 @@ from dataclasses import asdict, dataclass
 import torch
 import torch.nn.functional as F
 
-from holodata.conventions import is_human
+from holodata.conventions import DEFAULT_MAX_RANGE_M, is_human
 
 
 RANGE_LOSSES = ("l1", "ce")
@@ -88,7 +88,7 @@ def range_bin_nll(bin_logits: torch.Tensor, gt_range: torch.Tensor, max_range: f
 
 
 def multi_return_loss(out: dict, gt_range: torch.Tensor, gt_label: torch.Tensor | None = None,
-                      w: LossWeights = LossWeights(), max_range: float = 9.6) -> tuple[torch.Tensor, dict]:
+                      w: LossWeights = LossWeights(), max_range: float = DEFAULT_MAX_RANGE_M) -> tuple[torch.Tensor, dict]:
     """Total loss and its parts. out: model dict (range, valid_logit, human_logit, each (B,3,H,W);
     ``bin_logits`` (B,3,n_bins,H,W) for ``w.range_loss == "ce"``); gt_range (B,3,H,W) metres NaN =
     none; gt_label (B,3,H,W) uint8 (3/4 = human) or None; ``max_range`` m, the bins' extent.

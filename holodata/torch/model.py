@@ -16,6 +16,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from holodata.conventions import DEFAULT_MAX_RANGE_M
+
 
 ESTIMATORS = ("mean", "median", "mode")
 # the "mode" estimate's window about the most likely bin: a two-hot target (losses.two_hot) puts its
@@ -35,7 +37,7 @@ class ModelConfig:
     base_channels: int = 32
     max_channels: int = 256
     blocks: int = 2
-    max_range: float = 9.6
+    max_range: float = DEFAULT_MAX_RANGE_M
     head: str = "softargmax"
     range_bins_out: int = 0  # soft-argmax bins; 0 = in_channels
     input_skip: bool = True  # soft-argmax logits += scale_b · input heatmap (same bins)

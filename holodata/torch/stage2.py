@@ -38,6 +38,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from holodata.conventions import DEFAULT_MAX_RANGE_M
+
 # ----------------------------------------------------------------------------- analytic cores
 
 
@@ -261,7 +263,7 @@ class RayTracerConfig:
     channels: int = 32
     res_blocks: int = 4
     fusion_blocks: int = 2
-    max_range: float = 9.6
+    max_range: float = DEFAULT_MAX_RANGE_M
     hybrid: bool = True
     normals: str = "planes"  # the analytic branch: holodata.evaluate.unmirror.NORMAL_METHODS
 
@@ -452,7 +454,7 @@ class RefinerConfig:
     channels: tuple = (16, 32, 48, 64)
     blocks: int = 1
     max_offset: float = 0.75
-    max_range: float = 9.6
+    max_range: float = DEFAULT_MAX_RANGE_M
 
     def to_dict(self) -> dict:
         d = asdict(self)

@@ -18,6 +18,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader
 
+from holodata.conventions import DEFAULT_MAX_RANGE_M
 from holodata.errors import InputError
 from holodata.ownership import claim_folder
 from holodata.progress import track
@@ -206,7 +207,7 @@ def model_from_checkpoint(ck: dict, device: str = "cpu") -> MultiReturnUNet:
 
 
 def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels: int,
-        max_range: float = 9.6, meta: dict | None = None, quiet: bool = False, resume: bool = True,
+        max_range: float = DEFAULT_MAX_RANGE_M, meta: dict | None = None, quiet: bool = False, resume: bool = True,
         init: dict | None = None) -> RunResult:
     """Train on a torch Dataset of sample dicts (see holodata.torch.data) into ``out_dir``.
 
