@@ -19,7 +19,7 @@ import numpy as np
 from _run import header
 
 from holodata.conventions import Grid
-from holodata.evaluate.unmirror import normals_from_range
+from holodata.geometry.unmirror import normals_from_range
 from holodata.geometry.planes import _window_plane_normals_numpy, window_plane_normals
 
 

@@ -111,7 +111,8 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     if count > 1 or workers or scheduler:
         import json
 
-        from holodata.distributed import cluster, synth_scenes
+        from holodata.distributed import cluster
+        from holodata.synth.batch import synth_scenes
 
         with cluster(workers, scheduler) as client:
             res = synth_scenes(out, count, seed=seed, client=client, quiet=quiet or as_json, **kw)

@@ -8,8 +8,8 @@ every stage runs in-process as before.
 
 Tasks (the unit a lost worker loses, and the scheduler reruns elsewhere). This module only runs
 them (:func:`run_tasks` over a function and its calls) and knows no stage; each stage owns its task
-function (``groundtruth._gt_shard_task``, ``ingest._ingest_task``) and imports this module, never
-the other way round:
+function (``groundtruth._gt_shard_task``, ``ingest._ingest_task``, ``synth.batch._synth_task``) and
+imports this module, never the other way round (tests/test_import_graph.py):
 
 * ``raytrace-gt``: one task per *shard* of a scene (``shard_frames`` consecutive frames); it
   traces those frames and writes every gt/* array's shard with ``FrameArrayWriter.write_shard``.
@@ -17,7 +17,7 @@ the other way round:
   its ray-casting scene built once per worker thread.
 * ``ingest``: one task per recording (a whole scene: ragged arrays are appended in order, so a
   scene cannot be split).
-* ``synth``: one task per recording.
+* ``synth``: one task per recording (:mod:`holodata.synth.batch`).
 
 Idempotence: a shard is written whole in one atomic put and committed by its manifest record
 (:mod:`holodata.dataset.writer`); a task whose shards are already committed does nothing, a task
@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import logging
 import os
-import uuid
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -186,40 +185,4 @@ def tune_malloc() -> None:
         pass
 
 
-# ---------------------------------------------------------------------------------------- synth
-def _synth_task(out_dir: str, kwargs: dict) -> dict:
-    from .synth import synthesize
-
-    tune_malloc()
-    return synthesize(out_dir, **{**kwargs, "quiet": True}).summary()
-
-
-def synth_dask(client, jobs: list[tuple[str, dict]], quiet: bool = True) -> list[dict]:
-    """One Dask task per recording: ``jobs`` [(out_dir, synthesize kwargs)] → their summaries."""
-    token = uuid.uuid4().hex[:8]
-    keys = [f"synth-{Path(o).name}-{token}" for o, _ in jobs]
-    return run_tasks(client, _synth_task, [(str(o), kw) for o, kw in jobs], keys, description="synth", quiet=quiet)
-
-
-def synth_scenes(out, count: int, seed: int = 0, client=None, quiet: bool = True, **kwargs) -> list[dict]:
-    """``count`` recordings ``out/scene_000``, ``out/scene_001`` ... with seeds ``seed``, ``seed+1`` ...
-    (other ``synthesize`` arguments shared), one task each on ``client`` or in this process.
-    Returns their summaries. ``out`` must be reachable at the same path from every worker."""
-    from .progress import track
-    from .synth import synthesize
-
-    if count < 1:
-        raise InputError(f"--count must be >= 1, got {count}")
-    out = Path(out)
-    jobs = [(worker_path(out / f"scene_{i:03d}"), {**kwargs, "seed": seed + i}) for i in range(count)]
-    for o, _ in jobs:  # fail before any task starts
-        if Path(o).exists() and any(Path(o).iterdir()):
-            raise InputError(f"{o}: already exists and is not empty; choose an empty --out")
-    if client is not None:
-        return synth_dask(client, jobs, quiet=quiet)
-    return [synthesize(o, **{**kw, "quiet": True}).summary()
-            for o, kw in track(jobs, total=len(jobs), description="synth", quiet=quiet)]
-
-
-__all__ = ["cluster", "run_tasks", "n_workers", "worker_path", "for_workers", "tune_malloc", "synth_dask",
-           "synth_scenes"]
+__all__ = ["cluster", "run_tasks", "n_workers", "worker_path", "for_workers", "tune_malloc"]

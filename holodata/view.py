@@ -135,7 +135,7 @@ class _Predictions:
 
     def __init__(self, checkpoint, oracle: bool, estimator: str, ds, sc, device: str = "cpu"):
         from .conventions import reduced_grid
-        from .evaluate.frames import SceneBeams
+        from .scene_beams import SceneBeams
         from .evaluate.predict import Predictor
 
         self.run = Predictor.load(checkpoint, device=device, estimator=estimator, oracle=oracle)

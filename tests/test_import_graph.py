@@ -23,6 +23,11 @@ A strongly connected component of more than one module is a cycle; the test fail
 one concrete loop through it (edges marked ``[function]`` / ``[TYPE_CHECKING]`` when that is how the
 import is written). No cycle is tolerated: fix it by moving what both sides need into the module
 below them.
+
+Some arrows must not exist even without a cycle (issue 44, "arrows that run back up"):
+:data:`FORBIDDEN_IMPORTS` lists (importer, imported) package prefixes, checked over the same graph by
+:func:`test_no_import_runs_back_up` (holodata.torch never imports holodata.evaluate, the geometry
+core neither of them, holodata.distributed no stage package).
 """
 from __future__ import annotations
 
@@ -240,6 +245,56 @@ def test_no_import_cycle_in_holodata():
     assert "holodata.radar.beamform" in g and "holodata.evaluate.pipeline" in g     # the walk saw the package
     found = cycles(g)
     assert not found, "import cycle(s) in holodata/:\n" + "\n".join(describe(g, c) for c in found)
+
+
+# Arrows that must not run back up (issue 44 "arrows that run back up"): (importer, imported) module
+# prefixes; no edge of the import graph, of any kind (module level, lazy in a function, TYPE_CHECKING),
+# may run from a module under the first to one under the second. A cycle test alone misses these: one
+# direction of such a pair is enough to invert the layering.
+STAGES = ("synth", "ingest", "mapping", "raytrace", "torch", "evaluate")
+FORBIDDEN_IMPORTS = [
+    # the model package: evaluate runs it, so it never reaches into evaluate (shared code lives below both,
+    # e.g. holodata.geometry.unmirror)
+    ("holodata.torch", "holodata.evaluate"),
+    # the geometry core is arrays in, arrays out, below every stage
+    ("holodata.geometry", "holodata.torch"),
+    ("holodata.geometry", "holodata.evaluate"),
+    # the Dask runner knows no stage: each stage owns its task function and imports the runner
+    *[("holodata.distributed", f"holodata.{stage}") for stage in STAGES],
+]
+
+
+def _under(module: str, prefix: str) -> bool:
+    return module == prefix or module.startswith(prefix + ".")
+
+
+def forbidden_imports(edges, rules=FORBIDDEN_IMPORTS) -> list[str]:
+    """``"importer -> imported [how]"`` for every edge of ``edges`` that a rule of ``rules`` forbids."""
+    return [f"{a} -> {b} [{how}]" for a in sorted(edges) for b, how in sorted(edges[a].items())
+            if any(_under(a, hi) and _under(b, lo) for hi, lo in rules)]
+
+
+def test_forbidden_import_finder(tmp_path):
+    pkg = tmp_path / "holodata"
+    (pkg / "torch").mkdir(parents=True)
+    (pkg / "evaluate").mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "torch" / "__init__.py").write_text("")
+    (pkg / "torch" / "train.py").write_text("def f():\n    from holodata.evaluate.frames import X\n")
+    (pkg / "evaluate" / "__init__.py").write_text("")
+    (pkg / "evaluate" / "frames.py").write_text("from holodata.torch import train\n")
+    (pkg / "distributed.py").write_text("from holodata import evaluate\n")
+    (pkg / "torchvision_like.py").write_text("import holodata.evaluate\n")   # a prefix, not a package
+    assert forbidden_imports(import_graph(pkg)) == ["holodata.distributed -> holodata.evaluate [module]",
+                                                    "holodata.torch.train -> holodata.evaluate.frames [function]"]
+
+
+def test_no_import_runs_back_up():
+    g = import_graph()
+    assert "holodata.distributed" in g and "holodata.torch.stage2" in g and "holodata.geometry.unmirror" in g
+    found = forbidden_imports(g)
+    assert not found, ("import(s) against the layering (FORBIDDEN_IMPORTS; move what both sides need below "
+                       "them):\n" + "\n".join(found))
 
 
 def test_import_graph_counts_names_imported_from_a_parent_package(tmp_path):

@@ -1,9 +1,9 @@
 """Normals of a range image (holodata.geometry.planes window/plane fits behind
-holodata.evaluate.unmirror.normals_from_range): analytic box-room images, exact and noisy."""
+holodata.geometry.unmirror.normals_from_range): analytic box-room images, exact and noisy."""
 import numpy as np
 
 from holodata.conventions import Grid
-from holodata.evaluate.unmirror import normals_from_range
+from holodata.geometry.unmirror import normals_from_range
 from holodata.geometry.planes import agreeing_planes, window_plane_normals
 
 G = Grid(32, 128)

@@ -11,7 +11,7 @@ torch = pytest.importorskip("torch")
 import _eval_dataset as E  # noqa: E402
 
 from holodata.conventions import Grid  # noqa: E402
-from holodata.evaluate.unmirror import normals_from_range, unmirror  # noqa: E402
+from holodata.geometry.unmirror import normals_from_range, unmirror  # noqa: E402
 from holodata.torch.stage2 import (  # noqa: E402
     RayTracer, RayTracerConfig, RefinerConfig, SparseConv3, VoxelEncoder, VoxelRefiner, geometry_vector,
     local_frame, mirror_normals, neighbour_table, normals_from_range_t, ray_trace, refine_loss, reflect,

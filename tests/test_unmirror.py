@@ -3,7 +3,7 @@ import pytest
 
 from holodata.conventions import Grid, RangeBins
 from holodata.evaluate.baseline import strongest_peaks
-from holodata.evaluate.unmirror import los_mask, normals_from_range, unmirror
+from holodata.geometry.unmirror import los_mask, normals_from_range, unmirror
 from holodata.raytrace import trace
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from .baseline import strongest_peaks
 from .report import format_tables
-from .unmirror import los_mask, normals_from_range, unmirror
+from holodata.geometry.unmirror import los_mask, normals_from_range, unmirror
 
 
 def evaluate(dataset_url, checkpoint, out_dir, split: str = "test", **kwargs) -> dict:

@@ -3,13 +3,13 @@ score both with the paper's metrics (holodata.metrics), write metrics.json (vali
 schemas/metrics.schema.json), PNG figures and report.html.
 
 Point clouds live in the radar frame of each frame's pose, and every beam starts where the ground
-truth was traced from (the scene's beam-origin model, :mod:`holodata.evaluate.frames`): predicted
+truth was traced from (the scene's beam-origin model, :mod:`holodata.scene_beams`): predicted
 range images are un-mirrored from those origins along those directions with normals estimated
 from the predicted images (paper eq. 2–5, no learning); ground-truth clouds are the traced points
 (gt/point moved into the radar frame with pose/T_world_radar; without them, the GT ranges
 un-mirrored with the GT normals). GT LOS/NLOS comes from ``gt/label``; a predicted point is LOS
 when the predicted first-bounce image shows free space up to it
-(:func:`holodata.evaluate.unmirror.los_mask`). Human centroids are clusters of human-labelled
+(:func:`holodata.geometry.unmirror.los_mask`). Human centroids are clusters of human-labelled
 points, the same procedure for prediction and GT. ``oracle`` runs score the ground truth itself
 (GT ranges, GT normals, GT labels) through the same un-mirroring: a perfect prediction, which
 must score perfectly.
@@ -29,8 +29,8 @@ from holodata.ownership import claim_folder
 from holodata.progress import track
 
 from .baseline import strongest_peaks
-from .frames import FrameGeometry, SceneBeams
-from .unmirror import los_mask, unmirror
+from holodata.scene_beams import FrameGeometry, SceneBeams
+from holodata.geometry.unmirror import los_mask, unmirror
 
 METHODS = ("model", "baseline")
 # Table-2 rows when the run has a learned stage two (RUN/stage2.pt): the refined model, the model's

@@ -5,7 +5,7 @@ learned stage two) and knows its sample transform and normalisation, so ``holoda
 (which batches frames and scores them) and ``holodata view`` (which draws one frame at a time) run
 the model the same way. Stage one is the multi-return U-Net (paper §4.3); stage two is the
 learned ray tracer + voxel refiner when the run has one (§4.4), else the analytic un-mirroring of
-:mod:`holodata.evaluate.unmirror` (eq. 2–5) with the free-space LOS test.
+:mod:`holodata.geometry.unmirror` (eq. 2–5) with the free-space LOS test.
 """
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ import numpy as np
 
 from holodata.conventions import Grid, is_human, is_los
 
-from .frames import FrameGeometry
-from .unmirror import los_mask, unmirror
+from holodata.scene_beams import FrameGeometry
+from holodata.geometry.unmirror import los_mask, unmirror
 
 
 @dataclass

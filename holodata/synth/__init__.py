@@ -34,7 +34,8 @@ messages are written in log-time order.
 
 Modules (besides the world, motion and sensor models and the writers): :mod:`.topics` (the
 recordings' topics), :mod:`.result` (:class:`SynthResult`), :mod:`.synthesis` (:func:`synthesize`,
-:func:`estimate_bytes`); this module only re-exports.
+:func:`estimate_bytes`), :mod:`.batch` (:func:`~.batch.synth_scenes`: ``--count`` recordings, in this
+process or one Dask task each); this module only re-exports.
 """
 from __future__ import annotations
 

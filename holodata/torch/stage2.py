@@ -7,7 +7,7 @@ Shapes: ``R`` (N,3,H,W) accumulated travel distance per bounce (NaN = none), ``o
 (H,W,3) or (N,H,W,3) beam origins, ``directions`` (H,W,3) or (N,H,W,3) unit beam directions d_1.
 
 * :func:`normals_from_range_t` — eq. 4 (the closed-form normal of a range image) in torch,
-  the same finite-difference formulation as :func:`holodata.evaluate.unmirror.normals_from_range`.
+  the same finite-difference formulation as :func:`holodata.geometry.unmirror.normals_from_range`.
 * :func:`ray_trace` — the three cascaded ray-tracing blocks, eq. 2 (reflect the direction at the
   previous normal) and eq. 3 (walk the segment ``R_b − R_{b−1}``), with the mirrored normals of
   each bounce un-mirrored through every earlier normal (eq. 5).
@@ -73,7 +73,7 @@ def normals_from_range_t(R: torch.Tensor, directions: torch.Tensor, origins: tor
     The mirrored points are ``p' = o + R d`` (origins (…,H,W,3) or None = 0); the normal is the
     cross product of the row and column tangents (finite differences of neighbouring points,
     the smaller-range-jump side; columns wrap around), the same as the numpy
-    :func:`holodata.evaluate.unmirror.normals_from_range`. NaN where R or both neighbours along an
+    :func:`holodata.geometry.unmirror.normals_from_range`. NaN where R or both neighbours along an
     axis are missing. Not differentiable through the tangent choice (use it as a fixed branch).
     """
     d = directions.to(R.dtype)
@@ -92,13 +92,13 @@ def analytic_normals(R: torch.Tensor, directions: torch.Tensor, origins: torch.T
                      method: str = "planes") -> torch.Tensor:
     """The analytic branch's (mirrored) normals (N,B,H,W,3) of range images R (N,B,H,W):
     ``"difference"`` is :func:`normals_from_range_t` (eq. 4's finite differences, in torch);
-    ``"planes"`` is :func:`holodata.evaluate.unmirror.normals_from_range` per image (the finite-difference
+    ``"planes"`` is :func:`holodata.geometry.unmirror.normals_from_range` per image (the finite-difference
     normal refined by robust window and image-plane fits: what makes a *predicted* image's normals
     fractions of a degree rather than degrees off on walls), computed in numpy, not differentiable.
     ``directions``/``origins`` (N|1,1,H,W,3)."""
     if method == "difference":
         return normals_from_range_t(R, directions, origins)
-    from holodata.evaluate.unmirror import normals_from_range
+    from holodata.geometry.unmirror import normals_from_range
 
     Rn = R.detach().cpu().numpy()
     d = directions.detach().cpu().numpy()
@@ -265,7 +265,7 @@ class RayTracerConfig:
     fusion_blocks: int = 2
     max_range: float = DEFAULT_MAX_RANGE_M
     hybrid: bool = True
-    normals: str = "planes"  # the analytic branch: holodata.evaluate.unmirror.NORMAL_METHODS
+    normals: str = "planes"  # the analytic branch: holodata.geometry.unmirror.NORMAL_METHODS
 
 
     def to_dict(self) -> dict:

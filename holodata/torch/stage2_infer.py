@@ -62,8 +62,8 @@ def calibration_index(n: int, max_frames: int = CALIBRATION_FRAMES) -> np.ndarra
 
 def los_flags(points: np.ndarray, first_range: np.ndarray, grid: Grid, origins: np.ndarray | None = None) -> np.ndarray:
     """(3,H,W) LOS flags of ray-traced points (3,H,W,3): visible in the first-bounce range image
-    (:func:`holodata.evaluate.unmirror.los_mask`, from the beams' origins (H,W,3) when given)."""
-    from holodata.evaluate.unmirror import los_mask
+    (:func:`holodata.geometry.unmirror.los_mask`, from the beams' origins (H,W,3) when given)."""
+    from holodata.geometry.unmirror import los_mask
 
     return los_mask(np.asarray(points, np.float64), first_range, grid,
                     origins=None if origins is None else np.asarray(origins, np.float64))
@@ -170,7 +170,7 @@ def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, gr
                    max_frames: int = CALIBRATION_FRAMES, candidates=GATE_CANDIDATES) -> dict:
     """Stage one's confidence gate for bounces 2 and 3: the ``min_confidence`` per bounce below which
     a return is dropped, chosen to maximise the mean of the LOS and NLOS F-scores at ``tau`` m of the
-    un-mirrored points (:func:`holodata.evaluate.unmirror.unmirror` with normals from the range images,
+    un-mirrored points (:func:`holodata.geometry.unmirror.unmirror` with normals from the range images,
     LOS from the first bounce, as evaluate scores them) over up to ``max_frames`` evenly spaced
     training frames: bounce 3 first (bounce 2 ungated), then bounce 2 given it. ``s1_range`` /
     ``s1_conf`` (T,3,H,W): stage one's ungated ranges (m) and :func:`holodata.torch.model.mode_confidence`.
@@ -180,7 +180,7 @@ def calibrate_gate(s1_range: np.ndarray, s1_conf: np.ndarray, frames: Frames, gr
     flags stay; the points are un-mirrored once per frame, with the normals of the ungated images
     (a gated image's planes lose a few points; 13 gates cost one un-mirroring). Returns
     {"min_confidence": [0, c2, c3], "scores": {"b2"|"b3": {candidate: mean F}}}."""
-    from holodata.evaluate.unmirror import los_mask, unmirror
+    from holodata.geometry.unmirror import los_mask, unmirror
 
     idx = calibration_index(len(frames), max_frames)
     cache = []   # per frame: the ungated points, their LOS flags, confidences and the GT clouds

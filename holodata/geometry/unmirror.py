@@ -8,7 +8,7 @@ range image) and are un-mirrored through the previous bounces' normals (eq. 5, a
 earlier mirror: ``n_b = L_{b−1}···L_1 n'_b`` with ``L_k = I − 2 n_k n_kᵀ``; the paper writes the
 single-mirror case). Everything is in the radar frame of the frame's pose; each beam starts at its
 own origin ``o`` (H,W,3) and looks along its own direction (the beam-origin model of
-:mod:`holodata.beams`, :func:`holodata.evaluate.frames.frame_geometry`): ``p'_b = o + R_b d_1``.
+:mod:`holodata.beams`, :func:`holodata.scene_beams.frame_geometry`): ``p'_b = o + R_b d_1``.
 Without origins every beam starts at 0 and looks along the grid's directions.
 """
 from __future__ import annotations

@@ -1,4 +1,5 @@
-"""Per-frame beam geometry and ground truth in the radar frame of that frame, for stage two.
+"""Per-frame beam geometry and ground truth in the radar frame of that frame (below both the learned
+stages and evaluate, which read it).
 
 Every consumer of range images — evaluate's un-mirroring, the learned stage two, the oracle —
 reads the beams from here, so all of them start each beam where the ground truth was traced from
