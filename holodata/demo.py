@@ -49,7 +49,10 @@ class DemoConfig:
     positions, default 1024) which ingest beamforms onto ``grid``, as a real rig's data goes;
     ``beamform_focus``: the beamformer's focus for ``"iq"`` ("near": every range bin focused with the
     exact antenna distances; "far": PanoRadar's far-field compensation; docs/design/radar.md);
-    ``range_loss``: stage one's range term (TrainConfig.range_loss: "l1" or "ce")."""
+    ``range_loss``: stage one's range term (TrainConfig.range_loss: "l1" or "ce"); ``lr``: stage
+    one's AdamW learning rate (TrainConfig.lr; stage two's is ``stage2``'s ``lr``); ``init``: the run
+    directory both stages fine-tune from (``"pretrained"``: the weights holodata ships; its model
+    settings must be these, else one InputError line), None: trained from scratch."""
 
     corners: tuple[tuple[str, int], ...]
     n_test: int
@@ -73,6 +76,8 @@ class DemoConfig:
     radar_chirps: int | None = None
     beamform_focus: str = "near"
     range_loss: str = "l1"
+    lr: float = 2e-3
+    init: str | None = None
 
     def beamform(self):
         """The ingest beamformer's parameters for ``radar_output="iq"`` (None otherwise): the grid's rows,
@@ -95,16 +100,33 @@ def default_radar_output(quick: bool) -> str:
     return "iq" if quick else "heatmap"
 
 
-def demo_config(quick: bool) -> DemoConfig:
-    """``quick``: small grids and few frames (its run time: README); else the paper's 64×512 grid."""
+# the quick demo fine-tunes the shipped weights (holodata.torch.pretrained, trained at its 32x128 grid):
+# stage one 2 epochs at a quarter of the from-scratch learning rate (2e-3 for 1-2 epochs undoes part
+# of what they learnt), stage two one refiner epoch on 2 frames per corner with the shipped ray
+# tracer kept (ray-tracer epochs bought nothing on the held-out corner); the operating points (stage
+# one's confidence gate, stage two's keep and human thresholds) are calibrated anew on the demo's
+# training corners. The measurements behind the choice: benchmarks/results/demo-finetune.md
+QUICK_FINETUNE = {"epochs": 2, "lr": 5e-4, "range_loss": "ce", "init": "pretrained",
+                  "stage2": {"epochs_rt": 0, "epochs_refine": 1, "channels": 16, "lr": 5e-4, "frames_per_scene": 2}}
+
+
+def demo_config(quick: bool, from_scratch: bool = False) -> DemoConfig:
+    """``quick``: small grids and few frames (its run time: README), both stages fine-tuned from the
+    shipped weights (:data:`QUICK_FINETUNE`) unless ``from_scratch``; else the paper's 64×512 grid
+    (which the shipped weights do not fit: trained from scratch)."""
     if quick:
         # a 2.4 m wide cross for DEMO_CORNERS' 4 m one: at the quick demo's 32x128 beams the radar
         # reaches the hidden side of the 4 m cross with few GT NLOS points (docs/design/synth.md)
         corners = tuple(("cross", 21) if c == ("cross", 13) else c for c in DEMO_CORNERS[:6])
-        return DemoConfig(corners=corners, n_test=1, frames=12, grid=Grid(32, 128),
-                          lidar_shape=(32, 512), camera_shape=(376, 672), epochs=15, depth=6,
-                          base_channels=8, max_channels=64, range_pool=2,
-                          stage2={"epochs_rt": 3, "epochs_refine": 2, "channels": 16}, radar_chirps=512)
+        cfg = DemoConfig(corners=corners, n_test=1, frames=12, grid=Grid(32, 128),
+                         lidar_shape=(32, 512), camera_shape=(376, 672), epochs=15, depth=6,
+                         base_channels=8, max_channels=64, range_pool=2,
+                         stage2={"epochs_rt": 3, "epochs_refine": 2, "channels": 16}, radar_chirps=512)
+        if from_scratch:
+            return cfg
+        import dataclasses
+
+        return dataclasses.replace(cfg, **QUICK_FINETUNE)
     return DemoConfig(corners=DEMO_CORNERS, n_test=2, frames=40, grid=Grid(), lidar_shape=(64, 1024),
                       camera_shape=(376, 672), epochs=30, depth=7,
                       stage2={"epochs_rt": 12, "epochs_refine": 10, "channels": 32})
@@ -139,9 +161,12 @@ def map_scene_id(sid: str) -> str:
 
 
 def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = False,
-             config: DemoConfig | None = None, log=None) -> DemoResult:
+             config: DemoConfig | None = None, log=None, keep_recordings: bool = False) -> DemoResult:
     """Run the demo into ``out_dir`` (created; reused when rerun). ``log(str)`` receives one line
-    per stage (default: silent)."""
+    per stage (default: silent). Once a corner's recordings are ingested they are removed (the MCAP
+    files, ~0.3 GB a quick-demo corner; its ``truth/`` stays), unless ``keep_recordings``: only
+    the ones this demo's synth wrote (:func:`remove_ingested_recordings`); a rerun then takes those
+    corners from the dataset."""
     from .dataset import create_dataset, validate_dataset
     from .evaluate import evaluate
     from .groundtruth import GTConfig, raytrace_dataset
@@ -161,18 +186,22 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
         say(f"{name:<12} {timings[name]:6.1f} s")
 
     t0 = time.perf_counter()
-    recs = synthesize_corners(out / "recordings", cfg, quiet=quiet)
+    recs = synthesize_corners(out / "recordings", cfg, quiet=quiet, ingested=ingested_scenes(url))
     stage("synth", t0)
 
     t0 = time.perf_counter()
     ids = list(recs)
-    maps = {s: map_scene_id(s) for s in ids if getattr(recs[s], "mapping_recording", None) is not None}
-    ingest([str(recs[s].recording) for s in ids] + [str(recs[s].mapping_recording) for s in maps], str(url),
-           scene_ids=ids + list(maps.values()), quiet=quiet, beamform=cfg.beamform())
+    maps = {s: map_scene_id(s) for s in ids if cfg.mapping_pass}
+    todo = [(str(recs[s].recording), s) for s in ids if recs[s].recording is not None] + \
+           [(str(recs[s].mapping_recording), maps[s]) for s in maps if recs[s].mapping_recording is not None]
+    if todo:   # (a rerun after the recordings were ingested and removed has none left)
+        ingest([r for r, _ in todo], str(url), scene_ids=[s for _, s in todo], quiet=quiet, beamform=cfg.beamform())
     w = create_dataset(str(url), grid=cfg.grid, range_bins=cfg.range_bins, created_by="holodata demo")
     w.begin("demo", rerun="rerun holodata demo with the same --out to finish it")   # the root: until the splits
     for sid in ids:
         w.scene(sid).set_attrs(truth_scene_attrs(recs[sid].truth_dir))
+    if not keep_recordings:
+        remove_ingested_recordings(out / "recordings", ids, maps, url)
     stage("ingest", t0)
 
     t0 = time.perf_counter()
@@ -203,15 +232,24 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
 
     t0 = time.perf_counter()
     run_dir = out / "run"
+    init = None
+    if cfg.init is not None:
+        from .torch.pretrained import resolve
+
+        try:
+            init = resolve(cfg.init)
+        except InputError as err:
+            raise InputError(f"{err}; or train the demo's model from scratch (holodata demo --from-scratch)") from err
     train(str(url), run_dir, TrainConfig(epochs=cfg.epochs, depth=cfg.depth, batch_size=cfg.batch_size,
                                          base_channels=cfg.base_channels, max_channels=cfg.max_channels,
-                                         range_pool=cfg.range_pool, range_loss=cfg.range_loss), quiet=quiet)
+                                         range_pool=cfg.range_pool, range_loss=cfg.range_loss, lr=cfg.lr),
+          quiet=quiet, init=init)
     stage("train", t0)
     if cfg.stage2 is not None:
         from .torch.stage2_train import Stage2Config, train_stage2
 
         t0 = time.perf_counter()
-        train_stage2(str(url), run_dir, Stage2Config.from_dict(cfg.stage2), quiet=quiet)
+        train_stage2(str(url), run_dir, Stage2Config.from_dict(cfg.stage2), quiet=quiet, init=init)
         stage("train:stage2", t0)
 
     t0 = time.perf_counter()
@@ -219,7 +257,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     doc = evaluate(str(url), run_dir, report_dir, split="test", quiet=quiet)
     stage("evaluate", t0)
     t0 = time.perf_counter()
-    pretrained = evaluate_pretrained(url, out / "report_pretrained", quiet, say)
+    pretrained = evaluate_pretrained(url, out / "report_pretrained", quiet, say, report=False)
     if pretrained is not None:
         stage("evaluate:pretrained", t0)
     (out / "demo.json").write_text(json.dumps({"mapping": mapping, "timings": timings, "warnings": warnings,
@@ -229,10 +267,11 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
                       pretrained=pretrained)
 
 
-def evaluate_pretrained(url, out_dir: Path, quiet: bool, say) -> dict | None:
+def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = True) -> dict | None:
     """The shipped weights (holodata.torch.pretrained, trained on hundreds of other corners) scored
     on the demo's test split beside the model the demo trains, when the dataset has the grid and range
-    bins they were trained for (the quick demo's); None otherwise (said in one line)."""
+    bins they were trained for (the quick demo's); None otherwise (said in one line). ``report``:
+    also their report.html and figures (the demo prints their rows and writes their metrics.json only)."""
     from .dataset import open_dataset
     from .evaluate import evaluate
     from .torch.pretrained import resolve
@@ -245,7 +284,26 @@ def evaluate_pretrained(url, out_dir: Path, quiet: bool, say) -> dict | None:
     except InputError as err:
         say(f"pretrained weights not evaluated: {err}")
         return None
-    return evaluate(str(url), "pretrained", out_dir, split="test", quiet=quiet)
+    return evaluate(str(url), "pretrained", out_dir, split="test", quiet=quiet, report=report)
+
+
+# the shipped weights' rows in the demo's tables (format_tables pads a row's name to 15 characters)
+PRETRAINED_ROWS = {"model": "pretrained", "model_no_refine": "pretr_no_refine", "model_analytic": "pretr_analytic"}
+
+
+def combined_metrics(doc: dict, pretrained: dict | None) -> dict:
+    """The metrics document ``doc`` of the demo's model with the shipped weights' rows of
+    ``pretrained`` (same split; None: ``doc`` as it is) after the model's: the model's rows, the
+    shipped weights' (:data:`PRETRAINED_ROWS`), then the rest (``baseline``, ``oracle_stage1``: the
+    model's run). For :func:`holodata.evaluate.format_tables`."""
+    if pretrained is None:
+        return doc
+    methods = doc["methods"]
+    own = [m for m in methods if m.startswith("model")]
+    rows = {m: methods[m] for m in own}
+    rows.update({PRETRAINED_ROWS[m]: r for m, r in pretrained["methods"].items() if m in PRETRAINED_ROWS})
+    rows.update({m: r for m, r in methods.items() if m not in own})
+    return {**doc, "methods": rows}
 
 
 MAPPINGS = ("slam", "truth")
@@ -257,10 +315,12 @@ def resolve_mapping(mapping: str) -> str:
     return mapping
 
 
-def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> dict:
+def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True, ingested=frozenset()) -> dict:
     """One MCAP recording per corner under ``rec_dir/<scene id>/`` (with ``cfg.mapping_pass`` also its
     mapping pass, ``mapping/``); existing ones of the same kind (mapping pass, radar output) are
-    reused. Returns {scene id: SynthResult-like object with .recording, .truth_dir and
+    reused, and so are corners whose recordings the demo removed once ``ingested`` (scene ids
+    complete in the dataset) held them (their ``truth/`` is kept; .recording and .mapping_recording
+    are then None). Returns {scene id: SynthResult-like object with .recording, .truth_dir and
     .mapping_recording (None without a mapping pass)}, in corner
     order. On two or more CPUs every other corner is synthesised in a forked process (synth is
     single-threaded; the recordings are the same either way)."""
@@ -272,10 +332,14 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True) -> di
         d = rec_dir / sid
         sj = d / "truth" / "scene.json"
         scene = json.loads(sj.read_text()) if sj.is_file() else None
-        if scene is not None and (d / "recording").exists() and ("mapping_pass" in scene) == bool(cfg.mapping_pass) \
-                and ("radar_output" in scene) == (cfg.radar_output == "iq"):   # synth records it for raw I/Q only
+        same = scene is not None and ("mapping_pass" in scene) == bool(cfg.mapping_pass) \
+            and ("radar_output" in scene) == (cfg.radar_output == "iq")   # synth records it for raw I/Q only
+        if same and (d / "recording").exists():
             out[sid] = _Existing(recording=d / "recording", truth_dir=d / "truth",
                                  mapping_recording=d / "mapping" if cfg.mapping_pass else None)
+            continue
+        if same and sid in ingested and (not cfg.mapping_pass or map_scene_id(sid) in ingested):
+            out[sid] = _Existing(recording=None, truth_dir=d / "truth")   # ingested, then removed
             continue
         if d.exists():  # a recording cut off half-way: start that corner again
             remove_folder(d, "holodata demo")
@@ -306,9 +370,47 @@ def _synth_jobs(jobs: list, cfg: DemoConfig, quiet: bool) -> dict:
 
 @dataclass
 class _Existing:
-    recording: Path
+    recording: Path | None
     truth_dir: Path
     mapping_recording: Path | None = None
+
+
+def ingested_scenes(url) -> set[str]:
+    """The scene ids the dataset at ``url`` holds completely ingested (none when there is no dataset yet)."""
+    from .dataset import open_dataset
+    from .errors import HolodataError
+
+    try:
+        ds = open_dataset(str(url))
+    except HolodataError:
+        return set()
+    done = set()
+    for sid in ds.scenes:
+        a = ds.scene(sid).attrs
+        if (a.get("ingest") or {}).get("complete") and "ingest" not in (a.get("unfinished") or {}):
+            done.add(sid)
+    return done
+
+
+def remove_ingested_recordings(rec_dir: Path, ids: list[str], maps: dict, url) -> int:
+    """Remove the MCAP recordings (``recording/``, ``mapping/``) of the corners ``ids`` whose scenes
+    (and mapping passes, ``maps``) the dataset at ``url`` holds completely ingested; ``truth/`` stays.
+    Only what the demo's synth wrote goes: an entry of the corner folder's manifest that still matches
+    what synth recorded (:meth:`holodata.ownership.OutputDir.owns`); anything else is left alone.
+    Returns the bytes removed."""
+    from .ownership import OutputDir
+
+    done, freed = ingested_scenes(url), 0
+    for sid in ids:
+        d = Path(rec_dir) / sid
+        if sid not in done or (sid in maps and maps[sid] not in done) or not d.is_dir():
+            continue
+        od = OutputDir(d, "holodata demo")
+        for name in ("recording", "mapping"):
+            if (d / name).is_dir() and od.owns(name):
+                freed += sum(f.stat().st_size for f in (d / name).rglob("*") if f.is_file() and not f.is_symlink())
+                od.remove(name)
+    return freed
 
 
 def truth_scene_attrs(truth_dir: Path) -> dict:
@@ -453,6 +555,6 @@ def _register(url: str, sid: str, quiet: bool) -> str | None:
     return None
 
 
-__all__ = ["DemoConfig", "DemoResult", "demo_config", "run_demo", "map_from_truth", "map_with_slam",
-           "map_scenes_with_slam", "map_scene_id",
-           "synthesize_corners", "truth_scene_attrs", "DEMO_CORNERS"]
+__all__ = ["DemoConfig", "DemoResult", "demo_config", "run_demo", "combined_metrics", "QUICK_FINETUNE",
+           "map_from_truth", "map_with_slam", "map_scenes_with_slam", "map_scene_id", "synthesize_corners",
+           "truth_scene_attrs", "ingested_scenes", "remove_ingested_recordings", "DEMO_CORNERS"]

@@ -10,7 +10,8 @@ from click.testing import CliRunner
 from holodata.cli.main import cli
 from holodata.conventions import Grid
 from holodata.dataset import open_dataset, validate_dataset
-from holodata.demo import DemoConfig, demo_config, resolve_mapping, run_demo
+from holodata.demo import (DemoConfig, combined_metrics, demo_config, map_scene_id, remove_ingested_recordings,
+                           resolve_mapping, run_demo)
 from holodata.errors import InputError
 from holodata.evaluate.pipeline import STAGE2_ROWS
 
@@ -39,10 +40,34 @@ def test_demo_runs_every_stage_and_resumes(tmp_path):
     assert res.report.is_file() and (res.report.parent / "metrics.json").is_file()
     assert set(res.metrics["methods"]) == set(STAGE2_ROWS)  # both stages trained: every Table-2 row
     assert json.loads((res.out_dir / "demo.json").read_text())["test"] == ["oblique_3"]
-    # a rerun reuses the recordings, shards and checkpoint
+    # the ingested recordings are gone (synth's, proven by its manifest), their truth stays
+    for sid in ("L_1", "T_2", "oblique_3"):
+        d = res.out_dir / "recordings" / sid
+        assert not (d / "recording").exists() and not (d / "mapping").exists() and (d / "truth" / "scene.json").is_file()
+    # a rerun takes the corners from the dataset, reuses its shards and the checkpoint
     again = run_demo(tmp_path / "demo", mapping="truth", quiet=True, config=TINY)
     assert again.timings["synth"] < 1.0
     assert again.metrics["methods"]["model"]["range"] == res.metrics["methods"]["model"]["range"]
+    # keep_recordings (--keep-recordings) keeps them; removing later takes only what synth wrote as it wrote it
+    kept = run_demo(tmp_path / "kept", mapping="truth", quiet=True, config=TINY, keep_recordings=True)
+    rec, ids = kept.out_dir / "recordings", ["L_1", "T_2", "oblique_3"]
+    assert all((rec / s / "recording").is_dir() and (rec / s / "mapping").is_dir() for s in ids)
+    (rec / "L_1" / "recording" / "notes.txt").write_text("mine")   # no longer the folder synth recorded
+    assert remove_ingested_recordings(rec, ids, {s: map_scene_id(s) for s in ids}, kept.dataset) > 0
+    assert (rec / "L_1" / "recording" / "notes.txt").is_file() and not (rec / "L_1" / "mapping").exists()
+    assert not (rec / "T_2" / "recording").exists() and (rec / "T_2" / "truth").is_dir()
+
+
+def test_tables_lead_with_the_model_then_the_shipped_weights():
+    row = {"range": {}, "points": {}}
+    doc = {"methods": {m: dict(row, name=m) for m in STAGE2_ROWS}}
+    pre = {"methods": {m: dict(row, name="pre_" + m) for m in STAGE2_ROWS}}
+    both = combined_metrics(doc, pre)["methods"]
+    assert list(both) == ["model", "model_no_refine", "model_analytic", "pretrained", "pretr_no_refine",
+                          "pretr_analytic", "baseline", "oracle_stage1"]
+    assert both["pretrained"]["name"] == "pre_model" and both["baseline"]["name"] == "baseline"
+    assert all(len(m) <= 15 for m in both)   # format_tables' row-name column
+    assert combined_metrics(doc, None) is doc
 
 
 def test_quick_config_is_small_and_full_config_is_paper_size():

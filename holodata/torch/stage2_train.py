@@ -125,14 +125,14 @@ class Stage2Config:
 class _SceneGeometry:
     """Adapter over the dataset's beam geometry: beam origins/directions (H,W,3) and GT
     points/normals (3,H,W,3) of frame k in its own radar frame at downsample ``f``. Uses
-    :class:`holodata.evaluate.frames.SceneBeams` (per-beam origins of the scene's origin model)
+    :class:`holodata.scene_beams.SceneBeams` (per-beam origins of the scene's origin model)
     when available, else origins 0 and the grid's directions."""
 
     def __init__(self, sc, full_grid: Grid, f: int):
 
         self.sc, self.f, self.grid = sc, f, reduced_grid(full_grid, f)
         try:
-            from holodata.evaluate.frames import SceneBeams
+            from holodata.scene_beams import SceneBeams
         except ImportError:
             SceneBeams = None
         self.beams = SceneBeams(sc, full_grid) if SceneBeams is not None else None
@@ -338,12 +338,17 @@ def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: G
 
 def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, grid: Grid, meta: dict | None = None,
                quiet: bool = False, resume: bool = True, confidence_gate: dict | None = None,
-               calibration: Frames | None = None) -> dict:
+               calibration: Frames | None = None, init: dict | None = None) -> dict:
     """Train stage two on ``frames`` (on the beam ``grid``) into ``out_dir``/stage2.pt; resumes from
     it when present (same configuration required); ``confidence_gate``: stage one's confidence gate
     (:func:`calibrate_gate`), stored with the checkpoint; ``calibration``: the frames the keep
-    threshold is calibrated on (:func:`calibrate_keep`; default ``frames``). Returns {"checkpoint",
-    "epochs", "resumed_from", "history", "keep", "gate"}."""
+    threshold is calibrated on (:func:`calibrate_keep`; default ``frames``). ``init``: a stage-two
+    checkpoint (dict) whose ray tracer and refiner weights a fresh run starts from (fine-tuning): its
+    models' shapes must be this configuration's (one-line InputError naming ``meta["init"]`` otherwise);
+    its keep and human operating points are not taken over but calibrated anew on these frames; with 0
+    epochs the run's checkpoint holds its weights as they are. The refiner counts (at inference and
+    for the calibrations) only after a refiner epoch of this run (``epochs_refine`` > 0), as
+    without ``init``. Returns {"checkpoint", "epochs", "resumed_from", "history", "keep", "gate"}."""
     from .train import resolve_device, seed_everything
 
     out = Path(out_dir)
@@ -356,7 +361,8 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
     start, history, opt_state = 0, [], None
     if resume and ck_path.exists():
         ck = load_torch(ck_path, "stage-two checkpoint")
-        same = {k: v for k, v in ck["stage2_config"].items() if k not in ("device", "epochs_rt", "epochs_refine")}
+        saved = {**Stage2Config().to_dict(), **ck["stage2_config"]}   # settings added since: their defaults
+        same = {k: v for k, v in saved.items() if k not in ("device", "epochs_rt", "epochs_refine")}
         want = {k: v for k, v in cfg.to_dict().items() if k not in ("device", "epochs_rt", "epochs_refine")}
         if same != want or ck["stage2_config"]["epochs_rt"] != cfg.epochs_rt:
             raise InputError(f"{ck_path}: stage-two checkpoint config differs from the requested one; use a new --out")
@@ -364,6 +370,13 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
         ref.load_state_dict(ck["refiner_state"])
         start, history, opt_state = int(ck["epoch"]), list(ck["history"]), ck["optimizer_state"]
         torch.set_rng_state(ck["torch_rng"])
+    elif init is not None:
+        load_init_weights(init, rt, ref, (meta or {}).get("init", "init checkpoint"))
+        if cfg.epochs == 0:   # nothing to train: the run's checkpoint is the init's weights
+            _atomic_save({"format": "holodata-stage2-1", "epoch": 0, "phase": "rt", "stage2_config": cfg.to_dict(),
+                          "rt_config": rt.cfg.to_dict(), "refiner_config": ref.cfg.to_dict(),
+                          "rt_state": rt.state_dict(), "refiner_state": ref.state_dict(), "optimizer_state": None,
+                          "history": [], "torch_rng": torch.get_rng_state(), "meta": meta or {}}, ck_path)
     (out / "stage2_config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
     from .train import _truncate_log
 
@@ -439,25 +452,69 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
             "gate": confidence_gate, "human": ck.get("human") if ck_path.exists() else None}
 
 
+def check_init(init: dict, rt_cfg: RayTracerConfig, ref_cfg: RefinerConfig, source) -> None:
+    """One InputError line naming ``source`` unless the stage-two checkpoint ``init`` (dict) holds a
+    ray tracer and refiner of the shapes ``rt_cfg`` and ``ref_cfg`` describe."""
+    try:
+        have = {"ray tracer": RayTracerConfig(**{"normals": "difference", **init["rt_config"]}).to_dict(),
+                "refiner": RefinerConfig.from_dict(init["refiner_config"]).to_dict()}
+    except (KeyError, TypeError) as err:
+        raise InputError(f"{source}: not a stage-two checkpoint holodata can fine-tune from "
+                         f"({err.__class__.__name__}: {err})") from err
+    want = {"ray tracer": rt_cfg.to_dict(), "refiner": ref_cfg.to_dict()}
+    diff = [f"{name} {k} {have[name].get(k)} (requested {v})" for name in want for k, v in want[name].items()
+            if have[name].get(k) != v]
+    if diff:
+        raise InputError(f"{source}: its stage-two model differs from the requested one: {'; '.join(diff)} "
+                         f"(fine-tune with its settings, or train from scratch)")
+
+
+def load_init_weights(init: dict, rt: RayTracer, ref: VoxelRefiner, source) -> None:
+    """Load the ray tracer and refiner weights of the stage-two checkpoint ``init`` (dict) into ``rt``
+    and ``ref`` (:func:`check_init` first); one InputError line naming ``source`` when they do not fit."""
+    check_init(init, rt.cfg, ref.cfg, source)
+    try:
+        rt.load_state_dict(init["rt_state"])
+        ref.load_state_dict(init["refiner_state"])
+    except (KeyError, RuntimeError) as err:
+        raise InputError(f"{source}: its stage-two weights do not fit this holodata's models "
+                         f"({' '.join(str(err).split())[:200]})") from err
+
+
 def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, stage1=None,
-                 quiet: bool = False) -> dict:
+                 quiet: bool = False, init=None) -> dict:
     """Train stage two on the ``train`` split of the dataset into ``out_dir``.
 
     ``stage1``: a stage-one checkpoint (file or run dir) whose predictions join the training
     inputs (and whose downsample stage two works at); default ``out_dir/checkpoint.pt``. It must
     exist and match the dataset's grid and range bins (InputError otherwise). When it lives
-    outside ``out_dir`` it is copied there as ``checkpoint.pt`` so the run is self-contained."""
+    outside ``out_dir`` it is copied there as ``checkpoint.pt`` so the run is self-contained.
+    ``init``: a stage-two checkpoint (file, run directory, or ``"pretrained"``: the weights holodata
+    ships) a fresh run fine-tunes from (:func:`fit_stage2`); the confidence gate, keep and human
+    operating points are calibrated on this dataset's training frames."""
     from holodata.dataset import open_dataset
 
     from .checkpoint import CHECKPOINT, load_checkpoint
 
     cfg = cfg if isinstance(cfg, Stage2Config) else Stage2Config.from_dict(cfg or {})
     out = Path(out_dir)
+    init_ck, init_file = None, None
+    if init is not None:
+        from .pretrained import resolve
+
+        init_file = resolve(init)
+        init_file = init_file / STAGE2_CHECKPOINT if init_file.is_dir() else init_file
+        if not init_file.is_file():
+            raise InputError(f"{init_file}: no such stage-two checkpoint to fine-tune from")
+        init_ck = load_torch(init_file, "stage-two checkpoint")
     src = Path(stage1) if stage1 is not None else out / CHECKPOINT
     src_file = src / CHECKPOINT if src.is_dir() else src
     ck1 = load_checkpoint(src_file)
     ds = open_dataset(str(dataset_url))
     check_stage1(ck1, ds, src_file)
+    if init_ck is not None:   # before the frames are read: a mismatch is one line at once
+        mr = float(ds.range_bins.max_range)
+        check_init(init_ck, cfg.rt_config(mr), cfg.refiner_config(mr), init_file)
     claim_folder(out, "holodata train")   # a new or empty folder, or a run holodata wrote
     if (out / CHECKPOINT).resolve() != src_file.resolve() and not (out / CHECKPOINT).exists():
         shutil.copy2(src_file, out / CHECKPOINT)
@@ -475,6 +532,6 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
         frames = cal
     meta = {"dataset": str(dataset_url), "grid": ds.grid.to_attrs(), "range_bins": ds.range_bins.to_attrs(),
             "downsample": f, "stage1": str(src_file), "stage1_epoch": int(ck1.get("epoch", 0)),
-            "train_frames": len(frames)}
+            "train_frames": len(frames), **({"init": str(init_file)} if init_file else {})}
     return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid, meta=meta, quiet=quiet,
-                      confidence_gate=gate, calibration=cal)
+                      confidence_gate=gate, calibration=cal, init=init_ck)
