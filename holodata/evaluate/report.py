@@ -91,15 +91,14 @@ def _tables(doc: dict) -> str:
     out.append(_table3(M))
     out.append("<h2>Human detection (50 cm matching; paper §5.2): every frame, and the frames whose person is "
                "hidden</h2>")
-    cols = "<th>precision %</th><th>recall %</th><th>F-score %</th><th>loc. mean cm</th><th>loc. median cm</th>" \
-           "<th>pred / GT</th>"
-    h = [f"<tr><th class=l rowspan=2>method</th><th colspan=6>all frames</th><th colspan=6>hidden person</th></tr>"
+    cols = "<th>precision / recall / F %</th><th>loc. mean / median cm</th><th>pred / GT</th>"
+    h = [f"<tr><th class=l rowspan=2>method</th><th colspan=3>all frames</th><th colspan=3>hidden person</th></tr>"
          f"<tr>{cols}{cols}</tr>"]
     for m, r in M.items():
         h.append(f"<tr><td class=l>{html.escape(m)}</td>" + "".join(
-            f"<td>{_f(x.get('precision'), 1, 100)}</td><td>{_f(x.get('recall'), 1, 100)}</td>"
-            f"<td>{_f(x.get('f_score'), 1, 100)}</td><td>{_f(x.get('loc_mean_cm'), 1)}</td>"
-            f"<td>{_f(x.get('loc_median_cm'), 1)}</td><td>{x.get('n_pred', '–')} / {x.get('n_gt', '–')}</td>"
+            f"<td>{_f(x.get('precision'), 1, 100)} / {_f(x.get('recall'), 1, 100)} / {_f(x.get('f_score'), 1, 100)}</td>"
+            f"<td>{_f(x.get('loc_mean_cm'), 1)} / {_f(x.get('loc_median_cm'), 1)}</td>"
+            f"<td>{x.get('n_pred', '–')} / {x.get('n_gt', '–')}</td>"
             for x in (r["human"], r.get("human_hidden") or {})) + "</tr>")
     out.append(_table(h))
     out.append("<h2>Multi-return range images (stage 1)</h2>")
