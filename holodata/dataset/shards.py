@@ -148,6 +148,35 @@ def _encode_shard_zarr(meta: dict, data: np.ndarray) -> bytes:
     return ms._store_dict[shard_key("", 0, data.ndim).lstrip("/")].to_bytes()
 
 
+def _index(tail, S: int, size: int) -> np.ndarray:
+    """(S, 2) offsets/sizes of a shard object of ``size`` bytes from its last ``16·S + 4`` bytes
+    ``tail`` (the index and its crc32c); ValueError on a damaged index (too short, bad crc32c, a
+    chunk outside the object)."""
+    ilen = 16 * S + 4
+    if size < ilen or len(tail) != ilen:
+        raise ValueError(f"shard object of {size} bytes is shorter than its index ({ilen} bytes)")
+    ib = bytes(tail[:-4])
+    if _crc32c(ib) != int.from_bytes(tail[-4:], "little"):
+        raise ValueError("shard index crc32c does not match")
+    index = np.frombuffer(ib, dtype="<u8").reshape(S, 2)
+    full = index[:, 0] != _EMPTY
+    end = size - ilen
+    if np.any(full & ((index[:, 0] > end) | (index[:, 1] > end - np.minimum(index[:, 0], end)))):
+        raise ValueError("shard index points outside the shard object")
+    return index
+
+
+def _fill(meta: dict):
+    """The fill value of ``meta`` as a number; None for a hex-encoded float fill (zarr parses it)."""
+    fill = meta.get("fill_value", 0)
+    if isinstance(fill, str):
+        try:
+            return float(fill)   # "NaN", "Infinity", "-Infinity"
+        except ValueError:
+            return None
+    return fill
+
+
 def _fast_chunks(meta: dict, n: int, blob: bytes | memoryview) -> tuple[Any, Any, np.dtype, Any, np.ndarray] | None:
     """(codec, per-frame shape, dtype, fill, (n, 2) offsets/sizes) of a fast-layout shard, or None;
     raises ValueError on a damaged index (bad crc32c, chunk outside the object)."""
@@ -156,25 +185,11 @@ def _fast_chunks(meta: dict, n: int, blob: bytes | memoryview) -> tuple[Any, Any
         return None
     codec, S, per = fast
     blob = memoryview(blob)
-    ilen = 16 * S + 4
-    if len(blob) < ilen:
-        raise ValueError(f"shard object of {len(blob)} bytes is shorter than its index ({ilen} bytes)")
-    ib = bytes(blob[len(blob) - ilen:len(blob) - 4])
-    if _crc32c(ib) != int.from_bytes(blob[len(blob) - 4:], "little"):
-        raise ValueError("shard index crc32c does not match")
-    index = np.frombuffer(ib, dtype="<u8").reshape(S, 2)[:n]
-    full = index[:, 0] != _EMPTY
-    end = len(blob) - ilen
-    if np.any(full & ((index[:, 0] > end) | (index[:, 1] > end - np.minimum(index[:, 0], end)))):
-        raise ValueError("shard index points outside the shard object")
-    dt = np.dtype(meta["data_type"])
-    fill = meta.get("fill_value", 0)
-    if isinstance(fill, str):
-        try:
-            fill = float(fill)   # "NaN", "Infinity", "-Infinity"
-        except ValueError:
-            return None          # hex-encoded float fill: let zarr parse it
-    return codec, per, dt, fill, index
+    index = _index(blob[max(len(blob) - (16 * S + 4), 0):], S, len(blob))[:n]
+    fill = _fill(meta)
+    if fill is None:
+        return None
+    return codec, per, np.dtype(meta["data_type"]), fill, index
 
 
 def blosc_sizes(chunk) -> tuple[int, int] | None:
@@ -186,6 +201,13 @@ def blosc_sizes(chunk) -> tuple[int, int] | None:
     return int.from_bytes(mv[4:8], "little"), int.from_bytes(mv[12:16], "little")
 
 
+def _check_chunk(chunk, want: int, nb: int, i: int) -> None:
+    """ValueError unless chunk ``i`` (``nb`` bytes stored) is a Blosc chunk of ``want`` bytes."""
+    if len(chunk) != nb or blosc_sizes(chunk) != (want, nb):
+        raise ValueError(f"chunk {i} of the shard is damaged (Blosc header does not match its size: "
+                         f"{want} bytes a frame declared)")
+
+
 def _decode_frames(codec, per, dt, fill, index, blob, start: int, stop: int) -> np.ndarray:
     """Frames ``start:stop`` of a fast-layout shard. Every chunk's Blosc header is checked against the
     frame size the metadata declares before anything is allocated: metadata declaring larger frames
@@ -193,12 +215,8 @@ def _decode_frames(codec, per, dt, fill, index, blob, start: int, stop: int) -> 
     want = int(np.prod(per, dtype=np.int64)) * dt.itemsize
     mv = memoryview(blob)
     for i in range(start, stop):
-        if index[i, 0] == _EMPTY:
-            continue
-        o, nb = int(index[i, 0]), int(index[i, 1])
-        if blosc_sizes(mv[o:o + nb]) != (want, nb):
-            raise ValueError(f"chunk {i} of the shard is damaged (Blosc header does not match its size: "
-                             f"{want} bytes a frame declared)")
+        if index[i, 0] != _EMPTY:
+            _check_chunk(mv[int(index[i, 0]):int(index[i, 0]) + int(index[i, 1])], want, int(index[i, 1]), i)
     out = np.empty((stop - start,) + per, dt)
     flat = out.reshape(stop - start, -1)
     for i in range(start, stop):
@@ -218,7 +236,8 @@ def read_frame(store, array_path: str, meta: dict, k: int, index_cache: dict | N
     None when the layout is not the fast one (read through zarr then). A frame of an absent shard
     or chunk is the fill value, as zarr reads it; a damaged shard raises ValueError."""
     fast = _fast_layout(meta)
-    if fast is None:
+    fill = _fill(meta)
+    if fast is None or fill is None:
         return None
     codec, S, per = fast
     dt = np.dtype(meta["data_type"])
@@ -230,32 +249,20 @@ def read_frame(store, array_path: str, meta: dict, k: int, index_cache: dict | N
             size = store.size(key)
         except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
             size = None
-        if size is None:
-            cache[key] = None
-        else:
-            ilen = 16 * S + 4
-            if size < ilen:
-                raise ValueError(f"{key}: shard object of {size} bytes is shorter than its index ({ilen} bytes)")
-            tail = store.get_range(key, size - ilen, size)
-            ib = bytes(tail[:-4])
-            if _crc32c(ib) != int.from_bytes(tail[-4:], "little"):
-                raise ValueError(f"{key}: shard index crc32c does not match")
-            index = np.frombuffer(ib, dtype="<u8").reshape(S, 2)
-            full = index[:, 0] != _EMPTY
-            end = size - ilen
-            if np.any(full & ((index[:, 0] > end) | (index[:, 1] > end - np.minimum(index[:, 0], end)))):
-                raise ValueError(f"{key}: shard index points outside the shard object")
-            cache[key] = index
+        try:
+            cache[key] = None if size is None else _index(store.get_range(key, max(size - (16 * S + 4), 0), size),
+                                                          S, size)
+        except ValueError as err:
+            raise ValueError(f"{key}: {err}") from None
     index = cache[key]
-    fill = meta.get("fill_value", 0)
-    fill = float(fill) if isinstance(fill, str) else fill
     if index is None or index[i, 0] == _EMPTY:
         return np.full(per, fill, dt)
     o, nb = int(index[i, 0]), int(index[i, 1])
     chunk = store.get_range(key, o, o + nb)
-    want = int(np.prod(per, dtype=np.int64)) * dt.itemsize
-    if blosc_sizes(chunk) != (want, nb) or len(chunk) != nb:
-        raise ValueError(f"{key}: chunk {i} is damaged (Blosc header does not match the {want} bytes of a frame)")
+    try:
+        _check_chunk(chunk, int(np.prod(per, dtype=np.int64)) * dt.itemsize, nb, i)
+    except ValueError as err:
+        raise ValueError(f"{key}: {err}") from None
     out = np.empty(per, dt)
     codec.decode(chunk, out=out.reshape(-1))
     return out
