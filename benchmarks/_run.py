@@ -14,6 +14,7 @@ import platform
 import shlex
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,3 +83,13 @@ def header(argv: list[str] | None = None) -> str:
     line = f"run: {command(argv)} | commit {commit()} | {machine()}"
     print(line, flush=True)
     return line
+
+
+def best_of(fn, repeat: int = 3) -> float:
+    """Best wall time (s) of ``repeat`` calls of ``fn()``: the least disturbed run of the same work."""
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return min(times)

@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _run import header
+from _run import best_of, header
 
 from holodata.radar import BeamformParams, beamform, beam_indices, static_reflection
 from holodata.radar.chirp import ChirpConfig
@@ -49,14 +49,9 @@ def rotation_data(chirp: ChirpConfig, n_syn_half: int, seed: int = 0):
 
 
 def timed(fn, repeat: int) -> float:
-    """Best wall time of ``repeat`` calls (the first call also warms caches: kernel spectra, FFT plans)."""
+    """Best wall time of ``repeat`` calls after one that warms caches (kernel spectra, FFT plans)."""
     fn()
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
+    return best_of(fn, repeat)
 
 
 def main(argv=None) -> dict:

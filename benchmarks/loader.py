@@ -20,29 +20,18 @@ np.load of the same stored frames as .npy files, in the same run (issue 51 point
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+from _run import best_of, header
 
-from holodata.conventions import Grid, LogCode, RangeBins  # noqa: E402
-from holodata.dataset import open_dataset  # noqa: E402
-from holodata.dataset.layout import GT_RANGE, RADAR_HEATMAP  # noqa: E402
-from holodata.synth.corpus import CorpusConfig, synth_corpus  # noqa: E402
-
-
-def best(fn, n: int = 3) -> float:
-    ts = []
-    for _ in range(n):
-        t0 = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t0)
-    return min(ts)
+from holodata.conventions import Grid, LogCode, RangeBins
+from holodata.dataset import open_dataset
+from holodata.dataset.layout import GT_RANGE, RADAR_HEATMAP
+from holodata.synth.corpus import CorpusConfig, synth_corpus
 
 
 def main() -> None:
@@ -55,6 +44,7 @@ def main() -> None:
     ap.add_argument("--train-steps", type=int, default=0)
     ap.add_argument("--out", default=None, help="corpus folder (kept; reused when it exists)")
     a = ap.parse_args()
+    header()
     grid, bins = Grid(), RangeBins()
     tmp = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="holodata-loader-"))
     url = str(tmp / "corpus.zarr")
@@ -92,7 +82,7 @@ def main() -> None:
             np.load(npy / f"{j:05d}_heatmap.npy")
             np.load(npy / f"{j:05d}_range.npy")
 
-    t_fr, t_z, t_np = best(read_frames), best(read_zarr), best(read_npy)
+    t_fr, t_z, t_np = best_of(read_frames), best_of(read_zarr), best_of(read_npy)
     print(f"read: Scene.frame {T / t_fr:.1f} frames/s, zarr {T / t_z:.1f}, np.load {T / t_np:.1f}; "
           f"ratio Scene.frame/np.load {t_np / t_fr:.2f} (zarr {t_np / t_z:.2f})")
 
@@ -115,7 +105,7 @@ def main() -> None:
             hm, r, _ = apply_transform(hm, r, np.zeros(r.shape, np.uint8), tf)
             norm(hm)
 
-    t_s, t_snp = best(samples), best(samples_npy)
+    t_s, t_snp = best_of(samples), best_of(samples_npy)
     c = hds[0]["heatmap"].shape
     print(f"full samples ({tuple(c)} float32, range pooled x{a.range_pool}), one process: HeatmapDataset "
           f"{T / t_s:.1f} samples/s, np.load + numpy {T / t_snp:.1f}; ratio {t_snp / t_s:.2f}")

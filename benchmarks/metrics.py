@@ -7,22 +7,12 @@ Prints the time of holodata.metrics.point_cloud_metrics and of two cKDTree build
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
-from _run import header
+from _run import best_of, header
 from scipy.spatial import cKDTree
 
 from holodata.metrics import point_cloud_metrics, prf_curve
-
-
-def best_of(fn, n=5):
-    ts = []
-    for _ in range(n):
-        t = time.perf_counter()
-        fn()
-        ts.append(time.perf_counter() - t)
-    return min(ts)
 
 
 def main(argv=None) -> None:
@@ -47,9 +37,9 @@ def main(argv=None) -> None:
         dg = cKDTree(P).query(G, k=1, workers=-1)[0]
         return dp.mean() + dg.mean()
 
-    t_bare = best_of(bare)
-    t_ours = best_of(lambda: point_cloud_metrics(P, G, tau=0.10))
-    t_curve = best_of(lambda: prf_curve(P, G))
+    t_bare = best_of(bare, 5)
+    t_ours = best_of(lambda: point_cloud_metrics(P, G, tau=0.10), 5)
+    t_curve = best_of(lambda: prf_curve(P, G), 5)
     m = point_cloud_metrics(P, G)
     assert abs(m["cd"] - bare()) < 1e-9
     print(f"{n} x {n} points: point_cloud_metrics {t_ours * 1e3:.0f} ms, prf_curve {t_curve * 1e3:.0f} ms, "

@@ -36,7 +36,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 TRAIN_SEED = 0
 HELDOUT_SEED = 1_000_000
@@ -113,6 +112,9 @@ def main(argv=None) -> int:
                                                    "crops and run on the whole ring)")
     ap.add_argument("--install", action="store_true", help="ship the largest point's run as the pretrained weights")
     a = ap.parse_args(argv)
+    from _run import header
+
+    header()
 
     from holodata.conventions import Grid
     from holodata.evaluate.pipeline import evaluate

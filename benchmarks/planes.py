@@ -16,7 +16,7 @@ import argparse
 import time
 
 import numpy as np
-from _run import header
+from _run import best_of, header
 
 from holodata.conventions import Grid
 from holodata.geometry.unmirror import normals_from_range
@@ -41,15 +41,6 @@ def room_ranges(grid: Grid, walls, noise: float, rng) -> np.ndarray:
     R = t + rng.normal(0, noise, t.shape)
     R[~np.isfinite(t) | (rng.random(t.shape) < 0.02)] = np.nan
     return R
-
-
-def best_of(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
 
 
 def main() -> None:
