@@ -224,15 +224,21 @@ def test_cycle_finder_finds_a_cycle_and_no_false_one():
     assert cycles({"a": {"b": "module"}, "b": {}, "c": {"a": "module", "b": "module"}}) == []
 
 
-def test_import_graph_resolves_relative_submodule_and_typing_imports(tmp_path):
+def _package(tmp_path, files: dict):
+    """A toy ``holodata`` package under ``tmp_path``: {path relative to it: source text}."""
     pkg = tmp_path / "holodata"
-    (pkg / "sub").mkdir(parents=True)
-    (pkg / "__init__.py").write_text("from .sub import leaf\n")
-    (pkg / "sub" / "__init__.py").write_text("")
-    (pkg / "sub" / "leaf.py").write_text("from .. import top\n")
-    (pkg / "top.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
-                                "    from holodata.sub.leaf import X\n"
-                                "def f():\n    import holodata.sub\n    from holodata.sub import nothing\n")
+    for rel, text in files.items():
+        (pkg / rel).parent.mkdir(parents=True, exist_ok=True)
+        (pkg / rel).write_text(text)
+    return pkg
+
+
+def test_import_graph_resolves_relative_submodule_and_typing_imports(tmp_path):
+    pkg = _package(tmp_path, {"__init__.py": "from .sub import leaf\n", "sub/__init__.py": "",
+                              "sub/leaf.py": "from .. import top\n",
+                              "top.py": "from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                        "    from holodata.sub.leaf import X\n"
+                                        "def f():\n    import holodata.sub\n    from holodata.sub import nothing\n"})
     g = import_graph(pkg)
     assert g["holodata"] == {"holodata.sub.leaf": "module"}
     assert g["holodata.sub.leaf"] == {"holodata.top": "module"}     # parents holodata, holodata.sub left out
@@ -275,16 +281,11 @@ def forbidden_imports(edges, rules=FORBIDDEN_IMPORTS) -> list[str]:
 
 
 def test_forbidden_import_finder(tmp_path):
-    pkg = tmp_path / "holodata"
-    (pkg / "torch").mkdir(parents=True)
-    (pkg / "evaluate").mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "torch" / "__init__.py").write_text("")
-    (pkg / "torch" / "train.py").write_text("def f():\n    from holodata.evaluate.frames import X\n")
-    (pkg / "evaluate" / "__init__.py").write_text("")
-    (pkg / "evaluate" / "frames.py").write_text("from holodata.torch import train\n")
-    (pkg / "distributed.py").write_text("from holodata import evaluate\n")
-    (pkg / "torchvision_like.py").write_text("import holodata.evaluate\n")   # a prefix, not a package
+    pkg = _package(tmp_path, {"__init__.py": "", "torch/__init__.py": "",
+                              "torch/train.py": "def f():\n    from holodata.evaluate.frames import X\n",
+                              "evaluate/__init__.py": "", "evaluate/frames.py": "from holodata.torch import train\n",
+                              "distributed.py": "from holodata import evaluate\n",
+                              "torchvision_like.py": "import holodata.evaluate\n"})   # a prefix, not a package
     assert forbidden_imports(import_graph(pkg)) == ["holodata.distributed -> holodata.evaluate [module]",
                                                     "holodata.torch.train -> holodata.evaluate.frames [function]"]
 
@@ -298,12 +299,10 @@ def test_no_import_runs_back_up():
 
 
 def test_import_graph_counts_names_imported_from_a_parent_package(tmp_path):
-    pkg = tmp_path / "holodata"
-    (pkg / "sub").mkdir(parents=True)
-    (pkg / "__init__.py").write_text("VERSION = '1'\n")
-    (pkg / "sub" / "__init__.py").write_text("from .core import run\nfrom .leaf import thing\n")
-    (pkg / "sub" / "core.py").write_text("def run():\n    from . import thing\n    from .. import VERSION\n")
-    (pkg / "sub" / "leaf.py").write_text("import holodata.sub\nfrom holodata import sub\nthing = 1\n")
+    pkg = _package(tmp_path, {"__init__.py": "VERSION = '1'\n",
+                              "sub/__init__.py": "from .core import run\nfrom .leaf import thing\n",
+                              "sub/core.py": "def run():\n    from . import thing\n    from .. import VERSION\n",
+                              "sub/leaf.py": "import holodata.sub\nfrom holodata import sub\nthing = 1\n"})
     g = import_graph(pkg)
     assert g["holodata.sub.core"] == {"holodata.sub": "function", "holodata": "function"}
     assert g["holodata.sub.leaf"] == {}      # the package only run first (or bound), no name taken from it
