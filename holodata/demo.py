@@ -201,7 +201,7 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     for sid in ids:
         w.scene(sid).set_attrs(truth_scene_attrs(recs[sid].truth_dir))
     if not keep_recordings:
-        remove_ingested_recordings(out / "recordings", ids, maps, url)
+        remove_ingested_recordings(out / "recordings", ids, maps, url, say)
     stage("ingest", t0)
 
     t0 = time.perf_counter()
@@ -392,12 +392,12 @@ def ingested_scenes(url) -> set[str]:
     return done
 
 
-def remove_ingested_recordings(rec_dir: Path, ids: list[str], maps: dict, url) -> int:
+def remove_ingested_recordings(rec_dir: Path, ids: list[str], maps: dict, url, say=None) -> int:
     """Remove the MCAP recordings (``recording/``, ``mapping/``) of the corners ``ids`` whose scenes
     (and mapping passes, ``maps``) the dataset at ``url`` holds completely ingested; ``truth/`` stays.
     Only what the demo's synth wrote goes: an entry of the corner folder's manifest that still matches
-    what synth recorded (:meth:`holodata.ownership.OutputDir.owns`); anything else is left alone.
-    Returns the bytes removed."""
+    what synth recorded (:meth:`holodata.ownership.OutputDir.owns`); anything else (a user's file
+    added, a symlink) is left alone and named in one line to ``say``. Returns the bytes removed."""
     from .ownership import OutputDir
 
     done, freed = ingested_scenes(url), 0
@@ -407,9 +407,13 @@ def remove_ingested_recordings(rec_dir: Path, ids: list[str], maps: dict, url) -
             continue
         od = OutputDir(d, "holodata demo")
         for name in ("recording", "mapping"):
-            if (d / name).is_dir() and od.owns(name):
+            if not ((d / name).is_dir() or (d / name).is_symlink()):
+                continue
+            if od.owns(name):
                 freed += sum(f.stat().st_size for f in (d / name).rglob("*") if f.is_file() and not f.is_symlink())
                 od.remove(name)
+            elif say is not None:
+                say(f"kept {d / name}: not as holodata's synth wrote it (a symlink or changed since); remove it yourself")
     return freed
 
 

@@ -3,6 +3,7 @@ resumes instead of redoing work."""
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 from click.testing import CliRunner
@@ -53,9 +54,18 @@ def test_demo_runs_every_stage_and_resumes(tmp_path):
     rec, ids = kept.out_dir / "recordings", ["L_1", "T_2", "oblique_3"]
     assert all((rec / s / "recording").is_dir() and (rec / s / "mapping").is_dir() for s in ids)
     (rec / "L_1" / "recording" / "notes.txt").write_text("mine")   # no longer the folder synth recorded
-    assert remove_ingested_recordings(rec, ids, {s: map_scene_id(s) for s in ids}, kept.dataset) > 0
+    outside = tmp_path / "users_own"                                  # a symlink leading out of the demo
+    outside.mkdir()
+    (outside / "data.bin").write_bytes(b"x")
+    shutil.rmtree(rec / "oblique_3" / "mapping")
+    (rec / "oblique_3" / "mapping").symlink_to(outside, target_is_directory=True)
+    said: list[str] = []
+    assert remove_ingested_recordings(rec, ids, {s: map_scene_id(s) for s in ids}, kept.dataset, said.append) > 0
     assert (rec / "L_1" / "recording" / "notes.txt").is_file() and not (rec / "L_1" / "mapping").exists()
     assert not (rec / "T_2" / "recording").exists() and (rec / "T_2" / "truth").is_dir()
+    assert (rec / "oblique_3" / "mapping").is_symlink() and (outside / "data.bin").read_bytes() == b"x"
+    assert sorted(ln.split(":")[0] for ln in said) == [f"kept {rec / 'L_1' / 'recording'}",
+                                                       f"kept {rec / 'oblique_3' / 'mapping'}"]
 
 
 def test_tables_lead_with_the_model_then_the_shipped_weights():
