@@ -1,8 +1,9 @@
 """Run holodata's CLI from another source tree (a git worktree of an older commit), not the installed one.
 
-The editable install maps ``holodata.cli`` and ``holodata.schemas`` to this checkout's ``cli/`` and
-``schemas/``; ``PYTHONPATH`` alone would therefore mix the old tree's package with today's CLI. This
-loads all three from TREE, then runs the CLI with the remaining arguments:
+Trees older than the move of ``cli/`` and ``schemas/`` into ``holodata/`` kept them beside the package
+(the editable install mapped ``holodata.cli`` and ``holodata.schemas`` there); ``PYTHONPATH`` alone would
+then mix the old tree's package with today's CLI. This loads all three from TREE (whichever layout it
+has), then runs the CLI with the remaining arguments:
 
     git worktree add /tmp/old 3237efc
     PYTHONPATH=/tmp/old .venv/bin/python scripts/run_from_tree.py /tmp/old demo --quick --out /tmp/old-demo
@@ -12,6 +13,7 @@ loads all three from TREE, then runs the CLI with the remaining arguments:
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 
 
@@ -23,6 +25,8 @@ def load_tree(tree: str) -> None:
     if not holodata.__file__.startswith(tree):
         raise SystemExit(f"holodata was already imported from {holodata.__file__}")
     for name, folder in (("holodata.cli", "cli"), ("holodata.schemas", "schemas")):
+        if not os.path.isdir(f"{tree}/{folder}"):
+            continue   # a tree with holodata/cli/: the package import above finds it
         spec = importlib.util.spec_from_file_location(name, f"{tree}/{folder}/__init__.py",
                                                       submodule_search_locations=[f"{tree}/{folder}"])
         assert spec is not None and spec.loader is not None

@@ -87,7 +87,7 @@ def test_the_name_constants_follow_the_table():
 
 
 def test_no_array_name_is_spelled_outside_the_layout():
-    files = [p for d in ("holodata", "cli") for p in sorted((ROOT / d).rglob("*.py")) if p != ROOT / "holodata/dataset/layout.py"]
+    files = [p for p in sorted((ROOT / "holodata").rglob("*.py")) if p != ROOT / "holodata/dataset/layout.py"]
     found = {str(p.relative_to(ROOT)): array_name_literals(p) for p in files}
     spelled = {f: hits for f, hits in found.items() if hits}
     assert not spelled, f"array names spelled outside holodata/dataset/layout.py (use its constants): {spelled}"
@@ -171,11 +171,11 @@ WRITER_CALLS = {"frame_array": 3, "ragged_array": 1, "write_array": 2}   # posit
 
 
 def test_no_stage_states_dims_units_fill_or_width_of_its_own():
-    """The writer calls in holodata/ and cli/ name the array and give its sizes or data (and a dtype
+    """The writer calls in holodata/ (the CLI included) name the array and give its sizes or data (and a dtype
     where the layout allows several: the heatmap's float16 or float32): dims, units, fill values and
     ragged widths are the layout's, stated once (the writer takes them from it)."""
     found = []
-    files = [p for d in ("holodata", "cli") for p in sorted((ROOT / d).rglob("*.py")) if p != ROOT / "holodata/dataset/writer.py"]
+    files = [p for p in sorted((ROOT / "holodata").rglob("*.py")) if p != ROOT / "holodata/dataset/writer.py"]
     for p in files:
         for n in ast.walk(ast.parse(p.read_text())):
             if isinstance(n, ast.Call) and isinstance(n.func, ast.Attribute) and n.func.attr in WRITER_CALLS:

@@ -1,6 +1,6 @@
 """The ``holodata`` click group.
 
-Each command lives in its own module under ``cli/`` and is listed in ``COMMAND_MODULES``;
+Each command lives in its own module under ``holodata/cli/`` and is listed in ``COMMAND_MODULES``;
 heavy imports happen inside command bodies so ``holodata --help`` stays fast.
 Errors: :class:`holodata.errors.HolodataError` (and any other exception) becomes one line on
 stderr and exit code 1; ``--debug`` shows the traceback instead. Usage errors exit 2. A command whose
