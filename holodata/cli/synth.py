@@ -90,7 +90,7 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
       holodata synth --corners 16 --frames 2 --grid 32x128 --test 4 --out lab/corpus.zarr
     """
     from holodata.conventions import Grid, RangeBins
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec
 
     try:
         g = Grid.parse(grid)
@@ -99,37 +99,32 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
     if corners is not None:
         if count > 1:
             raise click.UsageError("give either --corners (a training dataset) or --count (recordings), not both")
-        _corpus(out, corners, 4 if frames is None else frames, g, RangeBins(n=range_bins), seed, n_test, not no_human,
-                processes, workers, scheduler, quiet, as_json, heatmap_dtype)
+        from holodata.synth.corpus import CorpusConfig
+
+        cfg = CorpusConfig(corners=corners, frames=4 if frames is None else frames, grid=g,
+                           range_bins=RangeBins(n=range_bins), seed=seed, n_test=n_test, heatmap_dtype=heatmap_dtype,
+                           **({"hidden_person": 0.0} if no_human else {}))
+        _corpus(out, cfg, processes, workers, scheduler, quiet, as_json)
         return
-    frames = 20 if frames is None else frames
-    kw = dict(corner=corner, width=width, frames=frames, format=fmt, human=not no_human, grid=g,
-              range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
-              camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers,
-              lidar_vertical_fov_deg=lidar_fov, mapping_pass=mapping_pass, mapping_scan_hz=mapping_scan_hz,
-              robot_stop_x=robot_stop_x, radar_output=radar_output, radar_chirps=radar_chirps)
+    spec = SynthSpec(corner=corner, width=width, frames=20 if frames is None else frames, format=fmt, seed=seed,
+                     human=not no_human, grid=g, range_bins=RangeBins(n=range_bins), lidar_shape=_shape(lidar, "--lidar"),
+                     camera_shape=_shape(camera, "--camera"), stereo_images=stereo_images, visible_walkers=visible_walkers,
+                     lidar_vertical_fov_deg=lidar_fov, mapping_pass=mapping_pass, mapping_scan_hz=mapping_scan_hz,
+                     robot_stop_x=robot_stop_x, radar_output=radar_output, radar_chirps=radar_chirps)
     if count > 1 or workers or scheduler:
-        import json
+        _recordings(out, count, spec, workers, scheduler, quiet, as_json)
+    else:
+        _recording(out, spec, force, quiet, as_json)
 
-        from holodata.distributed import cluster
-        from holodata.synth.batch import synth_scenes
 
-        with cluster(workers, scheduler) as client:
-            res = synth_scenes(out, count, seed=seed, client=client, quiet=quiet or as_json, **kw)
-        if as_json:
-            click.echo(json.dumps(res, indent=2, default=str))
-        else:
-            for r in res:
-                click.echo(f"recording: {r['recording']} ({r['format']}, {r['n_frames']} radar frames, "
-                           f"corner {r['corner']}, width {r['width_m']:.2f} m, seed {r['seed']})")
-        return
-    from holodata.synth import estimate_bytes
+def _recording(out, spec, force: bool, quiet: bool, as_json: bool) -> None:
+    """One recording of ``spec`` into ``out`` (its expected size printed first)."""
+    from holodata.synth import estimate_bytes, synthesize
 
-    need = estimate_bytes(frames, g, kw["range_bins"], kw["lidar_shape"], kw["camera_shape"],
-                          stereo_images=stereo_images, radar_output=radar_output, radar_chirps=radar_chirps)
+    need = estimate_bytes(spec)
     if not (quiet or as_json):
         click.echo(f"writing ~{need / 1e6:.0f} MB (data pass; the mapping pass adds LiDAR scans)", err=True)
-    res = synthesize(out, seed=seed, quiet=quiet, force=force, **kw)
+    res = synthesize(out, spec, quiet=quiet, force=force)
     if as_json:
         import json
 
@@ -146,13 +141,28 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
                    f"{res.out_dir}` ingests both passes, and slam localises the data pass in this one)")
 
 
-def _corpus(out, corners, frames, grid, range_bins, seed, n_test, human, processes, workers, scheduler, quiet,
-            as_json, heatmap_dtype="float16") -> None:
-    from holodata.distributed import cluster
-    from holodata.synth.corpus import CorpusConfig, synth_corpus
+def _recordings(out, count: int, spec, workers, scheduler, quiet: bool, as_json: bool) -> None:
+    """``count`` recordings of ``spec`` (consecutive seeds) under ``out``, here or on a Dask cluster."""
+    import json
 
-    cfg = CorpusConfig(corners=corners, frames=frames, grid=grid, range_bins=range_bins, seed=seed, n_test=n_test,
-                       heatmap_dtype=heatmap_dtype, **({} if human else {"hidden_person": 0.0}))
+    from holodata.distributed import cluster
+    from holodata.synth.batch import synth_scenes
+
+    with cluster(workers, scheduler) as client:
+        res = synth_scenes(out, count, spec, client=client, quiet=quiet or as_json)
+    if as_json:
+        click.echo(json.dumps(res, indent=2, default=str))
+    else:
+        for r in res:
+            click.echo(f"recording: {r['recording']} ({r['format']}, {r['n_frames']} radar frames, "
+                       f"corner {r['corner']}, width {r['width_m']:.2f} m, seed {r['seed']})")
+
+
+def _corpus(out, cfg, processes: int, workers, scheduler, quiet: bool, as_json: bool) -> None:
+    """The training dataset ``cfg`` (a :class:`~holodata.synth.corpus.CorpusConfig`) into ``out``."""
+    from holodata.distributed import cluster
+    from holodata.synth.corpus import synth_corpus
+
     cfg.check()
     with cluster(workers, scheduler) as client:
         res = synth_corpus(out, cfg, processes=processes, client=client, quiet=quiet or as_json)
@@ -161,8 +171,9 @@ def _corpus(out, corners, frames, grid, range_bins, seed, n_test, human, process
 
         click.echo(json.dumps(res, indent=2, default=str))
         return
-    click.echo(f"dataset: {res['dataset']} ({corners} corners x {frames} frames on {grid.H}x{grid.W} beams, seed {seed}; "
-               f"{res['written']} written, {corners - res['written']} already there; {res['seconds']:.0f} s)")
+    click.echo(f"dataset: {res['dataset']} ({cfg.corners} corners x {cfg.frames} frames on {cfg.grid.H}x{cfg.grid.W} beams, "
+               f"seed {cfg.seed}; {res['written']} written, {cfg.corners - res['written']} already there; "
+               f"{res['seconds']:.0f} s)")
     for line in res["span"]:
         click.echo("  " + line)
 

@@ -9,7 +9,7 @@ Recording layout under ``out_dir``::
     mapping/mapping.mcap + mapping/metadata.yaml          (``mapping_pass=True``; mapping.db3 / mapping.bag)
     truth/...                                             (see holodata.synth.truth)
 
-**Map first, then record** (``mapping_pass=True``, the CLI's default; HoloRadar maps each corner
+**Map first, then record** (``SynthSpec(mapping_pass=True)``, the CLI's default; HoloRadar maps each corner
 without a person before recording): the *mapping pass* is its own recording of the same corner,
 ``mapping/``, ending :data:`scenario.MAPPING_GAP_S` before the data pass starts. The robot drives the
 empty corner from 1 m short of the approach corridor's end wall to the junction and up the hidden
@@ -33,17 +33,19 @@ map→zed2i_camera_link→optical frames). Bag (log) time = header stamp + a per
 messages are written in log-time order.
 
 Modules (besides the world, motion and sensor models and the writers): :mod:`.topics` (the
-recordings' topics), :mod:`.result` (:class:`SynthResult`), :mod:`.synthesis` (:func:`synthesize`,
-:func:`estimate_bytes`), :mod:`.batch` (:func:`~.batch.synth_scenes`: ``--count`` recordings, in this
-process or one Dask task each); this module only re-exports.
+recordings' topics), :mod:`.result` (:class:`SynthResult`), :mod:`.spec` (:class:`SynthSpec`,
+:class:`SceneSpec`: what to synthesise), :mod:`.synthesis` (:func:`synthesize`, :func:`estimate_bytes`),
+:mod:`.batch` (:func:`~.batch.synth_scenes`: ``--count`` recordings, in this process or one Dask task
+each); this module only re-exports.
 """
 from __future__ import annotations
 
 # ``name as name``: importable from the package since its code lived here, kept so; not in __all__
 from .topics import MAPPING_TOPICS, RADAR_OUTPUTS, RAW_TOPIC, STEREO_TOPICS, TOPICS
 from .result import SynthResult
+from .spec import SceneSpec, SynthSpec
 from .synthesis import PARTIAL_NAME as PARTIAL_NAME, estimate_bytes, synthesize
 
 
-__all__ = ["synthesize", "estimate_bytes", "SynthResult", "TOPICS", "STEREO_TOPICS", "MAPPING_TOPICS", "RAW_TOPIC",
-           "RADAR_OUTPUTS"]
+__all__ = ["synthesize", "SynthSpec", "SceneSpec", "estimate_bytes", "SynthResult", "TOPICS", "STEREO_TOPICS",
+           "MAPPING_TOPICS", "RAW_TOPIC", "RADAR_OUTPUTS"]

@@ -110,14 +110,15 @@ def draw_corner(cfg: CorpusConfig, index: int, attempt: int = 0) -> CornerSpec:
 def build_corner(cfg: CorpusConfig, index: int):
     """(CornerSpec, Scenario) of corner ``index``: the first draw whose person can hide from the robot."""
     from .scene import build_scenario
+    from .spec import SceneSpec
 
     err: Exception | None = None
     for attempt in range(SCENE_TRIES):
         spec = draw_corner(cfg, index, attempt)
         try:
-            sc = build_scenario(corner=spec.corner, frames=cfg.frames, seed=spec.seed, human=spec.human,
-                                grid=cfg.grid, range_bins=cfg.range_bins, visible_walkers=spec.visible_walkers,
-                                robot_stop_x=spec.robot_stop_x)
+            sc = build_scenario(SceneSpec(corner=spec.corner, frames=cfg.frames, seed=spec.seed, human=spec.human,
+                                          grid=cfg.grid, range_bins=cfg.range_bins, visible_walkers=spec.visible_walkers,
+                                          robot_stop_x=spec.robot_stop_x))
         except InputError as e:
             err = e
             continue

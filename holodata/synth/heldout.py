@@ -47,11 +47,12 @@ import numpy as np
 
 from ..errors import InputError
 from ..progress import track
+from ..trajectory import Trajectory
 from . import truth as truthio
 from .camera import T_LINK_OPTICAL, CameraConfig, CameraModel, look_at
 from .human import HumanWalk
 from .lidar import LidarConfig, LidarModel, beam_angles
-from .motion import odometry, path_trajectory
+from .motion import DriveProfile, odometry, path_trajectory
 from .worlds import CLASS_ID, MATERIAL_ID, World, box_mesh, make_world
 
 TOPICS_DEPTH = {"/camera/depth/image_rect_raw": "sensor_msgs/msg/Image",
@@ -174,34 +175,106 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
                        quiet: bool = True) -> Path:
     """Write one held-out recording (module docstring) under ``out_dir`` (``recording/`` + ``truth/``);
     returns the recording's path."""
-    from ..raytrace import RayScene
-    from .recording import BagWriter, recording_path
+    from .recording import recording_path
 
     cfg.check()
     out_dir = Path(out_dir)
     truth_dir = out_dir / "truth"
     (truth_dir / "human").mkdir(parents=True, exist_ok=False)
-    rng = np.random.default_rng([int(cfg.seed), 23])
-    world, furniture = _furnished(make_world(cfg.corner, cfg.width, cfg.seed), cfg.furniture, rng)
-    rng2 = np.random.default_rng([int(cfg.seed), 43])   # the second family's own draws (module docstring)
+    scene = _HeldOutScene.build(cfg)
+    rec = recording_path(out_dir, fmt)
+    bag = _HeldOutBag(scene, cfg, truth_dir)
+    bag.write(rec, fmt, quiet)
+    _write_truth(scene, cfg, truth_dir, bag)
+    (out_dir / "README.txt").write_text("holodata held-out recording (holodata.synth.heldout); truth/ is the answer key\n"
+                                        + json.dumps({"seed": cfg.seed, "camera": cfg.camera,
+                                                      "camera_output": cfg.camera_output}) + "\n")
+    return rec
+
+
+@dataclass(frozen=True)
+class _HeldOutScene:
+    """Everything about one held-out recording but the sensor data: the furnished world (and its
+    furniture's description), the robot's true trajectory and drifting odometry (with their
+    parameters), ``T_map_odom`` and the LiDAR mount ``T_base_lidar`` (4×4), the person's walk (and
+    what the sensors see walking it: the walk or a box), the camera's eye and target (3,) m, its true
+    pose and the hand-measured guess in TF (4×4), and the sensors' configurations and LiDAR beam
+    angles (deg)."""
+
+    world: World
+    furniture: list
+    truth: Trajectory        # T_world_base (true time)
+    truth_info: dict
+    odom: Trajectory         # T_odom_base
+    odom_info: dict
+    T_map_odom: np.ndarray
+    T_base_lidar: np.ndarray
+    walk: HumanWalk
+    height: float
+    person: HumanWalk | _BoxPerson   # what the sensors see walking the walk
+    eye: np.ndarray
+    target: np.ndarray
+    T_world_link: np.ndarray
+    T_guess_link: np.ndarray
+    cam_cfg: CameraConfig
+    lidar_cfg: LidarConfig
+    lidar_alt: np.ndarray
+    lidar_az: np.ndarray
+
+    @property
+    def T_world_opt(self) -> np.ndarray:
+        return self.T_world_link @ T_LINK_OPTICAL
+
+    @classmethod
+    def build(cls, cfg: HeldOutConfig) -> _HeldOutScene:
+        """The scene of ``cfg``: the first family's draws from the stream (seed, 23), in this order
+        (furniture, trajectory, odometry, LiDAR mount, person, camera, TF guess, LiDAR beams); the
+        second family's from (seed, 43)."""
+        rng = np.random.default_rng([int(cfg.seed), 23])
+        world, furniture = _furnished(make_world(cfg.corner, cfg.width, cfg.seed), cfg.furniture, rng)
+        rng2 = np.random.default_rng([int(cfg.seed), 43])   # the second family's own draws (module docstring)
+        path, t_end = _route(world, cfg)
+        t0 = (1_700_000_000 + int(cfg.seed) * 3600) * 1_000_000_000
+        truth, tinfo = path_trajectory(path, t0, rng, DriveProfile(speed=cfg.speed_mps, t_start=0.6, t_end=t_end))
+        odom, oinfo = odometry(truth, rng, rate_hz=TF_HZ, scale_error=float(rng.choice([-1, 1])) * cfg.odom_scale,
+                               yaw_bias_dps=float(rng.uniform(-0.1, 0.1)))
+        T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
+        T_base_lidar = np.eye(4)
+        T_base_lidar[:3, 3] = [float(rng.uniform(-0.1, 0.1)), 0.0, float(rng.uniform(0.45, 0.9))]
+        walk, height = _walk(world, cfg, rng, rng2)
+        eye, target = _camera_eye(world, cfg, rng, rng2)
+        T_world_link = look_at(eye, target)
+        T_guess_link = T_world_link @ _perturbation(rng, cfg.guess_cm, cfg.guess_deg)
+        lidar_cfg = LidarConfig(rows=cfg.lidar_rows, cols=cfg.lidar_cols, rate_hz=cfg.lidar_hz,
+                                vertical_fov_deg=cfg.lidar_fov_deg)
+        alt, az = beam_angles(lidar_cfg, rng)
+        person = walk if cfg.person == "human" else _BoxPerson(walk)
+        return cls(world, furniture, truth, tinfo, odom, oinfo, T_map_odom, T_base_lidar, walk, height, person, eye,
+                   target, T_world_link, T_guess_link, _camera_config(cfg), lidar_cfg, alt, az)
+
+
+def _route(world: World, cfg: HeldOutConfig) -> tuple[np.ndarray, float]:
+    """The robot's waypoints (K,2) m and its rest at the end (s): from ``start_back_m`` behind the
+    junction (at most 1 m short of the corridor's end) through it and ``into_hidden_m`` up the hidden
+    leg, or with ``stop_short_m`` up the approach corridor, then waiting ``dwell_s`` short of the junction."""
     sgn = -1.0 if world.mirrored else 1.0
     hw, w2 = world.width / 2, world.hidden_width
-    origin, u, L, bw = world.hidden_axis
-    nrm = np.array([-u[1], u[0]])
     la = -float(world.floor_polygon[:, 0].min())
     back = min(la - 1.0, cfg.start_back_m if cfg.start_back_m is not None else la - 1.0)
     path = np.array([[-back, 0.0], [w2 / 2, 0.0], [w2 / 2, sgn * (hw + cfg.into_hidden_m)]])
     t_end = 0.6
     if cfg.stop_short_m is not None:      # up the approach corridor, then waiting short of the junction
         path, t_end = np.array([[-back, 0.0], [-min(float(cfg.stop_short_m), back - 0.5), 0.0]]), float(cfg.dwell_s)
-    t0 = (1_700_000_000 + int(cfg.seed) * 3600) * 1_000_000_000
-    truth, tinfo = path_trajectory(path, t0, rng, speed=cfg.speed_mps, t_start=0.6, t_end=t_end)
-    odom, oinfo = odometry(truth, rng, rate_hz=TF_HZ, scale_error=float(rng.choice([-1, 1])) * cfg.odom_scale,
-                           yaw_bias_dps=float(rng.uniform(-0.1, 0.1)))
-    T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
-    T_base_lidar = np.eye(4)
-    T_base_lidar[:3, 3] = [float(rng.uniform(-0.1, 0.1)), 0.0, float(rng.uniform(0.45, 0.9))]
-    # the person walks up and down the hidden leg, in the camera's view
+    return path, t_end
+
+
+def _walk(world: World, cfg: HeldOutConfig, rng: np.random.Generator, rng2: np.random.Generator) -> tuple[HumanWalk, float]:
+    """The person's walk and height (m): up and down the hidden leg, in the camera's view, or with
+    ``walk="across"`` along the T's bar (from the other branch, through the junction, up this one)."""
+    sgn = -1.0 if world.mirrored else 1.0
+    hw, w2 = world.width / 2, world.hidden_width
+    origin, u, L, bw = world.hidden_axis
+    nrm = np.array([-u[1], u[0]])
     height = float(rng.uniform(1.55, 1.95))
     lat = float(rng.uniform(-1, 1)) * max(0.0, bw / 2 - 0.7)
     s_a = float(rng.uniform(cfg.into_hidden_m + 1.0, cfg.into_hidden_m + 1.6))
@@ -212,8 +285,18 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
         x = w2 / 2 + min(0.25 * w2, 0.3) * float(rng2.uniform(0.0, 1.0))
         ya, yb = -(hw + float(rng2.uniform(1.2, 2.0))), hw + float(rng2.uniform(1.2, 2.0))
         walk = HumanWalk(np.array([x, sgn * ya]), np.array([x, sgn * yb]), walk.speed, height, walk.phase0)
-    person = walk if cfg.person == "human" else _BoxPerson(walk)
-    # the camera
+    return walk, height
+
+
+def _camera_eye(world: World, cfg: HeldOutConfig, rng: np.random.Generator,
+                rng2: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """The depth camera's eye and target (3,) m for ``cfg.camera``: "hidden" at the far end of the
+    hidden leg looking back, "robot" at the junction's far corner looking up the hidden leg, "wall"
+    high over the approach corridor, pitched down across the junction (its draws after "robot"'s)."""
+    sgn = -1.0 if world.mirrored else 1.0
+    hw, w2 = world.width / 2, world.hidden_width
+    origin, u, L, bw = world.hidden_axis
+    nrm = np.array([-u[1], u[0]])
     if cfg.camera == "hidden":
         eye = np.r_[origin + u * (L - 0.3) + nrm * float(rng.uniform(-0.25, 0.25)) * bw, float(rng.uniform(1.0, 1.6))]
         target = np.r_[origin, 0.8]
@@ -224,96 +307,134 @@ def synthesize_heldout(out_dir: str | Path, cfg: HeldOutConfig = HeldOutConfig()
         eye = np.r_[-float(rng2.uniform(1.2, 2.0)), float(rng2.uniform(-0.3, 0.3)) * hw,
                     min(float(rng2.uniform(2.2, 2.5)), world.height - 0.15)]
         target = np.r_[0.55 * w2, 0.0, 0.9]
-    T_world_link = look_at(eye, target)
-    T_world_opt = T_world_link @ T_LINK_OPTICAL
-    T_guess_link = T_world_link @ _perturbation(rng, cfg.guess_cm, cfg.guess_deg)
+    return eye, target
+
+
+def _camera_config(cfg: HeldOutConfig) -> CameraConfig:
+    """A RealSense-D435-like depth camera of ``cfg.camera_shape``: 87° horizontal field of view, depth
+    noise ``cfg.depth_noise`` × 0.08 px of disparity (scaled from 430 px focal length), 0.3-10 m."""
     h, w = int(cfg.camera_shape[0]), int(cfg.camera_shape[1])
     fx = 0.5 * w / np.tan(np.deg2rad(87.0) / 2)
-    cam_cfg = CameraConfig(w, h, fx, fx, (w - 1) / 2, (h - 1) / 2, 0.05, cfg.camera_hz,
-                           0.08 * fx / 430.0 * cfg.depth_noise, 0.3, 10.0, 0.02, FRAME_CAM_OPT, FRAME_CAM_LINK)
-    lidar_cfg = LidarConfig(rows=cfg.lidar_rows, cols=cfg.lidar_cols, rate_hz=cfg.lidar_hz,
-                            vertical_fov_deg=cfg.lidar_fov_deg)
-    alt, az = beam_angles(lidar_cfg, rng)
-    scene = RayScene(world.vertices, world.faces, face_class=world.face_class, class_names=world.class_names)
-    lidar = LidarModel(lidar_cfg, alt, az, world.face_material, world.face_class, world.materials,
-                       MATERIAL_ID["human"], CLASS_ID["ceiling"])
-    camera = CameraModel(cam_cfg, T_world_opt)
+    return CameraConfig(w, h, fx, fx, (w - 1) / 2, (h - 1) / 2, 0.05, cfg.camera_hz,
+                        0.08 * fx / 430.0 * cfg.depth_noise, 0.3, 10.0, 0.02, FRAME_CAM_OPT, FRAME_CAM_LINK)
 
-    # the schedule: LiDAR scans (stamp = scan start), camera frames, TF from tf_late_s on
-    t_first, t_last = int(truth.timestamp_ns[0]), int(truth.timestamp_ns[-1])
-    period = int(1e9 / cfg.lidar_hz)
-    scans = np.arange(t_first, t_last - period, period, dtype=np.int64)
-    cams = np.arange(t_first + int(0.013e9), t_last, int(1e9 / cfg.camera_hz), dtype=np.int64)
-    tf_from = t_first + int(cfg.tf_late_s * 1e9)
-    events = ([(tf_from, 0, "static", 0)]
-              + [(int(t), 1, "odom", i) for i, t in enumerate(odom.timestamp_ns) if t >= tf_from]
-              + [(int(t + period + 3_000_000), 2, "lidar", i) for i, t in enumerate(scans)]
-              + [(int(t + 25_000_000), 3, "camera", i) for i, t in enumerate(cams)])
-    events.sort()
-    topics = dict(TOPICS_BASE, **(TOPICS_DEPTH if cfg.camera_output == "depth16" else TOPICS_CLOUD))
-    rec = recording_path(out_dir, fmt)
-    lidar_tum = []
-    inst_rows: list[tuple[int, np.ndarray]] = []   # (scan stamp, (rows, cols) person mask) per scan
-    t_s = lambda t: (int(t) - t_first) / 1e9   # noqa: E731
-    with BagWriter(rec, fmt) as bw_:
-        for topic, typ in topics.items():
-            bw_.add(topic, typ, latched=topic == "/tf_static")
-        for log_ns, _, kind, i in track(events, len(events), "heldout", quiet):
-            if kind == "static":
-                tfs = [bw_.transform("/tf_static", log_ns, "map", "odom", T_map_odom),
-                       bw_.transform("/tf_static", log_ns, "base_link", lidar_cfg.frame_id, T_base_lidar),
-                       bw_.transform("/tf_static", log_ns, "map", FRAME_CAM_LINK, T_guess_link),
-                       bw_.transform("/tf_static", log_ns, FRAME_CAM_LINK, FRAME_CAM_OPT, T_LINK_OPTICAL)]
-                bw_.write("/tf_static", log_ns, bw_.tf_message(tfs))
-            elif kind == "odom":
-                t = int(odom.timestamp_ns[i])
-                bw_.write("/tf", log_ns, bw_.tf_message([bw_.transform("/tf", t, "odom", "base_link", odom.poses[i])]))
-            elif kind == "lidar":
-                t = int(scans[i])
-                T_cols = truth.interpolate(t + lidar.column_times_ns()) @ T_base_lidar
-                mid = t + period // 2
-                hm = person.mesh_at(t_s(mid))
-                # face_instance only labels the returns (stats["instance"]); the scan itself is unchanged
-                pts, st = lidar.scan(scene, T_cols, hm, np.random.default_rng([cfg.seed, 1, i]),
-                                     face_instance=np.ones(len(hm[1]), np.uint16))
-                inst_rows.append((t, st["instance"]))
-                bw_.write("/ouster/points", log_ns, bw_.point_cloud("/ouster/points", t, lidar_cfg.frame_id, pts))
-                lidar_tum.append(truth.interpolate(np.array([t]))[0] @ T_base_lidar)
-                hv, hf = person.mesh_at(t_s(t))
-                truthio.write_mesh(truth_dir / "human" / f"{i:06d}.ply", hv, hf,
-                                   np.full(len(hf), CLASS_ID["human"], np.uint8), {CLASS_ID["human"]: "human"})
-            else:
-                t = int(cams[i])
-                depth, _ = camera.frame(scene, person.mesh_at(t_s(t)), np.random.default_rng([cfg.seed, 2, i]))
-                info = bw_.camera_info("/camera/depth/camera_info", t, FRAME_CAM_OPT, cam_cfg)
-                if cfg.camera_output == "depth16":
-                    bw_.write("/camera/depth/image_rect_raw", log_ns,
-                              bw_.image_16uc1("/camera/depth/image_rect_raw", t, FRAME_CAM_OPT, depth))
-                else:
-                    p = camera.rays * depth[..., None]      # optical frame, NaN for no return
-                    xyz = np.zeros((h, w), np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
-                                                     "offsets": [0, 4, 8], "itemsize": 16}))
-                    xyz["x"], xyz["y"], xyz["z"] = p[..., 0], p[..., 1], p[..., 2]
-                    bw_.write("/camera/depth/color/points", log_ns,
-                              bw_.point_cloud("/camera/depth/color/points", t, FRAME_CAM_OPT, xyz))
-                bw_.write("/camera/depth/camera_info", log_ns, info)
+
+class _HeldOutBag:
+    """The held-out recording's messages: LiDAR scans (stamp = scan start), camera frames, TF from
+    ``tf_late_s`` on; what the scans leave for ``truth/`` (true LiDAR poses, the person's returns and
+    meshes)."""
+
+    def __init__(self, sc: _HeldOutScene, cfg: HeldOutConfig, truth_dir: Path):
+        from ..raytrace import RayScene
+
+        w = sc.world
+        self.sc, self.cfg, self.truth_dir = sc, cfg, truth_dir
+        self.scene = RayScene(w.vertices, w.faces, face_class=w.face_class, class_names=w.class_names)
+        self.lidar = LidarModel(sc.lidar_cfg, sc.lidar_alt, sc.lidar_az, w.face_material, w.face_class, w.materials,
+                                MATERIAL_ID["human"], CLASS_ID["ceiling"])
+        self.camera = CameraModel(sc.cam_cfg, sc.T_world_opt)
+        self.t_first, self.t_last = int(sc.truth.timestamp_ns[0]), int(sc.truth.timestamp_ns[-1])
+        self.period = int(1e9 / cfg.lidar_hz)
+        self.scans = np.arange(self.t_first, self.t_last - self.period, self.period, dtype=np.int64)
+        self.cams = np.arange(self.t_first + int(0.013e9), self.t_last, int(1e9 / cfg.camera_hz), dtype=np.int64)
+        self.lidar_tum: list[np.ndarray] = []            # true T_world_lidar per scan
+        self.inst_rows: list[tuple[int, np.ndarray]] = []   # (scan stamp, (rows, cols) person mask) per scan
+
+    def t_s(self, t) -> float:
+        return (int(t) - self.t_first) / 1e9
+
+    def events(self) -> list[tuple[int, int, str, int]]:
+        """(log_ns, priority, kind, index), sorted: static TF and odometry TF from ``tf_late_s`` on, scans
+        logged 3 ms after they end, camera frames 25 ms after their stamp."""
+        tf_from = self.t_first + int(self.cfg.tf_late_s * 1e9)
+        events = ([(tf_from, 0, "static", 0)]
+                  + [(int(t), 1, "odom", i) for i, t in enumerate(self.sc.odom.timestamp_ns) if t >= tf_from]
+                  + [(int(t + self.period + 3_000_000), 2, "lidar", i) for i, t in enumerate(self.scans)]
+                  + [(int(t + 25_000_000), 3, "camera", i) for i, t in enumerate(self.cams)])
+        events.sort()
+        return events
+
+    def write(self, rec: Path, fmt: str, quiet: bool) -> None:
+        from .recording import BagWriter
+
+        events = self.events()
+        topics = dict(TOPICS_BASE, **(TOPICS_DEPTH if self.cfg.camera_output == "depth16" else TOPICS_CLOUD))
+        handlers = {"static": self._static, "odom": self._odom, "lidar": self._lidar, "camera": self._camera}
+        with BagWriter(rec, fmt) as bw_:
+            self.bw = bw_
+            for topic, typ in topics.items():
+                bw_.add(topic, typ, latched=topic == "/tf_static")
+            for log_ns, _, kind, i in track(events, len(events), "heldout", quiet):
+                handlers[kind](log_ns, i)
+
+    def _static(self, log_ns: int, _i: int) -> None:
+        sc, bw_ = self.sc, self.bw
+        tfs = [bw_.transform("/tf_static", log_ns, "map", "odom", sc.T_map_odom),
+               bw_.transform("/tf_static", log_ns, "base_link", sc.lidar_cfg.frame_id, sc.T_base_lidar),
+               bw_.transform("/tf_static", log_ns, "map", FRAME_CAM_LINK, sc.T_guess_link),
+               bw_.transform("/tf_static", log_ns, FRAME_CAM_LINK, FRAME_CAM_OPT, T_LINK_OPTICAL)]
+        bw_.write("/tf_static", log_ns, bw_.tf_message(tfs))
+
+    def _odom(self, log_ns: int, i: int) -> None:
+        bw_, odom = self.bw, self.sc.odom
+        t = int(odom.timestamp_ns[i])
+        bw_.write("/tf", log_ns, bw_.tf_message([bw_.transform("/tf", t, "odom", "base_link", odom.poses[i])]))
+
+    def _lidar(self, log_ns: int, i: int) -> None:
+        """Scan ``i`` (the person posed at the middle of the sweep) and its truth: the returns on the
+        person, the true LiDAR pose and the person's mesh at the scan's stamp."""
+        sc, bw_ = self.sc, self.bw
+        t = int(self.scans[i])
+        T_cols = sc.truth.interpolate(t + self.lidar.column_times_ns()) @ sc.T_base_lidar
+        mid = t + self.period // 2
+        hm = sc.person.mesh_at(self.t_s(mid))
+        # face_instance only labels the returns (stats["instance"]); the scan itself is unchanged
+        pts, st = self.lidar.scan(self.scene, T_cols, hm, np.random.default_rng([self.cfg.seed, 1, i]),
+                                  face_instance=np.ones(len(hm[1]), np.uint16))
+        self.inst_rows.append((t, st["instance"]))
+        bw_.write("/ouster/points", log_ns, bw_.point_cloud("/ouster/points", t, sc.lidar_cfg.frame_id, pts))
+        self.lidar_tum.append(sc.truth.interpolate(np.array([t]))[0] @ sc.T_base_lidar)
+        hv, hf = sc.person.mesh_at(self.t_s(t))
+        truthio.write_mesh(self.truth_dir / "human" / f"{i:06d}.ply", hv, hf,
+                           np.full(len(hf), CLASS_ID["human"], np.uint8), {CLASS_ID["human"]: "human"})
+
+    def _camera(self, log_ns: int, i: int) -> None:
+        """Camera frame ``i``: a 16UC1 depth image or an organised cloud (optical frame, NaN for no
+        return), its CameraInfo after it."""
+        sc, bw_, cam_cfg = self.sc, self.bw, self.sc.cam_cfg
+        t = int(self.cams[i])
+        depth, _ = self.camera.frame(self.scene, sc.person.mesh_at(self.t_s(t)), np.random.default_rng([self.cfg.seed, 2, i]))
+        info = bw_.camera_info("/camera/depth/camera_info", t, FRAME_CAM_OPT, cam_cfg)
+        if self.cfg.camera_output == "depth16":
+            bw_.write("/camera/depth/image_rect_raw", log_ns,
+                      bw_.image_16uc1("/camera/depth/image_rect_raw", t, FRAME_CAM_OPT, depth))
+        else:
+            p = self.camera.rays * depth[..., None]      # optical frame, NaN for no return
+            xyz = np.zeros((cam_cfg.height, cam_cfg.width), np.dtype({"names": ["x", "y", "z"], "formats": ["<f4"] * 3,
+                                                                      "offsets": [0, 4, 8], "itemsize": 16}))
+            xyz["x"], xyz["y"], xyz["z"] = p[..., 0], p[..., 1], p[..., 2]
+            bw_.write("/camera/depth/color/points", log_ns,
+                      bw_.point_cloud("/camera/depth/color/points", t, FRAME_CAM_OPT, xyz))
+        bw_.write("/camera/depth/camera_info", log_ns, info)
+
+
+def _write_truth(sc: _HeldOutScene, cfg: HeldOutConfig, truth_dir: Path, bag: _HeldOutBag) -> None:
+    """``truth/`` beside the person's meshes (module docstring): the mesh, trajectories, the person's
+    LiDAR returns, extrinsics (true and the TF guess) and ``scene.json``."""
+    world = sc.world
     truthio.write_mesh(truth_dir / "mesh.ply", world.vertices, world.faces, world.face_class, world.class_names)
-    truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", scans, np.stack(lidar_tum))
-    truthio.write_lidar_instances(truth_dir / "lidar_instances.npz", inst_rows, 1, False)
-    tb = np.arange(t_first, t_last + 1, 10_000_000, dtype=np.int64)
-    truthio.write_trajectory(truth_dir / "trajectory_base.tum", tb, truth.interpolate(tb))
+    truthio.write_trajectory(truth_dir / "trajectory_lidar.tum", bag.scans, np.stack(bag.lidar_tum))
+    truthio.write_lidar_instances(truth_dir / "lidar_instances.npz", bag.inst_rows, 1, False)
+    tb = np.arange(bag.t_first, bag.t_last + 1, 10_000_000, dtype=np.int64)
+    truthio.write_trajectory(truth_dir / "trajectory_base.tum", tb, sc.truth.interpolate(tb))
     truthio.write_json(truth_dir / "extrinsics.json", {
-        "T_world_camera_link": T_world_link, "T_world_camera_optical": T_world_opt,
-        "T_map_camera_link_tf": T_guess_link, "T_base_lidar": T_base_lidar, "T_map_odom": T_map_odom,
-        "frames": {"world": "map", "odom": "odom", "base": "base_link", "lidar": lidar_cfg.frame_id,
+        "T_world_camera_link": sc.T_world_link, "T_world_camera_optical": sc.T_world_opt,
+        "T_map_camera_link_tf": sc.T_guess_link, "T_base_lidar": sc.T_base_lidar, "T_map_odom": sc.T_map_odom,
+        "frames": {"world": "map", "odom": "odom", "base": "base_link", "lidar": sc.lidar_cfg.frame_id,
                    "camera_link": FRAME_CAM_LINK, "camera_optical": FRAME_CAM_OPT}})
     truthio.write_json(truth_dir / "scene.json", {
         "family": "heldout", "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
-        "world": world.describe(), "furniture": furniture, "trajectory": tinfo, "odometry": oinfo,
-        "human": {"speed_mps": walk.speed, "height_m": height, "a": walk.a, "b": walk.b, "kind": cfg.person},
-        "camera": {"eye": eye, "target": target, "K": cam_cfg.K(), "shape": [h, w]},
-        "lidar": lidar_cfg.describe(), "scans": len(scans), "camera_frames": len(cams)})
-    (out_dir / "README.txt").write_text("holodata held-out recording (holodata.synth.heldout); truth/ is the answer key\n"
-                                        + json.dumps({"seed": cfg.seed, "camera": cfg.camera,
-                                                      "camera_output": cfg.camera_output}) + "\n")
-    return rec
+        "world": world.describe(), "furniture": sc.furniture, "trajectory": sc.truth_info, "odometry": sc.odom_info,
+        "human": {"speed_mps": sc.walk.speed, "height_m": sc.height, "a": sc.walk.a, "b": sc.walk.b, "kind": cfg.person},
+        "camera": {"eye": sc.eye, "target": sc.target, "K": sc.cam_cfg.K(), "shape": [sc.cam_cfg.height, sc.cam_cfg.width]},
+        "lidar": sc.lidar_cfg.describe(), "scans": len(bag.scans), "camera_frames": len(bag.cams)})

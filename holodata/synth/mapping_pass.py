@@ -10,10 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from ..progress import track
+from ..trajectory import Trajectory
 from . import truth as truthio
 from .data_pass import _odometry_msg
 from .lidar import ouster_metadata
-from .motion import odometry, path_trajectory
+from .motion import DriveProfile, odometry, path_trajectory
 from .scene import (
     FRAME_BASE,
     FRAME_MAP,
@@ -42,8 +43,8 @@ class MappingPass:
     T_odom_base, ``T_map_odom``, ``t0_ns`` its start, ``scan_hz`` the kept LiDAR scans' rate,
     ``info`` path parameters."""
 
-    truth: object
-    odom: object
+    truth: Trajectory
+    odom: Trajectory
     odom_info: dict
     T_map_odom: np.ndarray
     t0_ns: int
@@ -82,10 +83,10 @@ def build_mapping_pass(sc: Scenario, scan_hz: float = MAPPING_SCAN_HZ, speed: fl
     start_x = float(w.floor_polygon[:, 0].min()) + 1.0
     legs = mapping_legs(w, start_x)
     radius = 0.4 * min(w.width, w.hidden_width)
-    kw = dict(speed=speed, turn_radius=radius, max_yaw_rate=MAPPING_YAW_RATE_RPS, legs=legs)
-    _, info = path_trajectory(None, 0, np.random.default_rng(0), **kw)  # its duration
+    drive = DriveProfile(speed=speed, turn_radius=radius, max_yaw_rate=MAPPING_YAW_RATE_RPS)
+    _, info = path_trajectory(None, 0, np.random.default_rng(0), drive, legs=legs)  # its duration
     t0 = sc.t0_ns - int(round((info["duration_s"] + MAPPING_GAP_S) * 1e9))
-    truth, info = path_trajectory(None, t0, rng, **kw)
+    truth, info = path_trajectory(None, t0, rng, drive, legs=legs)
     odom, oinfo = odometry(truth, _rng(sc.seed, "mapping_odometry"), rate_hz=ODOM_HZ)
     T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
     return MappingPass(truth, odom, oinfo, T_map_odom, t0, float(scan_hz), info)

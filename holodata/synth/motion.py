@@ -7,6 +7,8 @@ increments with a scale error, a yaw-rate bias and random walk, starting at iden
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -153,10 +155,28 @@ def _fillet_path(waypoints: np.ndarray, radius: float, step: float = 0.01) -> np
     return np.concatenate(pieces)
 
 
-def _leg(waypoints: np.ndarray, speed: float, accel: float, turn_radius: float, max_yaw_rate: float):
+@dataclass(frozen=True)
+class DriveProfile:
+    """How :func:`path_trajectory` drives a path: corners rounded to arcs of ``turn_radius`` m, a
+    trapezoidal speed profile (cruise ``speed`` m/s, ``accel`` m/s²) that slows on the arcs so the yaw
+    rate stays below ``max_yaw_rate`` rad/s; poses sampled at ``rate_hz``; at rest for ``t_start`` s
+    before, ``t_end`` s after and ``pause_s`` s between legs."""
+
+    speed: float = 0.6
+    accel: float = 0.4
+    turn_radius: float = 0.6
+    max_yaw_rate: float = 0.8
+    rate_hz: float = 200.0
+    t_start: float = 0.3
+    t_end: float = 0.3
+    pause_s: float = 0.5
+
+
+def _leg(waypoints: np.ndarray, drive: DriveProfile):
     """One leg from rest to rest along ``waypoints``: (t (N,) s from its start, x, y, tangent heading
     (N,) rad, length m) at the 1 cm path samples."""
-    xy = _fillet_path(np.asarray(waypoints, float), turn_radius)
+    speed, accel, max_yaw_rate = drive.speed, drive.accel, drive.max_yaw_rate
+    xy = _fillet_path(np.asarray(waypoints, float), drive.turn_radius)
     ds = np.linalg.norm(np.diff(xy, axis=0), axis=1)
     xy = xy[np.r_[True, ds > 1e-9]]
     s_pts = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))]
@@ -175,22 +195,20 @@ def _leg(waypoints: np.ndarray, speed: float, accel: float, turn_radius: float, 
     return t_pts, xy[:, 0], xy[:, 1], head, float(s_pts[-1])
 
 
-def path_trajectory(waypoints, t0_ns: int, rng: np.random.Generator, speed: float = 0.6, accel: float = 0.4,
-                    turn_radius: float = 0.6, max_yaw_rate: float = 0.8, rate_hz: float = 200.0,
-                    t_start: float = 0.3, t_end: float = 0.3, legs: list | None = None,
-                    pause_s: float = 0.5) -> tuple[Trajectory, dict]:
-    """True base_link trajectory along the plan-view polyline ``waypoints`` (K,2) m: corners rounded
-    to arcs of ``turn_radius`` m, a trapezoidal speed profile (cruise ``speed`` m/s, ``accel`` m/s²)
-    that slows on the arcs so the yaw rate stays below ``max_yaw_rate`` rad/s, the robot heading
-    along the path (plus a fixed ±2° mounting offset drawn from ``rng``); at rest for ``t_start`` s
-    before and ``t_end`` s after. ``legs`` [(waypoints (K,2), reverse bool), ...] instead: driven one
-    after the other, each from rest to rest with ``pause_s`` between them, a ``reverse`` leg backwards
-    (the heading stays that of the leg before: a robot backing out of a branch). Returns it and its
-    parameters (length, duration)."""
+def path_trajectory(waypoints, t0_ns: int, rng: np.random.Generator, drive: DriveProfile = DriveProfile(),
+                    legs: list | None = None) -> tuple[Trajectory, dict]:
+    """True base_link trajectory along the plan-view polyline ``waypoints`` (K,2) m, driven as
+    ``drive`` says (:class:`DriveProfile`: arcs at the corners, speed profile, rests), the robot
+    heading along the path (plus a fixed ±2° mounting offset drawn from ``rng``). ``legs``
+    [(waypoints (K,2), reverse bool), ...] instead: driven one after the other, each from rest to rest
+    with ``drive.pause_s`` between them, a ``reverse`` leg backwards (the heading stays that of the leg
+    before: a robot backing out of a branch). Returns it and its parameters (length, duration)."""
+    speed, turn_radius, max_yaw_rate, rate_hz = drive.speed, drive.turn_radius, drive.max_yaw_rate, drive.rate_hz
+    t_start, t_end, pause_s = drive.t_start, drive.t_end, drive.pause_s
     legs = [(np.asarray(waypoints, float), False)] if legs is None else [(np.asarray(w, float), bool(r)) for w, r in legs]
     ts, xs, ys, hs, length, t_off = [], [], [], [], 0.0, t_start
     for k, (wp, rev) in enumerate(legs):
-        t_pts, x, y, h, L = _leg(wp, speed, accel, turn_radius, max_yaw_rate)
+        t_pts, x, y, h, L = _leg(wp, drive)
         h = h + (np.pi if rev else 0.0)
         if hs:   # the heading continues from the leg before (no jump of 2 pi)
             h = h + 2 * np.pi * np.round((hs[-1][-1] - h[0]) / (2 * np.pi))

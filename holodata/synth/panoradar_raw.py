@@ -13,8 +13,9 @@ Layout written by :func:`write_trajectory` (what :mod:`holodata.readers.panorada
                       transform (2x2: xy_radar = xy_lidar @ transform)
     motion_output.npz (moving trajectories, optional) v_esti, theta_v_esti, delta_s0_esti per rotation
 
-:func:`box_room_trajectory` simulates one: a radar on a platform moving at constant velocity through
-a rectangular room holding point reflectors (the radar sees the reflectors; the LiDAR sees the walls).
+:func:`box_room_trajectory` simulates one (:class:`BoxRoomRun`: how it records): a radar on a
+platform moving at constant velocity through a rectangular room holding point reflectors (the radar
+sees the reflectors; the LiDAR sees the walls).
 """
 from __future__ import annotations
 
@@ -26,35 +27,45 @@ from pathlib import Path
 import numpy as np
 
 from ..radar.chirp import ChirpConfig
-from ..radar.simulate import simulate_chirps
+from ..radar.simulate import RigEffects, simulate_chirps
 
 INT16_SCALE = 32768.0   # PanoRadar divides the stored samples by this
 
 
-def write_trajectory(folder, radar: np.ndarray, radar_ts: np.ndarray, radar_sep, *, chirp: ChirpConfig,
-                     lidar: np.ndarray | None = None, lidar_ts=None, lidar_sep=None, imu=None, imu_ts=None,
-                     imu_sep=None, transform=None, motion: dict | None = None) -> Path:
-    """Write one trajectory folder; returns its path. ``radar``: (C, n_virtual, S) complex samples
-    (unit scale; stored x 32768 as PanoRadar's int16-scaled values, as (C, n_tx, n_rx, S)); stamps in
-    seconds. Written into ``folder.partial`` and renamed, so a folder that exists is complete."""
+@dataclass(frozen=True)
+class SensorStream:
+    """One sensor's samples in a trajectory folder: ``data`` (frames first), ``ts`` one stamp per
+    frame (s) and ``sep`` the first frame index of every rotation (PanoRadar's ``*_sep``)."""
+
+    data: np.ndarray
+    ts: np.ndarray
+    sep: np.ndarray
+
+
+def write_trajectory(folder, radar: SensorStream, *, chirp: ChirpConfig, lidar: SensorStream | None = None,
+                     imu: SensorStream | None = None, transform=None, motion: dict | None = None) -> Path:
+    """Write one trajectory folder; returns its path. ``radar.data``: (C, n_virtual, S) complex samples
+    (unit scale; stored x 32768 as PanoRadar's int16-scaled values, as (C, n_tx, n_rx, S)); ``lidar.data``
+    (frames, rows, columns, 3) xyz; ``imu.data`` (samples,) yaw rate deg/s; stamps in seconds.
+    Written into ``folder.partial`` and renamed, so a folder that exists is complete."""
     folder = Path(folder)
     tmp = folder.with_name(folder.name + ".partial")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
-    C, V, S = radar.shape
+    C, V, S = radar.data.shape
     np.save(tmp / "radar_data.npy",
-            (np.asarray(radar, np.complex64) * np.float32(INT16_SCALE)).reshape(C, chirp.n_tx, chirp.n_rx, S))
-    np.savetxt(tmp / "radar_ts.txt", np.asarray(radar_ts, np.float64), fmt="%.9f")
-    params = {"radar_sep": np.asarray(radar_sep, np.int64), "r_radar": np.float64(chirp.rotation_radius_m),
+            (np.asarray(radar.data, np.complex64) * np.float32(INT16_SCALE)).reshape(C, chirp.n_tx, chirp.n_rx, S))
+    np.savetxt(tmp / "radar_ts.txt", np.asarray(radar.ts, np.float64), fmt="%.9f")
+    params = {"radar_sep": np.asarray(radar.sep, np.int64), "r_radar": np.float64(chirp.rotation_radius_m),
               "transform": np.eye(2) if transform is None else np.asarray(transform, np.float64)}
     if lidar is not None:
-        np.save(tmp / "lidar_data.npy", np.asarray(lidar, np.float32))
-        np.savetxt(tmp / "lidar_ts.txt", np.asarray(lidar_ts, np.float64), fmt="%.9f")
-        params["lidar_sep"] = np.asarray(lidar_sep, np.int64)
+        np.save(tmp / "lidar_data.npy", np.asarray(lidar.data, np.float32))
+        np.savetxt(tmp / "lidar_ts.txt", np.asarray(lidar.ts, np.float64), fmt="%.9f")
+        params["lidar_sep"] = np.asarray(lidar.sep, np.int64)
     if imu is not None:
-        np.save(tmp / "imu_data.npy", np.asarray(imu, np.float64))
-        np.savetxt(tmp / "imu_ts.txt", np.asarray(imu_ts, np.float64), fmt="%.9f")
-        params["imu_sep"] = np.asarray(imu_sep, np.int64)
+        np.save(tmp / "imu_data.npy", np.asarray(imu.data, np.float64))
+        np.savetxt(tmp / "imu_ts.txt", np.asarray(imu.ts, np.float64), fmt="%.9f")
+        params["imu_sep"] = np.asarray(imu.sep, np.int64)
     np.savez(tmp / "data_params.npz", **params)
     if motion is not None:
         np.savez(tmp / "motion_output.npz", **{k: np.asarray(v, np.float64) for k, v in motion.items()})
@@ -107,52 +118,73 @@ class Trajectory:
     extras: dict = field(default_factory=dict)
 
 
-def box_room_trajectory(folder, *, chirp: ChirpConfig | None = None, n_rotations: int = 3, velocity=(0.0, 0.0),
-                        room: BoxRoom | None = None, pad: int | None = None, lidar_yaw_deg: float = 0.0,
-                        lidar_hz: float = 10.0, noise_std: float = 1e-3, leakage: float = 0.05, motion_file: bool = True,
-                        seed: int = 0, t0_s: float = 1000.0) -> Trajectory:
-    """Simulate and write a PanoRadar raw trajectory of ``n_rotations`` rotations through ``room``.
+@dataclass(frozen=True)
+class BoxRoomRun:
+    """How :func:`box_room_trajectory` records: ``n_rotations`` rotations while the platform moves at
+    ``velocity`` (vx, vy) m/s from chirp 0 on (no yaw); ``pad`` chirps (None: half a 90° window) before
+    the first rotation and after the last, as a moving recording's beams need; the LiDAR yawed
+    ``lidar_yaw_deg`` from the radar frame (``transform`` then rotates it back), scanning at
+    ``lidar_hz``; complex noise of std ``noise_std`` and a direct leakage of amplitude ``leakage`` per
+    sample (unit-scale samples); ``motion_file``: a moving trajectory gets ``motion_output.npz`` (true
+    velocity); ``seed`` the noise's; ``t0_s`` the first rotation's start stamp (s)."""
 
-    The platform moves at ``velocity`` (vx, vy) m/s from chirp 0 on (no yaw); ``pad`` chirps (default:
-    half a 90° window) are recorded before the first rotation and after the last, as a moving
-    recording's beams need. ``lidar_yaw_deg``: yaw of the LiDAR frame relative to the radar frame
-    (``transform`` then rotates it back). A moving trajectory gets ``motion_output.npz`` (true
-    velocity) unless ``motion_file`` is False; "static" in the name of the folder or of its parent
-    (the building folder, PanoRadar's rule) marks a robot at rest (:func:`holodata.readers.panoradar_raw.motion_rule`).
+    n_rotations: int = 3
+    velocity: tuple = (0.0, 0.0)
+    pad: int | None = None
+    lidar_yaw_deg: float = 0.0
+    lidar_hz: float = 10.0
+    noise_std: float = 1e-3
+    leakage: float = 0.05
+    motion_file: bool = True
+    seed: int = 0
+    t0_s: float = 1000.0
+
+
+def box_room_trajectory(folder, run: BoxRoomRun = BoxRoomRun(), *, chirp: ChirpConfig | None = None,
+                        room: BoxRoom | None = None) -> Trajectory:
+    """Simulate and write a PanoRadar raw trajectory of ``run`` (:class:`BoxRoomRun`) through ``room``.
+
+    "static" in the name of the folder or of its parent (the building folder, PanoRadar's rule) marks
+    a robot at rest (:func:`holodata.readers.panoradar_raw.motion_rule`).
     """
     chirp = chirp or ChirpConfig()
     room = room or BoxRoom()
     N = chirp.chirps_per_rotation
-    if pad is None:
-        pad = N // 8 + 1
-    idx = np.arange(-pad, n_rotations * N + pad)
+    pad = N // 8 + 1 if run.pad is None else run.pad
+    idx = np.arange(-pad, run.n_rotations * N + pad)
     T = chirp.chirp_period_s
-    rng = np.random.default_rng(seed)
-    leak = leakage * np.exp(-np.arange(chirp.n_samples) / 4.0)[None, :].repeat(chirp.n_virtual, 0)
+    rng = np.random.default_rng(run.seed)
+    leak = run.leakage * np.exp(-np.arange(chirp.n_samples) / 4.0)[None, :].repeat(chirp.n_virtual, 0)
     radar = simulate_chirps(np.asarray(room.reflectors, float), chirp=chirp, chirp_index=idx, n_chirps=N,
-                            velocity=velocity, noise_std=noise_std, leakage=leak, rng=rng)
-    radar_ts = t0_s + idx * T
-    radar_sep = pad + N * np.arange(n_rotations + 1)
-    yaw = np.deg2rad(lidar_yaw_deg)
+                            velocity=run.velocity, effects=RigEffects(noise_std=run.noise_std, leakage=leak, rng=rng))
+    radar_ts = run.t0_s + idx * T
+    radar_sep = pad + N * np.arange(run.n_rotations + 1)
+    yaw = np.deg2rad(run.lidar_yaw_deg)
     rot = np.array([[np.cos(yaw), -np.sin(yaw), 0], [np.sin(yaw), np.cos(yaw), 0], [0, 0, 1.0]])  # lidar -> radar
-    n_lidar = int(np.floor((radar_ts[-1] - radar_ts[0]) * lidar_hz)) + 1
-    lidar_ts = radar_ts[0] + np.arange(n_lidar) / lidar_hz
-    v3 = np.array([velocity[0], velocity[1], 0.0])
-    lidar = np.stack([_lidar_scan(room, (t - t0_s) * v3, rot) for t in lidar_ts])
-    sep_ts = t0_s + (radar_sep - pad) * T          # rotation starts (the last one may lie past the data)
+    n_lidar = int(np.floor((radar_ts[-1] - radar_ts[0]) * run.lidar_hz)) + 1
+    lidar_ts = radar_ts[0] + np.arange(n_lidar) / run.lidar_hz
+    v3 = np.array([run.velocity[0], run.velocity[1], 0.0])
+    lidar = np.stack([_lidar_scan(room, (t - run.t0_s) * v3, rot) for t in lidar_ts])
+    sep_ts = run.t0_s + (radar_sep - pad) * T          # rotation starts (the last one may lie past the data)
     lidar_sep = np.searchsorted(lidar_ts, sep_ts)
     imu_ts = radar_ts[0] + np.arange(int((radar_ts[-1] - radar_ts[0]) * 100) + 1) / 100.0
     imu_sep = np.searchsorted(imu_ts, sep_ts)
-    speed = float(np.hypot(*velocity))
-    motion = None
-    if speed > 0 and motion_file:
-        motion = {"v_esti": np.full(n_rotations, speed),
-                  "theta_v_esti": np.full(n_rotations, np.arctan2(velocity[1], velocity[0])),
-                  "delta_s0_esti": np.full(n_rotations, speed * T)}
-    out = write_trajectory(folder, radar, radar_ts, radar_sep, chirp=chirp, lidar=lidar, lidar_ts=lidar_ts,
-                           lidar_sep=lidar_sep, imu=np.zeros(len(imu_ts)), imu_ts=imu_ts, imu_sep=imu_sep,
-                           transform=rot[:2, :2].T, motion=motion)
-    return Trajectory(out, chirp, n_rotations, tuple(velocity), room, pad)
+    out = write_trajectory(folder, SensorStream(radar, radar_ts, radar_sep), chirp=chirp,
+                           lidar=SensorStream(lidar, lidar_ts, lidar_sep),
+                           imu=SensorStream(np.zeros(len(imu_ts)), imu_ts, imu_sep),
+                           transform=rot[:2, :2].T, motion=_motion_output(run, T))
+    return Trajectory(out, chirp, run.n_rotations, tuple(run.velocity), room, pad)
+
+
+def _motion_output(run: BoxRoomRun, chirp_period_s: float) -> dict | None:
+    """``motion_output.npz``'s true motion per rotation (speed m/s, direction rad, travel per chirp m);
+    None at rest or without ``run.motion_file``."""
+    speed = float(np.hypot(*run.velocity))
+    if speed > 0 and run.motion_file:
+        return {"v_esti": np.full(run.n_rotations, speed),
+                "theta_v_esti": np.full(run.n_rotations, np.arctan2(run.velocity[1], run.velocity[0])),
+                "delta_s0_esti": np.full(run.n_rotations, speed * chirp_period_s)}
+    return None
 
 
 def write_raw_bag(folder, out, fmt: str = "mcap", topic: str = "/radar/raw", chirp_config: bool = True) -> Path:
@@ -163,7 +195,7 @@ def write_raw_bag(folder, out, fmt: str = "mcap", topic: str = "/radar/raw", chi
     chirp fields zero (a bag that lacks its chirp configuration, for the error path's test).
     Returns the recording's path."""
     from ..readers.panoradar_raw import PanoRadarRawRecording
-    from .recording import BagWriter, recording_path
+    from .recording import BagWriter, RawRotation, recording_path
 
     rec = PanoRadarRawRecording(Path(folder))
     path = recording_path(Path(out).parent, fmt, Path(out).name)
@@ -181,9 +213,9 @@ def write_raw_bag(folder, out, fmt: str = "mcap", topic: str = "/radar/raw", chi
             c0, c1 = rec._rot_stamps(k)
             ds0, th = ((float(rec.motion["ds0"][k]), float(rec.motion["theta_v"][k])) if rec.motion is not None
                        else (0.0, 0.0))
-            msg = w.radar_raw_rotation(topic, (c0 + c1) // 2, "radar", np.concatenate(parts, axis=0),
-                                       0 if before is None else len(before), len(rot), 0 if after is None else len(after),
-                                       chirp, c0, c1, ds0, th)
+            rotation = RawRotation(np.concatenate(parts, axis=0), 0 if before is None else len(before), len(rot),
+                                   0 if after is None else len(after), c0, c1, ds0, th)
+            msg = w.radar_raw_rotation(topic, (c0 + c1) // 2, "radar", rotation, chirp)
             w.write(topic, (c0 + c1) // 2, msg)
     return path
 

@@ -292,7 +292,7 @@ class RadarModel:
         each chirp's facing, seen by the chirps that face its half-space. Plus thermal noise and the TX→RX leakage (a return at
         zero range, the
         same in every chirp: what static-reflection removal takes out)."""
-        from ..radar._iq_kernel import beat_samples
+        from ..radar._iq_kernel import ChirpSites, beat_samples
 
         cfg = self.cfg
         chirp, _ = cfg.imaging()
@@ -309,9 +309,8 @@ class RadarModel:
         pix = paths["pix"]
         X = np.asarray(origins, np.float64)[pix] + paths["range"][:, None] * np.asarray(directions, np.float64)[pix]
         scale, noise = self.raw_scale()
-        out = beat_samples(ant, tw, fw, X, np.abs(paths["amp"]) * scale, start_frequency_hz=chirp.start_frequency_hz,
-                           slope_hz_per_s=chirp.slope_hz_per_s, sample_rate_hz=chirp.sample_rate_hz,
-                           n_samples=chirp.n_samples, cos_cut=0.0, beamwidth_deg=cfg.element_beamwidth_deg)
+        out = beat_samples(ChirpSites(ant, tw, fw), X, np.abs(paths["amp"]) * scale, chirp, cos_cut=0.0,
+                           beamwidth_deg=cfg.element_beamwidth_deg)
         if cfg.leakage_amplitude > 0:
             out += np.complex64(cfg.leakage_amplitude * scale)
         if rng is not None and noise > 0:

@@ -8,6 +8,7 @@ Writers are deterministic (no wall-clock data), so equal inputs give byte-identi
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -17,6 +18,24 @@ from ..errors import InputError
 from ..messages import typestore_for
 
 FORMATS = ("mcap", "rosbag2", "rosbag1")
+
+
+@dataclass(frozen=True)
+class RawRotation:
+    """One rotation's raw FMCW samples as a ``holodata_msgs/msg/RadarRawRotation`` carries them
+    (:meth:`BagWriter.radar_raw_rotation`): ``chirps`` (n_before + n_rotation + n_after, V, S) complex,
+    the rotation's ``n_rotation`` chirps with the ``n_before`` before and ``n_after`` after them that
+    its first and last beams need; the cycle's start and end (ns, the radar's clock); the platform's
+    motion over the cycle: travel per chirp (m) and heading (rad, radar frame at the cycle start)."""
+
+    chirps: np.ndarray
+    n_before: int
+    n_rotation: int
+    n_after: int
+    cycle_start_ns: int
+    cycle_end_ns: int
+    travel_per_chirp: float = 0.0
+    heading: float = 0.0
 
 _TF_MSG_ROS1 = "geometry_msgs/TransformStamped[] transforms\n"
 
@@ -191,19 +210,18 @@ class BagWriter:
             elevation_min=float(np.deg2rad(g.elev_min_deg)), rotation_radius=float(cfg.rotation_radius_m),
             range_origin="rotation_centre", encoding=cfg.encoding, data=np.frombuffer(heatmap_bytes, np.uint8))
 
-    def radar_raw_rotation(self, topic: str, stamp_ns: int, frame_id: str, chirps, n_before: int, n_rotation: int,
-                           n_after: int, chirp, cycle_start_ns: int, cycle_end_ns: int, travel_per_chirp: float = 0.0,
-                           heading: float = 0.0):
-        """A ``holodata_msgs/msg/RadarRawRotation`` (:mod:`holodata.messages`): ``chirps`` (n_before +
-        n_rotation + n_after, V, S) complex samples, ``chirp`` a :class:`holodata.radar.chirp.ChirpConfig`."""
+    def radar_raw_rotation(self, topic: str, stamp_ns: int, frame_id: str, rotation: RawRotation, chirp):
+        """A ``holodata_msgs/msg/RadarRawRotation`` (:mod:`holodata.messages`) of ``rotation``, ``chirp``
+        a :class:`holodata.radar.chirp.ChirpConfig` (or anything with its chirp fields)."""
         from ..messages import RADAR_RAW_TYPE
 
-        data = np.ascontiguousarray(chirps, np.complex64).view(np.uint8).reshape(-1)
+        r = rotation
+        data = np.ascontiguousarray(r.chirps, np.complex64).view(np.uint8).reshape(-1)
         return self.types[RADAR_RAW_TYPE](
-            header=self.header(topic, stamp_ns, frame_id), cycle_start_ns=int(cycle_start_ns),
-            cycle_end_ns=int(cycle_end_ns), start_frequency=float(chirp.start_frequency_hz),
+            header=self.header(topic, stamp_ns, frame_id), cycle_start_ns=int(r.cycle_start_ns),
+            cycle_end_ns=int(r.cycle_end_ns), start_frequency=float(chirp.start_frequency_hz),
             slope=float(chirp.slope_hz_per_s), sample_rate=float(chirp.sample_rate_hz), n_samples=int(chirp.n_samples),
             n_tx=int(chirp.n_tx), n_rx=int(chirp.n_rx), antenna_spacing=float(chirp.antenna_spacing_m),
-            rotation_radius=float(chirp.rotation_radius_m), n_before=int(n_before), n_rotation=int(n_rotation),
-            n_after=int(n_after), travel_per_chirp=float(travel_per_chirp), heading=float(heading),
+            rotation_radius=float(chirp.rotation_radius_m), n_before=int(r.n_before), n_rotation=int(r.n_rotation),
+            n_after=int(r.n_after), travel_per_chirp=float(r.travel_per_chirp), heading=float(r.heading),
             encoding="complex64", data=data)

@@ -8,8 +8,8 @@ be generated independently and the output does not depend on generation order.
 
 The module is split by job; it re-exports their public names:
 
-- :mod:`holodata.synth.scene`: clocks, frames and streams, :class:`Scenario`, :func:`build_scenario`,
-  :class:`Sensors`, :func:`path_stats`;
+- :mod:`holodata.synth.scene`: clocks, frames and streams, :class:`Scenario`, :func:`build_scenario`
+  (of a :class:`~holodata.synth.spec.SceneSpec`), :class:`Sensors`, :func:`path_stats`;
 - :mod:`holodata.synth.data_pass`: :func:`write_recording` (the data pass's bag and ``truth/``);
 - :mod:`holodata.synth.mapping_pass`: :class:`MappingPass`, :func:`mapping_legs`,
   :func:`build_mapping_pass`, :func:`write_mapping_recording`.
@@ -45,10 +45,11 @@ from .scene import (
     build_scenario,
     path_stats,
 )
+from .spec import SceneSpec
 
 __all__ = [
     "CAMERA_START_S", "EPOCH_S", "FRAME_BASE", "FRAME_CAM_LINK", "FRAME_MAP", "FRAME_ODOM", "FRAME_RADAR", "FRAME_RIGHT_OPT",
     "LIDAR_START_S", "MAPPING_GAP_S", "MAPPING_SCAN_HZ", "MAPPING_SPEED_MPS", "MAPPING_YAW_RATE_RPS", "ODOM_HZ",
-    "RADAR_START_S", "STREAMS", "MappingPass", "Scenario", "Sensors", "build_mapping_pass", "build_scenario",
+    "RADAR_START_S", "STREAMS", "MappingPass", "Scenario", "SceneSpec", "Sensors", "build_mapping_pass", "build_scenario",
     "mapping_legs", "path_stats", "write_mapping_recording", "write_recording",
 ]

@@ -1,5 +1,5 @@
 """One synthetic scene: world, robot, human, sensor rig and clocks (:class:`Scenario`,
-:func:`build_scenario`) and the sensor models bound to it (:class:`Sensors`).
+:class:`SceneSpec`, :func:`build_scenario`) and the sensor models bound to it (:class:`Sensors`).
 
 Time: ``t0`` = EPOCH + seed hours. Radar cycle k covers [t0 + 0.3 s + k/2 s, + 0.5 s) (true time);
 LiDAR scans every 0.1 s from t0 + 0.05 s; camera frames every 1/rate from t0 + 0.1 s; odometry
@@ -15,11 +15,13 @@ import numpy as np
 
 from ..conventions import Grid, RangeBins
 from ..errors import InputError
+from ..trajectory import Trajectory
 from .camera import T_LINK_OPTICAL, CameraConfig, CameraModel, StereoModel, look_at
 from .human import HumanWalk, footprint_points
 from .lidar import LidarConfig, LidarModel, beam_angles
 from .motion import odometry, pose_xy_yaw, robot_trajectory
 from .radar import RadarConfig, RadarModel
+from .spec import SceneSpec
 from .worlds import CLASS_ID, MATERIAL_ID, World, hidden_from, make_world
 
 EPOCH_S = 1_735_689_600  # 2025-01-01T00:00:00Z
@@ -66,9 +68,9 @@ class Scenario:
     frames: int
     t0_ns: int
     duration_s: float
-    truth: object            # Trajectory T_world_base (true time)
+    truth: Trajectory        # T_world_base (true time)
     truth_info: dict
-    odom: object             # Trajectory T_odom_base
+    odom: Trajectory         # T_odom_base
     odom_info: dict
     T_map_odom: np.ndarray
     walk: HumanWalk | None
@@ -117,95 +119,182 @@ class Scenario:
         return start, start + period
 
 
-def build_scenario(corner: str = "L", width: float | None = None, frames: int = 20, seed: int = 0,
-                   human: bool = True, grid: Grid | None = None, range_bins: RangeBins | None = None,
-                   lidar_shape=(64, 1024), camera_shape=(376, 672), radar_encoding: str = "float16",
-                   stereo_images: bool = False, visible_walkers: int = 0,
-                   lidar_vertical_fov_deg: float = LidarConfig.vertical_fov_deg,
-                   robot_stop_x: float | None = None, radar_chirps: int | None = None) -> Scenario:
-    """Everything about one recording except the sensor data itself.
+def build_scenario(spec: SceneSpec = SceneSpec()) -> Scenario:
+    """Everything about one recording except the sensor data itself (:class:`SceneSpec`: what it
+    shows). The scenario stream's draws come in a fixed order: the rig, the person, the camera, the
+    clocks; the robot's path, odometry and visible walkers draw from streams of their own."""
+    world = _corner_world(spec)
+    rng = _rng(spec.seed, "scenario")
+    radar_cfg = _radar_config(spec)
+    period_s = 1.0 / radar_cfg.rotation_hz
+    duration = RADAR_START_S + spec.frames * period_s + 0.3
+    t0 = (EPOCH_S + (int(spec.seed) % 100_000) * 3600) * 1_000_000_000
+    rig = _Rig.draw(spec, rng)
+    person = _PersonDraws.draw(rng)
+    run = _RobotRun.find(world, spec, rig, person, duration, t0)
+    odom, oinfo = odometry(run.truth, _rng(spec.seed, "odometry"), rate_hz=ODOM_HZ)
+    T_map_odom = run.truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
+    a, b, s_b = run.hidden_walk(world, spec, person)
+    walk = HumanWalk(a, b, person.speed, person.height, float(rng.uniform(0, 1))) if spec.human else None
+    if not spec.human:
+        rng.uniform(0, 1)
+    T_world_cam_link = _camera_pose(world, a, b, s_b, rng)
+    clock, latency = _clocks(rng)
+    walkers = (_visible_walkers(world, spec.seed, int(spec.visible_walkers), run.start, run.stop)
+               if spec.visible_walkers else [])
+    return Scenario(spec.seed, world, spec.frames, t0, duration, run.truth, run.info, odom, oinfo, T_map_odom, walk,
+                    rig.T_base_radar, rig.T_base_lidar, T_world_cam_link, radar_cfg, rig.lidar_cfg, rig.camera_cfg,
+                    rig.lidar_alt, rig.lidar_az, clock, latency, bool(spec.stereo_images), walkers, spec.radar_output)
 
-    ``visible_walkers`` N > 0 adds N people walking back and forth along the approach corridor (the
-    robot's), visible to every sensor, for scoring LiDAR human segmentation against per-scan truth
-    masks (``truth/lidar_instances.npz``). They draw from their own random stream, so N = 0 leaves
-    every output byte-identical to a recording made without the option. ``robot_stop_x`` (m, the
-    junction starts at x = 0): where the robot stops instead of the world's drawn stop (0.6-1.2 m
-    short of the junction); closer to the junction the radar reaches more of the hidden branch
-    (more NLOS ground truth). Either way the stop moves back in 0.5 m steps until some stretch of the
-    hidden branch is out of the robot's sight for the person."""
+
+def _corner_world(spec: SceneSpec) -> World:
+    """The corner's world (:func:`make_world`, its own seed); a bad corner kind or width is an :class:`InputError`."""
     try:
-        world = make_world(corner, width, seed)
+        return make_world(spec.corner, spec.width, spec.seed)
     except ValueError as err:
         raise InputError(str(err)) from err
-    rng = _rng(seed, "scenario")
-    radar_cfg = RadarConfig(grid=grid or Grid(), range_bins=range_bins or RangeBins(), encoding=radar_encoding,
-                            **({"chirps_per_rotation": int(radar_chirps)} if radar_chirps else {}))
-    period_s = 1.0 / radar_cfg.rotation_hz
-    duration = RADAR_START_S + frames * period_s + 0.3
-    t0 = (EPOCH_S + (int(seed) % 100_000) * 3600) * 1_000_000_000
-    T_base_radar = _trans(float(rng.uniform(0.05, 0.12)), float(rng.uniform(-0.02, 0.02)), float(rng.uniform(0.38, 0.5)),
-                          float(rng.uniform(-1.0, 1.0)))
-    T_base_lidar = _trans(float(rng.uniform(-0.08, 0.0)), 0.0, float(rng.uniform(0.7, 0.85)), float(rng.uniform(-1.0, 1.0)))
-    rows, cols = lidar_shape
-    lidar_cfg = LidarConfig(rows=int(rows), cols=int(cols), vertical_fov_deg=float(lidar_vertical_fov_deg))
-    alt, az = beam_angles(lidar_cfg, rng)
-    cam_cfg = CameraConfig()
-    if tuple(camera_shape) != (cam_cfg.height, cam_cfg.width):
-        cam_cfg = cam_cfg.scaled(int(camera_shape[1]), int(camera_shape[0]))
+
+
+def _radar_config(spec: SceneSpec) -> RadarConfig:
+    return RadarConfig(grid=spec.grid or Grid(), range_bins=spec.range_bins or RangeBins(), encoding=spec.radar_encoding,
+                       **({"chirps_per_rotation": int(spec.radar_chirps)} if spec.radar_chirps else {}))
+
+
+@dataclass(frozen=True)
+class _Rig:
+    """The robot's sensors: radar and LiDAR mounts on base_link (4×4, drawn: radar 5-12 cm ahead and
+    38-50 cm up, LiDAR up to 8 cm behind and 70-85 cm up, each yawed within ±1°), the LiDAR's
+    configuration and beam angles (deg) and the depth camera's configuration."""
+
+    T_base_radar: np.ndarray
+    T_base_lidar: np.ndarray
+    lidar_cfg: LidarConfig
+    lidar_alt: np.ndarray
+    lidar_az: np.ndarray
+    camera_cfg: CameraConfig
+
+    @classmethod
+    def draw(cls, spec: SceneSpec, rng: np.random.Generator) -> _Rig:
+        T_base_radar = _trans(float(rng.uniform(0.05, 0.12)), float(rng.uniform(-0.02, 0.02)),
+                              float(rng.uniform(0.38, 0.5)), float(rng.uniform(-1.0, 1.0)))
+        T_base_lidar = _trans(float(rng.uniform(-0.08, 0.0)), 0.0, float(rng.uniform(0.7, 0.85)),
+                              float(rng.uniform(-1.0, 1.0)))
+        rows, cols = spec.lidar_shape
+        lidar_cfg = LidarConfig(rows=int(rows), cols=int(cols), vertical_fov_deg=float(spec.lidar_vertical_fov_deg))
+        alt, az = beam_angles(lidar_cfg, rng)
+        cam_cfg = CameraConfig()
+        if tuple(spec.camera_shape) != (cam_cfg.height, cam_cfg.width):
+            cam_cfg = cam_cfg.scaled(int(spec.camera_shape[1]), int(spec.camera_shape[0]))
+        return cls(T_base_radar, T_base_lidar, lidar_cfg, alt, az, cam_cfg)
+
+
+@dataclass(frozen=True)
+class _PersonDraws:
+    """The hidden person's draws: height m, speed m/s (0 a quarter of the time: standing), lateral
+    offset from the hidden branch's axis as a fraction of the free half-width, walk length m, jitter
+    of the walk's start m, and the seed of the robot's trajectory."""
+
+    height: float
+    speed: float
+    lat_frac: float
+    walk_len: float
+    s_jit: float
+    traj_seed: int
+
+    @classmethod
+    def draw(cls, rng: np.random.Generator) -> _PersonDraws:
+        height = float(rng.uniform(1.5, 1.95))
+        speed = 0.0 if rng.random() < 0.25 else float(rng.uniform(0.5, 1.2))
+        lat_frac = float(rng.uniform(-1, 1))
+        walk_len = float(rng.uniform(1.0, 2.5))
+        s_jit = float(rng.uniform(0.0, 0.5))
+        return cls(height, speed, lat_frac, walk_len, s_jit, int(rng.integers(2**31)))
+
+    def lateral(self, world: World) -> float:
+        """Offset (m) of the walk from the hidden branch's axis."""
+        return self.lat_frac * max(0.0, world.hidden_axis[3] / 2 - 0.45)
+
+
+@dataclass(frozen=True)
+class _RobotRun:
+    """The data pass's robot: start and stop (2,) m, true trajectory and its parameters, the plan-view
+    viewpoints (N,2) of its radar and LiDAR (with a 15 cm margin), the walk starts ``s_grid`` (m along
+    the hidden branch) tried and which of them (``ok``) hide a person's footprint from every viewpoint."""
+
+    start: np.ndarray
+    stop: np.ndarray
+    truth: Trajectory
+    info: dict
+    viewers: np.ndarray
+    s_grid: np.ndarray
+    ok: list
+
+    @classmethod
+    def find(cls, world: World, spec: SceneSpec, rig: _Rig, person: _PersonDraws, duration: float, t0: int) -> _RobotRun:
+        """The robot stops early enough that some stretch of the hidden branch stays out of its sight
+        (wide corridors need a longer distance to the corner): the stop moves back 0.5 m at a time."""
+        origin, u, L, _ = world.hidden_axis
+        nrm = np.array([-u[1], u[0]])
+        lat = person.lateral(world)
+        for attempt in range(16):
+            stop0 = (world.robot_stop if spec.robot_stop_x is None
+                     else np.array([float(spec.robot_stop_x), world.robot_stop[1]]))
+            stop = stop0 - np.array([0.5 * attempt, 0.0])
+            start = world.robot_start if world.robot_start[0] < stop[0] - 1.0 else stop - np.array([1.0, 0.0])
+            truth, tinfo = robot_trajectory(start, stop, duration, t0, np.random.default_rng(person.traj_seed))
+            viewers = _viewpoints(truth, rig)
+            s_grid = np.arange(0.5, L - 1.0 - person.walk_len, 0.1)
+            ok = [bool(hidden_from(world.floor_polygon, viewers,
+                                   footprint_points(origin + u * s + nrm * lat, 0.45)).all()) for s in s_grid]
+            if any(ok):
+                return cls(start, stop, truth, tinfo, viewers, s_grid, ok)
+        raise InputError(f"corner {spec.corner} seed {spec.seed}: no place on the hidden side is out of the robot's sight")
+
+    def hidden_walk(self, world: World, spec: SceneSpec, person: _PersonDraws) -> tuple[np.ndarray, np.ndarray, float]:
+        """The person's walk from ``a`` to ``b`` (2,) m, starting at the first hidden walk start (plus
+        the jitter), and where it ends along the hidden branch ``s_b`` m; refused if any of it would be
+        visible from the robot."""
+        origin, u, L, _ = world.hidden_axis
+        nrm = np.array([-u[1], u[0]])
+        lat = person.lateral(world)
+        s_a = float(self.s_grid[int(np.argmax(self.ok))]) + person.s_jit
+        s_b = min(s_a + person.walk_len, L - 1.0)
+        a, b = origin + u * s_a + nrm * lat, origin + u * s_b + nrm * lat
+        seg = np.concatenate([footprint_points(a + (b - a) * f, 0.45) for f in np.linspace(0, 1, 11)])
+        if not hidden_from(world.floor_polygon, self.viewers, seg).all():
+            raise InputError(f"corner {spec.corner} seed {spec.seed}: the human's walk would be visible from the robot")
+        return a, b, s_b
+
+
+def _viewpoints(truth, rig: _Rig) -> np.ndarray:
+    """Plan-view positions (N,2) of the radar and the LiDAR at 60 times along ``truth``, each also
+    shifted by 15 cm forward and sideways (a margin for the sensors' extent)."""
+    ts = np.linspace(truth.timestamp_ns[0], truth.timestamp_ns[-1], 60).astype(np.int64)
+    P = truth.interpolate(ts)
+    viewers = np.concatenate([(P @ T)[:, :2, 3] for T in (rig.T_base_radar, rig.T_base_lidar)])
+    return np.concatenate([viewers + np.array(o) for o in
+                           ((0, 0), (0.15, 0), (0, 0.15), (0, -0.15), (0.15, 0.15), (0.15, -0.15))])
+
+
+def _camera_pose(world: World, a: np.ndarray, b: np.ndarray, s_b: float, rng: np.random.Generator) -> np.ndarray:
+    """T_world_cam_link (4,4): in the hidden branch 1.8-2.8 m beyond the walk's end ``s_b``, 1.0-1.5 m
+    up, looking back at the middle of the walk ``a``-``b``."""
     origin, u, L, bw = world.hidden_axis
     nrm = np.array([-u[1], u[0]])
-    height = float(rng.uniform(1.5, 1.95))
-    speed = 0.0 if rng.random() < 0.25 else float(rng.uniform(0.5, 1.2))
-    lat = float(rng.uniform(-1, 1)) * max(0.0, bw / 2 - 0.45)
-    walk_len = float(rng.uniform(1.0, 2.5))
-    s_jit = float(rng.uniform(0.0, 0.5))
-    traj_seed = int(rng.integers(2**31))
-
-    # the robot stops early enough that some stretch of the hidden branch stays out of its sight
-    # (wide corridors need a longer distance to the corner)
-    for attempt in range(16):
-        stop0 = world.robot_stop if robot_stop_x is None else np.array([float(robot_stop_x), world.robot_stop[1]])
-        stop = stop0 - np.array([0.5 * attempt, 0.0])
-        start = world.robot_start if world.robot_start[0] < stop[0] - 1.0 else stop - np.array([1.0, 0.0])
-        truth, tinfo = robot_trajectory(start, stop, duration, t0, np.random.default_rng(traj_seed))
-        ts = np.linspace(truth.timestamp_ns[0], truth.timestamp_ns[-1], 60).astype(np.int64)
-        P = truth.interpolate(ts)
-        viewers = np.concatenate([(P @ T)[:, :2, 3] for T in (T_base_radar, T_base_lidar)])
-        viewers = np.concatenate([viewers + np.array(o) for o in
-                                  ((0, 0), (0.15, 0), (0, 0.15), (0, -0.15), (0.15, 0.15), (0.15, -0.15))])
-        s_grid = np.arange(0.5, L - 1.0 - walk_len, 0.1)
-        ok = [bool(hidden_from(world.floor_polygon, viewers, footprint_points(origin + u * s + nrm * lat, 0.45)).all())
-              for s in s_grid]
-        if any(ok):
-            break
-    else:
-        raise InputError(f"corner {corner} seed {seed}: no place on the hidden side is out of the robot's sight")
-    odom, oinfo = odometry(truth, _rng(seed, "odometry"), rate_hz=ODOM_HZ)
-    T_map_odom = truth.interpolate(np.array([odom.timestamp_ns[0]]))[0]
-    s_a = float(s_grid[int(np.argmax(ok))]) + s_jit
-    s_b = min(s_a + walk_len, L - 1.0)
-    a, b = origin + u * s_a + nrm * lat, origin + u * s_b + nrm * lat
-    seg = np.concatenate([footprint_points(a + (b - a) * f, 0.45) for f in np.linspace(0, 1, 11)])
-    if not hidden_from(world.floor_polygon, viewers, seg).all():
-        raise InputError(f"corner {corner} seed {seed}: the human's walk would be visible from the robot")
-    walk = HumanWalk(a, b, speed, height, float(rng.uniform(0, 1))) if human else None
-    if not human:
-        rng.uniform(0, 1)
-
-    # camera: in the hidden branch beyond the walk, looking back at it
     s_cam = min(s_b + float(rng.uniform(1.8, 2.8)), L - 0.25)
     eye = np.r_[origin + u * s_cam + nrm * float(rng.uniform(-0.3, 0.3)) * bw, float(rng.uniform(1.0, 1.5))]
     target = np.r_[(a + b) / 2, 0.9]
-    T_world_cam_link = look_at(eye, target)
+    return look_at(eye, target)
 
+
+def _clocks(rng: np.random.Generator) -> tuple[dict, dict]:
+    """Per-sensor clock offsets and log latencies (ns): radar ±3 ms / 30-45 ms, LiDAR ±2 ms / 2-6 ms,
+    camera ±8 ms / 20-40 ms, odometry 0 / 1 ms."""
     clock = {"radar": int(rng.integers(-3_000_000, 3_000_001)), "lidar": int(rng.integers(-2_000_000, 2_000_001)),
              "camera": int(rng.integers(-8_000_000, 8_000_001)), "odometry": 0}
     latency = {"radar": int(rng.integers(30_000_000, 45_000_001)), "lidar": int(rng.integers(2_000_000, 6_000_001)),
                "camera": int(rng.integers(20_000_000, 40_000_001)), "odometry": 1_000_000}
-    walkers = _visible_walkers(world, seed, int(visible_walkers), start, stop) if visible_walkers else []
-    return Scenario(seed, world, frames, t0, duration, truth, tinfo, odom, oinfo, T_map_odom, walk,
-                    T_base_radar, T_base_lidar, T_world_cam_link, radar_cfg, lidar_cfg, cam_cfg, alt, az, clock, latency,
-                    bool(stereo_images), walkers)
+    return clock, latency
 
 
 def _visible_walkers(world: World, seed: int, n: int, start: np.ndarray, stop: np.ndarray) -> list:

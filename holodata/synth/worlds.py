@@ -252,109 +252,32 @@ def make_world(corner: str = "L", width: float | None = None, seed: int = 0, fea
 
     ``width``: approach-corridor width in metres (1.3–4.7; None = drawn from the seed). The hidden
     branch width is drawn within ±15 % of it. Height 2.5–3.2 m. Optional door recesses, pillars
-    (pilasters against walls) and boxes on the floor, each drawn from the seed.
+    (pilasters against walls) and boxes on the floor, each drawn from the seed. The draws come in a
+    fixed order (dimensions, surface materials, the building's RF properties, features, the robot's
+    start and stop), so a given width leaves every other draw as it is.
     """
     if corner not in CORNER_TYPES:
         raise ValueError(f"unknown corner type {corner!r} (choose from {', '.join(CORNER_TYPES)})")
     rng = np.random.default_rng(seed)
-    if width is None:
-        width = float(np.clip(rng.gamma(6.0, 0.36), 1.3, 4.7))
-    else:
-        width = float(width)
-        rng.gamma(6.0, 0.36)  # keep the stream aligned whether or not width is given
-    if not 0.8 <= width <= 8.0:
-        raise ValueError(f"corridor width must be within 0.8–8 m, got {width}")
-    w2 = float(np.clip(width * rng.uniform(0.85, 1.15), 1.2, 5.0))
-    height = float(rng.uniform(2.5, 3.2))
-    la = float(rng.uniform(7.0, 9.0))     # approach corridor length behind the junction
-    lh = float(rng.uniform(6.5, 8.0))     # hidden branch length
-    lc = float(rng.uniform(3.0, 5.0))     # cross: continuation length
-    mirrored = bool(rng.random() < 0.5) if corner in ("L", "oblique", "T", "cross") else False
+    dims = _Dims.draw(corner, width, rng)
     wall_mat = WALL_MATERIALS[rng.integers(len(WALL_MATERIALS))]
     floor_mat = FLOOR_MATERIALS[rng.integers(len(FLOOR_MATERIALS))]
     ceil_mat = CEILING_MATERIALS[rng.integers(len(CEILING_MATERIALS))]
-
-    # per-building variation of the RF properties (paint, moisture, construction): the LOS→NLOS
-    # power drop then spans the paper's attenuation bands (< 10, 10–20, > 20 dB)
-    loss_scale = float(rng.uniform(0.15, 1.6))
-    materials = tuple(replace(m, rf_loss_db=round(m.rf_loss_db * loss_scale * float(rng.uniform(0.85, 1.15)), 3),
-                              rf_reflectivity=round(min(1.0, m.rf_reflectivity * float(rng.uniform(0.8, 1.2))), 3))
-                      for m in MATERIALS)
-    poly, axis = _outline(corner, width, w2, la, lh, lc)
-    n_edges = len(poly)
-    edge_mat = [wall_mat] * n_edges
-    edge_cls = ["wall"] * n_edges
-    feats: list[dict] = []
-
-    mb = _MeshBuilder()
+    materials = _building_materials(rng)
+    poly, axis = _outline(corner, dims.width, dims.w2, dims.la, dims.lh, dims.lc)
+    plan = _Floorplan(poly, wall_mat)
     if features:
-        # a glass or different wall section on the long outer wall (edge 0)
-        if rng.random() < 0.25:
-            edge_mat[0] = "glass" if rng.random() < 0.5 else WALL_MATERIALS[rng.integers(len(WALL_MATERIALS))]
-            feats.append({"kind": "wall_material", "edge": 0, "material": edge_mat[0]})
-        # door recesses on the approach corridor's walls (first edge and last edge), behind the robot
-        for edge in (n_edges - 2, 0):  # the approach corridor's side walls (y = +w/2, y = -w/2)
-            if rng.random() < 0.5:
-                a, b = poly[edge], poly[(edge + 1) % len(poly)]
-                wid, depth = float(rng.uniform(0.85, 1.1)), float(rng.uniform(0.08, 0.25))
-                # keep the recess in the far part of the approach corridor (x < -2.5)
-                if edge == 0:
-                    t0 = float(rng.uniform(0.3, la - 2.5 - wid))
-                else:
-                    t0 = float(rng.uniform(2.5, la - wid - 0.3))
-                poly, back = _insert_notch(poly, edge, t0, wid, depth)
-                edge_mat = edge_mat[:edge + 1] + [wall_mat, "wood", wall_mat, wall_mat] + edge_mat[edge + 1:]
-                edge_cls = edge_cls[:edge + 1] + ["wall", "door", "wall", "wall"] + edge_cls[edge + 1:]
-                # the notch's edges: (edge) a->p1 (kept), p1->p2 side, p2->p3 back(door), p3->p4 side, p4->b
-                p1, p2, p3, p4 = poly[edge + 1: edge + 5]
-                door_h = float(rng.uniform(2.0, 2.2))
-                cen = (p1 + p3) / 2.0
-                d = (p4 - p1) / np.linalg.norm(p4 - p1)
-                v, f = box_mesh([cen[0], cen[1], (door_h + height) / 2 + 0.01],
-                                [wid + 0.02, depth + 0.02, height - door_h + 0.02], np.arctan2(d[1], d[0]))
-                mb.add(v, f, wall_mat, "wall")
-                feats.append({"kind": "door_recess", "center": np.round(cen, 3).tolist(), "width": round(wid, 3),
-                              "depth": round(depth, 3), "door_height": round(door_h, 3)})
-        # pilasters: half-embedded pillars on the approach corridor walls
-        n_pil = int(rng.integers(0, 3))
-        for _ in range(n_pil):
-            side = 1.0 if rng.random() < 0.5 else -1.0
-            x = float(rng.uniform(-la + 0.5, -2.5))
-            s = float(rng.uniform(0.25, 0.45))
-            dep = float(rng.uniform(0.1, 0.2))
-            v, f = box_mesh([x, side * (width / 2 - dep / 2 + 0.05), height / 2], [s, dep + 0.1, height])
-            mb.add(v, f, "concrete" if rng.random() < 0.7 else "metal", "pillar")
-            feats.append({"kind": "pillar", "center": [round(x, 3), round(side * width / 2, 3)], "size": round(s, 3)})
-        # boxes on the floor against the approach walls, behind the robot's path end
-        n_box = int(rng.integers(0, 3))
-        for _ in range(n_box):
-            side = 1.0 if rng.random() < 0.5 else -1.0
-            sz = rng.uniform([0.3, 0.3, 0.25], [0.6, 0.5, 0.7])
-            if width / 2 - sz[1] < 0.45:
-                continue  # corridor too narrow to leave room for the robot
-            x = float(rng.uniform(-la + 0.5, -1.5))
-            v, f = box_mesh([x, side * (width / 2 - sz[1] / 2 - 0.02), sz[2] / 2], sz, float(rng.uniform(-0.1, 0.1)))
-            mb.add(v, f, "cardboard" if rng.random() < 0.6 else "wood", "box")
-            feats.append({"kind": "box", "center": [round(x, 3), round(side * width / 2, 3)],
-                          "size": np.round(sz, 3).tolist()})
-
-    # walls: one vertical quad per outline edge, normal facing the interior (left of the edge)
-    P = len(poly)
-    for i in range(P):
-        a, b = poly[i], poly[(i + 1) % P]
-        v = np.array([[a[0], a[1], 0.0], [b[0], b[1], 0.0], [b[0], b[1], height], [a[0], a[1], height]])
-        mb.add(v, [[0, 2, 1], [0, 3, 2]], edge_mat[i], edge_cls[i])
-    tri = triangulate_polygon(poly)
-    fl = np.column_stack([poly, np.zeros(P)])
-    mb.add(fl, tri[:, [0, 1, 2]], floor_mat, "floor")           # CCW seen from above: normal +z
-    ce = np.column_stack([poly, np.full(P, height)])
-    mb.add(ce, tri[:, [0, 2, 1]], ceil_mat, "ceiling")          # normal -z
-    V, F, M, C = mb.arrays()
-
-    robot_start = np.array([-float(rng.uniform(4.0, 5.5)), float(rng.uniform(-0.12, 0.12)) * width])
-    robot_stop = np.array([-float(rng.uniform(0.6, 1.2)), float(rng.uniform(-0.08, 0.08)) * width])
+        _wall_section(plan, rng)
+        _door_recesses(plan, dims, rng)
+        _pilasters(plan, dims, rng)
+        _floor_boxes(plan, dims, rng)
+    _shell(plan, dims.height, floor_mat, ceil_mat)
+    V, F, M, C = plan.mb.arrays()
+    robot_start = np.array([-float(rng.uniform(4.0, 5.5)), float(rng.uniform(-0.12, 0.12)) * dims.width])
+    robot_stop = np.array([-float(rng.uniform(0.6, 1.2)), float(rng.uniform(-0.08, 0.08)) * dims.width])
     origin, direction, length, bw = axis
-    if mirrored:
+    poly = plan.poly
+    if dims.mirrored:
         V = V * np.array([1.0, -1.0, 1.0])
         F = F[:, [0, 2, 1]]
         poly = (poly * np.array([1.0, -1.0]))[::-1].copy()
@@ -362,11 +285,148 @@ def make_world(corner: str = "L", width: float | None = None, seed: int = 0, fea
         robot_stop = robot_stop * np.array([1.0, -1.0])
         origin = origin * np.array([1.0, -1.0])
         direction = direction * np.array([1.0, -1.0])
-        for ft in feats:
+        for ft in plan.feats:
             if "center" in ft:
                 ft["center"][1] = -ft["center"][1]
-    return World(corner, width, w2, height, int(seed), mirrored, V, F.astype(np.int32), M, C, poly,
-                 robot_start, robot_stop, (origin, direction, float(length), float(bw)), feats, materials)
+    return World(corner, dims.width, dims.w2, dims.height, int(seed), dims.mirrored, V, F.astype(np.int32), M, C, poly,
+                 robot_start, robot_stop, (origin, direction, float(length), float(bw)), plan.feats, materials)
+
+
+@dataclass(frozen=True)
+class _Dims:
+    """A corner's dimensions (m): approach-corridor ``width``, hidden-branch width ``w2``, ceiling
+    ``height``, approach-corridor length ``la`` behind the junction, hidden-branch length ``lh``,
+    the cross's continuation ``lc``; ``mirrored``: the hidden branch towards -y."""
+
+    width: float
+    w2: float
+    height: float
+    la: float
+    lh: float
+    lc: float
+    mirrored: bool
+
+    @classmethod
+    def draw(cls, corner: str, width: float | None, rng: np.random.Generator) -> _Dims:
+        if width is None:
+            width = float(np.clip(rng.gamma(6.0, 0.36), 1.3, 4.7))
+        else:
+            width = float(width)
+            rng.gamma(6.0, 0.36)  # keep the stream aligned whether or not width is given
+        if not 0.8 <= width <= 8.0:
+            raise ValueError(f"corridor width must be within 0.8–8 m, got {width}")
+        w2 = float(np.clip(width * rng.uniform(0.85, 1.15), 1.2, 5.0))
+        height = float(rng.uniform(2.5, 3.2))
+        la = float(rng.uniform(7.0, 9.0))     # approach corridor length behind the junction
+        lh = float(rng.uniform(6.5, 8.0))     # hidden branch length
+        lc = float(rng.uniform(3.0, 5.0))     # cross: continuation length
+        mirrored = bool(rng.random() < 0.5) if corner in ("L", "oblique", "T", "cross") else False
+        return cls(width, w2, height, la, lh, lc, mirrored)
+
+
+def _building_materials(rng: np.random.Generator) -> tuple[Material, ...]:
+    """:data:`MATERIALS` as one building has them: per-building variation of the RF properties (paint,
+    moisture, construction), so the LOS→NLOS power drop spans the paper's attenuation bands (< 10,
+    10–20, > 20 dB): every loss scaled by one factor in 0.15–1.6 and ±15 % more, every reflectivity ±20 %."""
+    loss_scale = float(rng.uniform(0.15, 1.6))
+    return tuple(replace(m, rf_loss_db=round(m.rf_loss_db * loss_scale * float(rng.uniform(0.85, 1.15)), 3),
+                         rf_reflectivity=round(min(1.0, m.rf_reflectivity * float(rng.uniform(0.8, 1.2))), 3))
+                 for m in MATERIALS)
+
+
+class _Floorplan:
+    """The corner being built: its free-space outline ``poly`` (P,2) with each edge's wall material and
+    class (door recesses insert edges), the meshes added so far and the features' descriptions."""
+
+    def __init__(self, poly: np.ndarray, wall_mat: str):
+        self.poly = poly
+        self.wall_mat = wall_mat
+        self.edge_mat = [wall_mat] * len(poly)
+        self.edge_cls = ["wall"] * len(poly)
+        self.feats: list[dict] = []
+        self.mb = _MeshBuilder()
+
+
+def _wall_section(plan: _Floorplan, rng: np.random.Generator) -> None:
+    """A quarter of the time, a glass or different wall section on the long outer wall (edge 0)."""
+    if rng.random() < 0.25:
+        plan.edge_mat[0] = "glass" if rng.random() < 0.5 else WALL_MATERIALS[rng.integers(len(WALL_MATERIALS))]
+        plan.feats.append({"kind": "wall_material", "edge": 0, "material": plan.edge_mat[0]})
+
+
+def _door_recesses(plan: _Floorplan, dims: _Dims, rng: np.random.Generator) -> None:
+    """Door recesses on the approach corridor's side walls (each half the time), behind the robot
+    (x < -2.5 m): a wooden door 2.0-2.2 m high at the back of a 0.08-0.25 m deep notch, wall above it."""
+    wall_mat, la, height = plan.wall_mat, dims.la, dims.height
+    n_edges = len(plan.poly)
+    for edge in (n_edges - 2, 0):  # the approach corridor's side walls (y = +w/2, y = -w/2)
+        if rng.random() < 0.5:
+            wid, depth = float(rng.uniform(0.85, 1.1)), float(rng.uniform(0.08, 0.25))
+            # keep the recess in the far part of the approach corridor (x < -2.5)
+            if edge == 0:
+                t0 = float(rng.uniform(0.3, la - 2.5 - wid))
+            else:
+                t0 = float(rng.uniform(2.5, la - wid - 0.3))
+            plan.poly, _ = _insert_notch(plan.poly, edge, t0, wid, depth)
+            plan.edge_mat = plan.edge_mat[:edge + 1] + [wall_mat, "wood", wall_mat, wall_mat] + plan.edge_mat[edge + 1:]
+            plan.edge_cls = plan.edge_cls[:edge + 1] + ["wall", "door", "wall", "wall"] + plan.edge_cls[edge + 1:]
+            # the notch's edges: (edge) a->p1 (kept), p1->p2 side, p2->p3 back(door), p3->p4 side, p4->b
+            p1, p2, p3, p4 = plan.poly[edge + 1: edge + 5]
+            door_h = float(rng.uniform(2.0, 2.2))
+            cen = (p1 + p3) / 2.0
+            d = (p4 - p1) / np.linalg.norm(p4 - p1)
+            v, f = box_mesh([cen[0], cen[1], (door_h + height) / 2 + 0.01],
+                            [wid + 0.02, depth + 0.02, height - door_h + 0.02], np.arctan2(d[1], d[0]))
+            plan.mb.add(v, f, wall_mat, "wall")
+            plan.feats.append({"kind": "door_recess", "center": np.round(cen, 3).tolist(), "width": round(wid, 3),
+                               "depth": round(depth, 3), "door_height": round(door_h, 3)})
+
+
+def _pilasters(plan: _Floorplan, dims: _Dims, rng: np.random.Generator) -> None:
+    """0-2 pilasters: half-embedded pillars on the approach corridor walls."""
+    width, height = dims.width, dims.height
+    n_pil = int(rng.integers(0, 3))
+    for _ in range(n_pil):
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        x = float(rng.uniform(-dims.la + 0.5, -2.5))
+        s = float(rng.uniform(0.25, 0.45))
+        dep = float(rng.uniform(0.1, 0.2))
+        v, f = box_mesh([x, side * (width / 2 - dep / 2 + 0.05), height / 2], [s, dep + 0.1, height])
+        plan.mb.add(v, f, "concrete" if rng.random() < 0.7 else "metal", "pillar")
+        plan.feats.append({"kind": "pillar", "center": [round(x, 3), round(side * width / 2, 3)], "size": round(s, 3)})
+
+
+def _floor_boxes(plan: _Floorplan, dims: _Dims, rng: np.random.Generator) -> None:
+    """0-2 boxes on the floor against the approach walls, behind the robot's path end (none where the
+    corridor would be left too narrow for the robot)."""
+    width = dims.width
+    n_box = int(rng.integers(0, 3))
+    for _ in range(n_box):
+        side = 1.0 if rng.random() < 0.5 else -1.0
+        sz = rng.uniform([0.3, 0.3, 0.25], [0.6, 0.5, 0.7])
+        if width / 2 - sz[1] < 0.45:
+            continue  # corridor too narrow to leave room for the robot
+        x = float(rng.uniform(-dims.la + 0.5, -1.5))
+        v, f = box_mesh([x, side * (width / 2 - sz[1] / 2 - 0.02), sz[2] / 2], sz, float(rng.uniform(-0.1, 0.1)))
+        plan.mb.add(v, f, "cardboard" if rng.random() < 0.6 else "wood", "box")
+        plan.feats.append({"kind": "box", "center": [round(x, 3), round(side * width / 2, 3)],
+                           "size": np.round(sz, 3).tolist()})
+
+
+def _shell(plan: _Floorplan, height: float, floor_mat: str, ceil_mat: str) -> None:
+    """Walls (one vertical quad per outline edge, normal facing the interior: left of the edge), floor
+    at z = 0 and ceiling at ``height`` m over the outline."""
+    poly = plan.poly
+    P = len(poly)
+    for i in range(P):
+        a, b = poly[i], poly[(i + 1) % P]
+        v = np.array([[a[0], a[1], 0.0], [b[0], b[1], 0.0], [b[0], b[1], height], [a[0], a[1], height]])
+        plan.mb.add(v, [[0, 2, 1], [0, 3, 2]], plan.edge_mat[i], plan.edge_cls[i])
+    tri = triangulate_polygon(poly)
+    fl = np.column_stack([poly, np.zeros(P)])
+    plan.mb.add(fl, tri[:, [0, 1, 2]], floor_mat, "floor")           # CCW seen from above: normal +z
+    ce = np.column_stack([poly, np.full(P, height)])
+    plan.mb.add(ce, tri[:, [0, 2, 1]], ceil_mat, "ceiling")          # normal -z
 
 
 # ------------------------------------------------------------------ plan-view occlusion
