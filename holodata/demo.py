@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -167,104 +169,173 @@ def run_demo(out_dir, quick: bool = False, mapping: str = "slam", quiet: bool = 
     files, ~0.3 GB a quick-demo corner; its ``truth/`` stays), unless ``keep_recordings``: only
     the ones this demo's synth wrote (:func:`remove_ingested_recordings`); a rerun then takes those
     corners from the dataset."""
-    from .dataset import create_dataset, validate_dataset
-    from .evaluate import evaluate
-    from .groundtruth import GTConfig, raytrace_dataset
-    from .ingest import ingest
-    from .torch import TrainConfig, train
+    import importlib
 
+    # every stage's package before any work: a missing extra (torch: train) stops the demo before it
+    # claims out_dir, not after its first stages (each stage imports its entry points where it runs)
+    for package in ("dataset", "evaluate", "groundtruth", "ingest", "torch"):
+        importlib.import_module(f"holodata.{package}")
     cfg = config or demo_config(quick)
     mapping = resolve_mapping(mapping)
     say = log or (lambda _msg: None)
     out = Path(out_dir)
     claim_folder(out, "holodata demo")   # a new or empty folder, or an earlier demo's (holodata.ownership)
-    url = out / "dataset.zarr"
-    timings: dict[str, float] = {}
+    return _Demo(cfg, mapping, out, quiet, say, keep_recordings).run()
 
-    def stage(name: str, t0: float) -> None:
-        timings[name] = round(time.perf_counter() - t0, 2)
-        say(f"{name:<12} {timings[name]:6.1f} s")
 
-    t0 = time.perf_counter()
-    recs = synthesize_corners(out / "recordings", cfg, quiet=quiet, ingested=ingested_scenes(url))
-    stage("synth", t0)
+@dataclass
+class _Demo:
+    """One demo run into the claimed folder ``out``: ``cfg``, ``mapping`` ("slam" or "truth"),
+    ``quiet``, ``say`` and ``keep_recordings`` as :func:`run_demo`'s; ``timings``: the seconds each
+    finished stage took (said one line each through ``say``)."""
 
-    t0 = time.perf_counter()
-    ids = list(recs)
-    maps = {s: map_scene_id(s) for s in ids if cfg.mapping_pass}
-    todo = [(str(recs[s].recording), s) for s in ids if recs[s].recording is not None] + \
-           [(str(recs[s].mapping_recording), maps[s]) for s in maps if recs[s].mapping_recording is not None]
-    if todo:   # (a rerun after the recordings were ingested and removed has none left)
-        ingest([r for r, _ in todo], str(url), scene_ids=[s for _, s in todo], quiet=quiet, beamform=cfg.beamform())
-    w = create_dataset(str(url), grid=cfg.grid, range_bins=cfg.range_bins, created_by="holodata demo")
-    w.begin("demo", rerun="rerun holodata demo with the same --out to finish it")   # the root: until the splits
-    for sid in ids:
-        w.scene(sid).set_attrs(truth_scene_attrs(recs[sid].truth_dir))
-    if not keep_recordings:
-        remove_ingested_recordings(out / "recordings", ids, maps, url, say)
-    stage("ingest", t0)
+    cfg: DemoConfig
+    mapping: str
+    out: Path
+    quiet: bool
+    say: Callable[[str], None]
+    keep_recordings: bool
+    timings: dict[str, float] = field(default_factory=dict)
 
-    t0 = time.perf_counter()
-    warnings: list[str] = []
-    if mapping == "slam":
-        for note in map_scenes_with_slam(str(url), ids, maps, quiet=quiet, mesh_poisson_depth=cfg.mesh_poisson_depth):
-            if note:
-                warnings.append(note)
-                say(f"warning: {note}")
-    else:
-        for sid in ids:
-            map_from_truth(w.scene(sid), recs[sid].truth_dir)
-    stage(f"mapping:{mapping}", t0)
+    @property
+    def url(self) -> Path:
+        """The demo's dataset."""
+        return self.out / "dataset.zarr"
 
-    t0 = time.perf_counter()
-    # the beams the recordings state (synth: from the rotation centre, each column at its own time)
-    raytrace_dataset(str(url), ids, GTConfig(), quiet=quiet)
-    w.set_splits(train=ids[: -cfg.n_test], test=ids[-cfg.n_test:])
-    w.finish("demo")
-    stage("raytrace-gt", t0)
+    def run(self) -> DemoResult:
+        """synth → ingest → mapping → raytrace-gt (+ the splits) → validate → train → evaluate."""
+        cfg, url = self.cfg, self.url
+        with self._stage("synth"):
+            recs = synthesize_corners(self.out / "recordings", cfg, quiet=self.quiet, ingested=ingested_scenes(url))
+        with self._stage("ingest"):
+            ids, maps, w = self._ingest(recs)
+        with self._stage(f"mapping:{self.mapping}"):
+            warnings = self._map(recs, ids, maps, w)
+        with self._stage("raytrace-gt"):
+            self._raytrace(ids, w)
+        with self._stage("validate"):
+            report = self._validate()
+        run_dir = self._train()
+        doc, pretrained = self._evaluate(run_dir)
+        (self.out / "demo.json").write_text(json.dumps({"mapping": self.mapping, "timings": self.timings,
+                                                        "warnings": warnings, "scenes": ids,
+                                                        "test": ids[-cfg.n_test:]}, indent=2))
+        return DemoResult(out_dir=self.out, dataset=url, run_dir=run_dir, report=self.out / "report" / "report.html",
+                          mapping=self.mapping, metrics=doc, timings=self.timings, validation=report,
+                          warnings=warnings, pretrained=pretrained)
 
-    t0 = time.perf_counter()
-    report = validate_dataset(str(url), quiet=quiet)
-    if not report["ok"]:
-        lines = "; ".join(p["line"] for p in report["problems"][:3])
-        raise InputError(f"{url}: the demo dataset does not validate ({report['n_problems']} problems: {lines})")
-    stage("validate", t0)
-
-    t0 = time.perf_counter()
-    run_dir = out / "run"
-    init = None
-    if cfg.init is not None:
-        from .torch.pretrained import resolve
-
-        try:
-            init = resolve(cfg.init)
-        except InputError as err:
-            raise InputError(f"{err}; or train the demo's model from scratch (holodata demo --from-scratch)") from err
-    train(str(url), run_dir, TrainConfig(epochs=cfg.epochs, depth=cfg.depth, batch_size=cfg.batch_size,
-                                         base_channels=cfg.base_channels, max_channels=cfg.max_channels,
-                                         range_pool=cfg.range_pool, range_loss=cfg.range_loss, lr=cfg.lr),
-          quiet=quiet, init=init)
-    stage("train", t0)
-    if cfg.stage2 is not None:
-        from .torch.stage2_train import Stage2Config, train_stage2
-
+    @contextmanager
+    def _stage(self, name: str) -> Iterator[None]:
+        """Time the block as stage ``name`` (not recorded when it raises)."""
         t0 = time.perf_counter()
-        train_stage2(str(url), run_dir, Stage2Config.from_dict(cfg.stage2), quiet=quiet, init=init)
-        stage("train:stage2", t0)
+        yield
+        self._record(name, t0)
 
-    t0 = time.perf_counter()
-    report_dir = out / "report"
-    doc = evaluate(str(url), run_dir, report_dir, split="test", quiet=quiet)
-    stage("evaluate", t0)
-    t0 = time.perf_counter()
-    pretrained = evaluate_pretrained(url, out / "report_pretrained", quiet, say, report=False)
-    if pretrained is not None:
-        stage("evaluate:pretrained", t0)
-    (out / "demo.json").write_text(json.dumps({"mapping": mapping, "timings": timings, "warnings": warnings,
-                                               "scenes": ids, "test": ids[-cfg.n_test:]}, indent=2))
-    return DemoResult(out_dir=out, dataset=url, run_dir=run_dir, report=report_dir / "report.html",
-                      mapping=mapping, metrics=doc, timings=timings, validation=report, warnings=warnings,
-                      pretrained=pretrained)
+    def _record(self, name: str, t0: float) -> None:
+        self.timings[name] = round(time.perf_counter() - t0, 2)
+        self.say(f"{name:<12} {self.timings[name]:6.1f} s")
+
+    def _ingest(self, recs: dict) -> tuple[list[str], dict, object]:
+        """Ingest the recordings synth wrote (each corner's data pass, and its mapping pass as scene
+        ``<id>_map``); mark the dataset unfinished until the splits; give each scene its truth's
+        attrs; remove the ingested recordings unless ``keep_recordings``. Returns (scene ids,
+        mapping scene per scene, the dataset writer)."""
+        from .dataset import create_dataset
+        from .ingest import IngestOptions, ingest
+
+        cfg, url, quiet = self.cfg, self.url, self.quiet
+        ids = list(recs)
+        maps = {s: map_scene_id(s) for s in ids if cfg.mapping_pass}
+        todo = [(str(recs[s].recording), s) for s in ids if recs[s].recording is not None] + \
+               [(str(recs[s].mapping_recording), maps[s]) for s in maps if recs[s].mapping_recording is not None]
+        if todo:   # (a rerun after the recordings were ingested and removed has none left)
+            ingest([r for r, _ in todo], str(url), IngestOptions(beamform=cfg.beamform()), scene_ids=[s for _, s in todo],
+                   quiet=quiet)
+        w = create_dataset(str(url), grid=cfg.grid, range_bins=cfg.range_bins, created_by="holodata demo")
+        w.begin("demo", rerun="rerun holodata demo with the same --out to finish it")   # the root: until the splits
+        for sid in ids:
+            w.scene(sid).set_attrs(truth_scene_attrs(recs[sid].truth_dir))
+        if not self.keep_recordings:
+            remove_ingested_recordings(self.out / "recordings", ids, maps, url, self.say)
+        return ids, maps, w
+
+    def _map(self, recs: dict, ids: list[str], maps: dict, w) -> list[str]:
+        """Poses, mesh and humans per scene: holodata slam + register, or the synthetic truth. Returns
+        the warnings (one line per scene whose mapping was incomplete)."""
+        warnings: list[str] = []
+        if self.mapping == "slam":
+            for note in map_scenes_with_slam(str(self.url), ids, maps, quiet=self.quiet,
+                                             mesh_poisson_depth=self.cfg.mesh_poisson_depth):
+                if note:
+                    warnings.append(note)
+                    self.say(f"warning: {note}")
+        else:
+            for sid in ids:
+                map_from_truth(w.scene(sid), recs[sid].truth_dir)
+        return warnings
+
+    def _raytrace(self, ids: list[str], w) -> None:
+        """The ground truth of every scene, then the splits (the last ``n_test`` corners held out),
+        which finish the dataset."""
+        from .groundtruth import GTConfig, raytrace_dataset
+
+        # the beams the recordings state (synth: from the rotation centre, each column at its own time)
+        raytrace_dataset(str(self.url), ids, GTConfig(), quiet=self.quiet)
+        w.set_splits(train=ids[: -self.cfg.n_test], test=ids[-self.cfg.n_test:])
+        w.finish("demo")
+
+    def _validate(self) -> dict:
+        """The dataset's validation report; InputError naming its first problems when it fails."""
+        from .dataset import validate_dataset
+
+        url = self.url
+        report = validate_dataset(str(url), quiet=self.quiet)
+        if not report["ok"]:
+            lines = "; ".join(p["line"] for p in report["problems"][:3])
+            raise InputError(f"{url}: the demo dataset does not validate ({report['n_problems']} problems: {lines})")
+        return report
+
+    def _train(self) -> Path:
+        """Stage one (fine-tuned from ``cfg.init`` when set) and, with ``cfg.stage2``, stage two into
+        ``out``/run; returns that run directory."""
+        from .torch import TrainConfig, train
+
+        cfg, url, quiet = self.cfg, self.url, self.quiet
+        run_dir = self.out / "run"
+        with self._stage("train"):
+            init = None
+            if cfg.init is not None:
+                from .torch.pretrained import resolve
+
+                try:
+                    init = resolve(cfg.init)
+                except InputError as err:
+                    raise InputError(f"{err}; or train the demo's model from scratch (holodata demo --from-scratch)") \
+                        from err
+            train(str(url), run_dir, TrainConfig(epochs=cfg.epochs, depth=cfg.depth, batch_size=cfg.batch_size,
+                                                 base_channels=cfg.base_channels, max_channels=cfg.max_channels,
+                                                 range_pool=cfg.range_pool, range_loss=cfg.range_loss, lr=cfg.lr),
+                  quiet=quiet, init=init)
+        if cfg.stage2 is not None:
+            from .torch.stage2_train import Stage2Config, train_stage2
+
+            with self._stage("train:stage2"):
+                train_stage2(str(url), run_dir, Stage2Config.from_dict(cfg.stage2), quiet=quiet, init=init)
+        return run_dir
+
+    def _evaluate(self, run_dir: Path) -> tuple[dict, dict | None]:
+        """The run scored on the test split (report in ``out``/report), then the shipped weights
+        where they fit (:func:`evaluate_pretrained`). Returns both metrics documents (the second
+        None when the weights were not scored)."""
+        from .evaluate import Evaluation
+
+        with self._stage("evaluate"):
+            doc = Evaluation(str(self.url), run_dir, self.out / "report", split="test", quiet=self.quiet).run()
+        t0 = time.perf_counter()
+        pretrained = evaluate_pretrained(self.url, self.out / "report_pretrained", self.quiet, self.say, report=False)
+        if pretrained is not None:
+            self._record("evaluate:pretrained", t0)
+        return doc, pretrained
 
 
 def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = True) -> dict | None:
@@ -273,7 +344,7 @@ def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = Tru
     bins they were trained for (the quick demo's); None otherwise (said in one line). ``report``:
     also their report.html and figures (the demo prints their rows and writes their metrics.json only)."""
     from .dataset import open_dataset
-    from .evaluate import evaluate
+    from .evaluate import Evaluation
     from .torch.pretrained import resolve
     from .torch.checkpoint import load_checkpoint
     from .torch.train import check_stage1
@@ -284,7 +355,7 @@ def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = Tru
     except InputError as err:
         say(f"pretrained weights not evaluated: {err}")
         return None
-    return evaluate(str(url), "pretrained", out_dir, split="test", quiet=quiet, report=report)
+    return Evaluation(str(url), "pretrained", out_dir, split="test", quiet=quiet, report=report).run()
 
 
 # the shipped weights' rows in the demo's tables (format_tables pads a row's name to 15 characters)
@@ -358,13 +429,13 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True, inges
 
 def _synth_jobs(jobs: list, cfg: DemoConfig, quiet: bool) -> dict:
     """{scene id: SynthResult} of ``jobs`` [(scene id, folder, corner, seed)], one after the other."""
-    from .synth import synthesize
+    from .synth import SynthSpec, synthesize
 
-    return {sid: synthesize(d, corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid, range_bins=cfg.range_bins,
-                            lidar_shape=cfg.lidar_shape, camera_shape=cfg.camera_shape,
-                            lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg, mapping_pass=cfg.mapping_pass,
-                            mapping_scan_hz=cfg.mapping_scan_hz, radar_output=cfg.radar_output,
-                            radar_chirps=cfg.radar_chirps, quiet=quiet)
+    return {sid: synthesize(d, SynthSpec(corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid, range_bins=cfg.range_bins,
+                                         lidar_shape=cfg.lidar_shape, camera_shape=cfg.camera_shape,
+                                         lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg, mapping_pass=cfg.mapping_pass,
+                                         mapping_scan_hz=cfg.mapping_scan_hz, radar_output=cfg.radar_output,
+                                         radar_chirps=cfg.radar_chirps), quiet=quiet)
             for sid, d, corner, seed in jobs}
 
 

@@ -31,13 +31,16 @@ import threading
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import KW_ONLY, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from .beams import OriginModel, beam_rays, column_times, scene_origin_model
 from .conventions import RangeBins
 from .dataset.inputs import gt_inputs, stale_inputs
+from .dataset.writer import FrameStorage
 from .dataset.layout import (GT_ARRAYS, GT_RANGE, MESH_FACES, MESH_FACE_CLASS, MESH_VERTICES, POSE_T_WORLD_RADAR,
                              RADAR_CYCLE_NS, TIME_TIMESTAMP_NS)
 from .errors import HolodataError, InputError
@@ -99,115 +102,182 @@ def auto_helper(n_frames: int, processes: int = 0, backend: str = "open3d") -> b
     return n_frames >= (HELPER_MIN_FRAMES if can_fork(backend) else HELPER_SPAWN_MIN_FRAMES)
 
 
-def write_scene_gt(sc, mesh: tuple, cfg: GTConfig, traj: Trajectory, human: HumanSource, attrs: dict,
-                   quiet: bool = True, label: str = "raytrace-gt", processes: int = 1, client=None,
-                   cycles=None, helper: Helper | None = None) -> dict:
-    """Trace every frame of ``traj`` and write gt/* shard by shard into dataset scene ``sc``
+@dataclass(frozen=True, eq=False)
+class TraceInputs:
+    """What one scene's frames are traced from: ``mesh`` (vertices (V,3), faces (F,3), face classes
+    (F,) uint8 or None, class names or None: the static scene), ``cfg`` the trace's settings,
+    ``traj`` the radar poses (one per frame), ``human`` the per-frame human surfaces and ``cycles``
+    (T,2) int64 ns, each frame's rotation start/end for per-column times (None: every column at its
+    frame's pose). The arguments of :class:`FrameTracer` and of its helper process."""
+
+    mesh: tuple
+    cfg: GTConfig
+    traj: Trajectory
+    human: HumanSource
+    cycles: np.ndarray | None = None
+
+    def args(self) -> tuple:
+        """(mesh, cfg, traj, human, cycles): :class:`FrameTracer`'s and :class:`Helper`'s arguments."""
+        return self.mesh, self.cfg, self.traj, self.human, self.cycles
+
+
+@dataclass
+class _SceneGT:
+    """The gt arrays of one scene being written: ``arrays`` name → frame-array writer, ``specs``
+    name → its :func:`gt_array_specs` entry (per-frame shape, dtype), the progress bar's ``label``
+    (no bar when ``quiet``) and ``clock``: when the first traced frame arrived (``"first"``,
+    ``time.perf_counter`` s)."""
+
+    arrays: dict
+    specs: dict
+    quiet: bool
+    label: str
+    clock: dict = field(default_factory=dict)
+
+    @property
+    def first(self):
+        """gt/range's writer: its shards stand for every array's."""
+        return self.arrays[GT_RANGE]
+
+    def plan(self, n_frames: int) -> list:
+        """[(shard, names still to write, frames)] for the shards of ``n_frames`` frames not yet
+        written whole."""
+        first = self.first
+        all_frames = range(n_frames)
+        plan = []
+        for k in range(first.n_shards):
+            todo = [name for name, a in self.arrays.items() if not a.is_done(k)]
+            if todo:
+                plan.append((k, todo, all_frames[first.frames(k)]))
+        return plan
+
+
+def write_scene_gt(sc, inputs: TraceInputs, attrs: dict, quiet: bool = True, label: str = "raytrace-gt",
+                   processes: int = 1, client=None, helper: Helper | None = None) -> dict:
+    """Trace every frame of ``inputs.traj`` and write gt/* shard by shard into dataset scene ``sc``
     (skipping shards already written; a shard's arrays are written only once all its frames are
-    traced). ``processes`` > 1 traces in that many spawned processes (the static scene is built once
-    per worker); writing stays in this process, with a bounded number of frames in flight, so
-    memory does not grow with the frame count. In-process runs trace in two threads and, when
-    :func:`auto_helper` says so, with a helper process beside them (``helper``: one the caller
-    started early for this scene, else one is started here). ``client`` (a ``distributed.Client``):
-    one Dask task per shard instead, each worker writing its shards (:mod:`holodata.distributed`).
-    ``cycles`` (T,2) int64: each frame's rotation start/end for per-column times. Returns a summary dict."""
+    traced); ``attrs``: the scene attrs ``gt`` (:func:`gt_attrs`). ``processes`` > 1 traces in that
+    many spawned processes (the static scene is built once per worker); writing stays in this
+    process, with a bounded number of frames in flight, so memory does not grow with the frame
+    count. In-process runs trace in two threads and, when :func:`auto_helper` says so, with a helper
+    process beside them (``helper``: one the caller started early for this scene, else one is
+    started here). ``client`` (a ``distributed.Client``): one Dask task per shard instead, each
+    worker writing its shards (:mod:`holodata.distributed`). Returns a summary dict."""
+    cfg = inputs.cfg
     specs = gt_array_specs(cfg.grid, cfg.max_bounces)
-    extra = {"codec": cfg.codec} if cfg.codec else {}
+    extra = {"storage": FrameStorage(codec=cfg.codec)} if cfg.codec else {}
     arrays = {name: sc.frame_array(name, **spec, **extra) for name, spec in specs.items()}
     sc.set_attrs({"gt": attrs})
-    first = arrays[GT_RANGE]
-    all_frames = range(len(traj))
-    plan = []  # (shard, names to write, frames)
-    for k in range(first.n_shards):
-        todo = [name for name, a in arrays.items() if not a.is_done(k)]
-        if todo:
-            plan.append((k, todo, all_frames[first.frames(k)]))
+    gt = _SceneGT(arrays, specs, quiet, label)
+    first = gt.first
+    plan = gt.plan(len(inputs.traj))
     skipped = first.n_shards - len(plan)
     n_traced = sum(len(p[2]) for p in plan)
     workers = auto_processes(n_traced) if processes <= 0 else processes
     t0 = time.perf_counter()
-    clock: dict = {}
-    dask_info = None
     helper_info = None
-    if client is not None:
-        if n_traced:
-            dask_info = trace_scene_dask(client, sc, mesh, cfg, traj, human, plan, quiet=quiet, label=label,
-                                         cycles=cycles)
-        for a in arrays.values():  # fold the workers' manifest records into attrs (idempotent)
-            a._consolidate()
-    elif workers == 1 or n_traced == 0:
-        own = Helper(mesh, cfg, traj, human, cycles) \
-            if helper is None and n_traced and auto_helper(n_traced, processes, cfg.backend) else None
-        helper = helper or own
-        try:
-            tracer = FrameTracer(mesh, cfg, traj, human, cycles) if n_traced else None
-            todo = [f for _, _, frames in plan for f in frames]
-            threads = min(2, cpus())
-            results = (iter(()) if tracer is None else run_with_helper(tracer, todo, threads, helper) if helper
-                       else tracer.run(todo, threads=threads))
-            try:
-                _write_plan(plan, results, arrays, specs, quiet, label, first.n_shards, clock, copy=False)
-            finally:
-                getattr(results, "close", lambda: None)()   # stop the tracing threads before the helper goes
-        finally:
-            if own is not None:
-                own.close()
-        if helper is not None and n_traced:
-            workers, helper_info = 2, helper.method
-    else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-        from concurrent.futures.process import BrokenProcessPool
-        from multiprocessing import shared_memory
-
-        wcfg = GTConfig(**{**cfg.__dict__, "nthreads": cfg.nthreads or max(1, cpus() // workers)})
-        n_slots = 2 * workers + 2
-        size = _slot_bytes(specs)
-        shm = shared_memory.SharedMemory(create=True, size=size * n_slots)
-        try:
-            slots = [_slot_views(shm.buf[i * size:(i + 1) * size], specs) for i in range(n_slots)]
-            # concurrent.futures, not multiprocessing.Pool: a worker killed by a signal or the OOM killer
-            # breaks the executor (BrokenProcessPool) where Pool would wait forever for its task
-            with ProcessPoolExecutor(workers, mp.get_context("spawn"), initializer=_worker_init,
-                                     initargs=(mesh, wcfg, traj, human, shm.name, n_slots, cycles)) as pool:
-                frames = [f for _, _, fr in plan for f in fr]
-                try:
-                    _write_plan(plan, _bounded_imap(pool, frames, slots), arrays, specs, quiet, label,
-                                first.n_shards, clock)
-                except BrokenProcessPool as err:
-                    done = sum(first.is_done(k) for k in range(first.n_shards))
-                    raise TracingError(f"{label}: a tracing process died (killed by a signal or out of memory); "
-                                       f"{done} of {first.n_shards} shards are written and kept — rerun to resume, "
-                                       f"or use --processes 1") from err
-            del slots
-        finally:
-            shm.close()
-            shm.unlink()
-    dt = time.perf_counter() - t0
     extra_info = {}
     if client is not None:
+        extra_info = _trace_dask(client, sc, inputs, gt, plan)
         workers = 0
-        extra_info = {"dask_workers": dask_info["workers"] if dask_info else None,
-                      "ray_threads_per_worker": dask_info["ray_threads"] if dask_info else None}
-    return {"frames": len(traj), "shards": first.n_shards, "shards_written": len(plan), "shards_skipped": skipped,
+    elif workers == 1 or n_traced == 0:
+        used = _trace_in_process(inputs, gt, plan, processes, helper)
+        if used is not None:
+            workers, helper_info = 2, used.method
+    else:
+        _trace_pool(inputs, gt, plan, workers)
+    dt = time.perf_counter() - t0
+    clock = gt.clock
+    return {"frames": len(inputs.traj), "shards": first.n_shards, "shards_written": len(plan), "shards_skipped": skipped,
             "frames_traced": n_traced, "processes": workers, "helper": helper_info, **extra_info, "seconds": round(dt, 3),
             "frames_per_s": round(n_traced / dt, 3) if n_traced and dt > 0 else None,
             "first_frame_s": round(clock["first"] - t0, 3) if "first" in clock else None}
 
 
-def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dict | None = None,
-                copy: bool = True) -> None:
-    """Write the shards of ``plan`` from per-frame ``results`` (dicts of gt arrays, in plan order).
-    ``copy``: gather each shard into one array per name (results are views into reused
-    shared-memory slots); else hand the writer the frames' own arrays, which it encodes frame by
-    frame (in-process results are fresh per frame: no gathering copy), and the shard is written by a
-    background thread while the next shard is traced (Blosc, sha256 and file writes release the GIL,
-    so writing runs on the core the tracer's single-threaded parts leave idle)."""
+def _trace_dask(client, sc, inputs: TraceInputs, gt: _SceneGT, plan: list) -> dict:
+    """``plan`` as one Dask task per shard (:func:`trace_scene_dask`), then the workers' manifest
+    records folded into the arrays' attrs; returns the summary's Dask fields."""
+    dask_info = None
+    if sum(len(p[2]) for p in plan):
+        dask_info = trace_scene_dask(client, sc, inputs, plan, quiet=gt.quiet, label=gt.label)
+    for a in gt.arrays.values():  # fold the workers' manifest records into attrs (idempotent)
+        a._consolidate()
+    return {"dask_workers": dask_info["workers"] if dask_info else None,
+            "ray_threads_per_worker": dask_info["ray_threads"] if dask_info else None}
+
+
+def _trace_in_process(inputs: TraceInputs, gt: _SceneGT, plan: list, processes: int, helper: Helper | None):
+    """``plan`` traced by two threads of this process, with ``helper`` (or, when :func:`auto_helper`
+    says so, one started and closed here) beside them; the shards are written as they complete.
+    Returns the helper that traced with them, or None."""
+    n_traced = sum(len(p[2]) for p in plan)
+    own = Helper(*inputs.args()) \
+        if helper is None and n_traced and auto_helper(n_traced, processes, inputs.cfg.backend) else None
+    helper = helper or own
+    try:
+        tracer = FrameTracer(*inputs.args()) if n_traced else None
+        todo = [f for _, _, frames in plan for f in frames]
+        threads = min(2, cpus())
+        results = (iter(()) if tracer is None else run_with_helper(tracer, todo, threads, helper) if helper
+                   else tracer.run(todo, threads=threads))
+        try:
+            _write_plan(gt, plan, results, copy=False)
+        finally:
+            getattr(results, "close", lambda: None)()   # stop the tracing threads before the helper goes
+    finally:
+        if own is not None:
+            own.close()
+    return helper if helper is not None and n_traced else None
+
+
+def _trace_pool(inputs: TraceInputs, gt: _SceneGT, plan: list, workers: int) -> None:
+    """``plan`` traced by ``workers`` spawned processes, their results through shared-memory slots
+    (at most two per worker, plus two, in flight); the shards are written in this process.
+    TracingError when a worker dies (the shards written by then are kept)."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+    from multiprocessing import shared_memory
+
+    cfg, first = inputs.cfg, gt.first
+    wcfg = GTConfig(**{**cfg.__dict__, "nthreads": cfg.nthreads or max(1, cpus() // workers)})
+    n_slots = 2 * workers + 2
+    size = _slot_bytes(gt.specs)
+    shm = shared_memory.SharedMemory(create=True, size=size * n_slots)
+    try:
+        slots = [_slot_views(shm.buf[i * size:(i + 1) * size], gt.specs) for i in range(n_slots)]
+        # concurrent.futures, not multiprocessing.Pool: a worker killed by a signal or the OOM killer
+        # breaks the executor (BrokenProcessPool) where Pool would wait forever for its task
+        initargs = (inputs.mesh, wcfg, inputs.traj, inputs.human, shm.name, n_slots, inputs.cycles)
+        with ProcessPoolExecutor(workers, mp.get_context("spawn"), initializer=_worker_init,
+                                 initargs=initargs) as pool:
+            frames = [f for _, _, fr in plan for f in fr]
+            try:
+                _write_plan(gt, plan, _bounded_imap(pool, frames, slots))
+            except BrokenProcessPool as err:
+                done = sum(first.is_done(k) for k in range(first.n_shards))
+                raise TracingError(f"{gt.label}: a tracing process died (killed by a signal or out of memory); "
+                                   f"{done} of {first.n_shards} shards are written and kept — rerun to resume, "
+                                   f"or use --processes 1") from err
+        del slots
+    finally:
+        shm.close()
+        shm.unlink()
+
+
+def _write_plan(gt: _SceneGT, plan, results, copy: bool = True) -> None:
+    """Write the shards of ``plan`` into ``gt``'s arrays from per-frame ``results`` (dicts of gt
+    arrays, in plan order). ``copy``: gather each shard into one array per name (results are views
+    into reused shared-memory slots); else hand the writer the frames' own arrays, which it encodes
+    frame by frame (in-process results are fresh per frame: no gathering copy), and the shard is
+    written by a background thread while the next shard is traced (Blosc, sha256 and file writes
+    release the GIL, so writing runs on the core the tracer's single-threaded parts leave idle)."""
+    arrays, specs, clock = gt.arrays, gt.specs, gt.clock
     results = iter(results)
     writer = None if copy else ThreadPoolExecutor(1, thread_name_prefix="holodata-gt-writer")
     prev = None  # the shard being written in the background
     try:
-        for k, todo, frames in track(plan, total=len(plan), description=label, quiet=quiet, unit="shards"):
+        for k, todo, frames in track(plan, total=len(plan), description=gt.label, quiet=gt.quiet, unit="shards"):
             if copy:
                 bufs = {name: np.empty((len(frames),) + tuple(specs[name]["per_frame_shape"]),
                                        dtype=specs[name]["dtype"]) for name in todo}
@@ -215,7 +285,7 @@ def _write_plan(plan, results, arrays, specs, quiet, label, n_shards, clock: dic
                 bufs = {name: [None] * len(frames) for name in todo}
             for i in range(len(frames)):
                 out = next(results)
-                if clock is not None and "first" not in clock:
+                if "first" not in clock:
                     clock["first"] = time.perf_counter()
                 for name in todo:
                     bufs[name][i] = out[name]
@@ -265,77 +335,109 @@ def standalone_cycles(traj: Trajectory, rotation_hz: float | None = None,
     return np.stack([t, t + period], axis=1), f"columns span {period / 1e9:g} s ({rotation_hz:g} Hz) from each frame's stamp"
 
 
-def raytrace_standalone(mesh_path: str | Path, poses_path: str | Path, out: str, *,
-                        human: str | Path | HumanSource | None = None, human_dir: str | Path | None = None,
-                        scene_id: str = "scene", cfg: GTConfig | None = None, quiet: bool = True, processes: int = 0,
-                        client=None, rotation_hz: float | None = None) -> dict:
-    """``holodata raytrace-gt --mesh --poses --out``: validate all inputs, then write a docs/format.md §3 dataset
-    (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*). Resumable: rerunning skips done shards.
-    ``human``: one mesh file for every frame, or (Python API) any :class:`HumanSource`, e.g. a
-    dataset scene's per-frame surfaces (:class:`HumanDataset`) indexed by the TUM rows.
-    ``rotation_hz``: the radar's rotation rate for per-column times (None: each frame's columns span
-    the time to the next frame; :func:`standalone_cycles`)."""
-    cfg = cfg or GTConfig()
-    from .raytrace import available_backends
+@dataclass
+class RaytraceStandalone:
+    """``holodata raytrace-gt --mesh --poses --out``: :meth:`run` validates all inputs, then writes a
+    docs/format.md §3 dataset (time/timestamp_ns, pose/T_world_radar, mesh/*, gt/*) at ``out`` and
+    returns its summary {out, scenes: [one scene's]}. Resumable: rerunning skips done shards.
 
-    if cfg.backend not in available_backends():
-        raise InputError(f"ray-tracing backend {cfg.backend!r} is not available (have: {', '.join(available_backends())})")
-    if human is not None and human_dir is not None:
-        raise InputError("give either --human or --human-dir, not both")
-    check_name(scene_id, "--scene-id")   # names folders/keys under the output: never outside it
-    mesh = read_mesh(mesh_path)
-    traj = read_tum(poses_path)
-    origin = cfg.origin or OriginModel()
-    cycles, columns = None, None
-    if origin.column_time:
-        cycles, columns = standalone_cycles(traj, rotation_hz, str(poses_path))
-    hsrc: HumanSource = HumanSource()
-    if isinstance(human, HumanSource):
-        hsrc = human
-    elif human is not None:
-        hsrc = HumanFile(human)
-    elif human_dir is not None:
-        hsrc = HumanDir(human_dir, len(traj))
-    mesh_args = (mesh.vertices, mesh.faces, mesh.face_class, mesh.class_names)
-    scene = _make_scene(*mesh_args, cfg)
-    # inputs are valid: the helper process starts now (forked before this process casts, with the
-    # compiled kernels the scene loaded), so that its start-up overlaps the output's creation
-    helper = Helper(mesh_args, cfg, traj, hsrc, cycles) \
-        if client is None and auto_helper(len(traj), processes, cfg.backend) else None
-    try:
-        return _standalone(mesh_path, poses_path, out, mesh, mesh_args, scene, traj, hsrc, cycles, columns, origin,
-                           scene_id, cfg, quiet, processes, client, helper)
-    finally:
-        if helper is not None:
-            helper.close()
+    ``mesh_path``: the static scene's mesh file; ``poses_path``: the radar's TUM trajectory, one row
+    per frame; ``human``: one mesh file for every frame, or (Python API) any :class:`HumanSource`,
+    e.g. a dataset scene's per-frame surfaces (:class:`HumanDataset`) indexed by the TUM rows;
+    ``human_dir``: one mesh file per frame (not with ``human``); ``scene_id``: the output scene's id;
+    ``cfg``: the trace's settings (None: :class:`GTConfig`'s defaults); ``quiet``: no progress bar;
+    ``processes``, ``client``: as :func:`write_scene_gt` (``processes`` 0: chosen from the frame
+    count, :func:`auto_processes`); ``rotation_hz``: the radar's rotation rate for per-column times
+    (None: each frame's columns span the time to the next frame; :func:`standalone_cycles`)."""
 
+    mesh_path: str | Path
+    poses_path: str | Path
+    out: str
+    _: KW_ONLY
+    human: str | Path | HumanSource | None = None
+    human_dir: str | Path | None = None
+    scene_id: str = "scene"
+    cfg: GTConfig | None = None
+    quiet: bool = True
+    processes: int = 0
+    client: Any = None
+    rotation_hz: float | None = None
 
-def _standalone(mesh_path, poses_path, out, mesh, mesh_args, scene, traj, hsrc, cycles, columns, origin, scene_id, cfg,
-                quiet, processes, client, helper) -> dict:
-    # only now create (or reopen) the output
-    from .dataset import create_dataset
+    def run(self) -> dict:
+        """Read and check the inputs, start the helper process when it pays, then write the output."""
+        cfg = self.cfg or GTConfig()
+        self._check(cfg)
+        mesh = read_mesh(self.mesh_path)
+        traj = read_tum(self.poses_path)
+        origin = cfg.origin or OriginModel()
+        cycles, columns = None, None
+        if origin.column_time:
+            cycles, columns = standalone_cycles(traj, self.rotation_hz, str(self.poses_path))
+        inputs = TraceInputs((mesh.vertices, mesh.faces, mesh.face_class, mesh.class_names), cfg, traj,
+                             self._human_source(len(traj)), cycles)
+        scene = _make_scene(*inputs.mesh, cfg)
+        # inputs are valid: the helper process starts now (forked before this process casts, with the
+        # compiled kernels the scene loaded), so that its start-up overlaps the output's creation
+        helper = Helper(*inputs.args()) \
+            if self.client is None and auto_helper(len(traj), self.processes, cfg.backend) else None
+        try:
+            summary = self._write(mesh, inputs, scene, columns, helper)
+            return {"out": str(self.out), "scenes": [{"scene": self.scene_id, "origin_model": origin.describe(),
+                                                      "column_times": columns, **summary}]}
+        finally:
+            if helper is not None:
+                helper.close()
 
-    mhash = file_sha256(mesh_path) if Path(mesh_path).is_file() else mesh_sha256(mesh.vertices, mesh.faces)
-    w = create_dataset(out, grid=cfg.grid, range_bins=RangeBins(), created_by="holodata raytrace-gt",
-                       provenance={"mesh": str(mesh_path), "mesh_sha256": mhash, "poses": str(poses_path),
-                                   "poses_sha256": file_sha256(poses_path)},
-                       shard_frames=cfg.shard_frames or 32)
-    T = len(traj)
-    # marked unfinished in the put that makes (or reopens) the scene; finished after the last gt shard
-    sc = w.scene(scene_id, n_frames=T, attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"},
-                 stage="raytrace-gt", rerun="rerun the same holodata raytrace-gt --mesh ... --poses ... --out command "
-                                            "to finish it")
-    _write_frame_meta(sc, traj, cycles)
-    sc.write_array(MESH_VERTICES, mesh.vertices)
-    sc.write_array(MESH_FACES, mesh.faces)
-    if mesh.face_class is not None:
-        sc.write_array(MESH_FACE_CLASS, mesh.face_class)
-    attrs = gt_attrs(scene, cfg, mhash, hsrc, column_times=columns)
-    summary = write_scene_gt(sc, mesh_args, cfg, traj, hsrc, attrs, quiet=quiet, processes=processes, client=client,
-                             cycles=cycles, helper=helper)
-    sc.finish("raytrace-gt")
-    return {"out": str(out), "scenes": [{"scene": scene_id, "origin_model": origin.describe(),
-                                         "column_times": columns, **summary}]}
+    def _check(self, cfg: GTConfig) -> None:
+        """InputError for a backend this machine lacks, both human forms, or a scene id that would
+        name a path."""
+        from .raytrace import available_backends
+
+        if cfg.backend not in available_backends():
+            raise InputError(f"ray-tracing backend {cfg.backend!r} is not available "
+                             f"(have: {', '.join(available_backends())})")
+        if self.human is not None and self.human_dir is not None:
+            raise InputError("give either --human or --human-dir, not both")
+        check_name(self.scene_id, "--scene-id")   # names folders/keys under the output: never outside it
+
+    def _human_source(self, n_frames: int) -> HumanSource:
+        """The human of each of the ``n_frames`` frames: ``human`` (a source, or one file for all),
+        ``human_dir``'s files, or none."""
+        if isinstance(self.human, HumanSource):
+            return self.human
+        if self.human is not None:
+            return HumanFile(self.human)
+        if self.human_dir is not None:
+            return HumanDir(self.human_dir, n_frames)
+        return HumanSource()
+
+    def _write(self, mesh, inputs: TraceInputs, scene, columns: str | None, helper: Helper | None) -> dict:
+        """Create (or reopen) the output, write the frames' times and poses and the mesh, then trace
+        the gt arrays (``scene``: the static scene :func:`gt_attrs` describes; ``columns``: where the
+        column times came from). Returns :func:`write_scene_gt`'s summary."""
+        # only now create (or reopen) the output
+        from .dataset import create_dataset
+
+        cfg, mesh_path, poses_path = inputs.cfg, self.mesh_path, self.poses_path
+        mhash = file_sha256(mesh_path) if Path(mesh_path).is_file() else mesh_sha256(mesh.vertices, mesh.faces)
+        w = create_dataset(self.out, grid=cfg.grid, range_bins=RangeBins(), created_by="holodata raytrace-gt",
+                           provenance={"mesh": str(mesh_path), "mesh_sha256": mhash, "poses": str(poses_path),
+                                       "poses_sha256": file_sha256(poses_path)},
+                           shard_frames=cfg.shard_frames or 32)
+        # marked unfinished in the put that makes (or reopens) the scene; finished after the last gt shard
+        sc = w.scene(self.scene_id, n_frames=len(inputs.traj),
+                     attrs={"frame_sensor": "radar", "source": "raytrace-gt standalone"}, stage="raytrace-gt",
+                     rerun="rerun the same holodata raytrace-gt --mesh ... --poses ... --out command to finish it")
+        _write_frame_meta(sc, inputs.traj, inputs.cycles)
+        sc.write_array(MESH_VERTICES, mesh.vertices)
+        sc.write_array(MESH_FACES, mesh.faces)
+        if mesh.face_class is not None:
+            sc.write_array(MESH_FACE_CLASS, mesh.face_class)
+        attrs = gt_attrs(scene, cfg, mhash, inputs.human, column_times=columns)
+        summary = write_scene_gt(sc, inputs, attrs, quiet=self.quiet, processes=self.processes, client=self.client,
+                                 helper=helper)
+        sc.finish("raytrace-gt")
+        return summary
 
 
 def _write_frame_meta(sc, traj: Trajectory, cycles: np.ndarray | None = None) -> None:
@@ -427,8 +529,8 @@ def raytrace_dataset(url: str, scene_ids: list[str] | None = None, cfg: GTConfig
         if old and (force or changed):   # traced from other inputs (or asked to): trace again, whole
             for n in old:
                 sc.remove(n)
-        summary = write_scene_gt(sc, mesh_args, scfg, traj, hsrc, attrs, quiet=quiet, label=f"raytrace-gt {sid}",
-                                 processes=processes, client=client, cycles=cycles)
+        summary = write_scene_gt(sc, TraceInputs(mesh_args, scfg, traj, hsrc, cycles), attrs, quiet=quiet,
+                                 label=f"raytrace-gt {sid}", processes=processes, client=client)
         sc.finish("raytrace-gt")
         out.append({"scene": sid, "origin_model": origin.describe(), "origin_source": origin_source,
                     "column_times": attrs["column_times_from"], "retraced": (["--force"] if force and old else changed),
@@ -461,7 +563,7 @@ def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: i
         cfg = payload["cfg"]
         w = create_dataset(payload["url"], grid=payload["grid"], range_bins=payload["range_bins"])
         sc = w.scene(payload["scene_id"])
-        extra = {"codec": cfg.codec} if cfg.codec else {}
+        extra = {"storage": FrameStorage(codec=cfg.codec)} if cfg.codec else {}
         arrays = _LOCAL.arrays = (token, {name: sc.frame_array(name, **spec, **extra)
                                           for name, spec in gt_array_specs(cfg.grid, cfg.max_bounces).items()})
     # a rerun of a task whose shard was committed meanwhile (its worker died after the commit) is
@@ -484,20 +586,21 @@ def _gt_shard_task(token: str, payload: dict, k: int, names: list[str], start: i
             "write_s": time.perf_counter() - t1, "worker": where}
 
 
-def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quiet: bool = True,
-                     label: str = "raytrace-gt", cycles=None) -> dict:
-    """Run a raytrace-gt ``plan`` [(shard, names, frames)] of dataset scene ``sc`` (a SceneWriter)
-    as one Dask task per shard (``cycles``: per-frame rotation start/end, see
-    :class:`holodata.groundtruth.FrameTracer`). Returns {workers, ray_threads, tasks: [...]}."""
+def trace_scene_dask(client, sc, inputs: TraceInputs, plan: list, quiet: bool = True,
+                     label: str = "raytrace-gt") -> dict:
+    """Run a raytrace-gt ``plan`` [(shard, names, frames)] of dataset scene ``sc`` (a SceneWriter),
+    traced from ``inputs``, as one Dask task per shard. Returns {workers, ray_threads, tasks: [...]}."""
     from dataclasses import replace
 
     from .distributed import for_workers, n_workers, run_tasks, worker_path
 
+    cfg = inputs.cfg
     local = getattr(client, "holodata_local_workers", 0)
     threads = cfg.nthreads or (max(1, cpus() // local) if local else 0)
     wcfg = replace(cfg, nthreads=threads)
-    payload = {"mesh": mesh, "cfg": wcfg, "traj": traj, "human": for_workers(human), "url": worker_path(sc.ds.url),
-               "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id, "cycles": cycles}
+    payload = {"mesh": inputs.mesh, "cfg": wcfg, "traj": inputs.traj, "human": for_workers(inputs.human),
+               "url": worker_path(sc.ds.url), "grid": sc.ds.grid, "range_bins": sc.ds.range_bins, "scene_id": sc.id,
+               "cycles": inputs.cycles}
     token = uuid.uuid4().hex
     [fut] = client.scatter([payload], broadcast=True, hash=False)
     calls = [(token, fut, k, list(names), frames.start, frames.stop) for k, names, frames in plan]
@@ -510,8 +613,8 @@ def trace_scene_dask(client, sc, mesh: tuple, cfg, traj, human, plan: list, quie
 
 
 __all__ = ["OriginModel", "GTConfig", "beam_rays", "column_times", "column_rays_soa", "points_to_mesh", "trace_frame",
-           "write_scene_gt", "trace_shard", "FrameTracer", "gt_array_specs", "gt_attrs", "raytrace_standalone",
-           "raytrace_dataset", "standalone_cycles",
+           "write_scene_gt", "TraceInputs", "trace_shard", "FrameTracer", "gt_array_specs", "gt_attrs",
+           "RaytraceStandalone", "raytrace_dataset", "standalone_cycles",
            "HumanSource", "HumanDir", "HumanFile", "HumanDataset", "GT_ARRAYS", "TracingError",
            "MESH_EXTS", "HUMAN_SPLAT_RADIUS_M", "file_sha256", "mesh_sha256", "auto_processes", "POOL_MIN_FRAMES",
            "auto_helper", "HELPER_MIN_FRAMES", "HELPER_SPAWN_MIN_FRAMES"]

@@ -35,12 +35,12 @@ def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estima
     The ground truth through the same stage two (a check of origins, frames and metrics):
       holodata evaluate lab/ds.zarr --oracle --out lab/report-oracle
     """
-    from holodata.evaluate import evaluate as run_evaluate
+    from holodata.evaluate import Evaluation
 
     if oracle == (checkpoint is not None):
         raise click.UsageError("give either --checkpoint RUN or --oracle")
-    doc = run_evaluate(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet,
-                       estimator=None if estimator == "auto" else estimator, oracle=oracle)
+    doc = Evaluation(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet,
+                     estimator=None if estimator == "auto" else estimator, oracle=oracle).run()
     if screenshot:
         from pathlib import Path
 

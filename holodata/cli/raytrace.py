@@ -79,7 +79,7 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
     from holodata.config_file import build
     from holodata.conventions import Grid
     from holodata.dataset.info import plural
-    from holodata.groundtruth import OriginModel, raytrace_dataset, raytrace_standalone
+    from holodata.groundtruth import OriginModel, RaytraceStandalone, raytrace_dataset
 
     standalone = mesh is not None
     if standalone:
@@ -117,9 +117,9 @@ def raytrace_gt(dataset, scenes, mesh, poses, human, human_dir, out, scene_id, g
 
     with cluster(workers, scheduler) as client:
         if standalone:
-            summary = raytrace_standalone(mesh, poses, out, human=human, human_dir=human_dir, scene_id=scene_id,
-                                          cfg=cfg, quiet=quiet, processes=processes, client=client,
-                                          rotation_hz=rotation_hz)
+            summary = RaytraceStandalone(mesh, poses, out, human=human, human_dir=human_dir, scene_id=scene_id,
+                                         cfg=cfg, quiet=quiet, processes=processes, client=client,
+                                         rotation_hz=rotation_hz).run()
         else:
             summary = raytrace_dataset(dataset, list(scenes) or None, cfg=cfg, quiet=quiet, processes=processes,
                                        client=client, force=force)

@@ -46,7 +46,7 @@ def view(dataset, scene, frames, save, force, web, port, bind, checkpoint, repor
     import os
 
     from holodata.errors import InputError
-    from holodata.view import view_scene, web_instructions
+    from holodata.view import SceneView, web_instructions
 
     if save and web:
         raise click.UsageError("--save or --web, not both")
@@ -58,8 +58,8 @@ def view(dataset, scene, frames, save, force, web, port, bind, checkpoint, repor
         import rerun  # noqa: F401
     except ImportError as err:
         raise InputError("holodata view needs the Rerun SDK: pip install -e '.[view]' (scripts/setup.sh installs it)") from err
-    r = view_scene(dataset, scene, frames, save=save, web=web, port=port, checkpoint=checkpoint, report=report,
-                   device=device, bind=bind, force=force)
+    r = SceneView(dataset, scene, frames, save=save, web=web, port=port, checkpoint=checkpoint, report=report,
+                  device=device, bind=bind, force=force).run()
     stream = r.pop("stream", None)   # noqa: F841 - held: the web viewer's data server lives as long as it
     if as_json:
         click.echo(json.dumps(r, indent=2))
