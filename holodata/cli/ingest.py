@@ -67,7 +67,7 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     import sys
 
     from holodata.dataset.info import plural
-    from holodata.ingest import format_listing, ingest as run_ingest, list_recording
+    from holodata.ingest import IngestOptions, format_listing, ingest as run_ingest, list_recording
 
     beamform = _beamform_params(beamform_grid, beamform_fov, beamform_focus)
     bf_kw = {"beamform": beamform} if beamform is not None else {}
@@ -94,10 +94,10 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     from holodata.distributed import cluster
 
     with cluster(workers, scheduler) as client:
-        summary = run_ingest(list(recordings), out, topics=topics_file, scene_ids=list(scene_ids) or None,
-                             msg_dir=msg_dir, tolerance_ms=tolerance_ms, quiet=quiet or as_json, meta=meta,
-                             codec=codec, client=client, beamform=beamform,
-                             keep_iq=keep_iq, motion=motion)
+        opts = IngestOptions(topics=topics_file, msg_dir=msg_dir, tolerance_ms=tolerance_ms, meta=meta, codec=codec,
+                             beamform=beamform, keep_iq=keep_iq, motion=motion)
+        summary = run_ingest(list(recordings), out, opts, scene_ids=list(scene_ids) or None, quiet=quiet or as_json,
+                             client=client)
     if as_json:
         click.echo(json.dumps(summary, indent=2, default=str))
     else:

@@ -54,7 +54,7 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
       holodata slam lab/ds.zarr --scene c1 --truth lab/c1/truth --report lab/slam-report
     """
     from holodata.config_file import build
-    from holodata.mapping.slam import slam_dataset
+    from holodata.mapping.slam import SlamOutputs, slam_dataset
 
     if (ply or tum or truth) and len(scenes) > 1:
         raise click.UsageError("--ply/--tum/--truth need a single --scene")
@@ -70,8 +70,8 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
     if map_scene is not None and (not cfg.refine or not cfg.mesh):
         raise click.UsageError("--map-scene localises by scan-to-map ICP against the map scene's mesh map: "
                                "no --no-refine / --no-mesh")
-    results = slam_dataset(dataset, list(scenes) or None, config=cfg, mesh_config=mcfg, quiet=quiet, ply=ply, tum=tum,
-                           force=force, single_exports=True, map_scene=map_scene)
+    results = slam_dataset(dataset, list(scenes) or None, config=cfg, mesh_config=mcfg, quiet=quiet,
+                           outputs=SlamOutputs(force=force, tum=tum, ply=ply), single_exports=True, map_scene=map_scene)
     out = {"dataset": dataset, "scenes": [r.summary for r in results]}
     if truth:
         from holodata.mapping.accuracy import evaluate_slam

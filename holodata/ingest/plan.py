@@ -184,24 +184,63 @@ def plan_recording(rec: Recording, topics: dict | None = None, scene_id: str | N
 
 
 def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> Plan:
-    infos = rec.topics(frame_ids=True)
-    tmap, notes = map_topics(rec, topics, infos)
-    by = {t.name: t for t in infos}
-    warnings: list[str] = list(rec.problems)
-    if not tmap.radar and not tmap.lidar:
-        raise RecordingError(_reject_reason(rec, infos, tmap, notes))
-    streams: dict[str, _Stream] = {}
-    if tmap.radar:
-        streams["radar"] = radar_stream(rec, tmap.radar, tmap.time, by[tmap.radar].msgtype, beamform)
-    if tmap.lidar:
-        ty = by[tmap.lidar].msgtype
+    """The index and sync passes of :func:`plan_recording` (its arguments; ``track``: the progress
+    wrapper), without the checksums."""
+    return _Planner(rec, topics, scene_id, tolerance_ms, beamform).run(quiet, track)
+
+
+class _Planner:
+    """:func:`_plan` as named steps sharing their state: the topics mapped and their streams opened
+    (:meth:`open_streams`), every message indexed with the TF read along (:meth:`index`), the
+    counts and drops (:meth:`count`), the frames (:meth:`frames`) and every other sensor matched to
+    them (:meth:`match`). ``warnings`` collects what the passes meet, in the order they meet it."""
+
+    def __init__(self, rec: Recording, topics, scene_id: str | None, tolerance_ms: float | None, beamform=None):
+        self.rec, self.topics, self.scene_id, self.tolerance_ms, self.beamform = rec, topics, scene_id, tolerance_ms, beamform
+        self.warnings: list[str] = list(rec.problems)
+        self.dropped: dict[str, dict] = {}
+
+    def run(self, quiet: bool, track) -> Plan:
+        self.open_streams()
+        self.index(quiet, track)
+        self.count()
+        self.frames()
+        self.match()
+        return self.plan()
+
+    # -- topics and streams
+    def open_streams(self) -> None:
+        rec = self.rec
+        self.infos = rec.topics(frame_ids=True)
+        self.tmap, self.notes = map_topics(rec, self.topics, self.infos)
+        self.by = {t.name: t for t in self.infos}
+        if not self.tmap.radar and not self.tmap.lidar:
+            raise RecordingError(_reject_reason(rec, self.infos, self.tmap, self.notes))
+        tmap = self.tmap
+        streams: dict[str, _Stream] = {}
+        if tmap.radar:
+            streams["radar"] = radar_stream(rec, tmap.radar, tmap.time, self.by[tmap.radar].msgtype, self.beamform)
+        if tmap.lidar:
+            streams["lidar"] = self._lidar_stream()
+        if tmap.camera:
+            cam = self._camera_stream()
+            if cam is not None:
+                streams["camera"] = cam
+        self.streams = streams
+        self.frame_sensor = "radar" if "radar" in streams else "lidar"
+        if self.frame_sensor == "lidar" and "lidar" not in streams:
+            raise RecordingError(_reject_reason(rec, self.infos, tmap, self.notes))
+
+    def _lidar_stream(self) -> _Stream:
+        rec, tmap = self.rec, self.tmap
+        ty = self.by[tmap.lidar].msgtype
         if ty == OUSTER_SCAN:
-            streams["lidar"] = OusterScanStream(rec, tmap.lidar, tmap.time)
-        elif ty == RANGE_IMAGE_TYPE:
-            streams["lidar"] = GridStream(rec, tmap.lidar, tmap.time)
-        elif ty == POINTS_TYPE:
-            streams["lidar"] = PointsStream(rec, tmap.lidar, tmap.time, "lidar")
-        elif ty in OUSTER_PACKETS:
+            return OusterScanStream(rec, tmap.lidar, tmap.time)
+        if ty == RANGE_IMAGE_TYPE:
+            return GridStream(rec, tmap.lidar, tmap.time)
+        if ty == POINTS_TYPE:
+            return PointsStream(rec, tmap.lidar, tmap.time, "lidar")
+        if ty in OUSTER_PACKETS:
             text = _first_string(rec, tmap.lidar_metadata)
             try:
                 from ..readers.ouster import load_info
@@ -210,133 +249,147 @@ def _plan(rec, topics, scene_id, tolerance_ms, quiet, track, beamform=None) -> P
             except HolodataError as err:
                 raise RecordingError(f"{rec.path}: Ouster packets on {tmap.lidar} cannot be decoded: "
                                      f"{one_line(err)}") from err
-            streams["lidar"] = OusterPacketStream(rec, tmap.lidar, tmap.time, text)
-        elif ty == PC2:
-            streams["lidar"] = CloudStream(rec, tmap.lidar, tmap.time, "lidar")
-        else:
-            raise InputError(f"topics file: lidar {tmap.lidar} is a {ty}, not PointCloud2 / Ouster")
-    if tmap.camera:
-        ty = by[tmap.camera].msgtype
-        if ty == IMAGE and tmap.camera_right:
-            st = StereoStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride, tmap.camera_right,
-                              tmap.camera_info_right)
-            try:
-                st.load_first_info()
-                streams["camera"] = st
-            except HolodataError as err:
-                warnings.append(f"{one_line(err)}; camera not used")
-        elif ty == IMAGE:
-            st = DepthStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride)
-            try:
-                st.load_first_info()
-                streams["camera"] = st
-            except HolodataError as err:
-                warnings.append(f"{one_line(err)}; camera not used")
-        elif ty == PC2:
-            st = CameraCloudStream(rec, tmap.camera, tmap.time, tmap.camera_info)
-            note = st.load_model()
-            if note:
-                warnings.append(note)
-            streams["camera"] = st
-        elif ty == POINTS_TYPE:
-            streams["camera"] = PointsStream(rec, tmap.camera, tmap.time, "camera")
-        else:
-            raise InputError(f"topics file: camera {tmap.camera} is a {ty}, not Image / PointCloud2")
-    frame_sensor = "radar" if "radar" in streams else "lidar"
-    if frame_sensor == "lidar" and "lidar" not in streams:
-        raise RecordingError(_reject_reason(rec, infos, tmap, notes))
-    # ---- index pass (TF read along: static + dynamic buffer)
-    from ..readers.tf import TransformBuffer
+            return OusterPacketStream(rec, tmap.lidar, tmap.time, text)
+        if ty == PC2:
+            return CloudStream(rec, tmap.lidar, tmap.time, "lidar")
+        raise InputError(f"topics file: lidar {tmap.lidar} is a {ty}, not PointCloud2 / Ouster")
 
-    tf = TransformBuffer()
-    tf_static = set(tmap.tf_static)
-    tf_topics = set(tmap.tf) | tf_static
-    tf_bad = 0
-    stamps: dict[str, list[tuple[int, int]]] = {r: [] for r in streams}
-    failed: dict[str, dict[int, str]] = {r: {} for r in streams}
-    by_topic = {}
-    for st in streams.values():
-        for tp in st.topics:
-            by_topic[tp] = st
-    topics_read = list(by_topic) + sorted(tf_topics - set(by_topic))
-    total = sum(by[t].count for t in topics_read if t in by)
-    heads = _head_topics(streams)
-    index_iter = rec.raw_messages(topics_read, with_xyz=False) if rec.kind == "ouster-pcap" \
-        else rec.raw_heads(topics_read, heads)
-    t_index = time.perf_counter()
-    for raw in track(index_iter, total, f"ingest {scene_id or rec.path.name}: index", quiet, unit="messages"):
-        if raw.topic in tf_topics:
+    def _camera_stream(self) -> _Stream | None:
+        """The camera's stream, or None (with a warning) for an image topic whose camera info does not load."""
+        rec, tmap = self.rec, self.tmap
+        ty = self.by[tmap.camera].msgtype
+        if ty == IMAGE:
+            st: StereoStream | DepthStream
+            if tmap.camera_right:
+                st = StereoStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride, tmap.camera_right,
+                                  tmap.camera_info_right)
+            else:
+                st = DepthStream(rec, tmap.camera, tmap.time, tmap.camera_info, tmap.camera_stride)
             try:
-                msg = rec.decode(raw)
-                if tf.add_message(msg, static=raw.topic in tf_static) < len(msg.transforms):
-                    tf_bad += 1     # a NaN/inf transform (damaged bytes) was left out
+                st.load_first_info()
+                return st
+            except HolodataError as err:
+                self.warnings.append(f"{one_line(err)}; camera not used")
+                return None
+        if ty == PC2:
+            cst = CameraCloudStream(rec, tmap.camera, tmap.time, tmap.camera_info)
+            note = cst.load_model()
+            if note:
+                self.warnings.append(note)
+            return cst
+        if ty == POINTS_TYPE:
+            return PointsStream(rec, tmap.camera, tmap.time, "camera")
+        raise InputError(f"topics file: camera {tmap.camera} is a {ty}, not Image / PointCloud2")
+
+    # -- the index pass (TF read along: static + dynamic buffer)
+    def index(self, quiet: bool, track) -> None:
+        from ..readers.tf import TransformBuffer
+
+        rec, streams = self.rec, self.streams
+        self.tf = TransformBuffer()
+        self.tf_static = set(self.tmap.tf_static)
+        self.tf_topics = set(self.tmap.tf) | self.tf_static
+        self.tf_bad = 0
+        self.stamps: dict[str, list[tuple[int, int]]] = {r: [] for r in streams}
+        self.failed: dict[str, dict[int, str]] = {r: {} for r in streams}
+        self.by_topic = {tp: st for st in streams.values() for tp in st.topics}
+        topics_read = list(self.by_topic) + sorted(self.tf_topics - set(self.by_topic))
+        total = sum(self.by[t].count for t in topics_read if t in self.by)
+        index_iter = rec.raw_messages(topics_read, with_xyz=False) if rec.kind == "ouster-pcap" \
+            else rec.raw_heads(topics_read, _head_topics(streams))
+        t_index = time.perf_counter()
+        for raw in track(index_iter, total, f"ingest {self.scene_id or rec.path.name}: index", quiet, unit="messages"):
+            self._index_message(raw)
+        if self.tf_bad:
+            self.warnings.append(f"{self.tf_bad} TF messages do not decode or hold NaN/inf transforms; skipped")
+        self.index_seconds = time.perf_counter() - t_index
+        for role, st in streams.items():
+            self.stamps[role] += [(it.index, it.stamp) for it in st.flush(decode=False)]
+
+    def _index_message(self, raw) -> None:
+        if raw.topic in self.tf_topics:
+            try:
+                msg = self.rec.decode(raw)
+                if self.tf.add_message(msg, static=raw.topic in self.tf_static) < len(msg.transforms):
+                    self.tf_bad += 1     # a NaN/inf transform (damaged bytes) was left out
             except (HolodataError, AttributeError, ValueError):
-                tf_bad += 1
-            if raw.topic not in by_topic:
-                continue
-        st = by_topic[raw.topic]
+                self.tf_bad += 1
+            if raw.topic not in self.by_topic:
+                return
+        st = self.by_topic[raw.topic]
         try:
-            items = st.feed(raw, decode=False, check=(st.role == frame_sensor))
+            items = st.feed(raw, decode=False, check=(st.role == self.frame_sensor))
         except HolodataError as err:
-            failed[st.role][getattr(err, "item", -1)] = one_line(err)
-            continue
+            self.failed[st.role][getattr(err, "item", -1)] = one_line(err)
+            return
         if st.role != "radar" and st.layout is None:
             st.try_layout(raw)
-        stamps[st.role] += [(it.index, it.stamp) for it in items]
-    if tf_bad:
-        warnings.append(f"{tf_bad} TF messages do not decode or hold NaN/inf transforms; skipped")
-    t_index = time.perf_counter() - t_index
-    for role, st in streams.items():
-        stamps[role] += [(it.index, it.stamp) for it in st.flush(decode=False)]
+        self.stamps[st.role] += [(it.index, it.stamp) for it in items]
 
-    counts = {r: len(v) + len(failed[r]) for r, v in stamps.items()}
-    dropped: dict[str, dict] = {r: {} for r in streams}
-    warnings += [p for p in rec.problems if p not in warnings]      # met during the index pass
-    lost = rec.dropped_by_container()       # messages in damaged container blocks (MCAP chunk CRC)
-    for role, st in streams.items():
-        if n := sum(lost.get(t, 0) for t in st.topics):
-            dropped[role]["damaged_chunk"] = n
-    for role, f in failed.items():
-        if f:
-            dropped[role]["undecodable"] = len(f)
-            first = next(iter(f.values()))
-            warnings.append(f"{len(f)} of {counts[role]} {role} messages on {streams[role].topic} do not decode "
-                            f"(first: {first}); skipped")
-    # ---- frames
-    fr = np.array(sorted(stamps[frame_sensor], key=lambda x: (x[1], x[0])), np.int64).reshape(-1, 2)
-    if len(fr) == 0:
-        reason = next(iter(failed[frame_sensor].values()), "no messages")
-        raise RecordingError(f"{rec.path}: no usable {frame_sensor} message on {streams[frame_sensor].topic} "
-                             f"({reason})")
-    keep = np.r_[True, fr[1:, 1] > fr[:-1, 1]]
-    if not keep.all():
-        dropped[frame_sensor]["duplicate_stamp"] = int((~keep).sum())
-        warnings.append(f"{int((~keep).sum())} {frame_sensor} messages repeat an earlier stamp; dropped")
-    fr = fr[keep]
-    frame_items, frame_stamps = fr[:, 0], fr[:, 1]
-    match, match_stamp, tolerance = {}, {}, {}
-    for role in streams:
-        if role == frame_sensor:
-            continue
-        arr = np.array(sorted(stamps[role], key=lambda x: (x[1], x[0])), np.int64).reshape(-1, 2)
-        tol = _tolerance_ns(tolerance_ms, arr[:, 1])
-        tolerance[role] = tol
+    # -- counts, drops, frames, sync
+    def count(self) -> None:
+        streams, warnings = self.streams, self.warnings
+        self.counts = {r: len(v) + len(self.failed[r]) for r, v in self.stamps.items()}
+        self.dropped = {r: {} for r in streams}
+        warnings += [p for p in self.rec.problems if p not in warnings]      # met during the index pass
+        lost = self.rec.dropped_by_container()       # messages in damaged container blocks (MCAP chunk CRC)
+        for role, st in streams.items():
+            if n := sum(lost.get(t, 0) for t in st.topics):
+                self.dropped[role]["damaged_chunk"] = n
+        for role, f in self.failed.items():
+            if f:
+                self.dropped[role]["undecodable"] = len(f)
+                first = next(iter(f.values()))
+                warnings.append(f"{len(f)} of {self.counts[role]} {role} messages on {streams[role].topic} do not "
+                                f"decode (first: {first}); skipped")
+
+    def frames(self) -> None:
+        fs = self.frame_sensor
+        fr = np.array(sorted(self.stamps[fs], key=lambda x: (x[1], x[0])), np.int64).reshape(-1, 2)
+        if len(fr) == 0:
+            reason = next(iter(self.failed[fs].values()), "no messages")
+            raise RecordingError(f"{self.rec.path}: no usable {fs} message on {self.streams[fs].topic} "
+                                 f"({reason})")
+        keep = np.r_[True, fr[1:, 1] > fr[:-1, 1]]
+        if not keep.all():
+            self.dropped[fs]["duplicate_stamp"] = int((~keep).sum())
+            self.warnings.append(f"{int((~keep).sum())} {fs} messages repeat an earlier stamp; dropped")
+        fr = fr[keep]
+        self.frame_items, self.frame_stamps = fr[:, 0], fr[:, 1]
+
+    def match(self) -> None:
+        self.match_item: dict = {}
+        self.match_stamp: dict = {}
+        self.tolerance: dict = {}
+        for role in self.streams:
+            if role != self.frame_sensor:
+                self._match_role(role)
+
+    def _match_role(self, role: str) -> None:
+        frame_stamps = self.frame_stamps
+        arr = np.array(sorted(self.stamps[role], key=lambda x: (x[1], x[0])), np.int64).reshape(-1, 2)
+        tol = _tolerance_ns(self.tolerance_ms, arr[:, 1])
+        self.tolerance[role] = tol
         j, off = _nearest(frame_stamps, arr[:, 1], tol)
-        match[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 0] if len(arr) else -1, -1)
-        match_stamp[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 1] if len(arr) else 0, 0)
-        used = len(set(match[role][match[role] >= 0].tolist()))
+        m = self.match_item[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 0] if len(arr) else -1, -1)
+        self.match_stamp[role] = np.where(j >= 0, arr[np.clip(j, 0, None), 1] if len(arr) else 0, 0)
+        used = len(set(m[m >= 0].tolist()))
         unmatched_frames = int((j < 0).sum())
-        dropped[role]["not_near_a_frame"] = len(arr) - used
+        self.dropped[role]["not_near_a_frame"] = len(arr) - used
         if unmatched_frames:
-            dropped[role]["frames_without"] = unmatched_frames
-            warnings.append(f"{unmatched_frames} of {len(frame_stamps)} frames have no {role} message within "
-                            f"{tol / 1e6:g} ms")
-    plan = Plan(rec, scene_id or _scene_id(rec.path), tmap, notes, frame_sensor, streams, frame_stamps, frame_items,
-                match, match_stamp, counts, dropped, warnings, tf=tf, index_seconds=t_index, tolerance_ns=tolerance)
-    if "radar" in streams:
-        plan.grid, plan.range_bins = _grid_of(rec, streams["radar"])
-    plan.probe = {r: st.layout for r, st in streams.items() if r != "radar" and st.layout is not None}
-    return plan
+            self.dropped[role]["frames_without"] = unmatched_frames
+            self.warnings.append(f"{unmatched_frames} of {len(frame_stamps)} frames have no {role} message within "
+                                 f"{tol / 1e6:g} ms")
+
+    def plan(self) -> Plan:
+        rec, streams = self.rec, self.streams
+        plan = Plan(rec, self.scene_id or _scene_id(rec.path), self.tmap, self.notes, self.frame_sensor, streams,
+                    self.frame_stamps, self.frame_items, self.match_item, self.match_stamp, self.counts, self.dropped,
+                    self.warnings, tf=self.tf, index_seconds=self.index_seconds, tolerance_ns=self.tolerance)
+        if "radar" in streams:
+            plan.grid, plan.range_bins = _grid_of(rec, streams["radar"])
+        plan.probe = {r: st.layout for r, st in streams.items() if r != "radar" and st.layout is not None}
+        return plan
 
 
 def _head_topics(streams: dict) -> set[str]:

@@ -167,7 +167,7 @@ class RawRadarStream(RadarStream):
         if vel is not None and (nb < n_syn // 2 or na < n_syn // 2):
             raise DecodeError(f"topic {self.topic}: RadarRawRotation at {raw.log_ns} ns moves but carries {nb}/{na} "
                               f"neighbouring chirps, its beams need {n_syn // 2}")
-        hm = beamform(rot, chirp, self.params, before=before if nb else None, after=after if na else None,
+        hm = beamform(rot, chirp, self.params, neighbours=(before if nb else None, after if na else None),
                       velocity=vel, chirp_period_s=period if period > 0 else None)
         return RadarFrame(hm, (int(msg.cycle_start_ns), int(msg.cycle_end_ns)),
                           RawRotation(before, rot, after, motion=(ds0, th)))

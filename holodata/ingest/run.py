@@ -22,25 +22,27 @@ from .plan import Plan, _grid_of, _limit_malloc_arenas, _scene_id, plan_recordin
 from .write import write_plan
 
 
-def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance_ms: float | None = None,
-           quiet: bool = True, meta=None, codec: str | None = None, shard_frames: int | None = None,
-           client=None, beamform=None, keep_iq: bool = False, motion: str | None = None) -> dict:
+def ingest(recordings, out, options: IngestOptions | None = None, scene_ids=None, quiet: bool = True,
+           client=None) -> dict:
     """Ingest ``recordings`` (paths) into the dataset at ``out`` (created or resumed), one scene
-    each. ``topics``: dict or YAML path (see :func:`load_topics_file`). Returns the summary
+    each, as ``options`` asks (:class:`IngestOptions`; None: its defaults). ``scene_ids``: one per
+    recording (default: from the file or folder names). Returns the summary
     {dataset, scenes: [...], failed: [{recording, error}], ok}; a recording that fails is reported
     there and the others are still ingested. Raises RecordingError when none could be ingested.
     ``client`` (a ``distributed.Client``): one Dask task per recording (:mod:`holodata.distributed`);
-    the recordings must be readable at the same paths on the workers. ``beamform``:
-    :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar samples (PanoRadar raw
-    trajectories), default 64 x 512 beams, all range bins; ``keep_iq``: store their raw samples too
-    (``radar/iq``), so that ``holodata beamform`` can re-image them with other parameters; ``motion``:
-    "static" | "moving", the robot's motion in every PanoRadar raw trajectory given, instead of
-    reading it from their folder names (:func:`holodata.readers.panoradar_raw.motion_rule`)."""
+    the recordings must be readable at the same paths on the workers."""
+    recordings, scene_ids, opts = _request(recordings, scene_ids, options or IngestOptions())
+    return _IngestRun(out, opts, quiet, client).run(recordings, scene_ids)
+
+
+def _request(recordings, scene_ids, opts: IngestOptions) -> tuple[list[Path], list[str] | None, IngestOptions]:
+    """:func:`ingest`'s arguments checked (InputError, one line): the recordings as paths with synth
+    output folders expanded into their passes (:func:`_passes`), their scene ids, and ``opts`` with
+    its topics file read and its provenance (holodata's version unless given)."""
     recordings = [Path(r) for r in recordings]
     if not recordings:
         raise InputError("no recording given")
-    if isinstance(topics, (str, Path)):
-        topics = load_topics_file(topics)
+    topics = load_topics_file(opts.topics) if isinstance(opts.topics, (str, Path)) else opts.topics
     if scene_ids is not None:
         scene_ids = list(scene_ids)
         if len(scene_ids) != len(recordings):
@@ -48,82 +50,126 @@ def ingest(recordings, out, topics=None, scene_ids=None, msg_dir=None, tolerance
         for sid in scene_ids:   # a scene id names folders/keys under the output: never outside it
             check_name(sid, "--scene-id")
     recordings, scene_ids = _passes(recordings, scene_ids)
-    if tolerance_ms is not None and tolerance_ms <= 0:
-        raise InputError(f"--tolerance must be > 0 ms, got {tolerance_ms}")
-    failed: list[dict] = []
-    from ..dataset import open_dataset
-
-    try:
-        existing = open_dataset(out)
-        # a LiDAR-only dataset has no radar grid yet: the first radar recording gives it one
-        grid, rb = (existing.grid, existing.range_bins) if existing.meta.get("grid_source") != "default" else (None, None)
-    except HolodataError:
-        existing, grid, rb = None, None, None
+    if opts.tolerance_ms is not None and opts.tolerance_ms <= 0:
+        raise InputError(f"--tolerance must be > 0 ms, got {opts.tolerance_ms}")
     try:
         from .. import __version__ as version    # holodata's
     except ImportError:  # pragma: no cover
         version = "?"
-    opts = IngestOptions(topics=topics, msg_dir=msg_dir, tolerance_ms=tolerance_ms, meta=meta, codec=codec,
-                         beamform=beamform, keep_iq=keep_iq, motion=motion, shard_frames=shard_frames,
-                         provenance={"tool": "holodata ingest", "version": version})
-    opened: dict[int, Recording] = {}   # index -> recording opened by the pre-pass, until its scene is written
+    provenance = opts.provenance or {"tool": "holodata ingest", "version": version}
+    return recordings, scene_ids, dataclasses.replace(opts, topics=topics, provenance=provenance)
+
+
+def _dataset_grid(out) -> tuple[object, Grid | None, RangeBins | None]:
+    """(the dataset at ``out`` or None when there is none yet, its radar grid and range bins or
+    (None, None) when it has none: a LiDAR-only dataset gets the first radar recording's)."""
+    from ..dataset import open_dataset
+
     try:
+        existing = open_dataset(out)
+    except HolodataError:
+        return None, None, None
+    if existing.meta.get("grid_source") != "default":
+        return existing, existing.grid, existing.range_bins
+    return existing, None, None
+
+
+class _IngestRun:
+    """:func:`ingest` of checked arguments as named steps sharing their state: the radar grid pre-pass
+    (:meth:`grid_prepass`), the scene ids (:func:`_unique_ids`), then the scenes locally
+    (:meth:`local`) or one Dask task each (:meth:`dask`). ``failed`` collects the recordings that
+    failed, ``scenes`` the summaries; ``opened``: index -> recording opened by the pre-pass, until its
+    scene is written."""
+
+    def __init__(self, out, opts: IngestOptions, quiet: bool, client):
+        self.out, self.opts, self.quiet, self.client = out, opts, quiet, client
+        self.failed: list[dict] = []
+        self.scenes: list[dict] = []
+        self.opened: dict[int, Recording] = {}
+        self.existing, self.grid, self.rb = _dataset_grid(out)
+
+    def run(self, recordings: list[Path], scene_ids: list[str] | None) -> dict:
+        try:
+            if self.existing is None and (len(recordings) > 1 or self.client is not None):
+                todo = self.grid_prepass(recordings)
+            else:
+                todo = [(i, r, None) for i, r in enumerate(recordings)]
+            ids = _unique_ids(todo, scene_ids)
+            if self.client is not None:
+                self.dask(todo, ids)
+            else:
+                self.local(todo, ids)
+        finally:
+            for rec in self.opened.values():    # the pre-pass's recordings that were not reached (an error, Ctrl-C)
+                rec.close()
+        if not self.scenes:
+            raise RecordingError(_failures(self.failed))
+        return {"dataset": str(self.out), "scenes": self.scenes, "failed": self.failed, "ok": not self.failed}
+
+    def grid_prepass(self, recordings: list[Path]) -> list:
+        """Cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes), which
+        becomes the run's. Returns [(index, path, (grid, range bins) or None)] of the recordings that
+        opened; the local loop goes on with the recordings it opened, Dask workers open their own."""
         todo = []
-        if existing is None and (len(recordings) > 1 or client is not None):
-            # cheap pre-pass: each radar recording's grid (the dataset has one grid for all scenes); the
-            # local loop goes on with the recordings it opened, Dask workers open their own
-            for i, r in enumerate(recordings):
-                try:
-                    rec = open_for_ingest(r, opts)
-                except (HolodataError, OSError) as err:
-                    failed.append({"recording": str(r), "error": one_line(err)})
-                    continue
-                try:
-                    todo.append((i, r, radar_grid(rec, topics, beamform)))
-                except (HolodataError, OSError) as err:
-                    failed.append({"recording": str(r), "error": one_line(err)})
-                    rec.close()
-                    continue
-                if client is None:
-                    opened[i] = rec
-                else:
-                    rec.close()
-            if not todo:
-                raise RecordingError(_failures(failed))
-            grids = {g for _, _, g in todo if g is not None}
-            if len(grids) > 1:
-                raise RecordingError(f"recordings have different radar grids "
-                                     f"({sorted(str(g[0].to_attrs()) for g in grids)}); ingest them into separate datasets")
-            grid, rb = next(iter(grids)) if grids else (None, None)
-        else:
-            todo = [(i, r, None) for i, r in enumerate(recordings)]
-        ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
-        ids = [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
-        scenes = []
-        if client is not None:  # the dataset exists before the workers write their scenes into it
-            made = _create(out, grid, rb, opts)
-            scenes, more = ingest_dask(client, todo, ids, out, grid, rb, opts, quiet=quiet)
-            failed += more
-            todo = []
-            if not scenes:   # nothing landed: leave no empty dataset, if (and only if) this run created it
-                made.discard()
+        for i, r in enumerate(recordings):
+            try:
+                rec = open_for_ingest(r, self.opts)
+            except (HolodataError, OSError) as err:
+                self.failed.append({"recording": str(r), "error": one_line(err)})
+                continue
+            try:
+                todo.append((i, r, radar_grid(rec, self.opts.topics, self.opts.beamform)))
+            except (HolodataError, OSError) as err:
+                self.failed.append({"recording": str(r), "error": one_line(err)})
+                rec.close()
+                continue
+            if self.client is None:
+                self.opened[i] = rec
+            else:
+                rec.close()
+        self.grid, self.rb = self._one_grid(todo)
+        return todo
+
+    def _one_grid(self, todo: list) -> tuple[Grid | None, RangeBins | None]:
+        """The recordings' one radar grid ((None, None) without radar); RecordingError when none opened
+        or their grids differ."""
+        if not todo:
+            raise RecordingError(_failures(self.failed))
+        grids = {g for _, _, g in todo if g is not None}
+        if len(grids) > 1:
+            raise RecordingError(f"recordings have different radar grids "
+                                 f"({sorted(str(g[0].to_attrs()) for g in grids)}); ingest them into separate datasets")
+        return next(iter(grids)) if grids else (None, None)
+
+    def dask(self, todo: list, ids: list[str]) -> None:
+        """One Dask task per recording; the dataset exists before the workers write their scenes into it."""
+        made = _create(self.out, self.grid, self.rb, self.opts)
+        self.scenes, more = ingest_dask(self.client, todo, ids, self.out, self.grid, self.rb, self.opts,
+                                        quiet=self.quiet)
+        self.failed += more
+        if not self.scenes:   # nothing landed: leave no empty dataset, if (and only if) this run created it
+            made.discard()
+
+    def local(self, todo: list, ids: list[str]) -> None:
+        """Each recording in turn (:func:`ingest_one`); the first radar recording sets the dataset's grid."""
         for (i, r, _), sid in zip(todo, ids):
             try:
-                rec = opened.pop(i) if i in opened else open_for_ingest(r, opts)
+                rec = self.opened.pop(i) if i in self.opened else open_for_ingest(r, self.opts)
                 with rec:
-                    summary, radar = ingest_one(rec, sid, out, grid, rb, opts, quiet=quiet)
+                    summary, radar = ingest_one(rec, sid, self.out, self.grid, self.rb, self.opts, quiet=self.quiet)
             except (HolodataError, OSError) as err:
-                failed.append({"recording": str(r), "error": _error_line(r, out, err)})
+                self.failed.append({"recording": str(r), "error": _error_line(r, self.out, err)})
                 continue
-            scenes.append(summary)
-            if grid is None and radar is not None:   # the first radar recording sets the dataset's grid
-                grid, rb = radar
-    finally:
-        for rec in opened.values():    # the pre-pass's recordings that were not reached (an error, Ctrl-C)
-            rec.close()
-    if not scenes:
-        raise RecordingError(_failures(failed))
-    return {"dataset": str(out), "scenes": scenes, "failed": failed, "ok": not failed}
+            self.scenes.append(summary)
+            if self.grid is None and radar is not None:
+                self.grid, self.rb = radar
+
+
+def _unique_ids(todo: list, scene_ids: list[str] | None) -> list[str]:
+    """The scene id of each recording of ``todo`` [(index, path, _)]: ``scene_ids``' or from its name,
+    ids given to several recordings suffixed with the recording's place (``<id>_<k>``)."""
+    ids = [scene_ids[i] if scene_ids else _scene_id(r) for i, r, _ in todo]
+    return [f"{sid}_{k}" if ids.count(sid) > 1 else sid for k, sid in enumerate(ids)]  # same names: suffix
 
 
 def _error_line(recording, out, err: BaseException) -> str:
@@ -186,10 +232,22 @@ def check_grid(recording, plan: Plan, grid, range_bins) -> None:
 
 @dataclass(frozen=True)
 class IngestOptions:
-    """What :func:`ingest` was asked besides the recordings (its parameters of the same names), as
-    one picklable value for :func:`ingest_one` and the Dask task. ``provenance``: the dataset's
-    ``provenance`` root attribute."""
-    topics: dict | None = None
+    """How :func:`ingest` reads and writes the recordings, as one picklable value for
+    :func:`ingest_one` and the Dask task.
+
+    ``topics``: the topic mapping, a dict or a YAML path (see :func:`load_topics_file`; :func:`ingest`
+    reads the file); ``msg_dir``: folder of ``.msg`` definitions for types the recording lacks;
+    ``tolerance_ms``: sync tolerance (None: per sensor, half its median period, at least 50 ms);
+    ``meta``: sensor metadata file for readers that need one; ``codec``: the arrays' compressor;
+    ``beamform``: :class:`~holodata.radar.beam_geometry.BeamformParams` for recordings of raw radar
+    samples (PanoRadar raw trajectories), default 64 x 512 beams, all range bins; ``keep_iq``: store
+    their raw samples too (``radar/iq``), so that ``holodata beamform`` can re-image them with other
+    parameters; ``motion``: "static" | "moving", the robot's motion in every PanoRadar raw trajectory
+    given, instead of reading it from their folder names
+    (:func:`holodata.readers.panoradar_raw.motion_rule`); ``shard_frames``: frames per shard of a
+    dataset created here; ``provenance``: the dataset's ``provenance`` root attribute (empty: holodata
+    ingest's, with its version)."""
+    topics: dict | str | Path | None = None
     msg_dir: str | Path | None = None
     tolerance_ms: float | None = None
     meta: str | Path | None = None

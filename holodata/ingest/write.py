@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.writer import FrameStorage
 from ..dataset.layout import (LIDAR_POINT_TIME_NS, LIDAR_RANGE, POINTS_OF, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS,
                               RADAR_HEATMAP, RADAR_IQ, RADAR_IQ_MOTION, RADAR_IQ_SPAN, RADAR_IQ_STATIC, STAMPS_OF,
                               TF_T_WORLD_LIDAR, TIME_TIMESTAMP_NS)
@@ -163,10 +164,10 @@ def _write_plan(plan: Plan, ds, quiet: bool, codec: str | None, bg: _Background)
                   rerun="rerun holodata ingest with the same recording and --scene-id to finish it")
     arrays: list[str] = []
 
-    def frame_arr(name, shape, dtype=None, codec=codec, **kw):
+    def frame_arr(name, shape, dtype=None, codec=codec, shard_frames=None, **kw):
         """Frame array ``name`` (its dtype, dims and units the layout's), listed in the summary."""
         arrays.append(name)
-        return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, codec=codec, **kw)
+        return sc.frame_array(name, per_frame_shape=shape, dtype=dtype, storage=FrameStorage(shard_frames, codec), **kw)
 
     _write_stamps(frame_arr(TIME_TIMESTAMP_NS, ()), plan.frame_stamps)
     exp = _expected_frames(plan)

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import copy
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -141,13 +142,25 @@ def mesh_distance(vertices, faces, points: np.ndarray) -> np.ndarray:
     return out
 
 
-def observed_mask(vertices, faces, samples: np.ndarray, sensor_poses: np.ndarray, min_range: float = 0.3,
-                  max_range: float = 120.0, fov_deg: tuple[float, float] = (-90.0, 90.0),
+@dataclass(frozen=True)
+class LidarView:
+    """What a LiDAR sees from its pose (:func:`observed_mask`): returns within [``min_range_m``,
+    ``max_range_m``] m and the elevation field of view ``fov_deg`` (min, max) degrees in the sensor
+    frame (:data:`DEFAULT_LIDAR` by default)."""
+
+    min_range_m: float = DEFAULT_LIDAR["min_range_m"]
+    max_range_m: float = DEFAULT_LIDAR["max_range_m"]
+    fov_deg: tuple[float, float] = DEFAULT_LIDAR["fov_deg"]
+
+
+def observed_mask(vertices, faces, samples: np.ndarray, sensor_poses: np.ndarray, view: LidarView = LidarView(),
                   tol: float = 0.03, max_poses: int = 60) -> np.ndarray:
-    """(N,) bool: sample seen unoccluded from at least one of ``sensor_poses`` (T_world_sensor),
-    within [min_range, max_range] and the elevation field of view ``fov_deg`` (min, max)."""
+    """(N,) bool: sample seen unoccluded (within ``tol`` m of the first hit of its ray) from at least one
+    of ``sensor_poses`` (T_world_sensor; at most ``max_poses`` of them, evenly spread), within the
+    ``view`` (:class:`LidarView`: the range limits and the elevation field of view)."""
     import open3d as o3d
 
+    min_range, max_range, fov_deg = view.min_range_m, view.max_range_m, view.fov_deg
     s = _scene(vertices, faces)
     P = np.asarray(sensor_poses)
     if len(P) > max_poses:
@@ -186,9 +199,9 @@ def mesh_errors(est_vertices, est_faces, true_vertices, true_faces, sensor_poses
     ts = sample_mesh(tv, tf, sample_spacing)
     lidar = lidar or {}
     if sensor_poses is not None:
-        obs = observed_mask(tv, tf, ts, sensor_poses, lidar.get("min_range_m", DEFAULT_LIDAR["min_range_m"]),
-                            lidar.get("max_range_m", DEFAULT_LIDAR["max_range_m"]),
-                            tuple(lidar.get("fov_deg", DEFAULT_LIDAR["fov_deg"])))
+        obs = observed_mask(tv, tf, ts, sensor_poses, LidarView(lidar.get("min_range_m", DEFAULT_LIDAR["min_range_m"]),
+                                                                lidar.get("max_range_m", DEFAULT_LIDAR["max_range_m"]),
+                                                                tuple(lidar.get("fov_deg", DEFAULT_LIDAR["fov_deg"]))))
     else:
         obs = np.ones(len(ts), bool)
     ts_obs = ts[obs]
@@ -257,12 +270,23 @@ def radar_reach(vertices, faces, radar_poses: np.ndarray, grid, max_bounces: int
             "label": cat(lab, (0,)).astype(np.uint8), "nlos_per_frame": np.asarray(nlos, np.int64), "frames": idx}
 
 
+@dataclass(frozen=True)
+class RadarTrace:
+    """How :func:`mesh_coverage` traces the radar's beams (:func:`radar_reach`): up to ``max_bounces``
+    specular bounces, accumulated range up to ``max_range`` m, from at most ``max_frames`` poses
+    (evenly spread)."""
+
+    max_bounces: int = DEFAULT_MAX_BOUNCES
+    max_range: float = DEFAULT_MAX_RANGE_M
+    max_frames: int = 60
+
+
 def mesh_coverage(est_vertices, est_faces, true_vertices, true_faces, radar_poses: np.ndarray, grid,
-                  tau: float = COVERAGE_TAU, max_bounces: int = DEFAULT_MAX_BOUNCES, max_range: float = DEFAULT_MAX_RANGE_M,
-                  max_frames: int = 60) -> dict:
+                  tau: float = COVERAGE_TAU, trace: RadarTrace = RadarTrace()) -> dict:
     """Share of the true surface within the radar's multi-bounce reach that the estimated mesh covers.
 
-    "Within reach": the hit points of every bounce of the radar's beams traced from the true
+    "Within reach": the hit points of every bounce of the radar's beams (``grid``, traced as ``trace``
+    says: :class:`RadarTrace`) traced from the true
     ``radar_poses`` (T,4,4) through the true mesh (:func:`radar_reach`); covered: within ``tau`` m
     (default 5 cm) of the estimated mesh (exact point-to-triangle distance). Both meshes in the same
     (true) world frame. Also traces the beams through the estimated mesh from the same poses and
@@ -273,6 +297,7 @@ def mesh_coverage(est_vertices, est_faces, true_vertices, true_faces, radar_pose
     high on such a map: 0.93 where ``coverage_nlos`` is far lower), ``n_points``,
     ``nlos_per_frame_true`` / ``nlos_per_frame_est`` (means over the frames), ``nlos_ratio``
     (est / true), ``tau_m``."""
+    max_bounces, max_range, max_frames = trace.max_bounces, trace.max_range, trace.max_frames
     reach = radar_reach(true_vertices, true_faces, radar_poses, grid, max_bounces, max_range, max_frames)
     est = radar_reach(est_vertices, est_faces, np.asarray(radar_poses)[reach["frames"]], grid, max_bounces, max_range,
                       len(reach["frames"]))

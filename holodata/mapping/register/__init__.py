@@ -69,12 +69,13 @@ from .steps import (all_surfaces as all_surfaces, body_columns_of as body_column
                     initial_guess as initial_guess, pick_track as pick_track,
                     registration_failure as registration_failure, static_camera as static_camera,
                     track_smoothing as track_smoothing, write_outputs as write_outputs)
-from .humans import body_columns, closed_surface, cluster_points, pick_human, pixel_runs, static_residual, voxel_boundary
+from .humans import (ColumnShape, body_columns, closed_surface, cluster_points, pick_human, pixel_runs,
+                     static_residual, voxel_boundary)
 from .tracks import radial_speed, track_jumps, track_prediction, track_velocity, velocity_shift
 from .scene_inputs import (_built_from_the_poses as _built_from_the_poses, _parse_init as _parse_init,
                            camera_scenes, camera_tf_guess as camera_tf_guess, map_frame_problem as map_frame_problem,
                            only_camera_scene, scene_map, scene_mesh, slam_anchor)
-from .lidar_side import lidar_half as lidar_half, lidar_map as lidar_map, map_cloud
+from .lidar_side import MapInputs, lidar_half as lidar_half, lidar_map as lidar_map, map_cloud
 from .pipeline import (REGISTER_FAILED, REGISTER_OUTPUTS as REGISTER_OUTPUTS, RETIRED_PARAMS as RETIRED_PARAMS,
                        RETIRED_SEGMENT_PARAMS as RETIRED_SEGMENT_PARAMS, camera_world as camera_world,
                        register_fingerprint, register_processes as register_processes,
@@ -84,8 +85,8 @@ from .pipeline import (REGISTER_FAILED, REGISTER_OUTPUTS as REGISTER_OUTPUTS, RE
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
            "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth", "camera_points_world",
-           "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "static_residual",
-           "body_columns", "pixel_runs",
+           "CameraFrames", "register_scene", "velocity_shift", "map_cloud", "MapInputs", "static_residual",
+           "body_columns", "ColumnShape", "pixel_runs",
            "depth_noise_model", "map_normals", "pose_uncertainty", "track_prediction",
            "track_jumps", "track_velocity", "radial_speed", "mesh_surface_samples",
            "scene_mesh", "held_directions", "anchored_guess", "static_depth_of",

@@ -191,15 +191,29 @@ def _sorted_quantile(s: np.ndarray, n: np.ndarray, q: float, start: np.ndarray |
     return np.where(n > 0, v_lo + (pos - lo) * (v_hi - v_lo), np.nan)
 
 
-def frame_candidates(cam: CameraFrames, frames, T: np.ndarray, rays: np.ndarray, front: np.ndarray,
-                     always: np.ndarray, map_tree, cfg: "RegisterConfig", images: dict | None = None,
+@dataclass
+class ForegroundTest:
+    """Which camera returns may be a person (:func:`frame_candidates`): those nearer than ``front``
+    (h,w) m (the static depth less its noise margin) or on pixels marked ``always`` (h,w) bool, moved
+    to the map through ``T`` (4,4) T_world_camera along the pixel ``rays`` (h,w,3), and not explained
+    by a map point (``map_tree``, a cKDTree of the map points)."""
+
+    T: np.ndarray
+    rays: np.ndarray
+    front: np.ndarray
+    always: np.ndarray
+    map_tree: object
+
+
+def frame_candidates(cam: CameraFrames, frames, test: ForegroundTest, cfg: "RegisterConfig", images: dict | None = None,
                      quiet: bool = True, label: str = "human candidates") -> list:
     """Per frame k of ``frames``: the returns that may be a person, (qw (N,3) float64 map frame, vv, uu
     (N,) int64 pixel rows / columns, dv (N,) float32 optical depths m): returns within
-    ``cfg.max_range_m`` nearer than ``front`` (h,w) m (the static depth less its noise margin) or on
-    pixels marked ``always`` (h,w) bool, moved to the map through ``T`` (4,4) T_world_camera along the
-    pixel ``rays`` (h,w,3), and farther than ``cfg.map_explain_m`` from every map point (``map_tree``,
-    a cKDTree of them). ``images``: depth images already made, by frame (taken out of the dict as used)."""
+    ``cfg.max_range_m`` that pass ``test`` (:class:`ForegroundTest`: nearer than its ``front`` or on
+    its ``always`` pixels), moved to the map through its ``T`` along its ``rays``, and farther than
+    ``cfg.map_explain_m`` from every map point (its ``map_tree``). ``images``: depth images already
+    made, by frame (taken out of the dict as used)."""
+    T, rays, front, always, map_tree = test.T, test.rays, test.front, test.always, test.map_tree
     out = []
     bound = np.nextafter(cfg.map_explain_m, np.inf)    # far points end their search early
     for k in track(frames, len(frames), label, quiet):

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...conventions import rotation_angle_deg, transform_points, yaw_rad
-from ...geometry.icp import STOP_TRANSLATION_M, centred_offset, hold_at, open3d_icp, point_to_plane_icp
+from ...geometry.icp import STOP_TRANSLATION_M, IcpParams, centred_offset, hold_at, open3d_icp, point_to_plane_icp
 from ...geometry.planes import local_plane_projection
 from ...geometry.voxels import voxel_average
 from .camera import UNKNOWN_SIGMA_M
@@ -333,63 +333,174 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
     anchored at the TF pose of a scan taken there; directions the ICP holds then go where the map's
     offset puts the guess (:func:`anchored_guess`) instead of staying at it. Never returns an
     unchecked transform: ``accepted`` False means both failed (register then finishes the scene without a
-    person)."""
-    from scipy.spatial import cKDTree
+    person). The steps are :class:`_ExtrinsicFit`'s."""
+    fit = _ExtrinsicFit(static_cam, map_points, init, cfg or RegisterConfig(), sigma, mesh)
+    best = fit.icp_attempt(anchor)
+    if not best[2]["accepted"] and allow_fallback:
+        best = fit.fallback_attempt(anchor) or best
+    m, T, c = best
+    return Registration(T, m, c["fitness"], c["rmse"], c["overlap"], c["accepted"], fit.attempts)
 
-    cfg = cfg or RegisterConfig()
-    src_all = np.asarray(static_cam, np.float64)
-    sig = (np.full(len(src_all), UNKNOWN_SIGMA_M) if sigma is None
-           else np.maximum(np.asarray(sigma, np.float64), MIN_SIGMA_M))
-    keep = np.linalg.norm(src_all, axis=1) <= cfg.max_range_m
-    src_all, sig = src_all[keep], sig[keep]
-    # voxel-thin (one point per cam_voxel cell, the least noisy)
-    cell = np.floor(src_all / cfg.cam_voxel).astype(np.int64)
-    order = np.argsort(sig, kind="stable")
-    _, first = np.unique(cell[order], axis=0, return_index=True)
-    sel = order[first]
-    src, sig = src_all[sel], sig[sel]
-    src_n = np.asarray(_pcd(src, None, 3 * cfg.cam_voxel).normals)   # same order (no thinning)
-    mesh_pts = None
-    if mesh is not None and cfg.mesh_target and len(mesh[1]):
-        mesh_pts, mesh_n = mesh_surface_samples(mesh[0], mesh[1], transform_points(init, src),
+
+class _ExtrinsicFit:
+    """:func:`register_extrinsic` as named steps sharing their state: the camera cloud voxel-thinned
+    (:meth:`_thinned`), the target (the map denoised near the camera, :meth:`_denoised_map`, with the
+    mesh's surface there, :meth:`_mesh_samples`), the camera cloud cropped to what can overlap it
+    (:meth:`_crop`); then the ICP (:meth:`icp_attempt`) and the global fallback
+    (:meth:`fallback_attempt`), each refined (:meth:`refine`) and checked (:meth:`check`).
+    ``attempts`` collects every try's checks (for the report)."""
+
+    def __init__(self, static_cam: np.ndarray, map_points: np.ndarray, init: np.ndarray, cfg: RegisterConfig,
+                 sigma: np.ndarray | None, mesh: tuple | None):
+        from scipy.spatial import cKDTree
+
+        self.init, self.cfg = init, cfg
+        src, sig, src_n = self._thinned(static_cam, sigma)
+        mesh_pts, mesh_n = self._mesh_samples(mesh, src)
+        tgt_pts, tgt_n = map_normals(self._denoised_map(map_points, src), cfg)
+        if mesh_pts is not None:
+            # the mesh's surface near the camera cloud joins the (denoised) map (docs/design/register.md, 3.)
+            tgt_pts, tgt_n = np.concatenate([mesh_pts, tgt_pts]), np.concatenate([mesh_n, tgt_n])
+        self.with_mesh = mesh_pts is not None
+        self.tgt_pts, self.tgt_n, self.tgt_tree = tgt_pts, tgt_n, cKDTree(tgt_pts)
+        self.full_src, self.full_sig, self.full_n = src, sig, src_n
+        self.src, self.src_n = self._crop(src, src_n)
+        # against the mesh's smooth surface a weak direction (a T corner's corridor seen end-on) is
+        # determined by the data; against the noisy points it was held at the guess
+        self.ratio = cfg.mesh_degenerate_ratio if self.with_mesh else cfg.degenerate_ratio
+        self.attempts: list = []
+
+    def _thinned(self, static_cam: np.ndarray, sigma: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The camera points within ``max_range_m``, voxel-thinned (one point per ``cam_voxel`` cell, the
+        least noisy): (points (N,3), depth noise (N,) m, normals (N,3))."""
+        cfg = self.cfg
+        src_all = np.asarray(static_cam, np.float64)
+        sig = (np.full(len(src_all), UNKNOWN_SIGMA_M) if sigma is None
+               else np.maximum(np.asarray(sigma, np.float64), MIN_SIGMA_M))
+        keep = np.linalg.norm(src_all, axis=1) <= cfg.max_range_m
+        src_all, sig = src_all[keep], sig[keep]
+        cell = np.floor(src_all / cfg.cam_voxel).astype(np.int64)
+        order = np.argsort(sig, kind="stable")
+        _, first = np.unique(cell[order], axis=0, return_index=True)
+        sel = order[first]
+        src, sig = src_all[sel], sig[sel]
+        return src, sig, np.asarray(_pcd(src, None, 3 * cfg.cam_voxel).normals)   # same order (no thinning)
+
+    def _mesh_samples(self, mesh: tuple | None, src: np.ndarray) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Samples of the mesh's surface within reach of the camera cloud ``src`` under the guess, and
+        their normals; (None, None) without a mesh or with too few samples."""
+        cfg = self.cfg
+        if mesh is None or not cfg.mesh_target or not len(mesh[1]):
+            return None, None
+        mesh_pts, mesh_n = mesh_surface_samples(mesh[0], mesh[1], transform_points(self.init, src),
                                                 cfg.crop_m + cfg.max_scale_m, cfg.mesh_sample_m)
         if len(mesh_pts) < cfg.min_overlap_points:
-            mesh_pts = None
-    if cfg.map_plane_m > 0:
-        # denoise the target: map points near the camera cloud (under the guess) onto their local planes
+            return None, None
+        return mesh_pts, mesh_n
+
+    def _denoised_map(self, map_points: np.ndarray, src: np.ndarray) -> np.ndarray:
+        """Denoise the target: map points near the camera cloud ``src`` (under the guess) onto their
+        local planes (``map_plane_m`` 0: the map as given)."""
+        cfg = self.cfg
+        if cfg.map_plane_m <= 0:
+            return map_points
         mp = voxel_average(map_points, cfg.map_voxel)
         reach = cfg.crop_m + cfg.max_scale_m + cfg.map_plane_m
-        near_cam = _nn_distances(mp, transform_points(init, src), reach) <= reach
-        map_points = local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
-    tgt_pts, tgt_n = map_normals(map_points, cfg)
-    if mesh_pts is not None:
-        # the mesh's surface near the camera cloud joins the (denoised) map (docs/design/register.md, 3.)
-        tgt_pts, tgt_n = np.concatenate([mesh_pts, tgt_pts]), np.concatenate([mesh_n, tgt_n])
-    tgt_tree = cKDTree(tgt_pts)
-    # only the part of the camera cloud that can overlap the map matters (the rest was never seen by
-    # the LiDAR): crop to within crop_m of the map under the initial guess (fast, and fewer outliers)
-    full_src, full_sig, full_n = src, sig, src_n
-    near = _nn_distances(transform_points(init, src), tgt_pts, cfg.crop_m) <= cfg.crop_m
-    if near.sum() >= cfg.min_overlap_points:
-        src, src_n = src[near], src_n[near]
-    attempts = []
+        near_cam = _nn_distances(mp, transform_points(self.init, src), reach) <= reach
+        return local_plane_projection(mp, cfg.map_plane_m, cfg.map_plane_ratio, only=near_cam)
 
-    def check(T, frozen: int = 0, held=None, slide=None, turn_reach=None):
-        # judged on the precise camera points (depth noise <= check_sigma_m) when there are enough:
-        # far stereo points are too noisy to tell a right from a slightly wrong alignment
-        p = transform_points(T, full_src)
+    def _crop(self, src: np.ndarray, src_n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Only the part of the camera cloud that can overlap the map matters (the rest was never seen by
+        the LiDAR): cropped to within ``crop_m`` of the map under the initial guess (fast, and fewer
+        outliers), unless fewer than ``min_overlap_points`` remain."""
+        near = _nn_distances(transform_points(self.init, src), self.tgt_pts, self.cfg.crop_m) <= self.cfg.crop_m
+        if near.sum() >= self.cfg.min_overlap_points:
+            return src[near], src_n[near]
+        return src, src_n
+
+    def refine(self, T0: np.ndarray, info: dict) -> np.ndarray:
+        """Gauss-Newton point-to-plane with Tukey loss and degeneracy-aware updates of the current source
+        from ``T0``. Not open3d's registration_icp: it slides along a corridor the overlap sees end-on,
+        and it has no way to hold such directions (docs/design/register.md, 3.). Uniform weights:
+        per-point camera noise weights did no better (the map's own error is not modelled)."""
+        cfg = self.cfg
+        return point_to_plane_icp(self.src, np.full(len(self.src), UNIFORM_WEIGHT), self.tgt_pts, self.tgt_n, T0,
+                                  IcpParams(cfg.icp_distances, cfg.icp_iterations, cfg.max_scale_m, self.ratio,
+                                            cfg.min_normal_cos, cfg.hold_m), info=info, source_normals=self.src_n)
+
+    def icp_attempt(self, anchor: np.ndarray | None) -> tuple[str, np.ndarray, dict]:
+        """The ICP from the guess, its held directions at the (anchored) guess, checked: ("icp", T, check)."""
+        cfg, init = self.cfg, self.init
+        info: dict = {}
+        T = self.refine(init, info)
+        anchor_turn, target = None, None
+        if anchor is not None and info.get("frozen") and cfg.anchor_max_deg > 0:
+            V = info["held"][0]
+            target, anchor_turn = anchored_guess(T, init, anchor, V[3:, 0], cfg.anchor_max_deg, cfg.anchor_agree_deg)
+            anchor_turn["applied"] = target is not None
+        # held directions: at the (anchored) guess, about its camera, all the way
+        T, slide = hold_at_guess(T, init if target is None else target, info.get("held") if info.get("frozen") else None)
+        turn_reach = None
+        if anchor is not None and info.get("frozen") and target is None:
+            # the map's turn about its anchor was not read: the TF guess's camera is off in the map by
+            # up to anchor_max_deg's reach along the held directions, which nothing measured
+            turn_reach = map_turn_reach(info["held"], init[:3, 3], anchor, cfg.anchor_max_deg)
+        c = self.check(T, info.get("frozen", 0), info.get("held"), slide, turn_reach)
+        self.attempts.append({"method": "icp", **c, "target": "map+mesh" if self.with_mesh else "map",
+                              "frozen_directions": info.get("frozen", 0),
+                              "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
+        return "icp", T, c
+
+    def fallback_attempt(self, anchor: np.ndarray | None) -> tuple[str, np.ndarray, dict] | None:
+        """FPFH + RANSAC on the whole camera cloud, refined, held at the guess and checked (and refused
+        far from the guess): ("fpfh+icp", T, check) when accepted, else None."""
+        cfg, init = self.cfg, self.init
+        self.src, self.src_n = self.full_src, self.full_n
+        Tg = fpfh_ransac(self.src, self.tgt_pts, cfg.fpfh_voxel)
+        info2: dict = {}
+        T2 = self.refine(Tg, info2)
+        # (the ICP held its directions where RANSAC put them: they go to the guess too)
+        T2, slide2 = hold_at_guess(T2, init, info2.get("held") if info2.get("frozen") else None)
+        c2 = self.check(T2, info2.get("frozen", 0), info2.get("held"), slide2,
+                        map_turn_reach(info2["held"], init[:3, 3], anchor, cfg.anchor_max_deg)
+                        if anchor is not None and info2.get("frozen") else None)
+        shift, rot = prior_deviation(T2, init)
+        c2 = {**c2, "prior_shift_m": shift, "prior_rot_deg": rot}
+        if shift > cfg.fallback_max_shift_m or rot > cfg.fallback_max_rot_deg:
+            c2["accepted"] = False
+        self.attempts.append({"method": "fpfh+icp", **c2, "frozen_directions": info2.get("frozen", 0),
+                              "eigenvalues_rel": info2.get("eigenvalues")})
+        return ("fpfh+icp", T2, c2) if c2["accepted"] else None
+
+    def check(self, T: np.ndarray, frozen: int = 0, held=None, slide=None, turn_reach=None) -> dict:
+        """The acceptance check of pose ``T``: the fit (:meth:`_fit`) and the pose's uncertainty along the
+        directions the data measured, with the ``frozen`` directions ``held`` at the guess reported as
+        the guess's (:meth:`_pose`)."""
+        c = self._fit(T)
+        return self._pose(c, T, frozen, held, slide, turn_reach)
+
+    def _fit(self, T: np.ndarray) -> dict:
+        """Overlap, fitness and RMSE of the whole camera cloud at ``T``, judged on the precise camera
+        points (depth noise <= ``check_sigma_m``) when there are enough: far stereo points are too noisy
+        to tell a right from a slightly wrong alignment."""
+        cfg, tgt_pts, tgt_n = self.cfg, self.tgt_pts, self.tgt_n
+        p = transform_points(T, self.full_src)
         # only points within overlap_m count: the bounded search ends early for the far ones (the
         # camera's view of what the LiDAR never saw), which an unbounded one searched the whole map for
-        d, j = tgt_tree.query(p, k=1, distance_upper_bound=cfg.overlap_m, workers=-1)
+        d, j = self.tgt_tree.query(p, k=1, distance_upper_bound=cfg.overlap_m, workers=-1)
         j = np.minimum(j, len(tgt_pts) - 1)
         r = np.einsum("ij,ij->i", p - tgt_pts[j], tgt_n[j])
-        precise = full_sig <= cfg.check_sigma_m
+        precise = self.full_sig <= cfg.check_sigma_m
         if int((precise & (d < cfg.overlap_m)).sum()) >= cfg.min_overlap_points:
             d, r = d[precise], r[precise]
-        c = _check_from_distances(d, cfg, r)
-        # and the pose must be determined by the data: directions held at the guess (frozen) aside,
-        # the estimate's standard deviation along every direction <= max_pose_std_m (check_held)
-        u = pose_uncertainty(full_src, full_sig, tgt_pts, tgt_n, tgt_tree, T, cfg)
+        return _check_from_distances(d, cfg, r)
+
+    def _pose(self, c: dict, T: np.ndarray, frozen: int, held, slide, turn_reach) -> dict:
+        """``c`` with the pose part of the check: the pose must be determined by the data (directions held
+        at the guess aside, the estimate's standard deviation along every direction <= ``max_pose_std_m``,
+        :func:`check_held`)."""
+        cfg = self.cfg
+        u = pose_uncertainty(self.full_src, self.full_sig, self.tgt_pts, self.tgt_n, self.tgt_tree, T, cfg)
         std = float(u["std_m"][min(frozen, 5)])
         c["pose_std_m"] = std
         # along the held directions the result is the guess: its uncertainty is the guess's, not a
@@ -411,55 +522,3 @@ def register_extrinsic(static_cam: np.ndarray, map_points: np.ndarray, init: np.
         if not check_held(std, moved, cfg):
             c["accepted"] = False
         return c
-
-    def refine(T0, info):
-        # Gauss-Newton point-to-plane with Tukey loss and degeneracy-aware updates. Not open3d's
-        # registration_icp: it slides along a corridor the overlap sees end-on, and it has no way to
-        # hold such directions (docs/design/register.md, 3.). Uniform weights: per-point camera noise
-        # weights did no better (the map's own error is not modelled).
-        return point_to_plane_icp(src, np.full(len(src), UNIFORM_WEIGHT), tgt_pts, tgt_n, T0, cfg.icp_distances,
-                                  cfg.icp_iterations, degenerate_ratio=ratio, info=info, source_normals=src_n,
-                                  min_normal_cos=cfg.min_normal_cos, max_scale=cfg.max_scale_m, hold_m=cfg.hold_m)
-
-    # against the mesh's smooth surface a weak direction (a T corner's corridor seen end-on) is
-    # determined by the data; against the noisy points it was held at the guess
-    ratio = cfg.mesh_degenerate_ratio if mesh_pts is not None else cfg.degenerate_ratio
-    info: dict = {}
-    T = refine(init, info)
-    anchor_turn, target = None, None
-    if anchor is not None and info.get("frozen") and cfg.anchor_max_deg > 0:
-        V = info["held"][0]
-        target, anchor_turn = anchored_guess(T, init, anchor, V[3:, 0], cfg.anchor_max_deg, cfg.anchor_agree_deg)
-        anchor_turn["applied"] = target is not None
-    # held directions: at the (anchored) guess, about its camera, all the way
-    T, slide = hold_at_guess(T, init if target is None else target, info.get("held") if info.get("frozen") else None)
-    turn_reach = None
-    if anchor is not None and info.get("frozen") and target is None:
-        # the map's turn about its anchor was not read: the TF guess's camera is off in the map by
-        # up to anchor_max_deg's reach along the held directions, which nothing measured
-        turn_reach = map_turn_reach(info["held"], init[:3, 3], anchor, cfg.anchor_max_deg)
-    c = check(T, info.get("frozen", 0), info.get("held"), slide, turn_reach)
-    attempts.append({"method": "icp", **c, "target": "map+mesh" if mesh_pts is not None else "map",
-                     "frozen_directions": info.get("frozen", 0),
-                     "eigenvalues_rel": info.get("eigenvalues"), "anchor_turn": anchor_turn})
-    best = ("icp", T, c)
-    if not c["accepted"] and allow_fallback:
-        src, src_n = full_src, full_n
-        Tg = fpfh_ransac(src, tgt_pts, cfg.fpfh_voxel)
-        info2: dict = {}
-        T2 = refine(Tg, info2)
-        # (the ICP held its directions where RANSAC put them: they go to the guess too)
-        T2, slide2 = hold_at_guess(T2, init, info2.get("held") if info2.get("frozen") else None)
-        c2 = check(T2, info2.get("frozen", 0), info2.get("held"), slide2,
-                   map_turn_reach(info2["held"], init[:3, 3], anchor, cfg.anchor_max_deg)
-                   if anchor is not None and info2.get("frozen") else None)
-        shift, rot = prior_deviation(T2, init)
-        c2 = {**c2, "prior_shift_m": shift, "prior_rot_deg": rot}
-        if shift > cfg.fallback_max_shift_m or rot > cfg.fallback_max_rot_deg:
-            c2["accepted"] = False
-        attempts.append({"method": "fpfh+icp", **c2, "frozen_directions": info2.get("frozen", 0),
-                         "eigenvalues_rel": info2.get("eigenvalues")})
-        if c2["accepted"]:
-            best = ("fpfh+icp", T2, c2)
-    m, T, c = best
-    return Registration(T, m, c["fitness"], c["rmse"], c["overlap"], c["accepted"], attempts)

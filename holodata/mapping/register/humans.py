@@ -3,6 +3,7 @@
 motion of the person's track over frames are in :mod:`.tracks`."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -248,11 +249,29 @@ def pixel_runs(rows: np.ndarray, cols: np.ndarray, gap: int = 1) -> tuple[np.nda
     return order, np.cumsum(new) - 1
 
 
+@dataclass(frozen=True)
+class ColumnShape:
+    """How :func:`body_columns` shapes the solid behind a person's front: a cross-section's depth D is
+    its width clipped to [``lo``, ``hi``] m; a horizontal run of pixels continues across fewer than
+    ``gap`` missing pixels (:func:`pixel_runs`); the lowest pixel of an image column within
+    ``floor_reach_m`` m above the floor reaches down to it; ``back_frac`` / ``side_frac``: the share of
+    D every column's far end / the far end of a run alone in its image row goes further back (a person
+    walking along / across the view). :func:`body_columns` says why each is there."""
+
+    lo: float
+    hi: float
+    gap: int = 2
+    floor_reach_m: float = 0.35
+    back_frac: float = 0.0
+    side_frac: float = 0.0
+
+
 def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, eye: np.ndarray,
-                 fx: float, lo: float, hi: float, gap: int = 2, floor_z: float | None = None,
-                 floor_reach_m: float = 0.35, back_frac: float = 0.0,
-                 side_frac: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The solid behind a person's visible front, one horizontal column per human pixel.
+                 fx: float, shape: ColumnShape, floor_z: float | None = None
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The solid behind a person's visible front, one horizontal column per human pixel, shaped as
+    ``shape`` says (:class:`ColumnShape`: ``lo``, ``hi``, ``gap``, ``floor_reach_m``, ``back_frac``,
+    ``side_frac`` below are its fields).
 
     ``points_world`` (N,3) the pixels' points (map frame), ``rows``/``cols`` (N,) their pixels,
     ``depth`` (N,) their optical depths (m), ``eye`` (3,) the camera centre, ``fx`` px. Each horizontal
@@ -278,6 +297,8 @@ def body_columns(points_world: np.ndarray, rows: np.ndarray, cols: np.ndarray, d
     row goes ``side_frac`` · D further back (a person walking across the view, :func:`.tracks.side_back`: the
     far arm, shoulder and leg hidden behind the near ones); where a row shows several runs (legs apart
     in stride, an arm beside the torso) each is a limb seen whole, as deep as wide."""
+    lo, hi, gap, floor_reach_m = shape.lo, shape.hi, shape.gap, shape.floor_reach_m
+    back_frac, side_frac = shape.back_frac, shape.side_frac
     p = np.asarray(points_world, np.float64).reshape(-1, 3)
     n = len(p)
     z = np.asarray(depth, np.float64)

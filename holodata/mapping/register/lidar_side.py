@@ -5,6 +5,7 @@ people (:func:`map_cloud`), built with the background model and ``lidar/instance
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -15,20 +16,33 @@ from .config import RegisterConfig
 from .scene_inputs import scene_map
 
 
-def map_cloud(scans, bg, traj, voxel: float, deskew: bool = True, instances=None, margin_m: float = 0.25,
-              max_scans: int = 0, world_points: dict | None = None) -> np.ndarray:
-    """World-frame static map: every scan's returns inside the background model and farther than
-    ``margin_m`` from the scan's segmented instances ``instances`` (lazy (T,H,W) array or None),
-    voxel-thinned; at most ``max_scans`` scans (0: all): motion keyframes plus scans spread in time,
-    as for slam's mesh (a 400-cycle corner has 400 scans, most taken at rest). The instance margin
-    removes the parts of people that fall into static voxels (a hand near a wall, feet on the
-    floor), which would otherwise bias the registration. ``world_points``: {frame: world points of
-    the valid returns (N,3)} already de-skewed with ``traj`` (the segmentation's background pass);
-    scans in it without instances are taken from it instead of being read and de-skewed again."""
+@dataclass
+class MapInputs:
+    """The scans :func:`map_cloud` builds the map from: ``scans`` (the scene's
+    :class:`~holodata.mapping.segment.LidarScans`), their trajectory ``traj``, the background model
+    ``bg`` (None: every return counts) and ``world_points``: {frame: world points of the valid returns
+    (N,3)} already de-skewed with ``traj`` (the segmentation's background pass), or None."""
+
+    scans: object
+    bg: object
+    traj: object
+    world_points: dict | None = None
+
+
+def map_cloud(inputs: MapInputs, voxel: float, deskew: bool = True, instances=None, margin_m: float = 0.25,
+              max_scans: int = 0) -> np.ndarray:
+    """World-frame static map of ``inputs`` (:class:`MapInputs`): every scan's returns inside the
+    background model and farther than ``margin_m`` from the scan's segmented instances ``instances``
+    (lazy (T,H,W) array or None), voxel-thinned; at most ``max_scans`` scans (0: all): motion keyframes
+    plus scans spread in time, as for slam's mesh (a 400-cycle corner has 400 scans, most taken at
+    rest). The instance margin removes the parts of people that fall into static voxels (a hand near a
+    wall, feet on the floor), which would otherwise bias the registration. Scans in the inputs' world
+    points without instances are taken from them instead of being read and de-skewed again."""
     from scipy.spatial import cKDTree
 
     from ..segment import in_background
 
+    scans, bg, traj, world_points = inputs.scans, inputs.bg, inputs.traj, inputs.world_points
     pts = []
     ks = list(range(len(scans.stamps)))
     if max_scans and len(ks) > max_scans:  # long recordings: motion keyframes + scans evenly spread in time
@@ -78,13 +92,12 @@ def lidar_map(scene, cfg: RegisterConfig, segment: bool, quiet: bool = True, bui
         inst = InstanceMasks(scans, bg, scfg, traj, world_points)
     else:
         inst = scene[LIDAR_INSTANCE] if LIDAR_INSTANCE in set(scene.arrays()) else None
-    M = map_cloud(scans, bg, traj, cfg.map_voxel, instances=inst, max_scans=cfg.map_max_scans,
-                  world_points=world_points) if build_map else None
+    M = map_cloud(MapInputs(scans, bg, traj, world_points), cfg.map_voxel, instances=inst,
+                  max_scans=cfg.map_max_scans) if build_map else None
     t2 = time.perf_counter()
     if early is not None:
         early(M)
-    seg_summary = (write_instances(scene, scfg, quiet, background=bg, world_points=world_points, masks=inst,
-                                   scans=scans, traj=traj)
+    seg_summary = (write_instances(scene, scfg, quiet, masks=inst)
                    if segment else None)         # the masks the map asked for are not computed again
     return M, seg_summary, {"background_s": t1 - t0, "map_s": t2 - t1, "segment_s": time.perf_counter() - t2}
 

@@ -6,6 +6,7 @@ report (:func:`register_report`)."""
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -88,71 +89,174 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
     scene. ``scene_id`` None: the one scene with a camera (:func:`camera_scenes`).
     A scene registered before from the same inputs and settings (:func:`register_fingerprint`, every
     output present) is not registered again unless ``force``: the stored report comes back with
-    ``skipped`` set, as slam does. The steps are :mod:`.steps`'."""
-    from ...dataset import open_dataset
-    from ..segment import LidarScans, _scene_id
-
-    cfg = cfg or RegisterConfig()
-    t0 = time.perf_counter()
-    timings: dict = {}
-    ds = open_dataset(url)
-    scene = ds.scene(_scene_id(ds, url, scene_id) if scene_id is not None else only_camera_scene(ds, url))
-    where = f"{url}: scene {scene.id!r}"
-    scene.require_complete("register")
-    fingerprint = register_fingerprint(scene, cfg, init, segment_cfg)
-    resuming = "register" in scene.unfinished    # an interrupted run: its outputs are not to be trusted
-    skipped = None if force or resuming else stored_report(scene, cfg, fingerprint)
+    ``skipped`` set, as slam does. The steps are :class:`_Registering`'s, theirs :mod:`.steps`'."""
+    run = _Registering.open(url, scene_id, init, cfg or RegisterConfig(), segment_cfg, quiet)
+    skipped = None if force or run.resuming else stored_report(run.scene, run.cfg, run.fingerprint)
     if skipped is not None:
         return skipped
-    release_free_memory()      # (before the forks below)
-    cam = CameraFrames.open(scene, url)
-    LidarScans.open(scene, url)   # checks the LiDAR arrays and poses before any work starts
-    T_init, init_source = initial_guess(scene, url, _parse_init(init))
-    processes = register_processes(cfg)
-    # marked unfinished before the first write (lidar/instance, by the LiDAR half), finished with the
-    # ``register`` report after the last
-    sw = open_dataset(url, "r+").scene(scene.id)
-    sw.begin("register", rerun=f"rerun holodata register DATASET --scene {scene.id} to finish it")
-    outputs_touched = False
-    # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
-    # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
-    stored_map, lidar = lidar_half(scene, cfg, segment_cfg, processes, quiet, where)
-    try:
+    return run.run()
+
+
+@dataclass
+class RegisterFacts:
+    """What register's reports (:func:`register_report`, :func:`unregistered`) say of a run besides the
+    person: the extrinsic's result ``reg``, where the guess came from (``init_source``: "tf" |
+    "--init") and the guess ``T_init`` (4,4), whether the map is slam's stored one (``slam_map``; else
+    built from the LiDAR scans), the settings ``cfg``, the run's ``seconds`` so far, its ``timings``
+    (s, by step) and its ``fingerprint`` (:func:`register_fingerprint`)."""
+
+    reg: Registration
+    init_source: str
+    T_init: np.ndarray
+    slam_map: bool
+    cfg: RegisterConfig
+    seconds: float
+    timings: dict
+    fingerprint: str
+
+    @property
+    def map_source(self) -> str:
+        return "slam (map/points)" if self.slam_map else "built from the LiDAR scans"
+
+
+def _summary(scene_id: str, report: dict, seg_summary: dict | None) -> dict:
+    """What :func:`register_scene` returns: the scene's ``report`` less its settings and guess, with the
+    segmentation's summary when there is one."""
+    out = {"scene": scene_id, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
+    if seg_summary:
+        out["segment"] = seg_summary
+    return out
+
+
+class _Registering:
+    """:func:`register_scene` of one scene as named steps sharing their state: the inputs checked and
+    the scene marked unfinished (:meth:`prepare`), the LiDAR half forked beside the camera half
+    (:func:`lidar_half`), 1.-2. the static camera and the map (:meth:`camera_and_map`), 3. the
+    extrinsic (:meth:`extrinsic`; a camera that cannot be registered: :meth:`refuse`), 4. the
+    person's track (:meth:`humans`, :meth:`track`), 5. the surfaces and writes, the segmentation
+    waited for (:meth:`segmentation`). ``timings`` collects each step's seconds."""
+
+    def __init__(self, url: str, scene, init, cfg: RegisterConfig, segment_cfg, quiet: bool, t0: float):
+        self.url, self.scene, self.init, self.cfg, self.segment_cfg, self.quiet, self.t0 = \
+            url, scene, init, cfg, segment_cfg, quiet, t0
+        self.where = f"{url}: scene {scene.id!r}"
+        self.fingerprint = register_fingerprint(scene, cfg, init, segment_cfg)
+        self.resuming = "register" in scene.unfinished    # an interrupted run: its outputs are not to be trusted
+        self.timings: dict = {}
+        self.outputs_touched = False
+
+    @classmethod
+    def open(cls, url: str, scene_id: str | None, init, cfg: RegisterConfig, segment_cfg, quiet: bool) -> _Registering:
+        """The run on scene ``scene_id`` (None: the one scene with a camera) of the dataset at ``url``."""
+        from ...dataset import open_dataset
+        from ..segment import _scene_id
+
+        t0 = time.perf_counter()
+        ds = open_dataset(url)
+        scene = ds.scene(_scene_id(ds, url, scene_id) if scene_id is not None else only_camera_scene(ds, url))
+        scene.require_complete("register")
+        return cls(url, scene, init, cfg, segment_cfg, quiet, t0)
+
+    def run(self) -> dict:
+        self.prepare()
+        # 1.-2. the LiDAR half (segmentation, map) and the camera half (depth images, static depth) are
+        # independent until the extrinsic: side by side in two processes (the LiDAR one quiet)
+        self.stored_map, self.lidar = lidar_half(self.scene, self.cfg, self.segment_cfg, self.processes, self.quiet,
+                                                 self.where)
+        try:
+            static, M = self.camera_and_map()
+            reg = self.extrinsic(static, M)
+            if not reg.accepted:
+                self.refuse(reg)
+            report, seg_summary = self.humans(reg, static, M)
+        except BaseException as err:
+            self.abandon(err)
+            raise
+        return _summary(self.scene.id, report, seg_summary)
+
+    def prepare(self) -> None:
+        """The camera and LiDAR arrays and poses checked before any work starts, the initial guess, and
+        the scene marked unfinished before the first write (lidar/instance, by the LiDAR half), finished
+        with the ``register`` report after the last."""
+        from ...dataset import open_dataset
+        from ..segment import LidarScans
+
+        scene, url = self.scene, self.url
+        release_free_memory()      # (before the forks below)
+        self.cam = CameraFrames.open(scene, url)
+        LidarScans.open(scene, url)
+        self.T_init, self.init_source = initial_guess(scene, url, _parse_init(self.init))
+        self.processes = register_processes(self.cfg)
+        self.sw = open_dataset(url, "r+").scene(scene.id)
+        self.sw.begin("register", rerun=f"rerun holodata register DATASET --scene {scene.id} to finish it")
+
+    def camera_and_map(self):
+        """1.-2.: (the static camera, :class:`~.steps.StaticCamera`; the LiDAR map (M,3) world). InputError
+        when the camera has no point or the map too few."""
         t1 = time.perf_counter()
-        static = static_camera(cam, cfg, quiet)
+        static = static_camera(self.cam, self.cfg, self.quiet)
         if static is None:
-            if stored_map is None:
-                lidar.early()
-            raise InputError(f"{where}: camera/points is empty in every frame")
-        timings["camera_s"], t1 = time.perf_counter() - t1, time.perf_counter()
-        M = stored_map if stored_map is not None else lidar.early()   # (the LiDAR process goes on segmenting)
-        timings["map_wait_s"], t1 = time.perf_counter() - t1, time.perf_counter()
+            if self.stored_map is None:
+                self.lidar.early()
+            raise InputError(f"{self.where}: camera/points is empty in every frame")
+        self.timings["camera_s"], t1 = time.perf_counter() - t1, time.perf_counter()
+        M = self.stored_map if self.stored_map is not None else self.lidar.early()   # (the LiDAR process goes on segmenting)
+        self.timings["map_wait_s"] = time.perf_counter() - t1
         if len(M) < 100:
-            raise InputError(f"{where}: the LiDAR map is empty (no usable scans/poses)")
-        # 3. extrinsic (onto slam's mesh near the camera where it was built from these poses)
-        reg = register_extrinsic(static.points, M, T_init, cfg, sigma=static.sigma,
+            raise InputError(f"{self.where}: the LiDAR map is empty (no usable scans/poses)")
+        return static, M
+
+    def extrinsic(self, static, M: np.ndarray) -> Registration:
+        """3. the extrinsic (onto slam's mesh near the camera where it was built from these poses)."""
+        scene, cfg = self.scene, self.cfg
+        t1 = time.perf_counter()
+        reg = register_extrinsic(static.points, M, self.T_init, cfg, sigma=static.sigma,
                                  mesh=scene_mesh(scene) if cfg.mesh_target else None,
-                                 anchor=slam_anchor(scene) if init_source == "tf" else None)
-        timings["extrinsic_s"], t2 = time.perf_counter() - t1, time.perf_counter()
-        if not reg.accepted:
-            # the scene stays usable (mesh, poses, lidar/instance) and finished, without a person
-            outputs_touched = True
-            line = registration_failure(where, reg, cfg, init_source)
-            report, seg_summary = unregistered(sw, reg, lidar, line, init_source, T_init, stored_map is not None, cfg,
-                                               scene.n_frames, time.perf_counter() - t0, timings, fingerprint)
-            out = {"scene": scene.id, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
-            if seg_summary:
-                out["segment"] = seg_summary
-            raise RegistrationError(line, report=out)
-        T, eye, f_px = reg.T, reg.T[:3, 3], float(cam.K[0, 0])
-        # 4. humans (camera/points_world written by a second process meanwhile)
-        outputs_touched = True
-        clear_outputs(sw, cfg)
-        cam_world = fork_call(camera_world, scene, T, label=f"{where}: camera/points_world",
-                              enabled=processes > 1) if cfg.write_camera_world else None
-        cand = human_candidates(cam, static, M, T, cfg, processes, quiet, where)
+                                 anchor=slam_anchor(scene) if self.init_source == "tf" else None)
+        self.timings["extrinsic_s"], self.t2 = time.perf_counter() - t1, time.perf_counter()
+        return reg
+
+    def facts(self, reg: Registration) -> RegisterFacts:
+        return RegisterFacts(reg, self.init_source, self.T_init, self.stored_map is not None, self.cfg,
+                             time.perf_counter() - self.t0, self.timings, self.fingerprint)
+
+    def refuse(self, reg: Registration) -> None:
+        """The camera cannot be registered: the scene stays usable (mesh, poses, lidar/instance) and
+        finished, without a person (:func:`unregistered`); raises :class:`RegistrationError`."""
+        self.outputs_touched = True
+        line = registration_failure(self.where, reg, self.cfg, self.init_source)
+        report, seg_summary = unregistered(self.sw, self.facts(reg), self.lidar, line, self.scene.n_frames)
+        raise RegistrationError(line, report=_summary(self.scene.id, report, seg_summary))
+
+    def humans(self, reg: Registration, static, M: np.ndarray) -> tuple[dict, dict | None]:
+        """4. the person in every frame (camera/points_world written by a second process meanwhile), 5.
+        their closed surfaces, then the writes and the report. Returns (report, segmentation summary)."""
+        cfg, T = self.cfg, reg.T
+        self.outputs_touched = True
+        clear_outputs(self.sw, cfg)
+        cam_world = fork_call(camera_world, self.scene, T, label=f"{self.where}: camera/points_world",
+                              enabled=self.processes > 1) if cfg.write_camera_world else None
+        cand = human_candidates(self.cam, static, M, T, cfg, self.processes, self.quiet, self.where)
         del static.images
-        timings["candidates_s"] = time.perf_counter() - t2
+        self.timings["candidates_s"] = time.perf_counter() - self.t2
+        picks, columns, shift, cuts = self.track(cand, static, M, T)
+        self.timings["picks_s"] = time.perf_counter() - self.t2 - self.timings["candidates_s"]
+        if cam_world is not None:
+            cam_world()
+        surfaces = all_surfaces(picks.points, columns, shift, T[:3, 3], cfg, self.processes, self.where)
+        self.timings["humans_s"] = time.perf_counter() - self.t2
+        write_outputs(self.sw, surfaces, picks.points, T)
+        seg_summary = self.segmentation()
+        report = register_report(self.facts(reg), surfaces, cand.carved, picks.repicked, shift, cuts)
+        self.sw.finish("register", {"register": report, REGISTER_FAILED: None})
+        return report, seg_summary
+
+    def track(self, cand, static, M: np.ndarray, T: np.ndarray):
+        """4. the person of interest picked from the candidates along its track, each frame's solid behind
+        its front, the frames partly hidden, and each frame's shift (velocity compensation plus track
+        smoothing): (picks, columns, shift (T,3), cuts (T,))."""
+        scene, cfg = self.scene, self.cfg
+        eye, f_px = T[:3, 3], float(self.cam.K[0, 0])
         ts = np.asarray(scene[TIME_TIMESTAMP_NS][...], np.int64)
         cts = np.asarray(scene[CAMERA_TIMESTAMP_NS][...], np.int64) if CAMERA_TIMESTAMP_NS in scene.arrays() else ts
         sigma_a = noise_coefficient(static.med, static.mad)
@@ -162,57 +266,48 @@ def register_scene(url: str, scene_id: str | None = None, init=None, cfg: Regist
         cuts = frame_cuts(picks, static.med, cfg, sigma_a)
         shift = shift + track_smoothing(picks.points, columns, shift, eye, ts, cfg, cuts)
         picks.pixels = []
-        timings["picks_s"] = time.perf_counter() - t2 - timings["candidates_s"]
-        if cam_world is not None:
-            cam_world()
-        # 5. closed surfaces, then the writes
-        surfaces = all_surfaces(picks.points, columns, shift, eye, cfg, processes, where)
-        timings["humans_s"] = time.perf_counter() - t2
-        write_outputs(sw, surfaces, picks.points, T)
+        return picks, columns, shift, cuts
+
+    def segmentation(self) -> dict | None:
+        """The LiDAR half's segmentation of every scan (lidar/instance) waited for: its summary or None."""
         t1 = time.perf_counter()
         seg_summary = None
-        if lidar is not None:
-            _, seg_summary, lidar_timings = lidar()   # the segmentation of every scan (lidar/instance)
-            timings.update(lidar_timings)
-        timings["segment_wait_s"] = time.perf_counter() - t1
-        report = register_report(reg, init_source, T_init, stored_map is not None, surfaces, cand.carved,
-                                 picks.repicked, cfg, shift, time.perf_counter() - t0, timings, fingerprint, cuts)
-        sw.finish("register", {"register": report, REGISTER_FAILED: None})
-    except BaseException as err:
-        if lidar is not None:
-            lidar.join()   # it must not write on after register has failed
-        if isinstance(err, Exception) and not outputs_touched and not resuming:
-            # refused (or failed on an error of its own) before its outputs were touched (lidar/instance,
-            # if written, is whole: its shards committed, the LiDAR process joined): the scene is as
-            # consistent as before, so the failure leaves no mark; an interrupt (Ctrl-C) does
-            sw.finish("register")
-        raise
-    out = {"scene": scene.id, **{k: v for k, v in report.items() if k not in ("params", "T_init")}}
-    if seg_summary:
-        out["segment"] = seg_summary
-    return out
+        if self.lidar is not None:
+            _, seg_summary, lidar_timings = self.lidar()
+            self.timings.update(lidar_timings)
+        self.timings["segment_wait_s"] = time.perf_counter() - t1
+        return seg_summary
+
+    def abandon(self, err: BaseException) -> None:
+        """After ``err``: the LiDAR process joined (it must not write on after register has failed), and
+        the scene's unfinished mark taken back when register was refused (or failed on an error of its
+        own) before its outputs were touched (lidar/instance, if written, is whole: its shards committed,
+        the LiDAR process joined): the scene is as consistent as before, so the failure leaves no mark;
+        an interrupt (Ctrl-C) does."""
+        if self.lidar is not None:
+            self.lidar.join()
+        if isinstance(err, Exception) and not self.outputs_touched and not self.resuming:
+            self.sw.finish("register")
 
 
-def unregistered(sw, reg: Registration, lidar, line: str, init_source: str, T_init: np.ndarray, slam_map: bool,
-                 cfg: RegisterConfig, n_frames: int, seconds: float, timings: dict,
-                 fingerprint: str) -> tuple[dict, dict | None]:
-    """A camera that cannot be registered (``reg`` not accepted; ``line`` the one-line reason,
+def unregistered(sw, facts: RegisterFacts, lidar, line: str, n_frames: int) -> tuple[dict, dict | None]:
+    """A camera that cannot be registered (``facts.reg`` not accepted; ``line`` the one-line reason,
     :func:`registration_failure`) costs the scene its person, not the scene: a previous run's person
     and extrinsic (made from other inputs or settings) are removed, the LiDAR half (``lidar``, or
-    None) finishes the segmentation, and the scene is finished through scene writer ``sw`` with the
-    report in the scene attribute :data:`REGISTER_FAILED` (``registered`` False, ``warning``: ``line``,
-    every attempt's numbers) and no ``register`` attribute (it declares register's outputs). Its mesh
-    and poses stay: raytrace-gt traces it without a person, validate accepts it. Returns (the report,
-    the segmentation summary or None)."""
-    clear_outputs(sw, cfg, calib=True)
+    None) finishes the segmentation, and the scene (``n_frames`` frames) is finished through scene
+    writer ``sw`` with the report in the scene attribute :data:`REGISTER_FAILED` (``registered`` False,
+    ``warning``: ``line``, every attempt's numbers) and no ``register`` attribute (it declares
+    register's outputs). Its mesh and poses stay: raytrace-gt traces it without a person, validate
+    accepts it. Returns (the report, the segmentation summary or None)."""
+    clear_outputs(sw, facts.cfg, calib=True)
     seg_summary = None
     if lidar is not None:
         _, seg_summary, lidar_timings = lidar()
-        timings.update(lidar_timings)
-    report = {"registered": False, "warning": line, "extrinsic": reg.to_attrs(), "init": init_source,
-              "T_init": np.asarray(T_init).tolist(), "map": "slam (map/points)" if slam_map else "built from the LiDAR scans",
-              "frames_with_human": 0, "frames": int(n_frames), "params": cfg.to_attrs(), "seconds": seconds,
-              "timings": timings, "fingerprint": fingerprint}
+        facts.timings.update(lidar_timings)
+    report = {"registered": False, "warning": line, "extrinsic": facts.reg.to_attrs(), "init": facts.init_source,
+              "T_init": np.asarray(facts.T_init).tolist(), "map": facts.map_source,
+              "frames_with_human": 0, "frames": int(n_frames), "params": facts.cfg.to_attrs(), "seconds": facts.seconds,
+              "timings": facts.timings, "fingerprint": facts.fingerprint}
     # (not under ``register``: that attribute declares register's outputs, which validate then requires)
     sw.finish("register", {"register": None, REGISTER_FAILED: report})
     return report, seg_summary
@@ -232,20 +327,22 @@ def stored_report(scene, cfg: RegisterConfig, fingerprint: str) -> dict | None:
     return None
 
 
-def register_report(reg: Registration, init_source: str, T_init: np.ndarray, slam_map: bool, surfaces: list,
-                    carved: np.ndarray, repicked: int, cfg: RegisterConfig, shift: np.ndarray, seconds: float,
-                    timings: dict, fingerprint: str, cuts: np.ndarray) -> dict:
+def register_report(facts: RegisterFacts, surfaces: list, carved: np.ndarray, repicked: int, shift: np.ndarray,
+                    cuts: np.ndarray) -> dict:
     """The scene attribute ``register``: the extrinsic's report, where the guess and the map came
-    from, frames with a person (and those partly hidden, placed from the track: ``frames_cut``, with
-    each frame's cut share ``cut_share``), the settings, timings and the fingerprint."""
+    from (``facts``), frames with a person (``surfaces`` per frame; and those partly hidden, placed
+    from the track: ``frames_cut``, with each frame's cut share ``cut_share`` from ``cuts`` (T,)),
+    the map points the camera sees through (``carved`` (M,) bool), the frames picked again
+    (``repicked``), the largest velocity ``shift`` (T,3) m, the settings, timings and the fingerprint."""
     n = len(surfaces)
     cuts = np.asarray(cuts, float)
-    return {"registered": True, "extrinsic": reg.to_attrs(), "init": init_source, "T_init": np.asarray(T_init).tolist(),
-            "map": "slam (map/points)" if slam_map else "built from the LiDAR scans",
+    cfg = facts.cfg
+    return {"registered": True, "extrinsic": facts.reg.to_attrs(), "init": facts.init_source,
+            "T_init": np.asarray(facts.T_init).tolist(), "map": facts.map_source,
             "frames_with_human": int(sum(len(s[1]) > 0 for s in surfaces)), "frames": n,
             "frames_cut": np.flatnonzero(cuts >= cfg.cut_share).tolist(), "cut_share": np.round(cuts, 3).tolist(),
             "map_points_seen_through": int(carved.sum()), "frames_repicked": repicked, "params": cfg.to_attrs(),
             "surface": "voxel boundary (half-filled voxels) of elliptic per-run columns behind the "
                        "visible front (closed)",
             "velocity_shift_m_max": float(np.nanmax(np.linalg.norm(shift, axis=1))) if n else 0.0,
-            "seconds": seconds, "timings": timings, "fingerprint": fingerprint}
+            "seconds": facts.seconds, "timings": facts.timings, "fingerprint": facts.fingerprint}

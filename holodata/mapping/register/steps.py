@@ -13,10 +13,10 @@ from ...conventions import transform_points
 from ...dataset.layout import CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ...errors import InputError
 from ...parallel import fork_call
-from .camera import (CameraFrames, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
+from .camera import (CameraFrames, ForegroundTest, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
                      static_depth)
 from .config import RegisterConfig, Registration
-from .humans import body_columns, closed_surface, column_centroid, pick_human, silhouette_cut, static_residual
+from .humans import ColumnShape, body_columns, closed_surface, column_centroid, pick_human, silhouette_cut, static_residual
 from .scene_inputs import camera_tf_guess, map_frame_problem
 from .tracks import (cut_prediction, radial_speed, side_back, track_jumps, track_prediction, track_smooth,
                      velocity_shift)
@@ -169,10 +169,10 @@ def human_candidates(cam: CameraFrames, static: StaticCamera, M: np.ndarray, T: 
     always = ~np.isfinite(static.med) | still
     n = cam.scene.n_frames
     half = n // 2 if processes > 1 else n
-    later = fork_call(frame_candidates, cam, range(half, n), T, static.rays, front, always, mtree, cfg, static.images,
+    test = ForegroundTest(T, static.rays, front, always, mtree)
+    later = fork_call(frame_candidates, cam, range(half, n), test, cfg, static.images,
                       label=f"{label}: human candidates", enabled=half < n)
-    cand = frame_candidates(cam, range(half), T, static.rays, front, always, mtree, cfg, static.images, quiet,
-                            f"register {cam.scene.id}")
+    cand = frame_candidates(cam, range(half), test, cfg, static.images, quiet, f"register {cam.scene.id}")
     cand += later()
     return Candidates(cand, carved)
 
@@ -263,8 +263,9 @@ def body_columns_of(picks: Picks, eye: np.ndarray, f_px: float, cts: np.ndarray,
     cen = np.array([p.mean(0) if len(p) else np.full(3, np.nan) for p in picks.points], float)
     walk = cfg.walk_back_frac * np.minimum(1.0, radial_speed(cen, cts, eye, cfg.max_speed_mps) / cfg.walk_back_speed_mps)
     side = side_back(cen, cts, eye, cfg.breadth_m / cfg.thickness_m, cfg.heading_speed_mps, cfg.max_speed_mps)
-    return [body_columns(qh, vh, uh, dh, eye, f_px, cfg.min_thickness_m, cfg.thickness_m, cfg.surface_gap_px,
-                         picks.floor_z, cfg.floor_reach_m, float(walk[k]), float(side[k]))
+    return [body_columns(qh, vh, uh, dh, eye, f_px,
+                         ColumnShape(cfg.min_thickness_m, cfg.thickness_m, cfg.surface_gap_px, cfg.floor_reach_m,
+                                     float(walk[k]), float(side[k])), picks.floor_z)
             for k, (qh, vh, uh, dh) in enumerate(picks.pixels)]
 
 

@@ -230,12 +230,7 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
     valid = np.asarray(valid, bool)
     fg = valid & (~np.asarray(background, bool) if background is not None else True)
     P = np.asarray(points, np.float64)
-    if elev is None:
-        elev = beam_elevations(P, valid)
-    seeds = erode(fg, cfg.erosion, shrink_structure(elev, fg.shape[1]))
-    if cfg.spacing_factor <= 0:
-        elev = None
-    lab, n = flood_fill(P, fg, seeds, cfg.dist_m, cfg.dist_per_m, elev, cfg.spacing_factor)
+    lab, n, elev = _clusters(P, valid, fg, cfg, elev)
     out = np.zeros(fg.shape, np.uint16)
     if n == 0:
         return out
@@ -244,37 +239,8 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
         lab, n = merge_stacked(lab, n, pw, cfg.merge_xy_m, cfg.max_width_m, max_height_m=cfg.max_height_m)
     sel = lab >= 0
     ls, ps = lab[sel], pw[sel]
-    sizes = np.bincount(ls, minlength=n)
-    zmin = np.full(n, np.inf)
-    zmax = np.full(n, -np.inf)
-    np.minimum.at(zmin, ls, ps[:, 2])
-    np.maximum.at(zmax, ls, ps[:, 2])
-    ok = sizes >= cfg.min_points
-    ok &= (zmax - zmin) >= min_height(cfg.min_height_m, elev, P[sel], ls, n)
-    if floor is not None and np.isfinite(cfg.max_height_m):
-        top = np.full(n, -np.inf)
-        hfl = above_floor(floor, ps)
-        np.maximum.at(top, ls, hfl)
-        ok &= top <= cfg.max_height_m
-    cand = np.flatnonzero(ok)
-    depth_check = cfg.min_depth_m is None or cfg.min_depth_m > 0
-    if np.isfinite(cfg.max_width_m) or depth_check:
-        good = []
-        rng = sigma = None
-        for c in cand:
-            q = ps[ls == c]
-            if _plan_extent(q[:, :2]) > cfg.max_width_m:
-                continue
-            if depth_check:
-                if sigma is None:   # measured once per scan, only when a cluster gets this far
-                    rng = np.sqrt((P * P).sum(-1))
-                    sigma = range_noise(rng, valid & ~fg)
-                thin_below = cfg.min_depth_m if cfg.min_depth_m is not None else cfg.min_depth_sigmas * sigma
-                if _thickness(q) < thin_below and surface_share(
-                        rng, valid, lab == c, cfg.surface_sigmas * np.sqrt(6.0) * sigma) > cfg.max_surface_share:
-                    continue
-            good.append(c)
-        cand = np.array(good, np.int64)
+    ok, sizes = _extent_ok(ls, ps, P[sel], n, elev, floor, cfg)
+    cand = _not_flat(np.flatnonzero(ok), lab, ls, ps, P, valid, fg, cfg)
     cand = cand[np.argsort(-sizes[cand], kind="stable")]
     if cfg.max_instances > 0:
         cand = cand[:cfg.max_instances]
@@ -282,6 +248,69 @@ def segment_scan(points: np.ndarray, valid: np.ndarray, background: np.ndarray |
     remap[cand] = np.arange(1, len(cand) + 1, dtype=np.uint16)
     out[sel] = remap[ls]
     return out
+
+
+def _clusters(P: np.ndarray, valid: np.ndarray, fg: np.ndarray, cfg: SegmentConfig, elev: np.ndarray | None):
+    """Steps 3-4 of :func:`segment_scan` on the destaggered grid: seeds by shrinking the foreground
+    ``fg`` (H,W) and the flood fill from them over ``P`` (H,W,3) sensor-frame points. Returns (labels
+    (H,W) int, -1 = none; the number of clusters; the beam elevations (H,) rad the fill's threshold
+    used, None when ``spacing_factor`` is 0)."""
+    if elev is None:
+        elev = beam_elevations(P, valid)
+    seeds = erode(fg, cfg.erosion, shrink_structure(elev, fg.shape[1]))
+    if cfg.spacing_factor <= 0:
+        elev = None
+    lab, n = flood_fill(P, fg, seeds, cfg.dist_m, cfg.dist_per_m, elev, cfg.spacing_factor)
+    return lab, n, elev
+
+
+def _extent_ok(ls: np.ndarray, ps: np.ndarray, p_sensor: np.ndarray, n: int, elev: np.ndarray | None, floor,
+               cfg: SegmentConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5's size and height checks of the ``n`` clusters: labels ``ls`` (N,) of the labelled
+    pixels, their world points ``ps`` (N,3) and sensor-frame points ``p_sensor`` (N,3). Returns ((n,)
+    bool: at least ``min_points`` returns, tall enough (:func:`min_height`) and topping out at most
+    ``max_height_m`` above the ``floor`` plane when given; (n,) sizes)."""
+    sizes = np.bincount(ls, minlength=n)
+    zmin = np.full(n, np.inf)
+    zmax = np.full(n, -np.inf)
+    np.minimum.at(zmin, ls, ps[:, 2])
+    np.maximum.at(zmax, ls, ps[:, 2])
+    ok = sizes >= cfg.min_points
+    ok &= (zmax - zmin) >= min_height(cfg.min_height_m, elev, p_sensor, ls, n)
+    if floor is not None and np.isfinite(cfg.max_height_m):
+        top = np.full(n, -np.inf)
+        hfl = above_floor(floor, ps)
+        np.maximum.at(top, ls, hfl)
+        ok &= top <= cfg.max_height_m
+    return ok, sizes
+
+
+def _not_flat(cand: np.ndarray, lab: np.ndarray, ls: np.ndarray, ps: np.ndarray, P: np.ndarray, valid: np.ndarray,
+              fg: np.ndarray, cfg: SegmentConfig) -> np.ndarray:
+    """The candidate clusters ``cand`` that are person-like in plan: no wider than ``max_width_m`` and
+    not a thin surface (thinner than ``min_depth_m``, or ``min_depth_sigmas`` of the scan's range noise,
+    with most of it on one surface: :func:`surface_share`). ``lab`` (H,W) labels, ``ls``/``ps`` the
+    labelled pixels' labels and world points, ``P`` (H,W,3) sensor-frame points, ``valid``/``fg`` the
+    returns and the foreground."""
+    depth_check = cfg.min_depth_m is None or cfg.min_depth_m > 0
+    if not (np.isfinite(cfg.max_width_m) or depth_check):
+        return cand
+    good = []
+    rng = sigma = None
+    for c in cand:
+        q = ps[ls == c]
+        if _plan_extent(q[:, :2]) > cfg.max_width_m:
+            continue
+        if depth_check:
+            if sigma is None:   # measured once per scan, only when a cluster gets this far
+                rng = np.sqrt((P * P).sum(-1))
+                sigma = range_noise(rng, valid & ~fg)
+            thin_below = cfg.min_depth_m if cfg.min_depth_m is not None else cfg.min_depth_sigmas * sigma
+            if _thickness(q) < thin_below and surface_share(
+                    rng, valid, lab == c, cfg.surface_sigmas * np.sqrt(6.0) * sigma) > cfg.max_surface_share:
+                continue
+        good.append(c)
+    return np.array(good, np.int64)
 
 
 def min_height(min_height_m: float, elev: np.ndarray | None, points: np.ndarray, labels: np.ndarray, n: int

@@ -35,8 +35,7 @@ def background_and_segment(scene, cfg: SegmentConfig | None = None, quiet: bool 
     if not segment:
         return bg, None, kept
     with _segment_stage(scene):
-        return bg, write_instances(scene, cfg, quiet, overwrite, background=bg, world_points=kept, scans=scans,
-                                   traj=traj), kept
+        return bg, write_instances(scene, cfg, quiet, overwrite, masks=InstanceMasks(scans, bg, cfg, traj, kept)), kept
 
 
 def _segment_stage(scene):
@@ -85,17 +84,17 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
 
 
 def write_instances(scene, cfg: SegmentConfig | None = None, quiet: bool = True, overwrite: bool = False,
-                    background=None, world_points: dict | None = None, masks: "InstanceMasks | None" = None,
-                    scans: LidarScans | None = None, traj=None) -> dict:
+                    background=None, world_points: dict | None = None, masks: "InstanceMasks | None" = None) -> dict:
     """Segment every scan of ``scene`` (a read handle; the writes go through a writer opened on its
     dataset) and write ``lidar/instance`` (T,Hl,Wl) uint16 (resumable: finished shards are kept).
     ``background``: a prebuilt model of these scans (else built here); ``world_points``: {frame:
     float32 world points of the valid returns (N,3)} from the pass that built ``background``
     (:func:`background_and_segment`): scans that are :func:`surely_without_foreground` are written
     empty without reading them again (the same result). ``masks``: the :class:`InstanceMasks` of
-    these scans and this background that another user already asked (``holodata register``'s map):
-    the masks it holds are not computed again. ``scans`` / ``traj``: the scene's :class:`LidarScans`
-    and trajectory when the caller has them. Returns a summary {scene, frames, instances_per_scan, ...}."""
+    these scans (which another user may already have asked, ``holodata register``'s map: the masks
+    it holds are not computed again); its scans, trajectory, background and world points are used
+    instead of ``background`` / ``world_points``. Returns a summary {scene, frames,
+    instances_per_scan, ...}."""
     import time
 
     from ...dataset import open_dataset
@@ -103,14 +102,14 @@ def write_instances(scene, cfg: SegmentConfig | None = None, quiet: bool = True,
     cfg = cfg or SegmentConfig()
     t0 = time.perf_counter()
     sid = scene.id
-    if scans is None:
+    if masks is not None:
+        scans, bg = masks.scans, masks.bg
+    else:
         scans = LidarScans.open(scene, scene.ds.url)
-    if traj is None:
         traj = scans.trajectory()
-    if background is None:
-        background, world_points = _background_pass(scans, cfg, traj, quiet, keep=True)
-    bg = background
-    world_points = world_points or {}
+        if background is None:
+            background, world_points = _background_pass(scans, cfg, traj, quiet, keep=True)
+        bg = background
     sw = open_dataset(scene.ds.url, "r+").scene(sid)
     poses = pose_fingerprint(scene)
     if INSTANCE_ARRAY in sw.arrays() and (overwrite or instance_state(scene) == "stale"):
@@ -120,7 +119,7 @@ def write_instances(scene, cfg: SegmentConfig | None = None, quiet: bool = True,
                                 "values": "0 = background or no return; 1..n instances by decreasing size",
                                 "params": cfg.to_attrs(), "background_voxels": int(len(bg)), "poses_sha256": poses})
     counts = []
-    masks = masks or InstanceMasks(scans, bg, cfg, traj, world_points)
+    masks = masks or InstanceMasks(scans, bg, cfg, traj, world_points or {})
     for s in track(range(arr.n_shards), arr.n_shards, f"segment {sid}", quiet):
         sl = arr.frames(s)
         if arr.is_done(s):

@@ -59,11 +59,11 @@ optional exports.
 from __future__ import annotations
 
 # ``name as name``: importable from the package since its code lived here, kept so; not in __all__
-from .config import Scans, SlamConfig, SlamResult
+from .config import Scans, SlamConfig, SlamOutputs, SlamResult
 from .scans import (_import_in_background as _import_in_background, _StreamBroken as _StreamBroken, data_max_range,
                     load_scans, stream_scans)
 from .odometry import KissStream as KissStream, _Fixed as _Fixed, deskew, kiss_odometry, twist
-from .refine import global_refine, mesh_scan_subset, refine
+from .refine import RefineOptions, global_refine, mesh_scan_subset, refine
 from .store import (_fingerprint as _fingerprint, _stored_result as _stored_result, _write as _write,
                     write_static_map)
 from .localise import MAPPING_ROLE, check_map_scene, localise_scene
@@ -74,8 +74,8 @@ from .pipeline import (_export as _export, _odometry as _odometry, _only_scene a
 from .entry import own_mapping_pass as own_mapping_pass, slam_dataset, slam_scene
 
 
-__all__ = ["SlamConfig", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans", "kiss_odometry", "refine",
-           "global_refine",
+__all__ = ["SlamConfig", "SlamOutputs", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans",
+           "kiss_odometry", "refine", "RefineOptions", "global_refine",
            "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "tf_lidar_poses", "frame_poses",
            "localise_scene", "check_map_scene", "recording_tf_poses", "guess_poses", "MAPPING_ROLE", "stream_scans",
            "data_max_range", "mesh_scan_subset"]

@@ -1,7 +1,9 @@
-"""Settings and results of ``holodata slam``: :class:`SlamConfig`, :class:`Scans`, :class:`SlamResult`."""
+"""Settings and results of ``holodata slam``: :class:`SlamConfig`, :class:`SlamOutputs`, :class:`Scans`,
+:class:`SlamResult`."""
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -106,6 +108,19 @@ class SlamConfig:
         d = asdict(self)
         d["icp_distances"] = list(self.icp_distances)
         return d
+
+
+@dataclass(frozen=True)
+class SlamOutputs:
+    """What slam does with a scene's result: ``write`` it into the scene (poses, mesh, map and the
+    ``slam`` attribute); a scene already done with the same inputs and settings is not recomputed for
+    writing unless ``force`` (its stored result comes back); export the LiDAR trajectory as TUM text
+    (``tum``, a path or None) and the mesh as PLY (``ply``)."""
+
+    write: bool = True
+    force: bool = False
+    tum: str | Path | None = None
+    ply: str | Path | None = None
 
 
 @dataclass

@@ -10,13 +10,13 @@ import numpy as np
 from ...conventions import rotation_angle_deg
 from ...errors import DatasetError, InputError
 from ...geometry.voxels import first_per_voxel
-from .config import SlamConfig, SlamResult
+from .config import SlamConfig, SlamOutputs, SlamResult
 from .odometry import KissStream, _Fixed
 from .pipeline import _export, run_slam
 from .points import _o3d_cloud
-from .refine import VoxelMap, _TargetCache, icp, refine
+from .refine import RefineOptions, VoxelMap, _TargetCache, icp, refine
 from .scans import _import_in_background, data_max_range, load_scans
-from .store import _fingerprint, _stored_result, _write
+from .store import SlamRecord, _fingerprint, _stored_result, _write
 from .world import anchor_pose, frame_poses, guess_poses
 from ...dataset.layout import LIDAR_POINTS, MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 
@@ -62,8 +62,7 @@ def localise_first(points: np.ndarray, vmap: VoxelMap, guess: np.ndarray, cfg: S
 
 
 def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config: SlamConfig = SlamConfig(),
-                   mesh_config=None, quiet: bool = False, write: bool = True, tum=None, ply=None,
-                   force: bool = False) -> SlamResult:
+                   mesh_config=None, quiet: bool = False, outputs: SlamOutputs = SlamOutputs()) -> SlamResult:
     """Localisation mode of ``holodata slam`` (``--map-scene``): the map first, then the data.
 
     1. ``map_scene`` (a mapping pass of the same corner, no person: its own LiDAR-only scene) gets
@@ -93,21 +92,21 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     t0 = time.perf_counter()
     # (seeded by its odometry/TF where it has them: a mapping pass is often throttled to a few scans a second)
     mres = run_slam(dataset_url, map_scene, config=replace(config, seed_poses="tf"), mesh_config=mesh_config,
-                    quiet=quiet, write=write, force=force)
+                    quiet=quiet, outputs=replace(outputs, tum=None, ply=None))
     timings["map_scene_s"] = time.perf_counter() - t0
     ds = open_dataset(dataset_url)
     mscene, scene = ds.scene(map_scene), ds.scene(scene_id)
     scene.require_complete("slam")
-    if write:
+    if outputs.write:
         _mark_mapping_scene(dataset_url, mscene, scene_id)
     if mres.map_points is None or mres.mesh is None:
         raise DatasetError(f"{dataset_url}: map scene {map_scene!r} has no static map (run slam with a mesh)")
     manchor = dict((mscene.attrs.get("slam") or {}).get("anchor") or {})
     fp = _fingerprint(scene, config, mesh_config) + "-map-" + str((mscene.attrs.get("slam") or {}).get("fingerprint"))
     done = scene.attrs.get("slam") or {}
-    if (write and not force and done.get("complete") and done.get("fingerprint") == fp
+    if (outputs.write and not outputs.force and done.get("complete") and done.get("fingerprint") == fp
             and POSE_T_WORLD_LIDAR in scene and MESH_FACES in scene and MAP_POINTS in scene):
-        return _export(_stored_result(scene, done), tum, ply)   # done before: the exports still asked for
+        return _export(_stored_result(scene, done), outputs.tum, outputs.ply)   # done before: the exports still asked for
     release_free_memory()
     imports = _import_in_background(("open3d",))
     t0 = time.perf_counter()
@@ -115,8 +114,7 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
     timings["read_s"] = time.perf_counter() - t0
     imports.join()
     max_range = float(config.max_range or data_max_range(scans))
-    poses, health = _localise(scene, scans, mres.map_points, config, max_range, quiet, timings,
-                              f"{dataset_url}: scene {scene_id!r}", map_scene)
+    poses, health = _localise(scene, scans, mres, config, max_range, quiet, timings, f"{dataset_url}: scene {scene_id!r}")
     Tl, Tr, finfo = frame_poses(scene, scans, poses)
     timings = {k: round(v, 3) for k, v in timings.items()}
     anchor = {**manchor, "map_scene": map_scene}
@@ -127,10 +125,10 @@ def localise_scene(dataset_url, scene_id: str | None, map_scene: str, *, config:
                "mesh": {"from_map_scene": map_scene, "faces": int(len(mres.mesh[1]))}, "timings": timings,
                "fingerprint": fp}
     res = SlamResult(scene_id, scans.stamp_ns.copy(), poses, None, None, Tl, Tr, mres.mesh, summary, mres.map_points)
-    if write:
-        _write(dataset_url, ds, scene_id, res, replace(config, mesh=True), mesh_config, anchor, finfo, fp,
-               mode={"mode": "localisation", "map_scene": map_scene})
-    _export(res, tum, ply)
+    if outputs.write:
+        _write(dataset_url, ds, res, SlamRecord(replace(config, mesh=True), mesh_config, anchor, fp, finfo,
+                                                mode={"mode": "localisation", "map_scene": map_scene}))
+    _export(res, outputs.tum, outputs.ply)
     summary["timings"]["total_s"] = round(time.perf_counter() - t_all, 3)
     return res
 
@@ -160,13 +158,14 @@ def _mark_mapping_scene(url, mscene, scene_id: str) -> None:
         w.scene(mscene.id).set_attrs({"role": MAPPING_ROLE, "mapping_for": for_})
 
 
-def _localise(scene, scans, map_points: np.ndarray, config: SlamConfig, max_range: float, quiet: bool, timings: dict,
-              where: str, map_scene: str) -> tuple[np.ndarray, dict]:
-    """Step 2 of :func:`localise_scene`: the scans' poses (S,4,4) against the fixed map of
-    ``map_points`` and the localisation's health figures. DatasetError when the first scan does not
-    localise (``where``: the dataset and scene)."""
+def _localise(scene, scans, mres: SlamResult, config: SlamConfig, max_range: float, quiet: bool, timings: dict,
+              where: str) -> tuple[np.ndarray, dict]:
+    """Step 2 of :func:`localise_scene`: the scans' poses (S,4,4) against the fixed map of the map
+    scene's result ``mres`` (its ``map_points``) and the localisation's health figures. DatasetError
+    when the first scan does not localise (``where``: the dataset and scene)."""
+    map_scene = mres.scene
     t0 = time.perf_counter()
-    vmap = map_target(map_points, config)
+    vmap = map_target(mres.map_points, config)
     timings["map_target_s"] = time.perf_counter() - t0
     guess, guess_src = guess_poses(scene, scans)
     t0 = time.perf_counter()
@@ -182,7 +181,8 @@ def _localise(scene, scans, map_points: np.ndarray, config: SlamConfig, max_rang
                            f"{map_scene!r} (fitness {fit0:.2f} < {config.min_fitness} from the {guess_src} guess)")
     D = np.linalg.inv(g0) @ T0
     if len(scans) > 1:
-        poses, h = refine(scans, init, config, max_range, quiet=quiet, T0=T0, vmap=vmap, grow_map=False)
+        poses, h = refine(scans, init, config, max_range, quiet=quiet,
+                          options=RefineOptions(T0=T0, vmap=vmap, grow_map=False))
     else:
         poses, h = T0[None].copy(), {"fitness": np.array([fit0]), "rmse": np.array([rmse0]), "kiss_fallbacks": 0,
                                      "still_scans": 0, "kiss_scans": 0}

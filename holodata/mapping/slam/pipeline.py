@@ -6,17 +6,16 @@ localisation mode on its map scene)."""
 from __future__ import annotations
 
 import time
-from pathlib import Path
 
 import numpy as np
 
 from ...errors import InputError
 from ...trajectory import Trajectory, write_tum
-from .config import Scans, SlamConfig, SlamResult
+from .config import Scans, SlamConfig, SlamOutputs, SlamResult
 from .scans import _import_in_background, _StreamBroken, data_max_range, load_scans, stream_scans
 from .odometry import KissStream, _Fixed, kiss_odometry
-from .refine import global_refine, refine
-from .store import _fingerprint, _stored_result, _write
+from .refine import RefineOptions, global_refine, refine
+from .store import SlamRecord, _fingerprint, _stored_result, _write
 from .world import anchor_pose, frame_poses, guess_poses, level_tf_poses, static_mesh, tf_agreement
 from ...dataset.layout import MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 
@@ -43,7 +42,8 @@ def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: di
         # kiss-icp and the refinement in one pass: kiss-icp is fed only the scans where the robot moves
         t0 = time.perf_counter()
         ks = KissStream(scans, config, max_range) if guess is None else _Fixed(guess, seed=True)
-        poses, h1 = refine(scans, ks, config, max_range, quiet=quiet, T0=T0, ready=ready, vertical=vertical)
+        poses, h1 = refine(scans, ks, config, max_range, quiet=quiet,
+                           options=RefineOptions(T0=T0, ready=ready, vertical=vertical))
         K, kref = ks.poses, (ks.ref if guess is None else scans.stamp_ns.copy())
         timings["kiss_icp_s"] = h1["kiss_s"]
         timings["refine_s"] = time.perf_counter() - t0 - h1["kiss_s"]
@@ -79,8 +79,7 @@ def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: di
 
 
 def run_slam(dataset_url, scene_id: str | None = None, *, config: SlamConfig = SlamConfig(), mesh_config=None,
-             quiet: bool = False, write: bool = True, tum: str | Path | None = None, ply: str | Path | None = None,
-             force: bool = False) -> SlamResult:
+             quiet: bool = False, outputs: SlamOutputs = SlamOutputs()) -> SlamResult:
     """:func:`~holodata.mapping.slam.entry.slam_scene` without a map scene: SLAM proper on one scene of
     the dataset at ``dataset_url`` (``scene_id`` None: its only scene), its arguments and result. The
     localisation mode runs it on the map scene first (:func:`~.localise.localise_scene`)."""
@@ -96,9 +95,9 @@ def run_slam(dataset_url, scene_id: str | None = None, *, config: SlamConfig = S
     scene.require_complete("slam")
     fp = _fingerprint(scene, config, mesh_config if config.mesh else None)
     done = scene.attrs.get("slam") or {}
-    if (write and not force and done.get("complete") and done.get("fingerprint") == fp
+    if (outputs.write and not outputs.force and done.get("complete") and done.get("fingerprint") == fp
             and POSE_T_WORLD_LIDAR in scene and (not config.mesh or (MESH_FACES in scene and MAP_POINTS in scene))):
-        return _export(_stored_result(scene, done), tum, ply)
+        return _export(_stored_result(scene, done), outputs.tum, outputs.ply)
     timings: dict = {}
     health: dict = {}
     scans, (max_range, T0, anchor, poses, K, kref, background) = _scans_and_poses(scene, config, health, timings, quiet)
@@ -118,9 +117,9 @@ def run_slam(dataset_url, scene_id: str | None = None, *, config: SlamConfig = S
     if agree is not None:
         summary["tf_agreement"] = agree
     res = SlamResult(scene.id, scans.stamp_ns.copy(), poses, K, kref, Tl, Tr, mesh, summary, map_points)
-    if write:
-        _write(dataset_url, ds, scene.id, res, config, mesh_config, anchor, finfo, fp)
-    _export(res, tum, ply)
+    if outputs.write:
+        _write(dataset_url, ds, res, SlamRecord(config, mesh_config, anchor, fp, finfo))
+    _export(res, outputs.tum, outputs.ply)
     summary["timings"]["total_s"] = round(time.perf_counter() - t_all, 3)
     return res
 

@@ -2,11 +2,13 @@
 (:func:`refine`, :func:`global_refine`), with the vertical taken from level seeds where given."""
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
 from ...conventions import rotation_angle_deg, transform_directions, transform_points
-from ...geometry.icp import gauss_newton_step, open3d_icp, tukey_weights
+from ...geometry.icp import StepRule, gauss_newton_step, open3d_icp, tukey_weights
 from ...geometry.voxels import first_per_voxel, voxel_index, voxel_keys
 from ...progress import track
 from .config import Scans, SlamConfig
@@ -109,7 +111,7 @@ def _gn_step(p: np.ndarray, q: np.ndarray, n: np.ndarray, centre: np.ndarray, k:
     (:func:`holodata.geometry.gauss_newton_step`). None when the system is ill-conditioned (cond >
     :data:`MAX_REST_COND`)."""
     r = np.einsum("ij,ij->i", p - q, n)
-    step = gauss_newton_step(p, n, r, tukey_weights(r, k), centre, max_cond=MAX_REST_COND)
+    step = gauss_newton_step(p, n, r, tukey_weights(r, k), centre, rule=StepRule(max_cond=MAX_REST_COND))
     return None if step is None else step.y
 
 
@@ -121,8 +123,10 @@ class _SameBeam:
     """The map rest check (:func:`_at_rest`) with its correspondences cached per beam (organised scans,
     :attr:`Scans.pixels`).
 
-    Built from a scan ``a`` that passed the map check at the held pose ``T``: for at most
-    ``max_points`` of its returns (evenly spread in row-major order) the map point nearest to the
+    Built from a scan ``a`` (``points`` (N,3) sensor frame, their flat ``pixels`` (N,) of ``n_pixels``)
+    that passed the map check (``target``: tree, points, normals) at the held pose ``T``; ``max_points``,
+    ``scale`` and ``min_share`` are ``cfg``'s ``same_beam_points``, ``same_beam_scale`` and
+    ``same_beam_share``. For at most ``max_points`` of its returns (evenly spread in row-major order) the map point nearest to the
     return (within the finest ICP distance) and its normal, in the sensor frame at ``T``, are kept per
     pixel. While the robot stands, a pixel keeps seeing the same surface, so a later scan ``i`` needs
     no nearest-neighbour search and no downsampling: its return in the same pixel goes with that
@@ -138,8 +142,9 @@ class _SameBeam:
     the beams to the map check (``docs/design/slam.md``: how many scans it decides, and how well)."""
 
     def __init__(self, points: np.ndarray, pixels: np.ndarray, target, T: np.ndarray, cfg: SlamConfig,
-                 n_pixels: int, max_points: int, scale: float, min_share: float):
+                 n_pixels: int):
         tree, tp, tn = target
+        max_points, scale, min_share = cfg.same_beam_points, cfg.same_beam_scale, cfg.same_beam_share
         self.d = float(min(cfg.icp_distances))
         self.k = self.d * cfg.tukey_k
         self.min_share, self.min_fitness = min_share, cfg.min_fitness
@@ -185,138 +190,216 @@ def icp(src_pts: np.ndarray, target, init: np.ndarray, cfg: SlamConfig, distance
                       relative_rmse=max(cfg.icp_converged_m, MIN_RELATIVE_RMSE), min_correspondences=MIN_CORRESPONDENCES)
 
 
-def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True, T0: np.ndarray | None = None,
-           ready=None, vmap: "VoxelMap | None" = None, grow_map: bool = True,
-           vertical: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+@dataclass
+class RefineOptions:
+    """How :func:`refine` starts and what it holds to, besides the scans and their initial poses:
+    ``T0`` the pose of the first scan (None: the initial poses'); ``ready(i)``: called before scan i
+    is used (scans still being read, :func:`stream_scans`); ``vmap``: start from this map (world
+    frame) instead of an empty one, and with ``grow_map`` False never add the scans to it
+    (localisation against a fixed map); ``vertical``: (S,4,4) world poses of a ground robot's level
+    odometry (:func:`level_seeds`) whose height, roll and pitch the refined poses take
+    (:func:`with_vertical_of`); level seeds give them when None."""
+
+    T0: np.ndarray | None = None
+    ready: Callable[[int], object] | None = None
+    vmap: VoxelMap | None = None
+    grow_map: bool = True
+    vertical: np.ndarray | None = None
+
+
+def refine(scans: Scans, init, cfg: SlamConfig, max_range: float, quiet: bool = True,
+           options: RefineOptions | None = None) -> tuple[np.ndarray, dict]:
     """Scan-to-map refinement (see module doc) of initial poses ``init``: (S,4,4) at the scan stamps,
     or a :class:`KissStream` asked for a scan's kiss-icp pose only when the robot is not at rest (its
-    relative motion seeds the ICP; scans at rest are never fed to it). ``T0``: pose of the first scan
-    (default ``init``'s); ``ready(i)``: called before scan i is used (scans still being read,
-    :func:`stream_scans`); ``vmap``: start from this map (world frame) instead of an empty one, and
-    with ``grow_map`` False never add the scans to it (localisation against a fixed map);
-    ``vertical``: (S,4,4) world poses of a ground robot's level odometry (:func:`level_seeds`) whose
-    height, roll and pitch the refined poses take (:func:`with_vertical_of`); level seeds give them
-    when None. Returns the refined (S,4,4) poses and health figures (fitness, rmse per scan)."""
-    S = len(scans)
-    t_s = (scans.stamp_ns - scans.stamp_ns[0]).astype(np.float64) * 1e-9
-    stream = _Fixed(np.asarray(init, np.float64)) if isinstance(init, np.ndarray) else init
-    # odometry seeds (_Fixed(seed=True)): deskew with their motion about each scan, not the last step's
-    seed_twist = twists_central(stream.poses, scans.stamp_ns) if getattr(stream, "seed", False) else None
-    # planar seeds (wheel odometry on a level floor): height, roll and pitch follow them, not the ICP
-    vertical_from = "tf" if vertical is not None else None
-    if vertical is None and seed_twist is not None and level_seeds(stream.poses):
-        vertical = (stream.poses[0] if T0 is None else T0) @ np.linalg.inv(stream.poses[0]) @ stream.poses
-        vertical_from = "seeds"
-    init = stream.poses
-    poses = np.zeros((S, 4, 4))
-    poses[0] = stream.pose(0)
-    if T0 is not None:
-        poses[0] = T0
-    use_t = cfg.deskew and scans.times is not None
-    vmap = vmap if vmap is not None else VoxelMap(cfg.map_voxel)
-    fit = np.zeros(S)
-    rmse = np.zeros(S)
-    xi_prev = np.zeros(6)
-    # each scan is registered at the middle of its sweep (mid[i], deskewed to tc s after the stamp), where
-    # an error of the deskew twist distorts it symmetrically and biases the pose least; poses[i] at the
-    # stamp follows through the twist (docs/design/slam.md: yaw drift on a 10 Hz sparse LiDAR)
-    mid = np.zeros((S, 4, 4))
-    tc = 0.0
-    fallbacks = 0
-    last_key, keyframes, still, anchor = None, 0, 0, 0
-    beams = cfg.same_beam and scans.pixels is not None and scans.grid is not None
-    n_pix = int(np.prod(scans.grid)) if beams else 0
-    same, same_beam = None, 0   # _SameBeam reference of the current anchor pose, scans it found at rest
-    target = _TargetCache(max_range + TARGET_MARGIN_M)
-    def in_range(p):   # (N,) bool: returns within [min_range, max_range] of the sensor
-        r2 = np.einsum("ij,ij->i", p, p)
-        return (r2 >= cfg.min_range ** 2) & (r2 <= max_range ** 2)
+    relative motion seeds the ICP; scans at rest are never fed to it); ``options``
+    (:class:`RefineOptions`): the first pose, the map to start from, the vertical to hold to. Returns
+    the refined (S,4,4) poses and health figures (fitness, rmse per scan). The steps are
+    :class:`_Refiner`'s."""
+    return _Refiner(scans, init, cfg, max_range, options or RefineOptions()).run(quiet)
 
-    def ranged(p, t):
+
+class _Refiner:
+    """:func:`refine` as named steps sharing their state, scan by scan (:meth:`step`): the rest check
+    (:meth:`at_rest`: beam by beam, :class:`_SameBeam`, else against the map, :meth:`_map_rest`); a scan
+    at rest holds the last refined pose (:meth:`hold`); any other is deskewed (:meth:`source`),
+    registered to the map (:meth:`register`) and, when it moved far enough, added to it
+    (:meth:`grow`).
+
+    Each scan is registered at the middle of its sweep (``mid[i]``, deskewed to tc s after the stamp),
+    where an error of the deskew twist distorts it symmetrically and biases the pose least;
+    ``poses[i]`` at the stamp follows through the twist (docs/design/slam.md: yaw drift on a 10 Hz
+    sparse LiDAR)."""
+
+    def __init__(self, scans: Scans, init, cfg: SlamConfig, max_range: float, options: RefineOptions):
+        S = len(scans)
+        self.scans, self.cfg, self.max_range = scans, cfg, max_range
+        self.ready, self.grow_map = options.ready, options.grow_map
+        self.t_s = (scans.stamp_ns - scans.stamp_ns[0]).astype(np.float64) * 1e-9
+        self._seeds(init, options.T0, options.vertical)
+        self.init = self.stream.poses
+        self.poses = np.zeros((S, 4, 4))
+        self.poses[0] = self.stream.pose(0)
+        if options.T0 is not None:
+            self.poses[0] = options.T0
+        self.use_t = cfg.deskew and scans.times is not None
+        self.vmap = options.vmap if options.vmap is not None else VoxelMap(cfg.map_voxel)
+        self.fit, self.rmse, self.mid = np.zeros(S), np.zeros(S), np.zeros((S, 4, 4))
+        self.xi_prev = np.zeros(6)
+        self.fallbacks, self.keyframes, self.still, self.anchor = 0, 0, 0, 0
+        self.last_key = None
+        self.beams = cfg.same_beam and scans.pixels is not None and scans.grid is not None
+        self.n_pix = int(np.prod(scans.grid)) if self.beams else 0
+        self.same, self.same_beam = None, 0   # _SameBeam reference of the current anchor pose, scans it found at rest
+        self.target = _TargetCache(max_range + TARGET_MARGIN_M)
+
+    def _seeds(self, init, T0: np.ndarray | None, vertical: np.ndarray | None) -> None:
+        """The initial poses as a stream; odometry seeds (_Fixed(seed=True)) deskew with their motion about
+        each scan, not the last step's; planar seeds (wheel odometry on a level floor): height, roll and
+        pitch follow them, not the ICP."""
+        stream = _Fixed(np.asarray(init, np.float64)) if isinstance(init, np.ndarray) else init
+        self.seed_twist = twists_central(stream.poses, self.scans.stamp_ns) if getattr(stream, "seed", False) else None
+        self.vertical_from = "tf" if vertical is not None else None
+        if vertical is None and self.seed_twist is not None and level_seeds(stream.poses):
+            vertical = (stream.poses[0] if T0 is None else T0) @ np.linalg.inv(stream.poses[0]) @ stream.poses
+            self.vertical_from = "seeds"
+        self.stream, self.vertical = stream, vertical
+
+    def run(self, quiet: bool) -> tuple[np.ndarray, dict]:
+        S = len(self.scans)
+        for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
+            if self.ready is not None:
+                self.ready(i)
+            self.step(i)
+        return self.poses, self.health()
+
+    def in_range(self, p: np.ndarray) -> np.ndarray:
+        """(N,) bool: returns within [min_range, max_range] of the sensor."""
+        r2 = np.einsum("ij,ij->i", p, p)
+        return (r2 >= self.cfg.min_range ** 2) & (r2 <= self.max_range ** 2)
+
+    def ranged(self, p, t):
         p = np.asarray(p, np.float64)
-        keep = in_range(p)
+        keep = self.in_range(p)
         return p[keep], (t[keep] if t is not None else None)
 
-    for i in track(range(S), total=S, description="slam: refine (scan-to-map)", quiet=quiet):
-        if ready is not None:
-            ready(i)
-        xi = xi_prev if i > 0 else np.zeros(6)
-        if seed_twist is not None:
-            xi = seed_twist[i]
-        raw_t = scans.times[i] if use_t else None
-        if (i > 0 and not _moved(poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5)
-                and (not isinstance(stream, _Fixed) or not _moved(init[anchor], init[i], cfg.still_m, cfg.still_deg))):
-            at_rest = False
-            pix = scans.pixels[i] if beams else None
-            if same is not None and pix is not None:
-                # beam by beam against the last scan that passed the map check at this pose (_SameBeam)
-                at_rest = same.at_rest(scans.points[i], pix, in_range(scans.points[i]))
-                same_beam += at_rest
-            if not at_rest:
-                # rest check on the ICP source voxels (no deskew: the robot was at rest or nearly)
-                rest, _ = ranged(scans.points[i][first_per_voxel(scans.points[i], cfg.source_voxel)], None)
-                tgt_tree = target.tree(vmap, poses[anchor][:3, 3])
-                at_rest = _at_rest(rest, tgt_tree, poses[anchor], cfg)
-                if at_rest and pix is not None:
-                    p = np.asarray(scans.points[i], np.float64)
-                    keep = in_range(p)
-                    same = _SameBeam(p[keep], pix[keep], tgt_tree, poses[anchor], cfg, n_pix, cfg.same_beam_points,
-                                     cfg.same_beam_scale, cfg.same_beam_share)
-        else:
-            at_rest = False
+    def step(self, i: int) -> None:
+        xi = self.xi_prev if i > 0 else np.zeros(6)
+        if self.seed_twist is not None:
+            xi = self.seed_twist[i]
+        at_rest = self.at_rest(i)
         if not at_rest:
-            pts, tm = ranged(scans.points[i], raw_t)
-            # deskew only the downsampled points that are used (ICP source, map keyframe)
-            i_src = first_per_voxel(pts, cfg.source_voxel)
-            tc = 0.5 * float(tm.min() + tm.max()) if use_t and len(tm) else 0.0
-            if use_t:
-                tm = tm - tc
-            src = deskew(pts[i_src], tm[i_src], xi) if use_t else pts[i_src]
+            pts, tm, src, tc = self.source(i, xi)
         if i == 0:
-            T = Tc = poses[0]     # (no twist yet: the middle is the stamp's pose)
+            T = Tc = self.poses[0]     # (no twist yet: the middle is the stamp's pose)
             f, e = 1.0, 0.0
         elif at_rest:
-            # at rest: the last step was small, one point-to-plane Gauss-Newton step of this scan from the
-            # last refined pose against the map is below still_check_m / still_check_deg (and, with given
-            # initial poses, they moved less than still_m since) -> hold that pose; no ICP, no kiss-icp
-            stream.hold(i)
-            T, f, e = poses[anchor].copy(), float(fit[anchor]), float(rmse[anchor])
-            Tc = T
-            still += 1
-            xi = np.zeros(6)
+            T, Tc, f, e, xi = self.hold(i)
         else:
-            guess = poses[i - 1] @ (np.linalg.inv(init[i - 1]) @ stream.pose(i))
-            tgt = target.cloud(vmap, guess[:3, 3])
-            guess = guess @ advance(xi, tc)     # the guess at the middle of the sweep
-            Tc, f, e = icp(src, tgt, guess, cfg)
-            if f < cfg.min_fitness:  # too few scan points near the map (sparse, far, outdoor): trust kiss-icp
-                Tc = guess
-                fallbacks += 1
-            if vertical is not None:
-                Tc = with_vertical_of(Tc, vertical[i])
-            if seed_twist is None:   # the motion between the middles of the two sweeps
-                xi = twist(mid[i - 1], Tc, t_s[i] - t_s[i - 1])
-            T = Tc @ advance(xi, -tc)
-            if vertical is not None:
-                T = with_vertical_of(T, vertical[i])
-            anchor = i
-            same = None
-        poses[i], mid[i] = T, Tc
-        fit[i], rmse[i] = f, e
-        xi_prev = xi
-        if grow_map and not at_rest and (last_key is None or _moved(last_key, T, cfg.map_keyframe_m, cfg.map_keyframe_deg)):
-            i_map = first_per_voxel(pts, cfg.map_voxel)
-            dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if use_t else pts[i_map], cfg.scan_normal_radius,
-                                  cfg.scan_normal_nn)
-            vmap.add(transform_points(Tc, dp), transform_directions(Tc, dn))
-            last_key = T
-            keyframes += 1
-    health = {"fitness": fit, "rmse": rmse, "map_points": int(len(vmap.points)), "kiss_fallbacks": fallbacks,
-              "vertical_from": vertical_from,
-              "map_keyframes": keyframes, "still_scans": still, "still_same_beam": same_beam,
-              "kiss_scans": int(stream.fed),
-              "kiss_s": float(stream.seconds)}
-    return poses, health
+            T, Tc, f, e, xi = self.register(i, src, xi, tc)
+        self.poses[i], self.mid[i] = T, Tc
+        self.fit[i], self.rmse[i] = f, e
+        self.xi_prev = xi
+        if (self.grow_map and not at_rest
+                and (self.last_key is None or _moved(self.last_key, T, self.cfg.map_keyframe_m, self.cfg.map_keyframe_deg))):
+            self.grow(pts, tm, xi, Tc, T)
+
+    def at_rest(self, i: int) -> bool:
+        """Whether scan ``i`` is at rest: the last step was small (and, with given initial poses, they
+        moved less than ``still_m`` since the anchor), and the scan passes the rest check beam by beam
+        against the last scan that passed the map check at this pose (:class:`_SameBeam`) or against the
+        map (:meth:`_map_rest`)."""
+        poses, cfg, scans = self.poses, self.cfg, self.scans
+        if not (i > 0 and not _moved(poses[i - 2] if i > 1 else poses[0], poses[i - 1], cfg.still_m * 5, cfg.still_deg * 5)
+                and (not isinstance(self.stream, _Fixed)
+                     or not _moved(self.init[self.anchor], self.init[i], cfg.still_m, cfg.still_deg))):
+            return False
+        at_rest = False
+        pix = scans.pixels[i] if self.beams else None
+        if self.same is not None and pix is not None:
+            at_rest = self.same.at_rest(scans.points[i], pix, self.in_range(scans.points[i]))
+            self.same_beam += at_rest
+        if not at_rest:
+            at_rest = self._map_rest(i, pix)
+        return at_rest
+
+    def _map_rest(self, i: int, pix: np.ndarray | None) -> bool:
+        """The rest check on the ICP source voxels (no deskew: the robot was at rest or nearly) against the
+        map at the anchor pose; a scan that passes it becomes the beam-by-beam reference."""
+        cfg, scans, T = self.cfg, self.scans, self.poses[self.anchor]
+        rest, _ = self.ranged(scans.points[i][first_per_voxel(scans.points[i], cfg.source_voxel)], None)
+        tgt_tree = self.target.tree(self.vmap, T[:3, 3])
+        at_rest = _at_rest(rest, tgt_tree, T, cfg)
+        if at_rest and pix is not None:
+            p = np.asarray(scans.points[i], np.float64)
+            keep = self.in_range(p)
+            self.same = _SameBeam(p[keep], pix[keep], tgt_tree, T, cfg, self.n_pix)
+        return at_rest
+
+    def source(self, i: int, xi: np.ndarray):
+        """Scan ``i``'s returns in range and their times relative to the middle of the sweep ``tc`` (s after
+        the stamp), and the ICP source: only the downsampled points that are used are deskewed (ICP
+        source, map keyframe). Returns (points, times, source, tc)."""
+        cfg = self.cfg
+        raw_t = self.scans.times[i] if self.use_t else None
+        pts, tm = self.ranged(self.scans.points[i], raw_t)
+        i_src = first_per_voxel(pts, cfg.source_voxel)
+        tc = 0.5 * float(tm.min() + tm.max()) if self.use_t and len(tm) else 0.0
+        if self.use_t:
+            tm = tm - tc
+        src = deskew(pts[i_src], tm[i_src], xi) if self.use_t else pts[i_src]
+        return pts, tm, src, tc
+
+    def hold(self, i: int):
+        """At rest: the last step was small, one point-to-plane Gauss-Newton step of this scan from the
+        last refined pose against the map is below still_check_m / still_check_deg (and, with given
+        initial poses, they moved less than still_m since) -> hold that pose; no ICP, no kiss-icp.
+        Returns (T, Tc, fitness, rmse, twist)."""
+        self.stream.hold(i)
+        a = self.anchor
+        T, f, e = self.poses[a].copy(), float(self.fit[a]), float(self.rmse[a])
+        self.still += 1
+        return T, T, f, e, np.zeros(6)
+
+    def register(self, i: int, src: np.ndarray, xi: np.ndarray, tc: float):
+        """Scan ``i``'s ICP ``src`` onto the map from the previous pose moved by the initial poses' motion,
+        at the middle of the sweep (``tc``, twist ``xi``); kiss-icp's guess where too few scan points lie
+        near the map (sparse, far, outdoor). Returns (T at the stamp, Tc at the middle, fitness, rmse,
+        the twist between the middles of the two sweeps)."""
+        poses, cfg = self.poses, self.cfg
+        guess = poses[i - 1] @ (np.linalg.inv(self.init[i - 1]) @ self.stream.pose(i))
+        tgt = self.target.cloud(self.vmap, guess[:3, 3])
+        guess = guess @ advance(xi, tc)     # the guess at the middle of the sweep
+        Tc, f, e = icp(src, tgt, guess, cfg)
+        if f < cfg.min_fitness:  # too few scan points near the map (sparse, far, outdoor): trust kiss-icp
+            Tc = guess
+            self.fallbacks += 1
+        if self.vertical is not None:
+            Tc = with_vertical_of(Tc, self.vertical[i])
+        if self.seed_twist is None:   # the motion between the middles of the two sweeps
+            xi = twist(self.mid[i - 1], Tc, self.t_s[i] - self.t_s[i - 1])
+        T = Tc @ advance(xi, -tc)
+        if self.vertical is not None:
+            T = with_vertical_of(T, self.vertical[i])
+        self.anchor = i
+        self.same = None
+        return T, Tc, f, e, xi
+
+    def grow(self, pts: np.ndarray, tm, xi: np.ndarray, Tc: np.ndarray, T: np.ndarray) -> None:
+        """A keyframe: the scan's map voxels (deskewed, with normals) added to the map at ``Tc``."""
+        cfg = self.cfg
+        i_map = first_per_voxel(pts, cfg.map_voxel)
+        dp, dn = scan_normals(deskew(pts[i_map], tm[i_map], xi) if self.use_t else pts[i_map], cfg.scan_normal_radius,
+                              cfg.scan_normal_nn)
+        self.vmap.add(transform_points(Tc, dp), transform_directions(Tc, dn))
+        self.last_key = T
+        self.keyframes += 1
+
+    def health(self) -> dict:
+        return {"fitness": self.fit, "rmse": self.rmse, "map_points": int(len(self.vmap.points)),
+                "kiss_fallbacks": self.fallbacks, "vertical_from": self.vertical_from,
+                "map_keyframes": self.keyframes, "still_scans": self.still, "still_same_beam": self.same_beam,
+                "kiss_scans": int(self.stream.fed),
+                "kiss_s": float(self.stream.seconds)}
 
 
 def level_seeds(poses: np.ndarray, height_m: float = 0.01, tilt_deg: float = 0.2) -> bool:

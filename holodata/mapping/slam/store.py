@@ -2,6 +2,8 @@
 scene's result, the poses, the static map and the ``slam`` attribute."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .config import SlamConfig, SlamResult
@@ -57,9 +59,29 @@ def _stored_result(scene, done: dict) -> SlamResult:
     return SlamResult(scene.id, st[first], Tl[first], None, None, Tl, Tr, mesh, summary, points)
 
 
-def _write(url, ds, scene_id, res: SlamResult, cfg: SlamConfig, mesh_cfg, anchor, finfo, fp, mode=None) -> None:
+@dataclass
+class SlamRecord:
+    """What :func:`_write` records of a run besides its result: the settings ``config`` and
+    ``mesh_config``, the world frame's ``anchor`` (:func:`~.world.anchor_pose`'s info), the inputs'
+    and settings' ``fingerprint``, the per-frame poses' ``frames_info`` (:func:`~.world.frame_poses`:
+    its ``T_lidar_radar``) and ``mode``: the localisation's {mode, map_scene}, None for SLAM proper."""
+
+    config: SlamConfig
+    mesh_config: object
+    anchor: dict
+    fingerprint: str
+    frames_info: dict
+    mode: dict | None = None
+
+
+def _write(url, ds, res: SlamResult, record: SlamRecord) -> None:
+    """Write ``res`` into its scene of the dataset at ``url`` (``ds`` its reader): the poses, the static
+    map and the ``slam`` attribute (``record``); ray-traced ground truth made from the previous poses
+    removed."""
     from ...dataset import open_dataset
 
+    scene_id, cfg, mesh_cfg, anchor = res.scene, record.config, record.mesh_config, record.anchor
+    finfo, fp, mode = record.frames_info, record.fingerprint, record.mode
     meta = ds.meta
     w = open_dataset(url, "r+", created_by="holodata slam", shard_frames=int(meta.get("shard_frames") or 32))
     sc = w.scene(scene_id)
