@@ -70,7 +70,7 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     on the scene the worker opens; the dataset must be reachable from the workers)."""
     import time
 
-    from .dataset import create_dataset, open_dataset
+    from .dataset import FrameStorage, create_dataset, open_dataset
     from .progress import track
 
     if motion not in MOTIONS:
@@ -119,8 +119,8 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
         scw.remove(RADAR_HEATMAP)
     R = params.n_range or chirp.n_samples
     hm = scw.frame_array(RADAR_HEATMAP, (R, g.H, g.W), "float32",
-                         shard_frames=max(1, min(w.shard_frames, (64 << 20) // (4 * R * g.H * g.W))), codec="lz4",
-                         attrs={"amplitude": "linear", "beamform_fingerprint": fp, "source": "holodata beamform"})
+                         attrs={"amplitude": "linear", "beamform_fingerprint": fp, "source": "holodata beamform"},
+                         storage=FrameStorage(max(1, min(w.shard_frames, (64 << 20) // (4 * R * g.H * g.W))), "lz4"))
     job = {"chirp": chirp.to_attrs(), "params": params.to_attrs(), "motion": mot, "device": device}
     todo = [k for k in range(hm.n_shards) if not hm.is_done(k)]
     if client is None:
@@ -174,7 +174,7 @@ def image_shard(sc, k: int, job: dict, hm_w=None) -> int:
         if vel is not None and (before is None or after is None):
             raise DatasetError(f"{url}: scene {scene_id!r} frame {f}: a moving rotation needs the neighbouring "
                                f"chirps, and radar/iq holds only the rotation (a static recording)")
-        out[j] = beamform(cube[b:b + n], chirp, params, before=before, after=after, velocity=vel,
+        out[j] = beamform(cube[b:b + n], chirp, params, neighbours=(before, after), velocity=vel,
                           chirp_period_s=period, static_refl=refl, device=job["device"])
     hm_w.write_shard(k, out)
     return len(fr)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 
 import click
 
@@ -50,8 +51,8 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, focus, motion,
     out = []
     with cluster(workers, scheduler) as client:
         for sid in todo:
-            out.append(_one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, client,
-                            quiet or as_json, focus))
+            out.append(_one(dataset, ds, sid, _Imaging(fov, n_syn, window, static_removal, focus), motion, device,
+                            client, quiet or as_json))
             if not as_json:
                 r = out[-1]
                 click.echo(f"{sid}: {r['skipped']}" if r.get("skipped") else
@@ -61,30 +62,47 @@ def beamform(dataset, scenes, fov, n_syn, window, static_removal, focus, motion,
         click.echo(json.dumps({"dataset": dataset, "scenes": out}, indent=2))
 
 
-def _one(dataset, ds, sid, fov, n_syn, window, static_removal, motion, device, client, quiet, focus=None) -> dict:
+@dataclass
+class _Imaging:
+    """The imaging flags given (None: as ingested): ``fov`` (degrees), ``n_syn``, ``window`` (chirps and
+    samples), ``static_removal``, ``focus``."""
+
+    fov: float | None = None
+    n_syn: int | None = None
+    window: str | None = None
+    static_removal: str | None = None
+    focus: str | None = None
+
+    def params(self, src: dict):
+        """The BeamformParams of a scene ingested with ``src`` (its source.beamform.params) and these flags."""
+        from holodata.radar import BeamformParams
+
+        kw = BeamformParams.from_attrs(src).to_attrs()
+        if self.fov is not None:
+            kw.update(azimuth_fov_deg=self.fov, n_syn=None)
+        if self.n_syn is not None:
+            kw["n_syn"] = self.n_syn
+        if self.window is not None:
+            kw.update(chirp_window=self.window, sample_window=self.window)
+        if self.static_removal is not None:
+            kw["static_removal"] = self.static_removal
+        if self.focus is not None:
+            kw["focus"] = self.focus
+        try:
+            return BeamformParams(**kw)
+        except ValueError as err:
+            raise click.BadParameter(str(err)) from err
+
+
+def _one(dataset, ds, sid, imaging: _Imaging, motion, device, client, quiet) -> dict:
     """Imaging parameters of scene ``sid``: as ingested, with the flags given; then beamform it."""
     from holodata.beamforming import beamform_scene
     from holodata.errors import DatasetError
-    from holodata.radar import BeamformParams
 
     if sid not in ds.scenes:
         raise DatasetError(f"{ds.url}: no scene {sid!r} (have {', '.join(ds.scenes)})")
     src = ((ds.scene(sid).attrs.get("source") or {}).get("beamform") or {}).get("params") or {}
-    kw = BeamformParams.from_attrs(src).to_attrs()
-    if fov is not None:
-        kw.update(azimuth_fov_deg=fov, n_syn=None)
-    if n_syn is not None:
-        kw["n_syn"] = n_syn
-    if window is not None:
-        kw.update(chirp_window=window, sample_window=window)
-    if static_removal is not None:
-        kw["static_removal"] = static_removal
-    if focus is not None:
-        kw["focus"] = focus
-    try:
-        params = BeamformParams(**kw)
-    except ValueError as err:
-        raise click.BadParameter(str(err)) from err
+    params = imaging.params(src)
     return beamform_scene(dataset, sid, params, motion=motion, device=device, quiet=quiet, client=client)
 
 

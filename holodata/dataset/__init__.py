@@ -11,8 +11,8 @@ from __future__ import annotations
 
 from .reader import Dataset, Ragged, Scene
 from .reader import open_dataset as _open_read
-from .writer import (DEFAULT_SHARD_FRAMES, DatasetWriter, FrameArrayWriter, RaggedWriter, SceneWriter,
-                     create_dataset)
+from .writer import (DEFAULT_SHARD_FRAMES, DatasetWriter, FrameArrayWriter, FrameStorage, RaggedWriter,
+                     SceneWriter, create_dataset)
 
 
 def open_dataset(path_or_url, mode: str = "r", created_by: str = "holodata", **writer_options):
@@ -48,5 +48,5 @@ def validate_dataset(path_or_url, **kwargs) -> dict:
 
 
 __all__ = ["create_dataset", "open_dataset", "Dataset", "Scene", "Ragged", "DatasetWriter", "SceneWriter",
-           "FrameArrayWriter", "RaggedWriter", "DEFAULT_SHARD_FRAMES", "dataset_info", "format_info",
+           "FrameArrayWriter", "FrameStorage", "RaggedWriter", "DEFAULT_SHARD_FRAMES", "dataset_info", "format_info",
            "validate_dataset"]

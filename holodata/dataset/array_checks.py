@@ -146,15 +146,51 @@ def _check_foreign(ds, sid, name, meta, rep) -> None:
         rep.add(sid, name, None, "decode", f"cannot be decoded ({err.__class__.__name__})")
 
 
-def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
-    path = f"scenes/{sid}/{name}"
-    hd = w.meta.get("attributes", {}).get("holodata", {})
-    S = w.S
+@dataclass
+class _Ragged:
+    """A ragged array's metadata once its checks passed: ``path`` in the store, values zarr.json ``vm``
+    (shape ``vshape``, dtype ``vdt``), offsets ``off`` (T+1,) and the indices ``dec`` where they
+    decrease, the values' reader ``rows``, the metadata ``digest`` its shard records name
+    (:func:`shards.ragged_meta_digest`), ``S`` frames per shard and ``T`` frames."""
+    path: str
+    vm: dict
+    vshape: list
+    vdt: np.dtype
+    off: np.ndarray
+    dec: np.ndarray
+    rows: Rows
+    digest: str
+    S: int
+    T: int
 
-    def skip() -> None:
+
+def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
+    """A ragged array: its values/offsets metadata and offsets (:func:`_ragged_head`), then every shard
+    the store lists a commit record of (:func:`_check_ragged_shard`); ``bar`` advances a step per
+    listed shard either way."""
+    rg = _ragged_head(ds, sid, name, w, T, rep)
+    if rg is None:
         for _ in w.listed:
             next(bar, None)
+        return
+    changed = 0
+    ks = _missing_shards(rep, sid, name, w)
+    skip_bar = len(w.listed) - len(ks)
+    for _ in range(skip_bar):
+        next(bar, None)
+    for k in ks:
+        next(bar, None)
+        changed += _check_ragged_shard(ds, sid, name, k, rg, rep)
+    if changed:
+        _metadata_line(rep, sid, name, changed)
 
+
+def _ragged_head(ds, sid, name, w: _Walk, T, rep) -> _Ragged | None:
+    """Check a ragged array's values and offsets metadata against the layout and each other, then its
+    offsets (start at 0, never decrease, end at the values' rows); None when its shards cannot be
+    read (the problem reported)."""
+    path = f"scenes/{sid}/{name}"
+    hd = w.meta.get("attributes", {}).get("holodata", {})
     vm, om = sh_json(ds.store, f"{path}/values/zarr.json"), sh_json(ds.store, f"{path}/offsets/zarr.json")
     vshape = vm.get("shape")
     try:
@@ -163,11 +199,11 @@ def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
             raise TypeError
     except TypeError:
         rep.add(sid, name, None, "decode", "values/offsets zarr.json missing or unreadable")
-        return skip()
+        return None
     width = hd.get("width")
     if len(vshape) != 2 or (width is not None and vshape[1] != width):
         rep.add(sid, name, None, "shape", f"values shape {tuple(vshape)}, expected (N, {width})")
-        return skip()
+        return None
     if name in RAGGED_KNOWN and vshape[1] != RAGGED_KNOWN[name]:
         rep.add(sid, name, None, "shape", f"values width {vshape[1]}, expected {RAGGED_KNOWN[name]}")
     s = spec(name)
@@ -176,13 +212,13 @@ def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
     if om.get("shape") != [T + 1] or om.get("data_type") != "int64":
         rep.add(sid, name, None, "offsets", f"offsets {tuple(om.get('shape') or ())} {om.get('data_type')}, "
                                             f"expected ({T + 1},) int64")
-        return skip()
+        return None
     try:
         off = read_offsets(ds, path, om, T)
     except Exception as err:  # noqa: BLE001
         why = f": {err}" if isinstance(err, ValueError) else ""
         rep.add(sid, name, None, "offsets", f"offsets cannot be read ({err.__class__.__name__}{why})")
-        return skip()
+        return None
     if off[0] != 0:
         rep.add(sid, name, 0, "offsets", f"offsets start at {off[0]}, not 0")
     dec = np.flatnonzero(np.diff(off) < 0)
@@ -191,49 +227,46 @@ def _check_ragged(ds, sid, name, w: _Walk, T, rep, bar) -> None:
     rep.bump(sid, name, "offsets", len(dec) - MAX_LINES_PER_RULE)
     if off[-1] != vshape[0]:
         rep.add(sid, name, None, "offsets", f"offsets end at {off[-1]}, values has {vshape[0]} rows")
-    rows = Rows(ds, f"{path}/values", vm)
-    digest = sh.ragged_meta_digest(vm, om)
-    changed = 0
-    ks = _missing_shards(rep, sid, name, w)
-    skip_bar = len(w.listed) - len(ks)
-    for _ in range(skip_bar):
-        next(bar, None)
-    for k in ks:
-        next(bar, None)
-        fr = slice(k * S, min((k + 1) * S, T))
-        rec = sh_json(ds.store, sh.manifest_key(path, k)) or None
-        rep.shards += 1
-        if rec is None:
-            rep.add(sid, name, fr.start, "incomplete", f"shard {k} (frames {fr.start}-{fr.stop - 1}) not written "
-                                                       f"(half-written dataset: rerun the writer to resume)")
-            continue
-        if "meta_sha256" in rec and rec["meta_sha256"] != digest:
-            changed += 1
-            continue
-        if "dtype" in rec and rec["dtype"] != str(vdt):
-            rep.add(sid, name, fr.start, "dtype", f"shard {k}: values written as {rec['dtype']}, zarr.json says {vdt}")
-            continue
-        r0, r1 = int(off[fr.start]), int(off[fr.stop])
-        if [r0, r1] != list(rec.get("rows", [])) or len(dec) or r1 > vshape[0]:
-            rep.add(sid, name, fr.start, "offsets", f"shard {k}: offsets give rows {r0}..{r1}, "
-                                                    f"record says {rec.get('rows')}")
-            continue
-        h = hashlib.sha256()
-        finite = True
-        try:
-            for v in rows.read(r0, r1):
-                h.update(v)
-                rep.bytes_decoded += v.nbytes
-                if finite and v.dtype.kind == "f" and not np.isfinite(v).all():
-                    finite = False
-        except Exception as err:  # noqa: BLE001
-            why = f": {err}" if isinstance(err, ValueError) else ""
-            rep.add(sid, name, fr.start, "decode", f"shard {k} values cannot be decoded ({err.__class__.__name__}{why})")
-            continue
-        h.update(np.ascontiguousarray(off[fr.start:fr.stop + 1], dtype="<i8").tobytes())   # writer.ragged_digest
-        if h.hexdigest() != rec.get("sha256"):
-            rep.add(sid, name, fr.start, "checksum", f"shard {k}: sha256 mismatch (corrupted values)")
-        if not finite:
-            rep.add(sid, name, fr.start, "ragged", f"shard {k}: values hold NaN/inf")
-    if changed:
-        _metadata_line(rep, sid, name, changed)
+    return _Ragged(path, vm, vshape, vdt, off, dec, Rows(ds, f"{path}/values", vm), sh.ragged_meta_digest(vm, om),
+                   w.S, T)
+
+
+def _check_ragged_shard(ds, sid, name, k: int, rg: _Ragged, rep) -> bool:
+    """Shard ``k`` of a ragged array against its commit record: written, with this metadata (True when
+    the record names other metadata: counted into one line by the caller, not read), values dtype, rows
+    the offsets give, then its values read into the sha256 (with the shard's offsets) and checked finite."""
+    fr = slice(k * rg.S, min((k + 1) * rg.S, rg.T))
+    rec = sh_json(ds.store, sh.manifest_key(rg.path, k)) or None
+    rep.shards += 1
+    if rec is None:
+        rep.add(sid, name, fr.start, "incomplete", f"shard {k} (frames {fr.start}-{fr.stop - 1}) not written "
+                                                   f"(half-written dataset: rerun the writer to resume)")
+        return False
+    if "meta_sha256" in rec and rec["meta_sha256"] != rg.digest:
+        return True
+    if "dtype" in rec and rec["dtype"] != str(rg.vdt):
+        rep.add(sid, name, fr.start, "dtype", f"shard {k}: values written as {rec['dtype']}, zarr.json says {rg.vdt}")
+        return False
+    r0, r1 = int(rg.off[fr.start]), int(rg.off[fr.stop])
+    if [r0, r1] != list(rec.get("rows", [])) or len(rg.dec) or r1 > rg.vshape[0]:
+        rep.add(sid, name, fr.start, "offsets", f"shard {k}: offsets give rows {r0}..{r1}, "
+                                                f"record says {rec.get('rows')}")
+        return False
+    h = hashlib.sha256()
+    finite = True
+    try:
+        for v in rg.rows.read(r0, r1):
+            h.update(v)
+            rep.bytes_decoded += v.nbytes
+            if finite and v.dtype.kind == "f" and not np.isfinite(v).all():
+                finite = False
+    except Exception as err:  # noqa: BLE001
+        why = f": {err}" if isinstance(err, ValueError) else ""
+        rep.add(sid, name, fr.start, "decode", f"shard {k} values cannot be decoded ({err.__class__.__name__}{why})")
+        return False
+    h.update(np.ascontiguousarray(rg.off[fr.start:fr.stop + 1], dtype="<i8").tobytes())   # writer.ragged_digest
+    if h.hexdigest() != rec.get("sha256"):
+        rep.add(sid, name, fr.start, "checksum", f"shard {k}: sha256 mismatch (corrupted values)")
+    if not finite:
+        rep.add(sid, name, fr.start, "ragged", f"shard {k}: values hold NaN/inf")
+    return False

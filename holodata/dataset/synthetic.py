@@ -5,6 +5,8 @@ labels 1 (bounce 1) / 2 (later) where a range exists, normals random unit vector
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..conventions import DEFAULT_MAX_RANGE_M, Grid, RangeBins
@@ -53,18 +55,32 @@ def array_specs(grid: Grid, n_range: int, n_bounces: int = 3, heatmap_dtype="flo
     }
 
 
-def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range: int = 16, shard_frames: int = 4,
-                      scenes=("c1",), seed: int = 0, codec: str = "zstd", lidar: bool = True,
-                      arrays: list[str] | None = None) -> str:
-    """Write a valid dataset with ``scenes`` of ``n_frames`` frames each; returns ``url``."""
-    grid = grid or Grid(8, 32)
+@dataclass
+class ToyContents:
+    """What a toy dataset holds beyond its scenes and frames: the beam ``grid`` (None: 8x32),
+    ``n_range`` range bins over the radar's range, the frame ``arrays`` written (None: all of
+    :func:`array_specs`), LiDAR points or not (``lidar``), and the ``codec`` of its shards."""
+
+    grid: Grid | None = None
+    n_range: int = 16
+    arrays: list[str] | None = None
+    lidar: bool = True
+    codec: str = "zstd"
+
+
+def write_toy_dataset(url, n_frames: int = 10, shard_frames: int = 4, scenes=("c1",), seed: int = 0,
+                      contents: ToyContents | None = None) -> str:
+    """Write a valid dataset with ``scenes`` of ``n_frames`` frames each (``shard_frames`` per shard;
+    random values drawn from ``seed``), holding ``contents`` (default :class:`ToyContents`); returns ``url``."""
+    c = contents or ToyContents()
+    grid, n_range = c.grid or Grid(8, 32), c.n_range
     rb = RangeBins(n=n_range, dr=DEFAULT_MAX_RANGE_M / n_range)   # the radar's range, in n_range bins
     w = create_dataset(url, grid=grid, range_bins=rb, created_by="holodata toy dataset",
                        provenance={"generator": "holodata.dataset.synthetic", "seed": seed},
-                       shard_frames=shard_frames, codec=codec)
+                       shard_frames=shard_frames, codec=c.codec)
     rng = np.random.default_rng(seed)
     specs = array_specs(grid, n_range)
-    names = arrays or list(specs)
+    names = c.arrays or list(specs)
     w.begin("toy dataset", rerun="write the toy dataset again")   # the root: until its splits
     for i, sid in enumerate(scenes):
         sc = w.scene(sid, n_frames=n_frames, attrs={"corner_type": ["L", "T", "cross", "oblique"][i % 4],
@@ -80,7 +96,7 @@ def write_toy_dataset(url, n_frames: int = 10, grid: Grid | None = None, n_range
                 a.write_shard(k, data[n])
         sc.write_array(MESH_VERTICES, rng.uniform(-5, 5, (12, 3)))
         sc.write_array(MESH_FACES, rng.integers(0, 12, (20, 3)))
-        if lidar:
+        if c.lidar:
             rag = sc.ragged_array(LIDAR_POINTS)
             for k in range(rag.n_shards):
                 fr = rag.frames(k)

@@ -151,11 +151,15 @@ def validate_dataset(path_or_url, quiet: bool = True) -> dict:
 
 @dataclass
 class _Plan:
+    """What :func:`_check_scene` reads of scene ``sid`` (``T`` frames, its ``nodes``): the shards of its
+    frame and ragged arrays; ``bounces``: the bounce axis of the first gt/* array planned (the others
+    must agree)."""
     sid: str
     T: int
     nodes: dict
     frame: dict[str, _Walk] = field(default_factory=dict)
     ragged: dict[str, _Walk] = field(default_factory=dict)
+    bounces: int | None = None
 
     @property
     def work(self) -> int:
@@ -184,9 +188,30 @@ def _check_splits(ds: Dataset, scenes: list[str], rep: _Report) -> None:
 
 
 def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> _Plan | None:
+    """Check scene ``sid``'s attributes and which arrays it holds, each array's declared shape, dtype
+    and attributes against the layout; the shards to read (None when its frame count is unusable)."""
     store = ds.store
     path = f"scenes/{sid}"
     meta = sh_json(store, f"{path}/zarr.json")
+    attrs, unfinished = _scene_attrs(ds, sid, meta, rep)
+    T = attrs.get("n_frames")
+    if not isinstance(T, int) or isinstance(T, bool) or T < 0:
+        return None
+    nodes = list_nodes(store, path)
+    _check_presence(rep, sid, attrs, unfinished, nodes)
+    plan = _Plan(sid, T, nodes)
+    for name, (kind, m) in nodes.items():
+        if kind != "ragged":
+            _plan_array(ds, plan, name, kind, m, rep)
+    for name, (kind, m) in nodes.items():
+        if kind == "ragged":
+            _plan_ragged(store, plan, name, m, rep)
+    return plan
+
+
+def _scene_attrs(ds: Dataset, sid: str, meta: dict, rep: _Report) -> tuple[dict, dict]:
+    """The scene's attributes (checked against the schema) and its unfinished stages (each named); ({}
+    when its zarr.json holds none)."""
     attrs = meta.get("attributes", {})
     if not isinstance(attrs, dict):
         attrs = {}
@@ -195,11 +220,12 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> _Plan | None:
     unfinished = Scene(ds, sid, meta).unfinished if isinstance(meta.get("attributes"), dict) else {}
     for stage, rec in sorted(unfinished.items()):
         rep.add(sid, None, None, "unfinished", unfinished_line(stage, rec))
-    T = attrs.get("n_frames")
-    if not isinstance(T, int) or isinstance(T, bool) or T < 0:
-        return None
-    nodes = list_nodes(store, path)
-    # what the scene declares it holds (an unfinished stage is named above: its arrays may be missing yet)
+    return attrs, unfinished
+
+
+def _check_presence(rep: _Report, sid: str, attrs: dict, unfinished: dict, nodes: dict) -> None:
+    """The arrays the scene declares it holds are there (an unfinished stage is named already: its
+    arrays may be missing yet), its GT was traced from the inputs it holds now, and gt/* is whole."""
     required = required_arrays(attrs) if not unfinished else {TIME_TIMESTAMP_NS: "every scene needs frame timestamps"}
     for name, why in required.items():
         if name not in nodes:
@@ -215,63 +241,76 @@ def _scene_plan(ds: Dataset, sid: str, rep: _Report) -> _Plan | None:
         for n in GT_CORE:
             if n not in nodes and n not in required:
                 rep.add(sid, n, None, "presence", f"missing while {', '.join(present_gt)} exist")
-    plan = _Plan(sid, T, nodes)
-    B = None
-    for name, (kind, m) in nodes.items():
-        a = m.get("attributes", {})
-        if kind == "ragged":
-            continue
-        shape = m.get("shape")
-        if not isinstance(shape, list) or not all(is_int(v) and v >= 0 for v in shape):
-            rep.add(sid, name, None, "shape", f"shape {shape!r} in zarr.json is not a list of sizes")
-            continue
-        shape, dtype = tuple(shape), str(m.get("data_type"))
-        dims = a.get("dims")
-        if not isinstance(dims, list) or len(dims) != len(shape):
-            rep.add(sid, name, None, "attrs", f"attrs['dims'] missing or not {len(shape)} names")
-        if not isinstance(a.get("units"), str):
-            rep.add(sid, name, None, "attrs", "attrs['units'] missing")
+
+
+def _plan_array(ds: Dataset, plan: _Plan, name: str, kind: str, m: dict, rep: _Report) -> None:
+    """A frame or whole array: its declared shape a list of sizes, its attributes, its shape and dtype
+    against the layout (:func:`_check_declared`) and the writer's record; a frame array's shards join
+    the plan once its sizes are sane (:func:`_frame_walk`)."""
+    sid = plan.sid
+    a = m.get("attributes", {})
+    shape = m.get("shape")
+    if not isinstance(shape, list) or not all(is_int(v) and v >= 0 for v in shape):
+        rep.add(sid, name, None, "shape", f"shape {shape!r} in zarr.json is not a list of sizes")
+        return
+    shape, dtype = tuple(shape), str(m.get("data_type"))
+    dims = a.get("dims")
+    if not isinstance(dims, list) or len(dims) != len(shape):
+        rep.add(sid, name, None, "attrs", f"attrs['dims'] missing or not {len(shape)} names")
+    if not isinstance(a.get("units"), str):
+        rep.add(sid, name, None, "attrs", "attrs['units'] missing")
+    _check_layout(rep, sid, name, a)
+    _check_declared(ds, plan, name, kind, m, rep)
+    hd = a.get("holodata", {})
+    if kind == "frame" and "dtype" in hd and (hd["dtype"] != dtype or tuple(hd.get("shape", ())) != shape):
+        rep.add(sid, name, None, "dtype", f"metadata says {shape} {dtype}, attrs record "
+                                          f"{tuple(hd.get('shape', ()))} {hd['dtype']} (metadata changed?)")
+    if kind == "frame":
+        w = _frame_walk(ds, sid, name, m, shape, rep)
+        if w is not None:
+            plan.frame[name] = w
+
+
+def _check_declared(ds: Dataset, plan: _Plan, name: str, kind: str, m: dict, rep: _Report) -> None:
+    """Array ``name``'s shape (a list of sizes) and dtype against what the layout expects from n_frames
+    and the grid (a heatmap's code with them, gt/* arrays' bounce axes against each other); an array the
+    layout does not know: a frame array's frame axis is n_frames."""
+    sid, T = plan.sid, plan.T
+    shape, dtype = tuple(m["shape"]), str(m.get("data_type"))
+    pat, dts = expected_spec(name, T, ds.grid, ds.range_bins)
+    if pat is not None and dts is not None:
+        if not _shape_ok(shape, pat):
+            want = "(" + ", ".join("*" if p is None else str(p) for p in pat) + ")"
+            rep.add(sid, name, None, "shape", f"shape {shape}, expected {want} from n_frames and the grid")
+        if dtype not in dts:
+            rep.add(sid, name, None, "dtype", f"dtype {dtype}, expected {' or '.join(dts)}")
+        elif name == RADAR_HEATMAP:
+            try:   # uint8 codes need their LogCode, linear amplitude must not claim one
+                code_of_meta(m)
+            except ValueError as err:
+                rep.add(sid, name, None, "attrs", f"heatmap {err}")
+        if name.startswith("gt/") and pat[1] is None and len(shape) > 1 and name != GT_HUMAN_CENTER:
+            if plan.bounces is None:
+                plan.bounces = shape[1]
+            elif shape[1] != plan.bounces:
+                rep.add(sid, name, None, "shape", f"{shape[1]} bounces, gt/* has {plan.bounces}")
+    elif kind == "frame" and (not shape or shape[0] != T):
+        rep.add(sid, name, None, "shape", f"shape {shape}: frame axis is not n_frames={T}")
+
+
+def _plan_ragged(store, plan: _Plan, name: str, m: dict, rep: _Report) -> None:
+    """A ragged array's attributes; its shards join the plan when it declares a shard size."""
+    sid = plan.sid
+    a = m.get("attributes", {})
+    if "dims" not in a or "units" not in a:
+        rep.add(sid, name, None, "attrs", "attrs['dims'] or attrs['units'] missing")
+    else:
         _check_layout(rep, sid, name, a)
-        pat, dts = expected_spec(name, T, ds.grid, ds.range_bins)
-        if pat is not None and dts is not None:
-            if not _shape_ok(shape, pat):
-                want = "(" + ", ".join("*" if p is None else str(p) for p in pat) + ")"
-                rep.add(sid, name, None, "shape", f"shape {shape}, expected {want} from n_frames and the grid")
-            if dtype not in dts:
-                rep.add(sid, name, None, "dtype", f"dtype {dtype}, expected {' or '.join(dts)}")
-            elif name == RADAR_HEATMAP:
-                try:   # uint8 codes need their LogCode, linear amplitude must not claim one
-                    code_of_meta(m)
-                except ValueError as err:
-                    rep.add(sid, name, None, "attrs", f"heatmap {err}")
-            if name.startswith("gt/") and pat[1] is None and len(shape) > 1 and name != GT_HUMAN_CENTER:
-                if B is None:
-                    B = shape[1]
-                elif shape[1] != B:
-                    rep.add(sid, name, None, "shape", f"{shape[1]} bounces, gt/* has {B}")
-        elif kind == "frame" and (not shape or shape[0] != T):
-            rep.add(sid, name, None, "shape", f"shape {shape}: frame axis is not n_frames={T}")
-        hd = a.get("holodata", {})
-        if kind == "frame" and "dtype" in hd and (hd["dtype"] != dtype or tuple(hd.get("shape", ())) != shape):
-            rep.add(sid, name, None, "dtype", f"metadata says {shape} {dtype}, attrs record "
-                                              f"{tuple(hd.get('shape', ()))} {hd['dtype']} (metadata changed?)")
-        if kind == "frame":
-            w = _frame_walk(ds, sid, name, m, shape, rep)
-            if w is not None:
-                plan.frame[name] = w
-    for name, (kind, m) in nodes.items():
-        if kind == "ragged":
-            a = m.get("attributes", {})
-            if "dims" not in a or "units" not in a:
-                rep.add(sid, name, None, "attrs", "attrs['dims'] or attrs['units'] missing")
-            else:
-                _check_layout(rep, sid, name, a)
-            S = a.get("holodata", {}).get("shard_frames", 1)
-            if not is_int(S) or S < 1:
-                rep.add(sid, name, None, "layout", f"shard_frames {S!r} is not a frame count")
-                continue
-            plan.ragged[name] = _Walk(m, S, T, _listed(store, f"{path}/{name}"))
-    return plan
+    S = a.get("holodata", {}).get("shard_frames", 1)
+    if not is_int(S) or S < 1:
+        rep.add(sid, name, None, "layout", f"shard_frames {S!r} is not a frame count")
+        return
+    plan.ragged[name] = _Walk(m, S, plan.T, _listed(store, f"scenes/{sid}/{name}"))
 
 
 def _frame_walk(ds, sid, name, m: dict, shape: tuple, rep) -> _Walk | None:

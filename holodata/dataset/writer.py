@@ -36,6 +36,7 @@ import json
 import math
 import time
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Iterator
 
 import numpy as np
@@ -50,6 +51,16 @@ from .store import Store
 DEFAULT_SHARD_FRAMES = 32
 RAGGED_CHUNK_BYTES = 1 << 20
 SMALL_CHUNK_BYTES = 8 << 20
+
+
+@dataclass(frozen=True)
+class FrameStorage:
+    """How a new frame array's shards are stored (:meth:`SceneWriter.frame_array`): ``shard_frames``
+    frames per shard (None: the dataset's) and ``codec``, the shards' compressor (None: the dataset's
+    codec at its level; a named codec at that codec's own default level)."""
+
+    shard_frames: int | None = None
+    codec: str | None = None
 
 
 def _layout_facts(name: str, dims=None, units=None, dtype=None, fill=None) -> tuple:
@@ -430,13 +441,14 @@ class SceneWriter:
             raise DatasetError(f"{self.ds.url}: scene {self.id!r}: bad array name {name!r}")
 
     def frame_array(self, name: str, per_frame_shape=(), dtype=None, dims=None, units=None,
-                    fill_value=None, shard_frames: int | None = None, codec: str | None = None,
-                    attrs: dict | None = None) -> "FrameArrayWriter":
+                    fill_value=None, attrs: dict | None = None,
+                    storage: FrameStorage | None = None) -> "FrameArrayWriter":
         """Create (or reopen, same shape/dtype) a frame array (T,) + per_frame_shape: one frame per
-        chunk, ``shard_frames`` frames per shard. ``dtype``, ``dims``, ``units`` and ``fill_value``
-        are the layout's (:mod:`holodata.dataset.layout`) for the arrays it knows (a caller passes
-        ``dtype`` only where the layout allows several, e.g. ``radar/heatmap`` float16 or float32);
-        for others float32, ``frame, dim_1, ...``, "1" and NaN (float) or 0."""
+        chunk, ``storage.shard_frames`` frames per shard (:class:`FrameStorage`). ``dtype``, ``dims``,
+        ``units`` and ``fill_value`` are the layout's (:mod:`holodata.dataset.layout`) for the arrays it
+        knows (a caller passes ``dtype`` only where the layout allows several, e.g. ``radar/heatmap``
+        float16 or float32); for others float32, ``frame, dim_1, ...``, "1" and NaN (float) or 0.
+        ``attrs``: more attributes of the array."""
         self._check_name(name)
         path = f"{self.path}/{name}"
         per_frame_shape = tuple(int(s) for s in per_frame_shape)
@@ -453,7 +465,9 @@ class SceneWriter:
         if len(dims) != len(shape):
             raise DatasetError(f"{self.ds.url}: scene {self.id!r} array {name!r}: {len(dims)} dims for a "
                                f"{len(shape)}-d array")
-        S = int(shard_frames or self.ds.shard_frames)
+        storage = storage or FrameStorage()
+        S = int(storage.shard_frames or self.ds.shard_frames)
+        codec = storage.codec
         if fill_value is None:
             fill_value = float("nan") if dtype.kind == "f" else 0
         self._parents(name)

@@ -57,19 +57,29 @@ class Step:
         return about_origin(self.y, self.centre, self.lever)
 
 
+@dataclass(frozen=True)
+class StepRule:
+    """How :func:`gauss_newton_step` solves. ``hold_ratio`` 0: the plain step -H⁻¹g with ``damping`` × Σw
+    added to the diagonal of H, refused (None) when cond(H) > ``max_cond``. ``hold_ratio`` > 0:
+    directions (eigenvectors of H) whose eigenvalue is below ``hold_ratio`` × the largest are held: the
+    update along them is zero, except that with the step's ``poses`` it takes the pose back to within
+    ``hold_m`` (m, in the step's coordinates: :func:`centred_offset`) of the guess along them."""
+
+    damping: float = 0.0
+    max_cond: float = np.inf
+    hold_ratio: float = 0.0
+    hold_m: float = 0.0
+
+
 def gauss_newton_step(p: np.ndarray, n: np.ndarray, r: np.ndarray, w: np.ndarray, centre: np.ndarray | None = None,
-                      lever: float = 1.0, damping: float = 0.0, max_cond: float = np.inf, hold_ratio: float = 0.0,
-                      poses: tuple | None = None, hold_m: float = 0.0) -> Step | None:
+                      lever: float = 1.0, rule: StepRule = StepRule(), poses: tuple | None = None) -> Step | None:
     """One weighted point-to-plane Gauss-Newton step for points ``p`` (M,3) with residuals ``r`` (M,)
-    against planes of unit normals ``n`` (M,3), weights ``w`` (M,) (robust × per point).
+    against planes of unit normals ``n`` (M,3), weights ``w`` (M,) (robust × per point), solved as
+    ``rule`` says (:class:`StepRule`: plain and damped, or with held directions).
 
     The rotation is about ``centre`` (3,) with rotation vectors scaled by ``lever`` (m); ``centre``
     None: the weighted centroid of ``p`` and ``lever`` its median distance from it (1 when 0).
-    ``hold_ratio`` 0: the plain step -H⁻¹g with ``damping`` × Σw added to the diagonal of H; None when
-    cond(H) > ``max_cond``. ``hold_ratio`` > 0: directions (eigenvectors of H) whose eigenvalue is below
-    ``hold_ratio`` × the largest are held: the update along them is zero, except that with
-    ``poses`` = (current pose, guess) (4,4 each) it takes the pose back to within ``hold_m`` (m, in
-    these coordinates: :func:`centred_offset`) of the guess along them."""
+    ``poses`` = (current pose, guess) (4,4 each): where held directions are held (the guess)."""
     if centre is None:
         centre = np.average(p, axis=0, weights=np.maximum(w, 1e-12))
         lever = float(np.median(np.linalg.norm(p - centre, axis=1))) or 1.0
@@ -77,43 +87,59 @@ def gauss_newton_step(p: np.ndarray, n: np.ndarray, r: np.ndarray, w: np.ndarray
     Jw = J * w[:, None]
     H = Jw.T @ J
     g = Jw.T @ r
-    if hold_ratio <= 0:
-        if damping:
-            H = H + damping * np.eye(6) * w.sum()
-        if np.isfinite(max_cond) and np.linalg.cond(H) > max_cond:
+    if rule.hold_ratio <= 0:
+        if rule.damping:
+            H = H + rule.damping * np.eye(6) * w.sum()
+        if np.isfinite(rule.max_cond) and np.linalg.cond(H) > rule.max_cond:
             return None
         return Step(-np.linalg.solve(H, g), centre, lever, np.zeros((6, 0)))
     ev, V = np.linalg.eigh(H)
-    keep = ev >= hold_ratio * ev.max()
+    keep = ev >= rule.hold_ratio * ev.max()
     y = -(V[:, keep] @ ((V[:, keep].T @ g) / ev[keep]))
     if not keep.all() and poses is not None:
         # held directions stay within hold_m of the guess: an earlier (coarser) stage may have moved
         # along them, rightly (edges within its reach) or not (wrong correspondences)
         dev = V[:, ~keep].T @ centred_offset(poses[0], poses[1], centre, lever)
-        y -= V[:, ~keep] @ (np.sign(dev) * np.maximum(np.abs(dev) - hold_m, 0.0))
+        y -= V[:, ~keep] @ (np.sign(dev) * np.maximum(np.abs(dev) - rule.hold_m, 0.0))
     return Step(y, centre, lever, V[:, ~keep], ev)
 
 
+@dataclass(frozen=True)
+class IcpParams:
+    """Settings of :func:`point_to_plane_icp`. ``distances`` (m): the stages' correspondence distances,
+    coarse to fine, at most ``iterations`` steps each; ``max_scale`` (m): the largest correspondence
+    scale a noisy point gets; ``degenerate_ratio`` > 0: directions the overlap does not pin down are
+    held at the initial guess to within ``hold_m`` (m) (:class:`StepRule`'s ``hold_ratio``; 0: the
+    plain step); ``min_normal_cos``: correspondences whose normals disagree more (|cos| below it) are
+    dropped when the source has normals."""
+
+    distances: tuple = (0.08, 0.04)
+    iterations: int = 15
+    max_scale: float = 0.25
+    degenerate_ratio: float = 0.0
+    min_normal_cos: float = 0.8
+    hold_m: float = 0.05
+
+
 def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarray, target_normals: np.ndarray,
-                       init: np.ndarray, distances=(0.08, 0.04), iterations: int = 15, max_scale: float = 0.25,
-                       degenerate_ratio: float = 0.0, info: dict | None = None,
-                       source_normals: np.ndarray | None = None, min_normal_cos: float = 0.8,
-                       hold_m: float = 0.05) -> np.ndarray:
+                       init: np.ndarray, params: IcpParams = IcpParams(), info: dict | None = None,
+                       source_normals: np.ndarray | None = None) -> np.ndarray:
     """Weighted point-to-plane ICP (iterated :func:`gauss_newton_step`): ``source`` (N,3) with ``weights``
     (N,) (1/σ², m⁻²), ``target`` (M,3) with unit ``target_normals``, from ``init`` (4,4); returns T (4,4).
 
-    Per stage distance d of ``distances`` (coarse to fine, at most ``iterations`` steps each): a
-    nearest-neighbour correspondence within ``max(d, 3σ)`` (at most ``max_scale``; σ = 1/sqrt(weight):
-    noisy far points keep their unbiased residuals instead of being truncated), kept when its
-    point-to-plane residual is within that scale, Tukey-weighted with the same scale. ``source_normals``
-    (N,3): correspondences whose normals disagree (|cos| < ``min_normal_cos``) are dropped — near an edge
-    the nearest map point can belong to the other wall. ``degenerate_ratio`` > 0: directions the
-    overlap does not pin down (:func:`gauss_newton_step`'s ``hold_ratio``, rotations about the
-    correspondences' centroid scaled by their median distance from it) keep the initial guess to within
-    ``hold_m`` (a corridor seen end-on). ``info`` receives the number of held directions (``frozen``),
-    the eigenvalues relative to the largest and ``held`` = (V (6,k), centre, lever) for :func:`hold_at`.
-    A stage ends when the update is below 10 µm and 1 µrad (:data:`STOP_TRANSLATION_M`,
-    :data:`STOP_ROTATION_RAD`); fewer than :data:`MIN_CORRESPONDENCES` (6) correspondences end the solve."""
+    Per stage distance d of ``params.distances`` (coarse to fine, at most ``params.iterations`` steps
+    each): a nearest-neighbour correspondence within ``max(d, 3σ)`` (at most ``params.max_scale``;
+    σ = 1/sqrt(weight): noisy far points keep their unbiased residuals instead of being truncated), kept
+    when its point-to-plane residual is within that scale, Tukey-weighted with the same scale
+    (:func:`_correspondences`). ``source_normals`` (N,3): correspondences whose normals disagree (|cos| <
+    ``params.min_normal_cos``) are dropped — near an edge the nearest map point can belong to the other
+    wall. ``params.degenerate_ratio`` > 0: directions the overlap does not pin down
+    (:func:`gauss_newton_step`'s ``hold_ratio``, rotations about the correspondences' centroid scaled by
+    their median distance from it) keep the initial guess to within ``params.hold_m`` (a corridor seen
+    end-on). ``info`` receives the number of held directions (``frozen``), the eigenvalues relative to
+    the largest and ``held`` = (V (6,k), centre, lever) for :func:`hold_at`. A stage ends when the
+    update is below 10 µm and 1 µrad (:data:`STOP_TRANSLATION_M`, :data:`STOP_ROTATION_RAD`); fewer
+    than :data:`MIN_CORRESPONDENCES` (6) correspondences end the solve."""
     from scipy.spatial import cKDTree
 
     tree = cKDTree(target)
@@ -122,37 +148,49 @@ def point_to_plane_icp(source: np.ndarray, weights: np.ndarray, target: np.ndarr
     src = np.asarray(source, np.float64)
     w0 = np.asarray(weights, np.float64)
     sig = 1.0 / np.sqrt(w0)
-    origin = np.zeros(3)
-    for d in distances:
-        scale = np.clip(3 * sig, d, max_scale)
-        for _ in range(iterations):
-            p = transform_points(T, src)
-            dist, j = tree.query(p, k=1, distance_upper_bound=float(scale.max()), workers=-1)
-            ok = np.isfinite(dist) & (dist <= scale)
-            jj = np.where(ok, j, 0)
-            r_all = np.einsum("ij,ij->i", p - target[jj], target_normals[jj])
-            ok &= np.abs(r_all) <= scale     # gated on the distance to the map's surface, not to its points
-            if source_normals is not None:
-                cosn = np.abs(np.einsum("ij,ij->i", source_normals @ T[:3, :3].T, target_normals[jj]))
-                ok &= cosn >= min_normal_cos
-            if ok.sum() < MIN_CORRESPONDENCES:
+    held = StepRule(hold_ratio=params.degenerate_ratio, hold_m=params.hold_m)
+    for d in params.distances:
+        scale = np.clip(3 * sig, d, params.max_scale)
+        for _ in range(params.iterations):
+            c = _correspondences(transform_points(T, src), tree, (target, target_normals), scale,
+                                 None if source_normals is None else (source_normals @ T[:3, :3].T, params.min_normal_cos))
+            if c is None:
                 return T
-            pp, nn = p[ok], target_normals[j[ok]]
-            r = r_all[ok]
+            pp, nn, r, ok = c
             w = w0[ok] * tukey_weights(r, scale[ok])
-            if degenerate_ratio > 0:
-                step = gauss_newton_step(pp, nn, r, w, None, hold_ratio=degenerate_ratio, poses=(T, T0), hold_m=hold_m)
+            if params.degenerate_ratio > 0:
+                step = gauss_newton_step(pp, nn, r, w, None, rule=held, poses=(T, T0))
                 x = step.motion()
                 if info is not None:
                     ev = step.eigenvalues
                     info.update(frozen=int(step.held.shape[1]), eigenvalues=(ev / ev.max()).round(4).tolist(),
                                 held=(step.held, step.centre, step.lever))
             else:
-                x = gauss_newton_step(pp, nn, r, w, origin, damping=PLAIN_DAMPING).y
+                x = gauss_newton_step(pp, nn, r, w, np.zeros(3), rule=StepRule(damping=PLAIN_DAMPING)).y
             T = moved_by(T, x)
             if np.linalg.norm(x[3:]) < STOP_TRANSLATION_M and np.linalg.norm(x[:3]) < STOP_ROTATION_RAD:
                 break
     return T
+
+
+def _correspondences(p: np.ndarray, tree, target: tuple, scale: np.ndarray, normals: tuple | None):
+    """Point-to-plane correspondences of the moved source points ``p`` (N,3) in ``target`` = (points,
+    unit normals) (``tree`` a k-d tree over its points): the nearest target point within the point's
+    ``scale`` (N,) whose plane is within it too and, with ``normals`` = (the source normals moved (N,3),
+    min |cos|), whose normal agrees. (points, their target normals, residuals, which source points) or
+    None when fewer than :data:`MIN_CORRESPONDENCES`."""
+    pts, tn = target
+    dist, j = tree.query(p, k=1, distance_upper_bound=float(scale.max()), workers=-1)
+    ok = np.isfinite(dist) & (dist <= scale)
+    jj = np.where(ok, j, 0)
+    r_all = np.einsum("ij,ij->i", p - pts[jj], tn[jj])
+    ok &= np.abs(r_all) <= scale     # gated on the distance to the map's surface, not to its points
+    if normals is not None:
+        cosn = np.abs(np.einsum("ij,ij->i", normals[0], tn[jj]))
+        ok &= cosn >= normals[1]
+    if ok.sum() < MIN_CORRESPONDENCES:
+        return None
+    return p[ok], tn[j[ok]], r_all[ok], ok
 
 
 def centred_offset(T: np.ndarray, T0: np.ndarray, c: np.ndarray, lever: float) -> np.ndarray:

@@ -5,6 +5,8 @@ planes that denoise a cloud (:func:`local_plane_projection`, its neighbourhood s
 in :mod:`._ball_kernel`). No I/O."""
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -153,25 +155,40 @@ def _window_plane_normals_numpy(P: np.ndarray, n0: np.ndarray, rows: int = 1, co
     return n
 
 
-def agreeing_planes(points: np.ndarray, normals: np.ndarray, dist: float = 0.04, agree_deg: float = 20.0,
-                    min_inliers: int = 24, max_planes: int = 12, iterations: int = 256, sample: int = 1024,
+@dataclass(frozen=True)
+class PlaneRansac:
+    """Settings of :func:`agreeing_planes`' sequential RANSAC: a point supports a plane within ``dist``
+    m of it whose normal is within ``agree_deg`` of its own; ``iterations`` hypotheses per plane, each
+    scored on up to ``sample`` of the free points; up to ``max_planes`` planes of at least
+    ``min_inliers`` points."""
+
+    dist: float = 0.04
+    agree_deg: float = 20.0
+    min_inliers: int = 24
+    max_planes: int = 12
+    iterations: int = 256
+    sample: int = 1024
+
+
+def agreeing_planes(points: np.ndarray, normals: np.ndarray, ransac: PlaneRansac = PlaneRansac(),
                     rng=None) -> np.ndarray:
     """Each point's normal replaced by that of the plane it belongs to: sequential RANSAC
     (Fischler & Bolles 1981) over points (N,3) with local normals (N,3), where a point supports a
-    plane when it lies within ``dist`` m of it *and* its local normal is within ``agree_deg`` of the
-    plane's (so a plane never takes the floor points it crosses, nor a box's side it cuts).
-    Hypotheses through three points are scored on up to ``sample`` of the points still free, the
-    best is refitted by least squares to its supporters (three times) and its supporters leave the
-    pool; up to ``max_planes`` planes of ≥ ``min_inliers`` points. A point supporting several planes
-    takes the nearest. Returns (N,3) unit normals, signed like ``normals``; points on no plane keep
-    theirs. Why: a wall's normal fitted to its hundreds of points is a small fraction of a degree
-    off where a window of a noisy range image is degrees off, and un-mirroring turns a normal error
-    δ into a lateral error of ~2δ per metre of the next segment. Deterministic for a given ``rng``
-    (default: seed 0)."""
+    plane when it lies within ``ransac.dist`` m of it *and* its local normal is within
+    ``ransac.agree_deg`` of the plane's (so a plane never takes the floor points it crosses, nor a box's
+    side it cuts). Hypotheses through three points are scored on up to ``ransac.sample`` of the points
+    still free, the best is refitted by least squares to its supporters (three times) and its
+    supporters leave the pool; up to ``ransac.max_planes`` planes of ≥ ``ransac.min_inliers`` points
+    (:class:`PlaneRansac`). A point supporting several planes takes the nearest. Returns (N,3) unit
+    normals, signed like ``normals``; points on no plane keep theirs. Why: a wall's normal fitted to its
+    hundreds of points is a small fraction of a degree off where a window of a noisy range image is
+    degrees off, and un-mirroring turns a normal error δ into a lateral error of ~2δ per metre of the
+    next segment. Deterministic for a given ``rng`` (default: seed 0)."""
     rng = np.random.default_rng(0) if rng is None else rng
+    dist, min_inliers, sample = ransac.dist, ransac.min_inliers, ransac.sample
     X = np.asarray(points, np.float64)
     NL = np.asarray(normals, np.float64)
-    cos_ag = np.cos(np.radians(agree_deg))
+    cos_ag = np.cos(np.radians(ransac.agree_deg))
     best_n = np.full(X.shape, np.nan)
     best_d = np.full(len(X), np.inf)
     free = np.ones(len(X), bool)
@@ -180,12 +197,12 @@ def agreeing_planes(points: np.ndarray, normals: np.ndarray, dist: float = 0.04,
         d = np.abs((X - p0) @ n)
         return (d < dist) & (np.abs(NL @ n) >= cos_ag), d
 
-    for _ in range(max_planes):
+    for _ in range(ransac.max_planes):
         pool = np.flatnonzero(free)
         if len(pool) < min_inliers:
             break
         sub = pool if len(pool) <= sample else rng.choice(pool, sample, replace=False)
-        tri = rng.choice(pool, (iterations, 3))
+        tri = rng.choice(pool, (ransac.iterations, 3))
         n = np.cross(X[tri[:, 1]] - X[tri[:, 0]], X[tri[:, 2]] - X[tri[:, 0]])
         norm = np.linalg.norm(n, axis=1)
         good = norm > 1e-9

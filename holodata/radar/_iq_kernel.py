@@ -26,10 +26,15 @@ antenna to the bit; the time it saves: docs/design/performance.md, the quick dem
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 import scipy.fft as sfft
+
+if TYPE_CHECKING:
+    from .chirp import ChirpConfig
 
 numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
@@ -114,31 +119,40 @@ def _spread(ant, cen, facing, pts, amp, cos_cut, power, k0, u_per_m, shift_per_m
                         g *= sv[v]
 
 
-def beat_samples(antennas: np.ndarray, centres: np.ndarray, facing: np.ndarray, points: np.ndarray,
-                 amplitudes: np.ndarray, *, start_frequency_hz: float, slope_hz_per_s: float, sample_rate_hz: float,
-                 n_samples: int, cos_cut: float = -1.0, beamwidth_deg: float | None = None,
-                 workers: int | None = None) -> np.ndarray:
-    """(C, V, S) complex64 beat samples (see the module docstring).
+@dataclass(frozen=True, eq=False)
+class ChirpSites:
+    """Where each of C chirps is sent from (the same frame, world or radar, as the scatterers):
+    ``antennas`` (C, V, 3) m every virtual antenna of every chirp, ``centres`` (C, 3) m the rotation
+    centre at each chirp, ``facing`` (C, 2) the unit horizontal direction each chirp faces."""
 
-    ``antennas`` (C, V, 3) m: every virtual antenna of every chirp; ``centres`` (C, 3) m: the rotation
-    centre at each chirp, ``facing`` (C, 2): the unit horizontal direction the chirp faces;
-    ``points`` (K, 3) m and ``amplitudes`` (K,) complex: the scatterers (one frame: world or radar
-    frame, the same for all three position arrays); ``cos_cut``: scatterers seen from the centre at
-    more than arccos(cos_cut) from the facing direction are left out (−1: none); ``beamwidth_deg``:
-    the antennas' azimuth pattern on the (two-way) amplitude, ``cos(off)^q`` with ``q`` such that it
-    is half at ±beamwidth/2 — a patch antenna's smooth roll-off to nothing at 90° (None: isotropic)."""
+    antennas: np.ndarray
+    centres: np.ndarray
+    facing: np.ndarray
+
+
+def beat_samples(sites: ChirpSites, points: np.ndarray, amplitudes: np.ndarray, chirp: ChirpConfig, *,
+                 cos_cut: float = -1.0, beamwidth_deg: float | None = None, workers: int | None = None) -> np.ndarray:
+    """(C, V, S) complex64 beat samples (see the module docstring) of the chirps sent from ``sites``
+    (:class:`ChirpSites`) with the ramp and sampling of ``chirp`` (start frequency, slope, sample rate,
+    ``S`` = its samples per chirp).
+
+    ``points`` (K, 3) m and ``amplitudes`` (K,) complex: the scatterers; ``cos_cut``: scatterers seen
+    from the centre at more than arccos(cos_cut) from the facing direction are left out (−1: none);
+    ``beamwidth_deg``: the antennas' azimuth pattern on the (two-way) amplitude, ``cos(off)^q`` with
+    ``q`` such that it is half at ±beamwidth/2 — a patch antenna's smooth roll-off to nothing at 90°
+    (None: isotropic); ``workers``: threads of the final FFT (default 2)."""
     from .chirp import SPEED_OF_LIGHT
 
-    S = int(n_samples)
+    S = int(chirp.n_samples)
     M = 2 * S
-    C, V = antennas.shape[:2]
+    C, V = sites.antennas.shape[:2]
     grid = np.zeros((C, M + 4 * TAPS, V), np.complex128)   # padded: no modulo in the inner loop
-    k0 = 4 * np.pi * start_frequency_hz / SPEED_OF_LIGHT
-    nu_per_m = 2 * slope_hz_per_s / (SPEED_OF_LIGHT * sample_rate_hz)      # cycles per sample per metre
+    k0 = 4 * np.pi * chirp.start_frequency_hz / SPEED_OF_LIGHT
+    nu_per_m = 2 * chirp.slope_hz_per_s / (SPEED_OF_LIGHT * chirp.sample_rate_hz)      # cycles per sample per metre
     q = 0.0 if beamwidth_deg is None else float(np.log(0.5) / np.log(np.cos(np.deg2rad(beamwidth_deg) / 2)))
     if len(points):
-        _spread(np.ascontiguousarray(antennas, np.float64), np.ascontiguousarray(centres, np.float64),
-                np.ascontiguousarray(facing, np.float64), np.ascontiguousarray(points, np.float64),
+        _spread(np.ascontiguousarray(sites.antennas, np.float64), np.ascontiguousarray(sites.centres, np.float64),
+                np.ascontiguousarray(sites.facing, np.float64), np.ascontiguousarray(points, np.float64),
                 np.ascontiguousarray(amplitudes, np.complex128), float(cos_cut),
                 q, k0, nu_per_m * M,
                 2 * np.pi * nu_per_m * (S // 2), M, TAPS, TAU, grid)
@@ -153,4 +167,4 @@ def beat_samples(antennas: np.ndarray, centres: np.ndarray, facing: np.ndarray, 
     return (G[..., ip % M] / phi_hat).astype(np.complex64)
 
 
-__all__ = ["beat_samples", "TAPS", "TAU"]
+__all__ = ["ChirpSites", "beat_samples", "TAPS", "TAU"]

@@ -1,12 +1,52 @@
 """Steps shared by the far-field (:mod:`holodata.radar.beamform`) and the near-field
-(:mod:`holodata.radar.beamform_near`) beamformers: vertical beamforming over the antenna column,
-the decimation fold of the chirp-axis IFFT, rows that share coefficients, single-threaded BLAS
-while the caller threads itself. Arrays in, arrays out; a leaf module (no import of either)."""
+(:mod:`holodata.radar.beamform_near`) beamformers (and the torch one, :mod:`holodata.radar.beamform_torch`):
+what every path derives first from the chirp and the parameters (:class:`Setup`), vertical
+beamforming over the antenna column, the decimation fold of the chirp-axis IFFT, rows that share
+coefficients, single-threaded BLAS while the caller threads itself. Arrays in, arrays out; a leaf
+module (no import of either beamformer)."""
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
 import numpy as np
+
+from .beam_geometry import BeamformParams, column_weights
+from .chirp import ChirpConfig
+
+
+@dataclass(frozen=True, eq=False)
+class Setup:
+    """What every beamformer path derives first for a rotation of ``N`` chirps: ``S`` samples per chirp,
+    ``R`` range bins kept, ``elev`` (H,) rad the grid's elevation rows (row 0 the highest), ``beams``
+    (nb,) the chirp positions formed and ``cw`` (W, nb) the matrix taking their magnitudes to the
+    output columns (:func:`~.beam_geometry.column_weights`)."""
+
+    N: int
+    S: int
+    R: int
+    elev: np.ndarray
+    beams: np.ndarray
+    cw: np.ndarray
+
+    @classmethod
+    def of(cls, chirp: ChirpConfig, params: BeamformParams, N: int) -> "Setup":
+        S = chirp.n_samples
+        beams, cw = column_weights(N, params)
+        return cls(N, S, params.n_range or S, params.elevations(), beams, cw)
+
+    @property
+    def H(self) -> int:
+        return self.elev.size
+
+    def fft_plan(self, L: int, off: int, circular: bool) -> tuple[int, int]:
+        """(Lf, q) of the at-rest paths for ``L`` padded chirps whose chirp 0 is at ``off``: the length of
+        the FFT over the chirp axis (N for a circularly padded rotation: the correlation is circular;
+        else the next fast length, no wrap-around) and the decimation fold (:func:`_fold`)."""
+        import scipy.fft as sfft
+
+        Lf = self.N if circular else sfft.next_fast_len(L)
+        return Lf, _fold(self.beams, off, Lf)
 
 
 def _fold(beams: np.ndarray, off: int, Lf: int) -> int:

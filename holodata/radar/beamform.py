@@ -57,10 +57,10 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .beam_geometry import (BeamformParams, Motion, _to_columns, azimuth_kernel, column_weights, motion_phase_rate,
-                            range_weights, vertical_weights)
+from .beam_geometry import (BeamformParams, Motion, _to_columns, azimuth_kernel, motion_phase_rate, range_weights,
+                            vertical_weights)
 from .chirp import ChirpConfig
-from ._steps import _blas_single, _elevation_groups, _fold, _row_pairs, _to_rotation_start, _vertical
+from ._steps import Setup, _blas_single, _elevation_groups, _row_pairs, _to_rotation_start, _vertical
 
 RANGE_ORIGIN = "rotation_centre"
 
@@ -99,19 +99,19 @@ def static_reflection(chirps: np.ndarray) -> np.ndarray:
 
 # -- entry point ---------------------------------------------------------------------------------------
 def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: BeamformParams | None = None, *,
-             before: np.ndarray | None = None, after: np.ndarray | None = None, velocity=None,
-             chirp_period_s: float | None = None, static_refl: np.ndarray | None = None,
-             device: str = "cpu", threads: int | None = None) -> np.ndarray:
+             neighbours: tuple | None = None, velocity=None, chirp_period_s: float | None = None,
+             static_refl: np.ndarray | None = None, device: str = "cpu") -> np.ndarray:
     """Beamform one rotation. Returns (n_range, H, W) float32 linear amplitude.
 
     ``rotation``: (N, V, S) complex, the N chirp frames of one rotation (chirp 0 faces +x);
-    ``before``/``after``: chirps of the previous/next rotation (at least ``n_syn//2`` each; the last
-    ones of ``before`` and the first of ``after`` are used), else circular padding;
-    ``velocity``: (vx, vy) m/s of the platform in the radar frame at the rotation start (None/0 → at
-    rest); ``chirp_period_s``: time between chirps (default ``chirp.chirp_period_s``);
+    ``neighbours``: (before, after), chirps of the previous/next rotation (at least ``n_syn//2`` each;
+    the last ones of ``before`` and the first of ``after`` are used), else (None, or either part None)
+    circular padding; ``velocity``: (vx, vy) m/s of the platform in the radar frame at the rotation
+    start (None/0 → at rest); ``chirp_period_s``: time between chirps (default ``chirp.chirp_period_s``);
     ``static_refl``: (V, S) to subtract (``params.static_removal == "trajectory"``; see
     :func:`static_reflection`); without it "trajectory" falls back to this rotation's mean.
-    ``device``: ``"cpu"`` (numpy/scipy) or a torch device (``"cuda"``, ``"cpu-torch"`` = torch on CPU).
+    ``device``: ``"cpu"`` (numpy/scipy, on up to 8 threads) or a torch device (``"cuda"``, ``"cpu-torch"``
+    = torch on CPU).
     """
     chirp = chirp or ChirpConfig()
     params = params or BeamformParams()
@@ -120,28 +120,11 @@ def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: Bea
     if x.ndim != 3 or x.shape[1:] != (V, S):
         raise ValueError(f"rotation must be (chirps, {V}, {S}), got {x.shape}")
     N = x.shape[0]
-    n_syn = params.syn_count(N)
-    h = (n_syn - 1) // 2
+    h = (params.syn_count(N) - 1) // 2
     if params.n_range is not None and params.n_range > S:
         raise ValueError(f"n_range {params.n_range} exceeds n_samples {S}")
-    # 1. static reflection
-    if params.static_removal == "none":
-        refl = None
-    elif params.static_removal == "trajectory" and static_refl is not None:
-        refl = np.asarray(static_refl, np.complex64).reshape(V, S)
-    else:
-        refl = static_reflection(x)
-    # padding: neighbours or circular
-    circular = before is None or after is None
-    if circular:
-        xp, off = x, 0
-    else:
-        before, after = np.asarray(before), np.asarray(after)
-        for name, a in (("before", before), ("after", after)):
-            if a.ndim != 3 or a.shape[1:] != (V, S) or a.shape[0] < h:
-                raise ValueError(f"{name} must be (>= {h}, {V}, {S}) chirps, got {a.shape}")
-        xp = np.concatenate([before[before.shape[0] - h:], x, after[:h]], axis=0) if h else x
-        off = h
+    refl = _reflection(x, params, static_refl, (V, S))                  # 1. static reflection
+    xp, off, circular = _padded(x, neighbours, h, (V, S))
     xp = xp.astype(np.complex64, copy=False)
     if refl is not None:
         xp = xp - refl[None]
@@ -156,13 +139,39 @@ def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: Bea
         from .beamform_near import motion_near as moving, static_near as static
     else:
         moving, static = _motion_numpy, _static_numpy
-    threads = threads or min(os.cpu_count() or 1, 8)
+    threads = min(os.cpu_count() or 1, 8)
     if motion is None:
         return static(xp, off, circular, N, chirp, params, threads)
     if circular and h:
         xp = np.concatenate([xp[N - h:], xp, xp[:h]], axis=0)
         off = h
     return moving(xp, off, N, chirp, params, motion, threads)
+
+
+def _reflection(x: np.ndarray, params: BeamformParams, static_refl, shape: tuple) -> np.ndarray | None:
+    """The static reflection (V, S) to subtract from the rotation ``x``: none, the trajectory's
+    (``static_refl`` as given), or the rotation's own mean (``params.static_removal``)."""
+    if params.static_removal == "none":
+        return None
+    if params.static_removal == "trajectory" and static_refl is not None:
+        return np.asarray(static_refl, np.complex64).reshape(shape)
+    return static_reflection(x)
+
+
+def _padded(x: np.ndarray, neighbours: tuple | None, h: int, shape: tuple) -> tuple[np.ndarray, int, bool]:
+    """(chirps, index of the rotation's chirp 0 in them, circular): the rotation between the last ``h``
+    chirps of the rotation before and the first ``h`` of the one after, or alone (circular padding)
+    when ``neighbours`` (before, after) is None or lacks either."""
+    before, after = neighbours if neighbours is not None else (None, None)
+    if before is None or after is None:
+        return x, 0, True
+    V, S = shape
+    before, after = np.asarray(before), np.asarray(after)
+    for name, a in (("before", before), ("after", after)):
+        if a.ndim != 3 or a.shape[1:] != (V, S) or a.shape[0] < h:
+            raise ValueError(f"{name} must be (>= {h}, {V}, {S}) chirps, got {a.shape}")
+    xp = np.concatenate([before[before.shape[0] - h:], x, after[:h]], axis=0) if h else x
+    return xp, h, False
 
 
 beamform_rotation = beamform
@@ -172,13 +181,13 @@ beamform_rotation = beamform
 _KCACHE: dict = {}
 
 
-def _kernel_spectrum(chirp, params, N, Lf, elev, threads=1):
+def _kernel_spectrum(chirp, params, st: Setup, Lf, threads=1):
     """(S, Lf, H) complex64: FFT over the chirp axis of the circularly placed kernel g[(−m) mod Lf] = K[m]."""
-    key = (chirp, params, N, Lf)
+    key = (chirp, params, st.N, Lf)
     if key not in _KCACHE:
         import scipy.fft as sfft
 
-        K = azimuth_kernel(chirp, params, np.cos(elev), N).astype(np.complex64)   # (H, n_syn, S)
+        K = azimuth_kernel(chirp, params, np.cos(st.elev), st.N).astype(np.complex64)   # (H, n_syn, S)
         H, n_syn, S = K.shape
         h = (n_syn - 1) // 2
         g = np.zeros((S, Lf, H), np.complex64)
@@ -193,15 +202,10 @@ def _kernel_spectrum(chirp, params, N, Lf, elev, threads=1):
 def _static_numpy(xp, off, circular, N, chirp, params, threads):
     import scipy.fft as sfft
 
-    S = chirp.n_samples
-    R = params.n_range or S
-    elev = params.elevations()
-    H = elev.size
-    L = xp.shape[0]
-    Lf = N if circular else sfft.next_fast_len(L)
-    beams, cw = column_weights(N, params)
-    q = _fold(beams, off, Lf)
-    Kf = _kernel_spectrum(chirp, params, N, Lf, elev, threads)        # (S, Lf, H)
+    st = Setup.of(chirp, params, N)
+    S, R, elev, H, beams, cw = st.S, st.R, st.elev, st.H, st.beams, st.cw
+    Lf, q = st.fft_plan(xp.shape[0], off, circular)
+    Kf = _kernel_spectrum(chirp, params, st, Lf, threads)             # (S, Lf, H)
     # vertical weights with the range weights folded in (both are per-sample factors)
     vw = (vertical_weights(chirp, elev) * range_weights(chirp, params)[None, None, :]).transpose(2, 1, 0)
     vw = np.ascontiguousarray(vw.astype(np.complex64))                 # (S, V, H)
@@ -250,11 +254,8 @@ def _azimuth_kernel64(chirp, params, N):
 def _motion_numpy(xp, off, N, chirp, params, motion, threads):
     import scipy.fft as sfft
 
-    S = chirp.n_samples
-    R = params.n_range or S
-    elev = params.elevations()
-    H = elev.size
-    beams, cw = column_weights(N, params)
+    st = Setup.of(chirp, params, N)
+    S, R, elev, H, beams, cw = st.S, st.R, st.elev, st.H, st.beams, st.cw
     vw = vertical_weights(chirp, elev).transpose(2, 1, 0).astype(np.complex64)   # (S, V, H)
     rw = range_weights(chirp, params).astype(np.complex64)
     # vertical beamforming of every padded chirp: (H, L, S)

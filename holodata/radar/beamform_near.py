@@ -37,9 +37,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .beam_geometry import (_to_columns, column_weights, near_kernel, near_motion_phase_rate, near_sample_weights,
-                            vertical_weights)
-from ._steps import _blas_single, _elevation_groups, _fold, _row_pairs, _to_rotation_start, _vertical
+from .beam_geometry import _to_columns, near_kernel, near_motion_phase_rate, near_sample_weights, vertical_weights
+from ._steps import Setup, _blas_single, _elevation_groups, _row_pairs, _to_rotation_start, _vertical
 
 _NKCACHE: dict = {}
 
@@ -58,13 +57,15 @@ def _row_weights(chirp, params, elev) -> np.ndarray:
     return np.ascontiguousarray(w.transpose(2, 1, 0).astype(np.complex64))
 
 
-def _kernel_spectrum(chirp, params, N, Lf, R, elev, q, blk, threads):
+def _kernel_spectrum(chirp, params, st: Setup, Lf, q, blk, threads):
     """Per block of ``blk`` rows, (R, Lf, rows) complex64: the FFT over the chirp axis of the circularly
     placed kernel g[k, (−m) mod Lf] = K[m, k], divided by the fold factor ``q`` (see :func:`static_near`)."""
+    N, R = st.N, st.R
+
     def make():
         import scipy.fft as sfft
 
-        K = near_kernel(chirp, params, np.cos(elev), N, R).astype(np.complex64)      # (H, n_syn, R)
+        K = near_kernel(chirp, params, np.cos(st.elev), N, R).astype(np.complex64)      # (H, n_syn, R)
         H, n_syn, _ = K.shape
         h = (n_syn - 1) // 2
         out = []
@@ -88,17 +89,12 @@ def static_near(xp, off, circular, N, chirp, params, threads) -> np.ndarray:
     times first (a length Lf/q inverse FFT gives just those beams)."""
     import scipy.fft as sfft
 
-    S = chirp.n_samples
-    R = params.n_range or S
-    elev = params.elevations()
-    H = elev.size
-    L = xp.shape[0]
-    Lf = N if circular else sfft.next_fast_len(L)
-    beams, cw = column_weights(N, params)
-    q = _fold(beams, off, Lf)
+    st = Setup.of(chirp, params, N)
+    S, R, elev, H, beams, cw = st.S, st.R, st.elev, st.H, st.beams, st.cw
+    Lf, q = st.fft_plan(xp.shape[0], off, circular)
     Lq = Lf // q
     blk = 16
-    Kf = _kernel_spectrum(chirp, params, N, Lf, R, elev, q, blk, threads)           # per block (R, Lf, rows)
+    Kf = _kernel_spectrum(chirp, params, st, Lf, q, blk, threads)                   # per block (R, Lf, rows)
     vw = _row_weights(chirp, params, elev)                                            # (S, V, H)
     xf = sfft.fft(xp, n=Lf, axis=0, workers=threads)                                  # (Lf, V, S)
     xf = np.ascontiguousarray(xf.transpose(2, 0, 1))                                   # (S, Lf, V)
@@ -143,11 +139,8 @@ def motion_near(xp, off, N, chirp, params, motion, threads) -> np.ndarray:
 
     from ._motion_kernel import motion_sums
 
-    S = chirp.n_samples
-    R = params.n_range or S
-    elev = params.elevations()
-    H = elev.size
-    beams, cw = column_weights(N, params)
+    st = Setup.of(chirp, params, N)
+    R, elev, H, beams, cw = st.R, st.elev, st.H, st.beams, st.cw
     X = _vertical(xp, _row_weights(chirp, params, elev), threads)                    # (H, L, S)
     X = np.ascontiguousarray(sfft.fft(X, axis=2, workers=threads, overwrite_x=True)[:, :, :R])   # (H, L, R)
     K = _cache(("kernel", chirp, params, N, R),

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .beam_geometry import (_REANCHOR, _to_columns, azimuth_kernel, column_weights, motion_phase_rate, range_weights,
-                            vertical_weights, window)
+from .beam_geometry import _REANCHOR, _to_columns, azimuth_kernel, motion_phase_rate, range_weights, vertical_weights, window
+from ._steps import Setup
 
 
 def _device(torch, device: str):
@@ -31,13 +31,10 @@ def beamform_torch(xp: np.ndarray, off: int, circular: bool, N: int, chirp, para
 
     dev = _device(torch, device)
     c64 = torch.complex64
-    S = chirp.n_samples
-    R = params.n_range or S
-    elev = params.elevations()
-    H = elev.size
+    st = Setup.of(chirp, params, N)
+    S, R, elev, H, beams, cw = st.S, st.R, st.elev, st.H, st.beams, st.cw
     n_syn = params.syn_count(N)
     h = (n_syn - 1) // 2
-    beams, cw = column_weights(N, params)
     vw = torch.as_tensor(vertical_weights(chirp, elev).transpose(2, 1, 0).astype(np.complex64), device=dev)  # (S,V,H)
     rw = torch.as_tensor(range_weights(chirp, params).astype(np.complex64), device=dev)
     K = azimuth_kernel(chirp, params, np.cos(elev), N).astype(np.complex64)       # (H, n_syn, S)
@@ -45,10 +42,7 @@ def beamform_torch(xp: np.ndarray, off: int, circular: bool, N: int, chirp, para
     with torch.no_grad():
         x = torch.as_tensor(np.ascontiguousarray(xp), dtype=c64, device=dev)      # (L, V, S)
         if motion is None:
-            import scipy.fft as sfft
-
-            L = x.shape[0]
-            Lf = N if circular else sfft.next_fast_len(L)
+            Lf, _ = st.fft_plan(x.shape[0], off, circular)
             g = torch.zeros((S, Lf, H), dtype=c64, device=dev)
             idx = torch.as_tensor((-np.arange(-h, h + 1)) % Lf, device=dev)
             g[:, idx, :] = torch.as_tensor(K.transpose(2, 1, 0).copy(), device=dev)

@@ -15,6 +15,8 @@ constant TX→RX leakage term (what static-reflection removal takes out).
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from .chirp import SPEED_OF_LIGHT, ChirpConfig
@@ -37,21 +39,34 @@ def antenna_positions(chirp: ChirpConfig, chirp_index: np.ndarray, n_chirps: int
     return out
 
 
+@dataclass(frozen=True)
+class RigEffects:
+    """What a simulated rig adds to ideal isotropic point returns (:func:`simulate_chirps`):
+    ``beamwidth_deg`` the −3 dB full width of a Gaussian azimuth antenna pattern around the facing
+    direction (None: isotropic); ``leakage`` (V, S) complex added to every chirp (the TX→RX leakage
+    static-reflection removal takes out); ``noise_std`` the per-component std of complex white noise,
+    drawn from ``rng`` (a Generator or a seed; None: fresh entropy)."""
+
+    beamwidth_deg: float | None = None
+    noise_std: float = 0.0
+    leakage: np.ndarray | None = None
+    rng: np.random.Generator | int | None = None
+
+
 def simulate_chirps(points, amplitudes=None, chirp: ChirpConfig | None = None, *, chirp_index=None,
                     n_chirps: int | None = None, velocity=(0.0, 0.0), chirp_period_s: float | None = None,
-                    beamwidth_deg: float | None = None, noise_std: float = 0.0, leakage=None,
-                    rng: np.random.Generator | int | None = None) -> np.ndarray:
+                    effects: RigEffects | None = None) -> np.ndarray:
     """(C, V, S) complex64 beat samples of point scatterers.
 
     ``points``: (K, 3) metres in the radar frame at chirp 0 (rotation centre at the origin, z = the
     height of the vertical phase reference); ``amplitudes``: (K,) complex (default 1);
     ``chirp_index``: (C,) chirp numbers (default ``0..n_chirps−1``, one rotation); ``n_chirps``: chirps
-    per rotation (default ``chirp.chirps_per_rotation``); ``velocity``: (vx, vy) m/s;
-    ``beamwidth_deg``: −3 dB full width of a Gaussian azimuth pattern (None: isotropic);
-    ``noise_std``: per-component std of complex white noise; ``leakage``: (V, S) complex added to
-    every chirp.
+    per rotation (default ``chirp.chirps_per_rotation``); ``velocity``: (vx, vy) m/s, chirps
+    ``chirp_period_s`` apart (default ``chirp.chirp_period_s``); ``effects``: the antenna pattern,
+    leakage and noise (:class:`RigEffects`; default none of them).
     """
     chirp = chirp or ChirpConfig()
+    fx = effects or RigEffects()
     N = int(n_chirps or chirp.chirps_per_rotation)
     idx = np.arange(N) if chirp_index is None else np.asarray(chirp_index, np.int64)
     P = np.asarray(points, np.float64).reshape(-1, 3)
@@ -67,17 +82,17 @@ def simulate_chirps(points, amplitudes=None, chirp: ChirpConfig | None = None, *
         d = P[None, None, :, :] - ant[:, :, None, :]                                    # (c, V, K, 3)
         R = np.linalg.norm(d, axis=-1)
         g = a[None, None, :]
-        if beamwidth_deg is not None:
+        if fx.beamwidth_deg is not None:
             phi = -2 * np.pi * idx[s:s + step] / N
             off = np.angle(np.exp(1j * (np.arctan2(d[..., 1], d[..., 0]) - phi[:, None, None])))
-            sig = np.deg2rad(beamwidth_deg) / (2 * np.sqrt(2 * np.log(2)))
+            sig = np.deg2rad(fx.beamwidth_deg) / (2 * np.sqrt(2 * np.log(2)))
             g = g * np.exp(-0.5 * (off / sig) ** 2)
         out[s:s + step] = np.einsum("cvk,cvks->cvs", g * np.ones_like(R), np.exp(k[None, None, None, :] * R[..., None]))
-    if leakage is not None:
-        out += np.asarray(leakage, np.complex64).reshape(1, chirp.n_virtual, chirp.n_samples)
-    if noise_std > 0:
-        rng = np.random.default_rng(rng)
-        out += (noise_std * (rng.standard_normal(out.shape) + 1j * rng.standard_normal(out.shape))).astype(np.complex64)
+    if fx.leakage is not None:
+        out += np.asarray(fx.leakage, np.complex64).reshape(1, chirp.n_virtual, chirp.n_samples)
+    if fx.noise_std > 0:
+        rng = np.random.default_rng(fx.rng)
+        out += (fx.noise_std * (rng.standard_normal(out.shape) + 1j * rng.standard_normal(out.shape))).astype(np.complex64)
     return out
 
 
@@ -85,7 +100,8 @@ def simulate_rotation(points, amplitudes=None, chirp: ChirpConfig | None = None,
                       velocity=(0.0, 0.0), pad: int = 0, **kw) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """One rotation (N, V, S) and, with ``pad > 0``, the last ``pad`` chirps of the rotation before
     and the first ``pad`` of the one after (the platform keeps moving through them): ``(rotation,
-    before, after)`` — what :func:`~holodata.radar.beamform.beamform` takes."""
+    before, after)`` — what :func:`~holodata.radar.beamform.beamform` takes (``neighbours`` = (before,
+    after)). ``kw``: more of :func:`simulate_chirps`' arguments (``chirp_period_s``, ``effects``)."""
     chirp = chirp or ChirpConfig()
     N = int(n_chirps or chirp.chirps_per_rotation)
     rot = simulate_chirps(points, amplitudes, chirp, n_chirps=N, velocity=velocity, **kw)

@@ -103,6 +103,65 @@ class _FaceMapped:
         return self.inner.occluded6(rays)
 
 
+class _NumpyBounces:
+    """The numpy trace's state (:meth:`RayScene._trace_numpy`): per bounce and ray the outputs, bounce
+    major and structure of arrays (``rng`` (B,N), ``point``/``normal`` (B,3,N), ``face`` (B,N),
+    ``hdyn`` (B,N)), the live rays' state ``S`` (12,n) float32 — rows 0-2 origin, 3-5 direction, 6-8
+    normal, 9 t, 10 n·d, 11 accumulated distance —, their indices ``idx`` (None: all rays, in order)
+    and each bounce's (indices, hit points) in ``visited`` for the LOS checks."""
+
+    def __init__(self, O: np.ndarray, d: np.ndarray, B: int):
+        N = O.shape[1]
+        self.rng = np.full((B, N), np.nan, dtype=np.float32)
+        self.point = np.full((B, 3, N), np.nan, dtype=np.float32)  # structure of arrays; (N,B,3) views returned
+        self.normal = np.full((B, 3, N), np.nan, dtype=np.float32)
+        self.face = np.full((B, N), -1, dtype=np.int64)
+        self.hdyn = np.zeros((B, N), dtype=bool)
+        self.visited: list = [None] * B
+        self.S = np.empty((12, N), dtype=np.float32)
+        self.S[0:3], self.S[3:6], self.S[11] = O, d, 0.0
+        self.idx: np.ndarray | None = None
+
+    def advance(self, b: int, t, f, isd, hit, max_range) -> None:
+        """Bounce ``b``'s hits (t, face, is_dyn or None, hit) of the live rays: the rays that hit within
+        ``max_range`` in all stay live; their range, point, normal (facing the ray), face and is_dyn
+        recorded; each reflected about its normal from its hit point."""
+        S = self.S
+        S[9] = t
+        S[11] += t
+        ok = hit & (S[11] <= max_range)
+        if not ok.all():
+            keep = np.flatnonzero(ok)
+            self.idx = keep if self.idx is None else self.idx[keep]
+            S = self.S = S.take(keep, axis=1)
+            f = f[keep]
+            isd = None if isd is None else isd[keep]
+        o, d, nx, t, nd = S[0:3], S[3:6], S[6:9], S[9], S[10]
+        sel = slice(None) if self.idx is None else self.idx
+        p = o + t * d
+        nx *= np.where(nd > 0, np.float32(-1), np.float32(1))
+        self.rng[b, sel] = S[11]
+        self.point[b][:, sel] = p
+        self.normal[b][:, sel] = nx
+        self.face[b, sel] = f
+        if isd is not None:
+            self.hdyn[b, sel] = isd
+        self.visited[b] = (sel, p)
+        d += (2 * np.abs(nd)) * nx  # d - 2(d.n)n with n facing the ray (d.n = -|nd|)
+        d /= np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        o[...] = p
+
+    def los_parts(self, labels: bool, N: int) -> list:
+        """[(b, ray indices, (3, n) hit points)] of bounces 2..B for :meth:`RayScene._los` (none without ``labels``)."""
+        B = len(self.visited)
+        parts: list = []
+        if labels and B > 1:
+            parts = [(b, self.visited[b]) for b in range(1, B) if self.visited[b] is not None]
+            parts = [(b, np.arange(N) if isinstance(s, slice) else s, p) for b, (s, p) in parts]
+            parts = [q for q in parts if len(q[1])]
+        return parts
+
+
 class RayScene:
     """Static triangle scene built once. ``vertices`` (V,3) m, ``faces`` (F,3) int;
     ``face_class`` (F,) uint8 per-face semantic class (else geometric classes are derived);
@@ -275,102 +334,91 @@ class RayScene:
             O = np.ascontiguousarray(np.broadcast_to(O, d.shape))
         if O.shape != d.shape:
             raise ValueError(f"{O.shape[1]} origins for {d.shape[1]} directions")
-        N, B = O.shape[1], int(max_bounces)
+        B = int(max_bounces)
         d = d / np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
         dyn = self._dynamic(dynamic)
         if self.compiled:
             return self._trace_compiled(O, d, B, max_range, dyn, labels)
-        st = self.static
-        rng = np.full((B, N), np.nan, dtype=np.float32)
-        point = np.full((B, 3, N), np.nan, dtype=np.float32)  # structure of arrays; (N,B,3) views returned
-        normal = np.full((B, 3, N), np.nan, dtype=np.float32)
-        face = np.full((B, N), -1, dtype=np.int64)
-        hdyn = np.zeros((B, N), dtype=bool)
-        visited: list = [None] * B
-        # state rows: 0-2 origin, 3-5 direction, 6-8 normal, 9 t, 10 n.d, 11 accumulated distance
-        S = np.empty((12, N), dtype=np.float32)
-        S[0:3], S[3:6], S[11] = O, d, 0.0
-        idx = None  # None = all rays, in order
+        return self._trace_numpy(O, d, B, max_range, dyn, labels)
+
+    def _trace_numpy(self, O, d, B: int, max_range, dyn, labels: bool) -> TraceResult:
+        """:meth:`trace_soa`'s bounce loop in numpy (``compiled = False``; the reference the numba
+        kernels match to the bit): per bounce the nearest hits of the live rays (:meth:`_numpy_hits`),
+        then the rays that hit within ``max_range`` recorded and reflected (:meth:`_NumpyBounces.advance`)."""
+        N = O.shape[1]
+        tr = _NumpyBounces(O, d, B)
         rays = self._workspace(N)
-        off = np.float32(SELF_HIT_OFFSET_M)
         for b in range(B):
-            n = S.shape[1]
-            if n == 0:
+            if tr.S.shape[1] == 0:
                 break
-            o, d, nx = S[0:3], S[3:6], S[6:9]
-            R = rays[:n]
-            ro = o + off * d if b else o
-            R[:, :3] = ro.T
-            R[:, 3:] = d.T
-            t, f, isd = self._cast6(R, dyn, (ro, d))
-            hit = np.isfinite(t)
-            fz = np.where(hit if isd is None else hit & ~isd, f, 0)  # static face ids only
-            st.n32.take(fz, axis=1, out=nx)
-            c = st.c32[fz]
-            if isd is not None:
-                k = np.flatnonzero(isd)
-                if len(k):
-                    nx[:, k] = dyn.n32[:, f[k]]
-                    c[k] = dyn.c32[f[k]]
-            nd = S[10]
-            np.multiply(nx[0], d[0], out=nd)
-            nd += nx[1] * d[1]
-            nd += nx[2] * d[2]
-            no = nx[0] * o[0] + nx[1] * o[1] + nx[2] * o[2]
-            if b:
-                t = t + off
-            with np.errstate(invalid="ignore", divide="ignore"):
-                tref = (c - no) / nd
-                t = np.where(np.abs(tref - t) < 1e-3, tref, t)
-            if b:
-                spur = np.flatnonzero(hit & (t < 0.5 * off))
-                if len(spur):  # rare: grazing float32 self-hits; recast those exactly
-                    ts, fs, ds, ns = self._first_hit(o[:, spur].T.astype(np.float64), d[:, spur].T.astype(np.float64), dyn,
-                                                     float(off))
-                    t[spur], f[spur], nx[:, spur] = ts, np.maximum(fs, 0), ns.T
-                    hit[spur] = fs >= 0
-                    nd[spur] = np.einsum("ij,ji->i", ns, d[:, spur])
-                    if isd is None and ds.any():
-                        isd = np.zeros(n, bool)
-                    if isd is not None:
-                        isd[spur] = ds
-            S[9] = t
-            S[11] += t
-            ok = hit & (S[11] <= max_range)
-            if not ok.all():
-                keep = np.flatnonzero(ok)
-                idx = keep if idx is None else idx[keep]
-                S = S.take(keep, axis=1)
-                f = f[keep]
-                isd = None if isd is None else isd[keep]
-            o, d, nx, t, nd = S[0:3], S[3:6], S[6:9], S[9], S[10]
-            sel = slice(None) if idx is None else idx
-            p = o + t * d
-            nx *= np.where(nd > 0, np.float32(-1), np.float32(1))
-            rng[b, sel] = S[11]
-            point[b][:, sel] = p
-            normal[b][:, sel] = nx
-            face[b, sel] = f
-            if isd is not None:
-                hdyn[b, sel] = isd
-            visited[b] = (sel, p)
-            d += (2 * np.abs(nd)) * nx  # d - 2(d.n)n with n facing the ray (d.n = -|nd|)
-            d /= np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-            o[...] = p
-        hit = face >= 0
-        parts = []
-        if labels and B > 1:
-            parts = [(b, visited[b]) for b in range(1, B) if visited[b] is not None]
-            parts = [(b, np.arange(N) if isinstance(s, slice) else s, p) for b, (s, p) in parts]
-            parts = [q for q in parts if len(q[1])]
-        los = self._los(parts, O, dyn, B, N)
+            t, f, isd, hit = self._numpy_hits(tr.S, b, rays, dyn)
+            tr.advance(b, t, f, isd, hit, max_range)
+        hit = tr.face >= 0
+        los = self._los(tr.los_parts(labels, N), O, dyn, B, N)
         semantic = np.zeros((B, N), dtype=np.uint8)
-        sm = hit & ~hdyn
-        semantic[sm] = self.face_semantic[face[sm]]
-        semantic[hit & hdyn] = self.human_class
-        label = combine_label(hit, hdyn, los)
-        return TraceResult(rng.T, normal.transpose(2, 0, 1), point.transpose(2, 0, 1), face.T, hdyn.T,
+        sm = hit & ~tr.hdyn
+        semantic[sm] = self.face_semantic[tr.face[sm]]
+        semantic[hit & tr.hdyn] = self.human_class
+        label = combine_label(hit, tr.hdyn, los)
+        return TraceResult(tr.rng.T, tr.normal.transpose(2, 0, 1), tr.point.transpose(2, 0, 1), tr.face.T, tr.hdyn.T,
                            label.T, semantic.T)
+
+    def _numpy_hits(self, S: np.ndarray, b: int, rays: np.ndarray, dyn):
+        """Bounce ``b`` of the live rays of state ``S`` (rows as :class:`_NumpyBounces`): cast from their
+        origins (offset along the direction after bounce 1), each hit's distance refined against its
+        triangle's plane, grazing self-hits recast exactly; writes the hit normals (S[6:9]) and n·d
+        (S[10]). Returns (t, face, is_dyn or None, hit)."""
+        st = self.static
+        n = S.shape[1]
+        o, d, nx = S[0:3], S[3:6], S[6:9]
+        off = np.float32(SELF_HIT_OFFSET_M)
+        R = rays[:n]
+        ro = o + off * d if b else o
+        R[:, :3] = ro.T
+        R[:, 3:] = d.T
+        t, f, isd = self._cast6(R, dyn, (ro, d))
+        hit = np.isfinite(t)
+        fz = np.where(hit if isd is None else hit & ~isd, f, 0)  # static face ids only
+        st.n32.take(fz, axis=1, out=nx)
+        c = st.c32[fz]
+        if isd is not None:
+            k = np.flatnonzero(isd)
+            if len(k):
+                nx[:, k] = dyn.n32[:, f[k]]
+                c[k] = dyn.c32[f[k]]
+        nd = S[10]
+        np.multiply(nx[0], d[0], out=nd)
+        nd += nx[1] * d[1]
+        nd += nx[2] * d[2]
+        no = nx[0] * o[0] + nx[1] * o[1] + nx[2] * o[2]
+        if b:
+            t = t + off
+        with np.errstate(invalid="ignore", divide="ignore"):
+            tref = (c - no) / nd
+            t = np.where(np.abs(tref - t) < 1e-3, tref, t)
+        if b:
+            spur = np.flatnonzero(hit & (t < 0.5 * off))
+            if len(spur):  # rare: grazing float32 self-hits; recast those exactly
+                isd = self._recast_spurious(S, spur, (t, f, hit, isd), dyn)
+        return t, f, isd, hit
+
+    def _recast_spurious(self, S: np.ndarray, spur: np.ndarray, hits: tuple, dyn):
+        """Recast the rays ``spur`` of state ``S`` exactly (:meth:`_first_hit` in float64, past the
+        self-hit offset) and write their results into ``hits`` = (t, face, hit, is_dyn or None) and
+        S's normal and n·d rows, in place; the is_dyn array (made when there was none and a recast
+        ray hit the dynamic mesh)."""
+        t, f, hit, isd = hits
+        o, d, nx, nd = S[0:3], S[3:6], S[6:9], S[10]
+        ts, fs, ds, ns = self._first_hit(o[:, spur].T.astype(np.float64), d[:, spur].T.astype(np.float64), dyn,
+                                         float(np.float32(SELF_HIT_OFFSET_M)))
+        t[spur], f[spur], nx[:, spur] = ts, np.maximum(fs, 0), ns.T
+        hit[spur] = fs >= 0
+        nd[spur] = np.einsum("ij,ji->i", ns, d[:, spur])
+        if isd is None and ds.any():
+            isd = np.zeros(S.shape[1], bool)
+        if isd is not None:
+            isd[spur] = ds
+        return isd
 
     def _trace_compiled(self, O, d, B: int, max_range, dyn, labels: bool) -> TraceResult:
         """:meth:`trace_soa`'s bounce loop with the array work in numba kernels (:mod:`._kernels`): the
@@ -399,15 +447,8 @@ class RayScene:
             isd = np.zeros(n, bool) if isd is None else isd
             hit, tt = np.empty(n, bool), np.empty(n, np.float32)
             if _kernels.refine(S, t, f, isd, st.n32, st.c32, dn32, dc32, off, b == 0, hit, tt):
-                # rare: grazing float32 self-hits; recast those exactly (as trace_soa)
-                spur = np.flatnonzero(hit & (tt < 0.5 * off))
-                o, dd, nx, nd = S[0:3], S[3:6], S[6:9], S[10]
-                ts, fs, ds, ns = self._first_hit(o[:, spur].T.astype(np.float64), dd[:, spur].T.astype(np.float64), dyn,
-                                                 float(off))
-                tt[spur], f[spur], nx[:, spur] = ts, np.maximum(fs, 0), ns.T
-                hit[spur] = fs >= 0
-                nd[spur] = np.einsum("ij,ji->i", ns, dd[:, spur])
-                isd[spur] = ds
+                # rare: grazing float32 self-hits; recast those exactly (as the numpy path)
+                self._recast_spurious(S, np.flatnonzero(hit & (tt < 0.5 * off)), (tt, f, hit, isd), dyn)
             S, idx, P = _kernels.advance(S, tt, hit, f, isd, mr, idx, b, rng, point, normal, face, hdyn)
             visited.append((b, idx, P))
         los = self._los([q for q in visited[1:] if len(q[1])] if labels else [], O, dyn, B, N)
@@ -555,10 +596,11 @@ def _unit(d: np.ndarray) -> np.ndarray:
 
 
 def trace(vertices, faces, origins, directions, max_bounces: int = DEFAULT_MAX_BOUNCES,
-          max_range: float = DEFAULT_MAX_RANGE_M, backend: str = DEFAULT_BACKEND, dynamic=None,
-          face_class=None) -> dict:
-    """One-shot multi-bounce trace (docs/format.md §6). Returns a dict: ``range`` (N,B) float32 accumulated
-    travel distance m (NaN none), ``normal`` (N,B,3), ``point`` (N,B,3), ``face`` (N,B) int64 (-1 none),
-    plus ``hit_dynamic``, ``label``, ``semantic`` (see :class:`TraceResult`)."""
-    scene = RayScene(vertices, faces, backend=backend, face_class=face_class)
+          max_range: float = DEFAULT_MAX_RANGE_M, dynamic=None, **scene_options) -> dict:
+    """One-shot multi-bounce trace (docs/format.md §6): :meth:`RayScene.trace` on a scene built for this
+    call, ``scene_options`` the rest of :class:`RayScene`'s arguments (``backend``, ``face_class``,
+    ``class_names``, ``nthreads``). Returns a dict: ``range`` (N,B) float32 accumulated travel distance m
+    (NaN none), ``normal`` (N,B,3), ``point`` (N,B,3), ``face`` (N,B) int64 (-1 none), plus
+    ``hit_dynamic``, ``label``, ``semantic`` (see :class:`TraceResult`)."""
+    scene = RayScene(vertices, faces, **scene_options)
     return scene.trace(origins, directions, max_bounces=max_bounces, max_range=max_range, dynamic=dynamic).as_dict()

@@ -196,83 +196,120 @@ def ros1_chunk_sizes(path: Path) -> dict[int, tuple[str, int | None]] | str:
     None)}, or a one-line reason when the index cannot be read as declared (the bag is then read by
     a linear scan). A chunk whose declared uncompressed size its compressed bytes cannot hold is a
     :class:`RecordingError` (:func:`.sizes.declared_size`)."""
-    import struct
-
     out: dict[int, tuple[str, int | None]] = {}
     with open_bounded(path) as f:
-        size = f.size
-
-        def u32(what: str) -> int:
-            b = f.read(4)
-            if len(b) != 4:
-                raise _Unusable(f"{what} at byte {f.tell() - len(b)} cut short")
-            return struct.unpack("<I", b)[0]
-
-        def length(what: str) -> int:
-            at = f.tell()
-            n = u32(what)
-            if n > size - at - 4:
-                raise _Unusable(f"{what} at byte {at} declares {n} bytes, {size - at - 4} left in the file")
-            return n
-
-        def header(what: str) -> dict[bytes, bytes]:
-            b = f.read(length(f"{what} header"))
-            fields, i = {}, 0
-            while i < len(b):
-                if i + 4 > len(b):
-                    raise _Unusable(f"{what} header is damaged")
-                (n,) = struct.unpack_from("<I", b, i)
-                name, eq, value = b[i + 4:i + 4 + n].partition(b"=")
-                if not eq or i + 4 + n > len(b):
-                    raise _Unusable(f"{what} header is damaged")
-                fields[name] = value
-                i += 4 + n
-            return fields
-
-        def uint(fields: dict, name: bytes, fmt: str = "<I") -> int:
-            try:
-                return struct.unpack(fmt, fields[name])[0]
-            except (KeyError, struct.error) as err:
-                raise _Unusable(f"record field {name.decode()!r} missing or damaged") from err
-
+        r = _Ros1Records(f)
         try:
             if not f.readline().startswith(b"#ROSBAG V2.0"):
                 return "not a ROS 1 bag v2.0"
-            bag = header("bag header")
-            index_pos, conns, chunks = uint(bag, b"index_pos", "<Q"), uint(bag, b"conn_count"), uint(bag, b"chunk_count")
+            bag = r.header("bag header")
+            index_pos, conns, chunks = _uint(bag, b"index_pos", "<Q"), _uint(bag, b"conn_count"), _uint(bag, b"chunk_count")
             if index_pos == 0 or chunks == 0:
                 return out                  # rosbags reads nothing more (unindexed bags: its own error)
-            if index_pos > size:
-                return f"index position {index_pos} lies past the end of the file ({size} bytes)"
-            f.seek(index_pos)
-            for _ in range(conns):
-                header("connection record")
-                f.seek(length("connection record data"), os.SEEK_CUR)
-            infos = []
-            for _ in range(chunks):
-                h = header("chunk info record")
-                n = uint(h, b"count")
-                length("chunk info record data")
-                b = f.read(8 * n)
-                if len(b) != 8 * n:
-                    raise _Unusable("chunk info record cut short")
-                infos.append((uint(h, b"chunk_pos", "<Q"), len(dict(struct.iter_unpack("<II", b)))))
-            for pos, n_index in infos:
-                if pos >= size:
-                    raise _Unusable(f"chunk position {pos} lies past the end of the file")
-                f.seek(pos)
-                h = header("chunk")
-                comp = h.get(b"compression", b"none").decode("utf-8", "replace")
-                datasize = length("chunk data")
-                usize = uint(h, b"size") if b"size" in h else None
-                if comp != "none" and usize is not None:
-                    declared_size(path, f"chunk at byte {pos}: its {comp} data", usize, inflated_room(datasize),
-                                  f"its {datasize} compressed bytes can hold at most")
-                out[pos] = (comp, usize)
-                f.seek(datasize, os.SEEK_CUR)
-                for _ in range(n_index):
-                    header("index data record")
-                    f.seek(length("index data record data"), os.SEEK_CUR)
+            if index_pos > r.size:
+                return f"index position {index_pos} lies past the end of the file ({r.size} bytes)"
+            for pos, n_index in _ros1_chunk_infos(r, index_pos, conns, chunks):
+                out[pos] = _ros1_chunk(r, path, pos, n_index)
         except _Unusable as err:
             return str(err)
     return out
+
+
+class _Ros1Records:
+    """Reads the records of a ROS 1 bag from the open bounded file ``f`` (``size`` bytes), every length
+    checked against the bytes left before it is read (:class:`_Unusable` otherwise)."""
+
+    def __init__(self, f):
+        self.f, self.size = f, f.size
+
+    def u32(self, what: str) -> int:
+        import struct
+
+        f = self.f
+        b = f.read(4)
+        if len(b) != 4:
+            raise _Unusable(f"{what} at byte {f.tell() - len(b)} cut short")
+        return struct.unpack("<I", b)[0]
+
+    def length(self, what: str) -> int:
+        """A record's (or its data's) length, within the bytes left in the file."""
+        at = self.f.tell()
+        n = self.u32(what)
+        if n > self.size - at - 4:
+            raise _Unusable(f"{what} at byte {at} declares {n} bytes, {self.size - at - 4} left in the file")
+        return n
+
+    def header(self, what: str) -> dict[bytes, bytes]:
+        """A record header's fields {name: value}."""
+        import struct
+
+        b = self.f.read(self.length(f"{what} header"))
+        fields, i = {}, 0
+        while i < len(b):
+            if i + 4 > len(b):
+                raise _Unusable(f"{what} header is damaged")
+            (n,) = struct.unpack_from("<I", b, i)
+            name, eq, value = b[i + 4:i + 4 + n].partition(b"=")
+            if not eq or i + 4 + n > len(b):
+                raise _Unusable(f"{what} header is damaged")
+            fields[name] = value
+            i += 4 + n
+        return fields
+
+    def skip_data(self, what: str) -> None:
+        """Past a record's data (its length checked)."""
+        self.f.seek(self.length(what), os.SEEK_CUR)
+
+
+def _uint(fields: dict, name: bytes, fmt: str = "<I") -> int:
+    """Field ``name`` of a record header as an unsigned integer (``fmt``)."""
+    import struct
+
+    try:
+        return struct.unpack(fmt, fields[name])[0]
+    except (KeyError, struct.error) as err:
+        raise _Unusable(f"record field {name.decode()!r} missing or damaged") from err
+
+
+def _ros1_chunk_infos(r: _Ros1Records, index_pos: int, conns: int, chunks: int) -> list[tuple[int, int]]:
+    """From ``index_pos``: past the ``conns`` connection records, then the ``chunks`` chunk info
+    records: [(chunk position, how many connections' index data records follow the chunk)]."""
+    import struct
+
+    f = r.f
+    f.seek(index_pos)
+    for _ in range(conns):
+        r.header("connection record")
+        r.skip_data("connection record data")
+    infos = []
+    for _ in range(chunks):
+        h = r.header("chunk info record")
+        n = _uint(h, b"count")
+        r.length("chunk info record data")
+        b = f.read(8 * n)
+        if len(b) != 8 * n:
+            raise _Unusable("chunk info record cut short")
+        infos.append((_uint(h, b"chunk_pos", "<Q"), len(dict(struct.iter_unpack("<II", b)))))
+    return infos
+
+
+def _ros1_chunk(r: _Ros1Records, path, pos: int, n_index: int) -> tuple[str, int | None]:
+    """The chunk at ``pos``: (compression, the uncompressed size its header declares or None), the
+    declared size checked against what its compressed bytes can hold; then past its ``n_index``
+    index data records."""
+    if pos >= r.size:
+        raise _Unusable(f"chunk position {pos} lies past the end of the file")
+    f = r.f
+    f.seek(pos)
+    h = r.header("chunk")
+    comp = h.get(b"compression", b"none").decode("utf-8", "replace")
+    datasize = r.length("chunk data")
+    usize = _uint(h, b"size") if b"size" in h else None
+    if comp != "none" and usize is not None:
+        declared_size(path, f"chunk at byte {pos}: its {comp} data", usize, inflated_room(datasize),
+                      f"its {datasize} compressed bytes can hold at most")
+    f.seek(datasize, os.SEEK_CUR)
+    for _ in range(n_index):
+        r.header("index data record")
+        r.skip_data("index data record data")
+    return comp, usize

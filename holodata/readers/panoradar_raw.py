@@ -126,13 +126,35 @@ class PanoRadarRawRecording(Recording):
         for name in REQUIRED:
             if not (p / name).exists():
                 raise RecordingError(f"{p / name}: missing (a PanoRadar raw trajectory needs {', '.join(REQUIRED)})")
+        raw = self._read_radar(p)
+        params, r_radar = self._read_params(p)
+        n_chirps = self._read_chirp(p, raw, r_radar)
+        self.params = beamform_params or BeamformParams()
+        self.device = device
+        rule = self._decide_motion(p, motion, params)
+        n_in_file = self._imageable_rotations(p, motion, rule)
+        self._refl = None
+        self._read_lidar(p)
+        self.files = [p / n for n in ("radar_data.npy", "radar_ts.txt", "data_params.npz", "lidar_data.npy",
+                                      "lidar_ts.txt", "imu_data.npy", "imu_ts.txt", "motion_output.npz")
+                      if (p / n).exists()]
+        self.attrs = self._describe(n_chirps, rule, n_in_file)
+
+    def _read_radar(self, p: Path) -> np.ndarray:
+        """radar_data.npy, memory-mapped (``radar``: (C, V, S), a view of it), and its stamps
+        ``radar_ts``; the array as stored."""
         raw = _load_npy(p / "radar_data.npy")
         if raw.dtype.kind != "c" or raw.ndim not in (3, 4):
             raise RecordingError(f"{p / 'radar_data.npy'}: expected complex I/Q (chirp frames, chirps x TX, RX, samples), "
                                  f"got {raw.shape} {raw.dtype}")
         self.radar = raw.reshape(raw.shape[0], -1, raw.shape[-1])      # (C, V, S), a view of the memory map
-        C, V, S = self.radar.shape
-        self.radar_ts = _load_stamps(p / "radar_ts.txt", C, "chirp frame")
+        self.radar_ts = _load_stamps(p / "radar_ts.txt", self.radar.shape[0], "chirp frame")
+        return raw
+
+    def _read_params(self, p: Path) -> tuple[dict, float]:
+        """data_params.npz: the first chirp frame of every rotation (``sep``) and the LiDAR→radar yaw
+        (``transform``); (all its arrays, the rotation radius r_radar in m)."""
+        C = self.radar.shape[0]
         check_npz(p / "data_params.npz")
         try:
             with np.load(p / "data_params.npz", allow_pickle=False) as z:
@@ -147,14 +169,18 @@ class PanoRadarRawRecording(Recording):
         except (ValueError, TypeError) as err:
             raise RecordingError(f"{pp}: r_radar must be a number and transform 2x2 ({err})") from err
         self.transform = transform
-        lens = np.diff(self.sep)
-        n_chirps = int(np.median(lens))
+        return params, r_radar
+
+    def _read_chirp(self, p: Path, raw: np.ndarray, r_radar: float) -> int:
+        """``chirp``: the rig's chirp (PanoRadar's constants) with this folder's array size, radius and
+        rotation rate (from the median rotation's duration); the median chirp frames per rotation."""
+        C, V, S = self.radar.shape
+        n_chirps = int(np.median(np.diff(self.sep)))
         dt = np.diff(self.radar_ts)
         self._dt = float(np.median(dt)) if dt.size else 0.0
         period = float(np.median(np.diff(self._stamp_at(self.sep))))
         if not period > 0:
             raise RecordingError(f"{p / 'radar_ts.txt'}: rotations have no duration (stamps at radar_sep equal)")
-        # the rig's chirp (PanoRadar's constants), with this folder's array size, radius and rotation
         n_tx = raw.shape[1] if raw.ndim == 4 else 1
         n_rx = raw.shape[2] if raw.ndim == 4 else V
         try:
@@ -162,25 +188,34 @@ class PanoRadarRawRecording(Recording):
                                      chirps_per_rotation=n_chirps, rotation_hz=1.0 / period)
         except ValueError as err:
             raise RecordingError(f"{p}: {err}") from err
-        self.params = beamform_params or BeamformParams()
-        self.device = device
+        return n_chirps
+
+    def _decide_motion(self, p: Path, motion: str | None, params: dict) -> str:
+        """Whether the robot was at rest (``static``, :func:`motion_rule`; the rule is returned and kept in
+        ``decisions``), its ``motion`` per rotation when moving (motion_output.npz), and where each
+        rotation ends (``end``): the next start, or (moving, with an IMU) one turn of the radar relative
+        to the world, from the platform's yaw rate (PanoRadar's __find_radar_end_frame_sep)."""
         self.static, rule = motion_rule(p, motion)
         self.decisions["motion"] = rule
-        self.problems: list[str] = []
+        self.problems = []
         self.motion = None
         if not self.static and (p / "motion_output.npz").exists():
-            self.motion = self._motion(p / "motion_output.npz", len(lens))
+            self.motion = self._motion(p / "motion_output.npz", len(self.sep) - 1)
         elif not self.static:
             self.problems.append(f"{p}: moving trajectory without motion_output.npz: rotations imaged as if at rest")
-        # where each rotation ends: the next start, or (moving, with an IMU) one turn of the radar
-        # relative to the world, from the platform's yaw rate (PanoRadar's __find_radar_end_frame_sep)
         self.end = self.sep[1:].copy()
         self.yaw_source = "none"
         if not self.static and (p / "imu_data.npy").exists() and "imu_sep" in params:
-            self.end = self._ends_from_imu(p, params, C)
+            self.end = self._ends_from_imu(p, params, self.radar.shape[0])
             self.yaw_source = "imu_data.npy"
+        return rule
+
+    def _imageable_rotations(self, p: Path, motion: str | None, rule: str) -> int:
+        """``rotations``: the ones that can be imaged (a moving one needs n_syn//2 chirps on either side;
+        the others are left out, ``problems`` says how many); RecordingError when none can. Returns the
+        number of rotations in the file."""
         lens = self.end - self.sep[:-1]
-        # which rotations can be imaged: a moving one needs n_syn//2 chirps on either side
+        C = self.radar.shape[0]
         self.rotations = list(range(len(lens)))
         if not self.static:
             half = [(self.params.syn_count(int(n)) - 1) // 2 for n in lens]
@@ -192,8 +227,10 @@ class PanoRadarRawRecording(Recording):
         if not self.rotations:
             hint = "" if self.static or motion else "; a robot at rest: --beamform-motion static"
             raise RecordingError(f"{p}: no rotation can be imaged ({len(lens)} rotation(s), {rule}{hint})")
-        self._refl = None
-        # LiDAR (optional)
+        return len(lens)
+
+    def _read_lidar(self, p: Path) -> None:
+        """``lidar`` (frames, rows, columns, 3) xyz and its stamps ``lidar_ts`` (None without lidar_data.npy)."""
         self.lidar = self.lidar_ts = None
         if (p / "lidar_data.npy").exists():
             li = _load_npy(p / "lidar_data.npy")
@@ -202,11 +239,12 @@ class PanoRadarRawRecording(Recording):
                                      f"got {li.shape} {li.dtype}")
             self.lidar = li
             self.lidar_ts = _load_stamps(p / "lidar_ts.txt", li.shape[0], "LiDAR frame")
-        self.files = [p / n for n in ("radar_data.npy", "radar_ts.txt", "data_params.npz", "lidar_data.npy",
-                                      "lidar_ts.txt", "imu_data.npy", "imu_ts.txt", "motion_output.npz")
-                      if (p / n).exists()]
+
+    def _describe(self, n_chirps: int, rule: str, n_in_file: int) -> dict:
+        """The recording's attrs: how its heatmaps are made (all of it: the scene says how its heatmaps
+        were made) and the LiDAR→radar transform."""
         mode = f"none ({rule})" if self.static else ("motion_output.npz" if self.motion else "none (as if at rest)")
-        self.attrs = {
+        return {
             "format": "PanoRadar raw trajectory",
             "radar_scaling": f"stored int16-scaled I/Q; divided by {INT16_SCALE:g}",
             "beamform": beamform_attrs(self.chirp, self.params, n_chirps, motion_compensation=mode,
@@ -215,9 +253,9 @@ class PanoRadarRawRecording(Recording):
                                        "one turn relative to the world: radar_sep + round(2*pi / (dtheta0 - dt*omega)), "
                                        "omega the mean yaw rate of imu_data.npy over the rotation",
                                        static_reflection="mean over every chirp of the trajectory", motion=rule,
-                                       rotations_imaged=len(self.rotations), rotations_in_file=len(lens),
+                                       rotations_imaged=len(self.rotations), rotations_in_file=n_in_file,
                                        frequency_note="PanoRadar's imaging uses linspace(77, 81 GHz, n_samples)"),
-            "lidar_to_radar_transform": transform.tolist(),
+            "lidar_to_radar_transform": self.transform.tolist(),
         }
 
     def _ends_from_imu(self, p: Path, params: dict, C: int) -> np.ndarray:
@@ -363,7 +401,7 @@ class PanoRadarRawRecording(Recording):
             ds0, th = float(self.motion["ds0"][k]), float(self.motion["theta_v"][k])
             velocity = Motion(ds0, th).velocity(period)
         try:
-            hm = beamform(rot, self.chirp, self.params, before=before, after=after, velocity=velocity,
+            hm = beamform(rot, self.chirp, self.params, neighbours=(before, after), velocity=velocity,
                           chirp_period_s=period, static_refl=self.static_refl(), device=self.device)
         except ValueError as err:
             raise RecordingError(f"{self.path / 'radar_data.npy'}: rotation {k}: {err}") from err

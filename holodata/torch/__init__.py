@@ -10,11 +10,12 @@ from .model import ModelConfig, MultiReturnUNet
 from .stage2_infer import load_stage2
 from .stage2_train import Stage2Config, train_stage2
 from .checkpoint import load_checkpoint
-from .train import RunResult, TrainConfig, fit, model_from_checkpoint, train
+from .optim import OptimiserSettings
+from .train import RunOptions, RunResult, TrainConfig, fit, model_from_checkpoint, train
 
 __all__ = [
     "ArrayFrames", "HeatmapDataset", "HeatmapNorm", "SampleTransform", "split_scenes",
     "LossWeights", "masked_gradient_loss", "masked_l1", "multi_return_loss",
-    "ModelConfig", "MultiReturnUNet", "RunResult", "TrainConfig", "fit", "load_checkpoint",
-    "model_from_checkpoint", "train", "Stage2Config", "load_stage2", "train_stage2",
+    "ModelConfig", "MultiReturnUNet", "OptimiserSettings", "RunOptions", "RunResult", "TrainConfig", "fit",
+    "load_checkpoint", "model_from_checkpoint", "train", "Stage2Config", "load_stage2", "train_stage2",
 ]

@@ -22,7 +22,7 @@ import json
 import math
 import shutil
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -36,7 +36,8 @@ from holodata.progress import track
 from holodata.safe_io import load_torch
 
 from ..ownership import claim_folder
-from .train import _atomic_save, check_fields, check_stage1
+from .optim import OptimiserSettings, set_lr, settings_dict
+from .train import RunOptions, _atomic_save, _truncate_log, check_fields, check_stage1
 from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
                      ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
 from .stage2_infer import (STAGE2_CHECKPOINT, Frames, Stage2, apply_gate, calibrate_gate, calibrate_human, calibrate_keep,
@@ -46,15 +47,16 @@ STAGE2_LOG = "stage2_metrics.jsonl"
 
 
 @dataclass
-class Stage2Config:
+class Stage2Config(OptimiserSettings):
     """Stage-two settings. Phases: ``epochs_rt`` ray-tracer epochs, then ``epochs_refine``
-    refiner epochs (ray tracer frozen). Model: ``channels``/``res_blocks``/``fusion_blocks`` of
-    each hybrid block; ``voxel`` (m), ``refine_channels`` (per UNet level), ``refine_blocks``.
+    refiner epochs (ray tracer frozen), each with its own AdamW and cosine decay
+    (:class:`~holodata.torch.optim.OptimiserSettings`: lr, lr_floor, weight_decay). Model:
+    ``channels``/``res_blocks``/``fusion_blocks`` of each hybrid block; ``voxel`` (m), ``refine_channels``
+    (per UNet level), ``refine_blocks``.
     Augmentation: ``p_clean`` (share of GT-input samples left exact), ``noise_max_m`` (σ of the
-    range noise drawn per frame in [0, noise_max_m]), ``dropout`` (share of pixels dropped), ``p_stage1`` (share of samples
-    whose input is the
-    stage-one prediction; default 0: ranges decimetres off teach the ray tracer to distrust exact
-    ones, docs/design/stage2.md), ``flip`` (random y-mirror).
+    range noise drawn per frame in [0, noise_max_m]), ``dropout`` (share of pixels dropped), ``p_stage1``
+    (share of samples whose input is the stage-one prediction; default 0: ranges decimetres off teach
+    the ray tracer to distrust exact ones, docs/design/stage2.md), ``flip`` (random y-mirror).
     Loss: eq. 6 weights ``w_sn``, ``w_point`` (+ ``w_normal``), RT loss pixels only where
     |R_in − R_gt| < ``input_gate_m``; eq. 7 weights ``w_cls``, ``w_reg``, ``w_dist``, class weights
     ``human_weight`` / ``empty_weight``, EDT clipped at ``edt_clip`` voxels. ``crop_w``: train on
@@ -65,9 +67,6 @@ class Stage2Config:
     epochs_rt: int = 20
     epochs_refine: int = 20
     batch_size: int = 4
-    lr: float = 2e-3
-    lr_floor: float = 0.05
-    weight_decay: float = 1e-4
     seed: int = 0
     device: str = "cpu"
     channels: int = 32
@@ -103,7 +102,7 @@ class Stage2Config:
         return cls(**d)
 
     def to_dict(self) -> dict:
-        d = asdict(self)
+        d = settings_dict(self, ("epochs_rt", "epochs_refine", "batch_size"))
         d["refine_channels"] = list(self.refine_channels)
         return d
 
@@ -336,84 +335,97 @@ def _refine_batch(rt: RayTracer, batch: dict, cfg: Stage2Config, device, grid: G
     return vox, cls.to(device), reg.to(device), edt.to(device)
 
 
-def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, grid: Grid, meta: dict | None = None,
-               quiet: bool = False, resume: bool = True, confidence_gate: dict | None = None,
-               calibration: Frames | None = None, init: dict | None = None) -> dict:
+def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, grid: Grid,
+               options: RunOptions | None = None, confidence_gate: dict | None = None,
+               calibration: Frames | None = None) -> dict:
     """Train stage two on ``frames`` (on the beam ``grid``) into ``out_dir``/stage2.pt; resumes from
-    it when present (same configuration required); ``confidence_gate``: stage one's confidence gate
-    (:func:`calibrate_gate`), stored with the checkpoint; ``calibration``: the frames the keep
-    threshold is calibrated on (:func:`calibrate_keep`; default ``frames``). ``init``: a stage-two
-    checkpoint (dict) whose ray tracer and refiner weights a fresh run starts from (fine-tuning): its
-    models' shapes must be this configuration's (one-line InputError naming ``meta["init"]`` otherwise);
-    its keep and human operating points are not taken over but calibrated anew on these frames; with 0
-    epochs the run's checkpoint holds its weights as they are. The refiner counts (at inference and
-    for the calibrations) only after a refiner epoch of this run (``epochs_refine`` > 0), as
-    without ``init``. Returns {"checkpoint", "epochs", "resumed_from", "history", "keep", "gate"}."""
+    it when present and ``options.resume`` (same configuration required); ``confidence_gate``: stage
+    one's confidence gate (:func:`calibrate_gate`), stored with the checkpoint; ``calibration``: the
+    frames the keep threshold is calibrated on (:func:`calibrate_keep`; default ``frames``).
+    ``options.init``: a stage-two checkpoint (dict) whose ray tracer and refiner weights a fresh run
+    starts from (fine-tuning): its models' shapes must be this configuration's (one-line InputError
+    naming ``options.meta["init"]`` otherwise); its keep and human operating points are not taken over
+    but calibrated anew on these frames; with 0 epochs the run's checkpoint holds its weights as they
+    are. The refiner counts (at inference and for the calibrations) only after a refiner epoch of this
+    run (``epochs_refine`` > 0), as without ``init``. Returns {"checkpoint", "epochs", "resumed_from",
+    "history", "keep", "gate", "human"}."""
     from .train import resolve_device, seed_everything
 
+    opts = options or RunOptions()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     dev = resolve_device(cfg.device)
     seed_everything(cfg.seed)
-    rt = RayTracer(cfg.rt_config(max_range)).to(dev)
-    ref = VoxelRefiner(cfg.refiner_config(max_range)).to(dev)
+    run = _Stage2Run(cfg, RayTracer(cfg.rt_config(max_range)).to(dev), VoxelRefiner(cfg.refiner_config(max_range)).to(dev),
+                     dev, grid, opts.quiet)
     ck_path = out / STAGE2_CHECKPOINT
-    start, history, opt_state = 0, [], None
-    if resume and ck_path.exists():
-        ck = load_torch(ck_path, "stage-two checkpoint")
-        saved = {**Stage2Config().to_dict(), **ck["stage2_config"]}   # settings added since: their defaults
-        same = {k: v for k, v in saved.items() if k not in ("device", "epochs_rt", "epochs_refine")}
-        want = {k: v for k, v in cfg.to_dict().items() if k not in ("device", "epochs_rt", "epochs_refine")}
-        if same != want or ck["stage2_config"]["epochs_rt"] != cfg.epochs_rt:
-            raise InputError(f"{ck_path}: stage-two checkpoint config differs from the requested one; use a new --out")
-        rt.load_state_dict(ck["rt_state"])
-        ref.load_state_dict(ck["refiner_state"])
-        start, history, opt_state = int(ck["epoch"]), list(ck["history"]), ck["optimizer_state"]
-        torch.set_rng_state(ck["torch_rng"])
-    elif init is not None:
-        load_init_weights(init, rt, ref, (meta or {}).get("init", "init checkpoint"))
-        if cfg.epochs == 0:   # nothing to train: the run's checkpoint is the init's weights
-            _atomic_save({"format": "holodata-stage2-1", "epoch": 0, "phase": "rt", "stage2_config": cfg.to_dict(),
-                          "rt_config": rt.cfg.to_dict(), "refiner_config": ref.cfg.to_dict(),
-                          "rt_state": rt.state_dict(), "refiner_state": ref.state_dict(), "optimizer_state": None,
-                          "history": [], "torch_rng": torch.get_rng_state(), "meta": meta or {}}, ck_path)
+    start, history = run.resume_or_init(ck_path, opts)
     (out / "stage2_config.json").write_text(json.dumps(cfg.to_dict(), indent=2) + "\n")
-    from .train import _truncate_log
-
     _truncate_log(out / STAGE2_LOG, start)
-    cw = torch.tensor([cfg.empty_weight, cfg.human_weight, 1.0], device=dev)
-    opt, opt_phase = None, None
     for epoch in range(start, cfg.epochs):
+        history.append(run.epoch(frames, epoch))
+        run.save(ck_path, history, opts.meta)
+        with open(out / STAGE2_LOG, "a") as fh:
+            fh.write(json.dumps(history[-1]) + "\n")
+    keep, human = _calibrate(run, ck_path, frames if calibration is None else calibration, confidence_gate)
+    return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history, "keep": keep,
+            "gate": confidence_gate, "human": human}
+
+
+class _Stage2Run:
+    """The models :func:`fit_stage2` trains (``rt`` the ray tracer, ``ref`` the refiner) with their
+    settings, device and beam grid, and the optimiser of the current phase (a new AdamW when the phase
+    changes; the resumed checkpoint's state when it was saved in that phase)."""
+
+    def __init__(self, cfg: Stage2Config, rt: RayTracer, ref: VoxelRefiner, dev, grid: Grid, quiet: bool):
+        self.cfg, self.rt, self.ref, self.dev, self.grid, self.quiet = cfg, rt, ref, dev, grid, quiet
+        self.class_weights = torch.tensor([cfg.empty_weight, cfg.human_weight, 1.0], device=dev)
+        self.opt: torch.optim.Optimizer | None = None
+        self.opt_phase: str | None = None
+        self.opt_state: dict | None = None   # the resumed checkpoint's {"phase", "state"}
+
+    def resume_or_init(self, ck_path: Path, opts: RunOptions) -> tuple[int, list]:
+        """Load the run's own checkpoint (same settings but device and epochs required; weights,
+        optimiser state, torch RNG) or, on a fresh run, ``opts.init``'s weights (saved at once when
+        there is no epoch to train); (epochs done, history)."""
+        cfg, rt, ref = self.cfg, self.rt, self.ref
+        if opts.resume and ck_path.exists():
+            ck = load_torch(ck_path, "stage-two checkpoint")
+            saved = {**Stage2Config().to_dict(), **ck["stage2_config"]}   # settings added since: their defaults
+            same = {k: v for k, v in saved.items() if k not in ("device", "epochs_rt", "epochs_refine")}
+            want = {k: v for k, v in cfg.to_dict().items() if k not in ("device", "epochs_rt", "epochs_refine")}
+            if same != want or ck["stage2_config"]["epochs_rt"] != cfg.epochs_rt:
+                raise InputError(f"{ck_path}: stage-two checkpoint config differs from the requested one; use a new --out")
+            rt.load_state_dict(ck["rt_state"])
+            ref.load_state_dict(ck["refiner_state"])
+            self.opt_state = ck["optimizer_state"]
+            torch.set_rng_state(ck["torch_rng"])
+            return int(ck["epoch"]), list(ck["history"])
+        if opts.init is not None:
+            load_init_weights(opts.init, rt, ref, (opts.meta or {}).get("init", "init checkpoint"))
+            if cfg.epochs == 0:   # nothing to train: the run's checkpoint is the init's weights
+                _atomic_save(self._checkpoint(0, "rt", None, [], opts.meta), ck_path)
+        return 0, []
+
+    def epoch(self, frames: Frames, epoch: int) -> dict:
+        """Train one epoch (0-based ``epoch``) of the phase it falls in; its metrics row."""
+        cfg = self.cfg
         phase = "rt" if epoch < cfg.epochs_rt else "refine"
         e0, n_ep = (0, cfg.epochs_rt) if phase == "rt" else (cfg.epochs_rt, cfg.epochs_refine)
-        if opt_phase != phase:
-            params = rt.parameters() if phase == "rt" else ref.parameters()
-            opt = torch.optim.AdamW(params, lr=cfg.lr, weight_decay=cfg.weight_decay)
-            if opt_state is not None and opt_state.get("phase") == phase:
-                opt.load_state_dict(opt_state["state"])
-            opt_phase = phase
-        lr = cfg.lr * (cfg.lr_floor + (1 - cfg.lr_floor) * 0.5 * (1 + math.cos(math.pi * (epoch - e0) / max(n_ep, 1))))
-        for g in opt.param_groups:
-            g["lr"] = lr
+        opt = self._optimizer(phase)
+        lr = cfg.lr_at(epoch - e0, max(n_ep, 1))
+        set_lr(opt, lr)
         rng = np.random.default_rng([cfg.seed, epoch])
         order = rng.permutation(len(frames))
-        rt.train(phase == "rt")
-        ref.train(phase == "refine")
-        sums, n_seen, t0 = {}, 0, time.perf_counter()
+        self.rt.train(phase == "rt")
+        self.ref.train(phase == "refine")
+        sums: dict = {}
+        n_seen, t0 = 0, time.perf_counter()
         batches = [order[i:i + cfg.batch_size] for i in range(0, len(order), cfg.batch_size)]
-        for idx in track(batches, total=len(batches), description=f"stage two {phase} {epoch + 1}/{cfg.epochs}", quiet=quiet):
-            batch = make_batch(frames, idx, cfg, rng, dev)
-            if phase == "rt":
-                o = rt(batch["range_in"], batch["directions"], batch["origins"])
-                gate = (batch["range_in"] - batch["range"]).abs() < cfg.input_gate_m
-                loss, parts = ray_trace_loss(o, batch["gt_point"], batch["gt_normal"], batch["directions"], gate,
-                                             cfg.w_sn, cfg.w_point, cfg.w_normal)
-                params = rt.parameters()
-            else:
-                vox, cls, reg, edt = _refine_batch(rt, batch, cfg, dev, grid)
-                o = ref(vox)
-                loss, parts = refine_loss(o, cls, reg, edt, cfg.w_cls, cfg.w_reg, cfg.w_dist, cw)
-                params = ref.parameters()
+        for idx in track(batches, total=len(batches), description=f"stage two {phase} {epoch + 1}/{cfg.epochs}",
+                         quiet=self.quiet):
+            batch = make_batch(frames, idx, cfg, rng, self.dev)
+            loss, parts, params = self._rt_loss(batch) if phase == "rt" else self._refine_loss(batch)
             opt.zero_grad(set_to_none=True)
             loss.backward()
             torch.nn.utils.clip_grad_norm_(params, 5.0)
@@ -423,33 +435,71 @@ def fit_stage2(frames: Frames, out_dir, cfg: Stage2Config, max_range: float, gri
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v * len(idx)
         dt = time.perf_counter() - t0
-        row = {"epoch": epoch + 1, "phase": phase, **{k: v / max(n_seen, 1) for k, v in sums.items()}, "lr": lr,
-               "samples": n_seen, "seconds": round(dt, 3)}
-        history.append(row)
-        _atomic_save({"format": "holodata-stage2-1", "epoch": epoch + 1, "phase": phase,
-                      "stage2_config": cfg.to_dict(), "rt_config": rt.cfg.to_dict(), "refiner_config": ref.cfg.to_dict(),
-                      "rt_state": rt.state_dict(), "refiner_state": ref.state_dict(),
-                      "optimizer_state": {"phase": phase, "state": opt.state_dict()}, "history": history,
-                      "torch_rng": torch.get_rng_state(), "meta": meta or {}}, ck_path)
-        with open(out / STAGE2_LOG, "a") as fh:
-            fh.write(json.dumps(row) + "\n")
-    keep = None
-    if ck_path.exists():
-        ck = load_torch(ck_path, "stage-two checkpoint")
-        keep, changed = ck.get("keep"), confidence_gate is not None and ck.get("gate") != confidence_gate
-        if confidence_gate is not None:
-            ck["gate"] = confidence_gate
-        cal = frames if calibration is None else calibration
-        if cfg.epochs_refine > 0 and keep is None:  # the operating point of the refined cloud, on the training frames
-            keep = calibrate_keep(Stage2(rt, ref, dev), cal, grid)
-            ck["keep"], changed = keep, True
-        if cfg.epochs_refine > 0 and ck.get("human") is None:   # then where its human points are told apart
-            s2 = Stage2(rt, ref, dev, keep_threshold=keep["threshold"])
-            ck["human"], changed = calibrate_human(s2, cal, grid), True
-        if changed:
-            _atomic_save(ck, ck_path)
-    return {"checkpoint": ck_path, "epochs": cfg.epochs, "resumed_from": start, "history": history, "keep": keep,
-            "gate": confidence_gate, "human": ck.get("human") if ck_path.exists() else None}
+        return {"epoch": epoch + 1, "phase": phase, **{k: v / max(n_seen, 1) for k, v in sums.items()}, "lr": lr,
+                "samples": n_seen, "seconds": round(dt, 3)}
+
+    def _optimizer(self, phase: str) -> torch.optim.Optimizer:
+        """The phase's optimiser: over the ray tracer's parameters, then the refiner's."""
+        if self.opt is None or self.opt_phase != phase:
+            self.opt = self.cfg.optimizer(self.rt.parameters() if phase == "rt" else self.ref.parameters())
+            if self.opt_state is not None and self.opt_state.get("phase") == phase:
+                self.opt.load_state_dict(self.opt_state["state"])
+            self.opt_phase = phase
+        return self.opt
+
+    def _rt_loss(self, batch: dict):
+        """Eq. 6 on a batch, over the pixels whose input range is within ``input_gate_m`` of the truth."""
+        cfg = self.cfg
+        o = self.rt(batch["range_in"], batch["directions"], batch["origins"])
+        gate = (batch["range_in"] - batch["range"]).abs() < cfg.input_gate_m
+        loss, parts = ray_trace_loss(o, batch["gt_point"], batch["gt_normal"], batch["directions"], gate,
+                                     cfg.w_sn, cfg.w_point, cfg.w_normal)
+        return loss, parts, self.rt.parameters()
+
+    def _refine_loss(self, batch: dict):
+        """Eq. 7 on the voxels of the (frozen) ray tracer's points of a batch."""
+        cfg = self.cfg
+        vox, cls, reg, edt = _refine_batch(self.rt, batch, cfg, self.dev, self.grid)
+        o = self.ref(vox)
+        loss, parts = refine_loss(o, cls, reg, edt, cfg.w_cls, cfg.w_reg, cfg.w_dist, self.class_weights)
+        return loss, parts, self.ref.parameters()
+
+    def _checkpoint(self, epoch: int, phase: str, optimizer_state: dict | None, history: list,
+                    meta: dict | None) -> dict:
+        return {"format": "holodata-stage2-1", "epoch": epoch, "phase": phase, "stage2_config": self.cfg.to_dict(),
+                "rt_config": self.rt.cfg.to_dict(), "refiner_config": self.ref.cfg.to_dict(),
+                "rt_state": self.rt.state_dict(), "refiner_state": self.ref.state_dict(),
+                "optimizer_state": optimizer_state, "history": history, "torch_rng": torch.get_rng_state(),
+                "meta": meta or {}}
+
+    def save(self, ck_path: Path, history: list, meta: dict | None) -> None:
+        """The checkpoint after the last epoch of ``history`` (atomic), with its phase's optimiser state."""
+        row = history[-1]
+        assert self.opt is not None
+        _atomic_save(self._checkpoint(row["epoch"], row["phase"], {"phase": row["phase"], "state": self.opt.state_dict()},
+                                      history, meta), ck_path)
+
+
+def _calibrate(run: _Stage2Run, ck_path: Path, cal: Frames, confidence_gate: dict | None) -> tuple[dict | None, dict | None]:
+    """Complete the checkpoint's operating points on the frames ``cal``: stage one's confidence gate,
+    and once the refiner has trained (``epochs_refine`` > 0) the keep threshold of the refined cloud,
+    then where its human points are told apart (each kept when already there); (keep, human)."""
+    if not ck_path.exists():
+        return None, None
+    cfg, dev, grid = run.cfg, run.dev, run.grid
+    ck = load_torch(ck_path, "stage-two checkpoint")
+    keep, changed = ck.get("keep"), confidence_gate is not None and ck.get("gate") != confidence_gate
+    if confidence_gate is not None:
+        ck["gate"] = confidence_gate
+    if cfg.epochs_refine > 0 and keep is None:  # the operating point of the refined cloud, on the training frames
+        keep = calibrate_keep(Stage2(run.rt, run.ref, dev), cal, grid)
+        ck["keep"], changed = keep, True
+    if cfg.epochs_refine > 0 and ck.get("human") is None:   # then where its human points are told apart
+        s2 = Stage2(run.rt, run.ref, dev, keep_threshold=keep["threshold"])
+        ck["human"], changed = calibrate_human(s2, cal, grid), True
+    if changed:
+        _atomic_save(ck, ck_path)
+    return keep, ck.get("human")
 
 
 def check_init(init: dict, rt_cfg: RayTracerConfig, ref_cfg: RefinerConfig, source) -> None:
@@ -533,5 +583,5 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
     meta = {"dataset": str(dataset_url), "grid": ds.grid.to_attrs(), "range_bins": ds.range_bins.to_attrs(),
             "downsample": f, "stage1": str(src_file), "stage1_epoch": int(ck1.get("epoch", 0)),
             "train_frames": len(frames), **({"init": str(init_file)} if init_file else {})}
-    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid, meta=meta, quiet=quiet,
-                      confidence_gate=gate, calibration=cal, init=init_ck)
+    return fit_stage2(frames, out, cfg, float(ds.range_bins.max_range), grid,
+                      RunOptions(quiet=quiet, init=init_ck, meta=meta), confidence_gate=gate, calibration=cal)

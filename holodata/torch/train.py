@@ -7,11 +7,10 @@ Run directory layout: ``checkpoint.pt`` (latest epoch; everything needed to resu
 from __future__ import annotations
 
 import json
-import math
 import os
 import random
 import time
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -28,6 +27,7 @@ from .checkpoint import CHECKPOINT, load_checkpoint
 from .data import HeatmapNorm, SampleTransform
 from .losses import LossWeights, multi_return_loss
 from .model import ModelConfig, MultiReturnUNet
+from .optim import OptimiserSettings, set_lr, settings_dict
 
 METRICS_LOG = "metrics.jsonl"
 
@@ -40,22 +40,19 @@ def check_fields(cls, data: dict, source: str, what: str) -> None:
 
 
 @dataclass
-class TrainConfig:
+class TrainConfig(OptimiserSettings):
     """Training settings. Model: depth (UNet levels; paper 7), base_channels, max_channels, blocks.
     Data: downsample (H,W stride), range_pool (range-bin max-pool), crop_w (random azimuth
-    window), frames_per_scene (cap). Optimiser: AdamW lr / weight_decay, cosine decay to
-    lr·lr_floor over ``epochs``. Loss weights: w_range, w_gradient, w_valid, w_human (and
-    human_pos_weight, the weight of human pixels in that term, and human_hard, the share of hardest
-    pixels it averages; :func:`multi_return_loss`).
+    window), frames_per_scene (cap). Optimiser (:class:`~holodata.torch.optim.OptimiserSettings`):
+    AdamW lr / weight_decay, cosine decay to lr·lr_floor over ``epochs``. Loss weights: w_range,
+    w_gradient, w_valid, w_human (and human_pos_weight, the weight of human pixels in that term, and
+    human_hard, the share of hardest pixels it averages; :func:`multi_return_loss`).
     range_loss: "l1" (L1 on the soft-argmax mean) or "ce" (per-bin cross-entropy against two-hot
     sub-bin targets, :func:`holodata.torch.losses.range_bin_nll`); estimator: the point estimate the
     model predicts with (None: "mode" for "ce", "mean" for "l1"), recorded in the checkpoint."""
 
     epochs: int = 20
     batch_size: int = 4
-    lr: float = 2e-3
-    lr_floor: float = 0.05
-    weight_decay: float = 1e-4
     seed: int = 0
     device: str = "cpu"
     num_workers: int = 0
@@ -117,7 +114,7 @@ class TrainConfig:
         return cls(**data)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return settings_dict(self, ("epochs", "batch_size"))
 
     def loss_weights(self) -> LossWeights:
         grad = self.w_gradient if self.w_gradient is not None else (0.0 if self.range_loss == "ce" else 0.5)
@@ -206,99 +203,167 @@ def model_from_checkpoint(ck: dict, device: str = "cpu") -> MultiReturnUNet:
     return model.to(device).eval()
 
 
+@dataclass
+class RunOptions:
+    """How a training call runs, beside its settings (:func:`fit`, :func:`~holodata.torch.stage2_train.fit_stage2`):
+    ``quiet`` (no progress bars), ``resume`` (continue from the run directory's checkpoint when there is
+    one), ``init`` (a checkpoint, as a dict, whose weights a fresh run starts from: fine-tuning) and
+    ``meta`` (recorded in the checkpoint; ``meta["init"]`` names ``init`` in errors)."""
+
+    quiet: bool = False
+    resume: bool = True
+    init: dict | None = None
+    meta: dict | None = None
+
+
 def fit(train_set, out_dir, config: TrainConfig, norm: HeatmapNorm, in_channels: int,
-        max_range: float = DEFAULT_MAX_RANGE_M, meta: dict | None = None, quiet: bool = False, resume: bool = True,
-        init: dict | None = None) -> RunResult:
+        max_range: float = DEFAULT_MAX_RANGE_M, options: RunOptions | None = None) -> RunResult:
     """Train on a torch Dataset of sample dicts (see holodata.torch.data) into ``out_dir``.
 
-    Resumes from ``out_dir/checkpoint.pt`` when present (same model config required): epochs
-    continue from the last completed one up to ``config.epochs``. Each epoch shuffles with a
-    generator seeded by (seed, epoch) and augments each sample with draws keyed by (seed, epoch,
-    sample), so a resumed run sees the same batches as an uninterrupted one. ``init``: a checkpoint
-    (dict) whose weights a fresh run starts from (fine-tuning; its model config must be this one's). Under ``torchrun``
-    the global batch is split over the processes (:mod:`holodata.torch.ddp`); rank 0 writes.
+    Resumes from ``out_dir/checkpoint.pt`` when present and ``options.resume`` (same model config
+    required): epochs continue from the last completed one up to ``config.epochs``. Each epoch shuffles
+    with a generator seeded by (seed, epoch) and augments each sample with draws keyed by (seed, epoch,
+    sample), so a resumed run sees the same batches as an uninterrupted one. ``options.init``: a
+    checkpoint (dict) whose weights a fresh run starts from (fine-tuning; its model config must be this
+    one's). Under ``torchrun`` the global batch is split over the processes (:mod:`holodata.torch.ddp`);
+    rank 0 writes.
     """
+    opts = options or RunOptions()
     out = Path(out_dir)
     ctx, dev_name = ddp.setup(config.device, config.batch_size)
     if ctx.main:   # a new or empty folder, or a run holodata wrote (holodata.ownership)
         claim_folder(out, "holodata train")
     device = resolve_device(dev_name)
-    mcfg = ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
+    run = _Stage1Run.start(config, _model_config(config, in_channels, max_range), device, ctx, opts.quiet)
+    ck_path = out / CHECKPOINT
+    start, history, norm = _resume_or_init(run, ck_path, norm, opts)
+    run.model = ddp.wrap(run.net, ctx, dev_name)
+    if ctx.main:
+        (out / "config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
+        _truncate_log(out / METRICS_LOG, start)
+    if start >= config.epochs:
+        return RunResult(out, ck_path, start, start, history)
+    for epoch in range(start, config.epochs):
+        history.append(run.epoch(train_set, epoch))
+        if ctx.main:
+            run.save(out, history, norm, opts.meta)
+        ddp.barrier(ctx)
+    return RunResult(out, ck_path, config.epochs, start, history)
+
+
+def _model_config(config: TrainConfig, in_channels: int, max_range: float) -> ModelConfig:
+    """The model :func:`fit` trains: ``config``'s architecture on ``in_channels`` range bins reaching ``max_range`` m."""
+    return ModelConfig(in_channels=in_channels, depth=config.depth, base_channels=config.base_channels,
                        max_channels=config.max_channels, blocks=config.blocks, max_range=float(max_range),
                        head=config.head, input_skip=config.input_skip, estimator=config.point_estimator())
-    seed_everything(config.seed)
-    net = MultiReturnUNet(mcfg).to(device)
-    opt = torch.optim.AdamW(net.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    start, history = 0, []
-    ck_path = out / CHECKPOINT
-    if resume and ck_path.exists():
+
+
+def _resume_or_init(run: "_Stage1Run", ck_path: Path, norm: HeatmapNorm,
+                    opts: RunOptions) -> tuple[int, list, HeatmapNorm]:
+    """Load the run's own checkpoint (resume: weights, optimiser, history, normalisation, torch RNG) or,
+    on a fresh run, ``opts.init``'s weights; (epochs done, history, heatmap normalisation)."""
+    mcfg = run.mcfg
+    if opts.resume and ck_path.exists():
         ck = load_checkpoint(ck_path)
         if ck["model_config"] != mcfg.to_dict():
             raise InputError(f"{ck_path}: checkpoint model config {ck['model_config']} differs from the "
                              f"requested {mcfg.to_dict()}; use a new --out directory")
-        net.load_state_dict(ck["model_state"])
-        opt.load_state_dict(ck["optimizer_state"])
-        start, history = int(ck["epoch"]), list(ck["history"])
-        norm = HeatmapNorm.from_dict(ck["norm"])
+        run.net.load_state_dict(ck["model_state"])
+        run.opt.load_state_dict(ck["optimizer_state"])
         torch.set_rng_state(ck["torch_rng"])
-    elif init is not None:
+        return int(ck["epoch"]), list(ck["history"]), HeatmapNorm.from_dict(ck["norm"])
+    init = opts.init
+    if init is not None:
         if init["model_config"] != mcfg.to_dict():
-            raise InputError(f"{(meta or {}).get('init', 'init checkpoint')}: its model config {init['model_config']} "
-                             f"differs from the requested {mcfg.to_dict()}")
-        net.load_state_dict(init["model_state"])
-    model = ddp.wrap(net, ctx, dev_name)
-    if ctx.main:
-        (out / "config.json").write_text(json.dumps(config.to_dict(), indent=2) + "\n")
-        _truncate_log(out / METRICS_LOG, start)
-    weights = config.loss_weights()
-    if start >= config.epochs:
-        return RunResult(out, ck_path, start, start, history)
-    for epoch in range(start, config.epochs):
-        lr = config.lr * (config.lr_floor + (1 - config.lr_floor) * 0.5 * (1 + math.cos(math.pi * epoch / config.epochs)))
-        for g in opt.param_groups:
-            g["lr"] = lr
-        if hasattr(train_set, "set_epoch"):
-            train_set.set_epoch(config.seed, epoch)
-        # the permutation torch's RandomSampler draws from this generator, split over the ranks
-        order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(config.seed * 100003 + epoch))
-        loader = DataLoader(train_set, batch_sampler=ddp.local_batches(order.tolist(), config.batch_size, ctx),
-                            num_workers=config.num_workers, collate_fn=_collate, persistent_workers=False)
-        model.train()
+            raise InputError(f"{(opts.meta or {}).get('init', 'init checkpoint')}: its model config "
+                             f"{init['model_config']} differs from the requested {mcfg.to_dict()}")
+        run.net.load_state_dict(init["model_state"])
+    return 0, [], norm
+
+
+@dataclass
+class _Stage1Run:
+    """What every epoch of :func:`fit` works with: settings, model config, the model (``net``; ``model``
+    its DDP wrapper, ``net`` itself until :func:`fit` wraps it), optimiser, process context, device,
+    loss weights."""
+
+    config: TrainConfig
+    mcfg: ModelConfig
+    net: MultiReturnUNet
+    model: torch.nn.Module
+    opt: torch.optim.Optimizer
+    ctx: ddp.Ddp
+    device: torch.device
+    weights: LossWeights
+    quiet: bool
+
+    @classmethod
+    def start(cls, config: TrainConfig, mcfg: ModelConfig, device: torch.device, ctx: ddp.Ddp,
+              quiet: bool) -> "_Stage1Run":
+        """Seeded, then the model and its optimiser (in that order: the model's initial weights are
+        the first draws after the seed)."""
+        seed_everything(config.seed)
+        net = MultiReturnUNet(mcfg).to(device)
+        return cls(config, mcfg, net, net, config.optimizer(net.parameters()), ctx, device, config.loss_weights(),
+                   quiet)
+
+    def epoch(self, train_set, epoch: int) -> dict:
+        """Train one epoch (0-based ``epoch``); its metrics row, summed over the processes."""
+        config, ctx = self.config, self.ctx
+        lr = config.lr_at(epoch, config.epochs)
+        set_lr(self.opt, lr)
+        loader = self._loader(train_set, epoch)
+        self.model.train()
         sums: dict = {}
         n_seen, t0 = 0, time.perf_counter()
         for batch in track(loader, total=len(loader), description=f"epoch {epoch + 1}/{config.epochs}",
-                           quiet=quiet or not ctx.main):
-            x = batch["heatmap"].to(device, non_blocking=True).float()   # float16 from the loader
-            y = batch["range"].to(device, non_blocking=True)
-            lab = batch["label"].to(device, non_blocking=True)
-            loss, parts = multi_return_loss(model(x), y, lab, weights, max_range=mcfg.max_range)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 5.0)
-            opt.step()
-            bs = x.shape[0]
+                           quiet=self.quiet or not ctx.main):
+            bs, loss, parts = self._step(batch)
             n_seen += bs
-            sums["loss"] = sums.get("loss", 0.0) + float(loss.detach()) * bs
+            sums["loss"] = sums.get("loss", 0.0) + loss * bs
             for k, v in parts.items():
                 sums[k] = sums.get(k, 0.0) + v * bs
         sums = ddp.sum_over_ranks({**sums, "_n": n_seen}, ctx)
         n_seen = int(sums.pop("_n"))
         dt = time.perf_counter() - t0
-        row = {"epoch": epoch + 1, **{k: v / max(n_seen, 1) for k, v in sums.items()}, "lr": lr,
-               "samples": n_seen, "seconds": round(dt, 3), "samples_per_s": n_seen / dt if dt > 0 else None}
-        history.append(row)
-        if ctx.main:
-            _atomic_save({
-                "format": "holodata-checkpoint-1", "epoch": epoch + 1, "model_config": mcfg.to_dict(),
-                "model_state": net.state_dict(), "optimizer_state": opt.state_dict(),
-                "train_config": config.to_dict(), "norm": norm.to_dict(),
-                "transform": config.sample_transform(train=False).to_dict(), "history": history,
-                "torch_rng": torch.get_rng_state(), "meta": {**(meta or {}), "processes": ctx.world},
-            }, ck_path)
-            with open(out / METRICS_LOG, "a") as fh:
-                fh.write(json.dumps(row) + "\n")
-        ddp.barrier(ctx)
-    return RunResult(out, ck_path, config.epochs, start, history)
+        return {"epoch": epoch + 1, **{k: v / max(n_seen, 1) for k, v in sums.items()}, "lr": lr,
+                "samples": n_seen, "seconds": round(dt, 3), "samples_per_s": n_seen / dt if dt > 0 else None}
+
+    def _loader(self, train_set, epoch: int) -> DataLoader:
+        """This process's batches of epoch ``epoch``: the permutation torch's RandomSampler draws from a
+        generator seeded by (seed, epoch), split over the ranks; augmentation keyed the same way."""
+        config = self.config
+        if hasattr(train_set, "set_epoch"):
+            train_set.set_epoch(config.seed, epoch)
+        order = torch.randperm(len(train_set), generator=torch.Generator().manual_seed(config.seed * 100003 + epoch))
+        return DataLoader(train_set, batch_sampler=ddp.local_batches(order.tolist(), config.batch_size, self.ctx),
+                          num_workers=config.num_workers, collate_fn=_collate, persistent_workers=False)
+
+    def _step(self, batch: dict) -> tuple[int, float, dict]:
+        """One optimiser step on ``batch``: (batch size, loss, the loss's parts)."""
+        dev = self.device
+        x = batch["heatmap"].to(dev, non_blocking=True).float()   # float16 from the loader
+        y = batch["range"].to(dev, non_blocking=True)
+        lab = batch["label"].to(dev, non_blocking=True)
+        loss, parts = multi_return_loss(self.model(x), y, lab, self.weights, max_range=self.mcfg.max_range)
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(self.net.parameters(), 5.0)
+        self.opt.step()
+        return x.shape[0], float(loss.detach()), parts
+
+    def save(self, out: Path, history: list, norm: HeatmapNorm, meta: dict | None) -> None:
+        """The checkpoint after the last epoch of ``history`` (atomic) and its metrics line."""
+        config = self.config
+        _atomic_save({
+            "format": "holodata-checkpoint-1", "epoch": history[-1]["epoch"], "model_config": self.mcfg.to_dict(),
+            "model_state": self.net.state_dict(), "optimizer_state": self.opt.state_dict(),
+            "train_config": config.to_dict(), "norm": norm.to_dict(),
+            "transform": config.sample_transform(train=False).to_dict(), "history": history,
+            "torch_rng": torch.get_rng_state(), "meta": {**(meta or {}), "processes": self.ctx.world},
+        }, out / CHECKPOINT)
+        with open(out / METRICS_LOG, "a") as fh:
+            fh.write(json.dumps(history[-1]) + "\n")
 
 
 def _truncate_log(path: Path, epochs_done: int) -> None:
@@ -347,5 +412,5 @@ def train(dataset_url, out_dir, config: TrainConfig | dict | None = None, quiet:
     n_in = int(ds.range_bins.n) // max(cfg.range_pool, 1)
     meta = {"dataset": str(dataset_url), "train_scenes": train_set.scenes, "grid": ds.grid.to_attrs(),
             "range_bins": ds.range_bins.to_attrs(), **({"init": str(init_path)} if init_path else {})}
-    return fit(train_set, out_dir, cfg, train_set.norm, in_channels=n_in,
-               max_range=float(ds.range_bins.max_range), meta=meta, quiet=quiet, init=init_ck)
+    return fit(train_set, out_dir, cfg, train_set.norm, in_channels=n_in, max_range=float(ds.range_bins.max_range),
+               options=RunOptions(quiet=quiet, init=init_ck, meta=meta))
