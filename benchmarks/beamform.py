@@ -28,7 +28,7 @@ from _run import best_of, header
 
 from holodata.radar import BeamformParams, beamform, beam_indices, static_reflection
 from holodata.radar.chirp import ChirpConfig
-from holodata.radar.simulate import point_at, simulate_rotation
+from holodata.radar.simulate import RigEffects, point_at, simulate_rotation
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))   # the direct-sum reference lives with the tests
@@ -44,8 +44,8 @@ def rotation_data(chirp: ChirpConfig, n_syn_half: int, seed: int = 0):
     pts = np.stack([point_at(r, a, e) for r, a, e in
                     zip(rng.uniform(1.0, 8.0, 5), rng.uniform(-np.pi, np.pi, 5), rng.uniform(-0.5, 0.5, 5))])
     leak = (0.05 * np.exp(-np.arange(chirp.n_samples) / 4.0))[None, :].repeat(chirp.n_virtual, 0)
-    return simulate_rotation(pts, chirp=chirp, velocity=VELOCITY, pad=n_syn_half, noise_std=1e-3, leakage=leak,
-                             rng=seed)
+    return simulate_rotation(pts, chirp=chirp, velocity=VELOCITY, pad=n_syn_half,
+                             effects=RigEffects(noise_std=1e-3, leakage=leak, rng=seed))
 
 
 def timed(fn, repeat: int) -> float:
@@ -75,7 +75,7 @@ def main(argv=None) -> dict:
     out: dict = {"size": f"{N}x{chirp.n_virtual}x{chirp.n_samples} -> {params.n_range or chirp.n_samples}x"
                          f"{params.n_elevation}x{params.n_azimuth}"}
     near = BeamformParams(focus="near")
-    moving = {"velocity": VELOCITY, "before": before, "after": after}
+    moving = {"velocity": VELOCITY, "neighbours": (before, after)}
     cases = {"static": (params, {}), "motion": (params, moving),
              "static-near": (near, {}), "motion-near": (near, moving)}
     beams = beam_indices(N, params.n_azimuth)

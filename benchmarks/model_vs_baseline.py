@@ -43,14 +43,14 @@ def trace_with_human(sc, O, D, B, max_range, t_ns):
 
 
 def build(url: str, grid: Grid, bins: RangeBins, frames: int, corners) -> list[str]:
-    from holodata.synth.scenario import Sensors, build_scenario
+    from holodata.synth.scenario import SceneSpec, Sensors, build_scenario
 
     w = create_dataset(url, grid=grid, range_bins=bins, created_by="benchmarks/model_vs_baseline.py", shard_frames=frames)
     ids = []
     B, H, W = 3, grid.H, grid.W
     for corner, seed in corners:
-        sc = build_scenario(corner, frames=frames, seed=seed, grid=grid, range_bins=bins, lidar_shape=(8, 64),
-                            camera_shape=(24, 32))
+        sc = build_scenario(SceneSpec(corner, frames=frames, seed=seed, grid=grid, range_bins=bins, lidar_shape=(8, 64),
+                                      camera_shape=(24, 32)))
         sens = Sensors(sc)
         sid = f"{corner}_{seed}"
         ids.append(sid)
@@ -105,14 +105,14 @@ def main() -> None:
         build(url, grid, bins, a.frames, CORNERS[: a.scenes])
     t1 = time.perf_counter()
     from holodata.evaluate import format_tables
-    from holodata.evaluate import evaluate
+    from holodata.evaluate import Evaluation
     from holodata.torch import TrainConfig, train
 
     depth = min(7, int(np.log2(min(grid.H, grid.W))) + 1)
     run = out / f"run_{a.head}"
     res = train(url, run, TrainConfig(epochs=a.epochs, depth=depth, batch_size=4, head=a.head), quiet=True)
     t2 = time.perf_counter()
-    doc = evaluate(url, run, out / f"report_{a.head}", quiet=True)
+    doc = Evaluation(url, run, out / f"report_{a.head}", quiet=True).run()
     t3 = time.perf_counter()
     print(f"dataset {t1 - t0:.0f} s, train {t2 - t1:.0f} s ({a.epochs} epochs, loss {res.history[0]['loss']:.3f} → "
           f"{res.final_loss:.3f}), evaluate {t3 - t2:.0f} s; report {out / f'report_{a.head}' / 'report.html'}")

@@ -117,7 +117,7 @@ def main(argv=None) -> int:
     header()
 
     from holodata.conventions import Grid
-    from holodata.evaluate.pipeline import evaluate
+    from holodata.evaluate.pipeline import Evaluation
     from holodata.synth.corpus import CorpusConfig, synth_corpus
     from holodata.torch import TrainConfig, train
     from holodata.torch.pretrained import CHECK_SET, install, scores
@@ -162,7 +162,7 @@ def main(argv=None) -> int:
         t2 = time.perf_counter()
         train_stage2(url, run, s2, quiet=True)
         t3 = time.perf_counter()
-        docs[n] = evaluate(report, run, out / f"eval_{n}{tag}", split="test", quiet=True, report=False)
+        docs[n] = Evaluation(report, run, out / f"eval_{n}{tag}", split="test", quiet=True, report=False).run()
         t4 = time.perf_counter()
         timings[n] = {"stage_one_s": t2 - t1, "stage_two_s": t3 - t2, "evaluate_s": t4 - t3,
                       "steps": epochs * math.ceil(frames / cfg.batch_size)}
@@ -190,7 +190,7 @@ def main(argv=None) -> int:
     if a.install:
         run, train_cc, cfg, s2 = runs[top]
         recorded = {"report": scores(docs[top]),
-                    "check": scores(evaluate(check, run, out / "eval_check", split="test", quiet=True, report=False))}
+                    "check": scores(Evaluation(check, run, out / "eval_check", split="test", quiet=True, report=False).run())}
 
         def cc_dict(cc) -> dict:
             return {"corners": cc.corners, "frames": cc.frames, "seed": cc.seed, "n_test": cc.n_test,

@@ -83,7 +83,7 @@ STAGES = ("slam", "register", "raytrace-gt")
 def mapping_and_gt(url: str, sid: str, work: Path) -> tuple[dict, dict, object, dict]:
     """One timed pass of slam (recomputed), register and raytrace-gt on the ingested dataset ``url``:
     (wall s by stage, CPU s by stage, slam's result, register's summary)."""
-    from holodata.groundtruth import GTConfig, HumanDataset, raytrace_standalone
+    from holodata.groundtruth import GTConfig, HumanDataset, RaytraceStandalone
     from holodata.mapping import slam as S
     from holodata.mapping.register import register_scene
     from holodata.meshio import Mesh, write_ply
@@ -91,7 +91,7 @@ def mapping_and_gt(url: str, sid: str, work: Path) -> tuple[dict, dict, object, 
 
     rows, cpus = {}, {}
     t0, c0 = time.perf_counter(), cpu()
-    res = S.slam_scene(url, sid, quiet=True, force=True)
+    res = S.slam_scene(url, sid, quiet=True, outputs=S.SlamOutputs(force=True))
     rows["slam"], cpus["slam"] = time.perf_counter() - t0, cpu() - c0
     ds = open_dataset(url)
     w = create_dataset(url, grid=ds.grid, range_bins=ds.range_bins).scene(sid)
@@ -111,8 +111,8 @@ def mapping_and_gt(url: str, sid: str, work: Path) -> tuple[dict, dict, object, 
     t0, c0 = time.perf_counter(), cpu()
     # what `holodata raytrace-gt DATASET` traces: the mesh and register's human surfaces, at 64x512
     # (the dataset's own radar grid is kept small to keep synth and ingest fast)
-    raytrace_standalone(work / "slam_mesh.ply", work / "radar.tum", str(work / "gt.zarr"), cfg=GTConfig(),
-                        human=HumanDataset(url, sid), quiet=True)
+    RaytraceStandalone(work / "slam_mesh.ply", work / "radar.tum", str(work / "gt.zarr"), cfg=GTConfig(),
+                       human=HumanDataset(url, sid), quiet=True).run()
     rows["raytrace-gt"], cpus["raytrace-gt"] = time.perf_counter() - t0, cpu() - c0
     return rows, cpus, res, reg
 
@@ -133,10 +133,10 @@ def main() -> None:
                     "this 2-core machine's wall times vary by 10-20 %% from run to run)")
     args = ap.parse_args()
     header()
-    from holodata.groundtruth import GTConfig, raytrace_standalone
+    from holodata.groundtruth import GTConfig, RaytraceStandalone
     from holodata.mapping.accuracy import evaluate_slam
     from holodata.meshio import Mesh, write_ply
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     work = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="holodata-pipeline-bench-"))
     work.mkdir(parents=True, exist_ok=True)
@@ -147,10 +147,10 @@ def main() -> None:
         if not (args.reuse and rec.exists()):
             shutil.rmtree(work / "syn", ignore_errors=True)
             t0 = time.perf_counter()
-            synthesize(work / "syn", corner=args.corner, frames=args.frames, seed=args.seed, grid=Grid(H, W),
-                       range_bins=RangeBins(B), lidar_shape=tuple(int(v) for v in args.lidar.split("x")),
-                       camera_shape=tuple(int(v) for v in args.camera.split("x")), quiet=True,
-                       visible_walkers=args.walkers)
+            synthesize(work / "syn", SynthSpec(corner=args.corner, frames=args.frames, seed=args.seed, grid=Grid(H, W),
+                                               range_bins=RangeBins(B), lidar_shape=tuple(int(v) for v in args.lidar.split("x")),
+                                               camera_shape=tuple(int(v) for v in args.camera.split("x")),
+                                               visible_walkers=args.walkers), quiet=True)
             print(f"synth {time.perf_counter() - t0:.1f} s", flush=True)
         url = str(work / "ds.zarr")
         for p in (work / "ds.zarr", work / "gt.zarr", work / "gt_truth.zarr", work / "gt_slam_truthposes.zarr"):
@@ -199,11 +199,11 @@ def main() -> None:
             hum = [k for k, n in tm.class_names.items() if str(n) == "human"]
             keep = ~np.isin(tm.face_class, hum) if tm.face_class is not None else np.ones(len(tm.faces), bool)
             write_ply(work / "truth_static.ply", Mesh(tm.vertices, tm.faces[keep]))
-            raytrace_standalone(work / "truth_static.ply", truth_dir / "trajectory_radar.tum",
-                                str(work / "gt_truth.zarr"), cfg=GTConfig(), quiet=True)
+            RaytraceStandalone(work / "truth_static.ply", truth_dir / "trajectory_radar.tum",
+                               str(work / "gt_truth.zarr"), cfg=GTConfig(), quiet=True).run()
             # the SLAM GT again at the true radar poses: the difference is the mesh's alone
-            raytrace_standalone(work / "slam_mesh.ply", truth_dir / "trajectory_radar.tum",
-                                str(work / "gt_slam_truthposes.zarr"), cfg=GTConfig(), quiet=True)
+            RaytraceStandalone(work / "slam_mesh.ply", truth_dir / "trajectory_radar.tum",
+                               str(work / "gt_slam_truthposes.zarr"), cfg=GTConfig(), quiet=True).run()
             d = gt_range_diff(str(work / "gt_slam_truthposes.zarr"), str(work / "gt_truth.zarr"))
             print("  GT range |slam mesh - true mesh| (true radar poses): " + "  ".join(
                 f"{k} median {v['median_cm']:.1f} cm p90 {v['p90_cm']:.1f} cm ({v['beams_both']} beams)"

@@ -12,7 +12,9 @@ then:
      human scene per frame) in the same run, and prints the ratio  bare time / pipeline time  per
      frame (1.0 = no overhead), wall and CPU;
   3. runs the ``holodata raytrace-gt`` command itself as a subprocess (start-up and imports
-     included) and prints its ratios (--skip-cli to skip);
+     included) and prints its ratios (--skip-cli to skip), then the same command on the first
+     frame alone: its fixed cost (interpreter, imports, inputs, output, exit), and the ratios that
+     cost leaves reachable at this frame count even if every frame were traced at the bare speed;
   4. runs the pipeline in subprocesses for 100 and 1000 frames and prints their peak RSS;
   5. extrapolates to HoloRadar scale (28k frames).
 
@@ -37,7 +39,7 @@ from _run import header
 from holodata.conventions import Grid
 from holodata.meshio import merge_meshes
 from holodata.meshio import Mesh, write_ply
-from holodata.trajectory import Trajectory, write_tum
+from holodata.trajectory import Trajectory, read_tum, write_tum
 
 
 def plane(p0, u, v, nu, nv):
@@ -110,11 +112,11 @@ def make_inputs(d: Path, frames: int) -> None:
 
 
 def run_pipeline(d: Path, grid: str, out: Path, quiet=True, codec=None, processes: int = 0) -> dict:
-    from holodata.groundtruth import GTConfig, raytrace_standalone
+    from holodata.groundtruth import GTConfig, RaytraceStandalone
 
     cfg = GTConfig(grid=Grid.parse(grid, "-45,45"), codec=codec)
-    return raytrace_standalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg, quiet=quiet,
-                                processes=processes)
+    return RaytraceStandalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg, quiet=quiet,
+                              processes=processes).run()
 
 
 def bare_replay(d: Path, grid: str, sample: list[int]) -> tuple[float, float, int]:
@@ -222,18 +224,23 @@ def main() -> None:
         print(f"extrapolated to 28000 frames: {(dt + 27999 * steady) / 60:.1f} min "
               f"(start-up + steady state; {28000 / fps / 60:.1f} min at this run's average)")
         if not a.skip_cli:  # the command itself: interpreter start-up and imports included
-            r0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-            subprocess.run([str(Path(sys.executable).with_name("holodata")), "raytrace-gt", "--mesh", str(d / "scene.ply"),
-                            "--poses", str(d / "radar.tum"), "--human-dir", str(d / "humans"), "--out",
-                            str(d / "cli.zarr"), "--grid", a.grid, "--processes", str(a.processes)],
-                           check=True, capture_output=True)
-            cdt = time.perf_counter() - t0
-            r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            ccpu = r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
+            cdt, ccpu = run_command(d, a.grid, a.processes)
             print(f"holodata raytrace-gt command (subprocess, start-up and imports included): {cdt:.2f} s, "
                   f"{1e3 * cdt / a.frames:.1f} ms/frame -> ratio {bare / (cdt / a.frames):.2f}; CPU "
                   f"{1e3 * ccpu / a.frames:.1f} ms/frame -> CPU ratio {bare_cpu / (ccpu / a.frames):.2f}")
-            shutil.rmtree(d / "cli.zarr", ignore_errors=True)
+            # the command's fixed cost (interpreter, imports, reading the mesh, creating the output, exit):
+            # the same command on the first frame alone; it bounds the ratio a run of N frames can reach
+            one = d / "one"
+            (one / "humans").mkdir(parents=True)
+            traj = read_tum(d / "radar.tum")
+            write_tum(one / "radar.tum", Trajectory(traj.timestamp_ns[:1], traj.poses[:1]))
+            shutil.copy(d / "humans" / "000000.ply", one / "humans" / "000000.ply")
+            shutil.copy(d / "scene.ply", one / "scene.ply")
+            fdt, fcpu = run_command(one, a.grid, a.processes)
+            n_bare, n_bare_cpu = a.frames * bare, a.frames * bare_cpu
+            print(f"  its fixed cost (the command on 1 frame): {fdt:.2f} s wall, {fcpu:.2f} s CPU -> even tracing at the "
+                  f"bare speed, {a.frames} frames reach at most ratio {n_bare / (n_bare + fdt):.2f}, CPU ratio "
+                  f"{n_bare_cpu / (n_bare_cpu + fcpu):.2f}")
         if not a.skip_rss:
             for n in (100, 1000):
                 r = subprocess.run([sys.executable, __file__, "--rss-child", str(n), "--rss-grid", a.rss_grid],
@@ -245,6 +252,19 @@ def main() -> None:
                           "cpu_ratio": round(bare_cpu / (cpu / a.frames), 3), "summary": summary["scenes"][0]}))
     finally:
         shutil.rmtree(d, ignore_errors=True)
+
+
+def run_command(d: Path, grid: str, processes: int) -> tuple[float, float]:
+    """Wall and CPU seconds of ``holodata raytrace-gt`` (standalone form) on the inputs in ``d``, as a subprocess."""
+    r0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    subprocess.run([str(Path(sys.executable).with_name("holodata")), "raytrace-gt", "--mesh", str(d / "scene.ply"),
+                    "--poses", str(d / "radar.tum"), "--human-dir", str(d / "humans"), "--out",
+                    str(d / "cli.zarr"), "--grid", grid, "--processes", str(processes)],
+                   check=True, capture_output=True)
+    dt = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    shutil.rmtree(d / "cli.zarr", ignore_errors=True)
+    return dt, r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
 
 
 def du(p: Path) -> float:

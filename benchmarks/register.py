@@ -76,7 +76,7 @@ def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
     scans = LidarScans.open(sc, url)
     traj = scans.trajectory()
     bg = build_background(scans, SegmentConfig(), traj)
-    M = R.map_cloud(scans, bg, traj, cfg.map_voxel, instances=sc["lidar/instance"])
+    M = R.map_cloud(R.MapInputs(scans, bg, traj), cfg.map_voxel, instances=sc["lidar/instance"])
     cam = R.CameraFrames.open(sc, url)
     frames = list(np.linspace(0, sc.n_frames - 1, min(sc.n_frames, cfg.median_frames)).round().astype(int))
     med, mad, cnt = R.static_depth(cam, frames)
@@ -157,15 +157,16 @@ def perturb(T: np.ndarray, cm: float, deg: float) -> np.ndarray:
 def _prepare(corner: str, seed: int, args, root: Path) -> tuple[Path, Path]:
     """Synthesise (once) and return (recording folder, truth folder) of a (corner, seed)."""
     from holodata.conventions import Grid, RangeBins
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     d = root / f"{corner}_{seed}"
     truth_dir = d / "rec" / "truth"
     if not (truth_dir / "scene.json").is_file():  # --keep DIR: a rerun reuses the recording
         shutil.rmtree(d, ignore_errors=True)
-        synthesize(d / "rec", corner=corner, frames=args.frames, seed=seed, grid=Grid(8, 32),
-                   range_bins=RangeBins(n=64), lidar_shape=tuple(args.lidar), camera_shape=tuple(args.camera),
-                   lidar_vertical_fov_deg=args.lidar_fov, quiet=True, visible_walkers=args.walkers)
+        synthesize(d / "rec", SynthSpec(corner=corner, frames=args.frames, seed=seed, grid=Grid(8, 32),
+                                        range_bins=RangeBins(n=64), lidar_shape=tuple(args.lidar),
+                                        camera_shape=tuple(args.camera), lidar_vertical_fov_deg=args.lidar_fov,
+                                        visible_walkers=args.walkers), quiet=True)
     return d / "rec" / "recording", truth_dir
 
 

@@ -72,13 +72,13 @@ def run(d: Path, out: Path, grid: str, shard_frames: int, threads: int, client=N
         ) -> tuple[float, float]:
     """(wall seconds, CPU seconds) of one standalone raytrace-gt run into a new dataset ``out``."""
     from holodata.conventions import Grid
-    from holodata.groundtruth import GTConfig, raytrace_standalone
+    from holodata.groundtruth import GTConfig, RaytraceStandalone
 
     cfg = GTConfig(grid=Grid.parse(grid, "-45,45"), shard_frames=shard_frames, nthreads=threads)
     c0 = cpu_seconds(client)
     t = time.perf_counter()
-    raytrace_standalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg,
-                        quiet=True, processes=processes, client=client)
+    RaytraceStandalone(d / "scene.ply", d / "radar.tum", str(out), human_dir=d / "humans", cfg=cfg,
+                       quiet=True, processes=processes, client=client).run()
     return time.perf_counter() - t, cpu_seconds(client) - c0
 
 

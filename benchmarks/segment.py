@@ -56,7 +56,7 @@ def prepare(root: Path, corner: str, fov: float, lidar: tuple, args) -> tuple[st
     from holodata.dataset import open_dataset
     from holodata.ingest import ingest
     from holodata.mapping.human_eval import write_truth_poses
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     t0 = time.perf_counter()
     d = root / f"fov{fov:g}_{lidar[0]}x{lidar[1]}_{corner}_s{args.seed}_f{args.frames}_w{args.walkers}"
@@ -64,9 +64,9 @@ def prepare(root: Path, corner: str, fov: float, lidar: tuple, args) -> tuple[st
     truth = d / "rec" / "truth"
     if not (d / "ready").is_file():
         shutil.rmtree(d, ignore_errors=True)
-        synthesize(d / "rec", corner=corner, frames=args.frames, seed=args.seed, grid=Grid(8, 32),
-                   range_bins=RangeBins(n=64), lidar_shape=lidar, camera_shape=(94, 168), quiet=True,
-                   visible_walkers=args.walkers, lidar_vertical_fov_deg=fov)
+        synthesize(d / "rec", SynthSpec(corner=corner, frames=args.frames, seed=args.seed, grid=Grid(8, 32),
+                                        range_bins=RangeBins(n=64), lidar_shape=lidar, camera_shape=(94, 168),
+                                        visible_walkers=args.walkers, lidar_vertical_fov_deg=fov), quiet=True)
         ingest([d / "rec" / "recording"], str(url), quiet=True)
         write_truth_poses(str(url), open_dataset(str(url)).scenes[0], truth)
         (d / "ready").write_text("ok\n")

@@ -67,7 +67,7 @@ from holodata.mapping import slam as S
 from holodata.mapping.accuracy import evaluate_slam, mesh_errors, pose_alignment, lidar_from_scene_json
 from holodata.mapping.mesh import MeshConfig
 from holodata.meshio import read_mesh
-from holodata.synth import synthesize
+from holodata.synth import SynthSpec, synthesize
 from holodata.trajectory import Trajectory, read_tum
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -116,9 +116,9 @@ def run_corner(corner: str, work: Path, args) -> dict:
             shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
     else:
         t0 = time.perf_counter()
-        syn = synthesize(out, corner=corner, frames=args.frames, seed=args.seed, grid=Grid(16, 64),
-                         range_bins=RangeBins(32), lidar_shape=lidar, camera_shape=(48, 64), quiet=True,
-                         visible_walkers=args.walkers, mapping_pass=args.mapping_pass)
+        syn = synthesize(out, SynthSpec(corner=corner, frames=args.frames, seed=args.seed, grid=Grid(16, 64),
+                                        range_bins=RangeBins(32), lidar_shape=lidar, camera_shape=(48, 64),
+                                        visible_walkers=args.walkers, mapping_pass=args.mapping_pass), quiet=True)
         t_syn = time.perf_counter() - t0
         t0 = time.perf_counter()
         recs = [syn.recording] + ([syn.mapping_recording] if args.mapping_pass else [])
@@ -126,8 +126,8 @@ def run_corner(corner: str, work: Path, args) -> dict:
         t_ing = time.perf_counter() - t0
         sid = ing["scenes"][0]["scene"]
     t0 = time.perf_counter()
-    res = S.slam_scene(url, sid, config=S.SlamConfig(global_pass=args.global_pass), quiet=True, force=True,
-                       map_scene="map" if args.mapping_pass else None)
+    res = S.slam_scene(url, sid, config=S.SlamConfig(global_pass=args.global_pass), quiet=True,
+                       outputs=S.SlamOutputs(force=True), map_scene="map" if args.mapping_pass else None)
     t_slam = time.perf_counter() - t0
     t_kiss, ktraj = bare_kiss(url, sid)
     acc = evaluate_slam(res.trajectory(), res.mesh, syn.truth_dir, out_dir=out / "report",
@@ -153,7 +153,7 @@ def run_corner(corner: str, work: Path, args) -> dict:
         row["radar_pose_err_cm"] = float(np.sqrt(np.mean(np.sum((Tr[:, :3, 3] - tr.poses[:, :3, 3]) ** 2, 1)))) * 100
     if args.raytrace and Tr is not None:
         # the stage slam must not dominate: raytrace-gt of the same frames at the default 64x512 grid
-        from holodata.groundtruth import GTConfig, raytrace_standalone
+        from holodata.groundtruth import GTConfig, RaytraceStandalone
         from holodata.meshio import Mesh, write_ply
         from holodata.trajectory import write_tum
 
@@ -161,7 +161,7 @@ def run_corner(corner: str, work: Path, args) -> dict:
         write_ply(out / "slam_mesh.ply", Mesh(res.mesh[0], res.mesh[1]))
         write_tum(out / "radar.tum", Trajectory(np.asarray(sc["time/timestamp_ns"][...], np.int64), Tr))
         t0 = time.perf_counter()
-        raytrace_standalone(out / "slam_mesh.ply", out / "radar.tum", str(out / "gt.zarr"), cfg=GTConfig(), quiet=True)
+        RaytraceStandalone(out / "slam_mesh.ply", out / "radar.tum", str(out / "gt.zarr"), cfg=GTConfig(), quiet=True).run()
         row["raytrace_s"] = round(time.perf_counter() - t0, 1)
     methods = [x for x in args.mesh_methods.split(",") if x]
     if methods:
@@ -221,16 +221,16 @@ def run_demo_corner(corner: str, seed: int, cfg, work: Path) -> dict:
     if not (out / "ds.zarr").is_dir():
         shutil.rmtree(out, ignore_errors=True)
         t0 = time.perf_counter()
-        syn = synthesize(out, corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid, range_bins=cfg.range_bins,
-                         lidar_shape=cfg.lidar_shape, camera_shape=cfg.camera_shape,
-                         lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg, mapping_pass=True,
-                         mapping_scan_hz=cfg.mapping_scan_hz, quiet=True)
+        syn = synthesize(out, SynthSpec(corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid,
+                                        range_bins=cfg.range_bins, lidar_shape=cfg.lidar_shape,
+                                        camera_shape=cfg.camera_shape, lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg,
+                                        mapping_pass=True, mapping_scan_hz=cfg.mapping_scan_hz), quiet=True)
         t_syn = time.perf_counter() - t0
         t0 = time.perf_counter()
         ingest([syn.recording, syn.mapping_recording], url, scene_ids=[sid, map_scene_id(sid)], quiet=True)
         t_ing = time.perf_counter() - t0
     t0 = time.perf_counter()
-    res = S.slam_scene(url, sid, map_scene=map_scene_id(sid), quiet=True, force=True,
+    res = S.slam_scene(url, sid, map_scene=map_scene_id(sid), quiet=True, outputs=S.SlamOutputs(force=True),
                        mesh_config=MeshConfig(poisson_depth=cfg.mesh_poisson_depth))
     t_slam = time.perf_counter() - t0
     acc = evaluate_slam(res.trajectory(), res.mesh, out / "truth")

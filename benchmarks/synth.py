@@ -30,7 +30,7 @@ from _run import header
 
 from holodata.conventions import Grid, RangeBins
 from holodata.synth.radar import encode_heatmap
-from holodata.synth.scenario import Sensors, build_scenario
+from holodata.synth.scenario import SceneSpec, Sensors, build_scenario
 
 
 def bare_replay(log) -> float:
@@ -101,8 +101,8 @@ def main() -> None:
     import open3d as o3d
 
     grid, rb = Grid(64, 512), RangeBins(256)
-    sc = build_scenario("L", width=2.0, frames=args.frames, seed=3, grid=grid, range_bins=rb,
-                        lidar_shape=(8, 64), camera_shape=(8, 16))
+    sc = build_scenario(SceneSpec("L", width=2.0, frames=args.frames, seed=3, grid=grid, range_bins=rb,
+                                  lidar_shape=(8, 64), camera_shape=(8, 16)))
     s = Sensors(sc)
     s.radar_frame(0)  # warm-up (FFT plans, BVH, page faults)
     steps = {"trace": 0.0, "paths": 0.0, "cube": 0.0, "encode": 0.0}
@@ -158,12 +158,12 @@ def main() -> None:
         iq_rotations(s, sc, args.iq_frames)
     if args.skip_record:
         return
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     tmp = Path(tempfile.mkdtemp(prefix="holodata-synth-bench-"))
     try:
         t0 = time.perf_counter()
-        res = synthesize(tmp / "rec", corner="T", frames=args.record_frames, seed=5, quiet=True)
+        res = synthesize(tmp / "rec", SynthSpec(corner="T", frames=args.record_frames, seed=5), quiet=True)
         dt = time.perf_counter() - t0
         size = sum(p.stat().st_size for p in res.recording.rglob("*") if p.is_file())
         print(f"whole recording (defaults: radar 256x64x512 float16, LiDAR 64x1024 @10 Hz, camera 376x672 @5 Hz, MCAP), "

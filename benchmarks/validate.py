@@ -61,7 +61,7 @@ print(json.dumps(out))
 def write_dataset(url: str, gb: float, frames: int, n_range: int, seed: int = 0) -> int:
     """Scenes of ``frames`` frames until about ``gb`` GB are stored; returns the bytes stored."""
     from holodata.conventions import Grid, RangeBins
-    from holodata.dataset import create_dataset
+    from holodata.dataset import FrameStorage, create_dataset
     from holodata.dataset.layout import (GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, GT_SEMANTIC,
                                          LIDAR_POINTS, LIDAR_TIMESTAMP_NS, MESH_FACES, MESH_VERTICES,
                                          POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
@@ -96,7 +96,7 @@ def write_dataset(url: str, gb: float, frames: int, n_range: int, seed: int = 0)
             a = sc.frame_array(name, per)
             for k in range(a.n_shards):
                 a.write_shard(k, data[a.frames(k)])
-        hm = sc.frame_array(RADAR_HEATMAP, (n_range, grid.H, grid.W), "float16", shard_frames=hm_shard, codec="lz4")
+        hm = sc.frame_array(RADAR_HEATMAP, (n_range, grid.H, grid.W), "float16", storage=FrameStorage(hm_shard, "lz4"))
         for k in range(hm.n_shards):
             hm.write_shard(k, [pool[RADAR_HEATMAP][j % 32] for j in range(*hm.frames(k).indices(frames))])
         gt = {n: sc.frame_array(n, pool[n].shape[1:]) for n in (GT_RANGE, GT_LABEL, GT_NORMAL, GT_POINT)}

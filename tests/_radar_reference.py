@@ -13,11 +13,12 @@ import numpy as np
 from holodata.radar.beam_geometry import window
 
 
-def _inputs(rotation, chirp, params, before, after, velocity, chirp_period_s, static_refl):
+def _inputs(rotation, chirp, params, neighbours, velocity, chirp_period_s, static_refl):
     """What both references start from: the rotation's shape (N, V, S); ``chirp_at(n)``, chirp
     position n (neighbouring rotations' chirps, or circular without them) minus the static
     reflection; and the platform's motion (moving, travel per chirp ds0 in m, heading theta_v)."""
     x = np.asarray(rotation, np.complex128)
+    before, after = neighbours if neighbours is not None else (None, None)
     N, V, S = x.shape
     if params.static_removal == "none":
         refl = np.zeros((V, S))
@@ -46,12 +47,12 @@ def _inputs(rotation, chirp, params, before, after, velocity, chirp_period_s, st
     return (N, V, S), chirp_at, moving, ds0, theta_v
 
 
-def beamform_direct(rotation, chirp, params, *, before=None, after=None, velocity=None, chirp_period_s=None,
+def beamform_direct(rotation, chirp, params, *, neighbours=None, velocity=None, chirp_period_s=None,
                     static_refl=None, beams=None, elevation_rows=None) -> np.ndarray:
     """(n_range, len(rows), len(beams)) float64 magnitudes for beams ``beams`` (default: every chirp
     position) and elevation rows ``elevation_rows`` (default all); columns are not decimated here
     (see :func:`columns_direct`)."""
-    (N, V, S), chirp_at, moving, ds0, theta_v = _inputs(rotation, chirp, params, before, after, velocity,
+    (N, V, S), chirp_at, moving, ds0, theta_v = _inputs(rotation, chirp, params, neighbours, velocity,
                                                         chirp_period_s, static_refl)
     R = params.n_range or S
     n_syn = params.syn_count(N)
@@ -108,14 +109,14 @@ def columns_direct(mag_all_beams: np.ndarray, params) -> np.ndarray:
     return out
 
 
-def beamform_direct_near(rotation, chirp, params, *, before=None, after=None, velocity=None, chirp_period_s=None,
+def beamform_direct_near(rotation, chirp, params, *, neighbours=None, velocity=None, chirp_period_s=None,
                          static_refl=None, beams=None, elevation_rows=None) -> np.ndarray:
     """The near-field variant (``focus="near"``, :mod:`holodata.radar.beamform_near`) as direct sums:
     per beam, row and chirp of its window, vertical beamforming, the shift ``exp(j4π r cos θ/λ_i)``, the
     sample window and the half-bin factor, the range FFT, then per range bin the sum
     over chirps with ``exp(−j4π (d_m(R_k) + r cos θ − R_k) f̄/c)`` (exact distance ``d_m`` from chirp m's
     antenna to the bin centre ``R_k`` on the beam). Same shapes as :func:`beamform_direct`."""
-    (N, V, S), chirp_at, moving, ds0, theta_v = _inputs(rotation, chirp, params, before, after, velocity,
+    (N, V, S), chirp_at, moving, ds0, theta_v = _inputs(rotation, chirp, params, neighbours, velocity,
                                                         chirp_period_s, static_refl)
     R = params.n_range or S
     n_syn = params.syn_count(N)

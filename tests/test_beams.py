@@ -77,11 +77,11 @@ def _demo_scene(tmp, grid: Grid, origin: OriginModel | None, name: str):
     from holodata.demo import map_from_truth
     from holodata.groundtruth import GTConfig, raytrace_dataset
     from holodata.ingest import ingest
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     rec = tmp / f"rec_{grid.H}x{grid.W}"
     if not (rec / "truth" / "scene.json").is_file():
-        synthesize(rec, corner="L", frames=2, seed=16, grid=grid, lidar_shape=(16, 128), camera_shape=(24, 32),
+        synthesize(rec, SynthSpec(corner="L", frames=2, seed=16, grid=grid, lidar_shape=(16, 128), camera_shape=(24, 32)),
                    quiet=True)
     url = str(tmp / f"{name}.zarr")
     ingest([str(rec / "recording")], url, scene_ids=["L_16"], quiet=True)
@@ -102,7 +102,7 @@ def synth_dir(tmp_path_factory):
 @pytest.mark.slow
 def test_oracle_scores_perfectly_for_both_origin_models(synth_dir, grid, origin):
     pytest.importorskip("torch")
-    from holodata.evaluate import evaluate
+    from holodata.evaluate import Evaluation
 
     name = f"{grid.H}x{grid.W}_{'rec' if origin is None else 'circle'}"
     url, sc = _demo_scene(synth_dir, grid, origin, name)
@@ -116,7 +116,7 @@ def test_oracle_scores_perfectly_for_both_origin_models(synth_dir, grid, origin)
         assert gt["origin_source"] == "flags" and gt["origin_model"]["rotation_radius_m"] == 0.105
     lab = np.asarray(sc["gt/label"][...])
     assert (lab == 2).sum() > 0 and ((lab == 3) | (lab == 4)).sum() > 0   # NLOS and human to score
-    doc = evaluate(url, None, synth_dir / f"rep_{name}", oracle=True, report=False, quiet=True)
+    doc = Evaluation(url, None, synth_dir / f"rep_{name}", oracle=True, report=False, quiet=True).run()
     m = doc["methods"]["model"]
     for b in (1, 2, 3):
         assert m["range"][f"bounce_{b}"]["mean_cm"] == 0

@@ -41,11 +41,11 @@ def mutate(data: bytes, rng: np.random.Generator, kind: int, lo: int) -> bytes:
 
 
 def _synth(root: Path, fmt: str) -> Path:
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     out = root / f"L_{fmt}"
-    synthesize(out, corner="L", frames=12, seed=5, format=fmt, grid=Grid(16, 64), lidar_shape=(16, 128),
-               camera_shape=(48, 64), quiet=True)
+    synthesize(out, SynthSpec(corner="L", frames=12, seed=5, format=fmt, grid=Grid(16, 64), lidar_shape=(16, 128),
+                              camera_shape=(48, 64)), quiet=True)
     return out / "recording" if fmt == "mcap" else out / "recording.bag"
 
 

@@ -97,7 +97,7 @@ def test_export_never_replaces_or_writes_through_a_symlink(traced, tmp_path):
 
 
 # -- point 3: synth --------------------------------------------------------------------------------
-SMALL = dict(frames=2, grid=None, lidar_shape=(8, 64), camera_shape=(24, 32), quiet=True)
+SMALL = dict(frames=2, grid=None, lidar_shape=(8, 64), camera_shape=(24, 32))
 
 
 def _small():
@@ -107,32 +107,32 @@ def _small():
 
 
 def test_synth_leaves_a_user_mapping_folder_alone(tmp_path):
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     out = tmp_path / "s"
     mine = _user_folder(out / "mapping")
-    res = synthesize(out, corner="L", seed=1, mapping_pass=False, **_small())
+    res = synthesize(out, SynthSpec(corner="L", seed=1, mapping_pass=False, **_small()), quiet=True)
     assert mine.read_text() == "mine" and res.recording.exists()
     out2 = tmp_path / "s2"
     mine2 = _user_folder(out2 / "mapping")
     with pytest.raises(InputError, match="mapping.*not written by holodata"):
-        synthesize(out2, corner="L", seed=1, mapping_pass=True, **_small())
+        synthesize(out2, SynthSpec(corner="L", seed=1, mapping_pass=True, **_small()), quiet=True)
     assert mine2.read_text() == "mine"
     assert not (out2 / "recording").exists()
 
 
 def test_synth_replaces_its_own_outputs_with_force_and_a_user_truth_folder_never(tmp_path):
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     out = tmp_path / "s"
-    synthesize(out, corner="L", seed=1, mapping_pass=True, **_small())
-    again = synthesize(out, corner="T", seed=2, mapping_pass=False, force=True, **_small())
+    synthesize(out, SynthSpec(corner="L", seed=1, mapping_pass=True, **_small()), quiet=True)
+    again = synthesize(out, SynthSpec(corner="T", seed=2, mapping_pass=False, **_small()), quiet=True, force=True)
     assert json.loads(again.scene_json.read_text())["corner_type"] == "T"
     assert not (out / "mapping").exists()       # the earlier run's mapping pass (holodata's) went with it
     out2 = tmp_path / "u"
     mine = _user_folder(out2 / "truth")
     with pytest.raises(InputError, match="truth.*not written by holodata"):
-        synthesize(out2, corner="L", seed=1, mapping_pass=False, force=True, **_small())
+        synthesize(out2, SynthSpec(corner="L", seed=1, mapping_pass=False, **_small()), quiet=True, force=True)
     assert mine.read_text() == "mine"
 
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from holodata.conventions import Grid, RangeBins
-from holodata.dataset import create_dataset, open_dataset
+from holodata.dataset import FrameStorage, create_dataset, open_dataset
 from holodata.dataset import shards as sh
 from holodata.dataset.info import dataset_info
 from holodata.dataset.synthetic import toy_frames, write_toy_dataset
@@ -318,7 +318,7 @@ def test_fast_shard_codec_is_byte_exact_with_zarr_and_catches_damage(tmp_path, c
     rng = np.random.default_rng(3)
     for name, per, dt in [("a", (4, 5), "float32"), ("b", (), "int64"), ("f", (3, 2, 2), "float16"),
                           ("d", (2, 7), "uint16")]:
-        w = sc.frame_array(name, per, dt, shard_frames=4)
+        w = sc.frame_array(name, per, dt, storage=FrameStorage(shard_frames=4))
         data = (rng.normal(size=(11,) + per) * 100).astype(dt)
         for k in range(w.n_shards):
             part = data[w.frames(k)]

@@ -200,11 +200,11 @@ def test_ingest_on_cluster_matches_in_process(cluster, tmp_path):
     # shard_frames reaches the workers' writers as it does the local one (one ingest_one for both)
     from distributed import Client
 
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
 
-    ingest(recs, str(tmp_path / "ref2.zarr"), shard_frames=2)
+    ingest(recs, str(tmp_path / "ref2.zarr"), IngestOptions(shard_frames=2))
     with Client(addr) as client:
-        ingest(recs, str(tmp_path / "dask2.zarr"), shard_frames=2, client=client)
+        ingest(recs, str(tmp_path / "dask2.zarr"), IngestOptions(shard_frames=2), client=client)
     ref2 = manifests(tmp_path / "ref2.zarr")
     assert manifests(tmp_path / "dask2.zarr") == ref2
     assert len([k for k in ref2 if k.startswith("b/radar/heatmap/")]) > len([k for k in ref if k.startswith("b/radar/heatmap/")])

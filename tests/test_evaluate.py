@@ -8,7 +8,7 @@ pytest.importorskip("torch")
 
 import _eval_dataset as E  # noqa: E402
 
-from holodata.evaluate import evaluate  # noqa: E402
+from holodata.evaluate import Evaluation  # noqa: E402
 from holodata.conventions import reduced_grid  # noqa: E402
 from holodata.evaluate.pipeline import load_schema, validate_metrics  # noqa: E402
 from holodata.torch import TrainConfig, train  # noqa: E402
@@ -22,7 +22,7 @@ def dataset(tmp_path_factory):
 
 
 def test_ground_truth_as_prediction_scores_perfectly(dataset, tmp_path):
-    doc = evaluate(dataset, None, tmp_path / "rep", oracle=True, report=False, quiet=True)
+    doc = Evaluation(dataset, None, tmp_path / "rep", oracle=True, report=False, quiet=True).run()
     validate_metrics(doc)
     m = doc["methods"]["model"]
     assert doc["scenes"] == ["room_c"] and doc["n_frames"] == 4
@@ -117,7 +117,7 @@ def test_report_loads_in_headless_chromium(dataset, tmp_path):
             pytest.fail("headless Chromium missing in CI (scripts/setup.sh installs chromium-headless-shell)")
         pytest.skip("headless Chromium not installed (Debian package `chromium-headless-shell`)")
     out = tmp_path / "rep"
-    evaluate(dataset, None, out, oracle=True, quiet=True)
+    Evaluation(dataset, None, out, oracle=True, quiet=True).run()
     res = check_in_browser(out / "report.html")
     assert res["images_ok"] and res["console_errors"] == []
     png = screenshot(out / "report.html", out / "report.png")

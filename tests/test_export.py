@@ -24,11 +24,11 @@ def traced(tmp_path_factory):
 @pytest.fixture(scope="module")
 def ingested(tmp_path_factory):
     from holodata.conventions import Grid
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     d = tmp_path_factory.mktemp("exp_synth")
-    synthesize(d / "L", corner="L", frames=3, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32),
-               quiet=True, mapping_pass=False)
+    synthesize(d / "L", SynthSpec(corner="L", frames=3, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32),
+                                  mapping_pass=False), quiet=True)
     url = str(d / "ing.zarr")
     ingest([d / "L"], url)
     return url

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from holodata.geometry import (about_origin, centred_offset, cell_keys, dense_box, first_per_voxel, fit_height_plane,
-                               fit_plane, flat_index, gauss_newton_step, hold_at, moved_by, point_to_plane_icp,
-                               local_plane_projection, ransac_plane, tukey_weights, unique_voxels, unpack_keys,
-                               voxel_average, voxel_index, voxel_keys)
+from holodata.geometry import (IcpParams, StepRule, about_origin, centred_offset, cell_keys, dense_box, first_per_voxel,
+                               fit_height_plane, fit_plane, flat_index, gauss_newton_step, hold_at, moved_by,
+                               point_to_plane_icp, local_plane_projection, ransac_plane, tukey_weights, unique_voxels,
+                               unpack_keys, voxel_average, voxel_index, voxel_keys)
 from holodata.geometry import voxels as V
 from holodata.geometry._ball_kernel import ball_moments
 
@@ -207,7 +207,7 @@ def test_gauss_newton_steps_recover_a_known_rigid_motion_from_planes():
     for _ in range(10):
         p = src @ T2[:3, :3].T + T2[:3, 3]
         r = np.einsum("ij,ij->i", p, n) + off[which]
-        step = gauss_newton_step(p, n, r, np.ones(len(p)), None, hold_ratio=0.01)
+        step = gauss_newton_step(p, n, r, np.ones(len(p)), None, rule=StepRule(hold_ratio=0.01))
         assert step.held.shape == (6, 0)
         T2 = moved_by(T2, step.motion())
     np.testing.assert_allclose(T2 @ D, np.eye(4), atol=1e-12)
@@ -220,7 +220,7 @@ def test_point_to_plane_icp_recovers_a_known_rigid_motion_exactly():
     T_true = _pose([2.0, 1.5, 1.2], [0.0, 0.0, 30.0])
     cam = (world - T_true[:3, 3]) @ T_true[:3, :3]
     guess = _pose([0.03, -0.02, 0.01], [0.5, -0.5, 1.0]) @ T_true
-    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, nrm[which], guess, distances=(0.15, 0.05))
+    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, nrm[which], guess, IcpParams(distances=(0.15, 0.05)))
     np.testing.assert_allclose(T, T_true, atol=1e-9)
 
 
@@ -244,7 +244,7 @@ def test_a_held_direction_stays_at_its_initial_value():
     D = _pose([0.02, 0.07, -0.01], [0.0, 0.0, 0.0])
     p = pts + D[:3, 3]
     r = np.einsum("ij,ij->i", p - pts, nrm)
-    step = gauss_newton_step(p, nrm, r, np.ones(len(p)), None, hold_ratio=0.02)
+    step = gauss_newton_step(p, nrm, r, np.ones(len(p)), None, rule=StepRule(hold_ratio=0.02))
     assert step.held.shape == (6, 1)
     np.testing.assert_allclose(np.abs(step.held[:, 0]), [0, 0, 0, 0, 1, 0], atol=1e-12)
     x = step.motion()
@@ -253,8 +253,8 @@ def test_a_held_direction_stays_at_its_initial_value():
     # the solver: the guess's y stays, x and z go to the truth
     guess = _pose([0.02, 0.07, -0.01], [0.0, 0.0, 0.0])
     info: dict = {}
-    T = point_to_plane_icp(pts, np.full(len(pts), 1e4), pts, nrm, guess, distances=(0.15, 0.05),
-                           degenerate_ratio=0.02, info=info, hold_m=0.0)
+    T = point_to_plane_icp(pts, np.full(len(pts), 1e4), pts, nrm, guess,
+                           IcpParams(distances=(0.15, 0.05), degenerate_ratio=0.02, hold_m=0.0), info=info)
     assert info["frozen"] == 1
     # (to first order: the held eigenvector of a random sampling is y up to a trace of rotation)
     assert T[1, 3] == pytest.approx(0.07, abs=1e-6)
@@ -287,4 +287,5 @@ def test_plain_step_is_none_when_ill_conditioned():
     """Points on one plane fix only three of six directions: the plain step refuses (cond > max_cond)."""
     p = _plane_points(np.array([0.0, 0.0, 1.0]), 0.0, 200)
     n = np.tile([0.0, 0.0, 1.0], (len(p), 1))
-    assert gauss_newton_step(p, n, np.full(len(p), 0.01), np.ones(len(p)), np.zeros(3), max_cond=1e8) is None
+    assert gauss_newton_step(p, n, np.full(len(p), 0.01), np.ones(len(p)), np.zeros(3),
+                             rule=StepRule(max_cond=1e8)) is None

@@ -17,10 +17,10 @@ from holodata.groundtruth import (
     GTConfig,
     HumanDir,
     OriginModel,
+    RaytraceStandalone,
     beam_rays,
     column_times,
     points_to_mesh,
-    raytrace_standalone,
 )
 from holodata.meshio import Mesh, write_ply
 from holodata.raytrace import RayScene
@@ -205,11 +205,11 @@ def test_interrupted_run_resumes_only_missing_shards(inputs, monkeypatch):
 
     monkeypatch.setattr(gtm, "trace_frame", boom)
     with pytest.raises(RuntimeError, match="simulated crash"):
-        raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg)
+        RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply", cfg=cfg).run()
     calls.clear()
     crash[0] = False
-    summary = raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply",
-                                  cfg=cfg)
+    summary = RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", out, human=inputs / "humans" / "000000.ply",
+                                 cfg=cfg).run()
     assert sorted(calls) == [6, 7, 8, 9]  # shards 0 and 1 (frames 0-5) were already written (two threads trace)
     assert summary["scenes"][0]["shards_skipped"] == 2
     rng = np.asarray(hds.open_dataset(out).scene("scene")["gt/range"][...])
@@ -297,11 +297,11 @@ def test_dataset_form_says_what_is_missing(tmp_path, have_mesh):
 
 def test_process_pool_matches_in_process(inputs):
     """``processes=2`` (spawned workers, results through shared memory) writes the same shards."""
-    from holodata.groundtruth import raytrace_standalone
+    from holodata.groundtruth import RaytraceStandalone
 
     kw = dict(human_dir=inputs / "humans", cfg=GTConfig(grid=Grid(8, 32), shard_frames=4), quiet=True)
-    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "a.zarr"), processes=1, **kw)
-    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "b.zarr"), processes=2, **kw)
+    RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "a.zarr"), processes=1, **kw).run()
+    RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "b.zarr"), processes=2, **kw).run()
     a, b = hds.open_dataset(str(inputs / "a.zarr")).scene("scene"), hds.open_dataset(str(inputs / "b.zarr")).scene("scene")
     for name in ("gt/range", "gt/label", "gt/normal"):
         np.testing.assert_array_equal(np.asarray(a[name][...]), np.asarray(b[name][...]))
@@ -314,7 +314,7 @@ import numpy as np
 sys.path.insert(0, {tests!r})
 import holodata.dataset as hds
 from holodata.conventions import Grid, RangeBins
-from holodata.groundtruth import GTConfig, HumanSource, TracingError, write_scene_gt
+from holodata.groundtruth import GTConfig, HumanSource, TraceInputs, TracingError, write_scene_gt
 from holodata.trajectory import Trajectory
 from test_raytrace import l_corridor
 
@@ -341,7 +341,7 @@ if __name__ == "__main__":
                            shard_frames=4)
     sc = w.scene("s", n_frames=12)
     try:
-        write_scene_gt(sc, (v, f, None, None), cfg, traj, DieAt(int(sys.argv[2])), {{}}, processes=2)
+        write_scene_gt(sc, TraceInputs((v, f, None, None), cfg, traj, DieAt(int(sys.argv[2]))), {{}}, processes=2)
         print("finished")
     except TracingError as err:
         print("TracingError:", err)
@@ -372,10 +372,10 @@ def test_standalone_takes_a_human_source_object(inputs):
     """The Python API's ``human=`` also takes any HumanSource (e.g. a dataset's surfaces): the same GT as
     the per-frame files it serves."""
     cfg = GTConfig(grid=Grid(8, 32), shard_frames=4)
-    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "files.zarr"),
-                        human_dir=inputs / "humans", cfg=cfg)
-    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "object.zarr"),
-                        human=HumanDir(inputs / "humans", 10), cfg=cfg)
+    RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "files.zarr"),
+                       human_dir=inputs / "humans", cfg=cfg).run()
+    RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "object.zarr"),
+                       human=HumanDir(inputs / "humans", 10), cfg=cfg).run()
     a, b = (hds.open_dataset(str(inputs / n)).scene("scene") for n in ("files.zarr", "object.zarr"))
     lab = np.asarray(b["gt/label"][...])
     assert np.isin(lab, [Label.LOS_HUMAN, Label.NLOS_HUMAN]).any()

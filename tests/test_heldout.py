@@ -155,13 +155,13 @@ def test_slam_world_is_the_tf_world_and_register_uses_the_organised_cloud(heldou
 
 def test_register_refuses_a_guess_from_a_frame_the_map_is_not_in(heldout):
     from holodata import open_dataset
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
     from holodata.mapping.register import register_scene
     from holodata.mapping.slam import SlamConfig, slam_scene
 
     root, rec = heldout
     url = str(root / "notf.zarr")
-    ingest([rec], url, topics={"tf": None})        # odometry TF left out: the LiDAR is not connected to map
+    ingest([rec], url, IngestOptions(topics={"tf": None}))   # odometry TF left out: the LiDAR is not connected to map
     sid = open_dataset(url).scenes[0]
     assert "tf/T_world_lidar" not in open_dataset(url).scene(sid).arrays()
     slam_scene(url, sid, quiet=True, config=SlamConfig(mesh=False))

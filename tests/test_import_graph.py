@@ -140,8 +140,6 @@ FACES_WITH_CODE = {
     # ``open_dataset``'s mode switch ("r" reader / "r+" writer) and lazy trampolines to .info and
     # .validate, which keep ``import holodata.dataset`` from importing validate's dependencies
     "holodata/dataset/__init__.py",
-    # ``evaluate``: a lazy trampoline to .pipeline, so ``import holodata.evaluate`` imports no torch
-    "holodata/evaluate/__init__.py",
     # the pretrained-weights package: its code (resolve, scores, install) beside its weights/ folder
     "holodata/torch/pretrained/__init__.py",
 }

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 
 from holodata.cli.main import cli
 from holodata.dataset import open_dataset, validate_dataset
-from holodata.ingest import ingest, list_recording
+from holodata.ingest import IngestOptions, ingest, list_recording
 
 from _recordings import FIXTURES, Writer, camera_info_msg, image_msg, write_recording
 
@@ -41,7 +41,7 @@ def test_radar_lidar_camera_tf_recording(tmp_path, fmt):
     rec = tmp_path / ("rec.bag" if fmt == "rosbag1" else "rec")
     truth = write_recording(rec, fmt, n_radar=5)
     out = tmp_path / "ds.zarr"
-    summary = ingest([rec], out, shard_frames=2)
+    summary = ingest([rec], out, IngestOptions(shard_frames=2))
     assert summary["ok"], summary
     ds = open_dataset(out)
     sc = ds.scene("rec")
@@ -103,7 +103,7 @@ def test_radar_lidar_camera_tf_recording(tmp_path, fmt):
 def test_tolerance_leaves_frames_empty_and_reported(tmp_path):
     rec = tmp_path / "rec"
     truth = write_recording(rec, "mcap", n_radar=3, tf=False)
-    s = ingest([rec], tmp_path / "ds.zarr", tolerance_ms=1.0)["scenes"][0]
+    s = ingest([rec], tmp_path / "ds.zarr", IngestOptions(tolerance_ms=1.0))["scenes"][0]
     sc = open_dataset(tmp_path / "ds.zarr").scene("rec")
     lts = sc["lidar/timestamp_ns"][...]
     expect = [truth["lidar"][j] if (j := _nearest(truth["lidar"], t, 1_000_000)) is not None else 0
@@ -133,14 +133,15 @@ def test_lidar_only_and_resume_after_interruption(tmp_path, monkeypatch):
 
     monkeypatch.setattr(ing_mod._Out, "flush", crashing_flush)
     with pytest.raises(KeyboardInterrupt):
-        ingest([rec], tmp_path / "ds.zarr", shard_frames=3)
+        ingest([rec], tmp_path / "ds.zarr", IngestOptions(shard_frames=3))
     monkeypatch.setattr(ing_mod._Out, "flush", orig)
     with pytest.raises(Exception, match="started with other topics/tolerance"):
-        ingest([rec], tmp_path / "ds.zarr", shard_frames=3, tolerance_ms=1.0, topics={"camera": None, "tf": None})
+        ingest([rec], tmp_path / "ds.zarr",
+               IngestOptions(topics={"camera": None, "tf": None}, tolerance_ms=1.0, shard_frames=3))
     sc = open_dataset(tmp_path / "ds.zarr").scene("lid")
     assert not sc.attrs["ingest"]["complete"]
     assert not validate_dataset(tmp_path / "ds.zarr")["ok"]      # an interrupted ingest never validates
-    s = ingest([rec], tmp_path / "ds.zarr", shard_frames=3)["scenes"][0]
+    s = ingest([rec], tmp_path / "ds.zarr", IngestOptions(shard_frames=3))["scenes"][0]
     assert s["frame_sensor"] == "lidar" and s["decoded"]["lidar"] < len(truth["lidar"])  # done shards not decoded
     sc = open_dataset(tmp_path / "ds.zarr").scene("lid")
     np.testing.assert_array_equal(sc["time/timestamp_ns"][...], truth["lidar"])
@@ -422,7 +423,7 @@ def test_a_failing_writer_thread_is_a_one_line_error_not_a_hang(tmp_path, monkey
     monkeypatch.setattr(cls, "write_shard", full_disk)
     t = time.monotonic()
     with pytest.raises(HolodataError) as e:
-        ingest([rec], tmp_path / "ds.zarr", shard_frames=2, quiet=True)
+        ingest([rec], tmp_path / "ds.zarr", IngestOptions(shard_frames=2), quiet=True)
     assert time.monotonic() - t < 60
     msg = str(e.value)
     assert "\n" not in msg and "No space left on device" in msg and str(rec) in msg, msg
@@ -494,7 +495,7 @@ def test_ingest_opens_each_recording_once(tmp_path, monkeypatch):
     bad = tmp_path / "tf_only"                  # opens, has no sensor topic: rejected when planned
     write_recording(bad, "mcap", n_radar=2, radar=False, lidar=False, camera=False)
     opens, closes = _count_opens(monkeypatch)
-    s = ingest(recs + [bad], tmp_path / "ds.zarr", shard_frames=2)
+    s = ingest(recs + [bad], tmp_path / "ds.zarr", IngestOptions(shard_frames=2))
     assert [x["scene"] for x in s["scenes"]] == ["a", "b", "lidar"] and len(s["failed"]) == 1, s
     assert dict(opens) == {str(r): 1 for r in recs + [bad]}
     assert closes == opens
@@ -502,5 +503,5 @@ def test_ingest_opens_each_recording_once(tmp_path, monkeypatch):
     opens.clear()
     closes.clear()
     write_recording(tmp_path / "c", "mcap", n_radar=3, camera=False)
-    ingest([tmp_path / "c"], tmp_path / "ds.zarr", shard_frames=2)
+    ingest([tmp_path / "c"], tmp_path / "ds.zarr", IngestOptions(shard_frames=2))
     assert dict(opens) == {str(tmp_path / "c"): 1} and closes == opens

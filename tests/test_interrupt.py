@@ -21,11 +21,11 @@ HOLODATA = [sys.executable, "-m", "holodata.cli.main"]
 
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory) -> Path:
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     out = tmp_path_factory.mktemp("sigint") / "L"
-    synthesize(out, corner="L", frames=8, seed=3, grid=Grid(16, 64), lidar_shape=(16, 256), camera_shape=(120, 160),
-               quiet=True)
+    synthesize(out, SynthSpec(corner="L", frames=8, seed=3, grid=Grid(16, 64), lidar_shape=(16, 256),
+                              camera_shape=(120, 160)), quiet=True)
     return out / "recording"
 
 
@@ -106,10 +106,10 @@ def test_an_interrupted_synth_leaves_no_recording_and_a_rerun_finishes(tmp_path,
     identical to an uninterrupted run's."""
     from holodata.errors import RecordingError
     from holodata.readers import open_recording
-    from holodata.synth import scenario, synthesize
+    from holodata.synth import SynthSpec, scenario, synthesize
 
-    kw = dict(corner="L", frames=2, seed=4, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32), quiet=True,
-              mapping_pass=True)
+    spec = SynthSpec(corner="L", frames=2, seed=4, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32),
+                     mapping_pass=True)
 
     def boom(*a, **k):
         raise KeyboardInterrupt
@@ -117,15 +117,15 @@ def test_an_interrupted_synth_leaves_no_recording_and_a_rerun_finishes(tmp_path,
     with monkeypatch.context() as m:
         m.setattr(scenario, "write_mapping_recording", boom)
         with pytest.raises(KeyboardInterrupt):
-            synthesize(tmp_path / "a", **kw)
+            synthesize(tmp_path / "a", spec, quiet=True)
     assert not (tmp_path / "a" / "recording").exists() and not (tmp_path / "a" / "truth").exists()
     with pytest.raises(RecordingError):
         open_recording(tmp_path / "a")
-    res = synthesize(tmp_path / "a", **kw)
+    res = synthesize(tmp_path / "a", spec, quiet=True)
     assert res.recording == tmp_path / "a" / "recording" and res.mapping_recording == tmp_path / "a" / "mapping"
     # the killed run's temp folder is gone; holodata's manifest of what it wrote stays beside the outputs
     assert sorted(p.name for p in (tmp_path / "a").iterdir()) == [".holodata-manifest.json", "mapping", "recording",
                                                                    "truth"]
-    ref = synthesize(tmp_path / "b", **kw)
+    ref = synthesize(tmp_path / "b", spec, quiet=True)
     assert res.storage_file.read_bytes() == ref.storage_file.read_bytes()
     assert open_recording(tmp_path / "a").path == res.recording

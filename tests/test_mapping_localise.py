@@ -4,21 +4,21 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from cli.main import cli
+from holodata.cli.main import cli
 from holodata.conventions import Grid, RangeBins
-from holodata.mapping.accuracy import mesh_coverage, radar_reach
+from holodata.mapping.accuracy import RadarTrace, mesh_coverage, radar_reach
 
 
 @pytest.fixture(scope="module")
 def localised(tmp_path_factory):
     from holodata.ingest import ingest
     from holodata.mapping.slam import slam_scene
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     root = tmp_path_factory.mktemp("loc")
-    res = synthesize(root / "rec", corner="L", width=2.0, frames=4, seed=3, grid=Grid(8, 32), range_bins=RangeBins(64),
-                     lidar_shape=(32, 256), camera_shape=(24, 40), lidar_vertical_fov_deg=90.0, quiet=True,
-                     mapping_pass=True)
+    res = synthesize(root / "rec", SynthSpec(corner="L", width=2.0, frames=4, seed=3, grid=Grid(8, 32),
+                                             range_bins=RangeBins(64), lidar_shape=(32, 256), camera_shape=(24, 40),
+                                             lidar_vertical_fov_deg=90.0, mapping_pass=True), quiet=True)
     url = str(root / "ds.zarr")
     ingest([str(res.recording), str(res.mapping_recording)], url, scene_ids=["c", "c_map"], quiet=True)
     r = slam_scene(url, "c", map_scene="c_map", quiet=True)
@@ -142,14 +142,14 @@ def test_coverage_analytic_missing_wall():
 
     on_px = uncovered(p)
     keep = side != 1                                          # the estimate lacks the +x wall
-    c1 = mesh_coverage(V, F[keep], V, F, pose, grid, max_bounces=1, max_range=9.6)
+    c1 = mesh_coverage(V, F[keep], V, F, pose, grid, trace=RadarTrace(max_bounces=1, max_range=9.6))
     assert c1["coverage"] == pytest.approx(1.0 - on_px.mean(), abs=1e-9)
     assert c1["n_points"] == len(d)
-    full = mesh_coverage(V, F, V, F, pose, grid, max_bounces=3, max_range=9.6)
+    full = mesh_coverage(V, F, V, F, pose, grid, trace=RadarTrace(max_bounces=3, max_range=9.6))
     assert full["coverage"] == 1.0
     assert full["nlos_per_frame_true"] == full["nlos_per_frame_est"] == 0   # a convex room: every bounce is LOS
     assert np.isnan(full["coverage_nlos"])
-    c3 = mesh_coverage(V, F[keep], V, F, pose, grid, max_bounces=3, max_range=9.6)
+    c3 = mesh_coverage(V, F[keep], V, F, pose, grid, trace=RadarTrace(max_bounces=3, max_range=9.6))
     reach = radar_reach(V, F, pose, grid, 3, 9.6)
     assert c3["coverage"] == pytest.approx(1.0 - uncovered(reach["points"]).mean(), abs=1e-6)
     assert c3["n_points"] > 2 * len(d)                   # the second and third bounces count too
@@ -158,5 +158,5 @@ def test_coverage_analytic_missing_wall():
     for shift, covered in ((0.10, False), (0.03, True)):
         V2 = V.copy()
         V2[V2[:, 0] > 0, 0] += shift
-        c = mesh_coverage(V2, F, V, F, pose, grid, max_bounces=1, max_range=9.6)
+        c = mesh_coverage(V2, F, V, F, pose, grid, trace=RadarTrace(max_bounces=1, max_range=9.6))
         assert c["coverage"] == pytest.approx(1.0 if covered else 1.0 - on_px.mean(), abs=1e-9)

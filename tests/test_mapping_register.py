@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
                                          solid_centroid)
 from holodata.geometry import local_plane_projection
-from holodata.mapping.register import (RegisterConfig, body_columns, camera_points_world, closed_surface,
+from holodata.mapping.register import (ColumnShape, RegisterConfig, body_columns, camera_points_world, closed_surface,
                                        map_normals, pick_human, radial_speed,
                                        register_extrinsic,
                                        track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
@@ -229,7 +229,7 @@ def test_body_columns_cylinder_volume_and_centroid(sigma):
     with 3 cm depth noise (the old per-point extrusion over the run width into every touched voxel: > 1.4x)."""
     r, dist, h, vox = 0.075, 3.0, 1.0, 0.04
     p, rows, cols, t, eye, f = _pinhole_cylinder(r, dist, h, sigma=sigma)
-    span, px, down = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22)
+    span, px, down = body_columns(p, rows, cols, t, eye, f, ColumnShape(0.06, 0.22))
     assert np.isnan(down).all() and np.allclose(px, t / f)
     v, fc = closed_surface(p, eye, span, vox, pixel_m=px)
     a, b, c = v[fc[:, 0]], v[fc[:, 1]], v[fc[:, 2]]
@@ -253,7 +253,7 @@ def test_body_columns_coarse_camera_keeps_the_volume(dist):
     20 % and its centre of mass within 3 cm (one line of voxels per pixel kept 0.38-0.44 of it)."""
     r, h, vox = 0.1, 1.2, 0.04
     p, rows, cols, t, eye, f = _pinhole_cylinder(r, dist, h, f=84.0)
-    span, px, _ = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22)
+    span, px, _ = body_columns(p, rows, cols, t, eye, f, ColumnShape(0.06, 0.22))
     assert px.min() > vox
     v, fc = closed_surface(p, eye, span, vox, pixel_m=px)
     a, b, c = v[fc[:, 0]], v[fc[:, 1]], v[fc[:, 2]]
@@ -310,14 +310,14 @@ def test_closed_surface_half_filled_voxels_closed_outward_and_feet_reach_the_flo
 
 def test_body_columns_lowest_pixels_reach_the_floor():
     p, rows, cols, t, eye, f = _pinhole_cylinder(0.075, 3.0, 1.0)
-    _, _, down = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22, floor_z=0.12, floor_reach_m=0.12)
+    _, _, down = body_columns(p, rows, cols, t, eye, f, ColumnShape(0.06, 0.22, floor_reach_m=0.12), floor_z=0.12)
     low = np.isfinite(down)
     assert low.any() and (down[low] == 0.12).all()
     # one per image column, the lowest (largest row) one
     assert len(np.unique(cols[low])) == low.sum() == len(np.unique(cols))
     for c in np.unique(cols)[:5]:
         assert rows[low & (cols == c)][0] == rows[cols == c].max()
-    _, _, none = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22, floor_z=-0.5, floor_reach_m=0.12)
+    _, _, none = body_columns(p, rows, cols, t, eye, f, ColumnShape(0.06, 0.22, floor_reach_m=0.12), floor_z=-0.5)
     assert np.isnan(none).all()
 
 
@@ -349,8 +349,8 @@ def test_radial_speed_and_deeper_columns():
     jump[2, 1] = 9.0                                    # 11 m/s: not a walk
     assert radial_speed(jump, cam, eye)[2] == 0.0
     p, rows, cols, t, eye, f = _pinhole_cylinder(0.075, 3.0, 1.0)
-    s0, _, _ = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22)
-    s1, _, _ = body_columns(p, rows, cols, t, eye, f, 0.06, 0.22, back_frac=0.4)
+    s0, _, _ = body_columns(p, rows, cols, t, eye, f, ColumnShape(0.06, 0.22))
+    s1, _, _ = body_columns(p, rows, cols, t, eye, f, ColumnShape(0.06, 0.22, back_frac=0.4))
     np.testing.assert_allclose(s1[:, 0], s0[:, 0])
     extra = s1[:, 1] - s0[:, 1]
     assert np.median(extra) == pytest.approx(0.4 * 0.15, abs=0.005)          # D = the 15 cm run width
@@ -907,13 +907,13 @@ def _corridor(seed: int):
 
 
 def test_point_to_plane_icp_holds_a_corridor_seen_end_on_at_the_guess():
-    from holodata.geometry import point_to_plane_icp
+    from holodata.geometry import IcpParams, point_to_plane_icp
 
     world, normals, T_true, cam = _corridor(2)
     guess = _pose([0.03, 0.05, -0.02], [0.0, 0.0, 0.0]) @ T_true
     info = {}
-    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, normals, guess, distances=(0.15, 0.05),
-                     degenerate_ratio=0.02, info=info)
+    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, normals, guess,
+                           IcpParams(distances=(0.15, 0.05), degenerate_ratio=0.02), info=info)
     assert info["frozen"] == 1
     assert abs(T[0, 3] - T_true[0, 3]) < 2e-3 and abs(T[2, 3] - T_true[2, 3]) < 2e-3   # walls and floor fix x, z
     assert abs(T[1, 3] - guess[1, 3]) < 2e-3                                             # y stays at the guess
@@ -926,7 +926,7 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     show the turn; anchored_guess + hold_at put the held direction where the turned map has it
     (without them it stays at the TF guess). A TF pose off in yaw alone turns the camera without
     moving it: no turn is read from that."""
-    from holodata.geometry import hold_at, point_to_plane_icp
+    from holodata.geometry import IcpParams, hold_at, point_to_plane_icp
     from holodata.mapping.register import anchored_guess
 
     world, normals, T_true, cam = _corridor(4)
@@ -936,8 +936,8 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     map_pts, map_n = world @ turn[:3, :3].T + turn[:3, 3], normals @ turn[:3, :3].T
     T_map = turn @ T_true                                    # the camera in the map's frame
     info = {}
-    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), map_pts, map_n, T_true, distances=(0.15, 0.05),
-                     degenerate_ratio=0.02, info=info)
+    T = point_to_plane_icp(cam, np.full(len(cam), 1e4), map_pts, map_n, T_true,
+                           IcpParams(distances=(0.15, 0.05), degenerate_ratio=0.02), info=info)
     assert info["frozen"] == 1
     assert abs(T[1, 3] - T_true[1, 3]) < 2e-3               # held at the TF guess: 4 cm off the map's
     assert abs(T_map[1, 3] - T_true[1, 3]) > 0.035
@@ -952,8 +952,8 @@ def test_held_direction_follows_a_map_turned_about_its_anchor():
     T_tf = T_true.copy()
     T_tf[:3, :3] = _pose([0.0, 0.0, 0.0], [0.0, 0.0, 0.3])[:3, :3] @ T_true[:3, :3]
     info = {}
-    T3 = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, normals, T_tf, distances=(0.15, 0.05),
-                      degenerate_ratio=0.02, info=info)
+    T3 = point_to_plane_icp(cam, np.full(len(cam), 1e4), world, normals, T_tf,
+                            IcpParams(distances=(0.15, 0.05), degenerate_ratio=0.02), info=info)
     target, seen = anchored_guess(T3, T_tf, anchor, info["held"][0][3:, 0], 0.5, 0.1)
     assert target is None and abs(seen["yaw_deg"]) > 0.25 and abs(seen["shift_deg"]) < 0.1, seen
 

@@ -137,13 +137,13 @@ def _os0_corner() -> tuple[str, str]:
     from holodata.conventions import Grid, RangeBins
     from holodata.ingest import ingest
     from holodata.mapping.human_eval import write_truth_poses
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     root = Path(tempfile.mkdtemp(prefix="holodata-segment-os0-"))
     atexit.register(shutil.rmtree, root, True)
-    res = synthesize(root / "rec", corner="L", width=2.2, frames=10, seed=2, grid=Grid(8, 32), range_bins=RangeBins(n=64),
-                     lidar_shape=(32, 512), camera_shape=(48, 84), quiet=True, visible_walkers=2,
-                     lidar_vertical_fov_deg=90.0)
+    res = synthesize(root / "rec", SynthSpec(corner="L", width=2.2, frames=10, seed=2, grid=Grid(8, 32),
+                                             range_bins=RangeBins(n=64), lidar_shape=(32, 512), camera_shape=(48, 84),
+                                             visible_walkers=2, lidar_vertical_fov_deg=90.0), quiet=True)
     url = str(root / "ds.zarr")
     ingest([res.recording], url, scene_ids=["recording"], quiet=True)
     write_truth_poses(url, "recording", res.truth_dir)

@@ -120,7 +120,7 @@ def slam_run(tmp_path_factory):
     """LiDAR-only MCAP (rosbags) → ingest → slam (written) → result + truth."""
     from holodata.ingest import ingest
     from holodata.mapping.mesh import MeshConfig
-    from holodata.mapping.slam import SlamConfig, slam_scene
+    from holodata.mapping.slam import SlamConfig, SlamOutputs, slam_scene
 
     tmp = tmp_path_factory.mktemp("slam")
     w = Writer(tmp / "bag", "mcap")
@@ -137,7 +137,7 @@ def slam_run(tmp_path_factory):
     url = str(tmp / "ds.zarr")
     ingest([tmp / "bag"], url, quiet=True)
     res = slam_scene(url, config=SlamConfig(), mesh_config=MeshConfig(voxel=0.04, max_faces=100_000), quiet=True,
-                     tum=tmp / "traj.tum", ply=tmp / "mesh.ply")
+                     outputs=SlamOutputs(tum=tmp / "traj.tum", ply=tmp / "mesh.ply"))
     st = np.asarray(stamps, np.int64)
     truth = Trajectory(st, robot_pose((st - T0) / 1e9) @ T_BASE_LIDAR)
     return {"tmp": tmp, "url": url, "res": res, "truth": truth, "person_hits": int(np.sum(person_masks)),
@@ -493,7 +493,7 @@ def test_same_beam_rest_check_never_holds_a_scan_that_moved():
     T[:3, 3] = [0.3, 0.1, 0.0]
     ref = _room_scan(T, rng)
     pix = np.arange(len(ref), dtype=np.int32)
-    sb = _SameBeam(ref, pix, target, T, cfg, len(ref), cfg.same_beam_points, cfg.same_beam_scale, cfg.same_beam_share)
+    sb = _SameBeam(ref, pix, target, T, cfg, len(ref))
     assert len(sb) > 0.9 * min(len(ref), cfg.same_beam_points)
     keep = np.ones(len(ref), bool)
     for _ in range(5):                                           # at rest: new range noise each time
@@ -605,9 +605,9 @@ def without_one(self, quiet=True, stop=None):
             yield row
 _ScanSource.read = without_one
 cfg = S.SlamConfig(mesh=False)
-res = S.slam_scene(url, write=False, force=True, quiet=True, config=cfg)
+res = S.slam_scene(url, outputs=S.SlamOutputs(write=False, force=True), quiet=True, config=cfg)
 S.stream_scans = lambda scene: None
-plain = S.slam_scene(url, write=False, force=True, quiet=True, config=cfg)
+plain = S.slam_scene(url, outputs=S.SlamOutputs(write=False, force=True), quiet=True, config=cfg)
 print(res.summary["scans"], plain.summary["scans"], np.abs(res.scan_poses - plain.scan_poses).max())
 """
 
@@ -645,7 +645,8 @@ def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
 
     monkeypatch.setattr(_ScanSource, "read", broken)
     with pytest.raises(HolodataError, match="shard 1 is corrupt"):
-        S.slam_scene(slam_run["url"], write=False, force=True, quiet=True, config=S.SlamConfig(mesh=False))
+        S.slam_scene(slam_run["url"], outputs=S.SlamOutputs(write=False, force=True), quiet=True,
+                     config=S.SlamConfig(mesh=False))
     assert not any(t.name == "holodata-slam-read" for t in __import__("threading").enumerate())
     assert not __import__("multiprocessing").active_children()      # nor its reader process
 
@@ -691,7 +692,7 @@ def test_mesh_background_worker_death_is_a_one_line_error(slam_run, monkeypatch)
 
     monkeypatch.setattr(world, "_mesh_background", lambda *a: os.kill(os.getpid(), signal.SIGKILL))
     with pytest.raises(HolodataError, match="mesh background model.*died"):
-        S.slam_scene(slam_run["url"], write=False, force=True, quiet=True)
+        S.slam_scene(slam_run["url"], outputs=S.SlamOutputs(write=False, force=True), quiet=True)
 
 
 def test_slam_refuses_a_scene_ingest_did_not_finish(tmp_path):

@@ -24,11 +24,11 @@ def _one_line(r, code, *words):
 def two_passes(tmp_path_factory):
     """A synth output folder with its mapping pass, ingested by giving the folder itself."""
     from holodata.ingest import ingest
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     d = tmp_path_factory.mktemp("own")
-    synthesize(d / "L", corner="L", frames=2, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32),
-               quiet=True, mapping_pass=True)
+    synthesize(d / "L", SynthSpec(corner="L", frames=2, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32),
+                                  mapping_pass=True), quiet=True)
     url = str(d / "ds.zarr")
     r = ingest([d / "L"], url)
     return d, url, r

@@ -25,13 +25,13 @@ def test_weights_record_how_they_were_made():
 
 @pytest.mark.slow
 def test_pretrained_scores_the_recorded_numbers_on_the_check_set(tmp_path):
-    from holodata.evaluate.pipeline import evaluate
+    from holodata.evaluate.pipeline import Evaluation
     from holodata.synth.corpus import CorpusConfig, synth_corpus
 
     rec = load_checkpoint(WEIGHTS)["pretrained"]
     url = str(tmp_path / "check.zarr")
     synth_corpus(url, CorpusConfig(**CHECK_SET), quiet=True)
-    got = scores(evaluate(url, "pretrained", tmp_path / "eval", quiet=True, report=False))
+    got = scores(Evaluation(url, "pretrained", tmp_path / "eval", quiet=True, report=False).run())
     want = rec["scores"]["check"]
     for method, row in want.items():
         for k, v in row.items():

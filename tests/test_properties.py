@@ -13,7 +13,7 @@ from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from holodata.conventions import Grid  # noqa: E402
-from holodata.dataset import create_dataset, open_dataset  # noqa: E402
+from holodata.dataset import FrameStorage, create_dataset, open_dataset  # noqa: E402
 from holodata.dataset import shards as sh  # noqa: E402
 from holodata.ingest.plan import _nearest  # noqa: E402
 
@@ -30,7 +30,7 @@ def _scene(n_frames: int, shard_frames: int):
 @given(n=st.integers(1, 200), s=st.integers(1, 64))
 def test_shards_partition_the_frames_in_order(n, s):
     _, sc = _scene(n, s)
-    w = sc.frame_array("a", (2,), "float32", shard_frames=s)
+    w = sc.frame_array("a", (2,), "float32", storage=FrameStorage(shard_frames=s))
     assert w.n_shards == -(-n // s)
     frames = [list(range(n))[w.frames(k)] for k in range(w.n_shards)]
     assert [f for part in frames for f in part] == list(range(n))
@@ -44,7 +44,7 @@ def test_shards_partition_the_frames_in_order(n, s):
 def test_shard_objects_round_trip_and_equal_zarrs_bytes(n, per, dt, seed, codec):
     url = f"memory://props-{next(_ids)}.zarr"
     sc = create_dataset(url, grid=Grid(4, 8), codec=codec).scene("s", n_frames=n)
-    w = sc.frame_array("a", tuple(per), dt, shard_frames=max(n, 1))
+    w = sc.frame_array("a", tuple(per), dt, storage=FrameStorage(shard_frames=max(n, 1)))
     data = (np.random.default_rng(seed).normal(size=(n,) + tuple(per)) * 50).astype(dt)
     blob = sh.encode_shard(w.meta, data)
     assert blob == sh._encode_shard_zarr(w.meta, data)

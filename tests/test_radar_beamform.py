@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from holodata.radar import BeamformParams, ChirpConfig, beam_indices, beamform, beamform_attrs, point_at, simulate_rotation
+from holodata.radar import (BeamformParams, ChirpConfig, RigEffects, beam_indices, beamform, beamform_attrs, point_at,
+                            simulate_rotation)
 from holodata.radar.chirp import SPEED_OF_LIGHT
 
 from _radar_reference import beamform_direct, beamform_direct_near, columns_direct
@@ -163,7 +164,7 @@ def test_static_reflection_removal():
     pt = point_at(20.5 * dr, -2 * np.pi * 40 / 128, 0.0)
     rng = np.random.default_rng(0)
     leak = 1000 * (rng.standard_normal((8, 64)) + 1j * rng.standard_normal((8, 64)))
-    rot, _, _ = simulate_rotation([pt], chirp=ch, leakage=leak)
+    rot, _, _ = simulate_rotation([pt], chirp=ch, effects=RigEffects(leakage=leak))
     clean = beamform(rot, ch, p)                                   # rotation mean removed (no trajectory mean given)
     assert _peak(clean)[0] == 20 and _peak(clean)[2] == 40
     raw = beamform(rot, ch, BeamformParams(n_elevation=16, n_azimuth=128, static_removal="none"))
@@ -180,8 +181,8 @@ def _moving_case(velocity, compensate=True):
     dr = ch.range_resolution_m
     pt = point_at(120.5 * dr, -2 * np.pi * 700 / 1024, 0.0)
     h = p.syn_count(1024) // 2
-    rot, bef, aft = simulate_rotation([pt], chirp=ch, velocity=velocity, pad=h, beamwidth_deg=100.0)
-    return beamform(rot, ch, p, before=bef, after=aft, velocity=velocity if compensate else None,
+    rot, bef, aft = simulate_rotation([pt], chirp=ch, velocity=velocity, pad=h, effects=RigEffects(beamwidth_deg=100.0))
+    return beamform(rot, ch, p, neighbours=(bef, aft), velocity=velocity if compensate else None,
                     static_refl=_zero(ch))
 
 
@@ -233,8 +234,8 @@ def test_motion_reference_rotation_start_measures_from_the_start_centre():
     h = p0.syn_count(256) // 2
     rot, bef, aft = simulate_rotation([pt], chirp=ch, velocity=v, pad=h)
     travel = speed * 128 * ch.chirp_period_s          # 0.3 m = 2 bins of 15 cm
-    hs = beamform(rot, ch, p0, before=bef, after=aft, velocity=v, static_refl=_zero(ch))
-    hb = beamform(rot, ch, p1, before=bef, after=aft, velocity=v, static_refl=_zero(ch))
+    hs = beamform(rot, ch, p0, neighbours=(bef, aft), velocity=v, static_refl=_zero(ch))
+    hb = beamform(rot, ch, p1, neighbours=(bef, aft), velocity=v, static_refl=_zero(ch))
     ks = _subbin(hs[:, 8, j0], int(np.argmax(hs[:, 8, j0])))
     kb = _subbin(hb[:, 8, j0], int(np.argmax(hb[:, 8, j0])))
     assert abs(ks - 40) <= 0.25
@@ -251,7 +252,7 @@ def _tiny_case(seed=1):
                                                rng.uniform(-0.5, 0.5, 3))]
     v = (0.8, -0.5)
     rot, bef, aft = simulate_rotation(pts, rng.standard_normal(3) + 1j, chirp=TINY, velocity=v, pad=8,
-                                      noise_std=0.05, leakage=rng.standard_normal((8, 32)), rng=seed)
+                                      effects=RigEffects(noise_std=0.05, leakage=rng.standard_normal((8, 32)), rng=seed))
     refl = (rot.mean(axis=0) * 0.9).astype(np.complex64)
     return rot, bef, aft, v, refl
 
@@ -267,7 +268,7 @@ def test_fast_beamformer_equals_the_direct_sums(case, focus):
                        n_range=24, focus=focus)
     kw = dict(static_refl=refl)
     if "padded" in case or case in ("moving-beam", "moving-start"):
-        kw.update(before=bef, after=aft)
+        kw.update(neighbours=(bef, aft))
     if "moving" in case:
         kw.update(velocity=v)
     fast = beamform(rot, TINY, p, **kw)
@@ -281,7 +282,7 @@ def test_torch_path_equals_numpy_path_on_cpu():
     pytest.importorskip("torch")
     rot, bef, aft, v, refl = _tiny_case(2)
     p = BeamformParams(n_elevation=6, n_azimuth=32, n_syn=17)
-    for kw in (dict(), dict(before=bef, after=aft), dict(before=bef, after=aft, velocity=v), dict(velocity=v)):
+    for kw in (dict(), dict(neighbours=(bef, aft)), dict(neighbours=(bef, aft), velocity=v), dict(velocity=v)):
         a = beamform(rot, TINY, p, static_refl=refl, **kw)
         b = beamform(rot, TINY, p, static_refl=refl, device="cpu-torch", **kw)
         assert np.abs(a - b).max() / np.abs(a).max() < 1e-5, kw
@@ -293,7 +294,7 @@ def test_bad_arguments_are_one_line_errors():
     with pytest.raises(ValueError, match="rotation must be"):
         beamform(rot[:, :4], ch)
     with pytest.raises(ValueError, match="before must be"):
-        beamform(rot, ch, BeamformParams(n_elevation=4, n_azimuth=16, n_syn=17), before=rot[:3], after=rot)
+        beamform(rot, ch, BeamformParams(n_elevation=4, n_azimuth=16, n_syn=17), neighbours=(rot[:3], rot))
     with pytest.raises(ValueError, match="odd"):
         BeamformParams(n_syn=16)
     with pytest.raises(ValueError, match="exceeds"):

@@ -15,7 +15,7 @@ import pytest
 import holodata.dataset as hds
 from holodata.conventions import Grid, Label
 from holodata.errors import InputError
-from holodata.groundtruth import FrameTracer, GTConfig, HumanDir, HumanFile, HumanSource, raytrace_standalone
+from holodata.groundtruth import FrameTracer, GTConfig, HumanDir, HumanFile, HumanSource, RaytraceStandalone
 from holodata.meshio import Mesh, write_ply
 from holodata.raytrace import RayScene
 from holodata.trajectory import Trajectory, read_tum, write_tum
@@ -98,7 +98,7 @@ def test_background_writer_error_surfaces_and_the_rerun_completes(inputs, monkey
 
     cfg = GTConfig(grid=Grid(8, 32), shard_frames=2)
     kw = dict(human_dir=inputs / "humans", cfg=cfg, processes=1)
-    raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "ref.zarr"), **kw)
+    RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", str(inputs / "ref.zarr"), **kw).run()
     real = FrameArrayWriter.write_shard
 
     def failing(self, k, data):
@@ -109,9 +109,9 @@ def test_background_writer_error_surfaces_and_the_rerun_completes(inputs, monkey
     monkeypatch.setattr(FrameArrayWriter, "write_shard", failing)
     out = str(inputs / "out.zarr")
     with pytest.raises(OSError, match="disk full"):
-        raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, **kw)
+        RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", out, **kw).run()
     monkeypatch.setattr(FrameArrayWriter, "write_shard", real)
-    summary = raytrace_standalone(inputs / "scene.ply", inputs / "radar.tum", out, **kw)["scenes"][0]
+    summary = RaytraceStandalone(inputs / "scene.ply", inputs / "radar.tum", out, **kw).run()["scenes"][0]
     assert summary["shards_skipped"] == 2  # shards 0 and 1 were written before the failing one
     a, b = hds.open_dataset(str(inputs / "ref.zarr")).scene("scene"), hds.open_dataset(out).scene("scene")
     for name in ("gt/range", "gt/point", "gt/normal", "gt/label", "gt/semantic", "gt/human_center"):
@@ -217,8 +217,9 @@ import holodata.groundtruth as gt
 from holodata.conventions import Grid
 gt.HELPER_MIN_FRAMES = 4
 d = sys.argv[1]
-s = gt.raytrace_standalone(d + "/scene.ply", d + "/radar.tum", sys.argv[2], human_dir=d + "/humans",
-                           cfg=gt.GTConfig(grid=Grid(16, 64), shard_frames=2), quiet=True, processes=int(sys.argv[3]))
+s = gt.RaytraceStandalone(d + "/scene.ply", d + "/radar.tum", sys.argv[2], human_dir=d + "/humans",
+                          cfg=gt.GTConfig(grid=Grid(16, 64), shard_frames=2), quiet=True,
+                          processes=int(sys.argv[3])).run()
 print(json.dumps(s["scenes"][0]))
 '''
 

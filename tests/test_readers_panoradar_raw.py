@@ -16,7 +16,7 @@ from holodata.errors import RecordingError
 from holodata.radar import BeamformParams
 from holodata.radar.chirp import ChirpConfig
 from holodata.readers import guess_reader, open_recording
-from holodata.synth.panoradar_raw import BoxRoom, box_room_trajectory
+from holodata.synth.panoradar_raw import BoxRoom, BoxRoomRun, box_room_trajectory
 
 CHIRP = ChirpConfig(chirps_per_rotation=512)   # chirp spacing on the circle 1.3 mm < λ/2: no grating lobes
 PARAMS = BeamformParams(n_elevation=16, n_azimuth=64)
@@ -26,8 +26,8 @@ ROOM = BoxRoom(reflectors=((3.0, 0.6, 0.0),))
 
 @pytest.fixture(scope="module")
 def moving(tmp_path_factory):
-    return box_room_trajectory(tmp_path_factory.mktemp("pr") / "walk_01", chirp=CHIRP, n_rotations=3,
-                               velocity=VELOCITY, room=ROOM, lidar_yaw_deg=30.0)
+    return box_room_trajectory(tmp_path_factory.mktemp("pr") / "walk_01",
+                               BoxRoomRun(n_rotations=3, velocity=VELOCITY, lidar_yaw_deg=30.0), chirp=CHIRP, room=ROOM)
 
 
 def _heatmaps(rec):
@@ -68,14 +68,14 @@ def test_a_raw_trajectory_is_detected_and_its_reflector_lands_at_the_predicted_c
 
 
 def test_ingest_records_how_the_heatmaps_were_made_and_the_lidar_extrinsic(moving, tmp_path, monkeypatch):
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
     from holodata.readers import panoradar_raw
 
     calls = []
     real = panoradar_raw.beamform
     monkeypatch.setattr(panoradar_raw, "beamform", lambda *a, **k: calls.append(1) or real(*a, **k))
     url = str(tmp_path / "ds.zarr")
-    ingest([moving.folder], url, beamform=PARAMS)
+    ingest([moving.folder], url, IngestOptions(beamform=PARAMS))
     assert validate_dataset(url)["ok"]
     # each rotation is imaged once (the index pass checks raw samples), plus one for the grid
     assert len(calls) <= 3 + 1, len(calls)
@@ -108,7 +108,7 @@ def test_motion_compensation_focuses_a_moving_trajectory(moving, tmp_path):
 
 
 def test_a_static_folder_pads_circularly_and_images_every_rotation(tmp_path):
-    tr = box_room_trajectory(tmp_path / "static_01", chirp=CHIRP, n_rotations=2, room=ROOM, pad=0)
+    tr = box_room_trajectory(tmp_path / "static_01", BoxRoomRun(n_rotations=2, pad=0), chirp=CHIRP, room=ROOM)
     rec = open_recording(tr.folder, beamform=PARAMS)
     assert rec.attrs["beamform"]["padding"] == "circular" and rec.attrs["beamform"]["rotations_imaged"] == 2
     (m, hm), _ = _heatmaps(rec)
@@ -169,10 +169,10 @@ def test_keep_iq_then_beamform_reimages_and_resumes(moving, tmp_path):
 
     from holodata.beamforming import beamform_scene, motion_from_poses
     from holodata.dataset import create_dataset
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
 
     url = str(tmp_path / "ds.zarr")
-    ingest([moving.folder], url, beamform=PARAMS, keep_iq=True)
+    ingest([moving.folder], url, IngestOptions(beamform=PARAMS, keep_iq=True))
     assert validate_dataset(url)["ok"]
     sc = open_dataset(url).scene("walk_01")
     span = sc["radar/iq_span"][...]
@@ -226,11 +226,11 @@ def test_keep_iq_then_beamform_reimages_and_resumes(moving, tmp_path):
 def test_beamform_runs_as_dask_tasks_per_shard_with_the_local_result(moving, tmp_path):
     from holodata.beamforming import beamform_scene
     from holodata.distributed import cluster
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
 
     urls = [str(tmp_path / n) for n in ("a.zarr", "b.zarr")]
     for u in urls:
-        ingest([moving.folder], u, beamform=PARAMS, keep_iq=True, shard_frames=1)
+        ingest([moving.folder], u, IngestOptions(beamform=PARAMS, keep_iq=True, shard_frames=1))
     wide = BeamformParams(**{**PARAMS.to_attrs(), "azimuth_fov_deg": 60.0})
     beamform_scene(urls[0], "walk_01", wide)
     with cluster(2, None) as client:
@@ -266,14 +266,14 @@ def test_raw_rotations_in_a_bag_are_beamformed_by_ingest_like_the_folder(moving,
     """The same rotations as holodata_msgs/msg/RadarRawRotation messages (definition embedded) ingest to
     the heatmaps the folder reader makes (both with each rotation's own static reflection), keep their
     samples with --keep-iq, and say how they were imaged."""
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
     from holodata.synth.panoradar_raw import write_raw_bag
 
     bag = write_raw_bag(moving.folder, tmp_path / "walk_bag", fmt=fmt)
     params = BeamformParams(**{**PARAMS.to_attrs(), "static_removal": "rotation"})
     a, b = str(tmp_path / "bag.zarr"), str(tmp_path / "dir.zarr")
-    ingest([bag], a, beamform=params, keep_iq=True, scene_ids=["bag"])
-    ingest([moving.folder], b, beamform=params, scene_ids=["dir"])
+    ingest([bag], a, IngestOptions(beamform=params, keep_iq=True), scene_ids=["bag"])
+    ingest([moving.folder], b, IngestOptions(beamform=params), scene_ids=["dir"])
     assert validate_dataset(a)["ok"]
     sa, sb = open_dataset(a).scene("bag"), open_dataset(b).scene("dir")
     np.testing.assert_allclose(np.asarray(sa["radar/heatmap"][...]), np.asarray(sb["radar/heatmap"][...]),
@@ -303,10 +303,10 @@ def test_a_bag_without_its_chirp_configuration_is_a_one_line_error(moving, tmp_p
 def test_beamform_focus_near_is_recorded_and_reimages(moving, tmp_path):
     """`holodata beamform --focus near` re-images the stored samples with near-field focusing and says so
     in source.beamform (params.focus and the focus description); ingest's own run was the far field."""
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
 
     url = str(tmp_path / "ds.zarr")
-    ingest([moving.folder], url, beamform=PARAMS, keep_iq=True)
+    ingest([moving.folder], url, IngestOptions(beamform=PARAMS, keep_iq=True))
     sc = open_dataset(url).scene("walk_01")
     assert sc.attrs["source"]["beamform"]["params"]["focus"] == "far"
     first = np.asarray(sc["radar/heatmap"][...])
@@ -325,7 +325,8 @@ def test_a_static_building_folder_makes_its_trajectories_static_and_an_override_
     (process_raw_data.py: ``'static' in in_building_folder.name``): ``bldg_static/exp-000`` (2 rotations
     with no chirps beyond them, a robot at rest) ingests as static, ``--list`` names the rule, and a
     folder named otherwise needs ``--beamform-motion static`` (without it: a one-line error that says so)."""
-    tr = box_room_trajectory(tmp_path / "bldg_static" / "exp-000", chirp=CHIRP, n_rotations=2, room=ROOM, pad=0)
+    tr = box_room_trajectory(tmp_path / "bldg_static" / "exp-000", BoxRoomRun(n_rotations=2, pad=0), chirp=CHIRP,
+                             room=ROOM)
     odd = tmp_path / "lab_run" / "exp-001"
     shutil.copytree(tr.folder, odd)
     run = CliRunner().invoke

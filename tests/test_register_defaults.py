@@ -115,11 +115,12 @@ def data_and_map(tmp_path_factory):
     ``c_map``, ingested and slammed (``c`` localised in ``c_map``'s map), not registered."""
     from holodata.ingest import ingest
     from holodata.mapping.slam import slam_scene
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     root = tmp_path_factory.mktemp("register_defaults")
-    res = synthesize(root / "L", corner="L", width=2.0, frames=2, seed=4, grid=Grid(8, 32), range_bins=RangeBins(n=64),
-                     lidar_shape=(16, 256), camera_shape=(48, 64), quiet=True, mapping_pass=True, mapping_scan_hz=1.0)
+    res = synthesize(root / "L", SynthSpec(corner="L", width=2.0, frames=2, seed=4, grid=Grid(8, 32), range_bins=RangeBins(n=64),
+                                           lidar_shape=(16, 256), camera_shape=(48, 64), mapping_pass=True,
+                                           mapping_scan_hz=1.0), quiet=True)
     url = str(root / "ds.zarr")
     ingest([res.recording, res.mapping_recording], url, scene_ids=["c", "c_map"], quiet=True)
     slam_scene(url, "c", quiet=True, map_scene="c_map")

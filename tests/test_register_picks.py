@@ -5,7 +5,7 @@ import numpy as np
 
 from holodata.mapping.register import RegisterConfig, pick_human
 from holodata.mapping.register.camera import depth_noise_model, noise_coefficient
-from holodata.mapping.register.humans import body_columns, cluster_returns, pixel_links
+from holodata.mapping.register.humans import ColumnShape, body_columns, cluster_returns, pixel_links
 
 
 def _far_person(rng, depth=9.0, a=0.0036, f=84.0):
@@ -72,7 +72,8 @@ def test_body_columns_run_whose_middle_depths_disagree_stays_at_the_run():
     """A two-pixel run whose depths differ by more than twice ``hi``: none lies within ``hi`` of the
     median, and the run's centre used to be 0 — the column 9 m toward the camera."""
     p = np.array([[0.0, 8.5, 1.0], [0.02, 9.5, 1.0]])
-    span, _, _ = body_columns(p, np.array([10, 10]), np.array([5, 6]), p[:, 1], np.zeros(3), 84.0, 0.06, 0.22)
+    span, _, _ = body_columns(p, np.array([10, 10]), np.array([5, 6]), p[:, 1], np.zeros(3), 84.0,
+                              ColumnShape(0.06, 0.22))
     assert np.all(np.abs(span) < 1.0)
 
 

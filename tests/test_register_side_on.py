@@ -8,7 +8,7 @@ the solid must be as deep as the body is broad (side_back), where it was as deep
 import numpy as np
 
 from holodata.mapping.register import RegisterConfig
-from holodata.mapping.register.humans import body_columns, column_centroid
+from holodata.mapping.register.humans import ColumnShape, body_columns, column_centroid
 from holodata.mapping.register.tracks import side_back, track_heading_velocity
 from holodata.mapping.register.steps import body_only
 
@@ -76,11 +76,11 @@ def test_side_on_torso_solid_is_centred_on_the_body():
     p, rows, cols, dz = _side_on_torso(cx, breadth, depth)
     eye = np.array([0.0, 0.0, 1.2])
     side = CFG.breadth_m / CFG.thickness_m - 1.0
-    span, px, down = body_columns(p, rows, cols, dz, eye, 300.0, CFG.min_thickness_m, CFG.thickness_m,
-                                  side_frac=side)
+    span, px, down = body_columns(p, rows, cols, dz, eye, 300.0,
+                                  ColumnShape(CFG.min_thickness_m, CFG.thickness_m, side_frac=side))
     c = column_centroid(p, eye, span, px, down)
     assert abs(c[0] - cx) < 0.02
-    span0, px0, down0 = body_columns(p, rows, cols, dz, eye, 300.0, CFG.min_thickness_m, CFG.thickness_m)
+    span0, px0, down0 = body_columns(p, rows, cols, dz, eye, 300.0, ColumnShape(CFG.min_thickness_m, CFG.thickness_m))
     assert column_centroid(p, eye, span0, px0, down0)[0] < cx - 0.08
 
 
@@ -95,7 +95,7 @@ def test_limbs_side_by_side_are_not_deepened():
     p2 = p1 + np.array([0.0, shift, 0.0])
     c2 = c1 - int(round(shift / 3.0 * 300.0))
     two = (np.vstack([p1, p2]), np.r_[r1, r1], np.r_[c1, c2], np.r_[d1, d1])
-    span2, _, _ = body_columns(*two, eye, 300.0, CFG.min_thickness_m, CFG.thickness_m, side_frac=1.0)
+    span2, _, _ = body_columns(*two, eye, 300.0, ColumnShape(CFG.min_thickness_m, CFG.thickness_m, side_frac=1.0))
     assert np.abs(span2[:, 1] - span2[:, 0]).max() < 0.17
-    span1, _, _ = body_columns(p1, r1, c1, d1, eye, 300.0, CFG.min_thickness_m, CFG.thickness_m, side_frac=1.0)
+    span1, _, _ = body_columns(p1, r1, c1, d1, eye, 300.0, ColumnShape(CFG.min_thickness_m, CFG.thickness_m, side_frac=1.0))
     assert np.median(span1[:, 1] - span1[:, 0]) > 0.2

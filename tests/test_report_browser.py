@@ -9,7 +9,7 @@ pytest.importorskip("torch")
 
 import _eval_dataset as E  # noqa: E402
 
-from holodata.evaluate import evaluate  # noqa: E402
+from holodata.evaluate import Evaluation  # noqa: E402
 from holodata.evaluate.report import check_layout, find_chromium  # noqa: E402
 
 WIDTH = 1280
@@ -24,7 +24,7 @@ def report(tmp_path_factory):
         pytest.skip("headless Chromium not installed (Debian package `chromium-headless-shell`)")
     ds = E.build(str(tmp_path_factory.mktemp("ds") / "tiny.zarr"))
     out = tmp_path_factory.mktemp("rep") / "rep"
-    doc = evaluate(ds, None, out, oracle=True, quiet=True)
+    doc = Evaluation(ds, None, out, oracle=True, quiet=True).run()
     return out, doc, check_layout(out / "report.html", width=WIDTH)
 
 

@@ -53,6 +53,7 @@ def run(tmp_path_factory):
 
     from holodata.torch import TrainConfig, train
     from holodata.torch.stage2_train import Stage2Config, fit_stage2, load_frames
+    from holodata.torch.train import RunOptions
 
     torch.set_num_threads(1)
     d = tmp_path_factory.mktemp("safe_ck")
@@ -61,7 +62,7 @@ def run(tmp_path_factory):
     frames, grid = load_frames(ds, "train", 1)
     fit_stage2(frames, d / "run", Stage2Config(epochs_rt=1, epochs_refine=1, channels=8, res_blocks=1, fusion_blocks=1,
                                               refine_channels=[8, 8], batch_size=2, p_stage1=0.0, p_clean=1.0,
-                                              flip=False), 9.6, grid, quiet=True)
+                                              flip=False), 9.6, grid, RunOptions(quiet=True))
     return ds, d / "run"
 
 
@@ -205,11 +206,11 @@ BAD_IDS = ["../evil", "..", ".", "a\\b", "..\\..\\evil", "{tmp}/abs_evil"]
 @pytest.fixture(scope="module")
 def recording(tmp_path_factory):
     from holodata.conventions import Grid
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     d = tmp_path_factory.mktemp("safe_rec")
-    synthesize(d / "L", corner="L", frames=2, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32),
-               quiet=True, mapping_pass=False)
+    synthesize(d / "L", SynthSpec(corner="L", frames=2, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(24, 32),
+                                  mapping_pass=False), quiet=True)
     return d / "L"
 
 

@@ -14,6 +14,7 @@ import _eval_dataset as E  # noqa: E402
 from holodata.errors import InputError  # noqa: E402
 from holodata.torch.stage2_infer import KEEP_CANDIDATES, STAGE2_CHECKPOINT, load_stage2  # noqa: E402
 from holodata.torch.stage2_train import Stage2Config, check_init, fit_stage2, load_frames, train_stage2  # noqa: E402
+from holodata.torch.train import RunOptions  # noqa: E402
 
 TINY2 = dict(channels=8, res_blocks=1, fusion_blocks=1, refine_channels=[8, 8], batch_size=2, p_stage1=0.0, lr=3e-3,
              p_clean=1.0, flip=False)
@@ -30,14 +31,14 @@ def source(tmp_path_factory):
     url = E.build(str(tmp_path_factory.mktemp("ds") / "tiny.zarr"), frames=2)
     frames, grid = load_frames(url, "train", 1)
     run = tmp_path_factory.mktemp("src")
-    fit_stage2(frames, run, Stage2Config(epochs_rt=1, epochs_refine=1, seed=1, **TINY2), 9.6, grid, quiet=True)
+    fit_stage2(frames, run, Stage2Config(epochs_rt=1, epochs_refine=1, seed=1, **TINY2), 9.6, grid, RunOptions(quiet=True))
     return url, frames, grid, run, torch.load(run / STAGE2_CHECKPOINT, weights_only=False)
 
 
 def test_zero_epochs_keep_the_init_weights(source, tmp_path):
     _, frames, grid, run, init = source
     res = fit_stage2(frames, tmp_path / "ft", Stage2Config(epochs_rt=0, epochs_refine=0, **TINY2), 9.6, grid,
-                     quiet=True, init=init, meta={"init": str(run / STAGE2_CHECKPOINT)})
+                     RunOptions(quiet=True, init=init, meta={"init": str(run / STAGE2_CHECKPOINT)}))
     ck = torch.load(res["checkpoint"], weights_only=False)
     assert ck["epoch"] == 0 and ck["meta"]["init"].endswith(STAGE2_CHECKPOINT)
     assert _same(ck["rt_state"], init["rt_state"]) and _same(ck["refiner_state"], init["refiner_state"])
@@ -46,7 +47,7 @@ def test_zero_epochs_keep_the_init_weights(source, tmp_path):
     # the same configuration from scratch starts elsewhere (the equality above is the init's doing)
     fresh = fit_stage2(frames, tmp_path / "fresh", Stage2Config(epochs_rt=1, epochs_refine=0, lr=0.0,
                                                                 **{k: v for k, v in TINY2.items() if k != "lr"}),
-                       9.6, grid, quiet=True)
+                       9.6, grid, RunOptions(quiet=True))
     assert not _same(torch.load(fresh["checkpoint"], weights_only=False)["rt_state"], init["rt_state"])
 
 
@@ -55,7 +56,7 @@ def test_refiner_epoch_keeps_the_ray_tracer_and_recalibrates(source, tmp_path):
     init = copy.deepcopy(init)
     init["keep"], init["human"] = {"threshold": 0.123, "scores": {}}, {"threshold": 0.321, "scores": {}}
     res = fit_stage2(frames, tmp_path / "ft", Stage2Config(epochs_rt=0, epochs_refine=1, **TINY2), 9.6, grid,
-                     quiet=True, init=init)
+                     RunOptions(quiet=True, init=init))
     ck = torch.load(res["checkpoint"], weights_only=False)
     assert res["resumed_from"] == 0 and [r["phase"] for r in res["history"]] == ["refine"]
     assert _same(ck["rt_state"], init["rt_state"])               # frozen in the refiner phase
@@ -65,7 +66,7 @@ def test_refiner_epoch_keeps_the_ray_tracer_and_recalibrates(source, tmp_path):
     assert s2.refiner is not None and s2.keep_threshold == ck["keep"]["threshold"]
     # rerun: resumes from its own checkpoint (the init is not loaded again)
     again = fit_stage2(frames, tmp_path / "ft", Stage2Config(epochs_rt=0, epochs_refine=1, **TINY2), 9.6, grid,
-                       quiet=True, init=None)
+                       RunOptions(quiet=True, init=None))
     assert again["resumed_from"] == 1 and _same(torch.load(again["checkpoint"], weights_only=False)["refiner_state"],
                                                 ck["refiner_state"])
 
@@ -74,13 +75,13 @@ def test_other_model_shapes_are_one_line(source, tmp_path):
     url, frames, grid, run, init = source
     with pytest.raises(InputError) as err:
         fit_stage2(frames, tmp_path / "ft", Stage2Config(epochs_rt=0, epochs_refine=1, **{**TINY2, "channels": 16}),
-                   9.6, grid, quiet=True, init=init, meta={"init": "src/stage2.pt"})
+                   9.6, grid, RunOptions(quiet=True, init=init, meta={"init": "src/stage2.pt"}))
     msg = str(err.value)
     assert "\n" not in msg and msg.startswith("src/stage2.pt") and "channels 8 (requested 16)" in msg
     with pytest.raises(InputError, match="refiner channels"):
         fit_stage2(frames, tmp_path / "ft", Stage2Config(epochs_rt=0, epochs_refine=1,
                                                          **{**TINY2, "refine_channels": [8, 8, 8]}),
-                   9.6, grid, quiet=True, init=init)
+                   9.6, grid, RunOptions(quiet=True, init=init))
     # train_stage2 refuses before it reads a frame or writes its run directory
     from holodata.torch import TrainConfig, train
 

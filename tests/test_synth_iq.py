@@ -1,7 +1,7 @@
 """synth's raw I/Q path: the gridded beat-sample kernel against the direct sum, RadarModel.iq against
 the point-scatterer simulator and against the direct heatmap path through the beamformer (same cell,
 same amplitude scale, noise floor), a moving platform refocused by the recorded motion, and a whole
-``synthesize(radar_output="iq")`` → ``ingest`` round trip that validates."""
+``synthesize(SynthSpec(radar_output="iq"))`` → ``ingest`` round trip that validates."""
 from __future__ import annotations
 
 import importlib
@@ -11,7 +11,7 @@ import pytest
 
 from holodata.conventions import Grid, RangeBins
 from holodata.radar import BeamformParams
-from holodata.radar._iq_kernel import beat_samples
+from holodata.radar._iq_kernel import ChirpSites, beat_samples
 from holodata.radar.chirp import SPEED_OF_LIGHT, ChirpConfig
 from holodata.radar.simulate import antenna_positions, simulate_chirps
 from holodata.synth.radar import RadarConfig, RadarModel
@@ -30,9 +30,7 @@ def test_gridded_beat_samples_equal_the_direct_sum():
     ref = simulate_chirps(P, a, ch, chirp_index=idx)
     phi = -2 * np.pi * idx / 1024
     ant = antenna_positions(ch, idx, 1024)
-    got = beat_samples(ant, np.zeros((idx.size, 3)),
-                       np.stack([np.cos(phi), np.sin(phi)], 1), P, a, start_frequency_hz=ch.start_frequency_hz,
-                       slope_hz_per_s=ch.slope_hz_per_s, sample_rate_hz=ch.sample_rate_hz, n_samples=ch.n_samples)
+    got = beat_samples(ChirpSites(ant, np.zeros((idx.size, 3)), np.stack([np.cos(phi), np.sin(phi)], 1)), P, a, ch)
     assert np.abs(got - ref).max() <= 1e-4 * np.abs(ref).max()
     # both of the kernel's roads are taken: a scatterer whose taps start at the same cell for every
     # antenna of the chirp, and one whose antennas straddle a cell boundary (about 1 in 10 here)
@@ -100,7 +98,7 @@ def test_beamformed_raw_samples_match_the_direct_heatmap_path():
     iq, chirp, pad = _rotation(model, paths)
     N = model.cfg.chirps_per_rotation
     p = BeamformParams(n_elevation=G.H, n_azimuth=G.W, static_removal="none")
-    hm = bf.beamform(iq[pad:N + pad], chirp, p, before=iq[:pad], after=iq[N + pad:])
+    hm = bf.beamform(iq[pad:N + pad], chirp, p, neighbours=(iq[:pad], iq[N + pad:]))
     for r, j, rm in ((12, 40, 3.0), (20, 100, 5.0), (15, 70, 7.5)):
         k = int(rm / 0.0375)
         win = np.s_[k - 2:k + 3, max(r - 2, 0):r + 3, j - 2:j + 3]
@@ -112,7 +110,7 @@ def test_beamformed_raw_samples_match_the_direct_heatmap_path():
     noisy = _model(noise_amplitude=2e-3)
     iq = noisy.iq(_paths([(0, 0, 9.0, 0.0)]), np.zeros((G.H * G.W, 3)), G.directions().reshape(-1, 3),
                   np.broadcast_to(np.eye(4), (N + 2 * pad, 4, 4)), np.arange(-pad, N + pad), np.random.default_rng(1))
-    floor = bf.beamform(iq[pad:N + pad], chirp, p, before=iq[:pad], after=iq[N + pad:])
+    floor = bf.beamform(iq[pad:N + pad], chirp, p, neighbours=(iq[:pad], iq[N + pad:]))
     rms = np.sqrt(np.mean(floor[20:200] ** 2))
     assert rms == pytest.approx(2e-3, rel=0.1)
 
@@ -131,7 +129,7 @@ def test_a_moving_platform_is_refocused_by_its_motion():
 
     def image(v, compensate):
         iq, chirp, pad = _rotation(model, paths, v)
-        return bf.beamform(iq[pad:N + pad], chirp, p, before=iq[:pad], after=iq[N + pad:],
+        return bf.beamform(iq[pad:N + pad], chirp, p, neighbours=(iq[:pad], iq[N + pad:]),
                            velocity=v if compensate else None, chirp_period_s=chirp.chirp_period_s)
 
     still = image((0.0, 0.0), False).max()
@@ -146,17 +144,16 @@ def test_a_moving_platform_is_refocused_by_its_motion():
 def test_synth_iq_recording_ingests_into_a_dataset_that_validates(tmp_path):
     from holodata.dataset import open_dataset
     from holodata.dataset.validate import validate_dataset
-    from holodata.ingest import ingest
-    from holodata.synth import RAW_TOPIC, synthesize
+    from holodata.ingest import IngestOptions, ingest
+    from holodata.synth import RAW_TOPIC, SynthSpec, synthesize
 
-    kw = dict(corner="L", frames=2, seed=3, grid=G, lidar_shape=(16, 256), camera_shape=(94, 168), quiet=True,
-              radar_chirps=512)
-    iq = synthesize(tmp_path / "iq", radar_output="iq", **kw)
-    hm = synthesize(tmp_path / "hm", **kw)
+    kw = dict(corner="L", frames=2, seed=3, grid=G, lidar_shape=(16, 256), camera_shape=(94, 168), radar_chirps=512)
+    iq = synthesize(tmp_path / "iq", SynthSpec(radar_output="iq", **kw), quiet=True)
+    hm = synthesize(tmp_path / "hm", SynthSpec(**kw), quiet=True)
     assert iq.counts[RAW_TOPIC] == 2 and "/radar/heatmap" not in iq.counts
     url = str(tmp_path / "d.zarr")
-    ingest([str(iq.recording), str(hm.recording)], url, scene_ids=["iq", "hm"], quiet=True,
-           beamform=BeamformParams(n_elevation=G.H, n_azimuth=G.W))
+    ingest([str(iq.recording), str(hm.recording)], url, IngestOptions(beamform=BeamformParams(n_elevation=G.H, n_azimuth=G.W)),
+           scene_ids=["iq", "hm"], quiet=True)
     assert validate_dataset(url, quiet=True)["ok"]
     ds = open_dataset(url)
     a, b = ds.scene("iq"), ds.scene("hm")
@@ -178,9 +175,10 @@ def test_rotations_share_their_neighbouring_chirps_and_keep_their_own():
     import dataclasses
 
     from holodata.synth.scene import Sensors, _rng, build_scenario
+    from holodata.synth.spec import SceneSpec
 
-    sc = build_scenario("L", frames=3, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(12, 20),
-                        radar_chirps=64)
+    sc = build_scenario(SceneSpec("L", frames=3, seed=5, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(12, 20),
+                                  radar_chirps=64))
     s = Sensors(dataclasses.replace(sc, radar_output="iq"))
     msgs = [s.radar_rotation(k)[0] for k in range(3)]
     N, pad = msgs[0]["n_rotation"], msgs[0]["n_before"]

@@ -9,17 +9,18 @@ from rosbags.highlevel import AnyReader
 
 from holodata.conventions import Grid, RangeBins, yaw_rad
 from holodata.errors import InputError
-from holodata.synth import MAPPING_TOPICS, synthesize
-from holodata.synth.motion import path_trajectory
+from holodata.synth import MAPPING_TOPICS, SynthSpec, synthesize
+from holodata.synth.motion import DriveProfile, path_trajectory
 from holodata.synth.worlds import hidden_from, make_world
 from holodata.trajectory import read_tum
 
-SMALL = dict(frames=2, grid=Grid(8, 32), range_bins=RangeBins(64), lidar_shape=(8, 64), camera_shape=(12, 20), quiet=True)
+SMALL = dict(frames=2, grid=Grid(8, 32), range_bins=RangeBins(64), lidar_shape=(8, 64), camera_shape=(12, 20))
 
 
 @pytest.fixture(scope="module")
 def mapped(tmp_path_factory):
-    return {c: synthesize(tmp_path_factory.mktemp(c) / "a", corner=c, seed=5, mapping_pass=True, **SMALL)
+    return {c: synthesize(tmp_path_factory.mktemp(c) / "a", SynthSpec(corner=c, seed=5, mapping_pass=True, **SMALL),
+                          quiet=True)
             for c in ("L", "oblique")}
 
 
@@ -58,21 +59,22 @@ def test_mapping_pass_drives_both_legs_before_the_data_pass(mapped, corner):
 
 
 def test_mapping_pass_off_by_default_and_deterministic(tmp_path, mapped):
-    res = synthesize(tmp_path / "b", corner="L", seed=5, **SMALL)
+    res = synthesize(tmp_path / "b", SynthSpec(corner="L", seed=5, **SMALL), quiet=True)
     assert res.mapping_recording is None and not (tmp_path / "b" / "mapping").exists()
     assert "mapping_pass" not in json.loads(res.scene_json.read_text())
-    again = synthesize(tmp_path / "c", corner="L", seed=5, mapping_pass=True, **SMALL)
+    again = synthesize(tmp_path / "c", SynthSpec(corner="L", seed=5, mapping_pass=True, **SMALL), quiet=True)
     a, b = mapped["L"].mapping_recording, again.mapping_recording
     assert (a / "mapping.mcap").read_bytes() == (b / "mapping.mcap").read_bytes()
     # the data pass is the same with or without the mapping pass
     assert (res.storage_file.read_bytes() == again.storage_file.read_bytes())
     with pytest.raises(InputError, match="mapping_scan_hz"):
-        synthesize(tmp_path / "d", corner="L", seed=5, mapping_pass=True, mapping_scan_hz=50.0, **SMALL)
+        synthesize(tmp_path / "d", SynthSpec(corner="L", seed=5, mapping_pass=True, mapping_scan_hz=50.0, **SMALL),
+                   quiet=True)
 
 
 def test_path_trajectory_is_smooth_and_slows_in_turns():
     wp = np.array([[-3.0, 0.0], [0.5, 0.0], [0.5, 4.0]])
-    traj, info = path_trajectory(wp, 0, np.random.default_rng(1), speed=0.8, turn_radius=0.5, max_yaw_rate=0.4)
+    traj, info = path_trajectory(wp, 0, np.random.default_rng(1), DriveProfile(speed=0.8, turn_radius=0.5, max_yaw_rate=0.4))
     P = traj.poses
     t = traj.timestamp_ns * 1e-9
     assert np.allclose(P[0, :2, 3], wp[0]) and np.allclose(P[-1, :2, 3], wp[-1], atol=1e-6)
@@ -88,7 +90,7 @@ def test_path_trajectory_is_smooth_and_slows_in_turns():
 def test_cli_records_the_mapping_pass_by_default(tmp_path):
     from click.testing import CliRunner
 
-    from cli.main import cli
+    from holodata.cli.main import cli
 
     args = ["synth", "--corner", "T", "--frames", "1", "--grid", "8x32", "--range-bins", "64", "--lidar", "8x64",
             "--camera", "12x20", "--quiet"]

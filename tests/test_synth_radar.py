@@ -84,9 +84,10 @@ def test_second_bounce_off_a_wall_pair_is_below_by_the_modelled_loss():
 
 
 def test_nlos_bounces_are_10_to_20_db_or_more_under_los():
-    from holodata.synth.scenario import Sensors, build_scenario
+    from holodata.synth.scenario import SceneSpec, Sensors, build_scenario
 
-    sc = build_scenario("L", width=2.0, frames=1, seed=1, grid=Grid(32, 128), lidar_shape=(8, 64), camera_shape=(8, 16))
+    sc = build_scenario(SceneSpec("L", width=2.0, frames=1, seed=1, grid=Grid(32, 128), lidar_shape=(8, 64),
+                                  camera_shape=(8, 16)))
     s = Sensors(sc)
     hm, st = s.radar_frame(0)
     assert st["los_nlos_drop_db"] >= 10.0

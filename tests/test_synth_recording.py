@@ -9,10 +9,10 @@ from rosbags.highlevel import AnyReader
 
 from holodata.conventions import Grid, RangeBins
 from holodata.messages import heatmap_from_msg
-from holodata.synth import TOPICS, synthesize
+from holodata.synth import TOPICS, SynthSpec, synthesize
 from holodata.trajectory import read_tum
 
-SMALL = dict(frames=2, grid=Grid(8, 32), range_bins=RangeBins(64), lidar_shape=(8, 64), camera_shape=(12, 20), quiet=True)
+SMALL = dict(frames=2, grid=Grid(8, 32), range_bins=RangeBins(64), lidar_shape=(8, 64), camera_shape=(12, 20))
 
 
 def _files(root: Path) -> dict:
@@ -28,7 +28,7 @@ def recordings(tmp_path_factory):
     out = {}
     for fmt in ("mcap", "rosbag2", "rosbag1"):
         d = tmp_path_factory.mktemp(fmt)
-        out[fmt] = synthesize(d / "a", corner="T", format=fmt, seed=7, **SMALL)
+        out[fmt] = synthesize(d / "a", SynthSpec(corner="T", format=fmt, seed=7, **SMALL), quiet=True)
     return out
 
 
@@ -93,16 +93,16 @@ def test_mcap_reader_decodes_every_message(recordings):
 def test_same_seed_is_byte_identical_and_other_seed_differs(recordings, tmp_path):
     for fmt in ("mcap", "rosbag1"):
         ref = recordings[fmt]
-        again = synthesize(tmp_path / fmt, corner="T", format=fmt, seed=7, **SMALL)
+        again = synthesize(tmp_path / fmt, SynthSpec(corner="T", format=fmt, seed=7, **SMALL), quiet=True)
         a, b = _files(ref.out_dir), _files(again.out_dir)
         assert a.keys() == b.keys()
         assert all(a[k] == b[k] for k in a), [k for k in a if a[k] != b[k]]
-    other = synthesize(tmp_path / "other", corner="T", format="mcap", seed=8, **SMALL)
+    other = synthesize(tmp_path / "other", SynthSpec(corner="T", format="mcap", seed=8, **SMALL), quiet=True)
     assert other.storage_file.read_bytes() != recordings["mcap"].storage_file.read_bytes()
 
 
 def test_sqlite3_bag_is_reproducible(recordings, tmp_path):
-    again = synthesize(tmp_path / "b", corner="T", format="rosbag2", seed=7, **SMALL)
+    again = synthesize(tmp_path / "b", SynthSpec(corner="T", format="rosbag2", seed=7, **SMALL), quiet=True)
     a, b = _files(recordings["rosbag2"].out_dir), _files(again.out_dir)
     assert a == b
 
@@ -127,7 +127,7 @@ def test_truth_folder(recordings):
 
 
 def test_no_human_recording(tmp_path):
-    res = synthesize(tmp_path / "n", corner="oblique", seed=2, human=False, **SMALL)
+    res = synthesize(tmp_path / "n", SynthSpec(corner="oblique", seed=2, human=False, **SMALL), quiet=True)
     assert res.human_dir is None and not (res.truth_dir / "human").exists()
     assert res.stats["camera_human_pixels"] == 0
 
@@ -136,14 +136,14 @@ def test_refuses_existing_output(recordings):
     from holodata.errors import InputError
 
     with pytest.raises(InputError, match="already holds.*--force"):
-        synthesize(recordings["mcap"].out_dir, corner="T", seed=7, **SMALL)
+        synthesize(recordings["mcap"].out_dir, SynthSpec(corner="T", seed=7, **SMALL), quiet=True)
 
 
 def test_force_replaces_a_recording(tmp_path):
     import json
 
-    synthesize(tmp_path / "f", corner="L", seed=1, **SMALL)
-    again = synthesize(tmp_path / "f", corner="T", seed=7, force=True, **SMALL)
+    synthesize(tmp_path / "f", SynthSpec(corner="L", seed=1, **SMALL), quiet=True)
+    again = synthesize(tmp_path / "f", SynthSpec(corner="T", seed=7, **SMALL), quiet=True, force=True)
     assert json.loads(again.scene_json.read_text())["corner_type"] == "T"
     assert not list((tmp_path / "f").glob(".*.partial"))
 
@@ -155,13 +155,12 @@ def test_size_estimate_matches_the_files_and_a_full_disk_is_refused(tmp_path, mo
     from holodata.errors import InputError
     from holodata.synth import estimate_bytes
 
-    res = synthesize(tmp_path / "s", corner="L", seed=1, **SMALL)
-    kw = {k: SMALL[k] for k in ("grid", "lidar_shape", "camera_shape") if k in SMALL}
-    est = estimate_bytes(res.n_frames, range_bins=SMALL.get("range_bins"), **kw)
+    res = synthesize(tmp_path / "s", SynthSpec(corner="L", seed=1, **SMALL), quiet=True)
+    est = estimate_bytes(SynthSpec(**{**SMALL, "frames": res.n_frames}))
     got = res.storage_file.stat().st_size
     assert 0.8 * got <= est <= 1.1 * got, (est, got)
     Usage = namedtuple("Usage", "total used free")
     monkeypatch.setattr(shutil, "disk_usage", lambda p: Usage(10**9, 10**9, est // 2))
     with pytest.raises(InputError, match="GB free"):
-        synthesize(tmp_path / "t", corner="L", seed=1, **SMALL)
+        synthesize(tmp_path / "t", SynthSpec(corner="L", seed=1, **SMALL), quiet=True)
     assert not (tmp_path / "t" / "recording").exists()

@@ -7,7 +7,7 @@ from holodata.raytrace import RayScene
 from holodata.synth.camera import T_LINK_OPTICAL, CameraConfig, CameraModel, look_at
 from holodata.synth.human import HumanWalk
 from holodata.synth.lidar import OUSTER_DTYPE, LidarConfig, LidarModel, beam_angles
-from holodata.synth.scenario import Sensors, build_scenario
+from holodata.synth.scenario import SceneSpec, Sensors, build_scenario
 from holodata.synth.worlds import CLASS_ID, CORNER_TYPES, MATERIAL_ID, MATERIALS
 
 
@@ -21,7 +21,7 @@ def test_ouster_point_layout():
 
 @pytest.mark.parametrize("corner", CORNER_TYPES)
 def test_lidar_never_sees_the_hidden_human(corner):
-    sc = build_scenario(corner, frames=4, seed=11, grid=Grid(8, 32), lidar_shape=(32, 512), camera_shape=(24, 42))
+    sc = build_scenario(SceneSpec(corner, frames=4, seed=11, grid=Grid(8, 32), lidar_shape=(32, 512), camera_shape=(24, 42)))
     s = Sensors(sc)
     start = sc.t0_ns
     hits = []
@@ -37,7 +37,7 @@ def test_lidar_never_sees_the_hidden_human(corner):
 
 def test_lidar_sees_a_human_in_line_of_sight():
     # negative control: the same check does fire when the human stands in front of the robot
-    sc = build_scenario("L", frames=2, seed=11, grid=Grid(8, 32), lidar_shape=(32, 512), camera_shape=(8, 16))
+    sc = build_scenario(SceneSpec("L", frames=2, seed=11, grid=Grid(8, 32), lidar_shape=(32, 512), camera_shape=(8, 16)))
     p = sc.truth.poses[0, :2, 3]
     sc.walk = HumanWalk(p + np.array([2.0, 0.0]), p + np.array([2.0, 0.3]), 0.0, 1.75)
     s = Sensors(sc)
@@ -92,8 +92,8 @@ def test_camera_depth_noise_grows_with_z_squared():
 
 def test_stereo_pair_is_rectified_with_the_depth_cameras_disparity():
     """Right image at (u - fx·b/z) shows what the left image shows at u (rows aligned)."""
-    sc = build_scenario("L", seed=2, frames=2, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(94, 168),
-                        stereo_images=True)
+    sc = build_scenario(SceneSpec("L", seed=2, frames=2, grid=Grid(8, 32), lidar_shape=(8, 64), camera_shape=(94, 168),
+                                  stereo_images=True))
     s = Sensors(sc)
     left, right = s.stereo_pair(0, sc.t0_ns)
     cfg, cam = sc.camera_cfg, s.camera

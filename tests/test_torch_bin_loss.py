@@ -7,7 +7,7 @@ torch = pytest.importorskip("torch")
 from _torch_synth import synth_frames  # noqa: E402
 
 from holodata.errors import InputError  # noqa: E402
-from holodata.torch import ArrayFrames, ModelConfig, MultiReturnUNet, TrainConfig, fit  # noqa: E402
+from holodata.torch import ArrayFrames, ModelConfig, MultiReturnUNet, RunOptions, TrainConfig, fit  # noqa: E402
 from holodata.torch.losses import LossWeights, multi_return_loss, range_bin_nll, two_hot  # noqa: E402
 from holodata.torch.train import load_checkpoint, model_from_checkpoint  # noqa: E402
 
@@ -92,7 +92,8 @@ def test_training_with_ce_records_the_mode_and_lowers_the_loss(tmp_path):
     ds = ArrayFrames(hm, R, L)
     cfg = TrainConfig(epochs=15, lr=3e-3, depth=3, base_channels=8, max_channels=16, blocks=1, batch_size=2,
                       range_loss="ce")
-    res = fit(ds, tmp_path / "run", cfg, ds.norm, in_channels=hm.shape[1], max_range=9.6, quiet=True)
+    res = fit(ds, tmp_path / "run", cfg, ds.norm, in_channels=hm.shape[1], max_range=9.6,
+              options=RunOptions(quiet=True))
     assert "nll" in res.history[0] and res.history[-1]["nll"] < 0.85 * res.history[0]["nll"]
     ck = load_checkpoint(tmp_path / "run")
     assert ck["model_config"]["estimator"] == "mode"

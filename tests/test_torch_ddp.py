@@ -19,13 +19,13 @@ import sys
 sys.path.insert(0, {tests!r})
 import torch
 from _torch_synth import synth_frames
-from holodata.torch import ArrayFrames, TrainConfig, fit
+from holodata.torch import ArrayFrames, RunOptions, TrainConfig, fit
 torch.set_num_threads(1)
 hm, R, L = synth_frames(T=8, n=32, dr=0.3)
 ds = ArrayFrames(hm, R, L)
 cfg = TrainConfig(epochs=8, lr=3e-3, depth=3, base_channels=8, max_channels=16, blocks=1, batch_size=4,
                   range_loss="ce", crop_w=48)
-fit(ds, sys.argv[1], cfg, ds.norm, in_channels=hm.shape[1], max_range=9.6, quiet=True)
+fit(ds, sys.argv[1], cfg, ds.norm, in_channels=hm.shape[1], max_range=9.6, options=RunOptions(quiet=True))
 """
 
 

@@ -19,6 +19,7 @@ from holodata.torch.stage2 import (  # noqa: E402
 )
 from holodata.torch.stage2_infer import KEEP_CANDIDATES, load_stage2  # noqa: E402
 from holodata.torch.stage2_train import Stage2Config, fit_stage2, load_frames, refine_targets  # noqa: E402
+from holodata.torch.train import RunOptions  # noqa: E402
 
 G = Grid(16, 64)
 
@@ -182,7 +183,7 @@ TINY2 = dict(channels=8, res_blocks=1, fusion_blocks=1, refine_channels=[8, 8], 
 def test_tiny_training_run_decreases_loss_and_resumes(dataset, tmp_path):
     frames, grid = load_frames(dataset, "train", 1)
     cfg = Stage2Config(epochs_rt=3, epochs_refine=2, **TINY2)
-    res = fit_stage2(frames, tmp_path / "run", cfg, 9.6, grid, quiet=True)
+    res = fit_stage2(frames, tmp_path / "run", cfg, 9.6, grid, RunOptions(quiet=True))
     h = res["history"]
     rt_loss = [r["loss"] for r in h if r["phase"] == "rt"]
     ref_loss = [r["loss"] for r in h if r["phase"] == "refine"]
@@ -207,7 +208,7 @@ def test_tiny_training_run_decreases_loss_and_resumes(dataset, tmp_path):
     assert np.array_equal(p["refined"]["point"], nr["point"][ok][kept])
     # resume: the same config with more refiner epochs continues after epoch 5
     res2 = fit_stage2(frames, tmp_path / "run", Stage2Config(epochs_rt=3, epochs_refine=3, **TINY2), 9.6, grid,
-                      quiet=True)
+                      RunOptions(quiet=True))
     assert res2["resumed_from"] == 5 and len(res2["history"]) == 6 and res2["keep"] is not None
     lines = (tmp_path / "run" / "stage2_metrics.jsonl").read_text().splitlines()
     assert [json.loads(x)["epoch"] for x in lines] == list(range(1, 7))

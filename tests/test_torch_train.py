@@ -9,7 +9,7 @@ from _torch_synth import synth_frames  # noqa: E402
 
 from holodata.errors import InputError  # noqa: E402
 from holodata.torch import (  # noqa: E402
-    ArrayFrames, HeatmapNorm, ModelConfig, MultiReturnUNet, SampleTransform, TrainConfig, fit,
+    ArrayFrames, HeatmapNorm, ModelConfig, MultiReturnUNet, RunOptions, SampleTransform, TrainConfig, fit,
     load_checkpoint, masked_gradient_loss, masked_l1, model_from_checkpoint, split_scenes,
 )
 
@@ -105,7 +105,7 @@ def test_overfits_tiny_dataset(tmp_path):
     hm, R, L = synth_frames(T=8)
     ds = ArrayFrames(hm, R, L)
     cfg = TrainConfig(epochs=60, lr=3e-3, **TINY)
-    res = fit(ds, tmp_path / "run", cfg, ds.norm, in_channels=hm.shape[1], quiet=True)
+    res = fit(ds, tmp_path / "run", cfg, ds.norm, in_channels=hm.shape[1], options=RunOptions(quiet=True))
     h = res.history
     assert h[0]["loss"] / h[-1]["loss"] > 10
     assert h[0]["l1"] / h[-1]["l1"] > 10
@@ -140,14 +140,14 @@ def test_resume_continues_from_checkpoint(tmp_path):
     hm, R, L = synth_frames(T=6, seed=3)
     ds = ArrayFrames(hm, R, L)
     cfg = TrainConfig(epochs=4, **TINY)
-    full = fit(ds, tmp_path / "a", cfg, ds.norm, hm.shape[1], quiet=True)
+    full = fit(ds, tmp_path / "a", cfg, ds.norm, hm.shape[1], options=RunOptions(quiet=True))
     with pytest.raises(KeyboardInterrupt):  # dies in the middle of epoch 3
-        fit(Crashing(ds, limit=2 * len(ds) + 3), tmp_path / "b", cfg, ds.norm, hm.shape[1], quiet=True)
+        fit(Crashing(ds, limit=2 * len(ds) + 3), tmp_path / "b", cfg, ds.norm, hm.shape[1], options=RunOptions(quiet=True))
     assert load_checkpoint(tmp_path / "b")["epoch"] == 2
     # simulate an epoch that logged but died before its checkpoint
     with open(tmp_path / "b" / "metrics.jsonl", "a") as fh:
         fh.write(json.dumps({"epoch": 3, "loss": 0}) + "\n")
-    cont = fit(ds, tmp_path / "b", cfg, ds.norm, hm.shape[1], quiet=True)
+    cont = fit(ds, tmp_path / "b", cfg, ds.norm, hm.shape[1], options=RunOptions(quiet=True))
     assert cont.resumed_from == 2 and [r["epoch"] for r in cont.history] == [1, 2, 3, 4]
     log = [json.loads(x)["epoch"] for x in (tmp_path / "b" / "metrics.jsonl").read_text().splitlines()]
     assert log == [1, 2, 3, 4]
@@ -158,7 +158,8 @@ def test_resume_continues_from_checkpoint(tmp_path):
         torch.testing.assert_close(a[k], b[k], rtol=1e-4, atol=1e-5)
     assert cont.history[-1]["loss"] == pytest.approx(full.history[-1]["loss"], rel=1e-4)
     # finished run: nothing more to do
-    again = fit(ds, tmp_path / "b", cfg, ds.norm, hm.shape[1], quiet=True)
+    again = fit(ds, tmp_path / "b", cfg, ds.norm, hm.shape[1], options=RunOptions(quiet=True))
     assert again.resumed_from == 4
     with pytest.raises(InputError, match="model config"):
-        fit(ds, tmp_path / "b", TrainConfig(epochs=5, **{**TINY, "depth": 2}), ds.norm, hm.shape[1], quiet=True)
+        fit(ds, tmp_path / "b", TrainConfig(epochs=5, **{**TINY, "depth": 2}), ds.norm, hm.shape[1],
+            options=RunOptions(quiet=True))

@@ -19,7 +19,7 @@ from holodata.cli.main import cli
 from holodata.conventions import Grid
 from holodata.dataset import create_dataset, open_dataset, validate_dataset
 from holodata.errors import DatasetError
-from holodata.groundtruth import GTConfig, raytrace_dataset, raytrace_standalone
+from holodata.groundtruth import GTConfig, RaytraceStandalone, raytrace_dataset
 from holodata.meshio import Mesh, write_ply
 from holodata.trajectory import Trajectory, write_tum
 from test_raytrace import box
@@ -40,8 +40,8 @@ def box_inputs(tmp_path_factory):
 
 
 def _standalone(inputs, url: str) -> None:
-    raytrace_standalone(inputs / "box.ply", inputs / "traj.tum", url, cfg=GTConfig(grid=GRID, shard_frames=2),
-                        processes=1)
+    RaytraceStandalone(inputs / "box.ply", inputs / "traj.tum", url, cfg=GTConfig(grid=GRID, shard_frames=2),
+                       processes=1).run()
 
 
 def test_a_marked_scene_does_not_validate_names_the_stage_and_other_stages_refuse_it(tmp_path):
@@ -144,10 +144,10 @@ def test_raytrace_gt_dataset_form_killed_at_every_write(box_inputs, tmp_path):
 
 @pytest.fixture(scope="module")
 def tiny_recording(tmp_path_factory):
-    from holodata.synth import synthesize
+    from holodata.synth import SynthSpec, synthesize
 
     out = tmp_path_factory.mktemp("rec") / "L"
-    return synthesize(out, corner="L", frames=2, seed=4, grid=GRID, lidar_shape=(16, 256), camera_shape=(48, 64),
+    return synthesize(out, SynthSpec(corner="L", frames=2, seed=4, grid=GRID, lidar_shape=(16, 256), camera_shape=(48, 64)),
                       quiet=True).recording
 
 
@@ -230,14 +230,15 @@ def test_a_register_refusal_before_its_outputs_leaves_no_mark(tiny_recording, tm
 
 def test_beamform_killed_at_every_write(tmp_path):
     from holodata.beamforming import beamform_scene
-    from holodata.ingest import ingest
+    from holodata.ingest import IngestOptions, ingest
     from holodata.radar import BeamformParams
     from holodata.radar.chirp import ChirpConfig
-    from holodata.synth.panoradar_raw import BoxRoom, box_room_trajectory
+    from holodata.synth.panoradar_raw import BoxRoom, BoxRoomRun, box_room_trajectory
 
-    tr = box_room_trajectory(tmp_path / "walk_01", chirp=ChirpConfig(chirps_per_rotation=512), n_rotations=3,
-                             velocity=(0.3, 0.1), room=BoxRoom(reflectors=((3.0, 0.6, 0.0),)))
+    tr = box_room_trajectory(tmp_path / "walk_01", BoxRoomRun(n_rotations=3, velocity=(0.3, 0.1)),
+                             chirp=ChirpConfig(chirps_per_rotation=512), room=BoxRoom(reflectors=((3.0, 0.6, 0.0),)))
     params = BeamformParams(n_elevation=16, n_azimuth=64)
-    res = kill_sweep(tmp_path, "beamform", lambda url: ingest([tr.folder], url, beamform=params, keep_iq=True),
+    res = kill_sweep(tmp_path, "beamform",
+                     lambda url: ingest([tr.folder], url, IngestOptions(beamform=params, keep_iq=True)),
                      lambda url: beamform_scene(url, "walk_01", motion="none"), "beamform", scenes=("walk_01",))
     assert res["kills"] == res["writes"] >= 5

@@ -75,13 +75,13 @@ def test_web_serves_on_loopback_only_while_the_stream_is_held(traced):
     does), and no page server is started on every interface."""
     import socket
 
-    from holodata.view import PAGE_PORT, view_scene, web_instructions
+    from holodata.view import PAGE_PORT, SceneView, web_instructions
 
     with socket.socket() as a:
         a.bind(("127.0.0.1", 0))
         port = a.getsockname()[1]
     page_before = _listening(PAGE_PORT)
-    r = view_scene(traced, "room_a", "0:2", web=True, port=port)
+    r = SceneView(traced, "room_a", "0:2", web=True, port=port).run()
     try:
         assert r["stream"] is not None
         with socket.create_connection(("127.0.0.1", port), timeout=5):   # the gRPC data server answers
@@ -101,11 +101,11 @@ def test_an_oracle_report_draws_the_gt_hit_points_as_predictions(traced, tmp_pat
     import numpy as np
 
     from holodata.dataset import open_dataset
-    from holodata.evaluate import evaluate
+    from holodata.evaluate import Evaluation
     from holodata.view import _Predictions, run_of_report
 
     rep = tmp_path / "oracle"
-    evaluate(traced, None, rep, split="all", oracle=True, report=False, quiet=True)
+    Evaluation(traced, None, rep, split="all", oracle=True, report=False, quiet=True).run()
     ck, oracle, est = run_of_report(rep)
     assert oracle and ck is None
     ds = open_dataset(traced)
