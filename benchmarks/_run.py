@@ -9,6 +9,7 @@ Imported as ``from _run import header``: ``python benchmarks/x.py`` puts this fo
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import shlex
@@ -25,10 +26,8 @@ def command(argv: list[str] | None = None) -> str:
     argv = list(sys.argv if argv is None else argv)
     if argv:
         script = Path(argv[0])
-        try:
+        with contextlib.suppress(OSError, ValueError):   # outside the repository (or not a file): as given
             argv[0] = str(script.resolve().relative_to(ROOT))
-        except (OSError, ValueError):
-            pass   # outside the repository (or not a file): as given
     return shlex.join(["python", *argv])
 
 

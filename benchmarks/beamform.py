@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from _run import best_of, header
 
-from holodata.radar import BeamformParams, beamform, beam_indices, static_reflection
+from holodata.radar import BeamformParams, beam_indices, beamform, static_reflection
 from holodata.radar.chirp import ChirpConfig
 from holodata.radar.simulate import RigEffects, point_at, simulate_rotation
 

@@ -33,9 +33,9 @@ def main(argv=None) -> int:
     from holodata import metrics as M
     from holodata.conventions import is_human, reduced_grid
     from holodata.dataset import open_dataset
-    from holodata.scene_beams import SceneBeams
     from holodata.evaluate.pipeline import person_hidden
     from holodata.evaluate.predict import Predictor
+    from holodata.scene_beams import SceneBeams
     from holodata.torch.data import HeatmapDataset, apply_transform
     from holodata.torch.pretrained import resolve
 

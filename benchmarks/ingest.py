@@ -234,7 +234,7 @@ def physical_pipeline(rec: Path, dataset: Path, bare_s: float, work: Path) -> di
                 h.update(block)
     sha_s = time.perf_counter() - t
     sha_cpu = time.process_time() - cpu
-    import blake3        # what ingest hashes the source with (source.blake3): timed beside, not counted
+    import blake3  # what ingest hashes the source with (source.blake3): timed beside, not counted
 
     t = time.perf_counter()
     for f in files:

@@ -25,7 +25,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from _run import best_of, header
 
 from holodata.conventions import Grid, LogCode, RangeBins

@@ -21,7 +21,6 @@ from _run import header
 from holodata.conventions import Grid, RangeBins
 from holodata.dataset import create_dataset
 
-
 CORNERS = [("T", 11), ("L", 12), ("cross", 13), ("oblique", 14), ("T", 15), ("L", 16)]
 
 
@@ -104,8 +103,7 @@ def main() -> None:
     if not Path(url).exists():
         build(url, grid, bins, a.frames, CORNERS[: a.scenes])
     t1 = time.perf_counter()
-    from holodata.evaluate import format_tables
-    from holodata.evaluate import Evaluation
+    from holodata.evaluate import Evaluation, format_tables
     from holodata.torch import TrainConfig, train
 
     depth = min(7, int(np.log2(min(grid.H, grid.W))) + 1)

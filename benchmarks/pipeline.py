@@ -55,7 +55,7 @@ def cpu() -> float:
 
 
 def load() -> str:
-    return "load %.1f/%.1f/%.1f" % os.getloadavg()
+    return "load {:.1f}/{:.1f}/{:.1f}".format(*os.getloadavg())
 
 
 def gt_range_diff(a_url: str, b_url: str) -> dict:

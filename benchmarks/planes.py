@@ -19,8 +19,8 @@ import numpy as np
 from _run import best_of, header
 
 from holodata.conventions import Grid
-from holodata.geometry.unmirror import normals_from_range
 from holodata.geometry.planes import _window_plane_normals_numpy, window_plane_normals
+from holodata.geometry.unmirror import normals_from_range
 
 
 def room_ranges(grid: Grid, walls, noise: float, rng) -> np.ndarray:

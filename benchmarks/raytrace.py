@@ -37,8 +37,7 @@ import numpy as np
 from _run import header
 
 from holodata.conventions import Grid
-from holodata.meshio import merge_meshes
-from holodata.meshio import Mesh, write_ply
+from holodata.meshio import Mesh, merge_meshes, write_ply
 from holodata.trajectory import Trajectory, read_tum, write_tum
 
 

@@ -105,10 +105,9 @@ def truth_pose_mesh(url: str, sid: str) -> None:
     poses' ``source`` ("truth") so that register uses them as it uses slam's on the slam cells."""
     from holodata import open_dataset
     from holodata.dataset import create_dataset
+    from holodata.mapping.register import scene_map, scene_mesh
     from holodata.mapping.slam import SlamConfig, data_max_range, load_scans, static_mesh, write_static_map
     from holodata.trajectory import Trajectory
-
-    from holodata.mapping.register import scene_map, scene_mesh
 
     ds = open_dataset(url)
     sc = ds.scene(sid)
@@ -174,9 +173,15 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     from holodata import open_dataset
     from holodata.dataset import create_dataset
     from holodata.ingest import ingest
-    from holodata.mapping.human_eval import (aligned_extrinsic_error, extrinsic_error, human_centroid_errors,
-                                             robot_relative_extrinsic_error, segmentation_ap50, truth_camera_extrinsic,
-                                             write_truth_poses)
+    from holodata.mapping.human_eval import (
+        aligned_extrinsic_error,
+        extrinsic_error,
+        human_centroid_errors,
+        robot_relative_extrinsic_error,
+        segmentation_ap50,
+        truth_camera_extrinsic,
+        write_truth_poses,
+    )
     from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene, scene_map, slam_anchor
 
     out = {"corner": corner, "seed": seed, "poses": poses}

@@ -64,7 +64,7 @@ from holodata.conventions import Grid, RangeBins
 from holodata.dataset import open_dataset
 from holodata.ingest import ingest
 from holodata.mapping import slam as S
-from holodata.mapping.accuracy import evaluate_slam, mesh_errors, pose_alignment, lidar_from_scene_json
+from holodata.mapping.accuracy import evaluate_slam, lidar_from_scene_json, mesh_errors, pose_alignment
 from holodata.mapping.mesh import MeshConfig
 from holodata.meshio import read_mesh
 from holodata.synth import SynthSpec, synthesize
@@ -282,8 +282,8 @@ def main_demo(args) -> None:
 def run_heldout(variant: str, seed: int, root: Path) -> dict:
     """One held-out recording: slam (``ds.zarr``, skipped when done) and its mesh, and the mesh step on
     the true poses (``ds_truth.zarr``), against the truth."""
-    from _heldout import (person_ghost_m2, prepare_heldout, scene_static_mesh, scene_trajectory,
-                                     write_true_lidar_poses)
+    from _heldout import person_ghost_m2, prepare_heldout, scene_static_mesh, scene_trajectory, write_true_lidar_poses
+
     from holodata.conventions import transform_points
     from holodata.mapping.register import scene_mesh
 

@@ -22,7 +22,6 @@ from pathlib import Path
 
 from _run import header
 
-
 HELDOUT = {"report": 1_000_000, "tune": 500}
 HELDOUT_CORNERS = 16
 
@@ -44,8 +43,8 @@ def score(run_dir: Path, test_url: str, estimators) -> dict:
     import torch
 
     from holodata.metrics import range_image_metrics
-    from holodata.torch.data import HeatmapDataset, HeatmapNorm, SampleTransform
     from holodata.torch.checkpoint import load_checkpoint
+    from holodata.torch.data import HeatmapDataset, HeatmapNorm, SampleTransform
     from holodata.torch.train import model_from_checkpoint
 
     ck = load_checkpoint(run_dir)

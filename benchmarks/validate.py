@@ -62,9 +62,22 @@ def write_dataset(url: str, gb: float, frames: int, n_range: int, seed: int = 0)
     """Scenes of ``frames`` frames until about ``gb`` GB are stored; returns the bytes stored."""
     from holodata.conventions import Grid, RangeBins
     from holodata.dataset import FrameStorage, create_dataset
-    from holodata.dataset.layout import (GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, GT_SEMANTIC,
-                                         LIDAR_POINTS, LIDAR_TIMESTAMP_NS, MESH_FACES, MESH_VERTICES,
-                                         POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
+    from holodata.dataset.layout import (
+        GT_HUMAN_CENTER,
+        GT_LABEL,
+        GT_NORMAL,
+        GT_POINT,
+        GT_RANGE,
+        GT_SEMANTIC,
+        LIDAR_POINTS,
+        LIDAR_TIMESTAMP_NS,
+        MESH_FACES,
+        MESH_VERTICES,
+        POSE_T_WORLD_RADAR,
+        RADAR_CYCLE_NS,
+        RADAR_HEATMAP,
+        TIME_TIMESTAMP_NS,
+    )
     from holodata.dataset.synthetic import toy_frames
 
     grid = Grid(64, 512)

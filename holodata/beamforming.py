@@ -21,12 +21,20 @@ import math
 
 import numpy as np
 
+from .dataset.layout import (
+    POSE_T_WORLD_RADAR,
+    RADAR_CYCLE_NS,
+    RADAR_HEATMAP,
+    RADAR_IQ,
+    RADAR_IQ_MOTION,
+    RADAR_IQ_SPAN,
+    RADAR_IQ_STATIC,
+    TIME_TIMESTAMP_NS,
+)
 from .errors import DatasetError, InputError
 from .radar.beam_geometry import BeamformParams, Motion
 from .radar.beamform import beamform, beamform_attrs
 from .radar.chirp import ChirpConfig
-from .dataset.layout import (POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, RADAR_IQ, RADAR_IQ_MOTION,
-                             RADAR_IQ_SPAN, RADAR_IQ_STATIC, TIME_TIMESTAMP_NS)
 
 MOTIONS = ("recorded", "slam", "none")
 

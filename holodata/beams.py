@@ -61,7 +61,7 @@ class OriginModel:
                 if self.column_time else None}
 
     @classmethod
-    def from_attrs(cls, attrs: dict) -> "OriginModel":
+    def from_attrs(cls, attrs: dict) -> OriginModel:
         """Inverse of :meth:`to_attrs` (extra keys ignored; a ``rotation_centre`` type has radius 0)."""
         kind = attrs.get("type", "rotation_centre")
         if kind not in ORIGIN_TYPES:

@@ -98,11 +98,11 @@ class Grid:
         return f"{self.H}×{self.W} beams (elevation {self.elev_max_deg:+g}° to {self.elev_min_deg:+g}°)"
 
     @classmethod
-    def from_attrs(cls, attrs: dict) -> "Grid":
+    def from_attrs(cls, attrs: dict) -> Grid:
         return cls(int(attrs["H"]), int(attrs["W"]), float(attrs["elev_deg"][0]), float(attrs["elev_deg"][1]))
 
     @classmethod
-    def parse(cls, grid: str = f"{DEFAULT_H}x{DEFAULT_W}", elevation_fov: str | None = None) -> "Grid":
+    def parse(cls, grid: str = f"{DEFAULT_H}x{DEFAULT_W}", elevation_fov: str | None = None) -> Grid:
         """Parse CLI strings ``"64x512"`` and ``"-45,45"`` (degrees, min,max in any order)."""
         try:
             h, w = (int(v) for v in grid.lower().split("x"))
@@ -155,7 +155,7 @@ class RangeBins:
         return f"{self.n} range bins of {self.dr * 100:g} cm"
 
     @classmethod
-    def from_attrs(cls, attrs: dict) -> "RangeBins":
+    def from_attrs(cls, attrs: dict) -> RangeBins:
         return cls(int(attrs["n"]), float(attrs["dr"]))
 
 
@@ -203,7 +203,7 @@ class LogCode:
         return {"kind": HEATMAP_LOG_U8, "eps": self.eps, "lo": self.lo, "hi": self.hi}
 
     @classmethod
-    def from_attrs(cls, attrs) -> "LogCode":
+    def from_attrs(cls, attrs) -> LogCode:
         """Parse an ``encoding`` attribute; ValueError naming what is wrong."""
         if not isinstance(attrs, dict) or attrs.get("kind") != HEATMAP_LOG_U8:
             raise ValueError(f"encoding must be {{'kind': {HEATMAP_LOG_U8!r}, 'eps', 'lo', 'hi'}}, got {attrs!r}")

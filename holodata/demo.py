@@ -24,10 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from .conventions import Grid, RangeBins
+from .dataset.layout import HUMAN_FACES, HUMAN_VERTICES, MESH_FACE_CLASS, MESH_FACES, MESH_VERTICES, POSE_T_WORLD_RADAR
 from .errors import InputError
 from .ownership import claim_folder, remove_folder
-from .dataset.layout import (HUMAN_FACES, HUMAN_VERTICES, MESH_FACES, MESH_FACE_CLASS, MESH_VERTICES,
-                             POSE_T_WORLD_RADAR)
 
 # (corner kind, seed): every kind of the reference dataset is represented; the last ones are held out
 DEMO_CORNERS: tuple[tuple[str, int], ...] = (
@@ -345,8 +344,8 @@ def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = Tru
     also their report.html and figures (the demo prints their rows and writes their metrics.json only)."""
     from .dataset import open_dataset
     from .evaluate import Evaluation
-    from .torch.pretrained import resolve
     from .torch.checkpoint import load_checkpoint
+    from .torch.pretrained import resolve
     from .torch.train import check_stage1
 
     try:

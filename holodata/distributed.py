@@ -36,6 +36,7 @@ Progress: a bar over completed tasks (``holodata.progress.track`` over ``as_comp
 """
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 from contextlib import contextmanager
@@ -98,10 +99,8 @@ def close_worker_filesystems(client) -> None:
     they outlive this command, may serve other clients, and do not write to its stderr."""
     from .dataset.store import close_filesystems
 
-    try:
+    with contextlib.suppress(Exception):   # any failure: a worker already gone has nothing left to close
         client.run(close_filesystems, on_error="ignore")
-    except Exception:  # noqa: BLE001 - a worker already gone has nothing left to close
-        pass
 
 
 def n_workers(client) -> int:

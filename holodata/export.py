@@ -27,8 +27,16 @@ import json
 import numpy as np
 
 from .dataset.heatmap import read_heatmap
-from .dataset.layout import (CAMERA_POINTS, GT_LABEL, GT_RANGE, LIDAR_POINTS, LIDAR_POINT_TIME_NS, RADAR_CYCLE_NS,
-                             RADAR_HEATMAP, TIME_TIMESTAMP_NS)
+from .dataset.layout import (
+    CAMERA_POINTS,
+    GT_LABEL,
+    GT_RANGE,
+    LIDAR_POINT_TIME_NS,
+    LIDAR_POINTS,
+    RADAR_CYCLE_NS,
+    RADAR_HEATMAP,
+    TIME_TIMESTAMP_NS,
+)
 from .errors import DatasetError, InputError
 from .ownership import OutputDir
 from .safe_io import check_name
@@ -75,7 +83,7 @@ def export_panoradar(sc, out: OutputDir, grid, range_bins, force: bool = False) 
     for d in dirs.values():
         d.mkdir(parents=True)
     gr = sc[GT_RANGE] if has_gt else None
-    lab = sc[GT_LABEL] if GT_LABEL in sc else None
+    lab = sc[GT_LABEL] if GT_LABEL in sc else None  # noqa: SIM401 (a dataset scene, not a dict: no .get)
     for f in range(sc.n_frames):
         name = f"{f:05d}.npy"
         a = read_heatmap(sc, f)

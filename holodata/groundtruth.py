@@ -40,14 +40,21 @@ import numpy as np
 from .beams import OriginModel, beam_rays, column_times, scene_origin_model
 from .conventions import RangeBins
 from .dataset.inputs import gt_inputs, stale_inputs
+from .dataset.layout import (
+    GT_ARRAYS,
+    GT_RANGE,
+    MESH_FACE_CLASS,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_RADAR,
+    RADAR_CYCLE_NS,
+    TIME_TIMESTAMP_NS,
+)
 from .dataset.writer import FrameStorage
-from .dataset.layout import (GT_ARRAYS, GT_RANGE, MESH_FACES, MESH_FACE_CLASS, MESH_VERTICES, POSE_T_WORLD_RADAR,
-                             RADAR_CYCLE_NS, TIME_TIMESTAMP_NS)
 from .errors import HolodataError, InputError
 from .meshio import read_mesh
 from .parallel import cpus
 from .progress import track
-from .safe_io import check_name
 from .raytrace.frames import (
     FrameTracer,
     GTConfig,
@@ -70,6 +77,7 @@ from .raytrace.humans import (
     points_to_mesh,
 )
 from .raytrace.pool import Helper, _bounded_imap, _slot_bytes, _slot_views, _worker_init, can_fork, run_with_helper
+from .safe_io import check_name
 from .trajectory import Trajectory, read_tum
 
 

@@ -329,9 +329,8 @@ def _read_obj(data: bytes) -> Mesh:
             idx = [k - 1 if k > 0 else len(verts) + k for k in idx]
             polys.append(idx)
             owner_names.append(current)
-        elif tok[0] in ("usemtl", "g", "o") and len(tok) > 1:
-            if tok[0] != "o" or current is None:
-                current = " ".join(tok[1:])
+        elif tok[0] in ("usemtl", "g", "o") and len(tok) > 1 and (tok[0] != "o" or current is None):
+            current = " ".join(tok[1:])
     tris, owner = _fan(polys)
     vertices = np.asarray(verts, dtype=np.float64).reshape(-1, 3)
     names = [n for n in dict.fromkeys(owner_names) if n is not None]

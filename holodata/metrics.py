@@ -205,7 +205,7 @@ def match_centres(pred, gt, max_dist: float = HUMAN_MATCH_M) -> tuple[np.ndarray
     if len(pred) == 0 or len(gt) == 0:
         return np.zeros(0, int), np.zeros(0, int), np.zeros(0)
     D = np.linalg.norm(pred[:, None, :] - gt[None, :, :], axis=-1)
-    r, c = linear_sum_assignment(np.where(D <= max_dist, D, 1e6))
+    r, c = linear_sum_assignment(np.where(max_dist >= D, D, 1e6))
     ok = D[r, c] <= max_dist
     return r[ok], c[ok], D[r[ok], c[ok]]
 

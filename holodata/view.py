@@ -35,9 +35,23 @@ from typing import Any
 import numpy as np
 
 from .dataset.heatmap import read_heatmap
-from .dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS, GT_LABEL, GT_POINT, GT_RANGE, HUMAN_FACES,
-                             HUMAN_VERTICES, LIDAR_POINTS, MESH_FACES, MESH_VERTICES, POSE_T_WORLD_LIDAR,
-                             POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
+from .dataset.layout import (
+    CALIB_T_WORLD_CAMERA,
+    CAMERA_POINTS,
+    GT_LABEL,
+    GT_POINT,
+    GT_RANGE,
+    HUMAN_FACES,
+    HUMAN_VERTICES,
+    LIDAR_POINTS,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_LIDAR,
+    POSE_T_WORLD_RADAR,
+    RADAR_CYCLE_NS,
+    RADAR_HEATMAP,
+    TIME_TIMESTAMP_NS,
+)
 from .errors import DatasetError, InputError
 
 
@@ -138,8 +152,8 @@ class _Predictions:
 
     def __init__(self, checkpoint, oracle: bool, estimator: str, ds, sc, device: str = "cpu"):
         from .conventions import reduced_grid
-        from .scene_beams import SceneBeams
         from .evaluate.predict import Predictor
+        from .scene_beams import SceneBeams
 
         self.run = Predictor.load(checkpoint, device=device, estimator=estimator, oracle=oracle)
         self.f = self.run.downsample
@@ -236,7 +250,7 @@ class _Series:
     beyond_rig: int
 
     @classmethod
-    def read(cls, sc, has: set, g, rb) -> "_Series":
+    def read(cls, sc, has: set, g, rb) -> _Series:
         """The series of scene ``sc`` (arrays ``has``) on grid ``g`` and range bins ``rb``."""
         from .beams import OriginModel, scene_origin_model
         from .conventions import RADAR_ROTATION_RADIUS_M
@@ -263,7 +277,7 @@ class _FrameDrawer:
     def __init__(self, log: _Log, sc, has: set, g, s: _Series):
         self.log, self.sc, self.has, self.g, self.s = log, sc, has, g, s
 
-    def frame(self, f: int, pred: "_Predictions | None") -> None:
+    def frame(self, f: int, pred: _Predictions | None) -> None:
         """Frame ``f``: the radar panels, the sensors, the GT, and ``pred``'s points when given."""
         self.log.rec.set_time("time", timestamp=np.datetime64(int(self.s.t[f]), "ns"))
         if RADAR_HEATMAP in self.has:
@@ -401,7 +415,7 @@ class SceneView:
             raise DatasetError(f"{ds.url}: no scene {scene_id!r} (have {', '.join(ds.scenes) or 'none'})")
         return ds, scene_id
 
-    def _predictions(self, ds, sc, has: set, notes: list) -> "_Predictions | None":
+    def _predictions(self, ds, sc, has: set, notes: list) -> _Predictions | None:
         """The run's predicted points (None without ``checkpoint``/``report``, or when the scene
         lacks what the run needs: said in ``notes``)."""
         if self.checkpoint is None and self.report is None:

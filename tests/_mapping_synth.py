@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def small_corner() -> tuple[str, str]:
     """(dataset path, truth dir) of an L corner, 10 radar frames, 2 visible walkers, standing or walking
     human per the seed."""

@@ -103,7 +103,8 @@ class Writer:
 
             self.w = W1(self.path)
         else:
-            from rosbags.rosbag2 import StoragePlugin, Writer as W2
+            from rosbags.rosbag2 import StoragePlugin
+            from rosbags.rosbag2 import Writer as W2
 
             self.w = W2(self.path, version=9, storage_plugin=StoragePlugin.MCAP if fmt == "mcap" else StoragePlugin.SQLITE3)
         self.w.open()

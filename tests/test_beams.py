@@ -7,8 +7,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from holodata.beams import (OriginModel, column_poses, column_times, frame_beams, gt_origin_model,
-                            scene_origin_model)
+from holodata.beams import OriginModel, column_poses, column_times, frame_beams, gt_origin_model, scene_origin_model
 from holodata.cli.main import cli
 from holodata.conventions import Grid
 from holodata.trajectory import Trajectory

@@ -169,9 +169,9 @@ def test_a_symlinked_scenes_folder_leads_no_write_or_delete_outside_the_dataset(
 
 def test_raytrace_gt_standalone_refuses_a_symlinked_scenes_folder(tmp_path):
     """The reproduction of the issue: ``raytrace-gt --out DS --scene-id Documents``."""
+    import _eval_dataset as E
     import numpy as np
 
-    import _eval_dataset as E
     from holodata.meshio import Mesh, write_ply
 
     _, mine, ds = _linked_dataset(tmp_path)

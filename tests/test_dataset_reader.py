@@ -66,7 +66,7 @@ def test_fsspec_memory_url_errors_and_info():
     arrays = {a["name"]: a for a in info["scenes"][0]["arrays"]}
     assert arrays["gt/range"]["shape"] == [4, 3, 8, 32] and arrays["gt/range"]["dtype"] == "float32"
     assert arrays["gt/range"]["raw_bytes"] == 4 * 3 * 8 * 32 * 4
-    assert 0 < arrays["gt/range"]["stored_bytes"] and arrays["gt/label"]["compression_ratio"] > 1
+    assert arrays["gt/range"]["stored_bytes"] > 0 and arrays["gt/label"]["compression_ratio"] > 1
     assert info["frames"] == 4 and info["splits"] == {"train": ["m"], "test": ["m"]}
     r = CliRunner().invoke(cli, ["validate", url, "--quiet"])
     assert r.exit_code == 0, r.output

@@ -11,8 +11,15 @@ from click.testing import CliRunner
 from holodata.cli.main import cli
 from holodata.conventions import Grid
 from holodata.dataset import open_dataset, validate_dataset
-from holodata.demo import (DemoConfig, combined_metrics, demo_config, map_scene_id, remove_ingested_recordings,
-                           resolve_mapping, run_demo)
+from holodata.demo import (
+    DemoConfig,
+    combined_metrics,
+    demo_config,
+    map_scene_id,
+    remove_ingested_recordings,
+    resolve_mapping,
+    run_demo,
+)
 from holodata.errors import InputError
 from holodata.evaluate.pipeline import STAGE2_ROWS
 

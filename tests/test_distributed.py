@@ -18,16 +18,15 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _recordings import write_recording
 from click.testing import CliRunner
+from test_groundtruth import pose
+from test_raytrace import HUMAN, l_corridor
 
 import holodata.dataset as hds
 from holodata.cli.main import cli
 from holodata.meshio import Mesh, write_ply
 from holodata.trajectory import Trajectory, write_tum
-
-from _recordings import write_recording
-from test_groundtruth import pose
-from test_raytrace import HUMAN, l_corridor
 
 pytestmark = pytest.mark.slow   # Dask clusters / a moto S3 server / whole recordings: the full tier
 
@@ -70,13 +69,13 @@ def dask_cluster(tmp: Path, n_workers: int = 2):
     procs = []
     workers = {}
     try:
-        log = open(tmp / "scheduler.log", "wb")
+        log = open(tmp / "scheduler.log", "wb")  # noqa: SIM115 - closed with the processes below
         logs.append(log)
         procs.append(subprocess.Popen(dask + ["scheduler", "--host", "127.0.0.1", "--port", str(port),
                                               "--no-dashboard", "--scheduler-file", str(tmp / "scheduler.json")],
                                       stdout=log, stderr=subprocess.STDOUT, env=env))
         for i in range(n_workers):
-            log = open(tmp / f"worker{i}.log", "wb")
+            log = open(tmp / f"worker{i}.log", "wb")  # noqa: SIM115
             logs.append(log)
             p = subprocess.Popen(dask + ["worker", addr, "--nthreads", "1", "--no-nanny", "--host", "127.0.0.1",
                                          "--no-dashboard", "--name", f"w{i}", "--local-directory",
@@ -345,12 +344,11 @@ def test_a_task_that_kills_every_worker_is_a_one_line_error_within_seconds():
     import holodata.distributed as hd
     from holodata.parallel import WorkerError
 
-    with dask.config.set({"distributed.scheduler.allowed-failures": 1}):
-        with hd.cluster(workers=1) as client:
-            t = time.monotonic()
-            with pytest.raises(WorkerError) as e:
-                hd.run_tasks(client, _kill_own_worker, [(1,)], ["doomed-task"], description="test step")
-            took = time.monotonic() - t
+    with dask.config.set({"distributed.scheduler.allowed-failures": 1}), hd.cluster(workers=1) as client:
+        t = time.monotonic()
+        with pytest.raises(WorkerError) as e:
+            hd.run_tasks(client, _kill_own_worker, [(1,)], ["doomed-task"], description="test step")
+        took = time.monotonic() - t
     msg = str(e.value)
     assert "\n" not in msg and msg.startswith("test step: task 'doomed-task' killed 2 Dask workers"), msg
     assert took < 60, took

@@ -8,8 +8,8 @@ pytest.importorskip("torch")
 
 import _eval_dataset as E  # noqa: E402
 
-from holodata.evaluate import Evaluation  # noqa: E402
 from holodata.conventions import reduced_grid  # noqa: E402
+from holodata.evaluate import Evaluation  # noqa: E402
 from holodata.evaluate.pipeline import load_schema, validate_metrics  # noqa: E402
 from holodata.torch import TrainConfig, train  # noqa: E402
 

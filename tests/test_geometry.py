@@ -8,10 +8,30 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from holodata.geometry import (IcpParams, StepRule, about_origin, centred_offset, cell_keys, dense_box, first_per_voxel,
-                               fit_height_plane, fit_plane, flat_index, gauss_newton_step, hold_at, moved_by,
-                               point_to_plane_icp, local_plane_projection, ransac_plane, tukey_weights, unique_voxels,
-                               unpack_keys, voxel_average, voxel_index, voxel_keys)
+from holodata.geometry import (
+    IcpParams,
+    StepRule,
+    about_origin,
+    cell_keys,
+    centred_offset,
+    dense_box,
+    first_per_voxel,
+    fit_height_plane,
+    fit_plane,
+    flat_index,
+    gauss_newton_step,
+    hold_at,
+    local_plane_projection,
+    moved_by,
+    point_to_plane_icp,
+    ransac_plane,
+    tukey_weights,
+    unique_voxels,
+    unpack_keys,
+    voxel_average,
+    voxel_index,
+    voxel_keys,
+)
 from holodata.geometry import voxels as V
 from holodata.geometry._ball_kernel import ball_moments
 
@@ -139,7 +159,7 @@ def test_ball_moments_are_the_brute_force_sums_over_each_ball():
     for X, r in clouds:
         q = rng.choice(len(X), len(X) // 3, replace=False)
         cnt, s1, s2 = ball_moments(X, r, q)
-        d2 = (((X[q, None, :] - X[None, :, :]) ** 2)).sum(-1)
+        d2 = ((X[q, None, :] - X[None, :, :]) ** 2).sum(-1)
         inside = d2 <= r * r
         assert np.array_equal(cnt, inside.sum(1)) and (cnt >= 1).all()
         np.testing.assert_allclose(s1, inside @ X, rtol=1e-12, atol=1e-9)

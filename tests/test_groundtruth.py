@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
+from test_raytrace import HUMAN, box, l_corridor
 
 import holodata.dataset as hds
 from holodata.cli.main import cli
@@ -25,8 +26,6 @@ from holodata.groundtruth import (
 from holodata.meshio import Mesh, write_ply
 from holodata.raytrace import RayScene
 from holodata.trajectory import Trajectory, write_tum
-
-from test_raytrace import HUMAN, box, l_corridor
 
 HAVE_DATASET = hasattr(hds, "create_dataset") and hasattr(hds, "open_dataset")
 needs_dataset = pytest.mark.skipif(not HAVE_DATASET, reason="holodata.dataset API not available yet")

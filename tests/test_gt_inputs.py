@@ -2,15 +2,23 @@
 again when that changed — a person registered after the first trace ends up in the GT."""
 from __future__ import annotations
 
+import _eval_dataset as E
 import numpy as np
 from click.testing import CliRunner
 
-import _eval_dataset as E
 from holodata.cli.main import cli
 from holodata.conventions import Grid, Label
 from holodata.dataset import create_dataset, open_dataset
-from holodata.dataset.layout import (GT_HUMAN_CENTER, GT_LABEL, HUMAN_FACES, HUMAN_VERTICES, MESH_FACES, MESH_VERTICES,
-                                     POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS)
+from holodata.dataset.layout import (
+    GT_HUMAN_CENTER,
+    GT_LABEL,
+    HUMAN_FACES,
+    HUMAN_VERTICES,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_RADAR,
+    TIME_TIMESTAMP_NS,
+)
 
 
 def _room(url, frames=2):

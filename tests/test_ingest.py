@@ -5,16 +5,16 @@ and truncated recordings through the CLI; resume after an interruption."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from _recordings import FIXTURES, Writer, camera_info_msg, image_msg, write_recording
 from click.testing import CliRunner
 
 from holodata.cli.main import cli
 from holodata.dataset import open_dataset, validate_dataset
 from holodata.ingest import IngestOptions, ingest, list_recording
-
-from _recordings import FIXTURES, Writer, camera_info_msg, image_msg, write_recording
 
 needs_fixtures = pytest.mark.skipif(not FIXTURES.exists(), reason=f"fixture folder {FIXTURES} is absent")
 
@@ -89,7 +89,7 @@ def test_radar_lidar_camera_tf_recording(tmp_path, fmt):
     import blake3
 
     assert src["truncated"] is False and "sha256" not in src
-    assert src["blake3"] == [blake3.blake3(open(f, "rb").read()).hexdigest() for f in src["files"]]
+    assert src["blake3"] == [blake3.blake3(Path(f).read_bytes()).hexdigest() for f in src["files"]]
     sens = sc.attrs["sensors"]
     assert sens["camera"]["intrinsics"]["K"] == K.tolist() and sens["lidar"]["time_field"] == "t"
     ing = sc.attrs["ingest"]
@@ -118,7 +118,7 @@ def test_tolerance_leaves_frames_empty_and_reported(tmp_path):
 
 
 def test_lidar_only_and_resume_after_interruption(tmp_path, monkeypatch):
-    from holodata.ingest import write as ing_mod   # the write pass (its shard buffer)
+    from holodata.ingest import write as ing_mod  # the write pass (its shard buffer)
 
     rec = tmp_path / "lid.bag"
     truth = write_recording(rec, "rosbag1", n_radar=3, radar=False, camera=False)
@@ -371,9 +371,8 @@ def test_radar_grid_mismatch_and_same_names(tmp_path):
 def test_custom_types_without_definitions_warn_or_ask_for_msg_dir(tmp_path):
     import sqlite3
 
-    from rosbags.typesys import get_types_from_msg
-
     from _recordings import T0, cloud_msg, lidar_scan
+    from rosbags.typesys import get_types_from_msg
 
     def bag(name, with_lidar):
         w = Writer(tmp_path / name, "sqlite3")
@@ -446,7 +445,7 @@ def test_scenes_with_a_sha256_source_digest_still_compare(tmp_path):
     sc = od(url, "r+").scene("rec")
     src = dict(sc.attrs["source"])
     del src["blake3"]
-    src["sha256"] = [hashlib.sha256(open(f, "rb").read()).hexdigest() for f in src["files"]]
+    src["sha256"] = [hashlib.sha256(Path(f).read_bytes()).hexdigest() for f in src["files"]]
     sc.set_attrs({"source": src})
     assert "blake3" not in od(url).scene("rec").attrs["source"]
     assert ingest([rec], url, quiet=True)["scenes"][0]["skipped"] == "already ingested"

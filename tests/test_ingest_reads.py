@@ -9,13 +9,12 @@ import struct
 
 import numpy as np
 import pytest
+from _recordings import Writer, cloud_msg, lidar_scan, write_recording
 
 from holodata.dataset import open_dataset, validate_dataset
 from holodata.ingest import ingest
 from holodata.readers import open_recording
 from holodata.readers.rosbag import Ros1MessageTable
-
-from _recordings import Writer, cloud_msg, lidar_scan, write_recording
 
 HEADS = {"/radar/heatmap", "/os/points", "/cam/depth/image_raw"}
 

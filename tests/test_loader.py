@@ -2,6 +2,7 @@
 from their shards, range pooling + normalisation by table lookup; every fast path against the plain
 numpy/zarr way of doing the same work."""
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,7 +78,7 @@ def test_uint8_corpus_validates_and_decodes_close_to_float16(corpora):
         assert validate_dataset(url)["ok"]
     u, h = open_dataset(corpora["uint8"]), open_dataset(corpora["float16"])
     sid = u.scenes[0]
-    meta = json.loads(open(f"{corpora['uint8']}/scenes/{sid}/{RADAR_HEATMAP}/zarr.json").read())
+    meta = json.loads(Path(f"{corpora['uint8']}/scenes/{sid}/{RADAR_HEATMAP}/zarr.json").read_text())
     assert meta["data_type"] == "uint8" and meta["fill_value"] == 0
     assert LogCode.from_attrs(meta["attributes"]["encoding"]) == LogCode()
     a, b = read_heatmap(u.scene(sid), 1), read_heatmap(h.scene(sid), 1)

@@ -6,13 +6,24 @@ import pytest
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 
-from holodata.mapping.human_eval import (aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error,
-                                         solid_centroid)
 from holodata.geometry import local_plane_projection
-from holodata.mapping.register import (ColumnShape, RegisterConfig, body_columns, camera_points_world, closed_surface,
-                                       map_normals, pick_human, radial_speed,
-                                       register_extrinsic,
-                                       track_jumps, track_prediction, track_velocity, velocity_shift, voxel_boundary)
+from holodata.mapping.human_eval import aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error, solid_centroid
+from holodata.mapping.register import (
+    ColumnShape,
+    RegisterConfig,
+    body_columns,
+    camera_points_world,
+    closed_surface,
+    map_normals,
+    pick_human,
+    radial_speed,
+    register_extrinsic,
+    track_jumps,
+    track_prediction,
+    track_velocity,
+    velocity_shift,
+    voxel_boundary,
+)
 
 
 def _room(rng, n=60000):
@@ -425,8 +436,9 @@ def _copy_small_corner(tmp_path):
     segmentation tests may leave theirs there, made with their own settings)."""
     import shutil
 
-    import holodata.dataset as hds
     from _mapping_synth import small_corner
+
+    import holodata.dataset as hds
 
     src, truth = small_corner()
     url = str(tmp_path / "ds.zarr")

@@ -11,8 +11,18 @@ import numpy as np
 import pytest
 
 from holodata.mapping.human_eval import ap50, average_precision, match_scan
-from holodata.mapping.segment import (SegmentConfig, beam_elevations, destagger, floor_plane, flood_fill, merge_stacked,
-                                      neighbour_spacing, row_shifts, segment_scan, shrink_structure)
+from holodata.mapping.segment import (
+    SegmentConfig,
+    beam_elevations,
+    destagger,
+    flood_fill,
+    floor_plane,
+    merge_stacked,
+    neighbour_spacing,
+    row_shifts,
+    segment_scan,
+    shrink_structure,
+)
 
 
 def _scan(H=32, W=256, az_offsets=None, fov_deg=30.0):
@@ -130,7 +140,7 @@ def test_segment_scene_on_synth_walkers():
     assert s2["instances_per_scan"] == 0.0
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _os0_corner() -> tuple[str, str]:
     """An L corner recorded with an OS0-like LiDAR (90° vertical FOV, 32×512: 2.9° between beams),
     10 frames, 2 walkers in the robot's corridor, true poses."""
@@ -153,10 +163,9 @@ def _os0_corner() -> tuple[str, str]:
 def test_segment_scene_on_os0_like_90deg_lidar():
     """The wide-FOV LiDAR sees the floor around the robot and walkers from head to toe at < 1 m, and
     far walkers in only ~6 rows: AP50 was 0.15 with the OS1-tuned constants."""
+    from holodata import open_dataset
     from holodata.mapping.human_eval import segmentation_ap50
     from holodata.mapping.segment import LidarScans, build_background, segment_scene
-
-    from holodata import open_dataset
 
     url, truth = _os0_corner()
     sc = open_dataset(url).scene("recording")

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _recordings import Writer, cloud_msg
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 
-from _recordings import Writer, cloud_msg
 from holodata.cli.main import cli
 from holodata.mapping.background import VoxelBackground
 from holodata.mapping.slam import deskew, twist
@@ -426,6 +426,7 @@ def test_slam_runs_on_real_recordings(tmp_path, name):
     import json
 
     from _recordings import FIXTURES
+
     from holodata.dataset import open_dataset
 
     rec = FIXTURES / name
@@ -623,7 +624,6 @@ def test_streamed_read_falls_back_and_reports_errors(slam_run, monkeypatch):
 
     from holodata.errors import DatasetError, HolodataError
     from holodata.mapping import slam as S
-
     from holodata.mapping.slam.scans import _ScanSource
 
     n = int(slam_run["res"].summary["scans"])
@@ -682,10 +682,9 @@ def test_mesh_background_worker_death_is_a_one_line_error(slam_run, monkeypatch)
     import os
     import signal
 
+    import holodata.parallel
     from holodata.errors import HolodataError
     from holodata.mapping import slam as S
-
-    import holodata.parallel
 
     monkeypatch.setattr(holodata.parallel, "cpus", lambda: 2)    # forked also where fewer CPUs are free
     from holodata.mapping.slam import world

@@ -79,9 +79,9 @@ def test_ply_binary_mixed_polygons_either_byte_order(tmp_path, order):
 
 def test_ply_foreign_layout_quads_and_label_property(tmp_path):
     # vertex with extra properties, a quad and a triangle, int label after the list, ushort counts
-    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
-            "property float z\nproperty uchar red\nelement face 2\nproperty list uchar int vertex_indices\n"
-            "property int label\nend_header\n").encode()
+    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex 5\nproperty float x\nproperty float y\n"
+            b"property float z\nproperty uchar red\nelement face 2\nproperty list uchar int vertex_indices\n"
+            b"property int label\nend_header\n")
     verts = [(0, 0, 0), (1, 0, 0), (1, 1, 0), (0, 1, 0), (0, 0, 1)]
     body = b"".join(struct.pack("<fffB", *p, 9) for p in verts)
     body += struct.pack("<B4ii", 4, 0, 1, 2, 3, 5) + struct.pack("<B3ii", 3, 0, 1, 4, 2)

@@ -80,8 +80,8 @@ def test_trimesh_written_binary_fast_equals_trimesh(tmp_path, monkeypatch):
 
 
 def test_mixed_lists_and_bad_bodies_fall_back(tmp_path, monkeypatch):
-    head = ("ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty double x\nproperty double y\n"
-            "property double z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n").encode()
+    head = (b"ply\nformat binary_little_endian 1.0\nelement vertex 4\nproperty double x\nproperty double y\n"
+            b"property double z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n")
     body = np.arange(12, dtype="<f8").tobytes()
     mixed = body + struct.pack("<B3i", 3, 0, 1, 2) + struct.pack("<B4i", 4, 0, 1, 2, 3)
     tris = body + struct.pack("<B3i", 3, 0, 1, 2) + struct.pack("<B3i", 3, 1, 2, 3)

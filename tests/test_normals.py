@@ -3,8 +3,8 @@ holodata.geometry.unmirror.normals_from_range): analytic box-room images, exact 
 import numpy as np
 
 from holodata.conventions import Grid
-from holodata.geometry.unmirror import normals_from_range
 from holodata.geometry.planes import agreeing_planes, window_plane_normals
+from holodata.geometry.unmirror import normals_from_range
 
 G = Grid(32, 128)
 # a box room about the radar: walls x = 2.5 / -1.5, y = ±1.5, floor z = -0.4, ceiling z = 2.6

@@ -1,6 +1,7 @@
 """holodata.parallel: work in forked processes, and the memory handed back before forking."""
 from __future__ import annotations
 
+import contextlib
 import sys
 
 import numpy as np
@@ -114,7 +115,5 @@ def test_sigkilled_worker_whose_own_fork_lives_on_is_still_an_error_within_secon
         assert pid_file.read_text().split(), "the worker forked no grandchild: the test proves nothing"
     finally:
         for pid in pid_file.read_text().split() if pid_file.exists() else []:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.kill(int(pid), signal.SIGKILL)
-            except ProcessLookupError:
-                pass

@@ -4,12 +4,19 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
-from holodata.radar import (BeamformParams, ChirpConfig, RigEffects, beam_indices, beamform, beamform_attrs, point_at,
-                            simulate_rotation)
-from holodata.radar.chirp import SPEED_OF_LIGHT
-
 from _radar_reference import beamform_direct, beamform_direct_near, columns_direct
+
+from holodata.radar import (
+    BeamformParams,
+    ChirpConfig,
+    RigEffects,
+    beam_indices,
+    beamform,
+    beamform_attrs,
+    point_at,
+    simulate_rotation,
+)
+from holodata.radar.chirp import SPEED_OF_LIGHT
 
 # a small radar with the same physics (chirp spacing on the circle below λ/4, 90° apertures)
 SMALL = ChirpConfig(n_samples=64, rotation_radius_m=0.03, chirps_per_rotation=256)

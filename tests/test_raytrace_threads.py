@@ -11,6 +11,7 @@ from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 import pytest
+from test_raytrace import HUMAN, l_corridor
 
 import holodata.dataset as hds
 from holodata.conventions import Grid, Label
@@ -19,8 +20,6 @@ from holodata.groundtruth import FrameTracer, GTConfig, HumanDir, HumanFile, Hum
 from holodata.meshio import Mesh, write_ply
 from holodata.raytrace import RayScene
 from holodata.trajectory import Trajectory, read_tum, write_tum
-
-from test_raytrace import HUMAN, l_corridor
 
 T = 9
 

@@ -60,9 +60,8 @@ def small_memory():
 
 
 def assert_one_line_error(fn, path, words: str):
-    with small_memory() as mem:
-        with pytest.raises((InputError, RecordingError)) as e:
-            fn()
+    with small_memory() as mem, pytest.raises((InputError, RecordingError)) as e:
+        fn()
     msg = str(e.value)
     assert str(path) in msg and "\n" not in msg and words in msg, msg
     assert "allocate" not in msg and not isinstance(e.value.__cause__, MemoryError), msg
@@ -323,11 +322,10 @@ def test_mcap_message_record_declaring_a_huge_length(tmp_path):
     d = bytearray(p.read_bytes())
     d[off + 1:off + 9] = struct.pack("<Q", 2 ** 40 + 22)
     p.write_bytes(bytes(d))
-    with small_memory() as mem:
-        with open_recording(p, reader="rosbag2") as r:
-            assert r.kind == "rosbag2-mcap"
-            r.topics()
-            truncated, problems = r.truncated, list(r.problems)
+    with small_memory() as mem, open_recording(p, reader="rosbag2") as r:
+        assert r.kind == "rosbag2-mcap"
+        r.topics()
+        truncated, problems = r.truncated, list(r.problems)
     assert truncated and any(str(p) in x and "declares 1099511627776 bytes" in x for x in problems), problems
     assert mem["peak"] < PEAK, mem
 

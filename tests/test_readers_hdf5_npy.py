@@ -118,9 +118,8 @@ def test_bad_npy_folder(tmp_path):
     with pytest.raises(RecordingError, match="hold no .npy files"):
         open_recording(tmp_path / "t")
     (tmp_path / "t" / "rf_npy" / "00000.npy").write_bytes(b"garbage")
-    with open_recording(tmp_path / "t") as r:
-        with pytest.raises(RecordingError, match="not a readable .npy array"):
-            list(r.messages())
+    with open_recording(tmp_path / "t") as r, pytest.raises(RecordingError, match="not a readable .npy array"):
+        list(r.messages())
 
 
 @pytest.mark.parametrize("attr, kind, radius", [(None, "rotation_centre", 0.0), ("antenna", "rotation_circle", 0.08)])

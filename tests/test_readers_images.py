@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _recordings import FIXTURES, camera_info_msg, image_msg, store_for
 
 from holodata.readers.base import DecodeError
 from holodata.readers.images import camera_model, depth_image, depth_to_points, image_array
-
-from _recordings import FIXTURES, camera_info_msg, image_msg, store_for
 
 
 @pytest.mark.parametrize("fmt", ["mcap", "rosbag1"])

@@ -13,11 +13,11 @@ import pytest
 
 pytest.importorskip("ouster.sdk", reason="ouster-sdk is not installed")
 
+from _recordings import FIXTURES  # noqa: E402
+
 from holodata.errors import RecordingError  # noqa: E402
 from holodata.readers import open_recording  # noqa: E402
 from holodata.readers.ouster import PacketAssembler, sdk_version  # noqa: E402
-
-from _recordings import FIXTURES  # noqa: E402
 
 OUSTER = FIXTURES / "ouster"
 pytestmark = pytest.mark.skipif(not OUSTER.exists(), reason=f"fixture folder {FIXTURES} is absent")
@@ -93,9 +93,9 @@ def test_pcap_scan_matches_independent_packet_decode(stem, H, decode):
 def test_pcap_with_wrong_metadata_fails_loudly(tmp_path):
     shutil.copy(OUSTER / "OS-1-32-G_v2.1.1_1024x10.pcap", tmp_path / "x.pcap")
     shutil.copy(OUSTER / "OS-0-128-U1_v2.3.0_1024x10.json", tmp_path / "x.json")
-    with pytest.raises(RecordingError, match=r"decoded 0 scans.*64x 6464 B to port 7502.*8448 bytes"):
-        with open_recording(tmp_path / "x.pcap") as r:
-            r.topics()
+    with pytest.raises(RecordingError, match=r"decoded 0 scans.*64x 6464 B to port 7502.*8448 bytes"), \
+            open_recording(tmp_path / "x.pcap") as r:
+        r.topics()
     shutil.copy(OUSTER / "OS-1-32-G_v2.1.1_1024x10.pcap", tmp_path / "y.pcap")
     with pytest.raises(RecordingError, match="no Ouster metadata next to it"):
         open_recording(tmp_path / "y.pcap")

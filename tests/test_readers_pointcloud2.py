@@ -5,11 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _recordings import FIXTURES, cloud_msg, store_for
 
 from holodata.readers.base import DecodeError
 from holodata.readers.pointcloud2 import check_pointcloud2, decode_pointcloud2
-
-from _recordings import FIXTURES, cloud_msg, store_for
 
 T = store_for("mcap").types
 STAMP = 1_600_000_000_123_456_789

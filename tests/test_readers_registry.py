@@ -8,12 +8,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _recordings import FIXTURES, Writer, write_recording
 
 from holodata.errors import RecordingError
 from holodata.readers import guess_reader, open_recording
 from holodata.readers.base import DecodeError
-
-from _recordings import FIXTURES, Writer, write_recording
 
 needs_fixtures = pytest.mark.skipif(not FIXTURES.exists(), reason=f"fixture folder {FIXTURES} is absent")
 
@@ -109,9 +108,8 @@ def _folder(d: Path) -> Path:
 ])
 def test_bad_input_is_one_line_recording_error(tmp_path, make, pattern):
     path = make(tmp_path)
-    with pytest.raises(RecordingError, match=pattern) as ei:
-        with open_recording(path) as r:
-            r.topics()
+    with pytest.raises(RecordingError, match=pattern) as ei, open_recording(path) as r:
+        r.topics()
     assert "\n" not in str(ei.value)
 
 
@@ -200,9 +198,8 @@ def test_placeholder_type_hashes_are_tolerated(tmp_path):
     con.commit()
     con.close()
     (bag / "metadata.yaml").write_text(meta)
-    with pytest.raises(Exception, match="hash mismatch"):
-        with AnyReader([bag]) as r:
-            pass
+    with pytest.raises(Exception, match="hash mismatch"), AnyReader([bag]) as r:
+        pass
     with open_recording(bag) as r:
         got = [m for _, _, m in r.messages(["/radar/heatmap"])]
     assert len(got) == 2 == len(truth["radar"])

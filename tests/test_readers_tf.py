@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import numpy as np
+from _recordings import store_for, tf_msg
 from scipy.spatial.transform import Rotation
 
 from holodata.readers.tf import TransformBuffer, transform_matrix
-
-from _recordings import store_for, tf_msg
 
 
 def _T(xyz, yaw_deg=0.0):

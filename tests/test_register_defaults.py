@@ -10,10 +10,10 @@ import json
 
 import numpy as np
 import pytest
+from _corridor import corridor as make_corridor
 from click.testing import CliRunner
 
 from holodata.conventions import Grid, RangeBins, transform_points
-from _corridor import corridor as make_corridor
 
 
 def test_pose_uncertainty_without_inliers_is_a_failed_check_not_a_crash():
@@ -82,7 +82,7 @@ def test_a_person_facing_the_camera_is_not_taken_for_a_wall():
     person = np.concatenate([front, arms]) + rng.normal(0, 0.005, (8000, 3))
     cloud = np.concatenate([floor, wall, person])
     cfg = RegisterConfig()
-    assert 1.8 < PERSON_MAX_HEIGHT_M and 0.73 < cfg.max_width_m     # the person fits
+    assert PERSON_MAX_HEIGHT_M > 1.8 and cfg.max_width_m > 0.73     # the person fits
     resid = static_residual(cloud, cfg)
     assert resid[-8000:].mean() > 0.95, resid[-8000:].mean()
     assert resid[:-8000].mean() < 0.01

@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _corridor import corridor as make_corridor
 
 from holodata.conventions import transform_points
-from _corridor import corridor as make_corridor
 
 
 def _yawed(T: np.ndarray, deg: float) -> np.ndarray:

@@ -9,8 +9,8 @@ import numpy as np
 
 from holodata.mapping.register import RegisterConfig
 from holodata.mapping.register.humans import ColumnShape, body_columns, column_centroid
-from holodata.mapping.register.tracks import side_back, track_heading_velocity
 from holodata.mapping.register.steps import body_only
+from holodata.mapping.register.tracks import side_back, track_heading_velocity
 
 CFG = RegisterConfig()
 

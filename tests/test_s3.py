@@ -13,13 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _recordings import write_recording
 from click.testing import CliRunner
+from test_distributed import free_port, gt_args, make_inputs, manifests
 
 import holodata.dataset as hds
 from holodata.cli.main import cli
-
-from _recordings import write_recording
-from test_distributed import free_port, gt_args, make_inputs, manifests
 
 pytestmark = pytest.mark.slow   # Dask clusters / a moto S3 server / whole recordings: the full tier
 
@@ -166,9 +165,9 @@ def test_cli_ingest_out_s3_and_missing_dataset(s3, tmp_path):
 
 def test_training_reader_on_s3(s3, tmp_path):
     torch = pytest.importorskip("torch")
+    import _eval_dataset as E
     import fsspec
 
-    import _eval_dataset as E
     from holodata.torch import HeatmapDataset
 
     E.build(str(tmp_path / "train.zarr"))  # built locally, uploaded as is (an `aws s3 sync` of a dataset)

@@ -1,5 +1,6 @@
 """``holodata synth --corners``: training corners at scale as one dataset (issue 42 point 1)."""
 import re
+
 import numpy as np
 import pytest
 from click.testing import CliRunner

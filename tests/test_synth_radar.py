@@ -5,7 +5,7 @@ import pytest
 from holodata.conventions import Grid, RangeBins
 from holodata.raytrace import RayScene
 from holodata.synth.radar import RadarConfig, RadarModel, range_response
-from holodata.synth.worlds import MATERIALS, MATERIAL_ID
+from holodata.synth.worlds import MATERIAL_ID, MATERIALS
 
 DR = 0.0375
 GRID = Grid(9, 32)  # row 4 looks at 0° elevation, column 0 along +x

@@ -4,8 +4,7 @@ import pytest
 
 from holodata.synth.human import HumanWalk, human_mesh
 from holodata.synth.motion import odometry, robot_trajectory
-from holodata.synth.worlds import (CLASS_ID, CORNER_TYPES, MATERIALS, hidden_from, make_world, polygon_area,
-                                   triangulate_polygon)
+from holodata.synth.worlds import CLASS_ID, CORNER_TYPES, MATERIALS, hidden_from, make_world, polygon_area, triangulate_polygon
 
 
 @pytest.mark.parametrize("corner", CORNER_TYPES)

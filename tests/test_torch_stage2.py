@@ -13,9 +13,23 @@ import _eval_dataset as E  # noqa: E402
 from holodata.conventions import Grid  # noqa: E402
 from holodata.geometry.unmirror import normals_from_range, unmirror  # noqa: E402
 from holodata.torch.stage2 import (  # noqa: E402
-    RayTracer, RayTracerConfig, RefinerConfig, SparseConv3, VoxelEncoder, VoxelRefiner, geometry_vector,
-    local_frame, mirror_normals, neighbour_table, normals_from_range_t, ray_trace, refine_loss, reflect,
-    to_local, voxel_point_mean, voxelize,
+    RayTracer,
+    RayTracerConfig,
+    RefinerConfig,
+    SparseConv3,
+    VoxelEncoder,
+    VoxelRefiner,
+    geometry_vector,
+    local_frame,
+    mirror_normals,
+    neighbour_table,
+    normals_from_range_t,
+    ray_trace,
+    refine_loss,
+    reflect,
+    to_local,
+    voxel_point_mean,
+    voxelize,
 )
 from holodata.torch.stage2_infer import KEEP_CANDIDATES, load_stage2  # noqa: E402
 from holodata.torch.stage2_train import Stage2Config, fit_stage2, load_frames, refine_targets  # noqa: E402

@@ -9,8 +9,19 @@ from _torch_synth import synth_frames  # noqa: E402
 
 from holodata.errors import InputError  # noqa: E402
 from holodata.torch import (  # noqa: E402
-    ArrayFrames, HeatmapNorm, ModelConfig, MultiReturnUNet, RunOptions, SampleTransform, TrainConfig, fit,
-    load_checkpoint, masked_gradient_loss, masked_l1, model_from_checkpoint, split_scenes,
+    ArrayFrames,
+    HeatmapNorm,
+    ModelConfig,
+    MultiReturnUNet,
+    RunOptions,
+    SampleTransform,
+    TrainConfig,
+    fit,
+    load_checkpoint,
+    masked_gradient_loss,
+    masked_l1,
+    model_from_checkpoint,
+    split_scenes,
 )
 
 TINY = dict(depth=3, base_channels=8, max_channels=16, blocks=1, batch_size=4)

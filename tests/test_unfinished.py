@@ -12,9 +12,10 @@ import shutil
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
-
 from _kill import Killed, kill_sweep, killed_at
+from click.testing import CliRunner
+from test_raytrace import box
+
 from holodata.cli.main import cli
 from holodata.conventions import Grid
 from holodata.dataset import create_dataset, open_dataset, validate_dataset
@@ -22,7 +23,6 @@ from holodata.errors import DatasetError
 from holodata.groundtruth import GTConfig, RaytraceStandalone, raytrace_dataset
 from holodata.meshio import Mesh, write_ply
 from holodata.trajectory import Trajectory, write_tum
-from test_raytrace import box
 
 GRID = Grid(8, 32)
 
@@ -86,9 +86,8 @@ def test_a_marked_scene_does_not_validate_names_the_stage_and_other_stages_refus
 def test_the_stage_context_leaves_the_mark_when_the_block_does_not_complete(tmp_path):
     url = str(tmp_path / "ds.zarr")
     sc = create_dataset(url, grid=GRID, created_by="test").scene("c", n_frames=1)
-    with pytest.raises(KeyboardInterrupt):
-        with sc.stage("demo"):
-            raise KeyboardInterrupt
+    with pytest.raises(KeyboardInterrupt), sc.stage("demo"):
+        raise KeyboardInterrupt
     assert list(sc.unfinished) == ["demo"]
     with sc.stage("demo"):
         pass
@@ -177,7 +176,7 @@ def test_slam_killed_at_every_write(tiny_recording, tmp_path, monkeypatch):
     runs once and is replayed: the sweep checks what slam commits and how its rerun resumes."""
     import copy
 
-    import holodata.mapping.slam.pipeline as slam   # where slam_scene's steps are looked up
+    import holodata.mapping.slam.pipeline as slam  # where slam_scene's steps are looked up
     from holodata.ingest import ingest
     from holodata.mapping.slam import slam_scene
 
@@ -202,6 +201,7 @@ def test_slam_killed_at_every_write(tiny_recording, tmp_path, monkeypatch):
 @pytest.mark.slow
 def test_register_killed_at_every_write(tmp_path):
     from _mapping_synth import small_corner
+
     from holodata.mapping.register import RegisterConfig, register_scene
 
     src, _ = small_corner()

@@ -20,11 +20,30 @@ import pytest
 from holodata.conventions import Grid, RangeBins
 from holodata.dataset import create_dataset
 from holodata.dataset import shards as sh
-from holodata.dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS, CAMERA_TIMESTAMP_NS, DECLARATIONS,
-                                     GT_ARRAYS, GT_HUMAN_CENTER, GT_RANGE, GT_SEMANTIC, HUMAN_FACES, HUMAN_POINTS,
-                                     HUMAN_VERTICES, LAYOUT, LIDAR_POINTS, LIDAR_TIMESTAMP_NS, MESH_FACES,
-                                     MESH_VERTICES, POSE_T_WORLD_LIDAR, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS,
-                                     RADAR_HEATMAP, TIME_TIMESTAMP_NS, required_arrays)
+from holodata.dataset.layout import (
+    CALIB_T_WORLD_CAMERA,
+    CAMERA_POINTS,
+    CAMERA_TIMESTAMP_NS,
+    DECLARATIONS,
+    GT_ARRAYS,
+    GT_HUMAN_CENTER,
+    GT_RANGE,
+    GT_SEMANTIC,
+    HUMAN_FACES,
+    HUMAN_POINTS,
+    HUMAN_VERTICES,
+    LAYOUT,
+    LIDAR_POINTS,
+    LIDAR_TIMESTAMP_NS,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_LIDAR,
+    POSE_T_WORLD_RADAR,
+    RADAR_CYCLE_NS,
+    RADAR_HEATMAP,
+    TIME_TIMESTAMP_NS,
+    required_arrays,
+)
 from holodata.dataset.store import Store
 from holodata.dataset.synthetic import array_specs, toy_frames
 from holodata.dataset.validate import validate_dataset

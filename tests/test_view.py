@@ -3,6 +3,7 @@ frame counts expected; one-line errors for bad input."""
 from __future__ import annotations
 
 import re
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -58,7 +59,7 @@ def _listening(port: int) -> set[str]:
     out = set()
     for f, fam in (("/proc/net/tcp", 4), ("/proc/net/tcp6", 6)):
         try:
-            rows = open(f).read().splitlines()[1:]
+            rows = Path(f).read_text().splitlines()[1:]
         except FileNotFoundError:
             continue
         for row in rows:

@@ -67,7 +67,8 @@ def ingest(recordings, out, list_only, topics_file, scene_ids, msg_dir, meta, to
     import sys
 
     from holodata.dataset.info import plural
-    from holodata.ingest import IngestOptions, format_listing, ingest as run_ingest, list_recording
+    from holodata.ingest import IngestOptions, format_listing, list_recording
+    from holodata.ingest import ingest as run_ingest
 
     beamform = _beamform_params(beamform_grid, beamform_fov, beamform_focus)
     bf_kw = {"beamform": beamform} if beamform is not None else {}

@@ -10,6 +10,7 @@ and a missing module of an extra met later is named by its extra (:func:`holodat
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
 import signal
@@ -80,10 +81,8 @@ def close_filesystems() -> None:
         return
     from holodata.dataset.store import close_filesystems as close
 
-    try:
+    with contextlib.suppress(Exception):   # any failure: the command's result and exit code stand
         close()
-    except Exception:  # noqa: BLE001 - the command's result and exit code stand
-        pass
 
 
 def one_line(err: BaseException) -> str:

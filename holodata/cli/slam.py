@@ -74,9 +74,8 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
                            outputs=SlamOutputs(force=force, tum=tum, ply=ply), single_exports=True, map_scene=map_scene)
     out = {"dataset": dataset, "scenes": [r.summary for r in results]}
     if truth:
-        from holodata.mapping.accuracy import evaluate_slam
-
         import holodata
+        from holodata.mapping.accuracy import evaluate_slam
         from holodata.mapping.slam import MAPPING_ROLE
 
         r = results[0]

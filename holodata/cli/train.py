@@ -2,6 +2,8 @@
 and volumetric refiner) on a dataset's train split."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
 from holodata.cli.options import json_option, quiet_option
@@ -50,12 +52,12 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     On a GPU: add --device cuda. Data-parallel: torchrun --nproc-per-node 2 -m holodata.cli.main train
     DS --out RUN (same global batch and seed; rank 0 writes the checkpoints and trains stage two).
     """
-    from holodata.torch import ddp
-    from holodata.torch.stage2_train import Stage2Config, train_stage2
-    from holodata.torch.train import TrainConfig, train as run_train
-
     from holodata.dataset import open_dataset
     from holodata.dataset.splits import split_scenes
+    from holodata.torch import ddp
+    from holodata.torch.stage2_train import Stage2Config, train_stage2
+    from holodata.torch.train import TrainConfig
+    from holodata.torch.train import train as run_train
 
     def check_split() -> None:   # a missing or empty split, or leakage: one line before any training
         split_scenes(open_dataset(dataset), "train")
@@ -134,7 +136,7 @@ def _read_mapping(path) -> dict:
     from holodata.errors import InputError
 
     try:
-        data = yaml.safe_load(open(path).read()) or {}
+        data = yaml.safe_load(Path(path).read_text()) or {}
     except (OSError, yaml.YAMLError) as err:
         raise InputError(f"{path}: cannot read stage-two config ({' '.join(str(err).split())})") from err
     if not isinstance(data, dict):

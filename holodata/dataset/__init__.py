@@ -11,8 +11,7 @@ from __future__ import annotations
 
 from .reader import Dataset, Ragged, Scene
 from .reader import open_dataset as _open_read
-from .writer import (DEFAULT_SHARD_FRAMES, DatasetWriter, FrameArrayWriter, FrameStorage, RaggedWriter,
-                     SceneWriter, create_dataset)
+from .writer import DEFAULT_SHARD_FRAMES, DatasetWriter, FrameArrayWriter, FrameStorage, RaggedWriter, SceneWriter, create_dataset
 
 
 def open_dataset(path_or_url, mode: str = "r", created_by: str = "holodata", **writer_options):

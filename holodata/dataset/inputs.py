@@ -16,8 +16,17 @@ from __future__ import annotations
 import hashlib
 import json
 
-from .layout import (HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES, MESH_FACE_CLASS, MESH_FACES, MESH_VERTICES,
-                     POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, TIME_TIMESTAMP_NS)
+from .layout import (
+    HUMAN_FACES,
+    HUMAN_POINTS,
+    HUMAN_VERTICES,
+    MESH_FACE_CLASS,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_RADAR,
+    RADAR_CYCLE_NS,
+    TIME_TIMESTAMP_NS,
+)
 
 
 def array_digest(meta: dict) -> str | None:

@@ -18,8 +18,8 @@ the pattern is the whole array, frame axis first; for ragged arrays it is one ro
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 NAN = float("nan")
 

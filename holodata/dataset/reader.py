@@ -92,7 +92,7 @@ def unfinished_line(stage: str, rec: dict) -> str:
     return f"unfinished: {stage} did not finish (interrupted, or still running{since}): {hint or f'rerun holodata {stage}'}"
 
 
-def open_dataset(path_or_url) -> "Dataset":
+def open_dataset(path_or_url) -> Dataset:
     """Open a dataset read-only and lazily. Bad paths raise a one-line :class:`DatasetError`."""
     return Dataset(path_or_url)
 
@@ -140,7 +140,7 @@ class Dataset:
     def scenes(self) -> list[str]:
         return [n for n in self.store.list("scenes") if self.store.is_file(f"scenes/{n}/zarr.json")]
 
-    def scene(self, scene_id: str) -> "Scene":
+    def scene(self, scene_id: str) -> Scene:
         why = name_problem(scene_id)   # '..' would be the dataset root, 'a\\b' a nested group
         if why is not None:
             raise DatasetError(f"{self.url}: scene id {scene_id!r} refused: {why}")
@@ -207,7 +207,7 @@ class Scene:
                 return out
         return np.asarray(self[name][int(k)])
 
-    def _get_ragged(self, name: str) -> "Ragged":
+    def _get_ragged(self, name: str) -> Ragged:
         if name not in self._ragged:
             self._ragged[name] = Ragged(self, name)
         return self._ragged[name]

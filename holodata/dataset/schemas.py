@@ -2,17 +2,17 @@
 from __future__ import annotations
 
 import json
-from functools import lru_cache
+from functools import cache
 from importlib import resources
 
 
-@lru_cache(maxsize=None)
+@cache
 def load_schema(name: str) -> dict:
     """``name``: 'dataset' | 'scene' | 'metrics' -> the parsed ``<name>.schema.json``."""
     return json.loads(resources.files("holodata.schemas").joinpath(f"{name}.schema.json").read_text())
 
 
-@lru_cache(maxsize=None)
+@cache
 def _validator(name: str):
     import jsonschema
 

@@ -24,7 +24,6 @@ from typing import Any
 
 from ..errors import DatasetError
 
-
 # protocols whose single-object PUT is atomic (no in-place partial writes)
 ATOMIC_PUT_PROTOCOLS = {"s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "adl", "oss", "memory", "r2", "b2"}
 
@@ -144,10 +143,10 @@ class Store:
             tmp = p.parent / f".{p.name}.{uuid.uuid4().hex}.partial"
             try:
                 try:
-                    f = open(tmp, "wb")
+                    f = open(tmp, "wb")  # noqa: SIM115 - closed by the "with f:" below, once it opened
                 except FileNotFoundError:    # folder removed since (SceneWriter.remove): make it again
                     p.parent.mkdir(parents=True, exist_ok=True)
-                    f = open(tmp, "wb")
+                    f = open(tmp, "wb")  # noqa: SIM115
                 with f:
                     if isinstance(data, (list, tuple)):
                         f.writelines(data)

@@ -10,8 +10,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..conventions import DEFAULT_MAX_RANGE_M, Grid, RangeBins
-from .layout import (GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, LIDAR_POINTS, MESH_FACES, MESH_VERTICES,
-                     POSE_T_WORLD_RADAR, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
+from .layout import (
+    GT_LABEL,
+    GT_NORMAL,
+    GT_POINT,
+    GT_RANGE,
+    LIDAR_POINTS,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_RADAR,
+    RADAR_HEATMAP,
+    TIME_TIMESTAMP_NS,
+)
 from .writer import create_dataset
 
 

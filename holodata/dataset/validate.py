@@ -27,14 +27,31 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from . import shards as sh
-from .array_checks import (MAX_LINES_PER_RULE, _check_foreign, _check_ragged, _check_small, _metadata_line,
-                           _missing_shards, _Walk, sh_json)
+from .array_checks import (
+    MAX_LINES_PER_RULE,
+    _check_foreign,
+    _check_ragged,
+    _check_small,
+    _metadata_line,
+    _missing_shards,
+    _Walk,
+    sh_json,
+)
 from .bounded import is_int
 from .heatmap import code_of_meta
 from .info import stored_bytes
 from .inputs import gt_inputs, stale_inputs
-from .layout import (GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, RADAR_HEATMAP, TIME_TIMESTAMP_NS,
-                     required_arrays, spec)
+from .layout import (
+    GT_HUMAN_CENTER,
+    GT_LABEL,
+    GT_NORMAL,
+    GT_POINT,
+    GT_RANGE,
+    RADAR_HEATMAP,
+    TIME_TIMESTAMP_NS,
+    required_arrays,
+    spec,
+)
 from .reader import Dataset, Scene, list_nodes, open_dataset, unfinished_line
 from .schemas import schema_errors
 from .value_rules import _value_rules, frames_not_finite_nonneg  # noqa: F401 - re-exported (ingest)

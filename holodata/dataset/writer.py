@@ -35,17 +35,22 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator
 
 import numpy as np
 
 from ..conventions import FORMAT_VERSION, Grid, RangeBins
 from ..errors import DatasetError
 from . import shards as sh
-from .array_writers import GRID_ARRAYS, FrameArrayWriter, RaggedWriter, _json
-from .array_writers import ragged_digest  # noqa: F401 - re-exported
+from .array_writers import (
+    GRID_ARRAYS,
+    FrameArrayWriter,
+    RaggedWriter,
+    _json,
+    ragged_digest,  # noqa: F401 - re-exported
+)
 from .store import Store
 
 DEFAULT_SHARD_FRAMES = 32
@@ -186,7 +191,7 @@ def _put_small_array(store: Store, path: str, data: np.ndarray, **kw) -> None:
 def create_dataset(url, grid: Grid | None = None, range_bins: RangeBins | None = None,
                    created_by: str = "holodata", provenance: dict | None = None,
                    shard_frames: int = DEFAULT_SHARD_FRAMES, codec: str = "zstd", clevel: int | None = None
-                   ) -> "DatasetWriter":
+                   ) -> DatasetWriter:
     """Create a dataset at ``url`` (local path or fsspec URL), or reopen it for resuming.
 
     ``grid=None``: no radar grid is known yet (a LiDAR-only dataset): the root records the conventions'
@@ -324,7 +329,7 @@ class DatasetWriter:
         return [n for n in self.store.list("scenes") if self.store.is_file(f"scenes/{n}/zarr.json")]
 
     def scene(self, scene_id: str, n_frames: int | None = None, attrs: dict | None = None, stage: str | None = None,
-              rerun: str | None = None) -> "SceneWriter":
+              rerun: str | None = None) -> SceneWriter:
         """Create scene ``scene_id`` with ``n_frames`` frames, or reopen it (same ``n_frames``).
         ``stage``: the command about to write it marks it unfinished (:meth:`SceneWriter.begin`) in the
         same atomic put that creates the scene or merges ``attrs``; it calls
@@ -414,7 +419,7 @@ class SceneWriter:
         self._update(attrs or {}, unmark=stage)
 
     @contextmanager
-    def stage(self, stage: str, rerun: str | None = None) -> Iterator["SceneWriter"]:
+    def stage(self, stage: str, rerun: str | None = None) -> Iterator[SceneWriter]:
         """``with sc.stage("raytrace-gt"): ...writes...``: :meth:`begin` on entry, :meth:`finish` when
         the block completes (unless it finished the stage itself); an exception or a kill leaves the
         mark."""
@@ -442,7 +447,7 @@ class SceneWriter:
 
     def frame_array(self, name: str, per_frame_shape=(), dtype=None, dims=None, units=None,
                     fill_value=None, attrs: dict | None = None,
-                    storage: FrameStorage | None = None) -> "FrameArrayWriter":
+                    storage: FrameStorage | None = None) -> FrameArrayWriter:
         """Create (or reopen, same shape/dtype) a frame array (T,) + per_frame_shape: one frame per
         chunk, ``storage.shard_frames`` frames per shard (:class:`FrameStorage`). ``dtype``, ``dims``,
         ``units`` and ``fill_value`` are the layout's (:mod:`holodata.dataset.layout`) for the arrays it
@@ -508,7 +513,7 @@ class SceneWriter:
                          compressors=sh.compressor(self.ds.codec, self.ds.clevel), attributes=base, fill_value=0)
 
     def ragged_array(self, name: str, width: int | None = None, dtype=None, units: str | None = None, dims=None,
-                     shard_frames: int | None = None, codec: str | None = None) -> "RaggedWriter":
+                     shard_frames: int | None = None, codec: str | None = None) -> RaggedWriter:
         """Create (or reopen) ragged array ``name``: values (N, width) + offsets (T+1,) int64.
         ``codec``: of the values (default: the dataset's); ``width``, ``dtype``, ``dims`` and ``units``:
         the layout's for the arrays it knows (for others float32, ``point, xyz|component`` and "1";

@@ -6,9 +6,10 @@ point; it imports torch only to run the model.
 """
 from __future__ import annotations
 
+from holodata.geometry.unmirror import los_mask, normals_from_range, unmirror
+
 from .baseline import strongest_peaks
 from .pipeline import Evaluation
 from .report import format_tables
-from holodata.geometry.unmirror import los_mask, normals_from_range, unmirror
 
 __all__ = ["Evaluation", "format_tables", "strongest_peaks", "los_mask", "normals_from_range", "unmirror"]

@@ -3,6 +3,7 @@ about 1170 px wide (shown at its natural size in the report's 1200 px column) an
 legend outside the axes."""
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 from pathlib import Path
@@ -196,10 +197,8 @@ def fig_prf(path: Path, doc: dict) -> None:
 def fig_training(path: Path, log: Path) -> bool:
     rows = []
     for line in log.read_text().splitlines():
-        try:
+        with contextlib.suppress(ValueError):
             rows.append(json.loads(line))
-        except ValueError:
-            pass
     if not rows:
         return False
     plt = _plt()

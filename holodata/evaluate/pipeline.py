@@ -27,12 +27,12 @@ import numpy as np
 
 from holodata import metrics as M
 from holodata.conventions import Grid, RangeBins, is_human, is_los, reduced_grid
+from holodata.geometry.unmirror import los_mask, unmirror
 from holodata.ownership import claim_folder
 from holodata.progress import track
+from holodata.scene_beams import FrameGeometry, SceneBeams
 
 from .baseline import strongest_peaks
-from holodata.scene_beams import FrameGeometry, SceneBeams
-from holodata.geometry.unmirror import los_mask, unmirror
 
 METHODS = ("model", "baseline")
 # Table-2 rows when the run has a learned stage two (RUN/stage2.pt): the refined model, the model's
@@ -313,10 +313,9 @@ class Evaluation:
         that the run's stage one fits it (not for an oracle run) and select the split's frames."""
         from holodata.dataset import open_dataset
         from holodata.torch.data import HeatmapDataset
+        from holodata.torch.pretrained import resolve
 
         from .predict import Predictor
-
-        from holodata.torch.pretrained import resolve
 
         checkpoint = None if self.oracle else resolve(self.checkpoint)
         out = Path(self.out_dir)

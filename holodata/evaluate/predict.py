@@ -15,9 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from holodata.conventions import Grid, is_human, is_los
-
-from holodata.scene_beams import FrameGeometry
 from holodata.geometry.unmirror import los_mask, unmirror
+from holodata.scene_beams import FrameGeometry
 
 
 @dataclass
@@ -39,10 +38,10 @@ class Predictor:
         return self.estimator or (self.model.cfg.estimator if self.model is not None else "mean")
 
     @classmethod
-    def load(cls, checkpoint, device: str = "cpu", estimator: str | None = None, oracle: bool = False) -> "Predictor":
+    def load(cls, checkpoint, device: str = "cpu", estimator: str | None = None, oracle: bool = False) -> Predictor:
         """Load ``checkpoint`` (a run directory or its checkpoint file); ``oracle``: no model."""
-        from holodata.torch.data import HeatmapNorm
         from holodata.torch.checkpoint import load_checkpoint
+        from holodata.torch.data import HeatmapNorm
         from holodata.torch.train import model_from_checkpoint, resolve_device
 
         dev = resolve_device(device)

@@ -14,8 +14,7 @@ from pathlib import Path
 
 from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MIN_POINTS
 
-from .figures import (BEV_ORDER, COLORS, fig_bev, fig_error_cdf, fig_hidden_side, fig_prf,  # noqa: F401
-                      fig_range_images, fig_training)
+from .figures import BEV_ORDER, COLORS, fig_bev, fig_error_cdf, fig_hidden_side, fig_prf, fig_range_images, fig_training  # noqa: F401
 
 # the paper's Table 3 rows, in its order: (group, band, label); bands the split lacks show "–"
 TABLE3_ROWS = (

@@ -5,12 +5,39 @@ range images into real points (:mod:`.unmirror`, stage two without learning). Ar
 I/O, no dataset types."""
 from __future__ import annotations
 
-from .icp import (IcpParams, Step, StepRule, about_origin, centred_offset, gauss_newton_step, hold_at, moved_by,
-                  open3d_icp, point_to_plane_icp, tukey_weights)
-from .planes import (PlaneRansac, agreeing_planes, fit_height_plane, fit_plane, local_plane_projection, ransac_plane,
-                     window_plane_normals)
-from .voxels import (cell_keys, dense_box, first_per_voxel, flat_index, unique_voxels, unpack_keys, voxel_average,
-                     voxel_index, voxel_keys)
+from .icp import (
+                  IcpParams,
+                  Step,
+                  StepRule,
+                  about_origin,
+                  centred_offset,
+                  gauss_newton_step,
+                  hold_at,
+                  moved_by,
+                  open3d_icp,
+                  point_to_plane_icp,
+                  tukey_weights,
+)
+from .planes import (
+                  PlaneRansac,
+                  agreeing_planes,
+                  fit_height_plane,
+                  fit_plane,
+                  local_plane_projection,
+                  ransac_plane,
+                  window_plane_normals,
+)
+from .voxels import (
+                  cell_keys,
+                  dense_box,
+                  first_per_voxel,
+                  flat_index,
+                  unique_voxels,
+                  unpack_keys,
+                  voxel_average,
+                  voxel_index,
+                  voxel_keys,
+)
 
 __all__ = ["IcpParams", "Step", "StepRule", "PlaneRansac", "about_origin", "centred_offset", "gauss_newton_step",
            "hold_at", "moved_by", "open3d_icp", "point_to_plane_icp", "tukey_weights", "agreeing_planes",

@@ -52,17 +52,23 @@ rejected with a one-line reason.
 
 from __future__ import annotations
 
-# ``name as name``: importable from the package since its code lived here, kept so; not in __all__
-from .roles import RADAR_SUFFIX as RADAR_SUFFIX, TopicMap, load_topics_file, map_topics
-from .radar_streams import radar_stream as radar_stream
-from .plan import (Plan, _grid_of as _grid_of, _limit_malloc_arenas as _limit_malloc_arenas, _scene_id as _scene_id,
-                   plan_recording)
 from .listing import format_listing, list_recording
-from .write import write_plan
-from .run import (IngestOptions, _create as _create, _error_line as _error_line, _failures as _failures,
-                  _ingest_task as _ingest_task, _passes as _passes, check_grid, ingest, ingest_dask, ingest_one,
-                  open_for_ingest, radar_grid)
+from .plan import Plan, plan_recording
+from .plan import _grid_of as _grid_of
+from .plan import _limit_malloc_arenas as _limit_malloc_arenas
+from .plan import _scene_id as _scene_id
+from .radar_streams import radar_stream as radar_stream
 
+# ``name as name``: importable from the package since its code lived here, kept so; not in __all__
+from .roles import RADAR_SUFFIX as RADAR_SUFFIX
+from .roles import TopicMap, load_topics_file, map_topics
+from .run import IngestOptions, check_grid, ingest, ingest_dask, ingest_one, open_for_ingest, radar_grid
+from .run import _create as _create
+from .run import _error_line as _error_line
+from .run import _failures as _failures
+from .run import _ingest_task as _ingest_task
+from .run import _passes as _passes
+from .write import write_plan
 
 __all__ = ["ingest", "ingest_one", "open_for_ingest", "IngestOptions", "ingest_dask",
            "plan_recording", "write_plan", "check_grid", "radar_grid", "list_recording",

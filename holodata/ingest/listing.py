@@ -5,8 +5,8 @@ from pathlib import Path
 
 from ..errors import HolodataError, one_line
 from ..readers import open_recording
-from .roles import ROLES, TopicMap, load_topics_file, map_topics
 from .plan import _reject_reason
+from .roles import ROLES, TopicMap, load_topics_file, map_topics
 
 
 def list_recording(path, msg_dir=None, meta=None, topics=None, beamform=None, motion=None) -> dict:

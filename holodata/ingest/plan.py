@@ -15,10 +15,19 @@ from ..conventions import Grid, RangeBins
 from ..errors import HolodataError, InputError, RecordingError, one_line
 from ..readers import SYNTH_MAPPING, synth_output_folder
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
-from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, map_topics
 from .radar_streams import RadarStream, RawRadarStream, radar_stream
-from .streams import (CameraCloudStream, CloudStream, DepthStream, GridStream, OusterPacketStream, OusterScanStream,
-                      PointsStream, StereoStream, _Stream)
+from .roles import DEFAULT_TOLERANCE_MS, IMAGE, OUSTER_PACKETS, OUSTER_SCAN, PC2, TopicMap, map_topics
+from .streams import (
+    CameraCloudStream,
+    CloudStream,
+    DepthStream,
+    GridStream,
+    OusterPacketStream,
+    OusterScanStream,
+    PointsStream,
+    StereoStream,
+    _Stream,
+)
 
 
 @dataclass
@@ -159,9 +168,9 @@ def plan_recording(rec: Recording, topics: dict | None = None, scene_id: str | N
     samples (the one ``rec`` was opened with); ``keep_iq``: also store those samples (``radar/iq``,
     for ``holodata beamform``); ``motion``: the override ``rec`` was opened with (a warning when
     the recording has no folder-name rule for it to override)."""
-    from ..progress import track
-
     from concurrent.futures import ThreadPoolExecutor
+
+    from ..progress import track
 
     _limit_malloc_arenas()
     pool = ThreadPoolExecutor(1)   # checksums overlap the index pass (hashlib releases the GIL)

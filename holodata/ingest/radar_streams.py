@@ -13,6 +13,7 @@ from ..dataset.validate import frames_not_finite_nonneg
 from ..readers.base import DecodeError
 from .streams import _Stream
 
+
 def radar_beam_origin(msg, topic: str = "radar"):
     """The beam-origin model (:class:`holodata.beams.OriginModel`) a RadarHeatmap message states:
     ``range_origin`` "rotation_centre" (or empty, as in recordings older than the field) → ranges

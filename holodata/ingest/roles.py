@@ -8,7 +8,6 @@ from pathlib import Path
 from ..errors import HolodataError, InputError, one_line
 from ..readers.base import POINTS_TYPE, RANGE_IMAGE_TYPE, Recording, TopicInfo
 
-
 RADAR_SUFFIX = ("/RadarHeatmap", "/RadarRawRotation")   # heatmaps, raw rotations (beamformed by ingest)
 RAW_SUFFIX = "/RadarRawRotation"
 PC2 = "sensor_msgs/msg/PointCloud2"

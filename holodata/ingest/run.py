@@ -16,9 +16,9 @@ from ..errors import HolodataError, InputError, RecordingError, one_line
 from ..readers import open_recording
 from ..readers.base import Recording
 from ..safe_io import check_name
-from .roles import RADAR_SUFFIX, load_topics_file, map_topics
-from .radar_streams import radar_stream
 from .plan import Plan, _grid_of, _limit_malloc_arenas, _scene_id, plan_recording
+from .radar_streams import radar_stream
+from .roles import RADAR_SUFFIX, load_topics_file, map_topics
 from .write import write_plan
 
 
@@ -53,7 +53,7 @@ def _request(recordings, scene_ids, opts: IngestOptions) -> tuple[list[Path], li
     if opts.tolerance_ms is not None and opts.tolerance_ms <= 0:
         raise InputError(f"--tolerance must be > 0 ms, got {opts.tolerance_ms}")
     try:
-        from .. import __version__ as version    # holodata's
+        from .. import __version__ as version  # holodata's
     except ImportError:  # pragma: no cover
         version = "?"
     provenance = opts.provenance or {"tool": "holodata ingest", "version": version}

@@ -3,6 +3,7 @@ depth images, stereo pairs; the radar's in :mod:`.radar_streams`) turning record
 frame payloads."""
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -361,10 +362,8 @@ class DepthStream(_Stream):
             from ..readers.images import camera_model
 
             raw, self._info_raw = self._info_raw, None
-            try:
+            with contextlib.suppress(HolodataError):
                 self.model = camera_model(self.rec.decode(raw), self.info_topic)
-            except HolodataError:
-                pass
 
     def convert(self, raw, keep):
         from ..readers.images import depth_image, depth_to_points

@@ -9,14 +9,26 @@ from pathlib import Path
 
 import numpy as np
 
+from ..dataset.layout import (
+    LIDAR_POINT_TIME_NS,
+    LIDAR_RANGE,
+    POINTS_OF,
+    POSE_T_WORLD_RADAR,
+    RADAR_CYCLE_NS,
+    RADAR_HEATMAP,
+    RADAR_IQ,
+    RADAR_IQ_MOTION,
+    RADAR_IQ_SPAN,
+    RADAR_IQ_STATIC,
+    STAMPS_OF,
+    TF_T_WORLD_LIDAR,
+    TIME_TIMESTAMP_NS,
+)
 from ..dataset.writer import FrameStorage
-from ..dataset.layout import (LIDAR_POINT_TIME_NS, LIDAR_RANGE, POINTS_OF, POSE_T_WORLD_RADAR, RADAR_CYCLE_NS,
-                              RADAR_HEATMAP, RADAR_IQ, RADAR_IQ_MOTION, RADAR_IQ_SPAN, RADAR_IQ_STATIC, STAMPS_OF,
-                              TF_T_WORLD_LIDAR, TIME_TIMESTAMP_NS)
 from ..errors import DatasetError, HolodataError, RecordingError, one_line
 from ..readers.base import DecodeError
-from .roles import BULK_CODEC, SHARD_TARGET_BYTES
 from .plan import SOURCE_HASH, Plan, _head_topics, _limit_malloc_arenas, file_digests, file_sha256
+from .roles import BULK_CODEC, SHARD_TARGET_BYTES
 from .sensors import extrinsics, sensor_attrs, sensor_frame, world_frame
 
 

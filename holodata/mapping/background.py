@@ -102,7 +102,7 @@ class VoxelBackground:
     @classmethod
     def build(cls, points_world: list[np.ndarray], voxel: float = 0.15, min_fraction: float = 0.25,
               min_hits: int = 2, origins: list | np.ndarray | None = None, observe_radius: float | None = None,
-              angle_res_deg: float = 0.5, max_scans: int = 80) -> "VoxelBackground":
+              angle_res_deg: float = 0.5, max_scans: int = 80) -> VoxelBackground:
         """Background from world-frame scans ``points_world`` (list of (Ni,3), m).
 
         With ``origins`` (the sensor position (3,) of each scan, world frame) — free-space test: each

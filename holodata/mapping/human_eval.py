@@ -31,8 +31,15 @@ from pathlib import Path
 import numpy as np
 
 from ..conventions import rotation_angle_deg
-from ..dataset.layout import (CALIB_T_WORLD_CAMERA, HUMAN_FACES, HUMAN_VERTICES, LIDAR_INSTANCE, LIDAR_TIMESTAMP_NS,
-                              POSE_T_WORLD_LIDAR, POSE_T_WORLD_RADAR)
+from ..dataset.layout import (
+    CALIB_T_WORLD_CAMERA,
+    HUMAN_FACES,
+    HUMAN_VERTICES,
+    LIDAR_INSTANCE,
+    LIDAR_TIMESTAMP_NS,
+    POSE_T_WORLD_LIDAR,
+    POSE_T_WORLD_RADAR,
+)
 from ..errors import InputError
 
 

@@ -39,8 +39,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..meshio import merge_meshes
 from ..geometry.voxels import unique_voxels, unpack_keys
+from ..meshio import merge_meshes
 
 METHODS = ("poisson", "bpa")
 # Poisson's bounding cube is this × the cloud's extent (open3d's default scale); the octree depth

@@ -30,7 +30,7 @@ class Setup:
     cw: np.ndarray
 
     @classmethod
-    def of(cls, chirp: ChirpConfig, params: BeamformParams, N: int) -> "Setup":
+    def of(cls, chirp: ChirpConfig, params: BeamformParams, N: int) -> Setup:
         S = chirp.n_samples
         beams, cw = column_weights(N, params)
         return cls(N, S, params.n_range or S, params.elevations(), beams, cw)

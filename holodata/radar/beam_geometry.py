@@ -84,7 +84,7 @@ class BeamformParams:
         return {k: v for k, v in asdict(self).items()}
 
     @classmethod
-    def from_attrs(cls, attrs: dict) -> "BeamformParams":
+    def from_attrs(cls, attrs: dict) -> BeamformParams:
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in attrs.items() if k in names})
 
@@ -98,7 +98,7 @@ class Motion:
     theta_v: float
 
     @classmethod
-    def from_velocity(cls, velocity, chirp_period_s: float) -> "Motion | None":
+    def from_velocity(cls, velocity, chirp_period_s: float) -> Motion | None:
         """From (vx, vy) m/s in the radar frame at the rotation start; None for a platform at rest."""
         if velocity is None:
             return None

@@ -57,10 +57,9 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .beam_geometry import (BeamformParams, Motion, _to_columns, azimuth_kernel, motion_phase_rate, range_weights,
-                            vertical_weights)
-from .chirp import ChirpConfig
 from ._steps import Setup, _blas_single, _elevation_groups, _row_pairs, _to_rotation_start, _vertical
+from .beam_geometry import BeamformParams, Motion, _to_columns, azimuth_kernel, motion_phase_rate, range_weights, vertical_weights
+from .chirp import ChirpConfig
 
 RANGE_ORIGIN = "rotation_centre"
 
@@ -136,7 +135,8 @@ def beamform(rotation: np.ndarray, chirp: ChirpConfig | None = None, params: Bea
 
         return beamform_torch(xp, off, circular, N, chirp, params, motion, device)
     if params.focus == "near":
-        from .beamform_near import motion_near as moving, static_near as static
+        from .beamform_near import motion_near as moving
+        from .beamform_near import static_near as static
     else:
         moving, static = _motion_numpy, _static_numpy
     threads = min(os.cpu_count() or 1, 8)

@@ -37,8 +37,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from .beam_geometry import _to_columns, near_kernel, near_motion_phase_rate, near_sample_weights, vertical_weights
 from ._steps import Setup, _blas_single, _elevation_groups, _row_pairs, _to_rotation_start, _vertical
+from .beam_geometry import _to_columns, near_kernel, near_motion_phase_rate, near_sample_weights, vertical_weights
 
 _NKCACHE: dict = {}
 

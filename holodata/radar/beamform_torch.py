@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .beam_geometry import _REANCHOR, _to_columns, azimuth_kernel, motion_phase_rate, range_weights, vertical_weights, window
 from ._steps import Setup
+from .beam_geometry import _REANCHOR, _to_columns, azimuth_kernel, motion_phase_rate, range_weights, vertical_weights, window
 
 
 def _device(torch, device: str):

@@ -107,7 +107,7 @@ class ChirpConfig:
         return d
 
     @classmethod
-    def from_attrs(cls, attrs: dict) -> "ChirpConfig":
+    def from_attrs(cls, attrs: dict) -> ChirpConfig:
         """Inverse of :meth:`to_attrs` (unknown keys, e.g. ``derived``, are ignored)."""
         names = {f.name: f.type for f in fields(cls)}
         kw = {}

@@ -19,7 +19,6 @@ import numba
 import numpy as np
 
 
-
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def make_rays(S, off, first, R):  # pragma: no cover - compiled
     """Rays (n,6) float32 into ``R`` from the state ``S`` (12,n): origin rows 0-2 (moved ``off``
@@ -166,7 +165,7 @@ def los_rays(O, idx, P, tol, R):  # pragma: no cover - compiled
         vy = P[1, i] - oy
         vz = P[2, i] - oz
         L = np.sqrt(vx * vx + vy * vy + vz * vz)
-        nr = L <= tol
+        nr = tol >= L
         near[i] = nr
         s = zero if nr else (L - tol) / L
         R[i, 0], R[i, 1], R[i, 2] = ox, oy, oz

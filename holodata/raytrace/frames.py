@@ -17,12 +17,11 @@ import numpy as np
 
 from ..beams import OriginModel, beam_rays, column_poses, local_origins
 from ..conventions import DEFAULT_MAX_BOUNCES, DEFAULT_MAX_RANGE_M, LOS_TOLERANCE_M, Grid
-from ..dataset.layout import (GT_ARRAYS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, GT_SEMANTIC,
-                              RADAR_CYCLE_NS)
+from ..dataset.layout import GT_ARRAYS, GT_HUMAN_CENTER, GT_LABEL, GT_NORMAL, GT_POINT, GT_RANGE, GT_SEMANTIC, RADAR_CYCLE_NS
 from ..errors import InputError
 from ..trajectory import Trajectory
-from .humans import HumanSource
 from . import _kernels
+from .humans import HumanSource
 from .trace import RayScene
 
 

@@ -24,7 +24,6 @@ from ..parallel import cpus
 from .backends import open3d_has_cast
 from .frames import FrameTracer, GTConfig, gt_array_specs
 
-
 _WORKER: dict = {}
 
 

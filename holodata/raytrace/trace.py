@@ -303,7 +303,7 @@ class RayScene:
         n = np.where(s[:, None] > 0, -n, n)
         return CastResult(t.astype(np.float32), n.astype(np.float32), face, is_dyn)
 
-    def fixed_rays(self, origins, directions) -> "FixedRays":
+    def fixed_rays(self, origins, directions) -> FixedRays:
         """The same rays cast again and again with a different dynamic mesh each time (a fixed camera
         watching a walking person): :class:`FixedRays`."""
         return FixedRays(self, origins, directions)

@@ -31,18 +31,29 @@ Modules: :mod:`.registry` (the readers' detectors and openers, :func:`guess_read
 from __future__ import annotations
 
 # ``name as name``: importable from the package since its code lived here, kept so; not in __all__
-from .base import (MCAP_MAGIC as MCAP_MAGIC, DecodeError, MessageDecoder, RawMessage, ReaderSpec, Recording,
-                   TopicInfo)
-from .synth_output import SYNTH_MAPPING as SYNTH_MAPPING, SYNTH_RECORDINGS, synth_output_folder, synth_output_recording, \
-    synth_passes as synth_passes
-from .registry import (PCAP_MAGICS as PCAP_MAGICS, READERS, _bag_dir as _bag_dir, _head as _head, _is_hdf5 as _is_hdf5,
-                       _is_mcap as _is_mcap, _is_npy_folder as _is_npy_folder, _is_panoradar_raw as _is_panoradar_raw,
-                       _is_pcap as _is_pcap, _is_rosbag1 as _is_rosbag1, _is_rosbag2 as _is_rosbag2,
-                       _open_hdf5 as _open_hdf5, _open_mcap as _open_mcap, _open_npy as _open_npy,
-                       _open_panoradar_raw as _open_panoradar_raw, _open_pcap as _open_pcap,
-                       _open_rosbag1 as _open_rosbag1, _open_rosbag2 as _open_rosbag2, guess_reader, open_recording,
-                       register_reader)
-
+from .base import MCAP_MAGIC as MCAP_MAGIC
+from .base import DecodeError, MessageDecoder, RawMessage, ReaderSpec, Recording, TopicInfo
+from .registry import PCAP_MAGICS as PCAP_MAGICS
+from .registry import READERS, guess_reader, open_recording, register_reader
+from .registry import _bag_dir as _bag_dir
+from .registry import _head as _head
+from .registry import _is_hdf5 as _is_hdf5
+from .registry import _is_mcap as _is_mcap
+from .registry import _is_npy_folder as _is_npy_folder
+from .registry import _is_panoradar_raw as _is_panoradar_raw
+from .registry import _is_pcap as _is_pcap
+from .registry import _is_rosbag1 as _is_rosbag1
+from .registry import _is_rosbag2 as _is_rosbag2
+from .registry import _open_hdf5 as _open_hdf5
+from .registry import _open_mcap as _open_mcap
+from .registry import _open_npy as _open_npy
+from .registry import _open_panoradar_raw as _open_panoradar_raw
+from .registry import _open_pcap as _open_pcap
+from .registry import _open_rosbag1 as _open_rosbag1
+from .registry import _open_rosbag2 as _open_rosbag2
+from .synth_output import SYNTH_MAPPING as SYNTH_MAPPING
+from .synth_output import SYNTH_RECORDINGS, synth_output_folder, synth_output_recording
+from .synth_output import synth_passes as synth_passes
 
 __all__ = ["open_recording", "guess_reader", "synth_output_folder", "synth_output_recording", "SYNTH_RECORDINGS",
            "register_reader", "READERS", "Recording", "TopicInfo", "RawMessage",

@@ -25,6 +25,7 @@ the file (external or virtual layouts) store nothing in it and are refused alike
 """
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -32,8 +33,7 @@ import numpy as np
 
 from ..dataset.layout import RADAR_CYCLE_NS, RADAR_HEATMAP  # the file names its arrays as the dataset does
 from ..errors import RecordingError
-from .base import (POINTS_TYPE, RADAR_MSG, Header, PointsMsg, RadarHeatmapMsg, RawMessage, Recording, TopicInfo,
-                   rate_of)
+from .base import POINTS_TYPE, RADAR_MSG, Header, PointsMsg, RadarHeatmapMsg, RawMessage, Recording, TopicInfo, rate_of
 from .sizes import declared_size, inflated_room
 
 
@@ -183,7 +183,5 @@ class Hdf5Recording(Recording):
         return self._radar(i) if topic == "/radar/heatmap" else self._points(topic, i)
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(Exception):   # any failure: h5py's own, on a file that is gone; nothing to keep
             self.f.close()
-        except Exception:  # noqa: BLE001
-            pass

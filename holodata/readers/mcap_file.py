@@ -82,7 +82,7 @@ class McapMessageTable:
         self._chunk_bad: dict[int, str | None] = {}
 
     @classmethod
-    def build(cls, path: Path, counts: dict[str, int] | None = None) -> "McapMessageTable | None":
+    def build(cls, path: Path, counts: dict[str, int] | None = None) -> McapMessageTable | None:
         import struct
 
         import numpy as np

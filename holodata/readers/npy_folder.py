@@ -23,8 +23,7 @@ import numpy as np
 
 from ..conventions import DEFAULT_RANGE_RESOLUTION_M, RADAR_ROTATION_HZ, RADAR_ROTATION_RADIUS_M, Grid
 from ..errors import RecordingError
-from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, Recording,
-                   TopicInfo, rate_of)
+from .base import RADAR_MSG, RANGE_IMAGE_TYPE, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, Recording, TopicInfo, rate_of
 from .sizes import check_npy
 
 RF_TOPIC = "/panoradar/rf"

@@ -18,6 +18,7 @@ files); pcap and packet decoding use none of it, and the two helpers listed are 
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import struct
 from collections import Counter
@@ -234,10 +235,8 @@ class PacketAssembler:
             return None
         p = core.LidarPacket(self.pf) if _takes_format(core) else core.LidarPacket(n)
         p.buf[:] = b[:n]
-        try:
+        with contextlib.suppress(Exception):   # SDK versions without a settable host timestamp: left unset
             p.host_timestamp = int(log_ns)
-        except Exception:  # noqa: BLE001
-            pass
         if self._frame is None:
             self._frame = _frame_cls(core)(self.info)
             self._first_ns = log_ns

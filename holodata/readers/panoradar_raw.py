@@ -39,8 +39,19 @@ from ..errors import InputError, RecordingError
 from ..radar.beam_geometry import BeamformParams, Motion
 from ..radar.beamform import beamform, beamform_attrs, static_reflection
 from ..radar.chirp import ChirpConfig
-from .base import (RADAR_MSG, RANGE_IMAGE_TYPE, DecodeError, Header, RadarHeatmapMsg, RangeImageMsg, RawMessage, RawRotation,
-                   Recording, TopicInfo, rate_of)
+from .base import (
+    RADAR_MSG,
+    RANGE_IMAGE_TYPE,
+    DecodeError,
+    Header,
+    RadarHeatmapMsg,
+    RangeImageMsg,
+    RawMessage,
+    RawRotation,
+    Recording,
+    TopicInfo,
+    rate_of,
+)
 from .sizes import check_npy, check_npz
 
 RADAR_TOPIC = "/panoradar/radar"
@@ -379,7 +390,7 @@ class PanoRadarRawRecording(Recording):
         after = np.asarray(self.radar[b:b + h], np.complex64) / np.complex64(INT16_SCALE)
         return rot, before, after
 
-    def heatmap(self, k: int) -> "RotationHeatmap":
+    def heatmap(self, k: int) -> RotationHeatmap:
         """Rotation ``k`` as a RadarHeatmap (float32, linear amplitude, ranges from the rotation
         centre) that is beamformed when its ``data`` is first read: ingest's index pass only checks
         the rotation's raw samples (:meth:`RotationHeatmap.check`), so each rotation is imaged once."""

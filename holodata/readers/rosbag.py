@@ -16,6 +16,7 @@ decompressed in bounded steps up to the size their headers declare; rosbags' MCA
 """
 from __future__ import annotations
 
+import contextlib
 import os
 from collections import defaultdict
 from collections.abc import Iterable, Iterator
@@ -26,8 +27,6 @@ from ..errors import RecordingError, one_line
 from .base import MessageDecoder, RawMessage, Recording, TopicInfo, rate_of
 from .containers import check_mcap, read_message, ros1_chunk_sizes
 from .sizes import inflate, open_bounded
-
-
 
 
 def _defs(conn) -> tuple[str, str | None, str]:
@@ -70,7 +69,7 @@ class RosbagsRecording(Recording):
                         lo, hi = out.setdefault(c.topic, [idx[0].time, idx[-1].time])
                         out[c.topic] = [min(lo, idx[0].time), max(hi, idx[-1].time)]
             elif (table := self._message_table()) and hasattr(table, "channels"):
-                import numpy as np       # a single MCAP file whose index ingest reads anyway: its log times
+                import numpy as np  # a single MCAP file whose index ingest reads anyway: its log times
 
                 for ch, topic in table.topics.items():
                     t = table.log_ns[table.channels == ch]
@@ -174,10 +173,8 @@ class RosbagsRecording(Recording):
         return replace(raw, data=self._message_table().payload(raw.ref), ref=None)
 
     def close(self) -> None:
-        try:
+        with contextlib.suppress(Exception):   # rosbags' own, on a reader that failed half-open; nothing to keep
             self.reader.close()
-        except Exception:  # noqa: BLE001
-            pass
 
 
 class Ros1MessageTable:
@@ -198,7 +195,7 @@ class Ros1MessageTable:
         self.path, self.log_ns, self.pos, self.conn, self.seq, self.limit = path, log_ns, pos, conn, seq, limit
 
     @classmethod
-    def build(cls, path: Path, reader) -> "Ros1MessageTable | None":
+    def build(cls, path: Path, reader) -> Ros1MessageTable | None:
         import numpy as np
         from rosbags.rosbag1.reader import decompressors
 

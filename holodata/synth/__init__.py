@@ -40,12 +40,13 @@ each); this module only re-exports.
 """
 from __future__ import annotations
 
-# ``name as name``: importable from the package since its code lived here, kept so; not in __all__
-from .topics import MAPPING_TOPICS, RADAR_OUTPUTS, RAW_TOPIC, STEREO_TOPICS, TOPICS
 from .result import SynthResult
 from .spec import SceneSpec, SynthSpec
-from .synthesis import PARTIAL_NAME as PARTIAL_NAME, estimate_bytes, synthesize
+from .synthesis import PARTIAL_NAME as PARTIAL_NAME
+from .synthesis import estimate_bytes, synthesize
 
+# ``name as name``: importable from the package since its code lived here, kept so; not in __all__
+from .topics import MAPPING_TOPICS, RADAR_OUTPUTS, RAW_TOPIC, STEREO_TOPICS, TOPICS
 
 __all__ = ["synthesize", "SynthSpec", "SceneSpec", "estimate_bytes", "SynthResult", "TOPICS", "STEREO_TOPICS",
            "MAPPING_TOPICS", "RAW_TOPIC", "RADAR_OUTPUTS"]

@@ -39,7 +39,7 @@ class CameraConfig:
         d["K"] = self.K().tolist()
         return d
 
-    def scaled(self, width: int, height: int) -> "CameraConfig":
+    def scaled(self, width: int, height: int) -> CameraConfig:
         s = width / self.width
         return CameraConfig(width, height, self.fx * s, self.fy * height / self.height, (width - 1) / 2,
                             (height - 1) / 2, self.baseline_m, self.rate_hz, self.sigma_disparity_px,

@@ -141,9 +141,18 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     is. Returns the corner's summary (:func:`corner_summary`)."""
     from ..beams import OriginModel, column_poses
     from ..dataset import create_dataset, open_dataset
-    from ..dataset.layout import (HUMAN_FACES, HUMAN_VERTICES, MESH_FACE_CLASS, MESH_FACES, MESH_VERTICES,
-                                  POSE_T_WORLD_RADAR, RADAR_CYCLE_NS, RADAR_HEATMAP, TIME_TIMESTAMP_NS)
     from ..dataset.heatmap import ENCODING_ATTR
+    from ..dataset.layout import (
+        HUMAN_FACES,
+        HUMAN_VERTICES,
+        MESH_FACE_CLASS,
+        MESH_FACES,
+        MESH_VERTICES,
+        POSE_T_WORLD_RADAR,
+        RADAR_CYCLE_NS,
+        RADAR_HEATMAP,
+        TIME_TIMESTAMP_NS,
+    )
     from ..groundtruth import GTConfig, raytrace_dataset
     from ..trajectory import Trajectory
     from .scene import Sensors, attenuation_db, drop_medians

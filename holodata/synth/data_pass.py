@@ -26,9 +26,9 @@ from .scene import (
     LIDAR_START_S,
     Scenario,
     Sensors,
+    _trans,
     counting_put,
     drop_medians,
-    _trans,
 )
 from .topics import RAW_TOPIC, STEREO_TOPICS, TOPICS
 from .worlds import CLASS_ID

@@ -23,8 +23,8 @@ from .scene import (
     ODOM_HZ,
     Scenario,
     Sensors,
-    counting_put,
     _rng,
+    counting_put,
 )
 from .topics import MAPPING_TOPICS
 from .worlds import World

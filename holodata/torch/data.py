@@ -40,7 +40,7 @@ class HeatmapNorm:
         return np.clip(x, -1.0, 1.0, out=x)
 
     @classmethod
-    def fit(cls, samples: np.ndarray, eps: float = 1e-3, q: tuple[float, float] = (1.0, 99.9)) -> "HeatmapNorm":
+    def fit(cls, samples: np.ndarray, eps: float = 1e-3, q: tuple[float, float] = (1.0, 99.9)) -> HeatmapNorm:
         """Bounds from percentiles of log10(a + eps) over ``samples`` (any shape)."""
         la = np.log10(np.maximum(np.asarray(samples, np.float64), 0) + eps).ravel()
         lo, hi = np.percentile(la, q)
@@ -52,7 +52,7 @@ class HeatmapNorm:
         return {"kind": "log10_minmax", **asdict(self)}
 
     @classmethod
-    def from_dict(cls, d: dict) -> "HeatmapNorm":
+    def from_dict(cls, d: dict) -> HeatmapNorm:
         return cls(eps=float(d["eps"]), lo=float(d["lo"]), hi=float(d["hi"]))
 
 

@@ -15,7 +15,6 @@ import torch.nn.functional as F
 
 from holodata.conventions import DEFAULT_MAX_RANGE_M, is_human
 
-
 RANGE_LOSSES = ("l1", "ce")
 
 

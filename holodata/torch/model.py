@@ -18,7 +18,6 @@ from torch import nn
 
 from holodata.conventions import DEFAULT_MAX_RANGE_M
 
-
 ESTIMATORS = ("mean", "median", "mode")
 # the "mode" estimate's window about the most likely bin: a two-hot target (losses.two_hot) puts its
 # mass on two neighbouring bins, which ±1 bin always holds; ±2 tolerates a little spread

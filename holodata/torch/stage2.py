@@ -462,7 +462,7 @@ class RefinerConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "RefinerConfig":
+    def from_dict(cls, d: dict) -> RefinerConfig:
         return cls(**{**d, "channels": tuple(d["channels"])})
 
 

@@ -18,8 +18,17 @@ from holodata.conventions import Grid, is_human, is_los
 from holodata.errors import InputError
 from holodata.safe_io import load_torch
 
-from .stage2 import (CLASS_EMPTY, CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig,
-                     VoxelRefiner, voxel_point_mean, voxelize)
+from .stage2 import (
+    CLASS_EMPTY,
+    CLASS_HUMAN,
+    CLASS_STRUCTURE,
+    RayTracer,
+    RayTracerConfig,
+    RefinerConfig,
+    VoxelRefiner,
+    voxel_point_mean,
+    voxelize,
+)
 
 STAGE2_CHECKPOINT = "stage2.pt"
 
@@ -43,7 +52,7 @@ class Frames:
     def __len__(self) -> int:
         return len(self.range)
 
-    def subset(self, idx) -> "Frames":
+    def subset(self, idx) -> Frames:
         """The frames ``idx`` (indices into this set), stage-one predictions included."""
         idx = np.asarray(idx, int)
         pick = lambda a: None if a is None else a[idx]  # noqa: E731

@@ -37,11 +37,32 @@ from holodata.safe_io import load_torch
 
 from ..ownership import claim_folder
 from .optim import OptimiserSettings, set_lr, settings_dict
+from .stage2 import (
+    CLASS_HUMAN,
+    CLASS_STRUCTURE,
+    RayTracer,
+    RayTracerConfig,
+    RefinerConfig,
+    VoxelRefiner,
+    lookup,
+    ray_trace_loss,
+    refine_loss,
+    unique_coords,
+    voxel_keys,
+    voxelize,
+)
+from .stage2_infer import (
+    STAGE2_CHECKPOINT,
+    Frames,
+    Stage2,
+    apply_gate,
+    calibrate_gate,
+    calibrate_human,
+    calibrate_keep,
+    calibration_index,
+    los_flags,
+)
 from .train import RunOptions, _atomic_save, _truncate_log, check_fields, check_stage1
-from .stage2 import (CLASS_HUMAN, CLASS_STRUCTURE, RayTracer, RayTracerConfig, RefinerConfig, VoxelRefiner, lookup,
-                     ray_trace_loss, refine_loss, unique_coords, voxel_keys, voxelize)
-from .stage2_infer import (STAGE2_CHECKPOINT, Frames, Stage2, apply_gate, calibrate_gate, calibrate_human, calibrate_keep,
-                           calibration_index, los_flags)
 
 STAGE2_LOG = "stage2_metrics.jsonl"
 
@@ -94,7 +115,7 @@ class Stage2Config(OptimiserSettings):
     crop_w: int | None = None
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "stage-two config") -> "Stage2Config":
+    def from_dict(cls, data: dict, source: str = "stage-two config") -> Stage2Config:
         check_fields(cls, data, source, "stage-two")
         d = dict(data)
         if "refine_channels" in d:
@@ -157,7 +178,6 @@ class _SceneGeometry:
 def load_frames(dataset_url, split: str, f: int, frames_per_scene: int | None = None, quiet: bool = True) -> tuple[Frames, Grid]:
     """The ``split`` frames of a dataset at downsample ``f`` (GT arrays, beam geometry)."""
     from holodata.dataset import open_dataset
-
     from holodata.dataset.splits import split_scenes
 
     ds = open_dataset(str(dataset_url))

@@ -90,7 +90,7 @@ class TrainConfig(OptimiserSettings):
             raise InputError("range_loss 'ce' needs head 'softargmax' (a distribution over range bins)")
 
     @classmethod
-    def from_file(cls, path, **overrides) -> "TrainConfig":
+    def from_file(cls, path, **overrides) -> TrainConfig:
         """Read a YAML or JSON mapping of TrainConfig fields, or the ``train`` section of a stage-settings
         file (:mod:`holodata.config_file`, e.g. ``examples/holodata.yaml``); ``overrides`` (non-None) win."""
         import yaml
@@ -109,7 +109,7 @@ class TrainConfig(OptimiserSettings):
         return cls.from_dict({**data, **{k: v for k, v in overrides.items() if v is not None}}, source=str(p))
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "config") -> "TrainConfig":
+    def from_dict(cls, data: dict, source: str = "config") -> TrainConfig:
         check_fields(cls, data, source, "training")
         return cls(**data)
 
@@ -258,7 +258,7 @@ def _model_config(config: TrainConfig, in_channels: int, max_range: float) -> Mo
                        head=config.head, input_skip=config.input_skip, estimator=config.point_estimator())
 
 
-def _resume_or_init(run: "_Stage1Run", ck_path: Path, norm: HeatmapNorm,
+def _resume_or_init(run: _Stage1Run, ck_path: Path, norm: HeatmapNorm,
                     opts: RunOptions) -> tuple[int, list, HeatmapNorm]:
     """Load the run's own checkpoint (resume: weights, optimiser, history, normalisation, torch RNG) or,
     on a fresh run, ``opts.init``'s weights; (epochs done, history, heatmap normalisation)."""
@@ -299,7 +299,7 @@ class _Stage1Run:
 
     @classmethod
     def start(cls, config: TrainConfig, mcfg: ModelConfig, device: torch.device, ctx: ddp.Ddp,
-              quiet: bool) -> "_Stage1Run":
+              quiet: bool) -> _Stage1Run:
         """Seeded, then the model and its optimiser (in that order: the model's initial weights are
         the first draws after the seed)."""
         seed_everything(config.seed)

@@ -57,31 +57,70 @@ one process (test).
 """
 from __future__ import annotations
 
+from .camera import (
+                        CameraFrames,
+                        camera_points_world,
+                        camera_seen_through,
+                        camera_swept,
+                        depth_noise_model,
+                        static_depth,
+                        static_depth_of,
+)
+from .camera import _camera_points_through as _camera_points_through
+from .camera import noise_coefficient as noise_coefficient
+
 # ``name as name``: importable from the package since its code lived here, kept so; not in __all__
 from .config import RegisterConfig, Registration, RegistrationError
-from .extrinsic import (anchored_guess, fpfh_ransac, held_directions, icp, map_normals, mesh_surface_samples,
-                        pose_uncertainty, register_extrinsic)
-from .camera import (_camera_points_through as _camera_points_through, camera_points_world, camera_seen_through,
-                     camera_swept, CameraFrames, depth_noise_model, noise_coefficient as noise_coefficient, static_depth,
-                     static_depth_of)
-from .steps import (all_surfaces as all_surfaces, body_columns_of as body_columns_of, clear_outputs as clear_outputs,
-                    frame_cuts as frame_cuts, human_candidates as human_candidates, human_shift as human_shift,
-                    initial_guess as initial_guess, pick_track as pick_track,
-                    registration_failure as registration_failure, static_camera as static_camera,
-                    track_smoothing as track_smoothing, write_outputs as write_outputs)
-from .humans import (ColumnShape, body_columns, closed_surface, cluster_points, pick_human, pixel_runs,
-                     static_residual, voxel_boundary)
+from .extrinsic import (
+                        anchored_guess,
+                        fpfh_ransac,
+                        held_directions,
+                        icp,
+                        map_normals,
+                        mesh_surface_samples,
+                        pose_uncertainty,
+                        register_extrinsic,
+)
+from .humans import (
+                        ColumnShape,
+                        body_columns,
+                        closed_surface,
+                        cluster_points,
+                        pick_human,
+                        pixel_runs,
+                        static_residual,
+                        voxel_boundary,
+)
+from .lidar_side import MapInputs, map_cloud
+from .lidar_side import lidar_half as lidar_half
+from .lidar_side import lidar_map as lidar_map
+from .pipeline import REGISTER_FAILED, register_fingerprint, register_scene
+from .pipeline import REGISTER_OUTPUTS as REGISTER_OUTPUTS
+from .pipeline import RETIRED_PARAMS as RETIRED_PARAMS
+from .pipeline import RETIRED_SEGMENT_PARAMS as RETIRED_SEGMENT_PARAMS
+from .pipeline import camera_world as camera_world
+from .pipeline import register_processes as register_processes
+from .pipeline import register_report as register_report
+from .pipeline import stored_report as stored_report
+from .pipeline import unregistered as unregistered
+from .scene_inputs import _built_from_the_poses as _built_from_the_poses
+from .scene_inputs import _parse_init as _parse_init
+from .scene_inputs import camera_scenes, only_camera_scene, scene_map, scene_mesh, slam_anchor
+from .scene_inputs import camera_tf_guess as camera_tf_guess
+from .scene_inputs import map_frame_problem as map_frame_problem
+from .steps import all_surfaces as all_surfaces
+from .steps import body_columns_of as body_columns_of
+from .steps import clear_outputs as clear_outputs
+from .steps import frame_cuts as frame_cuts
+from .steps import human_candidates as human_candidates
+from .steps import human_shift as human_shift
+from .steps import initial_guess as initial_guess
+from .steps import pick_track as pick_track
+from .steps import registration_failure as registration_failure
+from .steps import static_camera as static_camera
+from .steps import track_smoothing as track_smoothing
+from .steps import write_outputs as write_outputs
 from .tracks import radial_speed, track_jumps, track_prediction, track_velocity, velocity_shift
-from .scene_inputs import (_built_from_the_poses as _built_from_the_poses, _parse_init as _parse_init,
-                           camera_scenes, camera_tf_guess as camera_tf_guess, map_frame_problem as map_frame_problem,
-                           only_camera_scene, scene_map, scene_mesh, slam_anchor)
-from .lidar_side import MapInputs, lidar_half as lidar_half, lidar_map as lidar_map, map_cloud
-from .pipeline import (REGISTER_FAILED, REGISTER_OUTPUTS as REGISTER_OUTPUTS, RETIRED_PARAMS as RETIRED_PARAMS,
-                       RETIRED_SEGMENT_PARAMS as RETIRED_SEGMENT_PARAMS, camera_world as camera_world,
-                       register_fingerprint, register_processes as register_processes,
-                       register_report as register_report, register_scene, stored_report as stored_report,
-                       unregistered as unregistered)
-
 
 __all__ = ["RegisterConfig", "Registration", "RegistrationError", "register_extrinsic", "icp", "fpfh_ransac",
            "closed_surface", "voxel_boundary", "cluster_points", "pick_human", "static_depth", "camera_points_world",

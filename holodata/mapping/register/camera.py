@@ -40,7 +40,7 @@ class CameraFrames:
     shape: tuple
 
     @classmethod
-    def open(cls, scene, url: str = "") -> "CameraFrames":
+    def open(cls, scene, url: str = "") -> CameraFrames:
         where = f"{url}: scene {scene.id!r}"
         if CAMERA_POINTS not in set(scene.arrays()):
             raise InputError(f"{where} has no camera (camera/points): a LiDAR-only scene, e.g. a mapping pass, has "
@@ -205,7 +205,7 @@ class ForegroundTest:
     map_tree: object
 
 
-def frame_candidates(cam: CameraFrames, frames, test: ForegroundTest, cfg: "RegisterConfig", images: dict | None = None,
+def frame_candidates(cam: CameraFrames, frames, test: ForegroundTest, cfg: RegisterConfig, images: dict | None = None,
                      quiet: bool = True, label: str = "human candidates") -> list:
     """Per frame k of ``frames``: the returns that may be a person, (qw (N,3) float64 map frame, vv, uu
     (N,) int64 pixel rows / columns, dv (N,) float32 optical depths m): returns within
@@ -221,7 +221,7 @@ def frame_candidates(cam: CameraFrames, frames, test: ForegroundTest, cfg: "Regi
         if D is None:
             D = cam.depth(k)
         with np.errstate(invalid="ignore"):
-            fg = np.isfinite(D) & (always | (D < front)) & (D <= cfg.max_range_m)
+            fg = np.isfinite(D) & (always | (front > D)) & (cfg.max_range_m >= D)
         vv, uu = np.nonzero(fg)
         dv = D[vv, uu]
         qw = transform_points(T, rays[vv, uu] * dv[:, None])

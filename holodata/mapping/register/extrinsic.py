@@ -4,7 +4,6 @@ uncertainty and the acceptance check (:func:`register_extrinsic`), and the open3
 solvers, voxel means and plane fits are :mod:`holodata.geometry`'s."""
 from __future__ import annotations
 
-
 import numpy as np
 
 from ...conventions import rotation_angle_deg, transform_points, yaw_rad

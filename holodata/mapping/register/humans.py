@@ -112,7 +112,7 @@ def _plane_extents(points: np.ndarray, normal: np.ndarray) -> tuple[float, float
     return float(ext.max()), float(ext.min())
 
 
-def static_residual(points: np.ndarray, cfg: "RegisterConfig", seed: int = 0) -> np.ndarray:
+def static_residual(points: np.ndarray, cfg: RegisterConfig, seed: int = 0) -> np.ndarray:
     """(N,) bool: points of the static camera cloud (N,3, any frame) that are on none of the large
     planes (floor, ceiling, walls: RANSAC planes, :func:`ransac_plane`, each holding at least
     ``plane_min_fraction`` of the points, up to ``max_planes``). Catches a person who stands still

@@ -10,18 +10,40 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...dataset.layout import (CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, CAMERA_TIMESTAMP_NS, HUMAN_FACES,
-                               HUMAN_POINTS, HUMAN_VERTICES, MAP_POINTS, MESH_FACES, MESH_VERTICES,
-                               POSE_T_WORLD_LIDAR, TIME_TIMESTAMP_NS)
+from ...dataset.layout import (
+    CALIB_T_WORLD_CAMERA,
+    CAMERA_POINTS_WORLD,
+    CAMERA_TIMESTAMP_NS,
+    HUMAN_FACES,
+    HUMAN_POINTS,
+    HUMAN_VERTICES,
+    MAP_POINTS,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_LIDAR,
+    TIME_TIMESTAMP_NS,
+)
 from ...errors import InputError
 from ...parallel import cpus, fork_call, release_free_memory
-from .camera import _camera_points_through, CameraFrames, noise_coefficient
+from .camera import CameraFrames, _camera_points_through, noise_coefficient
 from .config import RegisterConfig, Registration, RegistrationError
 from .extrinsic import register_extrinsic
 from .lidar_side import lidar_half
 from .scene_inputs import _parse_init, only_camera_scene, scene_mesh, slam_anchor
-from .steps import (all_surfaces, body_columns_of, clear_outputs, frame_cuts, human_candidates, human_shift,
-                    initial_guess, pick_track, registration_failure, static_camera, track_smoothing, write_outputs)
+from .steps import (
+    all_surfaces,
+    body_columns_of,
+    clear_outputs,
+    frame_cuts,
+    human_candidates,
+    human_shift,
+    initial_guess,
+    pick_track,
+    registration_failure,
+    static_camera,
+    track_smoothing,
+    write_outputs,
+)
 
 
 def camera_world(scene, T: np.ndarray) -> None:

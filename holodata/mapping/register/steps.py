@@ -13,13 +13,19 @@ from ...conventions import transform_points
 from ...dataset.layout import CALIB_T_WORLD_CAMERA, CAMERA_POINTS_WORLD, HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ...errors import InputError
 from ...parallel import fork_call
-from .camera import (CameraFrames, ForegroundTest, camera_seen_through, camera_swept, depth_noise_model, frame_candidates,
-                     static_depth)
+from .camera import (
+    CameraFrames,
+    ForegroundTest,
+    camera_seen_through,
+    camera_swept,
+    depth_noise_model,
+    frame_candidates,
+    static_depth,
+)
 from .config import RegisterConfig, Registration
 from .humans import ColumnShape, body_columns, closed_surface, column_centroid, pick_human, silhouette_cut, static_residual
 from .scene_inputs import camera_tf_guess, map_frame_problem
-from .tracks import (cut_prediction, radial_speed, side_back, track_jumps, track_prediction, track_smooth,
-                     velocity_shift)
+from .tracks import cut_prediction, radial_speed, side_back, track_jumps, track_prediction, track_smooth, velocity_shift
 
 # the floor under a person: the FLOOR_PERCENTILE-th percentile of the map's heights within
 # FLOOR_RADIUS_M (plan) of the track (low outliers aside), from more than FLOOR_MIN_POINTS points

@@ -9,7 +9,6 @@ import numpy as np
 
 from .config import RegisterConfig
 
-
 # the bias of a local linear fit (tricube kernel, half-width W) at a walk's instant turn (the
 # centroid v·|t|): v · W · ∫u(1-u³)³du / ∫(1-u³)³du over (0, 1)
 TURN_BIAS = 0.318

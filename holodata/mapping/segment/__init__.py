@@ -58,17 +58,37 @@ re-exports.
 """
 from __future__ import annotations
 
+from .background_model import _background_pass as _background_pass
+from .background_model import background_from_points as background_from_points
+from .background_model import background_masks, build_background, in_background, surely_without_foreground
+
 # ``name as name``: importable from the package since its code lived here, kept so; not in __all__
 from .config import INSTANCE_ARRAY, SegmentConfig
-from .core import (above_floor as above_floor, beam_elevations, destagger, erode, flood_fill, floor_plane,
-                   merge_stacked, neighbour_spacing, row_shifts, segment_scan, shrink_structure)
+from .core import above_floor as above_floor
+from .core import (
+                   beam_elevations,
+                   destagger,
+                   erode,
+                   flood_fill,
+                   floor_plane,
+                   merge_stacked,
+                   neighbour_spacing,
+                   row_shifts,
+                   segment_scan,
+                   shrink_structure,
+)
+from .instances import (
+                   InstanceMasks,
+                   background_and_segment,
+                   grid_geometry,
+                   instance_state,
+                   pose_fingerprint,
+                   segment_scene,
+                   write_instances,
+)
+from .instances import _scene_id as _scene_id
+from .instances import _segment_stage as _segment_stage
 from .scans import LidarScans
-from .background_model import (_background_pass as _background_pass, background_from_points as background_from_points,
-                               background_masks, build_background, in_background, surely_without_foreground)
-from .instances import (InstanceMasks, _scene_id as _scene_id, _segment_stage as _segment_stage,
-                        background_and_segment, grid_geometry, instance_state, pose_fingerprint, segment_scene,
-                        write_instances)
-
 
 __all__ = ["SegmentConfig", "segment_scan", "flood_fill", "erode", "LidarScans", "build_background", "segment_scene",
            "write_instances", "InstanceMasks",

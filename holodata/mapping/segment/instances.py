@@ -71,7 +71,7 @@ def grid_geometry(scans: LidarScans, n: int = 5) -> tuple[np.ndarray | None, np.
 
 def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | None = None, quiet: bool = True,
                   overwrite: bool = False, background=None, world_points: dict | None = None,
-                  masks: "InstanceMasks | None" = None) -> dict:
+                  masks: InstanceMasks | None = None) -> dict:
     """Segment every scan of scene ``scene_id`` (None: the only one) of dataset ``url`` and write
     ``lidar/instance``: :func:`write_instances` of the scene (the arguments are its)."""
     from ...dataset import open_dataset
@@ -84,7 +84,7 @@ def segment_scene(url: str, scene_id: str | None = None, cfg: SegmentConfig | No
 
 
 def write_instances(scene, cfg: SegmentConfig | None = None, quiet: bool = True, overwrite: bool = False,
-                    background=None, world_points: dict | None = None, masks: "InstanceMasks | None" = None) -> dict:
+                    background=None, world_points: dict | None = None, masks: InstanceMasks | None = None) -> dict:
     """Segment every scan of ``scene`` (a read handle; the writes go through a writer opened on its
     dataset) and write ``lidar/instance`` (T,Hl,Wl) uint16 (resumable: finished shards are kept).
     ``background``: a prebuilt model of these scans (else built here); ``world_points``: {frame:

@@ -7,8 +7,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ...conventions import transform_points
-from ...dataset.layout import (LIDAR_POINTS, LIDAR_POINT_TIME_NS, LIDAR_RANGE, LIDAR_TIMESTAMP_NS, POSE_T_WORLD_LIDAR,
-                               TIME_TIMESTAMP_NS)
+from ...dataset.layout import (
+    LIDAR_POINT_TIME_NS,
+    LIDAR_POINTS,
+    LIDAR_RANGE,
+    LIDAR_TIMESTAMP_NS,
+    POSE_T_WORLD_LIDAR,
+    TIME_TIMESTAMP_NS,
+)
 from ...errors import DatasetError, InputError
 
 
@@ -29,7 +35,7 @@ class LidarScans:
     _last: int = field(default=-2, init=False, repr=False, compare=False)
 
     @classmethod
-    def open(cls, scene, url: str = "") -> "LidarScans":
+    def open(cls, scene, url: str = "") -> LidarScans:
         names = set(scene.arrays())
         where = f"{url}: scene {scene.id!r}"
         if LIDAR_RANGE not in names or LIDAR_POINTS not in names:

@@ -60,19 +60,27 @@ from __future__ import annotations
 
 # ``name as name``: importable from the package since its code lived here, kept so; not in __all__
 from .config import Scans, SlamConfig, SlamOutputs, SlamResult
-from .scans import (_import_in_background as _import_in_background, _StreamBroken as _StreamBroken, data_max_range,
-                    load_scans, stream_scans)
-from .odometry import KissStream as KissStream, _Fixed as _Fixed, deskew, kiss_odometry, twist
-from .refine import RefineOptions, global_refine, mesh_scan_subset, refine
-from .store import (_fingerprint as _fingerprint, _stored_result as _stored_result, _write as _write,
-                    write_static_map)
+from .entry import own_mapping_pass as own_mapping_pass
+from .entry import slam_dataset, slam_scene
 from .localise import MAPPING_ROLE, check_map_scene, localise_scene
-from .world import (StaticMap, anchor_pose, frame_poses, guess_poses, level_tf_poses as level_tf_poses,
-                    recording_tf_poses, static_mesh, tf_agreement as tf_agreement, tf_lidar_poses)
-from .pipeline import (_export as _export, _odometry as _odometry, _only_scene as _only_scene,
-                       _scans_and_poses as _scans_and_poses)
-from .entry import own_mapping_pass as own_mapping_pass, slam_dataset, slam_scene
-
+from .odometry import KissStream as KissStream
+from .odometry import _Fixed as _Fixed
+from .odometry import deskew, kiss_odometry, twist
+from .pipeline import _export as _export
+from .pipeline import _odometry as _odometry
+from .pipeline import _only_scene as _only_scene
+from .pipeline import _scans_and_poses as _scans_and_poses
+from .refine import RefineOptions, global_refine, mesh_scan_subset, refine
+from .scans import _import_in_background as _import_in_background
+from .scans import _StreamBroken as _StreamBroken
+from .scans import data_max_range, load_scans, stream_scans
+from .store import _fingerprint as _fingerprint
+from .store import _stored_result as _stored_result
+from .store import _write as _write
+from .store import write_static_map
+from .world import StaticMap, anchor_pose, frame_poses, guess_poses, recording_tf_poses, static_mesh, tf_lidar_poses
+from .world import level_tf_poses as level_tf_poses
+from .world import tf_agreement as tf_agreement
 
 __all__ = ["SlamConfig", "SlamOutputs", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans",
            "kiss_odometry", "refine", "RefineOptions", "global_refine",

@@ -10,7 +10,6 @@ import numpy as np
 from ...errors import InputError
 from ...trajectory import Trajectory
 
-
 SEED_POSES = ("kiss-icp", "tf")
 
 

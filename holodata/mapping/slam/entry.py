@@ -4,11 +4,11 @@ and :func:`slam_dataset` (the scenes of a dataset, each data pass localised in i
 when the dataset holds one)."""
 from __future__ import annotations
 
+from ...dataset.layout import LIDAR_POINTS
 from ...errors import InputError
 from .config import SlamConfig, SlamOutputs, SlamResult
 from .localise import check_map_scene, localise_scene
 from .pipeline import run_slam
-from ...dataset.layout import LIDAR_POINTS
 
 
 def slam_scene(dataset_url, scene_id: str | None = None, *, config: SlamConfig = SlamConfig(), mesh_config=None,

@@ -8,6 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from ...conventions import rotation_angle_deg
+from ...dataset.layout import LIDAR_POINTS, MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 from ...errors import DatasetError, InputError
 from ...geometry.voxels import first_per_voxel
 from .config import SlamConfig, SlamOutputs, SlamResult
@@ -18,7 +19,6 @@ from .refine import RefineOptions, VoxelMap, _TargetCache, icp, refine
 from .scans import _import_in_background, data_max_range, load_scans
 from .store import SlamRecord, _fingerprint, _stored_result, _write
 from .world import anchor_pose, frame_poses, guess_poses
-from ...dataset.layout import LIDAR_POINTS, MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 
 MAPPING_ROLE = "mapping"   # scene attribute ``role`` of a mapping-pass scene (no train/test split, no raytrace-gt)
 # the first scan's map crop reaches this far beyond the LiDAR's range from the guess: the guess may
@@ -152,7 +152,7 @@ def _mark_mapping_scene(url, mscene, scene_id: str) -> None:
     ``scene_id``) unless it has them."""
     from ...dataset import open_dataset
 
-    for_ = sorted(set((mscene.attrs.get("mapping_for") or [])) | {scene_id})
+    for_ = sorted(set(mscene.attrs.get("mapping_for") or []) | {scene_id})
     if mscene.attrs.get("role") != MAPPING_ROLE or mscene.attrs.get("mapping_for") != for_:
         w = open_dataset(url, "r+", created_by="holodata slam")
         w.scene(mscene.id).set_attrs({"role": MAPPING_ROLE, "mapping_for": for_})

@@ -9,15 +9,15 @@ import time
 
 import numpy as np
 
+from ...dataset.layout import MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 from ...errors import InputError
 from ...trajectory import Trajectory, write_tum
 from .config import Scans, SlamConfig, SlamOutputs, SlamResult
-from .scans import _import_in_background, _StreamBroken, data_max_range, load_scans, stream_scans
 from .odometry import KissStream, _Fixed, kiss_odometry
 from .refine import RefineOptions, global_refine, refine
+from .scans import _import_in_background, _StreamBroken, data_max_range, load_scans, stream_scans
 from .store import SlamRecord, _fingerprint, _stored_result, _write
 from .world import anchor_pose, frame_poses, guess_poses, level_tf_poses, static_mesh, tf_agreement
-from ...dataset.layout import MAP_POINTS, MESH_FACES, POSE_T_WORLD_LIDAR
 
 
 def _odometry(scene, scans: Scans, config: SlamConfig, health: dict, timings: dict, feed, quiet: bool):

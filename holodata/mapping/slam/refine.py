@@ -12,8 +12,8 @@ from ...geometry.icp import StepRule, gauss_newton_step, open3d_icp, tukey_weigh
 from ...geometry.voxels import first_per_voxel, voxel_index, voxel_keys
 from ...progress import track
 from .config import Scans, SlamConfig
-from .points import _o3d_cloud, downsample, scan_normals
 from .odometry import _Fixed, advance, deskew, twist
+from .points import _o3d_cloud, downsample, scan_normals
 
 # the refinement's map crop reaches this far beyond the LiDAR's range around the scan's guess (the
 # guess is within a scan's motion of the pose)
@@ -438,7 +438,7 @@ def _moved(Ta: np.ndarray, Tb: np.ndarray, dist_m: float, angle_deg: float) -> b
 def mesh_scan_subset(poses: np.ndarray, max_n: int, dist_m: float = 0.05, angle_deg: float = 2.0) -> np.ndarray:
     """Indices of at most ``max_n`` scans: keyframes by motion plus scans evenly spread in time."""
     S = len(poses)
-    if S <= max_n:
+    if max_n >= S:
         return np.arange(S)
     key, last = [0], poses[0]
     for i in range(1, S):

@@ -7,10 +7,10 @@ import time
 
 import numpy as np
 
+from ...dataset.layout import LIDAR_POINT_TIME_NS, LIDAR_POINTS, LIDAR_RANGE, LIDAR_TIMESTAMP_NS, TIME_TIMESTAMP_NS
 from ...errors import DatasetError
 from ...progress import track
 from .config import Scans
-from ...dataset.layout import LIDAR_POINTS, LIDAR_POINT_TIME_NS, LIDAR_RANGE, LIDAR_TIMESTAMP_NS, TIME_TIMESTAMP_NS
 
 # kiss-icp's max range from the data: this percentile of the first scans' ranges (stray far returns
 # aside) × RANGE_MARGIN, at least MIN_MAX_RANGE_M (a scan in a cupboard)

@@ -6,10 +6,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...dataset.layout import (
+    LIDAR_POINTS,
+    LIDAR_TIMESTAMP_NS,
+    MAP_POINTS,
+    MESH_FACE_CLASS,
+    MESH_FACES,
+    MESH_VERTICES,
+    POSE_T_WORLD_LIDAR,
+    POSE_T_WORLD_RADAR,
+    TIME_TIMESTAMP_NS,
+)
 from .config import SlamConfig, SlamResult
-from ...dataset.layout import (LIDAR_POINTS, LIDAR_TIMESTAMP_NS, MAP_POINTS, MESH_FACES, MESH_FACE_CLASS,
-                               MESH_VERTICES, POSE_T_WORLD_LIDAR, POSE_T_WORLD_RADAR, TIME_TIMESTAMP_NS)
-
 
 # The version of slam's method, in the fingerprint: raised with every deliberate change of slam's output
 # (its settings unchanged), so that scenes mapped by the older method are mapped again instead of read

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 
 from ...conventions import transform_points
+from ...dataset.layout import LIDAR_TIMESTAMP_NS, POSE_T_WORLD_RADAR, TF_T_WORLD_LIDAR, TIME_TIMESTAMP_NS
 from ...progress import track
 from ...trajectory import Trajectory
 from .config import Scans, SlamConfig
 from .points import downsample
 from .refine import deskewed_scans, level_seeds, mesh_scan_subset
-from ...dataset.layout import LIDAR_TIMESTAMP_NS, POSE_T_WORLD_RADAR, TF_T_WORLD_LIDAR, TIME_TIMESTAMP_NS
 
 
 def _attr_T(d, key) -> np.ndarray | None:
