@@ -137,11 +137,6 @@ FACES_WITH_CODE = {
     # PEP 562 face: subpackages imported on first attribute access, ``open_dataset`` without importing
     # the dataset stack, so that ``import holodata`` stays fast
     "holodata/__init__.py",
-    # ``open_dataset``'s mode switch ("r" reader / "r+" writer) and lazy trampolines to .info and
-    # .validate, which keep ``import holodata.dataset`` from importing validate's dependencies
-    "holodata/dataset/__init__.py",
-    # the pretrained-weights package: its code (resolve, scores, install) beside its weights/ folder
-    "holodata/torch/pretrained/__init__.py",
 }
 
 
