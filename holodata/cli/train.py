@@ -35,8 +35,9 @@ from holodata.cli.options import json_option, quiet_option
 @click.option("--stage2-epochs", type=click.IntRange(min=0), default=None,
               help="Epochs of each stage-two phase (ray tracer, then refiner; default 20 each).")
 @click.option("--init", "init", default=None,
-              help="Fine-tune stage one from this checkpoint (file, run directory, or 'pretrained': the weights holodata "
-                   "ships); its training settings are the defaults, flags and --config win.")
+              help="Fine-tune from this checkpoint (file, run directory, or 'pretrained': the weights holodata ships): "
+                   "stage one, and stage two where the run has a stage2.pt; its stage-one settings are the defaults, "
+                   "flags and --config win.")
 @quiet_option()
 @json_option()
 def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_workers, range_loss, stage, stage1,
@@ -106,7 +107,8 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
             check_split()
         if epochs is not None and not told:   # --epochs bounds each stage-two phase too
             s2cfg.epochs_rt, s2cfg.epochs_refine = min(s2cfg.epochs_rt, epochs), min(s2cfg.epochs_refine, epochs)
-        r2 = train_stage2(dataset, out, s2cfg, stage1=stage1 if stage == "2" else None, quiet=quiet)
+        r2 = train_stage2(dataset, out, s2cfg, stage1=stage1 if stage == "2" else None, quiet=quiet,
+                          init=_stage2_init(init))
         last = r2["history"][-1] if r2["history"] else {}
         summary.setdefault("run", str(out))
         summary["stage2"] = {"checkpoint": str(r2["checkpoint"]), "epochs": r2["epochs"],
@@ -117,6 +119,20 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         import json
 
         click.echo(json.dumps(summary, indent=2))
+
+
+def _stage2_init(init):
+    """What stage two fine-tunes from for ``--init``: the named run's stage-two checkpoint when it has one
+    (``pretrained`` has), else None (a stage-one checkpoint file alone: stage two trains from scratch)."""
+    if init is None:
+        return None
+    from pathlib import Path
+
+    from holodata.torch.pretrained import resolve
+    from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
+
+    run = Path(resolve(init))
+    return run if run.is_dir() and (run / STAGE2_CHECKPOINT).is_file() else None
 
 
 def _done_line(stage: str, epochs: int, resumed_from: int, loss, checkpoint) -> str:

@@ -30,8 +30,8 @@ Pipeline (all poses ``T_world_sensor``, 4×4 float64, REP-103):
    (Bare kiss-icp lags while the robot accelerates from rest; the refinement is what makes the
    poses centimetre-accurate: ``docs/design/slam.md``.)
 4. **World frame**: when TF connects the LiDAR to a world frame (ingest's ``tf/T_world_lidar``;
-   else its TF radar poses ``pose/T_world_radar`` with ``source: tf`` through the extrinsics, or the
-   source recording's TF), the first scan TF covers is anchored at its TF pose, so the map lives in
+   else its TF radar poses ``pose/T_world_radar`` with ``source: tf`` through the extrinsics; slam
+   reads the dataset only, never the source recording), the first scan TF covers is anchored at its TF pose, so the map lives in
    TF's world frame (where static camera TF and odometry live; TF may start after the LiDAR);
    else the world is the base frame at the first scan (``extrinsics.lidar`` = T_base_lidar), else
    the first LiDAR pose is the identity. ``pose/T_world_lidar`` says which (``world_frame``,
@@ -78,12 +78,12 @@ from .store import _fingerprint as _fingerprint
 from .store import _stored_result as _stored_result
 from .store import _write as _write
 from .store import write_static_map
-from .world import StaticMap, anchor_pose, frame_poses, guess_poses, recording_tf_poses, static_mesh, tf_lidar_poses
+from .world import StaticMap, anchor_pose, frame_poses, guess_poses, static_mesh, tf_lidar_poses
 from .world import level_tf_poses as level_tf_poses
 from .world import tf_agreement as tf_agreement
 
 __all__ = ["SlamConfig", "SlamOutputs", "SlamResult", "StaticMap", "write_static_map", "Scans", "load_scans",
            "kiss_odometry", "refine", "RefineOptions", "global_refine",
            "static_mesh", "slam_scene", "slam_dataset", "deskew", "twist", "anchor_pose", "tf_lidar_poses", "frame_poses",
-           "localise_scene", "check_map_scene", "recording_tf_poses", "guess_poses", "MAPPING_ROLE", "stream_scans",
+           "localise_scene", "check_map_scene", "guess_poses", "MAPPING_ROLE", "stream_scans",
            "data_max_range", "mesh_scan_subset"]

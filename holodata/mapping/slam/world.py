@@ -3,9 +3,7 @@ scans (:func:`static_mesh`, :class:`StaticMap`)."""
 from __future__ import annotations
 
 import contextlib
-import functools
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
@@ -24,53 +22,6 @@ def _attr_T(d, key) -> np.ndarray | None:
         return None
     T = np.asarray(v, np.float64)
     return T if T.shape == (4, 4) and np.all(np.isfinite(T)) else None
-
-
-@functools.lru_cache(maxsize=4)
-def _recording_tf(path: str, tf_topics: tuple, static: tuple, mtime_ns: int, size: int):
-    """The TF buffer of a recording's ``tf_topics`` (``static`` ones as static), read once per
-    (path, mtime, size); None when it does not read."""
-    from ...errors import HolodataError
-    from ...readers import open_recording
-    from ...readers.tf import TransformBuffer
-
-    tf = TransformBuffer()
-    try:
-        with open_recording(path) as rec:
-            for topic, _, msg in rec.messages(list(tf_topics)):
-                tf.add_message(msg, static=topic in static)
-    except (HolodataError, OSError, ValueError, AttributeError):
-        return None
-    return tf
-
-
-def recording_tf_poses(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, str] | None:
-    """TF poses T_world_lidar (S,4,4) of the scene's LiDAR frame at ``stamps_ns`` (S,), read from the
-    scene's source recording (``source.recording``, its ``ingest.topics`` TF topics), with (S,) bool
-    "covered" and the world frame's name; None when the recording is gone, has no TF or TF does not
-    connect the LiDAR frame to a world frame. ingest stores TF poses only for radar frames
-    (``pose/T_world_radar``), so a LiDAR-only scene (a mapping pass) finds its TF world this way."""
-    from ...readers.tf import WORLD_FRAMES
-
-    attrs = scene.attrs
-    path = (attrs.get("source") or {}).get("recording")
-    topics = (attrs.get("ingest") or {}).get("topics") or {}
-    frame = ((attrs.get("sensors") or {}).get("lidar") or {}).get("frame_id")
-    tf_topics = list(topics.get("tf") or []) + list(topics.get("tf_static") or [])
-    if not path or not frame or not tf_topics or not Path(path).exists():
-        return None
-    st = Path(path).stat()
-    tf = _recording_tf(str(path), tuple(tf_topics), tuple(topics.get("tf_static") or []), st.st_mtime_ns, st.st_size)
-    if tf is None:
-        return None
-    world = topics.get("world_frame") or next((w for w in WORLD_FRAMES if w in tf.frames and
-                                               tf._path(w, frame, False) is not None), None)
-    if world is None:
-        return None
-    res = tf.lookup_many(world, frame, np.asarray(stamps_ns, np.int64))
-    if res is None:
-        return None
-    return np.asarray(res[0], np.float64), np.asarray(res[1], bool), str(world)
 
 
 def tf_lidar_poses(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray, str] | None:
@@ -133,20 +84,17 @@ def tf_agreement(scene, stamps_ns: np.ndarray, poses: np.ndarray) -> dict | None
 def anchor_pose(scene, stamps_ns: np.ndarray) -> tuple[np.ndarray, int, dict]:
     """The world pose T_world_lidar of one scan, that scan's index into ``stamps_ns`` (the scans'
     stamps, (S,)) and how it was chosen (see module doc, 4.): the first scan TF covers, from ingest's
-    ``tf/T_world_lidar``, else ingest's TF radar poses through the extrinsics, else the source
-    recording's TF; else the base frame (``extrinsics.lidar``) or the LiDAR frame at the first scan."""
+    ``tf/T_world_lidar``, else ingest's TF radar poses through the extrinsics; else the base frame
+    (``extrinsics.lidar``) or the LiDAR frame at the first scan."""
     stamps_ns = np.asarray(stamps_ns, np.int64).reshape(-1)
     ext = scene.attrs.get("extrinsics") or {}
     T_bl, T_br = _attr_T(ext, "lidar"), _attr_T(ext, "radar")
     prev = (scene.attrs.get("slam") or {}).get("anchor")
     names = set(scene.arrays())
-    for src, res in ((TF_T_WORLD_LIDAR, lambda: tf_lidar_poses(scene, stamps_ns)),
-                     ("TF of the source recording", lambda: None if POSE_T_WORLD_RADAR in names
-                      else recording_tf_poses(scene, stamps_ns))):
-        r = res()
-        if r is not None and r[1].any():
-            j = int(np.argmax(r[1]))
-            return r[0][j], j, {"kind": "tf", "world_frame": r[2], "via": src, "scan": j}
+    r = tf_lidar_poses(scene, stamps_ns)
+    if r is not None and r[1].any():
+        j = int(np.argmax(r[1]))
+        return r[0][j], j, {"kind": "tf", "world_frame": r[2], "via": TF_T_WORLD_LIDAR, "scan": j}
     if POSE_T_WORLD_RADAR in names and T_bl is not None and T_br is not None:
         pa = scene[POSE_T_WORLD_RADAR]
         src = dict(pa.attrs).get("source")
@@ -254,8 +202,9 @@ def static_mesh(scans: Scans, poses: np.ndarray, cfg: SlamConfig, max_range: flo
 
 def guess_poses(scene, scans: Scans) -> tuple[np.ndarray | None, str]:
     """Odometry/TF-based guesses T_world_lidar (S,4,4) at the scan stamps: ingest's TF radar poses
-    (``pose/T_world_radar``, source tf) through the extrinsics, else the source recording's TF
-    (:func:`recording_tf_poses`); (None, "none") without either."""
+    (``pose/T_world_radar``, source tf) through the extrinsics, else ingest's ``tf/T_world_lidar``
+    (:func:`tf_lidar_poses`); (None, "none") without either. Only the dataset is read: ingest stored
+    what TF says (a dataset is self-sufficient once ingested)."""
     names = set(scene.arrays())
     ext = scene.attrs.get("extrinsics") or {}
     T_bl, T_br = _attr_T(ext, "lidar"), _attr_T(ext, "radar")
@@ -266,9 +215,7 @@ def guess_poses(scene, scans: Scans) -> tuple[np.ndarray | None, str]:
         if ok.sum() >= 2:
             T_rl = np.linalg.inv(T_br) @ (T_bl if T_bl is not None else np.eye(4))
             return Trajectory(t[ok], P[ok]).interpolate(scans.stamp_ns) @ T_rl, "tf (pose/T_world_radar)"
-    for src, poses in (("tf (tf/T_world_lidar)", tf_lidar_poses),
-                       ("tf (source recording)", recording_tf_poses)):   # (the recording is read only if needed)
-        rt = poses(scene, scans.stamp_ns)
-        if rt is not None and rt[1].all():
-            return rt[0], src
+    rt = tf_lidar_poses(scene, scans.stamp_ns)
+    if rt is not None and rt[1].all():
+        return rt[0], "tf (tf/T_world_lidar)"
     return None, "none"
