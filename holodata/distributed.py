@@ -9,7 +9,7 @@ every stage runs in-process as before.
 Tasks (the unit a lost worker loses, and the scheduler reruns elsewhere). This module only runs
 them (:func:`run_tasks` over a function and its calls) and knows no stage; each stage owns its task
 function (``groundtruth._gt_shard_task``, ``ingest._ingest_task``, ``synth.batch._synth_task``) and
-imports this module, never the other way round (tests/test_import_graph.py):
+imports this module, never the other way round (tests/project/test_import_graph.py):
 
 * ``raytrace-gt``: one task per *shard* of a scene (``shard_frames`` consecutive frames); it
   traces those frames and writes every gt/* array's shard with ``FrameArrayWriter.write_shard``.

@@ -5,7 +5,7 @@ the reader API (``holodata.open_dataset(...)[scene][array]``) need only :data:`C
 dependencies come with an extra named for the user's task (docs/install.md). :data:`EXTRAS` is the
 single source: ``[project.optional-dependencies]`` in pyproject.toml lists the same requirements
 (``all`` is their union; ``dev`` holds the test tools and is not a task), and
-tests/test_light_install.py checks that the two agree.
+tests/project/test_light_install.py checks that the two agree.
 
 The CLI checks a command's extras before it starts (:func:`check_command`: no half-done work, one line,
 exit 1) and maps a missing module met later to its extra (:func:`missing_extra_line`). Library code

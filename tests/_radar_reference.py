@@ -1,7 +1,7 @@
 """The rotating-array imaging algorithm written out as plain direct sums (no FFT over chirps, no
 shared coefficients, no recurrences), straight from FIELD-NOTES §"Raw radar" / PanoRadar's
 ``radar_imaging_3d.py``: the reference the fast beamformer (:mod:`holodata.radar.beamform`) is
-checked against in ``tests/test_radar_beamform.py`` and timed against in ``benchmarks/beamform.py``.
+checked against in ``tests/radar/test_beamform.py`` and timed against in ``benchmarks/beamform.py``.
 complex128 throughout. Only the windows come from holodata (numpy's own functions).
 """
 from __future__ import annotations

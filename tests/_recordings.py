@@ -9,11 +9,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from _paths import FIXTURES as FIXTURES  # re-exported: the reader and ingest tests import it from here
 from scipy.spatial.transform import Rotation
 
 from holodata.messages import typestore_for
-
-FIXTURES = Path(__file__).resolve().parents[1].parent / "shared" / "fixtures"
 
 LIDAR_DTYPE = np.dtype({"names": ["x", "y", "z", "intensity", "t", "ring"],
                         "formats": ["<f4", "<f4", "<f4", "<f4", "<u4", "<u2"],

@@ -6,6 +6,12 @@ log then shows the report was checked in a browser, not skipped.
 """
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the helper modules (_recordings, _paths, ...) sit in tests/; tests in its subfolders import them by name
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
 
 def pytest_terminal_summary(terminalreporter) -> None:
     for report in terminalreporter.stats.get("passed", []):

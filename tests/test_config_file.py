@@ -4,16 +4,16 @@ result follows the file."""
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import pytest
+from _paths import REPO
 from click.testing import CliRunner
 
 from holodata.cli.main import cli
 from holodata.config_file import SECTIONS, build, config_class, read
 from holodata.errors import InputError
 
-EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "holodata.yaml"
+EXAMPLE = REPO / "examples" / "holodata.yaml"
 
 
 def test_the_example_names_every_section_and_holds_the_defaults():

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _recordings import write_recording
+from _scenes import HUMAN, l_corridor
 from click.testing import CliRunner
 from test_groundtruth import pose
-from test_raytrace import HUMAN, l_corridor
 
 import holodata.dataset as hds
 from holodata.cli.main import cli

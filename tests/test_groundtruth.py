@@ -6,9 +6,10 @@ import os
 
 import numpy as np
 import pytest
+from _paths import TESTS
+from _scenes import HUMAN, box, l_corridor
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
-from test_raytrace import HUMAN, box, l_corridor
 
 import holodata.dataset as hds
 from holodata.cli.main import cli
@@ -315,7 +316,7 @@ import holodata.dataset as hds
 from holodata.conventions import Grid, RangeBins
 from holodata.groundtruth import GTConfig, HumanSource, TraceInputs, TracingError, write_scene_gt
 from holodata.trajectory import Trajectory
-from test_raytrace import l_corridor
+from _scenes import l_corridor
 
 
 class DieAt(HumanSource):
@@ -356,7 +357,7 @@ def test_process_pool_dead_worker_raises_instead_of_hanging(tmp_path):
     import sys
 
     script = tmp_path / "die.py"
-    script.write_text(DIE_SCRIPT.format(tests=os.path.dirname(__file__)))
+    script.write_text(DIE_SCRIPT.format(tests=str(TESTS)))
     url = str(tmp_path / "ds.zarr")
     r = subprocess.run([sys.executable, str(script), url, "9"], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr

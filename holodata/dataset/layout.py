@@ -4,7 +4,7 @@ shape, dtypes, dimension names, units, the stage that writes it and the stages t
 The dataset writer (:mod:`holodata.dataset.writer`) takes each array's dtype, dims, units, fill value
 and ragged width from it, so the stages that create arrays name them and give their sizes, nothing
 more; ``validate`` checks shapes, dtypes, dims and units against it, and ``raytrace-gt`` creates its
-arrays from it. Tests (``tests/test_layout.py``) check that the writer makes every array as its entry
+arrays from it. Tests (``tests/dataset/test_layout.py``) check that the writer makes every array as its entry
 says and that no stage spells dims or units of its own.
 
 The table is also the inventory ``validate`` checks a scene against: ``required_if`` names the
@@ -58,7 +58,7 @@ class ArraySpec:
 
 # The array names, one constant each, named by the rule path upper-cased and "/" -> "_" (RADAR_HEATMAP =
 # "radar/heatmap"). The table below and every module that reads or writes an array use these: no name is
-# spelled anywhere else in the package (tests/test_layout.py counts).
+# spelled anywhere else in the package (tests/dataset/test_layout.py counts).
 TIME_TIMESTAMP_NS = "time/timestamp_ns"
 RADAR_HEATMAP = "radar/heatmap"
 RADAR_CYCLE_NS = "radar/cycle_ns"

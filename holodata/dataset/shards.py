@@ -6,7 +6,7 @@ Fast path (every array holodata writes): chunk = one frame, codecs ``bytes`` (li
 per the Zarr v3 sharding spec: the frames' Blosc-compressed chunks concatenated in chunk order,
 then the index (``(offset, nbytes)`` uint64 little-endian per chunk of the shard grid, C order;
 ``2**64-1`` twice for a chunk past the end of a partial last shard) and its crc32c (uint32 LE).
-This is byte-for-byte what zarr-python writes (tests/test_dataset_writer.py checks it) but several
+This is byte-for-byte what zarr-python writes (tests/dataset/test_writer.py checks it) but several
 times faster: zarr's sharding encoder runs every chunk through asyncio and copies (the numbers are in
 docs/design/performance.md). Blosc and crc32c release the GIL, so shards encode in parallel threads.
 

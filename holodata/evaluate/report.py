@@ -5,7 +5,7 @@ GT and predicted LOS/NLOS points, the person's true and predicted centres), then
 (scene reconstruction, NLOS by corner shape / width / attenuation in the paper's Table-3 layout,
 human detection, range images per bounce), then the other figures. Laid out for a 1280 px window:
 a 1200 px column, tables that fit it, figures about 1170 px wide (checked by
-tests/test_report_browser.py through :func:`check_layout`)."""
+tests/evaluate/test_report_browser.py through :func:`check_layout`)."""
 from __future__ import annotations
 
 import html

@@ -1,7 +1,7 @@
 """Angular point-spread function of the rotating-array beamformer (:mod:`holodata.radar.beamform`) at
 the band's centre wavelength λ — what synth's direct heatmap path (:mod:`holodata.synth.radar`)
 convolves its paths with, so that its heatmaps have the main lobes and sidelobes of heatmaps
-beamformed from raw samples (``tests/test_synth_radar.py`` compares both).
+beamformed from raw samples (``tests/synth/test_radar.py`` compares both).
 
 Azimuth (one elevation row θ, a point at range R from the rotation centre and azimuth offset δ
 from the beam): the beam sums the ``n_syn`` chirps ``m = −h..h`` around it with the chirp window

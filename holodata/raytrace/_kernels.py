@@ -3,7 +3,7 @@
 Each kernel is one pass over the rays doing what ~10-40 numpy array operations did (their cost:
 docs/design/raytrace.md, "Compiled per-bounce pass"), with the same float32 operations in the same
 order, so the results are identical to the bit to the numpy reference path (``RayScene.compiled =
-False``; tests/test_raytrace.py compares both on random scenes and rays):
+False``; tests/raytrace/test_raytrace.py compares both on random scenes and rays):
 
 - no ``fastmath`` (no reassociation, no fused multiply-add: LLVM contracts only under fastmath),
   ``error_model="numpy"`` (x/0 gives inf/NaN as in numpy instead of raising);
@@ -218,7 +218,7 @@ def to_half(x, out):  # pragma: no cover - compiled
     array's ``.view(np.uint16)``): ``x.astype(np.float16)`` to the bit — round to nearest, ties to
     even; overflow to inf; subnormal halves; a NaN keeps its top payload bits — in one pass
     (cheaper than numpy's cast of a frame's normals). Checked against numpy on every
-    float32 bit pattern (cost and check: docs/design/raytrace.md) and on a sample in tests/test_raytrace_kernels.py."""
+    float32 bit pattern (cost and check: docs/design/raytrace.md) and on a sample in tests/raytrace/test_kernels.py."""
     u = x.view(np.uint32)
     for i in range(u.shape[0]):
         b = np.int64(u[i])

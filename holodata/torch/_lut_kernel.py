@@ -11,7 +11,7 @@ bins, the code whose normalised value is largest:
 ``value`` (float32) is what is compared, ``table_out`` what is written (float32, or float16 as its
 uint16 bit pattern): numba has no float16, and comparing the normalised values (not the codes)
 keeps negative and NaN patterns of float16 where the norm puts them. Equal to numpy's
-``norm(pool(decode(q)))`` for any monotone norm (tests/test_loader.py checks it against numpy).
+``norm(pool(decode(q)))`` for any monotone norm (tests/torch_/test_loader.py checks it against numpy).
 """
 from __future__ import annotations
 

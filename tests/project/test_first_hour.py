@@ -3,14 +3,13 @@ thing everywhere, with the command that fixes it."""
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import pytest
+from _paths import FIXTURES, REPO
 from click.testing import CliRunner
 
 from holodata.cli.main import cli
 
-FIXTURES = Path(__file__).resolve().parents[2] / "shared" / "fixtures"
 PACKETS_BAG = FIXTURES / "ros1" / "512x10_raw.bag"
 PCAP = FIXTURES / "ouster" / "OS-1-32-G_v2.1.1_1024x10.pcap"
 
@@ -26,7 +25,7 @@ def test_without_the_ouster_sdk_list_and_ingest_say_the_same_one_line(no_ouster_
     from holodata.readers.ouster import INSTALL_COMMAND, SDK_REQUIREMENTS
 
     assert INSTALL_COMMAND.startswith("pip install --no-deps ") and all(r in INSTALL_COMMAND for r in SDK_REQUIREMENTS)
-    setup = (Path(__file__).resolve().parents[1] / "scripts" / "setup.sh").read_text()
+    setup = (REPO / "scripts" / "setup.sh").read_text()
     assert "holodata.readers.ouster" in setup            # setup.sh installs exactly that list
     r = CliRunner().invoke(cli, ["ingest", "--list", str(PACKETS_BAG)])
     assert r.exit_code == 0, r.output

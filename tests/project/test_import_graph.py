@@ -35,7 +35,9 @@ import ast
 from collections import deque
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1] / "holodata"
+from _paths import REPO
+
+ROOT = REPO / "holodata"
 
 
 def modules(root: Path = ROOT) -> dict[str, Path]:

@@ -328,12 +328,12 @@ def test_cli_gate_exit_code_and_one_line_per_problem(ds):
 
 
 # -- the same on S3 (moto) --------------------------------------------------------------------------------
-BUCKET = "holodata-gate"   # not tests/test_s3.py's: moto's buckets outlive its server in this process
+BUCKET = "holodata-gate"   # not tests/dataset/test_s3.py's: moto's buckets outlive its server in this process
 
 
 @pytest.fixture(scope="module")
 def s3():
-    """moto's S3 server on a free port, the AWS_* environment pointing at it (as tests/test_s3.py)."""
+    """moto's S3 server on a free port, the AWS_* environment pointing at it (as tests/dataset/test_s3.py)."""
     import os
     import socket
 

@@ -16,15 +16,15 @@ import re
 import subprocess
 import sys
 import tomllib
-from pathlib import Path
 
 import pytest
+from _paths import REPO
 from click.testing import CliRunner
 
 from holodata.cli.main import cli
 from holodata.extras import ALL, COMMAND_EXTRAS, CORE, EXTRAS, all_requirements, extra_of, installed
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 PYPROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text())
 IMPORT_NAME = {"pyyaml": "yaml", "opencv-python-headless": "cv2", "kiss-icp": "kiss_icp", "rerun-sdk": "rerun",
                "dask": "distributed"}

@@ -6,13 +6,14 @@ import ast
 from pathlib import Path
 
 import numpy as np
+from _paths import REPO
 
 from holodata.conventions import Grid, RangeBins
 from holodata.dataset import create_dataset
 from holodata.dataset.layout import GT_ARRAYS, LAYOUT, spec
 from holodata.dataset.validate import expected_spec, validate_dataset
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 
 
 def test_every_entry_is_consistent():

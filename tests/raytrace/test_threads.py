@@ -11,7 +11,8 @@ from concurrent.futures.process import BrokenProcessPool
 
 import numpy as np
 import pytest
-from test_raytrace import HUMAN, l_corridor
+from _paths import TESTS
+from _scenes import HUMAN, l_corridor
 
 import holodata.dataset as hds
 from holodata.conventions import Grid, Label
@@ -253,12 +254,12 @@ def test_no_fork_once_open3d_has_cast():
     code = ("from holodata.raytrace.pool import can_fork\n"
             "from holodata.raytrace import RayScene\n"
             "import numpy as np\n"
-            "from test_raytrace import l_corridor\n"
+            "from _scenes import l_corridor\n"
             "a = can_fork('open3d')\n"
             "RayScene(*l_corridor()).trace(np.zeros((4, 3)), np.tile([1.0, 0, 0], (4, 1)))\n"
             "print(a, can_fork('open3d'), can_fork('embreex'))\n")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                       cwd=os.path.dirname(__file__))
+                       cwd=TESTS)
     assert r.stdout.split() == ["True", "False", "False"]
 
 

@@ -12,11 +12,12 @@ import shlex
 from pathlib import Path
 
 import pytest
+from _paths import REPO
 from click.testing import CliRunner
 
 from holodata.cli.main import cli
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = REPO / "README.md"
 MARK = "# your own recording"
 # the order a user meets the commands in; each one's examples use what the ones before wrote
 ORDER = ("synth", "ingest", "beamform", "slam", "register", "raytrace-gt", "split", "validate", "info", "train",

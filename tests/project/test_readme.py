@@ -9,10 +9,11 @@ from pathlib import Path
 
 import click
 import pytest
+from _paths import REPO
 
 from holodata.cli.main import cli
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = REPO / "README.md"
 
 
 def _blocks(lang: str) -> list[str]:

@@ -7,12 +7,11 @@ import sys
 from pathlib import Path
 
 import pytest
+from _paths import TESTS
 
 torch = pytest.importorskip("torch")
 
 from holodata.torch.ddp import Ddp, local_batches  # noqa: E402
-
-TESTS = Path(__file__).resolve().parent
 
 SCRIPT = """
 import sys

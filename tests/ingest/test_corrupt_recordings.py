@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _paths import FIXTURES
 
 from holodata.conventions import Grid
 from holodata.dataset import validate_dataset
 
-FIXTURES = Path(__file__).resolve().parents[2] / "shared" / "fixtures"
 HOLODATA = [sys.executable, "-m", "holodata.cli.main"]
 EXC_NAME = re.compile(r"\b[A-Z][A-Za-z]+(Error|Exception)\b")
 
