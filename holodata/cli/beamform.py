@@ -96,8 +96,8 @@ class _Imaging:
 
 def _one(dataset, ds, sid, imaging: _Imaging, motion, device, client, quiet) -> dict:
     """Imaging parameters of scene ``sid``: as ingested, with the flags given; then beamform it."""
-    from holodata.beamforming import beamform_scene
     from holodata.errors import DatasetError
+    from holodata.reimage import beamform_scene
 
     if sid not in ds.scenes:
         raise DatasetError(f"{ds.url}: no scene {sid!r} (have {', '.join(ds.scenes)})")

@@ -76,7 +76,7 @@ class HolodataGroup(click.Group):
 def close_filesystems() -> None:
     """Close the object-store HTTP sessions the command opened (s3fs's, in this process) before the
     interpreter shuts down, which would otherwise leave aiohttp to print "Unclosed client session" on
-    stderr after the result (issue 43 point 5; :func:`holodata.dataset.store.close_filesystems`)."""
+    stderr after the result (:func:`holodata.dataset.store.close_filesystems`)."""
     if "s3fs" not in sys.modules:     # no object store was used
         return
     from holodata.dataset.store import close_filesystems as close

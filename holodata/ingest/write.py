@@ -484,7 +484,7 @@ def _iq_outputs(plan: Plan, sc, frame_arr, outs: dict, T: int, S: int, bg) -> No
     beams use first and last (``radar/iq_span`` (T, 3) int32 = before, rotation, after; zero-padded
     to L); ``radar/iq_motion`` (T, 2) float64: travel per chirp (m) and heading (rad) it was imaged
     with; ``radar/iq_static`` (V, S) complex64: the trajectory's static reflection, subtracted before
-    imaging. ``holodata beamform`` re-images them (:mod:`holodata.beamforming`)."""
+    imaging. ``holodata beamform`` re-images them (:mod:`holodata.reimage`)."""
     src = plan.rec if hasattr(plan.rec, "iq_shape") else plan.streams["radar"]   # a raw reader, or raw messages
     L, V, Sm = src.iq_shape()
     if hasattr(src, "static_refl"):    # a trajectory mean exists only where the reader sees every chirp

@@ -1,4 +1,4 @@
-"""Stage-one checkpoints from elsewhere, loaded as tensors and plain data only (issue 43 point 6).
+"""Stage-one checkpoints from elsewhere, loaded as tensors and plain data only.
 
 ``torch.load(..., weights_only=True)`` through :func:`holodata.safe_io.load_torch`: a checkpoint
 that pickles any other Python object is refused (one :class:`~holodata.errors.InputError` line)
