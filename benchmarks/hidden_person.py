@@ -39,10 +39,10 @@ def main(argv=None) -> int:
     from holodata.torch.data import HeatmapDataset, apply_transform
     from holodata.torch.pretrained import resolve
 
-    run = Predictor.load(resolve(a.checkpoint))
+    ds = open_dataset(a.dataset)
+    run = Predictor.load(resolve(a.checkpoint, ds.grid))
     if run.stage2 is None:
         raise SystemExit(f"{a.checkpoint}: no stage two next to the stage-one checkpoint")
-    ds = open_dataset(a.dataset)
     model_tf, base_tf = run.transforms()
     data = HeatmapDataset(a.dataset, split=a.split, norm=run.norm, transform=model_tf)
     grid = reduced_grid(ds.grid, run.downsample)

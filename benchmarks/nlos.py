@@ -14,7 +14,7 @@ Data: ``holodata synth --corners`` corpora at the quick demo's 32×128 beams and
 the first 16 corners of the 64-corner one). Training corpus: seed 0. Held-out rule, fixed before any
 run and printed: corpus seed 1000000, its corners 0-15 × ``--frames`` (the *report* set, never
 trained on or tuned on; developing used seed 500); its first 2 corners × 2 frames are the *check*
-set tests/test_pretrained.py rescores. Stage one: the quick demo's model (depth 6, base 8, max 64,
+set tests/torch_/test_pretrained.py rescores. Stage one: the quick demo's model (depth 6, base 8, max 64,
 range pooled ×2) with the per-bin likelihood ("ce", mode estimate), ``--steps`` steps of batch 4 at
 every point. Stage two: 3 ray-tracer + 2 refiner epochs on ``--stage2-frames`` training frames
 spread over the corners (at least one per corner), its keep threshold and stage one's confidence
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
     from holodata.evaluate.pipeline import Evaluation
     from holodata.synth.corpus import CorpusConfig, synth_corpus
     from holodata.torch import TrainConfig, train
-    from holodata.torch.pretrained import CHECK_SET, install, scores
+    from holodata.torch.pretrained import CHECK_SET, GRID_DIRS, grid_key, install, scores
     from holodata.torch.stage2_train import Stage2Config, train_stage2
 
     points = sorted({int(n) for n in a.corners.split(",")})
@@ -202,7 +202,9 @@ def main(argv=None) -> int:
                   "heldout_check": cc_dict(check_cc), "train_config": cfg.to_dict(), "stage2_config": s2.to_dict(),
                   "train_seconds": round(timings[top]["stage_one_s"] + timings[top]["stage_two_s"], 1),
                   "scores": recorded}
-        print(f"installed {install(run, record)}")
+        # each grid's run in its own folder; the paper grid's as float16 (its size: <= 25 MB a file)
+        key = grid_key(train_cc.grid)
+        print(f"installed {install(run, record, dest=GRID_DIRS[key], half=key != '32x128')}")
     return 0
 
 

@@ -307,7 +307,7 @@ class _Demo:
                 from .torch.pretrained import resolve
 
                 try:
-                    init = resolve(cfg.init)
+                    init = resolve(cfg.init, cfg.grid)
                 except InputError as err:
                     raise InputError(f"{err}; or train the demo's model from scratch (holodata demo --from-scratch)") \
                         from err
@@ -349,8 +349,9 @@ def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = Tru
     from .torch.train import check_stage1
 
     try:
-        weights = resolve("pretrained")
-        check_stage1(load_checkpoint(weights), open_dataset(str(url)), weights)
+        ds = open_dataset(str(url))
+        weights = resolve("pretrained", ds.grid)
+        check_stage1(load_checkpoint(weights), ds, weights)
     except InputError as err:
         say(f"pretrained weights not evaluated: {err}")
         return None

@@ -79,7 +79,7 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         if init is not None:
             from holodata.torch.pretrained import resolve
 
-            init = resolve(init)
+            init = resolve(init, open_dataset(dataset).grid)
             base = dict(load_checkpoint(init).get("train_config") or {})
         if config_file:
             cfg = TrainConfig.from_file(config_file, **flags)
@@ -108,7 +108,7 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         if epochs is not None and not told:   # --epochs bounds each stage-two phase too
             s2cfg.epochs_rt, s2cfg.epochs_refine = min(s2cfg.epochs_rt, epochs), min(s2cfg.epochs_refine, epochs)
         r2 = train_stage2(dataset, out, s2cfg, stage1=stage1 if stage == "2" else None, quiet=quiet,
-                          init=_stage2_init(init))
+                          init=_stage2_init(init, open_dataset(dataset).grid))
         last = r2["history"][-1] if r2["history"] else {}
         summary.setdefault("run", str(out))
         summary["stage2"] = {"checkpoint": str(r2["checkpoint"]), "epochs": r2["epochs"],
@@ -121,7 +121,7 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         click.echo(json.dumps(summary, indent=2))
 
 
-def _stage2_init(init):
+def _stage2_init(init, grid):
     """What stage two fine-tunes from for ``--init``: the named run's stage-two checkpoint when it has one
     (``pretrained`` has), else None (a stage-one checkpoint file alone: stage two trains from scratch)."""
     if init is None:
@@ -131,7 +131,7 @@ def _stage2_init(init):
     from holodata.torch.pretrained import resolve
     from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
 
-    run = Path(resolve(init))
+    run = Path(resolve(init, grid))
     return run if run.is_dir() and (run / STAGE2_CHECKPOINT).is_file() else None
 
 

@@ -317,12 +317,12 @@ class Evaluation:
 
         from .predict import Predictor
 
-        checkpoint = None if self.oracle else resolve(self.checkpoint)
+        ds = open_dataset(str(self.dataset_url))
+        checkpoint = None if self.oracle else resolve(self.checkpoint, ds.grid)
         out = Path(self.out_dir)
         claim_folder(out, "holodata evaluate")   # a new or empty folder, or a report holodata wrote
         run = Predictor.load(checkpoint, device=self.device, estimator=self.estimator, oracle=self.oracle)
         model_tf, base_tf = run.transforms()
-        ds = open_dataset(str(self.dataset_url))
         if not self.oracle:
             from holodata.torch.train import check_stage1
 

@@ -572,7 +572,7 @@ def train_stage2(dataset_url, out_dir, cfg: Stage2Config | dict | None = None, s
     if init is not None:
         from .pretrained import resolve
 
-        init_file = resolve(init)
+        init_file = resolve(init, open_dataset(str(dataset_url)).grid)
         init_file = init_file / STAGE2_CHECKPOINT if init_file.is_dir() else init_file
         if not init_file.is_file():
             raise InputError(f"{init_file}: no such stage-two checkpoint to fine-tune from")
