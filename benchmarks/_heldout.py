@@ -86,11 +86,11 @@ def prepare_heldout(variant: str, seed: int, root: Path, instances: bool = False
 
 def write_true_lidar_poses(url: str, sid: str, truth: Path) -> None:
     """The true ``pose/T_world_lidar`` of the scene's scans (``truth/trajectory_lidar.tum``), replacing
-    any there: scoring a stage without SLAM error. (``human_eval.write_truth_poses`` also wants the
+    any there: scoring a stage without SLAM error. (``register_accuracy.write_truth_poses`` also wants the
     radar trajectory, which a LiDAR-only recording has not.)"""
     from holodata.dataset import open_dataset
     from holodata.dataset.layout import POSE_T_WORLD_LIDAR
-    from holodata.mapping.human_eval import true_lidar_poses
+    from holodata.evaluate.register_accuracy import true_lidar_poses
 
     sc = open_dataset(url).scene(sid)
     P = true_lidar_poses(sc, truth)
@@ -144,7 +144,7 @@ def person_ghost_m2(vertices: np.ndarray, faces: np.ndarray, truth: Path, spacin
     surface at some scan (every 5th ``truth/human/<k>.ply``: the person's trail) and the rest."""
     from scipy.spatial import cKDTree
 
-    from holodata.mapping.accuracy import mesh_distance, sample_mesh
+    from holodata.evaluate.slam_accuracy import mesh_distance, sample_mesh
     from holodata.meshio import read_mesh
 
     tm = read_mesh(Path(truth) / "mesh.ply")

@@ -69,7 +69,7 @@ def main() -> None:
 
     from holodata.dataset import open_dataset
     from holodata.dataset.splits import scene_role
-    from holodata.mapping.human_eval import human_centroid_errors
+    from holodata.evaluate.register_accuracy import human_centroid_errors
 
     d = open_dataset(ds)
     rows = []

@@ -133,8 +133,8 @@ def main() -> None:
                     "this 2-core machine's wall times vary by 10-20 %% from run to run)")
     args = ap.parse_args()
     header()
+    from holodata.evaluate.slam_accuracy import evaluate_slam
     from holodata.groundtruth import GTConfig, RaytraceStandalone
-    from holodata.mapping.accuracy import evaluate_slam
     from holodata.meshio import Mesh, write_ply
     from holodata.synth import SynthSpec, synthesize
 

@@ -67,8 +67,8 @@ def bare_icp(url: str, sid: str, init: np.ndarray, truth_dir: Path) -> dict:
     import open3d as o3d
 
     from holodata import open_dataset
+    from holodata.evaluate.register_accuracy import extrinsic_error, truth_camera_extrinsic
     from holodata.mapping import register as R
-    from holodata.mapping.human_eval import extrinsic_error, truth_camera_extrinsic
     from holodata.mapping.segment import LidarScans, SegmentConfig, build_background
 
     sc = open_dataset(url).scene(sid)
@@ -172,8 +172,7 @@ def _prepare(corner: str, seed: int, args, root: Path) -> tuple[Path, Path]:
 def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
     from holodata import open_dataset
     from holodata.dataset import create_dataset
-    from holodata.ingest import ingest
-    from holodata.mapping.human_eval import (
+    from holodata.evaluate.register_accuracy import (
         aligned_extrinsic_error,
         extrinsic_error,
         human_centroid_errors,
@@ -182,6 +181,7 @@ def run_corner(corner: str, seed: int, poses: str, args, root: Path) -> dict:
         truth_camera_extrinsic,
         write_truth_poses,
     )
+    from holodata.ingest import ingest
     from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene, scene_map, slam_anchor
 
     out = {"corner": corner, "seed": seed, "poses": poses}
@@ -340,7 +340,7 @@ def centroid_figures(url: str, sid: str, truth_dir: Path) -> dict:
     """The human centroid error's median and p90 (cm) in the world (``centroid_*``) and relative to
     the robot (``robot_*``: each frame's LiDAR pose, what a radar on the robot sees), and the frames
     with a human (``frames_found``): the columns both families are judged on."""
-    from holodata.mapping.human_eval import human_centroid_errors
+    from holodata.evaluate.register_accuracy import human_centroid_errors
 
     out: dict = {}
     for key, frame in (("centroid", "world"), ("robot", "lidar")):
@@ -365,7 +365,7 @@ def run_heldout(variant: str, seed: int, args, root: Path) -> dict:
     (7.8 cm / 2.7 deg off the truth, in TF's world) with the default ``--guess-std`` and, when refused
     for held directions, again with ``guess_std_m`` 0.02 (the row says so); errors against its truth."""
     from holodata import open_dataset
-    from holodata.mapping.human_eval import aligned_extrinsic_error, extrinsic_error, truth_camera_extrinsic
+    from holodata.evaluate.register_accuracy import aligned_extrinsic_error, extrinsic_error, truth_camera_extrinsic
     from holodata.mapping.register import RegisterConfig, RegistrationError, register_scene
     from holodata.mapping.slam import slam_scene
     from holodata.trajectory import read_tum

@@ -4,7 +4,7 @@ LiDAR vertical field of view and LiDAR resolution, and its runtime against a bar
 For each (FOV, LiDAR shape, corner kind): ``holodata.synth.synthesize`` a recording with ``--walkers``
 people walking in the robot's corridor (truth instance masks in ``truth/lidar_instances.npz``; small
 radar grid to keep synth fast), ``holodata.ingest`` it, write the *true* LiDAR poses
-(``human_eval.write_truth_poses``: isolates segmentation from SLAM error), run ``segment_scene`` and
+(``register_accuracy.write_truth_poses``: isolates segmentation from SLAM error), run ``segment_scene`` and
 score ``lidar/instance`` with ``human_eval.segmentation_ap50`` (AP at IoU 0.5, truth people with
 < 20 returns ignored). FOV 33.2 deg is the synth default (OS1-like), 90 deg OS0-like
 (``holodata synth --lidar-fov 90``).
@@ -54,8 +54,8 @@ def prepare(root: Path, corner: str, fov: float, lidar: tuple, args) -> tuple[st
     """Recording -> dataset with true poses; returns (url, truth_dir, seconds)."""
     from holodata.conventions import Grid, RangeBins
     from holodata.dataset import open_dataset
+    from holodata.evaluate.register_accuracy import write_truth_poses
     from holodata.ingest import ingest
-    from holodata.mapping.human_eval import write_truth_poses
     from holodata.synth import SynthSpec, synthesize
 
     t0 = time.perf_counter()
@@ -109,7 +109,7 @@ def core_timing(url: str, sid: str, bg, cfg) -> dict:
 
 def run_one(root: Path, corner: str, fov: float, lidar: tuple, args) -> dict:
     from holodata.dataset import open_dataset
-    from holodata.mapping.human_eval import segmentation_ap50
+    from holodata.evaluate.register_accuracy import segmentation_ap50
     from holodata.mapping.segment import SegmentConfig
 
     url, truth, prep = prepare(root, corner, fov, lidar, args)
@@ -136,7 +136,7 @@ def miss_cause(scans, k: int, truth_mask: np.ndarray, bg, min_truth_pixels: int 
     :func:`segment_scan` find it, else "split" (no cluster reaches IoU 0.5 whatever the checks)."""
     import dataclasses
 
-    from holodata.mapping.human_eval import match_scan
+    from holodata.evaluate.register_accuracy import match_scan
     from holodata.mapping.segment import SegmentConfig, background_masks, grid_geometry, segment_scan
 
     cfg = SegmentConfig()
@@ -155,14 +155,14 @@ def miss_cause(scans, k: int, truth_mask: np.ndarray, bg, min_truth_pixels: int 
 
 
 def score_scans(url: str, sid: str, truth: Path, bg=None, min_truth_pixels: int = 20) -> dict:
-    """AP50 (:func:`holodata.mapping.human_eval.segmentation_ap50`) and per scan what it hides: the
+    """AP50 (:func:`holodata.evaluate.register_accuracy.segmentation_ap50`) and per scan what it hides: the
     truth people counted (>= ``min_truth_pixels`` returns) and found (a prediction at IoU >= 0.5) by
     the person's range (median ``lidar/range`` of its returns, bins :data:`RANGE_BINS_M`), the
     false positives (predictions on no person at IoU 0.5: a fragment of the person counts) and, given
     the background model ``bg`` the masks were made with, the people missed by cause (:func:`miss_cause`)."""
     from holodata.dataset import open_dataset
     from holodata.dataset.layout import LIDAR_INSTANCE, LIDAR_RANGE, LIDAR_TIMESTAMP_NS
-    from holodata.mapping.human_eval import match_scan, segmentation_ap50
+    from holodata.evaluate.register_accuracy import match_scan, segmentation_ap50
     from holodata.mapping.segment import LidarScans
     from holodata.synth.truth import read_lidar_instances
 

@@ -3,7 +3,7 @@
 For each corner kind (T, L, cross, oblique): ``holodata.synth.synthesize`` a recording (small radar
 grid to keep synth fast; LiDAR ``--lidar``), ``holodata.ingest`` it, run ``slam_scene`` (kiss-icp +
 open3d scan-to-map refinement + static mesh), and measure against ``truth/`` with
-``holodata.mapping.accuracy`` (evo ATE/RPE with Umeyama alignment; occlusion-aware mesh Chamfer and
+``holodata.evaluate.slam_accuracy`` (evo ATE/RPE with Umeyama alignment; occlusion-aware mesh Chamfer and
 F-score at 2/5/10 cm). The same scans go through bare kiss-icp 1.3 (``KissICP.register_frame``
 with the same indoor config) in the same run: its ATE/RPE and the runtime ratio slam / kiss-icp
 are printed. ``--mesh-methods`` also meshes the same registered scans with the other open3d
@@ -62,9 +62,9 @@ from _run import header
 
 from holodata.conventions import Grid, RangeBins
 from holodata.dataset import open_dataset
+from holodata.evaluate.slam_accuracy import evaluate_slam, lidar_from_scene_json, mesh_errors, pose_alignment
 from holodata.ingest import ingest
 from holodata.mapping import slam as S
-from holodata.mapping.accuracy import evaluate_slam, lidar_from_scene_json, mesh_errors, pose_alignment
 from holodata.mapping.mesh import MeshConfig
 from holodata.meshio import read_mesh
 from holodata.synth import SynthSpec, synthesize

@@ -15,8 +15,8 @@ def small_corner() -> tuple[str, str]:
     """(dataset path, truth dir) of an L corner, 10 radar frames, 2 visible walkers, standing or walking
     human per the seed."""
     from holodata.conventions import Grid, RangeBins
+    from holodata.evaluate.register_accuracy import write_truth_poses
     from holodata.ingest import ingest
-    from holodata.mapping.human_eval import write_truth_poses
     from holodata.synth import SynthSpec, synthesize
 
     root = Path(tempfile.mkdtemp(prefix="holodata-mapping-"))

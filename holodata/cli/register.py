@@ -106,7 +106,7 @@ def register(ctx, dataset, scenes, init, no_segment, camera_world, truth, report
             results.append(err.report or {"scene": sid, "registered": False})
             continue
         if truth:
-            from holodata.mapping.human_eval import evaluate_register
+            from holodata.evaluate.register_accuracy import evaluate_register
 
             res["accuracy"] = evaluate_register(dataset, res["scene"], truth, report)
         results.append(res)

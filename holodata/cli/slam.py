@@ -75,7 +75,7 @@ def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method,
     out = {"dataset": dataset, "scenes": [r.summary for r in results]}
     if truth:
         import holodata
-        from holodata.mapping.accuracy import evaluate_slam
+        from holodata.evaluate.slam_accuracy import evaluate_slam
         from holodata.mapping.slam import MAPPING_ROLE
 
         r = results[0]

@@ -1,5 +1,7 @@
 """evaluate stage: un-mirroring (stage two without learning), the non-learned baseline, metric
-tables with breakdowns, metrics.json and report.html.
+tables with breakdowns, metrics.json and report.html; and every other evaluation against truth:
+the mapping stages' accuracy (:mod:`.slam_accuracy`: poses and mesh; :mod:`.register_accuracy`:
+segmentation AP, camera extrinsic, human centroids).
 
 ``Evaluation(dataset_url, checkpoint, out_dir, split="test", ...).run() -> dict`` is the entry
 point; it imports torch only to run the model.

@@ -104,8 +104,8 @@ def heldout(tmp_path_factory):
 
 def test_slam_world_is_the_tf_world_and_register_uses_the_organised_cloud(heldout):
     from holodata import open_dataset
+    from holodata.evaluate.register_accuracy import extrinsic_error, human_centroid_errors, truth_camera_extrinsic
     from holodata.ingest import ingest
-    from holodata.mapping.human_eval import extrinsic_error, human_centroid_errors, truth_camera_extrinsic
     from holodata.mapping.register import RegisterConfig, register_scene
     from holodata.mapping.slam import slam_scene
     from holodata.trajectory import read_tum

@@ -6,8 +6,13 @@ import pytest
 from click.testing import CliRunner
 from scipy.spatial.transform import Rotation
 
+from holodata.evaluate.register_accuracy import (
+    aligned_extrinsic_error_poses,
+    extrinsic_error,
+    relative_extrinsic_error,
+    solid_centroid,
+)
 from holodata.geometry import local_plane_projection
-from holodata.mapping.human_eval import aligned_extrinsic_error_poses, extrinsic_error, relative_extrinsic_error, solid_centroid
 from holodata.mapping.register import (
     ColumnShape,
     RegisterConfig,
@@ -403,8 +408,8 @@ def test_register_scene_end_to_end_and_raytrace_reads_the_human():
     from _mapping_synth import small_corner
 
     from holodata import open_dataset
+    from holodata.evaluate.register_accuracy import human_centroid_errors, truth_camera_extrinsic
     from holodata.groundtruth import HumanDataset
-    from holodata.mapping.human_eval import human_centroid_errors, truth_camera_extrinsic
     from holodata.mapping.register import register_scene
 
     url, truth = small_corner()
@@ -458,7 +463,7 @@ def test_cli_truth_report(tmp_path):
 
     from holodata import open_dataset
     from holodata.cli.main import cli
-    from holodata.mapping.human_eval import truth_camera_extrinsic
+    from holodata.evaluate.register_accuracy import truth_camera_extrinsic
 
     url, _, truth = _copy_small_corner(tmp_path)     # register's own segmentation is what is scored
     r = CliRunner().invoke(cli, ["register", url, "--truth", truth, "--report", str(tmp_path / "rep"), "--quiet"])
@@ -873,7 +878,7 @@ def test_register_takes_the_static_map_slam_built_from_the_scene_poses(tmp_path)
     (same ``source``), register registers onto that map (its LiDAR process only segments), in one
     process and in two alike; the extrinsic holds; with the poses' source changed it builds its own."""
     from holodata import open_dataset
-    from holodata.mapping.human_eval import truth_camera_extrinsic
+    from holodata.evaluate.register_accuracy import truth_camera_extrinsic
     from holodata.mapping.register import register_scene, scene_map
     from holodata.mapping.slam import SlamConfig, data_max_range, load_scans, static_mesh, write_static_map
 

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from holodata.mapping.human_eval import ap50, average_precision, match_scan
+from holodata.evaluate.register_accuracy import ap50, average_precision, match_scan
 from holodata.mapping.segment import (
     SegmentConfig,
     beam_elevations,
@@ -122,7 +122,7 @@ def test_segment_scene_on_synth_walkers():
     from _mapping_synth import small_corner
 
     from holodata import open_dataset
-    from holodata.mapping.human_eval import segmentation_ap50
+    from holodata.evaluate.register_accuracy import segmentation_ap50
     from holodata.mapping.segment import segment_scene
 
     url, truth = small_corner()
@@ -145,8 +145,8 @@ def _os0_corner() -> tuple[str, str]:
     """An L corner recorded with an OS0-like LiDAR (90° vertical FOV, 32×512: 2.9° between beams),
     10 frames, 2 walkers in the robot's corridor, true poses."""
     from holodata.conventions import Grid, RangeBins
+    from holodata.evaluate.register_accuracy import write_truth_poses
     from holodata.ingest import ingest
-    from holodata.mapping.human_eval import write_truth_poses
     from holodata.synth import SynthSpec, synthesize
 
     root = Path(tempfile.mkdtemp(prefix="holodata-segment-os0-"))
@@ -164,7 +164,7 @@ def test_segment_scene_on_os0_like_90deg_lidar():
     """The wide-FOV LiDAR sees the floor around the robot and walkers from head to toe at < 1 m, and
     far walkers in only ~6 rows: AP50 was 0.15 with the OS1-tuned constants."""
     from holodata import open_dataset
-    from holodata.mapping.human_eval import segmentation_ap50
+    from holodata.evaluate.register_accuracy import segmentation_ap50
     from holodata.mapping.segment import LidarScans, build_background, segment_scene
 
     url, truth = _os0_corner()

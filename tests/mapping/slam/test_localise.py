@@ -6,7 +6,7 @@ from click.testing import CliRunner
 
 from holodata.cli.main import cli
 from holodata.conventions import Grid, RangeBins
-from holodata.mapping.accuracy import RadarTrace, mesh_coverage, radar_reach
+from holodata.evaluate.slam_accuracy import RadarTrace, mesh_coverage, radar_reach
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +78,7 @@ def test_data_pass_localised_in_the_maps_world_within_a_few_cm(localised):
 @pytest.mark.slow
 def test_coverage_through_slam_mesh_of_the_localised_scene(localised):
     import holodata
-    from holodata.mapping.accuracy import evaluate_slam
+    from holodata.evaluate.slam_accuracy import evaluate_slam
 
     url, res, r = localised
     sc = holodata.open_dataset(url).scene("c")

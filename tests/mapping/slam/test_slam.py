@@ -147,7 +147,7 @@ def slam_run(tmp_path_factory):
 @pytest.mark.slow
 def test_ouster_layout_lidar_only_slam_poses(slam_run):
     from holodata.dataset import open_dataset
-    from holodata.mapping.accuracy import trajectory_errors
+    from holodata.evaluate.slam_accuracy import trajectory_errors
     from holodata.trajectory import read_tum
 
     res, truth = slam_run["res"], slam_run["truth"]
@@ -185,7 +185,7 @@ def test_person_segmented_on_the_ouster_driver_grid(slam_run):
     for no return): AP50 against the ray-cast person mask (issue 9: AP50 >= 0.9 also on recordings
     written by other tools)."""
     from holodata.dataset import open_dataset
-    from holodata.mapping.human_eval import ap50
+    from holodata.evaluate.register_accuracy import ap50
     from holodata.mapping.segment import segment_scene
 
     segment_scene(slam_run["url"], quiet=True)
@@ -200,7 +200,7 @@ def test_person_segmented_on_the_ouster_driver_grid(slam_run):
 @pytest.mark.slow
 def test_static_mesh_against_analytic_scene_without_the_person(slam_run):
     from holodata.dataset import open_dataset
-    from holodata.mapping.accuracy import mesh_errors, pose_alignment
+    from holodata.evaluate.slam_accuracy import mesh_errors, pose_alignment
     from holodata.meshio import read_mesh
 
     res, truth = slam_run["res"], slam_run["truth"]
@@ -374,7 +374,7 @@ def _square(z, half=1.0):
 
 
 def test_mesh_errors_analytic_occlusion_aware():
-    from holodata.mapping.accuracy import mesh_errors
+    from holodata.evaluate.slam_accuracy import mesh_errors
 
     tv, tf = merge_meshes([_square(0.0), _square(-1.0)])     # the lower square is hidden below the upper one
     pose = np.eye(4)

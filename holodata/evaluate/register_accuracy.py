@@ -214,7 +214,7 @@ def human_centroid_errors(url: str, scene_id: str, truth_dir: str | Path, frame:
         pair = _matched_trajectories(np.asarray(sc[LIDAR_TIMESTAMP_NS][...], np.int64),
                                      np.asarray(sc[POSE_T_WORLD_LIDAR][...], float), true_lidar_poses(sc, truth_dir))
         if pair is not None:
-            from .accuracy import pose_alignment
+            from .slam_accuracy import pose_alignment
 
             A = pose_alignment(*pair)
     if frame == "radar":
@@ -289,7 +289,7 @@ def aligned_extrinsic_error(url: str, scene_id: str, truth_dir: str | Path, T_es
     map's frame; a map that sits a little off the true world (0.2 deg of yaw about the first pose
     moves a camera 9 m away by 3 cm) is judged after the alignment the ATE uses.
 
-    ``A`` is evo's alignment of the poses, :func:`holodata.mapping.accuracy.pose_alignment` (rotation =
+    ``A`` is evo's alignment of the poses, :func:`holodata.evaluate.slam_accuracy.pose_alignment` (rotation =
     chordal mean of R_true R_estᵀ, translation = mean residual; what the ATE falls back to on a
     straight path), not the position-only Umeyama fit: the synthetic corners' robot drives a straight
     line (lateral spread ~7 mm, constant height), where Umeyama's rotation about the path is set by
@@ -326,7 +326,7 @@ def aligned_extrinsic_error_poses(stamps_ns: np.ndarray, P_est: np.ndarray, T_es
                                   T_true: np.ndarray) -> dict:
     """:func:`aligned_extrinsic_error` on arrays: scan stamps (K,), estimated and true T_world_lidar
     (K,4,4) (rows with NaN skipped), estimated and true T_world_camera (4,4)."""
-    from .accuracy import pose_alignment, umeyama_transform
+    from .slam_accuracy import pose_alignment, umeyama_transform
 
     nan = float("nan")
     pair = _matched_trajectories(stamps_ns, P_est, P_true)
@@ -373,7 +373,7 @@ def write_truth_poses(url: str, scene_id: str, truth_dir: str | Path) -> None:
     rad = read_tum(truth_dir / "trajectory_radar.tum")
     w = open_dataset(url, "r+")
     sw = w.scene(scene_id)
-    with sw.stage("truth-poses", rerun="rerun holodata.mapping.human_eval.write_truth_poses to finish it"):
+    with sw.stage("truth-poses", rerun="rerun holodata.evaluate.register_accuracy.write_truth_poses to finish it"):
         for name, poses in ((POSE_T_WORLD_LIDAR, P), (POSE_T_WORLD_RADAR, rad.poses if len(rad) == sc.n_frames else None)):
             if poses is None:
                 continue
