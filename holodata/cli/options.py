@@ -28,6 +28,18 @@ def json_option(help: str = "Print a JSON summary on stdout."):
     return click.option("--json", "as_json", is_flag=True, help=help)
 
 
+def config_file_option(sections: str):
+    """``--config FILE`` (parameter ``config_file``): the YAML/JSON file of stage settings whose
+    ``sections`` (e.g. "section gt", "sections slam, mesh, ...") the command reads; flags given win."""
+    return click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
+                        help=f"YAML/JSON file of stage settings ({sections}; examples/holodata.yaml); flags given here win.")
+
+
+def force_option(help: str = "Recompute a scene already done with the same inputs and settings."):
+    """``--force`` (parameter ``force``); ``help`` where a command's --force does more."""
+    return click.option("--force", is_flag=True, help=help)
+
+
 class ConfigOption(click.Option):
     """An option that sets field ``field`` of a stage's config dataclass (``section`` of
     :data:`holodata.config_file.SECTIONS`). Its default is None, "not given": the ``--config`` file's

@@ -5,7 +5,7 @@ import json
 
 import click
 
-from holodata.cli.options import config_option, dask_options, json_option, quiet_option
+from holodata.cli.options import config_file_option, config_option, dask_options, force_option, json_option, quiet_option
 
 
 @click.command("raytrace-gt")
@@ -51,11 +51,8 @@ from holodata.cli.options import config_option, dask_options, json_option, quiet
 @dask_options("one task per shard",
               "the dataset and inputs must be reachable from the workers (shared folder or s3://; credentials from the "
               "workers' environment).")
-@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="YAML/JSON file of stage settings (section gt; examples/holodata.yaml); flags "
-                   "given here win.")
-@click.option("--force", is_flag=True,
-              help="Dataset form: trace every scene again. Without it, a scene whose GT was traced from other inputs "
+@config_file_option("section gt")
+@force_option(help="Dataset form: trace every scene again. Without it, a scene whose GT was traced from other inputs "
                    "(a person registered since, a new mesh or poses, other settings) is traced again, others resume.")
 @quiet_option()
 @json_option()

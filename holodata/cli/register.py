@@ -7,7 +7,7 @@ import json
 
 import click
 
-from holodata.cli.options import config_option, json_option, quiet_option
+from holodata.cli.options import config_file_option, config_option, force_option, json_option, quiet_option
 
 
 def _init(value: str | None):
@@ -44,10 +44,8 @@ def _init(value: str | None):
                help="How good the guess (TF pose or --init) is along directions the camera's view does not constrain: "
                     "the result there is the guess, reported and accepted with this uncertainty (the measured "
                     "directions must be within 2 cm).")
-@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="YAML/JSON file of stage settings (sections register, segment, ...; examples/holodata.yaml); flags "
-                   "given here win.")
-@click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
+@config_file_option("sections register, segment, ...")
+@force_option()
 @quiet_option()
 @json_option()
 @click.pass_context

@@ -5,7 +5,7 @@ import json
 
 import click
 
-from holodata.cli.options import config_option, json_option, quiet_option
+from holodata.cli.options import config_file_option, config_option, force_option, json_option, quiet_option
 
 
 @click.command("slam")
@@ -35,10 +35,8 @@ from holodata.cli.options import config_option, json_option, quiet_option
               "from a separate recording) is slammed first; the --scene scans are localised against its map and "
               "get its mesh. The map scene is marked role=mapping (no train/test split, no raytrace-gt). Default: the "
               "scene's own mapping pass <ID>_map when the dataset holds one (ingest of a synth output folder).")
-@click.option("--config", "config_file", type=click.Path(exists=True, dir_okay=False), default=None,
-              help="YAML/JSON file of stage settings (sections slam, mesh, ...; examples/holodata.yaml); flags given "
-                   "here win.")
-@click.option("--force", is_flag=True, help="Recompute a scene already done with the same inputs and settings.")
+@config_file_option("sections slam, mesh, ...")
+@force_option()
 @quiet_option()
 @json_option()
 def slam(dataset, scenes, voxel, max_range, no_refine, global_pass, mesh_method, mesh_voxel, no_mesh, ply, tum, truth,
