@@ -73,12 +73,12 @@ def main(argv=None) -> dict:
     rot, before, after = rotation_data(chirp, h)
     refl = static_reflection(rot)
     out: dict = {"size": f"{N}x{chirp.n_virtual}x{chirp.n_samples} -> {params.n_range or chirp.n_samples}x"
-                         f"{params.n_elevation}x{params.n_azimuth}"}
+                         f"{params.grid.H}x{params.grid.W}"}
     near = BeamformParams(focus="near")
     moving = {"velocity": VELOCITY, "neighbours": (before, after)}
     cases = {"static": (params, {}), "motion": (params, moving),
              "static-near": (near, {}), "motion-near": (near, moving)}
-    beams = beam_indices(N, params.n_azimuth)
+    beams = beam_indices(N, params.grid.W)
     pick = beams[np.linspace(0, beams.size - 1, a.reference_beams).round().astype(int)]
     for name, (prm, kw) in cases.items():
         fast = timed(lambda kw=kw, prm=prm: beamform(rot, chirp, prm, static_refl=refl, **kw), a.repeat)

@@ -87,9 +87,7 @@ class DemoConfig:
             return None
         from .radar.beam_geometry import BeamformParams
 
-        g = self.grid
-        return BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,
-                              elevation_min_deg=g.elev_min_deg, n_range=self.range_bins.n, focus=self.beamform_focus)
+        return BeamformParams(grid=self.grid, n_range=self.range_bins.n, focus=self.beamform_focus)
 
 
 def default_radar_output(quick: bool) -> str:

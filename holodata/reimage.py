@@ -18,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -96,9 +97,7 @@ def beamform_scene(url: str, scene_id: str, params: BeamformParams | None = None
     chirp = ChirpConfig.from_attrs(src["chirp"])
     g = ds.grid
     base = params or BeamformParams.from_attrs(src.get("params") or {})
-    params = BeamformParams(**{**base.to_attrs(), "n_elevation": g.H, "n_azimuth": g.W,
-                               "elevation_max_deg": g.elev_max_deg, "elevation_min_deg": g.elev_min_deg,
-                               "n_range": ds.range_bins.n})
+    params = replace(base, grid=g, n_range=ds.range_bins.n)
     span = np.asarray(sc[RADAR_IQ_SPAN][...], np.int64)
     cycles = np.asarray(sc[RADAR_CYCLE_NS][...], np.int64)
     T = sc.n_frames

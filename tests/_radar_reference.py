@@ -58,7 +58,7 @@ def beamform_direct(rotation, chirp, params, *, neighbours=None, velocity=None, 
     n_syn = params.syn_count(N)
     h = (n_syn - 1) // 2
     lam = chirp.wavelengths()
-    elev = params.elevations()
+    elev = params.grid.elevations()
     rows = range(elev.size) if elevation_rows is None else elevation_rows
     beams = range(N) if beams is None else beams
     wc = window(params.chirp_window, n_syn)
@@ -91,7 +91,7 @@ def columns_direct(mag_all_beams: np.ndarray, params) -> np.ndarray:
     """(R, H, N) magnitudes of every beam → (R, H, W) columns: beam round(j·N/W) (pick) or the
     triangle-weighted mean of beams within N/W of column j's position j·N/W (triangle)."""
     R, H, N = mag_all_beams.shape
-    W = params.n_azimuth
+    W = params.grid.W
     out = np.zeros((R, H, W))
     for j in range(W):
         c = j * N / W
@@ -125,7 +125,7 @@ def beamform_direct_near(rotation, chirp, params, *, neighbours=None, velocity=N
     c = 299_792_458.0
     lam = c / f
     fbar = f.mean()
-    elev = params.elevations()
+    elev = params.grid.elevations()
     rows = range(elev.size) if elevation_rows is None else elevation_rows
     beams = range(N) if beams is None else beams
     wc = window(params.chirp_window, n_syn)

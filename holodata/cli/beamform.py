@@ -89,7 +89,7 @@ class _Imaging:
         if self.focus is not None:
             kw["focus"] = self.focus
         try:
-            return BeamformParams(**kw)
+            return BeamformParams.from_attrs(kw)
         except ValueError as err:
             raise click.BadParameter(str(err)) from err
 

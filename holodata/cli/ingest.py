@@ -136,7 +136,7 @@ def _beamform_params(grid: str | None, fov: float | None, focus: str | None = No
             g = Grid.parse(grid)
         except ValueError as err:
             raise click.BadParameter(str(err), param_hint="--beamform-grid") from err
-        kw.update(n_elevation=g.H, n_azimuth=g.W)
+        kw["grid"] = g
     if fov is not None:
         kw["azimuth_fov_deg"] = fov
     if focus is not None:

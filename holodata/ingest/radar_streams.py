@@ -97,7 +97,7 @@ class RawRadarStream(RadarStream):
         super().__init__(rec, topic, time)
         p = params or BeamformParams()
         if p.static_removal == "trajectory":   # no trajectory mean in a stream of messages
-            p = BeamformParams(**{**p.to_attrs(), "static_removal": "rotation"})
+            p = dataclasses.replace(p, static_removal="rotation")
         self.params = p
         self.chirp = None
         self.max_chirps = 0
@@ -146,10 +146,10 @@ class RawRadarStream(RadarStream):
             self.first = SimpleNamespace(__msgtype__="holodata_msgs/msg/RadarRawRotation (beamformed by ingest)",
                                          encoding="float32", range_origin="rotation_centre",
                                          rotation_radius=chirp.rotation_radius_m,
-                                         elevation_max=math.radians(p.elevation_max_deg),
-                                         elevation_min=math.radians(p.elevation_min_deg),
+                                         elevation_max=math.radians(p.grid.elev_max_deg),
+                                         elevation_min=math.radians(p.grid.elev_min_deg),
                                          range_resolution=chirp.range_resolution_m, header=msg.header)
-            self.shape, self.dtype = (R, p.n_elevation, p.n_azimuth), np.dtype("<f4")
+            self.shape, self.dtype = (R, p.grid.H, p.grid.W), np.dtype("<f4")
             self.attrs = beamform_attrs(chirp, p, nr, motion_compensation="the messages' travel_per_chirp/heading",
                                         padding="neighbouring rotations (n_before/n_after) when given, else circular",
                                         static_reflection="each rotation's own mean",

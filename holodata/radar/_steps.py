@@ -33,7 +33,7 @@ class Setup:
     def of(cls, chirp: ChirpConfig, params: BeamformParams, N: int) -> Setup:
         S = chirp.n_samples
         beams, cw = column_weights(N, params)
-        return cls(N, S, params.n_range or S, params.elevations(), beams, cw)
+        return cls(N, S, params.n_range or S, params.grid.elevations(), beams, cw)
 
     @property
     def H(self) -> int:

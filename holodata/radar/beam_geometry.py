@@ -7,10 +7,11 @@ beams; imports nothing of the beamformers (they import it). Arrays in, arrays ou
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
+from ..conventions import Grid
 from .chirp import SPEED_OF_LIGHT, ChirpConfig
 
 WINDOWS = ("hann", "hamming", "blackman", "rect")
@@ -24,6 +25,9 @@ FOCUS = ("far", "near")
 class BeamformParams:
     """Imaging parameters. Angles in degrees here (they are attributes and flags); radians inside.
 
+    ``grid``: the beams formed (:class:`~holodata.conventions.Grid`: H elevation rows, W azimuth
+    columns; default 64×512, ±45°). In attributes it is written as PanoRadar's ``n_elevation``,
+    ``n_azimuth``, ``elevation_max_deg``, ``elevation_min_deg`` (:meth:`to_attrs`).
     ``n_syn``: chirps per beam (odd); ``None`` → PanoRadar's ``int(fov/360 · N)`` made odd, from
     ``azimuth_fov_deg`` and the rotation's chirp count ``N`` (257 for 1024 chirps and 90°).
     ``n_range``: range bins kept (the first ``n_range`` of the ``n_samples``-point FFT; ``None`` → all).
@@ -32,10 +36,7 @@ class BeamformParams:
     antenna to each range bin's centre (:mod:`holodata.radar.beamform_near`; docs/design/radar.md).
     """
 
-    n_elevation: int = 64
-    n_azimuth: int = 512
-    elevation_max_deg: float = 45.0
-    elevation_min_deg: float = -45.0
+    grid: Grid = field(default_factory=Grid)
     azimuth_fov_deg: float = 90.0
     n_syn: int | None = None
     chirp_window: str = "hann"
@@ -47,11 +48,8 @@ class BeamformParams:
     focus: str = "far"
 
     def __post_init__(self) -> None:
-        if self.n_elevation < 2 or self.n_azimuth < 1:
-            raise ValueError(f"beamform grid needs n_elevation >= 2 and n_azimuth >= 1, got "
-                             f"{self.n_elevation}x{self.n_azimuth}")
-        if not self.elevation_max_deg > self.elevation_min_deg:
-            raise ValueError(f"elevation max ({self.elevation_max_deg}) must exceed min ({self.elevation_min_deg})")
+        if not isinstance(self.grid, Grid):
+            raise TypeError(f"grid must be a holodata.conventions.Grid, got {type(self.grid).__name__}")
         if not 0 < self.azimuth_fov_deg <= 360:
             raise ValueError(f"azimuth_fov_deg must be in (0, 360], got {self.azimuth_fov_deg}")
         if self.n_syn is not None and (self.n_syn < 1 or self.n_syn % 2 == 0):
@@ -75,18 +73,22 @@ class BeamformParams:
             raise ValueError(f"n_syn {n} exceeds the rotation's {n_chirps} chirps")
         return n
 
-    def elevations(self) -> np.ndarray:
-        """(H,) float64 radians, row 0 = max (docs/format.md §2)."""
-        hi, lo = np.deg2rad(self.elevation_max_deg), np.deg2rad(self.elevation_min_deg)
-        return hi - np.arange(self.n_elevation) * (hi - lo) / (self.n_elevation - 1)
-
     def to_attrs(self) -> dict:
-        return {k: v for k, v in asdict(self).items()}
+        """Flat attributes: the grid as ``n_elevation``, ``n_azimuth``, ``elevation_max_deg``,
+        ``elevation_min_deg`` (in that order, first), then the other fields in declaration order."""
+        g = self.grid
+        return {"n_elevation": g.H, "n_azimuth": g.W, "elevation_max_deg": g.elev_max_deg,
+                "elevation_min_deg": g.elev_min_deg,
+                **{f.name: getattr(self, f.name) for f in fields(self) if f.name != "grid"}}
 
     @classmethod
     def from_attrs(cls, attrs: dict) -> BeamformParams:
-        names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in attrs.items() if k in names})
+        """The inverse of :meth:`to_attrs`; keys it does not know are ignored, missing ones take the defaults."""
+        d = Grid()
+        grid = Grid(attrs.get("n_elevation", d.H), attrs.get("n_azimuth", d.W),
+                    attrs.get("elevation_max_deg", d.elev_max_deg), attrs.get("elevation_min_deg", d.elev_min_deg))
+        names = {f.name for f in fields(cls)} - {"grid"}
+        return cls(grid=grid, **{k: v for k, v in attrs.items() if k in names})
 
 
 @dataclass(frozen=True)
@@ -168,7 +170,7 @@ def beam_indices(n_chirps: int, n_azimuth: int) -> np.ndarray:
 def column_weights(n_chirps: int, params: BeamformParams) -> tuple[np.ndarray, np.ndarray]:
     """(beams, weights): the beams to form and a (W, len(beams)) float64 matrix that maps their
     magnitudes to the output columns (``pick``: one 1 per row)."""
-    W = params.n_azimuth
+    W = params.grid.W
     if params.azimuth_decimation == "pick":
         b = beam_indices(n_chirps, W)
         uniq, inv = np.unique(b, return_inverse=True)

@@ -247,7 +247,7 @@ def _azimuth_kernel64(chirp, params, N):
     if key not in _AKCACHE:
         if len(_AKCACHE) >= 2:
             _AKCACHE.pop(next(iter(_AKCACHE)))
-        _AKCACHE[key] = azimuth_kernel(chirp, params, np.cos(params.elevations()), N).astype(np.complex64)
+        _AKCACHE[key] = azimuth_kernel(chirp, params, np.cos(params.grid.elevations()), N).astype(np.complex64)
     return _AKCACHE[key]
 
 

@@ -395,10 +395,10 @@ class PanoRadarRawRecording(Recording):
         centre) that is beamformed when its ``data`` is first read: ingest's index pass only checks
         the rotation's raw samples (:meth:`RotationHeatmap.check`), so each rotation is imaged once."""
         t0, t1 = self._rot_stamps(k)
-        p = self.params
+        p, g = self.params, self.params.grid
         return RotationHeatmap(Header((t0 + t1) // 2, "radar"), t0, t1, p.n_range or self.chirp.n_samples,
-                               p.n_elevation, p.n_azimuth, self.chirp.range_resolution_m,
-                               math.radians(p.elevation_max_deg), math.radians(p.elevation_min_deg),
+                               g.H, g.W, self.chirp.range_resolution_m,
+                               math.radians(g.elev_max_deg), math.radians(g.elev_min_deg),
                                self.chirp.rotation_radius_m, "float32", None, rec=self, k=k)
 
     def image(self, k: int) -> tuple[np.ndarray, RawRotation]:

@@ -237,7 +237,7 @@ def test_beamform_killed_at_every_write(tmp_path):
 
     tr = box_room_trajectory(tmp_path / "walk_01", BoxRoomRun(n_rotations=3, velocity=(0.3, 0.1)),
                              chirp=ChirpConfig(chirps_per_rotation=512), room=BoxRoom(reflectors=((3.0, 0.6, 0.0),)))
-    params = BeamformParams(n_elevation=16, n_azimuth=64)
+    params = BeamformParams(grid=Grid(16, 64))
     res = kill_sweep(tmp_path, "beamform",
                      lambda url: ingest([tr.folder], url, IngestOptions(beamform=params, keep_iq=True)),
                      lambda url: beamform_scene(url, "walk_01", motion="none"), "beamform", scenes=("walk_01",))

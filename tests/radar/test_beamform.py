@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from _radar_reference import beamform_direct, beamform_direct_near, columns_direct
 
+from holodata.conventions import Grid
 from holodata.radar import (
     BeamformParams,
     ChirpConfig,
@@ -20,7 +21,7 @@ from holodata.radar.chirp import SPEED_OF_LIGHT
 
 # a small radar with the same physics (chirp spacing on the circle below λ/4, 90° apertures)
 SMALL = ChirpConfig(n_samples=64, rotation_radius_m=0.03, chirps_per_rotation=256)
-SMALL_P = BeamformParams(n_elevation=16, n_azimuth=128)
+SMALL_P = BeamformParams(grid=Grid(16, 128))
 ZERO = None
 
 
@@ -70,8 +71,8 @@ def test_point_scatterer_peak_at_its_bin_row_and_column_full_size():
     ch, p = ChirpConfig(), BeamformParams()
     dr = ch.range_resolution_m
     k0, i0, j0 = 93, 22, 371
-    el = p.elevations()[i0]
-    az = -2 * np.pi * j0 / p.n_azimuth
+    el = p.grid.elevations()[i0]
+    az = -2 * np.pi * j0 / p.grid.W
     rot, _, _ = simulate_rotation([point_at((k0 + 0.5) * dr, az, el)], chirp=ch)
     hm = beamform(rot, ch, p, static_refl=_zero(ch))
     assert hm.shape == (256, 64, 512) and hm.dtype == np.float32
@@ -87,10 +88,10 @@ def test_main_lobe_widths_are_the_apertures():
     90° Hann-weighted arc of radius r, elevation from 8 antennas with uniform weights (PanoRadar's
     imaging of this geometry: 1.76° and 12.9°, issue 26)."""
     ch = ChirpConfig()
-    p = BeamformParams(n_azimuth=1024)       # one column per chirp position: 0.35° sampling
+    p = BeamformParams(grid=Grid(W=1024))       # one column per chirp position: 0.35° sampling
     dr = ch.range_resolution_m
     k0, i0, j0 = 80, 31, 300                   # row 31: -0.71°
-    el = p.elevations()[i0]
+    el = p.grid.elevations()[i0]
     rot, _, _ = simulate_rotation([point_at((k0 + 0.5) * dr, -2 * np.pi * j0 / 1024, el)], chirp=ch)
     hm = beamform(rot, ch, p, static_refl=_zero(ch))
     k, i, j = _peak(hm)
@@ -135,8 +136,8 @@ def test_near_field_focus_at_short_range(k0, i0):
     j0 = 300
     out = {}
     for focus in ("far", "near"):
-        p = BeamformParams(n_azimuth=1024, focus=focus)
-        el = p.elevations()[i0]
+        p = BeamformParams(grid=Grid(W=1024), focus=focus)
+        el = p.grid.elevations()[i0]
         R0 = (k0 + 0.5) * dr
         rot, _, _ = simulate_rotation([point_at(R0, -2 * np.pi * j0 / 1024, el)], chirp=ch)
         hm = beamform(rot, ch, p, static_refl=_zero(ch))
@@ -153,7 +154,7 @@ def test_near_field_focus_at_short_range(k0, i0):
     r, n_syn = ch.rotation_radius_m, BeamformParams().syn_count(1024)
     a = 2 * np.pi * (np.arange(n_syn) - n_syn // 2) / 1024
     w = np.hanning(n_syn)
-    ce = np.cos(BeamformParams().elevations()[i0])
+    ce = np.cos(BeamformParams().grid.elevations()[i0])
     dphi = np.deg2rad(np.linspace(-3, 3, 6001))
     d = np.sqrt(R0 ** 2 + r * r - 2 * R0 * r * ce * np.cos(a[None] + dphi[:, None]))
     d0 = np.sqrt(R0 ** 2 + r * r - 2 * R0 * r * ce * np.cos(a))
@@ -174,7 +175,7 @@ def test_static_reflection_removal():
     rot, _, _ = simulate_rotation([pt], chirp=ch, effects=RigEffects(leakage=leak))
     clean = beamform(rot, ch, p)                                   # rotation mean removed (no trajectory mean given)
     assert _peak(clean)[0] == 20 and _peak(clean)[2] == 40
-    raw = beamform(rot, ch, BeamformParams(n_elevation=16, n_azimuth=128, static_removal="none"))
+    raw = beamform(rot, ch, BeamformParams(grid=Grid(16, 128), static_removal="none"))
     assert raw.max() > 10 * clean.max()
 
 
@@ -184,7 +185,7 @@ def _moving_case(velocity, compensate=True):
     antennas with a 100° (−3 dB) azimuth pattern (isotropic ones also image a point from the far side
     of the circle, 185° away, at −19 dB)."""
     ch = ChirpConfig()
-    p = BeamformParams(n_elevation=3, n_azimuth=1024, elevation_max_deg=1.5, elevation_min_deg=-1.5)
+    p = BeamformParams(grid=Grid(3, 1024, 1.5, -1.5))
     dr = ch.range_resolution_m
     pt = point_at(120.5 * dr, -2 * np.pi * 700 / 1024, 0.0)
     h = p.syn_count(1024) // 2
@@ -236,8 +237,8 @@ def test_motion_reference_rotation_start_measures_from_the_start_centre():
     speed = 1.2
     v = (speed * np.cos(az), speed * np.sin(az))      # moving straight at the target
     pt = point_at(40.5 * dr, az, 0.0)
-    p0 = BeamformParams(n_elevation=16, n_azimuth=128, motion_reference="rotation_start")
-    p1 = BeamformParams(n_elevation=16, n_azimuth=128, motion_reference="beam")
+    p0 = BeamformParams(grid=Grid(16, 128), motion_reference="rotation_start")
+    p1 = BeamformParams(grid=Grid(16, 128), motion_reference="beam")
     h = p0.syn_count(256) // 2
     rot, bef, aft = simulate_rotation([pt], chirp=ch, velocity=v, pad=h)
     travel = speed * 128 * ch.chirp_period_s          # 0.3 m = 2 bins of 15 cm
@@ -271,7 +272,7 @@ def test_fast_beamformer_equals_the_direct_sums(case, focus):
     rot, bef, aft, v, refl = _tiny_case()
     dec = "triangle" if "triangle" in case else "pick"
     ref = "rotation_start" if case == "moving-start" else "beam"
-    p = BeamformParams(n_elevation=6, n_azimuth=32, n_syn=17, azimuth_decimation=dec, motion_reference=ref,
+    p = BeamformParams(grid=Grid(6, 32), n_syn=17, azimuth_decimation=dec, motion_reference=ref,
                        n_range=24, focus=focus)
     kw = dict(static_refl=refl)
     if "padded" in case or case in ("moving-beam", "moving-start"):
@@ -288,7 +289,7 @@ def test_fast_beamformer_equals_the_direct_sums(case, focus):
 def test_torch_path_equals_numpy_path_on_cpu():
     pytest.importorskip("torch")
     rot, bef, aft, v, refl = _tiny_case(2)
-    p = BeamformParams(n_elevation=6, n_azimuth=32, n_syn=17)
+    p = BeamformParams(grid=Grid(6, 32), n_syn=17)
     for kw in (dict(), dict(neighbours=(bef, aft)), dict(neighbours=(bef, aft), velocity=v), dict(velocity=v)):
         a = beamform(rot, TINY, p, static_refl=refl, **kw)
         b = beamform(rot, TINY, p, static_refl=refl, device="cpu-torch", **kw)
@@ -301,18 +302,18 @@ def test_bad_arguments_are_one_line_errors():
     with pytest.raises(ValueError, match="rotation must be"):
         beamform(rot[:, :4], ch)
     with pytest.raises(ValueError, match="before must be"):
-        beamform(rot, ch, BeamformParams(n_elevation=4, n_azimuth=16, n_syn=17), neighbours=(rot[:3], rot))
+        beamform(rot, ch, BeamformParams(grid=Grid(4, 16), n_syn=17), neighbours=(rot[:3], rot))
     with pytest.raises(ValueError, match="odd"):
         BeamformParams(n_syn=16)
     with pytest.raises(ValueError, match="exceeds"):
-        beamform(rot, ch, BeamformParams(n_elevation=4, n_azimuth=16, n_syn=65))
+        beamform(rot, ch, BeamformParams(grid=Grid(4, 16), n_syn=65))
 
 
 def test_params_and_chirp_round_trip_through_attrs():
     import json
 
     ch = ChirpConfig(rotation_radius_m=0.077, chirps_per_rotation=1204)
-    p = BeamformParams(n_elevation=32, n_azimuth=256, n_syn=301, chirp_window="hamming")
+    p = BeamformParams(grid=Grid(32, 256), n_syn=301, chirp_window="hamming")
     a = json.loads(json.dumps(beamform_attrs(ch, p)))
     assert ChirpConfig.from_attrs(a["chirp"]) == ch
     assert BeamformParams.from_attrs(a["params"]) == p

@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import math
 import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
 
 from holodata.cli.main import cli
+from holodata.conventions import Grid
 from holodata.dataset import open_dataset, validate_dataset
 from holodata.errors import RecordingError
 from holodata.radar import BeamformParams
@@ -19,7 +21,7 @@ from holodata.readers import guess_reader, open_recording
 from holodata.synth.panoradar_raw import BoxRoom, BoxRoomRun, box_room_trajectory
 
 CHIRP = ChirpConfig(chirps_per_rotation=512)   # chirp spacing on the circle 1.3 mm < λ/2: no grating lobes
-PARAMS = BeamformParams(n_elevation=16, n_azimuth=64)
+PARAMS = BeamformParams(grid=Grid(16, 64))
 VELOCITY = (0.3, 0.1)
 ROOM = BoxRoom(reflectors=((3.0, 0.6, 0.0),))
 
@@ -231,7 +233,7 @@ def test_beamform_runs_as_dask_tasks_per_shard_with_the_local_result(moving, tmp
     urls = [str(tmp_path / n) for n in ("a.zarr", "b.zarr")]
     for u in urls:
         ingest([moving.folder], u, IngestOptions(beamform=PARAMS, keep_iq=True, shard_frames=1))
-    wide = BeamformParams(**{**PARAMS.to_attrs(), "azimuth_fov_deg": 60.0})
+    wide = replace(PARAMS, azimuth_fov_deg=60.0)
     beamform_scene(urls[0], "walk_01", wide)
     with cluster(2, None) as client:
         r = beamform_scene(urls[1], "walk_01", wide, client=client)
@@ -270,7 +272,7 @@ def test_raw_rotations_in_a_bag_are_beamformed_by_ingest_like_the_folder(moving,
     from holodata.synth.panoradar_raw import write_raw_bag
 
     bag = write_raw_bag(moving.folder, tmp_path / "walk_bag", fmt=fmt)
-    params = BeamformParams(**{**PARAMS.to_attrs(), "static_removal": "rotation"})
+    params = replace(PARAMS, static_removal="rotation")
     a, b = str(tmp_path / "bag.zarr"), str(tmp_path / "dir.zarr")
     ingest([bag], a, IngestOptions(beamform=params, keep_iq=True), scene_ids=["bag"])
     ingest([moving.folder], b, IngestOptions(beamform=params), scene_ids=["dir"])

@@ -97,7 +97,7 @@ def test_beamformed_raw_samples_match_the_direct_heatmap_path():
     direct = model.cube(paths, None)
     iq, chirp, pad = _rotation(model, paths)
     N = model.cfg.chirps_per_rotation
-    p = BeamformParams(n_elevation=G.H, n_azimuth=G.W, static_removal="none")
+    p = BeamformParams(grid=G, static_removal="none")
     hm = bf.beamform(iq[pad:N + pad], chirp, p, neighbours=(iq[:pad], iq[N + pad:]))
     for r, j, rm in ((12, 40, 3.0), (20, 100, 5.0), (15, 70, 7.5)):
         k = int(rm / 0.0375)
@@ -124,8 +124,7 @@ def test_a_moving_platform_is_refocused_by_its_motion():
     model = _model(g)
     paths = _paths([(1, 320, 4.0, 1.0)], g)
     N = model.cfg.chirps_per_rotation
-    p = BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=2.0, elevation_min_deg=-2.0,
-                          static_removal="none")
+    p = BeamformParams(grid=g, static_removal="none")
 
     def image(v, compensate):
         iq, chirp, pad = _rotation(model, paths, v)
@@ -152,7 +151,7 @@ def test_synth_iq_recording_ingests_into_a_dataset_that_validates(tmp_path):
     hm = synthesize(tmp_path / "hm", SynthSpec(**kw), quiet=True)
     assert iq.counts[RAW_TOPIC] == 2 and "/radar/heatmap" not in iq.counts
     url = str(tmp_path / "d.zarr")
-    ingest([str(iq.recording), str(hm.recording)], url, IngestOptions(beamform=BeamformParams(n_elevation=G.H, n_azimuth=G.W)),
+    ingest([str(iq.recording), str(hm.recording)], url, IngestOptions(beamform=BeamformParams(grid=G)),
            scene_ids=["iq", "hm"], quiet=True)
     assert validate_dataset(url, quiet=True)["ok"]
     ds = open_dataset(url)

@@ -168,8 +168,7 @@ def test_direct_heatmaps_carry_the_beamformer_psf(range_m, row, col, focus):
     direct = model.cube(paths, None)
     chirp, _ = cfg.imaging()
     rot, _, _ = simulate_rotation((range_m * d)[None], chirp=chirp)
-    params = BeamformParams(n_elevation=g.H, n_azimuth=g.W, elevation_max_deg=g.elev_max_deg,
-                               elevation_min_deg=g.elev_min_deg, static_removal="none", focus=focus)
+    params = BeamformParams(grid=g, static_removal="none", focus=focus)
     raw = bf.beamform(rot, chirp, params)
     pd, pr = np.unravel_index(np.argmax(direct), direct.shape), np.unravel_index(np.argmax(raw), raw.shape)
     for p in (pd, pr):   # the path's cell (the elevation lobe is 8 rows wide: its peak within a row)
