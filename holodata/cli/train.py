@@ -97,7 +97,11 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     if summary and not as_json:
         click.echo(_done_line("stage one", res.epochs, res.resumed_from, res.final_loss, res.checkpoint))
     if stage in ("2", "all"):
-        s2 = _read_mapping(stage2_file) if stage2_file else {}
+        s2_init = _stage2_init(init, open_dataset(dataset).grid)
+        # fine-tuning: the init run's stage-two settings are the defaults (its shapes must match);
+        # the --stage2-config file and the flags win
+        s2 = dict(_stage2_settings(s2_init)) if s2_init is not None else {}
+        s2.update(_read_mapping(stage2_file) if stage2_file else {})
         told = stage2_epochs is not None or bool({"epochs_rt", "epochs_refine"} & set(s2))
         for k, v in {"device": device, "seed": seed, "epochs_rt": stage2_epochs, "epochs_refine": stage2_epochs}.items():
             if v is not None:
@@ -108,7 +112,7 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         if epochs is not None and not told:   # --epochs bounds each stage-two phase too
             s2cfg.epochs_rt, s2cfg.epochs_refine = min(s2cfg.epochs_rt, epochs), min(s2cfg.epochs_refine, epochs)
         r2 = train_stage2(dataset, out, s2cfg, stage1=stage1 if stage == "2" else None, quiet=quiet,
-                          init=_stage2_init(init, open_dataset(dataset).grid))
+                          init=s2_init)
         last = r2["history"][-1] if r2["history"] else {}
         summary.setdefault("run", str(out))
         summary["stage2"] = {"checkpoint": str(r2["checkpoint"]), "epochs": r2["epochs"],
@@ -133,6 +137,16 @@ def _stage2_init(init, grid):
 
     run = Path(resolve(init, grid))
     return run if run.is_dir() and (run / STAGE2_CHECKPOINT).is_file() else None
+
+
+def _stage2_settings(run) -> dict:
+    """The Stage2Config fields a stage-two run was trained with (its stage2.pt), less the device and
+    the epoch counts, which belong to the fine-tune."""
+    from holodata.safe_io import load_torch
+    from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
+
+    cfg = dict(load_torch(run / STAGE2_CHECKPOINT, "stage-two checkpoint").get("stage2_config") or {})
+    return {k: v for k, v in cfg.items() if k not in ("device", "epochs_rt", "epochs_refine")}
 
 
 def _done_line(stage: str, epochs: int, resumed_from: int, loss, checkpoint) -> str:

@@ -104,3 +104,11 @@ def test_the_readme_recipe_and_every_help_example_run_as_written(tmp_path, monke
             _run(words)
             ran += 1
     assert ran >= 25 and parsed >= 4, (ran, parsed)
+    # train --init pretrained fine-tuned stage two too, from the shipped stage2.pt and at its shapes
+    import torch
+
+    from holodata.torch.pretrained import WEIGHTS
+
+    ck = torch.load("lab/finetuned/stage2.pt", weights_only=False)
+    shipped = torch.load(WEIGHTS / "stage2.pt", weights_only=False)
+    assert ck["meta"]["init"] == str(WEIGHTS / "stage2.pt") and ck["rt_config"] == shipped["rt_config"]
