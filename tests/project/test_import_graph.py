@@ -135,11 +135,7 @@ def parent_package_imports(root: Path = ROOT) -> list[str]:
 
 # Package faces (``__init__.py``) that still hold code, and why. Every other face holds only its
 # docstring, imports, ``__all__`` and constants (test_package_faces_hold_no_code).
-FACES_WITH_CODE = {
-    # PEP 562 face: subpackages imported on first attribute access, ``open_dataset`` without importing
-    # the dataset stack, so that ``import holodata`` stays fast
-    "holodata/__init__.py",
-}
+FACES_WITH_CODE: set[str] = set()   # none (holodata's lazy PEP 562 hooks live in holodata/_lazy.py)
 
 
 def cycles(edges) -> list[frozenset]:
