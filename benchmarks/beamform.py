@@ -18,8 +18,8 @@ Floors (on a 2-core CPU): static >= 2 rotations/s, motion-compensated >= 0.5.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
-import sys
 import time
 from pathlib import Path
 
@@ -31,9 +31,19 @@ from holodata.radar.chirp import ChirpConfig
 from holodata.radar.simulate import RigEffects, point_at, simulate_rotation
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests"))   # the direct-sum reference lives with the tests
 
-from _radar_reference import beamform_direct, beamform_direct_near  # noqa: E402
+
+def _reference():
+    """The direct-sum reference (``tests/_radar_reference.py``, which lives with the tests), loaded from
+    its file: no sys.path edit, so no module of the tests folder shadows an installed one."""
+    spec = importlib.util.spec_from_file_location("_radar_reference", ROOT / "tests" / "_radar_reference.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+_ref = _reference()
+beamform_direct, beamform_direct_near = _ref.beamform_direct, _ref.beamform_direct_near
 
 VELOCITY = (0.35, 0.12)   # m/s: a walking-pace robot
 
