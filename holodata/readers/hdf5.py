@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..conventions import DEFAULT_ELEV_DEG, DEFAULT_RANGE_RESOLUTION_M
 from ..dataset.layout import RADAR_CYCLE_NS, RADAR_HEATMAP  # the file names its arrays as the dataset does
 from ..errors import RecordingError
 from .base import POINTS_TYPE, RADAR_MSG, Header, PointsMsg, RadarHeatmapMsg, RawMessage, Recording, TopicInfo, rate_of
@@ -151,9 +152,9 @@ class Hdf5Recording(Recording):
         hm = np.ascontiguousarray(hm, "<f2" if enc == "float16" else "<f4")
         R, H, W = hm.shape
         return RadarHeatmapMsg(Header(int(s["ts"][i]), str(a.get("frame_id", "radar"))), int(s["cycle"][i, 0]),
-                               int(s["cycle"][i, 1]), R, H, W, float(a.get("range_resolution_m", 0.0375)),
-                               float(np.deg2rad(a.get("elevation_max_deg", 45.0))),
-                               float(np.deg2rad(a.get("elevation_min_deg", -45.0))),
+                               int(s["cycle"][i, 1]), R, H, W, float(a.get("range_resolution_m", DEFAULT_RANGE_RESOLUTION_M)),
+                               float(np.deg2rad(a.get("elevation_max_deg", DEFAULT_ELEV_DEG[0]))),
+                               float(np.deg2rad(a.get("elevation_min_deg", DEFAULT_ELEV_DEG[1]))),
                                float(a.get("rotation_radius_m", 0.105)), enc, hm.reshape(-1).view(np.uint8),
                                str(a.get("range_origin", "rotation_centre")))
 
