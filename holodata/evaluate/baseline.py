@@ -22,7 +22,7 @@ def strongest_peaks(heatmap, range_bins: RangeBins, k: int = 3, min_snr_db: floa
     left = np.concatenate([pad, la.take(range(n - 1), axis=ax)], axis=ax)
     right = np.concatenate([la.take(range(1, n), axis=ax), pad], axis=ax)
     floor = np.median(la, axis=ax, keepdims=True)
-    near = (np.arange(n) + 0.5) * range_bins.dr < min_range_m
+    near = RangeBins(n, range_bins.dr).centres() < min_range_m   # (the heatmap's own bin count)
     near = near.reshape((n,) + (1,) * (a.ndim - ax - 1))
     peak = (la >= left) & (la > right) & (la > floor + min_snr_db / 20.0) & ~near
     score = np.where(peak, la, -np.inf)
