@@ -97,7 +97,7 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
     if summary and not as_json:
         click.echo(_done_line("stage one", res.epochs, res.resumed_from, res.final_loss, res.checkpoint))
     if stage in ("2", "all"):
-        s2_init = _stage2_init(init, open_dataset(dataset).grid)
+        s2_init = _stage2_init(init, dataset)
         # fine-tuning: the init run's stage-two settings are the defaults (its shapes must match);
         # the --stage2-config file and the flags win
         s2 = dict(_stage2_settings(s2_init)) if s2_init is not None else {}
@@ -125,17 +125,18 @@ def train(dataset, out, epochs, device, config_file, batch_size, lr, seed, num_w
         click.echo(json.dumps(summary, indent=2))
 
 
-def _stage2_init(init, grid):
+def _stage2_init(init, dataset):
     """What stage two fine-tunes from for ``--init``: the named run's stage-two checkpoint when it has one
     (``pretrained`` has), else None (a stage-one checkpoint file alone: stage two trains from scratch)."""
     if init is None:
         return None
     from pathlib import Path
 
+    from holodata.dataset import open_dataset
     from holodata.torch.pretrained import resolve
     from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
 
-    run = Path(resolve(init, grid))
+    run = Path(resolve(init, open_dataset(dataset).grid))
     return run if run.is_dir() and (run / STAGE2_CHECKPOINT).is_file() else None
 
 
