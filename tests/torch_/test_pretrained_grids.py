@@ -61,3 +61,40 @@ def test_install_half_stores_float16_that_a_model_loads(tmp_path):
         assert b.dtype == a.dtype, name
         if a.is_floating_point():
             assert torch.allclose(a, b, atol=1e-3, rtol=1e-3), name
+
+
+def test_install_replaces_only_what_it_wrote(tmp_path):
+    """A user's file in the destination, a foreign checkpoint or a symlink there: one-line refusal,
+    nothing touched; a folder install wrote is replaced."""
+    from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
+    from holodata.torch.train import CHECKPOINT
+
+    run = tmp_path / "run"
+    run.mkdir()
+    torch.save({"model_state": {"w": torch.ones(2)}}, run / CHECKPOINT)
+    torch.save({"rt_state": {"w": torch.ones(2)}}, run / STAGE2_CHECKPOINT)
+    dest = P.install(run, {"command": "first"}, dest=tmp_path / "weights")
+    assert P.install(run, {"command": "second"}, dest=dest) == dest   # its own folder: replaced
+    assert torch.load(dest / CHECKPOINT, weights_only=True)["pretrained"] == {"command": "second"}
+
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("keep me")
+    with pytest.raises(InputError, match="notes.txt"):
+        P.install(run, {"command": "x"}, dest=mine)
+    assert (mine / "notes.txt").read_text() == "keep me"
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    torch.save({"model_state": {}}, foreign / CHECKPOINT)
+    with pytest.raises(InputError, match="not a file holodata's install wrote"):
+        P.install(run, {"command": "x"}, dest=foreign)
+    assert (foreign / CHECKPOINT).exists() and not (tmp_path / "foreign.tmp").exists()
+
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "data.bin").write_bytes(b"1")
+    link = tmp_path / "link"
+    link.symlink_to(outside)
+    with pytest.raises(InputError, match="symlink"):
+        P.install(run, {"command": "x"}, dest=link)
+    assert link.is_symlink() and (outside / "data.bin").read_bytes() == b"1"

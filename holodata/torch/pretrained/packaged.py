@@ -74,7 +74,10 @@ def install(run: Path, record: dict, dest: Path = WEIGHTS, half: bool = False) -
     from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
     from holodata.torch.train import CHECKPOINT, _atomic_save
 
+    dest = Path(dest)
     tmp = dest.with_name(dest.name + ".tmp")
+    for folder in (tmp, dest):   # replaced only when it is a shipped run install wrote
+        _check_replaceable(folder)
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     for name in (CHECKPOINT, STAGE2_CHECKPOINT):
@@ -89,3 +92,22 @@ def install(run: Path, record: dict, dest: Path = WEIGHTS, half: bool = False) -
     shutil.rmtree(dest, ignore_errors=True)
     tmp.rename(dest)
     return dest
+
+
+def _check_replaceable(folder: Path) -> None:
+    """InputError (one line) unless ``folder`` is absent or a real folder holding only the run files
+    :func:`install` writes, each with its ``"pretrained"`` record: a symlink, a user's file or a
+    checkpoint install did not write is never removed."""
+    from holodata.errors import InputError
+    from holodata.safe_io import load_torch
+    from holodata.torch.stage2_infer import STAGE2_CHECKPOINT
+    from holodata.torch.train import CHECKPOINT
+
+    if not folder.exists() and not folder.is_symlink():
+        return
+    if folder.is_symlink() or not folder.is_dir():
+        raise InputError(f"{folder}: not a folder install wrote (a symlink or a file); refusing to replace it")
+    for entry in folder.iterdir():
+        if entry.name not in (CHECKPOINT, STAGE2_CHECKPOINT) or entry.is_symlink() or not entry.is_file() \
+                or "pretrained" not in load_torch(entry, entry.name):
+            raise InputError(f"{entry}: not a file holodata's install wrote; refusing to replace {folder}")
