@@ -15,6 +15,9 @@ then:
      included) and prints its ratios (--skip-cli to skip), then the same command on the first
      frame alone: its fixed cost (interpreter, imports, inputs, output, exit), and the ratios that
      cost leaves reachable at this frame count even if every frame were traced at the bare speed;
+     and bare open3d as a process of its own doing the same work (interpreter, ``import open3d``,
+     reading the mesh, building the scene, then the frames at the bare speed of 2.), the ratio of
+     the raw library to the command that counts both sides' start-up;
   4. runs the pipeline in subprocesses for 100 and 1000 frames and prints their peak RSS;
   5. extrapolates to HoloRadar scale (28k frames).
 
@@ -240,6 +243,10 @@ def main() -> None:
             print(f"  its fixed cost (the command on 1 frame): {fdt:.2f} s wall, {fcpu:.2f} s CPU -> even tracing at the "
                   f"bare speed, {a.frames} frames reach at most ratio {n_bare / (n_bare + fdt):.2f}, CPU ratio "
                   f"{n_bare_cpu / (n_bare_cpu + fcpu):.2f}")
+            sdt, scpu = bare_process_startup(d)
+            print(f"bare open3d as its own process (interpreter, import open3d, read the mesh, build the scene): "
+                  f"{sdt:.2f} s wall, {scpu:.2f} s CPU; with {a.frames} frames at the bare speed -> command ratio "
+                  f"{(sdt + n_bare) / cdt:.2f}, CPU ratio {(scpu + n_bare_cpu) / ccpu:.2f} (both sides' start-up counted)")
         if not a.skip_rss:
             for n in (100, 1000):
                 r = subprocess.run([sys.executable, __file__, "--rss-child", str(n), "--rss-grid", a.rss_grid],
@@ -263,6 +270,26 @@ def run_command(d: Path, grid: str, processes: int) -> tuple[float, float]:
     dt = time.perf_counter() - t0
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     shutil.rmtree(d / "cli.zarr", ignore_errors=True)
+    return dt, r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
+
+
+BARE_STARTUP = """
+import sys
+import numpy as np
+import open3d as o3d
+m = o3d.io.read_triangle_mesh(sys.argv[1])
+scene = o3d.t.geometry.RaycastingScene()
+scene.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, np.float32)), o3d.core.Tensor(np.asarray(m.triangles, np.uint32)))
+"""
+
+
+def bare_process_startup(d: Path) -> tuple[float, float]:
+    """Wall and CPU seconds of a Python process that imports open3d, reads ``d``/scene.ply with it and
+    builds its raycasting scene: the start-up bare open3d pays as a program of its own."""
+    r0, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    subprocess.run([sys.executable, "-c", BARE_STARTUP, str(d / "scene.ply")], check=True, capture_output=True)
+    dt = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     return dt, r1.ru_utime + r1.ru_stime - r0.ru_utime - r0.ru_stime
 
 

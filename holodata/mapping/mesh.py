@@ -43,6 +43,7 @@ from ..geometry.voxels import unique_voxels, unpack_keys
 from ..meshio import merge_meshes
 
 METHODS = ("poisson", "bpa")
+SNAP_RANSAC_DRAWS = 200   # planes tried per RANSAC search of snap_to_planes
 # Poisson's bounding cube is this × the cloud's extent (open3d's default scale); the octree depth
 # is chosen from the same cube
 POISSON_SCALE = 1.1
@@ -228,40 +229,38 @@ def bpa_mesh(pc, cfg: MeshConfig):
 def snap_to_planes(vertices: np.ndarray, faces: np.ndarray, distance: float = 0.03, min_vertices: int = 2000,
                    max_planes: int = 20, cos_min: float = 0.9, seed: int = 0) -> tuple[np.ndarray, dict]:
     """Flatten the large planes of a mesh: planes found one after the other by RANSAC
-    (open3d ``segment_plane``, ``distance``) among the vertices not yet taken, each with at least
-    ``min_vertices`` inliers; an inlier whose vertex normal is within acos(``cos_min``) of the plane's
-    normal is projected onto it. Poisson leaves centimetre bumps on walls whose face normals tilt a few
-    degrees: a reflected ray then leaves at twice that error (bounce-2/3 ground truth). Returns the
-    new vertices (V,3) and an info dict (planes, vertices moved, max shift)."""
+    (:func:`holodata.geometry.planes.ransac_plane`, 200 draws, ``distance``) among the vertices not yet
+    taken, each with at least ``min_vertices`` inliers; an inlier whose vertex normal is within
+    acos(``cos_min``) of the plane's normal is projected onto the least-squares plane of those inliers.
+    Poisson leaves centimetre bumps on walls whose face normals tilt a few degrees: a reflected ray
+    then leaves at twice that error (bounce-2/3 ground truth). Deterministic for a given ``seed``
+    (open3d's multithreaded ``segment_plane``, used before, moved a mesh's vertices by up to 0.1 mm
+    from run to run, which a short fine-tune on the traced GT amplified). Returns the new vertices
+    (V,3) and an info dict (planes, vertices moved, max shift)."""
     import open3d as o3d
+
+    from holodata.geometry.planes import fit_plane, ransac_plane
 
     v = np.asarray(vertices, np.float64).copy()
     m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(np.asarray(faces, np.int32)))
     m.compute_vertex_normals()
     vn = np.asarray(m.vertex_normals)
     free = np.ones(len(v), bool)
-    o3d.utility.random.seed(seed)
+    rng = np.random.default_rng(seed)
     planes, moved, shift = 0, 0, 0.0
     for _ in range(max_planes):
         idx = np.flatnonzero(free)
         if len(idx) < min_vertices:
             break
-        pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(v[idx]))
-        model, inl = pc.segment_plane(distance_threshold=float(distance), ransac_n=3, num_iterations=200)
-        if len(inl) < min_vertices:
+        n, d, count = ransac_plane(v[idx], float(distance), SNAP_RANSAC_DRAWS, rng)
+        if count < min_vertices:
             break
-        n = np.asarray(model[:3], np.float64)
-        n /= np.linalg.norm(n)
-        sel = idx[np.asarray(inl)]
-        ok = np.abs(vn[sel] @ n) >= cos_min
-        sel = sel[ok]
+        inl = idx[np.abs(v[idx] @ n + d) < distance]
+        sel = inl[np.abs(vn[inl] @ n) >= cos_min]
         if len(sel) < min_vertices // 2:
-            free[idx[np.asarray(inl)]] = False  # not a surface of this orientation: do not try these again
+            free[inl] = False  # not a surface of this orientation: do not try these again
             continue
-        # least-squares plane through the inliers (RANSAC's 3-point plane tilts with the bumps)
-        c = v[sel].mean(0)
-        n = np.linalg.svd(v[sel] - c, full_matrices=False)[2][2]
-        d = -float(n @ c)
+        n, d = fit_plane(v[sel])   # the least-squares plane through the inliers of this orientation
         dist = v[sel] @ n + d
         v[sel] -= dist[:, None] * n[None, :]
         free[sel] = False

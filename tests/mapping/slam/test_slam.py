@@ -345,6 +345,8 @@ def test_snap_to_planes_flattens_bumpy_walls_only():
     assert abs(vt[2][2]) > np.cos(np.radians(0.02))            # and level: the least-squares plane of the ripples
     assert np.abs(floor[:, :2] - fv[:, :2]).max() < 1e-3        # moved along the normal only
     assert np.allclose(out[len(fv):], sv)                       # the sphere is untouched
+    again, _ = snap_to_planes(v, f, distance=0.03, min_vertices=1000)
+    assert np.array_equal(again, out)                           # the same mesh, bit for bit, run after run
 
 
 def test_cli_bad_input_one_line_exit_1(tmp_path):
