@@ -21,10 +21,14 @@ from holodata.cli.options import json_option, quiet_option
 @click.option("--estimator", type=click.Choice(["auto", "mean", "median", "mode"]), default="auto", show_default=True,
               help="Point estimate of each beam's range-bin distribution (soft-argmax models; auto: the one the "
                    "checkpoint was trained for).")
+@click.option("--motion-cue", is_flag=True,
+              help="Also find a moving person from the change between a corner's consecutive rotations (no training; "
+                   "the model row's human centres gain it): holodata.evaluate.motion.")
 @click.option("--screenshot", is_flag=True, help="Also save REPORT/report.png (headless Chromium).")
 @quiet_option()
 @json_option("Print metrics.json on stdout.")
-def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estimator, screenshot, quiet, as_json):
+def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estimator, motion_cue, screenshot, quiet,
+             as_json):
     """Evaluate a trained checkpoint and the strongest-peaks baseline on DATASET's split.
 
     \b
@@ -36,11 +40,13 @@ def evaluate(dataset, checkpoint, oracle, out, split, device, max_frames, estima
       holodata evaluate lab/ds.zarr --oracle --out lab/report-oracle
     """
     from holodata.evaluate import Evaluation
+    from holodata.evaluate.motion import MotionCue
 
     if oracle == (checkpoint is not None):
         raise click.UsageError("give either --checkpoint RUN or --oracle")
     doc = Evaluation(dataset, checkpoint, out, split=split, device=device, max_frames=max_frames, quiet=quiet,
-                     estimator=None if estimator == "auto" else estimator, oracle=oracle).run()
+                     estimator=None if estimator == "auto" else estimator, oracle=oracle,
+                     motion=MotionCue() if motion_cue else None).run()
     if screenshot:
         from pathlib import Path
 

@@ -251,7 +251,8 @@ class _Tally:
     human centres, whether its person is hidden (:func:`person_hidden`) and its GT NLOS point count;
     per scene its bands/attenuation (``scene_info``) and beams (``beams``, :class:`SceneBeams`); the
     report's hidden-side pictures (``frames``, drawn at the split positions ``picks``) and its
-    example frame (``example``, the one at ``ex_pick``)."""
+    example frame (``example``, the one at ``ex_pick``); ``motion``: the motion cue's scorer
+    (:class:`.motion.MotionScorer`) or None."""
 
     accs: dict
     picks: set
@@ -263,6 +264,7 @@ class _Tally:
     beams: dict = field(default_factory=dict)
     frames: list = field(default_factory=list)
     example: dict | None = None
+    motion: Any = None
 
 
 @dataclass
@@ -279,7 +281,9 @@ class Evaluation:
     labels) as the "model" (``checkpoint`` may then be None): a check of the metric plumbing, which
     must give perfect scores. ``estimator``: the model's point estimate per beam ("mean", "median",
     "mode"; see :meth:`holodata.torch.model.MultiReturnUNet.predict`; None: the one the checkpoint
-    was trained for)."""
+    was trained for). ``motion``: a :class:`holodata.evaluate.motion.MotionCue` whose moving person
+    (found from the change between a corner's rotations) joins the model row's human centres, or
+    None (the model's human labels alone)."""
 
     dataset_url: str | Path
     checkpoint: str | Path | None
@@ -295,6 +299,7 @@ class Evaluation:
     report: bool = True
     oracle: bool = False
     estimator: str | None = None
+    motion: Any = None
 
     def run(self) -> dict:
         """Open the run and the split, score every frame, write metrics.json (+ the report); returns
@@ -340,6 +345,10 @@ class Evaluation:
         # the report's hidden-side pictures: up to REPORT_FRAMES frames spread over the split
         picks = set(np.linspace(0, len(index) - 1, min(REPORT_FRAMES, len(index))).round().astype(int).tolist())
         t = _Tally({m: _Acc() for m in s.rows}, picks, len(index) // 2)
+        if self.motion is not None and s.run.model is not None:
+            from .motion import MotionScorer
+
+            t.motion = MotionScorer(self.motion, s, t.beams)
         for i0 in track(range(0, len(index), self.batch_size), total=math.ceil(len(index) / self.batch_size),
                         description=f"evaluate {self.split}", quiet=self.quiet):
             items = list(range(i0, min(i0 + self.batch_size, len(index))))
@@ -360,6 +369,11 @@ class Evaluation:
         t.hidden.append(person_hidden(g_lab))
         b_rng = strongest_peaks(hm, s.rb, k=3)
         p_j, pcm, pcs = _score_model(s.run.stage2, t.accs, target, pred, g_lab)
+        if t.motion is not None:   # the moving person joins the model's human centres
+            from .motion import merge_centres
+
+            acc = t.accs["model"]
+            acc.pred_centres[-1] = merge_centres(acc.pred_centres[-1], t.motion.centres(i, hm, pred[2]))
         pcb = score_frame(t.accs["baseline"], target, b_rng, None)
         t.gt_nlos_points.append(int(len(target.clouds["nlos"])))
         if i in t.picks:
@@ -408,7 +422,8 @@ class Evaluation:
                 "beam_origin": {sid: b.origin.to_attrs() for sid, b in t.beams.items()},
                 "stage2": _stage2_settings(run.stage2_checkpoint),
                 "gt_nlos_points_per_frame": float(np.mean(t.gt_nlos_points)) if t.gt_nlos_points else 0.0,
-                "frames_hidden_person": int(sum(t.hidden))}
+                "frames_hidden_person": int(sum(t.hidden)),
+                "motion_cue": None if t.motion is None else self.motion.to_dict()}
 
     def _write_report(self, s: _Opened, t: _Tally, doc: dict) -> list:
         """report.html and its figures into the output folder; returns the figures' names."""

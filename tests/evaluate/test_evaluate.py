@@ -69,6 +69,16 @@ def test_train_then_evaluate_writes_valid_report(dataset, tmp_path):
         assert (out / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     for method in ("model", "baseline"):
         assert doc["methods"][method]["range"]["bounce_1"]["mean_cm"] is not None
+    assert doc["settings"]["motion_cue"] is None
+    # the motion cue (a corner's consecutive rotations) only adds people to the model row, and says so
+    r = CliRunner().invoke(cli, ["evaluate", dataset, "--checkpoint", str(run), "--out", str(tmp_path / "motion"),
+                                 "--motion-cue", "--quiet", "--json"])
+    assert r.exit_code == 0, r.output
+    moved = json.loads(r.output)
+    validate_metrics(moved)
+    assert moved["settings"]["motion_cue"]["min_change_db"] > 0
+    assert moved["methods"]["model"]["human"]["n_pred"] >= doc["methods"]["model"]["human"]["n_pred"]
+    assert moved["methods"]["model"]["points"] == doc["methods"]["model"]["points"]
     # a bad checkpoint is a one-line error, exit 1
     bad = tmp_path / "bad.pt"
     bad.write_text("not a checkpoint")

@@ -1,0 +1,164 @@
+"""The hidden person found by motion between consecutive rotations of a corner.
+
+Radar works that find people behind corners mostly use their motion: what changes between frames
+while walls stay (clutter removal across frames; ../shared/FIELD-NOTES.md, "Finding people behind
+corners"). Here the cue is read on stage one's own returns, so it needs no training:
+
+1. **change**: per bounce-2/3 return, how much its heatmap bin (±1 bin) changed from the
+   neighbouring rotation of the same corner, dB (:func:`change_at_returns`), counted only where the
+   bin stands ``min_snr_db`` over its beam's median (a return, not noise whose log swings freely);
+2. **persistence**: each un-mirrored return's distance to the neighbouring rotation's un-mirrored
+   cloud, both in the world frame (:func:`persistence`): the robot's own motion is compensated here,
+   walls land on themselves, a walking person has moved;
+3. **the person**: the returns that changed by ``min_change_db`` and moved by ``min_persist_m``
+   are clustered (single linkage, :data:`holodata.metrics.HUMAN_CLUSTER_M`, at least
+   :data:`~holodata.metrics.HUMAN_MIN_POINTS` points); the cluster with the largest summed
+   change × persistence (capped at ``persist_cap_m``) is the person when that score reaches
+   ``min_score`` (:func:`moving_person`).
+
+A person who stands still gives neither cue and is left to the model's human head; so is a second
+person (one per frame). The heatmap's change is not compensated for the robot's motion between
+rotations (a few cm at a corner); persistence is. Plain numpy; :class:`MotionScorer` is evaluate's
+glue (reads the neighbouring rotation, runs stage one on it, caches the last frames).
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MATCH_M, HUMAN_MIN_POINTS
+
+
+@dataclass(frozen=True)
+class MotionCue:
+    """Settings of :func:`moving_person` (module docstring), chosen on a development corpus (seed 500,
+    benchmarks/results/hidden-person.md): ``min_change_db`` dB, ``min_snr_db`` dB, ``min_persist_m`` m,
+    ``persist_cap_m`` m, ``cluster_m`` m, ``min_points``, ``min_score`` (dB·m summed over a cluster)."""
+
+    min_change_db: float = 25.0
+    min_snr_db: float = 15.0
+    min_persist_m: float = 0.05
+    persist_cap_m: float = 0.5
+    cluster_m: float = HUMAN_CLUSTER_M
+    min_points: int = HUMAN_MIN_POINTS
+    min_score: float = 70.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def change_at_returns(db: np.ndarray, db_other: np.ndarray, ranges: np.ndarray, dr: float,
+                      min_snr_db: float) -> np.ndarray:
+    """(B,H,W) dB: per return of ``ranges`` (B,H,W) m (NaN = none) the largest |change| between the
+    heatmaps ``db`` and ``db_other`` (R,H,W) dB (20·log10 amplitude, same grid) over its range bin
+    (bin width ``dr`` m) and the bins either side; 0 where there is no return or where ``db`` at the
+    bin is under ``min_snr_db`` over its beam's median."""
+    R, H, W = db.shape
+    change = np.abs(db - db_other)
+    change = np.maximum(change, np.maximum(np.roll(change, 1, 0), np.roll(change, -1, 0)))
+    snr = db - np.median(db, axis=0, keepdims=True)
+    ok = np.isfinite(ranges)
+    k = np.clip(np.floor(np.where(ok, ranges, 0) / dr).astype(np.int64), 0, R - 1)
+    e, a = np.meshgrid(np.arange(H), np.arange(W), indexing="ij")
+    c = change[k, e[None], a[None]]
+    return np.where(ok & (snr[k, e[None], a[None]] >= min_snr_db), c, 0.0)
+
+
+def persistence(points_world: np.ndarray, other_world: np.ndarray, cap: float) -> np.ndarray:
+    """(N,) m: each of ``points_world`` (N,3)'s distance to the nearest of ``other_world`` (M,3),
+    capped at ``cap`` (``cap`` when ``other_world`` is empty)."""
+    from scipy.spatial import cKDTree
+
+    if not len(points_world):
+        return np.zeros(0)
+    if not len(other_world):
+        return np.full(len(points_world), float(cap))
+    d = cKDTree(other_world).query(points_world, distance_upper_bound=cap)[0]
+    return np.minimum(d, cap)
+
+
+def moving_person(points: np.ndarray, change: np.ndarray, persist: np.ndarray, cue: MotionCue = MotionCue()
+                  ) -> np.ndarray:
+    """(0 or 1, 3): the centre of the moving person among bounce-2/3 returns ``points`` (N,3) with
+    their ``change`` (N,) dB and ``persist`` (N,) m (module docstring, step 3), or none."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    sel = (change >= cue.min_change_db) & (persist >= cue.min_persist_m) & np.isfinite(points).all(-1)
+    X = points[sel]
+    if len(X) < cue.min_points:
+        return np.zeros((0, 3))
+    w = change[sel] * np.minimum(persist[sel], cue.persist_cap_m)
+    pairs = cKDTree(X).query_pairs(cue.cluster_m, output_type="ndarray")
+    n, lab = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(X),) * 2),
+                                  directed=False)
+    counts = np.bincount(lab, minlength=n)
+    score = np.where(counts >= cue.min_points, np.bincount(lab, weights=w, minlength=n), -np.inf)
+    best = int(np.argmax(score))
+    if score[best] < cue.min_score:
+        return np.zeros((0, 3))
+    return X[lab == best].mean(0, keepdims=True)
+
+
+def merge_centres(centres: np.ndarray, extra: np.ndarray, min_dist: float = HUMAN_MATCH_M) -> np.ndarray:
+    """``centres`` (K,3) with each of ``extra`` (L,3) that lies ``min_dist`` m or more from all of them."""
+    centres = np.asarray(centres, np.float64).reshape(-1, 3)
+    for c in np.asarray(extra, np.float64).reshape(-1, 3):
+        if not len(centres) or np.linalg.norm(centres - c, axis=1).min() >= min_dist:
+            centres = np.vstack([centres, c])
+    return centres
+
+
+class MotionScorer:
+    """Evaluate's motion cue: :meth:`centres` of frame ``i`` of an opened evaluation (``s``:
+    ``holodata.evaluate.pipeline._Opened``), given its baseline-transform heatmap and stage one's
+    cloud ranges. The neighbouring rotation (the previous one of the corner, the next for its first)
+    is read and run through stage one unless it was just scored; the last ``keep`` frames are cached."""
+
+    def __init__(self, cue: MotionCue, s, beams: dict, keep: int = 3):
+        from holodata.geometry.unmirror import unmirror
+
+        self.cue, self.s, self.beams, self.keep = cue, s, beams, keep
+        self.pos = {key: j for j, key in enumerate(s.index)}
+        self.cache: dict = {}
+        self._unmirror = unmirror
+
+    def _frame(self, sid: str, k: int, hm=None, cloud=None) -> tuple:
+        """(heatmap dB (R,H,W), cloud ranges (3,H,W), un-mirrored points (3,H,W,3) radar frame, world (3,H,W,3))."""
+        key = (sid, k)
+        if key not in self.cache:
+            from holodata.torch.data import apply_transform
+
+            s = self.s
+            if hm is None:
+                heat, g_rng, g_lab = s.data.read(self.pos[key])
+                hm = apply_transform(heat, g_rng, g_lab, s.base_tf)[0]
+                cloud = s.run.ranges([heat])[2][0]
+            geo = self.beams[sid].frame(k, s.run.downsample)
+            P = self._unmirror(cloud, geo.directions, grid=s.grid, origins=geo.origins)["point"]
+            self.cache[key] = (20 * np.log10(np.maximum(hm, 1e-12)), cloud, P, geo.to_world(P))
+            while len(self.cache) > self.keep:
+                self.cache.pop(next(iter(self.cache)))
+        return self.cache[key]
+
+    def centres(self, i: int, hm: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+        """(0 or 1, 3) radar-frame centre of the moving person in frame ``i`` (none when its corner has
+        no other rotation in the split)."""
+        sid, k = self.s.index[i]
+        other = next((o for o in ((sid, k - 1), (sid, k + 1)) if o in self.pos), None)
+        if other is None:
+            return np.zeros((0, 3))
+        db, cloud, P, Pw = self._frame(sid, k, hm, cloud)
+        db_o, _, _, Pw_o = self._frame(*other)
+        change = change_at_returns(db, db_o, cloud, self.s.rb.dr, self.cue.min_snr_db)
+        b = np.zeros(cloud.shape, bool)
+        b[1:] = True                                              # bounces 2 and 3
+        ok = b & np.isfinite(P).all(-1)
+        ok_o = np.isfinite(Pw_o).all(-1)
+        persist = persistence(Pw[ok], Pw_o[ok_o], self.cue.persist_cap_m)
+        return moving_person(P[ok], change[ok], persist, self.cue)
+
+
+__all__ = ["MotionCue", "MotionScorer", "change_at_returns", "merge_centres", "moving_person", "persistence"]
