@@ -11,8 +11,8 @@ frames on the same grid; per beam they are compared on:
 - **the three strongest returns**: the share of the direct heatmap's that the raw one also has within 2 bins;
 - **dynamic range**: the strongest peak over the beam's median, dB (median over beams);
 - **range sidelobes**: the strongest local maximum 3-12 bins from the peak, below the peak, dB;
-- **azimuth spread**: the level at the peak's range bin 2 / 4 / 8 beams to either side, below the peak, dB
-  (the beam pattern in angle; a wider spread smears walls sideways);
+- **by elevation**: the peak-range difference in the upper, middle and lower third of the beams (a
+  broader elevation beam lets a wall outshine the floor in the beams that look down);
 - **noise floor**: the beam's median below the frame's strongest bin, dB;
 - **near field**: the mean level of the bins within 1 m below the beam's peak, dB (leakage and focus).
 
@@ -37,7 +37,6 @@ import numpy as np
 from _run import header
 
 SIDELOBE_BINS = (3, 12)      # a range sidelobe: a local maximum this many bins from the peak
-AZIMUTH_STEPS = (2, 4, 8)    # beams to either side at which the azimuth spread is read
 NEAR_FIELD_M = 1.0
 
 
@@ -77,7 +76,6 @@ def beam_stats(hm: np.ndarray, rb) -> dict:
     side = np.where(local_max & (off >= SIDELOBE_BINS[0]) & (off <= SIDELOBE_BINS[1]), db, -np.inf).max(0)
     near = rb.centres() < NEAR_FIELD_M
     return {"top": top, "peaks": peaks, "dynamic_db": level - med, "sidelobe_db": level - side,
-            "azimuth_db": {s: level - 0.5 * (db[pk, e, (a + s) % W] + db[pk, e, (a - s) % W]) for s in AZIMUTH_STEPS},
             "floor_db": db.max() - med, "near_db": level - db[near].mean(0), "valid": np.isfinite(top)}
 
 
@@ -95,10 +93,13 @@ def compare(direct: str, raw: str) -> list[tuple[str, str, str]]:
     for k in range(min(sd.n_frames, sr.n_frames)):
         S["direct"].append(beam_stats(read_heatmap(sd, k), rb))
         S["raw"].append(beam_stats(read_heatmap(sr, k), rb))
-    dr_bins, found = [], []
+    dr_bins, found, thirds = [], [], [[], [], []]
     for a, b in zip(S["direct"], S["raw"]):
         ok = a["valid"] & b["valid"]
-        dr_bins.append(np.abs(a["top"] - b["top"])[ok] / rb.dr)
+        diff = np.abs(a["top"] - b["top"]) / rb.dr
+        dr_bins.append(diff[ok])
+        for t, rows in enumerate(np.array_split(np.arange(diff.shape[0]), 3)):
+            thirds[t].append(diff[rows][ok[rows]])
         for j in range(3):
             pa = a["peaks"][j]
             has = np.isfinite(pa)
@@ -106,10 +107,10 @@ def compare(direct: str, raw: str) -> list[tuple[str, str, str]]:
             found.append(near)
     dr_bins, found = np.concatenate(dr_bins), np.concatenate(found)
 
-    def med(key: str, sub=None) -> tuple[str, str]:
+    def med(key: str) -> tuple[str, str]:
         vals = []
         for road in ("direct", "raw"):
-            x = [s[key] if sub is None else s[key][sub] for s in S[road]]
+            x = [s[key] for s in S[road]]
             v = np.concatenate([np.asarray(xi)[s["valid"]].ravel() for xi, s in zip(x, S[road])]) if key != "floor_db" \
                 else np.asarray(x, float).ravel()
             v = v[np.isfinite(v)]
@@ -121,8 +122,10 @@ def compare(direct: str, raw: str) -> list[tuple[str, str, str]]:
             ("the direct heatmap's 3 strongest returns the raw one has within 2 bins", f"{found.mean():.2f}", "(vs direct)")]
     rows.append(("dynamic range: peak over the beam's median, dB", *med("dynamic_db")))
     rows.append((f"range sidelobe ({SIDELOBE_BINS[0]}-{SIDELOBE_BINS[1]} bins) below the peak, dB", *med("sidelobe_db")))
-    for s in AZIMUTH_STEPS:
-        rows.append((f"azimuth spread: ±{s} beams below the peak, dB", *med("azimuth_db", s)))
+    for name, t in zip(("upper", "middle", "lower"), thirds):
+        v = np.concatenate(t)
+        rows.append((f"peak range |direct − raw| in the {name} third of the elevations, bins: median / share ≤ 1 bin",
+                     f"{np.median(v):.1f} / {np.mean(v <= 1):.2f}", "(vs direct)"))
     rows.append(("noise floor: beam median below the frame's maximum, dB", *med("floor_db")))
     rows.append((f"near field (< {NEAR_FIELD_M:g} m): mean below the beam's peak, dB", *med("near_db")))
     return rows
@@ -147,9 +150,9 @@ def main(argv=None) -> int:
         direct, raw = record_both(out, a.grid, a.corner, a.frames, a.seed, chirps)
         print(f"corner {a.corner} (seed {a.seed}), {a.frames} rotations, grid {a.grid}, raw samples of {chirps} chirp "
               f"positions per rotation beamformed by holodata ingest")
-        print(f"  {'per beam (median over beams and frames)':<72} {'direct':>14} {'raw':>12}")
+        print(f"  {'per beam (median over beams and frames)':<100} {'direct':>14} {'raw':>12}")
         for name, d, r in compare(direct, raw):
-            print(f"  {name:<72} {d:>14} {r:>12}")
+            print(f"  {name:<100} {d:>14} {r:>12}")
     finally:
         if not a.out:
             shutil.rmtree(out, ignore_errors=True)
