@@ -10,6 +10,9 @@ Stage one's ranges of every frame of DATASET's ``--split`` are un-mirrored analy
   neighbouring rotation of the same corner (the previous one; the next for a corner's first), where the
   bin stands > 15 dB above its beam's median (clutter removal across rotations, no ego-motion
   compensation; a person standing still gives no cue);
+- ``motion cue``: ``holodata evaluate --motion-cue``'s moving person alone
+  (:func:`holodata.evaluate.motion.moving_person`: the same returns clustered, the strongest cluster of
+  changed and moved returns, at most one per frame; its settings, no threshold swept);
 - ``3-D MLP >= t``: a small MLP over each point's 3-D neighbourhood (16 nearest: spacing, PCA
   planarity/linearity), its height, bounce, p_hum, amplitude, motion and persistence (distance to the
   neighbouring rotation's cloud in the world frame), trained on the first half of the
@@ -105,11 +108,12 @@ def add_persistence(recs: list[dict]) -> None:
         r["persist"] = np.minimum(cKDTree(world[other]).query(world[(c, k)], distance_upper_bound=1.0)[0], 1.0)
 
 
-def detection(recs: list[dict], labels: list[np.ndarray]) -> tuple[dict, dict]:
-    """(all frames, hidden-person frames) detection metrics of the human-labelled points."""
+def detection(recs: list[dict], labels: list[np.ndarray], centres: list[np.ndarray] | None = None) -> tuple[dict, dict]:
+    """(all frames, hidden-person frames) detection metrics of the human-labelled points (or of
+    ``centres`` per frame when given)."""
     from holodata import metrics as M
 
-    pred = [M.human_centroids(r["P"][lab]) for r, lab in zip(recs, labels)]
+    pred = centres if centres is not None else [M.human_centroids(r["P"][lab]) for r, lab in zip(recs, labels)]
     hid = [i for i, r in enumerate(recs) if r["hidden"]]
     return (M.human_detection_metrics(pred, [r["gt"] for r in recs]),
             M.human_detection_metrics([pred[i] for i in hid], [recs[i]["gt"] for i in hid]))
@@ -180,10 +184,10 @@ def main(argv=None) -> int:
           f"{len(test)} ({sum(r['hidden'] for r in test)} hidden)")
     print("  labeller                            frames   all frames P / R / F %      hidden person P / R / F %, loc median cm")
 
-    def row(name: str, rs: list[dict], labels_at, thresholds) -> None:
+    def row(name: str, rs: list[dict], labels_at, thresholds, centres=None) -> None:
         best = None
         for t in thresholds:
-            m_all, m_hid = detection(rs, labels_at(t))
+            m_all, m_hid = detection(rs, None if centres is not None else labels_at(t), centres)
             key = (np.nan_to_num(m_hid["f_score"]), np.nan_to_num(m_all["f_score"]))
             if best is None or key > best[0]:
                 best = (key, t, m_all, m_hid)
@@ -198,6 +202,13 @@ def main(argv=None) -> int:
     for rs, part in ((recs, "all"), (test, "2nd half")):
         row(f"stage one p_hum [{part}]", rs, lambda t, rs=rs: [r["p_hum"] >= t for r in rs], (0.1, 0.2, 0.3, 0.4, 0.5))
         row(f"motion [{part}]", rs, lambda t, rs=rs: [(r["motion"] >= t) & (r["bounce"] > 0) for r in rs], (10, 15, 20, 25, 30))
+    from holodata.evaluate.motion import MotionCue, moving_person
+
+    cue = MotionCue()
+    for rs, part in ((recs, "all"), (test, "2nd half")):
+        cen = [moving_person(r["P"][r["bounce"] > 0], r["motion"][r["bounce"] > 0],
+                             np.minimum(r["persist"][r["bounce"] > 0], cue.persist_cap_m), cue) for r in rs]
+        row(f"motion cue [{part}]", rs, None, [None], centres=cen)
     probs = mlp_probabilities(train, test)
     row("3-D MLP [2nd half]", test, lambda t: [p >= t for p in probs], (0.5, 0.8, 0.9, 0.95, 0.98))
     return 0
