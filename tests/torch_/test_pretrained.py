@@ -1,6 +1,6 @@
-"""The weights holodata ships (holodata.torch.pretrained): loading them and scoring the held-out
-check set gives the numbers recorded when benchmarks/nlos.py --install trained them; a dataset of another
-grid, and an --init that does not exist, are one-line errors."""
+"""The weights holodata ships (holodata.torch.pretrained), each grid's: loading them and scoring the
+held-out check set gives the numbers recorded when benchmarks/nlos.py --install trained them; a dataset
+of another grid, and an --init that does not exist, are one-line errors."""
 import subprocess
 import sys
 
@@ -8,30 +8,47 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from holodata.torch.pretrained import CHECK_SET, WEIGHTS, scores  # noqa: E402
+from holodata.conventions import Grid  # noqa: E402
+from holodata.torch.pretrained import CHECK_SET, installed, scores  # noqa: E402
 from holodata.torch.train import load_checkpoint  # noqa: E402
 
 HOLODATA = [sys.executable, "-m", "holodata.cli.main"]
+GRIDS = sorted(installed())
 
 
-def test_weights_record_how_they_were_made():
-    ck = load_checkpoint(WEIGHTS)
+def test_the_quick_demo_grid_is_shipped():
+    assert "32x128" in GRIDS
+
+
+@pytest.mark.parametrize("grid", GRIDS)
+def test_weights_record_how_they_were_made(grid):
+    folder = installed()[grid]
+    ck = load_checkpoint(folder)
     rec = ck["pretrained"]
     assert rec["command"].startswith("python benchmarks/nlos.py") and len(rec["commit"]) == 40
     assert rec["heldout_check"]["seed"] == CHECK_SET["seed"] != rec["train_corpus"]["seed"]
+    trained = Grid.from_attrs(rec["train_corpus"]["grid"])
+    assert f"{trained.H}x{trained.W}" == grid          # in the folder of the grid it was trained for
     assert "optimizer_state" not in ck
-    assert sum(p.stat().st_size for p in WEIGHTS.iterdir()) <= 20 * 2**20
+    for f in folder.iterdir():
+        assert f.stat().st_size <= 25 * 10**6, f
 
 
 @pytest.mark.slow
-def test_pretrained_scores_the_recorded_numbers_on_the_check_set(tmp_path):
+@pytest.mark.parametrize("grid", GRIDS)
+def test_pretrained_scores_the_recorded_numbers_on_the_check_set(grid, tmp_path):
+    from holodata.evaluate.motion import MotionCue
     from holodata.evaluate.pipeline import Evaluation
     from holodata.synth.corpus import CorpusConfig, synth_corpus
 
-    rec = load_checkpoint(WEIGHTS)["pretrained"]
+    rec = load_checkpoint(installed()[grid])["pretrained"]
+    check = rec["heldout_check"]
     url = str(tmp_path / "check.zarr")
-    synth_corpus(url, CorpusConfig(**CHECK_SET), quiet=True)
-    got = scores(Evaluation(url, "pretrained", tmp_path / "eval", quiet=True, report=False).run())
+    synth_corpus(url, CorpusConfig(**{**CHECK_SET, "grid": Grid.from_attrs(check["grid"]),
+                                      "heatmap_dtype": check.get("heatmap_dtype", "float16")}), quiet=True)
+    cue = rec.get("motion_cue")
+    got = scores(Evaluation(url, "pretrained", tmp_path / "eval", quiet=True, report=False,
+                            motion=MotionCue(**cue) if cue else None).run())
     want = rec["scores"]["check"]
     for method, row in want.items():
         for k, v in row.items():
