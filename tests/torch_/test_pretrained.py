@@ -50,9 +50,13 @@ def test_pretrained_scores_the_recorded_numbers_on_the_check_set(grid, tmp_path)
     got = scores(Evaluation(url, "pretrained", tmp_path / "eval", quiet=True, report=False,
                             motion=MotionCue(**cue) if cue else None).run())
     want = rec["scores"]["check"]
+    # the recorded scores are the float32 run's; weights stored as float16 (the paper grid's, to stay
+    # small) move a score by a few tenths of a point
+    half = any(t.dtype == torch.float16 for t in load_checkpoint(installed()[grid])["model_state"].values())
+    tol = 5e-3 if half else 1e-3
     for method, row in want.items():
         for k, v in row.items():
-            assert got[method][k] == pytest.approx(v, rel=1e-3, abs=1e-3), (method, k)
+            assert got[method][k] == pytest.approx(v, rel=tol, abs=tol), (method, k)
     # what the weights are for: the hidden side, better than the strongest-peaks baseline
     assert got["model"]["nlos_f"] > got["baseline"]["nlos_f"]
 
