@@ -1,7 +1,8 @@
 """Who labels the hidden person? Human labellers of one stage-one model's analytic cloud, side by side.
 
-Stage one's ranges of every frame of DATASET's ``--split`` are un-mirrored analytically
-(:func:`holodata.geometry.unmirror.unmirror`, eq. 2-5) and each point is labelled human by:
+Stage one's ranges of every frame of DATASET's ``--split`` (its range images, before the confidence gate
+a calibrated stage two applies: the gate drops most of a hidden person's weak returns) are un-mirrored
+analytically (:func:`holodata.geometry.unmirror.unmirror`, eq. 2-5) and each point is labelled human by:
 
 - ``oracle r=R``: exactly when it lies within R m of a ground-truth human point (an upper bound: no
   labeller of this cloud does better; :mod:`benchmarks.hidden_person` computes it on stage two's cloud);
@@ -70,7 +71,7 @@ def frame_records(dataset: str, checkpoint: str, split: str) -> list[dict]:
         sc = ds.scene(sid)
         raw = data.read(i)
         _, _, g_lab = apply_transform(*raw, base_tf)
-        _, p_hum, p_cloud = (a[0] for a in run.ranges([raw[0]]))
+        p_cloud, p_hum, _ = (a[0] for a in run.ranges([raw[0]]))   # the range images: no confidence gate
         if sid not in beams:
             beams[sid] = SceneBeams(sc, ds.grid)
         geo = beams[sid].frame(k, run.downsample)

@@ -34,7 +34,10 @@ from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MATCH_M, HUMAN_MIN_POINTS
 class MotionCue:
     """Settings of :func:`moving_person` (module docstring), chosen on a development corpus (seed 500,
     benchmarks/results/hidden-person.md): ``min_change_db`` dB, ``min_snr_db`` dB, ``min_persist_m`` m,
-    ``persist_cap_m`` m, ``cluster_m`` m, ``min_points``, ``min_score`` (dB·m summed over a cluster)."""
+    ``persist_cap_m`` m, ``cluster_m`` m, ``min_points``, ``min_score`` (dB·m summed over a cluster);
+    ``gated``: read stage one's returns after the confidence gate its stage two was calibrated with
+    (True) or all of them (False, the default: on the development corpus the gate dropped most of a
+    hidden person's weak returns, halving what any labelling of the cloud can find)."""
 
     min_change_db: float = 25.0
     min_snr_db: float = 15.0
@@ -43,6 +46,7 @@ class MotionCue:
     cluster_m: float = HUMAN_CLUSTER_M
     min_points: int = HUMAN_MIN_POINTS
     min_score: float = 70.0
+    gated: bool = False
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -115,7 +119,8 @@ class MotionScorer:
     """Evaluate's motion cue: :meth:`centres` of frame ``i`` of an opened evaluation (``s``:
     ``holodata.evaluate.pipeline._Opened``), given its baseline-transform heatmap and stage one's
     cloud ranges. The neighbouring rotation (the previous one of the corner, the next for its first)
-    is read and run through stage one unless it was just scored; the last ``keep`` frames are cached."""
+    is read and run through stage one unless it was just scored; the last ``keep`` frames are cached.
+    :meth:`centres` takes stage one's (range images, human probability, cloud ranges) of the frame."""
 
     def __init__(self, cue: MotionCue, s, beams: dict, keep: int = 3):
         from holodata.geometry.unmirror import unmirror
@@ -135,7 +140,7 @@ class MotionScorer:
             if hm is None:
                 heat, g_rng, g_lab = s.data.read(self.pos[key])
                 hm = apply_transform(heat, g_rng, g_lab, s.base_tf)[0]
-                cloud = s.run.ranges([heat])[2][0]
+                cloud = self._returns(s.run.ranges([heat]), 0)
             geo = self.beams[sid].frame(k, s.run.downsample)
             P = self._unmirror(cloud, geo.directions, grid=s.grid, origins=geo.origins)["point"]
             self.cache[key] = (20 * np.log10(np.maximum(hm, 1e-12)), cloud, P, geo.to_world(P))
@@ -143,9 +148,16 @@ class MotionScorer:
                 self.cache.pop(next(iter(self.cache)))
         return self.cache[key]
 
-    def centres(self, i: int, hm: np.ndarray, cloud: np.ndarray) -> np.ndarray:
+    def _returns(self, pred, j: int | None = None) -> np.ndarray:
+        """The returns the cue reads from stage one's output ``pred`` (its batch item ``j``, or the
+        frame's own triple when None): the gated cloud ranges or the range images (``cue.gated``)."""
+        a = pred[2] if self.cue.gated else pred[0]
+        return a if j is None else a[j]
+
+    def centres(self, i: int, hm: np.ndarray, pred: tuple) -> np.ndarray:
         """(0 or 1, 3) radar-frame centre of the moving person in frame ``i`` (none when its corner has
-        no other rotation in the split)."""
+        no other rotation in the split); ``pred``: stage one's (ranges, human probability, cloud ranges)."""
+        cloud = self._returns(pred)
         sid, k = self.s.index[i]
         other = next((o for o in ((sid, k - 1), (sid, k + 1)) if o in self.pos), None)
         if other is None:

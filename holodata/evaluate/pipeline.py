@@ -373,7 +373,7 @@ class Evaluation:
             from .motion import merge_centres
 
             acc = t.accs["model"]
-            acc.pred_centres[-1] = merge_centres(acc.pred_centres[-1], t.motion.centres(i, hm, pred[2]))
+            acc.pred_centres[-1] = merge_centres(acc.pred_centres[-1], t.motion.centres(i, hm, pred))
         pcb = score_frame(t.accs["baseline"], target, b_rng, None)
         t.gt_nlos_points.append(int(len(target.clouds["nlos"])))
         if i in t.picks:
