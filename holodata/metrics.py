@@ -178,19 +178,26 @@ def mean_cloud_metrics(rows: Iterable[Mapping]) -> dict:
 
 # ---------------------------------------------------------------------------------------------
 # humans
-def human_centroids(points, radius: float = HUMAN_CLUSTER_M, min_points: int = HUMAN_MIN_POINTS) -> np.ndarray:
-    """Cluster human points (N,3) (single linkage, ``radius`` metres) → (K,3) centroids of the
-    clusters with at least ``min_points`` points."""
+def single_linkage(points: np.ndarray, radius: float) -> tuple[int, np.ndarray]:
+    """Single-linkage clusters of points (N,3): two points closer than ``radius`` m are in one cluster.
+    Returns (number of clusters K, (N,) cluster index per point)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
+    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
+    n = len(points)
+    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    k, lab = connected_components(adj, directed=False)
+    return int(k), lab
+
+
+def human_centroids(points, radius: float = HUMAN_CLUSTER_M, min_points: int = HUMAN_MIN_POINTS) -> np.ndarray:
+    """Cluster human points (N,3) (:func:`single_linkage`, ``radius`` metres) → (K,3) centroids of the
+    clusters with at least ``min_points`` points."""
     X = _as_points(points)
     if len(X) < max(min_points, 1):
         return np.zeros((0, 3))
-    pairs = cKDTree(X).query_pairs(radius, output_type="ndarray")
-    n = len(X)
-    adj = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
-    k, lab = connected_components(adj, directed=False)
+    k, lab = single_linkage(X, radius)
     counts = np.bincount(lab, minlength=k)
     keep = np.flatnonzero(counts >= min_points)
     sums = np.zeros((k, 3))

@@ -27,7 +27,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MATCH_M, HUMAN_MIN_POINTS
+from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MATCH_M, HUMAN_MIN_POINTS, single_linkage
 
 
 @dataclass(frozen=True)
@@ -86,18 +86,12 @@ def moving_person(points: np.ndarray, change: np.ndarray, persist: np.ndarray, c
                   ) -> np.ndarray:
     """(0 or 1, 3): the centre of the moving person among bounce-2/3 returns ``points`` (N,3) with
     their ``change`` (N,) dB and ``persist`` (N,) m (module docstring, step 3), or none."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
     sel = (change >= cue.min_change_db) & (persist >= cue.min_persist_m) & np.isfinite(points).all(-1)
     X = points[sel]
     if len(X) < cue.min_points:
         return np.zeros((0, 3))
     w = change[sel] * np.minimum(persist[sel], cue.persist_cap_m)
-    pairs = cKDTree(X).query_pairs(cue.cluster_m, output_type="ndarray")
-    n, lab = connected_components(coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(X),) * 2),
-                                  directed=False)
+    n, lab = single_linkage(X, cue.cluster_m)
     counts = np.bincount(lab, minlength=n)
     score = np.where(counts >= cue.min_points, np.bincount(lab, weights=w, minlength=n), -np.inf)
     best = int(np.argmax(score))
