@@ -38,22 +38,20 @@ import argparse
 import numpy as np
 from _run import header
 
-MOTION_MIN_SNR_DB = 15.0   # a bin counts for the motion cue only this far above its beam's median
 NEIGHBOURS = 16            # the 3-D labeller's neighbourhood
 ORACLE_RADII = (0.15, 0.3)
 
 
 def frame_records(dataset: str, checkpoint: str, split: str) -> list[dict]:
-    """Per frame: the analytic cloud of stage one's (gated) ranges ``P`` (M,3), each point's bounce,
-    p_hum, amplitude (dB over its beam's median) and motion (dB change to the neighbouring rotation) at
-    its range bin, the GT human points ``gh`` and centres ``gt``, and whether the person is hidden."""
-    from scipy.ndimage import maximum_filter1d
-
+    """Per frame: the analytic cloud of stage one's range images ``P`` (M,3) and in the world frame
+    ``world``, each point's bounce, p_hum, amplitude (dB over its beam's median) and motion (dB change
+    to the neighbouring rotation, :func:`holodata.evaluate.motion.change_at_returns`) at its range bin,
+    the GT human points ``gh`` and centres ``gt``, and whether the person is hidden."""
     from holodata import metrics as M
     from holodata.conventions import is_human, reduced_grid
     from holodata.dataset import open_dataset
     from holodata.dataset.heatmap import read_heatmap
-    from holodata.dataset.layout import POSE_T_WORLD_RADAR
+    from holodata.evaluate.motion import MotionCue, change_at_returns, heatmap_db
     from holodata.evaluate.pipeline import person_hidden
     from holodata.evaluate.predict import Predictor
     from holodata.geometry.unmirror import unmirror
@@ -78,16 +76,15 @@ def frame_records(dataset: str, checkpoint: str, split: str) -> list[dict]:
         G = geo.gt_point
         gh = G[is_human(g_lab) & np.isfinite(G).all(-1)]
         other = k - 1 if k > 0 else min(k + 1, sc.n_frames - 1)
-        L0 = 20 * np.log10(read_heatmap(sc, k) + 1e-6)
-        change = maximum_filter1d(np.abs(L0 - 20 * np.log10(read_heatmap(sc, other) + 1e-6)), 3, axis=0)
+        L0 = heatmap_db(read_heatmap(sc, k))
+        change = change_at_returns(L0, heatmap_db(read_heatmap(sc, other)), p_cloud, rb.dr, MotionCue().min_snr_db)
         snr = L0 - np.median(L0, axis=0, keepdims=True)
         P = unmirror(p_cloud, geo.directions, grid=grid, origins=geo.origins)["point"]
         ok = np.isfinite(P).all(-1)
         b, e, a = np.nonzero(ok)
         ri = np.clip(rb.index(p_cloud[b, e, a]), 0, L0.shape[0] - 1)
-        T = np.asarray(sc.frame(POSE_T_WORLD_RADAR, k), np.float64)
-        out.append({"corner": sid, "frame": k, "T": T, "P": P[ok], "bounce": b, "p_hum": p_hum[ok], "amp": snr[ri, e, a],
-                    "motion": np.where(snr[ri, e, a] > MOTION_MIN_SNR_DB, change[ri, e, a], 0.0),
+        out.append({"corner": sid, "frame": k, "P": P[ok], "world": geo.to_world(P[ok]), "bounce": b,
+                    "p_hum": p_hum[ok], "amp": snr[ri, e, a], "motion": change[ok],
                     "gh": gh, "gt": M.human_centroids(gh), "hidden": person_hidden(g_lab)})
     add_persistence(out)
     return out
@@ -95,18 +92,14 @@ def frame_records(dataset: str, checkpoint: str, split: str) -> list[dict]:
 
 def add_persistence(recs: list[dict]) -> None:
     """Each point's distance (m, capped at 1) to the nearest point of the neighbouring rotation's cloud of
-    the same corner, both in the world frame (``T`` the frame's T_world_radar): walls persist, a walking
-    person moves, a wrongly placed return rarely lands twice in the same place."""
-    from scipy.spatial import cKDTree
+    the same corner, both in the world frame (:func:`holodata.evaluate.motion.persistence`): walls
+    persist, a walking person moves, a wrongly placed return rarely lands twice in the same place."""
+    from holodata.evaluate.motion import persistence
 
     by = {(r["corner"], r["frame"]): r for r in recs}
-    world = {key: r["P"] @ r["T"][:3, :3].T + r["T"][:3, 3] for key, r in by.items()}
     for (c, k), r in by.items():
-        other = next((o for o in ((c, k - 1), (c, k + 1)) if o in by), None)
-        if other is None or not len(world[other]):
-            r["persist"] = np.ones(len(r["P"]))
-            continue
-        r["persist"] = np.minimum(cKDTree(world[other]).query(world[(c, k)], distance_upper_bound=1.0)[0], 1.0)
+        other = next((by[o] for o in ((c, k - 1), (c, k + 1)) if o in by), None)
+        r["persist"] = persistence(r["world"], np.zeros((0, 3)) if other is None else other["world"], cap=1.0)
 
 
 def detection(recs: list[dict], labels: list[np.ndarray], centres: list[np.ndarray] | None = None) -> tuple[dict, dict]:

@@ -27,6 +27,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from holodata.geometry.unmirror import unmirror
 from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MATCH_M, HUMAN_MIN_POINTS, single_linkage
 
 
@@ -50,6 +51,11 @@ class MotionCue:
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+
+def heatmap_db(heatmap: np.ndarray) -> np.ndarray:
+    """20·log10 of a linear-amplitude heatmap, dB (amplitudes under 1e-12 count as 1e-12)."""
+    return 20 * np.log10(np.maximum(heatmap, 1e-12))
 
 
 def change_at_returns(db: np.ndarray, db_other: np.ndarray, ranges: np.ndarray, dr: float,
@@ -117,12 +123,9 @@ class MotionScorer:
     :meth:`centres` takes stage one's (range images, human probability, cloud ranges) of the frame."""
 
     def __init__(self, cue: MotionCue, s, beams: dict, keep: int = 3):
-        from holodata.geometry.unmirror import unmirror
-
         self.cue, self.s, self.beams, self.keep = cue, s, beams, keep
         self.pos = {key: j for j, key in enumerate(s.index)}
         self.cache: dict = {}
-        self._unmirror = unmirror
 
     def _frame(self, sid: str, k: int, hm=None, cloud=None) -> tuple:
         """(heatmap dB (R,H,W), cloud ranges (3,H,W), un-mirrored points (3,H,W,3) radar frame, world (3,H,W,3))."""
@@ -136,8 +139,8 @@ class MotionScorer:
                 hm = apply_transform(heat, g_rng, g_lab, s.base_tf)[0]
                 cloud = self._returns(s.run.ranges([heat]), 0)
             geo = self.beams[sid].frame(k, s.run.downsample)
-            P = self._unmirror(cloud, geo.directions, grid=s.grid, origins=geo.origins)["point"]
-            self.cache[key] = (20 * np.log10(np.maximum(hm, 1e-12)), cloud, P, geo.to_world(P))
+            P = unmirror(cloud, geo.directions, grid=s.grid, origins=geo.origins)["point"]
+            self.cache[key] = (heatmap_db(hm), cloud, P, geo.to_world(P))
             while len(self.cache) > self.keep:
                 self.cache.pop(next(iter(self.cache)))
         return self.cache[key]
@@ -167,4 +170,4 @@ class MotionScorer:
         return moving_person(P[ok], change[ok], persist, self.cue)
 
 
-__all__ = ["MotionCue", "MotionScorer", "change_at_returns", "merge_centres", "moving_person", "persistence"]
+__all__ = ["MotionCue", "MotionScorer", "change_at_returns", "heatmap_db", "merge_centres", "moving_person", "persistence"]
