@@ -339,7 +339,8 @@ def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = Tru
     """The shipped weights (holodata.torch.pretrained, trained on hundreds of other corners) scored
     on the demo's test split beside the model the demo trains, when the dataset has the grid and range
     bins they were trained for (the quick demo's); None otherwise (said in one line). ``report``:
-    also their report.html and figures (the demo prints their rows and writes their metrics.json only)."""
+    also their report.html, figures and ``oracle_stage1`` row (the demo prints their model rows and
+    writes their metrics.json only)."""
     from .dataset import open_dataset
     from .evaluate import Evaluation
     from .torch.checkpoint import load_checkpoint
@@ -353,7 +354,8 @@ def evaluate_pretrained(url, out_dir: Path, quiet: bool, say, report: bool = Tru
     except InputError as err:
         say(f"pretrained weights not evaluated: {err}")
         return None
-    return Evaluation(str(url), "pretrained", out_dir, split="test", quiet=quiet, report=report).run()
+    return Evaluation(str(url), "pretrained", out_dir, split="test", quiet=quiet, report=report,
+                      oracle_row=report).run()
 
 
 # the shipped weights' rows in the demo's tables (format_tables pads a row's name to 15 characters)

@@ -33,6 +33,37 @@ def test_release_free_memory_hands_freed_heap_back():
     assert before - after > 100 * 2**20, (before, after)
 
 
+_KEEP = """
+import sys, numpy as np
+from holodata.parallel import keep_freed_memory
+def rss():
+    for line in open("/proc/self/status"):
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) * 1024
+kept = keep_freed_memory() if sys.argv[1] == "keep" else None
+a = np.ones(1 << 19)                              # 4 MiB: mmap'd by glibc's defaults
+before = rss()
+del a
+import os
+print(kept, before - rss(), os.environ.get("MALLOC_TRIM_THRESHOLD_"))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt")
+def test_keep_freed_memory_keeps_a_freed_array_for_the_next_one():
+    """With glibc's defaults a freed 4 MiB array is unmapped at once (its pages fault in anew next
+    time); after keep_freed_memory it stays with the process, and the processes it starts inherit the
+    setting through the environment."""
+    import os
+    import subprocess
+
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    run = [subprocess.run([sys.executable, "-c", _KEEP, how], capture_output=True, text=True, check=True, env=env)
+           .stdout.split() for how in ("default", "keep")]
+    assert run[0][0] == "None" and int(run[0][1]) > 3 * 2**20 and run[0][2] == "None"
+    assert run[1][0] == "True" and int(run[1][1]) < 2**20 and run[1][2] == str(128 << 20)
+
+
 def test_fork_call_returns_the_result_and_raises_the_error():
     from holodata.parallel import fork_call
 

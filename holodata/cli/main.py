@@ -133,6 +133,9 @@ for _name in COMMAND_MODULES:
 
 
 def main() -> None:
+    from holodata.parallel import keep_freed_memory
+
+    keep_freed_memory()
     cli(obj={})
 
 

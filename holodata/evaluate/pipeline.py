@@ -233,11 +233,15 @@ class _Opened:
     rb: RangeBins
     index: list
     base_tf: Any
+    oracle_row: bool = True
 
     @property
     def rows(self) -> tuple[str, ...]:
-        """The methods scored: the Table-2 rows with a learned stage two, else model and baseline."""
-        return STAGE2_ROWS if self.run.stage2 is not None else METHODS
+        """The methods scored: the Table-2 rows with a learned stage two (``oracle_stage1`` only with
+        ``oracle_row``), else model and baseline."""
+        if self.run.stage2 is None:
+            return METHODS
+        return tuple(m for m in STAGE2_ROWS if self.oracle_row or m != "oracle_stage1")
 
     @property
     def max_range(self) -> float:
@@ -283,7 +287,9 @@ class Evaluation:
     "mode"; see :meth:`holodata.torch.model.MultiReturnUNet.predict`; None: the one the checkpoint
     was trained for). ``motion``: a :class:`holodata.evaluate.motion.MotionCue` whose moving person
     (found from the change between a corner's rotations) joins the model row's human centres, or
-    None (the model's human labels alone)."""
+    None (the model's human labels alone). ``oracle_row=False`` leaves out the ``oracle_stage1``
+    row (the GT range images through the run's stage two; a second stage-two pass per frame): the
+    demo scores the shipped weights beside its own model, whose run shows that row."""
 
     dataset_url: str | Path
     checkpoint: str | Path | None
@@ -300,6 +306,7 @@ class Evaluation:
     oracle: bool = False
     estimator: str | None = None
     motion: Any = None
+    oracle_row: bool = True
 
     def run(self) -> dict:
         """Open the run and the split, score every frame, write metrics.json (+ the report); returns
@@ -335,7 +342,7 @@ class Evaluation:
         data = HeatmapDataset(str(self.dataset_url), split=self.split, norm=run.norm, transform=model_tf)
         index = data.index[:self.max_frames] if self.max_frames else data.index
         return _Opened(checkpoint, out, run, ds, data, reduced_grid(ds.grid, run.downsample), ds.range_bins, index,
-                       base_tf)
+                       base_tf, self.oracle_row)
 
     def _score_split(self, s: _Opened) -> _Tally:
         """Score the split's frames, ``batch_size`` at a time through the model."""
@@ -443,7 +450,8 @@ class Evaluation:
 def _score_model(stage2, accs: dict, target: FrameTarget, pred: tuple | None, g_lab) -> tuple:
     """Score one frame's model rows: ``pred`` (ranges, human prob, cloud ranges) each (3,H,W), or
     None for an oracle run (the GT ranges, GT normals and GT labels as the prediction); with a
-    learned ``stage2``, its refined, unrefined and GT-fed rows beside the analytic one. Returns
+    learned ``stage2``, its refined and unrefined rows beside the analytic one, and the GT-fed one when
+    ``accs`` has that row. Returns
     (the model's range images, its point cloud, the other rows' point clouds by row)."""
     if pred is None:  # oracle: the ground truth is the prediction
         h = is_human(g_lab).astype(np.float32)
@@ -455,11 +463,12 @@ def _score_model(stage2, accs: dict, target: FrameTarget, pred: tuple | None, g_
     geo, grid = target.geo, target.grid
     pcs = {"model_analytic": score_frame(accs["model_analytic"], target, p_rng, p_hum, cloud_range=p_cloud)}
     s2m = stage2.predict(p_cloud, p_hum, geo.directions, geo.origins, grid)
-    s2g = stage2.predict(target.ranges, is_human(g_lab).astype(np.float32), geo.directions, geo.origins, grid)
     pcs["model_no_refine"] = score_points(accs["model_no_refine"], target, s2m["no_refine"], p_rng)
     pcm = score_points(accs["model"], target, s2m["refined"] or s2m["no_refine"], p_rng)
-    pcs["oracle_stage1"] = score_points(accs["oracle_stage1"], target, s2g["refined"] or s2g["no_refine"],
-                                        target.ranges)
+    if "oracle_stage1" in accs:
+        s2g = stage2.predict(target.ranges, is_human(g_lab).astype(np.float32), geo.directions, geo.origins, grid)
+        pcs["oracle_stage1"] = score_points(accs["oracle_stage1"], target, s2g["refined"] or s2g["no_refine"],
+                                            target.ranges)
     return p_rng, pcm, pcs
 
 

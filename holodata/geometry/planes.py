@@ -209,7 +209,7 @@ def agreeing_planes(points: np.ndarray, normals: np.ndarray, ransac: PlaneRansac
         if not good.any():
             break
         n, a = n[good] / norm[good, None], X[tri[good, 0]]
-        d = np.abs(np.einsum("hc,kc->hk", n, X[sub]) - np.einsum("hc,hc->h", n, a)[:, None])
+        d = np.abs(n @ X[sub].T - np.einsum("hc,hc->h", n, a)[:, None])
         score = ((d < dist) & (np.abs(n @ NL[sub].T) >= cos_ag)).sum(1)
         j = int(np.argmax(score))
         if score[j] * len(pool) / len(sub) < min_inliers:

@@ -16,12 +16,19 @@ the kernel's truncation error against aliasing (``exp(−2π²τ)`` each: 1.5e-5
 ``w = 10``).
 
 Each scatterer's amplitude is weighted by the antennas' azimuth pattern at its angle off the
-chirp's facing direction (seen from the rotation centre), and only those within ``cos_cut`` of it
-are summed (a scatterer behind the board is not seen). Compiled with numba (parallel over chirps); arrays in, arrays out.
-The grid keeps a chirp's antennas side by side per cell (C, cells, V): the antennas of one chirp are
-millimetres apart, so a scatterer's taps mostly start at the same cell for all of them and its
-spread is one pass over adjacent memory (the sums, in the same order, are those of one row per
-antenna to the bit; the time it saves: docs/design/performance.md, the quick demo).
+chirp's facing direction (seen from the rotation centre; tabulated on the cosine, linear
+interpolation within 1e-6 of the pattern's peak), and only those within ``cos_cut`` of it are summed
+(a scatterer behind the board is not seen). Compiled with numba (parallel over chirps); arrays in,
+arrays out. The grid keeps a chirp's antennas side by side per cell (C, cells, V), and a scatterer is
+spread onto the same ``w + 2e`` cells for all of a chirp's antennas, ``e`` cells more on each side
+than one antenna needs: the antennas are millimetres apart, so a scatterer's cell position ``u``
+moves by less than ``e`` cells across them (``e`` is that bound, from the antennas' spread), and its
+spread is one pass over adjacent memory. Along the antennas the carrier phase, the Gaussian at the
+window's first cell and its step from cell to cell change by nearly the same factor from one antenna
+to the next (the distances to a linear array): each is computed exactly for the first two antennas
+and then updated by the change of that factor (≪ 1) to second or third order, so an antenna costs
+no transcendental function (the sums agree with the exact per-antenna weights within 1e-5 of the
+strongest sample: tests/synth/test_iq.py; the time it saves: docs/design/performance.md).
 """
 from __future__ import annotations
 
@@ -40,22 +47,25 @@ numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
 TAPS = 10                                   # Gaussian gridding width (cells)
 TAU = TAPS / (4 * math.sqrt(2) * math.pi)   # its variance parameter (cells²)
+PATTERN_CELLS = 4096                        # the antennas' azimuth pattern, tabulated on cos(off) in [0, 1]
 
 
 @numba.njit(parallel=True, fastmath=True, cache=True)
-def _spread(ant, cen, facing, pts, amp, cos_cut, power, k0, u_per_m, shift_per_m, M, taps, tau, out):  # pragma: no cover
+def _spread(ant, cen, facing, pts, amp, cos_cut, pattern, k0, u_per_m, shift_per_m, M, taps, extra, tau, out):  # pragma: no cover
     C, V = ant.shape[0], ant.shape[1]
     K = pts.shape[0]
-    e3 = np.empty(taps)
-    half = taps // 2
-    for j in range(taps):
+    W = taps + 2 * extra                                 # cells per scatterer, shared by a chirp's antennas
+    e3 = np.empty(W)
+    for j in range(W):
         e3[j] = math.exp(-(j * j) / (4 * tau))
+    nt = pattern.shape[0] - 1
+    c4 = 1.0 / (4 * tau)
+    c2 = 1.0 / (2 * tau)
     for c in numba.prange(C):
         fx, fy = facing[c, 0], facing[c, 1]
-        zv = np.empty(V, np.complex128)                  # per antenna: phasor, φ(x0), its tap step, first cell
+        zv = np.empty(V, np.complex128)                  # per antenna: phasor, φ(x_v), its tap step
         gv = np.empty(V)
         sv = np.empty(V)
-        bv = np.empty(V, np.int64)
         oc = out[c]                                      # (cells, V): the antennas of a cell side by side
         for k in range(K):
             dx = pts[k, 0] - cen[c, 0]
@@ -67,15 +77,24 @@ def _spread(ant, cen, facing, pts, amp, cos_cut, power, k0, u_per_m, shift_per_m
             if cos_off <= cos_cut:
                 continue
             gain = 1.0
-            if power > 0:                                # the antennas' azimuth pattern cos^q
-                gain = max(cos_off, 0.0) ** power
+            if nt > 0:                                   # the antennas' azimuth pattern, tabulated on cos(off) in [0, 1]
+                if cos_off <= 0.0:
+                    continue
+                t = cos_off * nt
+                i = min(int(t), nt - 1)
+                gain = pattern[i] + (t - i) * (pattern[i + 1] - pattern[i])
             kap = k0 + shift_per_m                       # carrier phase + the half-record shift, per metre
             a_k = amp[k] * gain
             z = complex(0.0, 0.0)
             w = complex(1.0, 0.0)
             r_prev = 0.0
             d1 = 0.0
-            same = True
+            m0 = 0
+            x_prev = 0.0
+            dx_prev = 0.0
+            ratio = 1.0
+            x_pp = 0.0
+            step = 1.0
             for v in range(V):
                 ex = pts[k, 0] - ant[c, v, 0]
                 ey = pts[k, 1] - ant[c, v, 1]
@@ -86,37 +105,45 @@ def _spread(ant, cen, facing, pts, amp, cos_cut, power, k0, u_per_m, shift_per_m
                 # exact for v = 0 and 1, then the step's change (≪ 1 rad) to second order
                 if v == 0:
                     z = a_k * complex(math.cos(kap * R), math.sin(kap * R))
+                    m0 = int(math.floor(u)) - taps // 2 + 1 - extra   # cells m0 .. m0 + W − 1, for every antenna
+                    x = m0 - u
+                    gv[0] = math.exp(-x * x * c4)        # φ(x + j) = φ(x) · exp(−2x / 4τ)^j · exp(−j² / 4τ)
+                    sv[0] = math.exp(-x * c2)
                 elif v == 1:
                     d1 = R - r_prev
                     w = complex(math.cos(kap * d1), math.sin(kap * d1))
                     z = z * w
+                    x = m0 - u
+                    dx_ = x - x_prev
+                    ratio = math.exp(-(x * x - x_prev * x_prev) * c4)
+                    step = math.exp(-dx_ * c2)
+                    gv[1] = gv[0] * ratio
+                    sv[1] = sv[0] * step
+                    dx_prev = dx_
                 else:
                     e = kap * (R - r_prev - d1)
                     z = z * (w * complex(1.0 - 0.5 * e * e, e))
+                    # likewise φ(x_v) and its step: their ratios to antenna v − 1's change by ≪ 1
+                    x = m0 - u
+                    dx_ = x - x_prev
+                    da = (x * x - x_prev * x_prev - (x_prev * x_prev - x_pp * x_pp)) * c4
+                    ratio *= 1.0 - da * (1.0 - da * (0.5 - da / 6.0))
+                    ds = (dx_ - dx_prev) * c2
+                    step *= 1.0 - ds * (1.0 - 0.5 * ds)
+                    gv[v] = gv[v - 1] * ratio
+                    sv[v] = sv[v - 1] * step
+                    dx_prev = dx_
+                x_pp = x_prev
+                x_prev = x
                 r_prev = R
-                m0 = int(math.floor(u)) - half + 1       # cells m0 .. m0 + taps − 1 around u
-                x0 = m0 - u
-                # φ(x0 + j) = φ(x0) · exp(−2 x0 / 4τ)^j · exp(−j² / 4τ)
                 zv[v] = z
-                gv[v] = math.exp(-x0 * x0 / (4 * tau))
-                sv[v] = math.exp(-2 * x0 / (4 * tau))
-                bv[v] = m0 + taps                        # the grid is padded by ``taps`` cells each side
-                if bv[v] != bv[0]:
-                    same = False
-            if same:                                     # (mostly: the antennas are mm apart)
-                base = bv[0]
-                for j in range(taps):
-                    row = oc[base + j]
-                    ej = e3[j]
-                    for v in range(V):
-                        row[v] += zv[v] * (gv[v] * ej)
-                        gv[v] *= sv[v]
-            else:
+            base = m0 + taps                             # the grid is padded by ``taps`` cells each side
+            for j in range(W):
+                row = oc[base + j]
+                ej = e3[j]
                 for v in range(V):
-                    g = gv[v]
-                    for j in range(taps):
-                        oc[bv[v] + j, v] += zv[v] * (g * e3[j])
-                        g *= sv[v]
+                    row[v] += zv[v] * (gv[v] * ej)
+                    gv[v] *= sv[v]
 
 
 @dataclass(frozen=True, eq=False)
@@ -150,12 +177,15 @@ def beat_samples(sites: ChirpSites, points: np.ndarray, amplitudes: np.ndarray, 
     k0 = 4 * np.pi * chirp.start_frequency_hz / SPEED_OF_LIGHT
     nu_per_m = 2 * chirp.slope_hz_per_s / (SPEED_OF_LIGHT * chirp.sample_rate_hz)      # cycles per sample per metre
     q = 0.0 if beamwidth_deg is None else float(np.log(0.5) / np.log(np.cos(np.deg2rad(beamwidth_deg) / 2)))
+    pattern = np.zeros(1) if beamwidth_deg is None else np.linspace(0.0, 1.0, PATTERN_CELLS + 1) ** q
     if len(points):
-        _spread(np.ascontiguousarray(sites.antennas, np.float64), np.ascontiguousarray(sites.centres, np.float64),
+        ant = np.ascontiguousarray(sites.antennas, np.float64)
+        extra = int(np.ceil(np.linalg.norm(ant - ant[:, :1], axis=2).max() * nu_per_m * M))
+        _spread(ant, np.ascontiguousarray(sites.centres, np.float64),
                 np.ascontiguousarray(sites.facing, np.float64), np.ascontiguousarray(points, np.float64),
                 np.ascontiguousarray(amplitudes, np.complex128), float(cos_cut),
-                q, k0, nu_per_m * M,
-                2 * np.pi * nu_per_m * (S // 2), M, TAPS, TAU, grid)
+                pattern, k0, nu_per_m * M,
+                2 * np.pi * nu_per_m * (S // 2), M, TAPS, extra, TAU, grid)
     grid = grid.transpose(0, 2, 1)              # (C, V, cells)
     p = TAPS
     folded = grid[..., p:p + M]                 # cell m sits at m + TAPS; fold the padding back (mod M)
