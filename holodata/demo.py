@@ -416,9 +416,9 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True, inges
             remove_folder(d, "holodata demo")
         jobs.append((sid, d, corner, seed))
     if len(jobs) > 1 and cpus() >= 2:
-        other = fork_call(_synth_jobs, jobs[1::2], cfg, True, label="demo: synth (second process)")
+        other = fork_call(_synth_jobs, jobs[1::2], cfg, True, 1, label="demo: synth (second process)")
         try:
-            out.update(_synth_jobs(jobs[0::2], cfg, quiet))
+            out.update(_synth_jobs(jobs[0::2], cfg, quiet, 1))
         finally:
             done = other()
         out.update(done)
@@ -427,15 +427,20 @@ def synthesize_corners(rec_dir: Path, cfg: DemoConfig, quiet: bool = True, inges
     return {scene_id(c, s): out[scene_id(c, s)] for c, s in cfg.corners}
 
 
-def _synth_jobs(jobs: list, cfg: DemoConfig, quiet: bool) -> dict:
-    """{scene id: SynthResult} of ``jobs`` [(scene id, folder, corner, seed)], one after the other."""
+def _synth_jobs(jobs: list, cfg: DemoConfig, quiet: bool, threads: int | None = None) -> dict:
+    """{scene id: SynthResult} of ``jobs`` [(scene id, folder, corner, seed)], one after the other, the
+    compiled kernels on ``threads`` threads (:func:`holodata.parallel.kernel_threads`)."""
+    from .parallel import kernel_threads
     from .synth import SynthSpec, synthesize
 
-    return {sid: synthesize(d, SynthSpec(corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid, range_bins=cfg.range_bins,
-                                         lidar_shape=cfg.lidar_shape, camera_shape=cfg.camera_shape,
-                                         lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg, mapping_pass=cfg.mapping_pass,
-                                         mapping_scan_hz=cfg.mapping_scan_hz, radar_output=cfg.radar_output,
-                                         radar_chirps=cfg.radar_chirps), quiet=quiet)
+    with kernel_threads(threads):
+        return {sid: synthesize(d, SynthSpec(corner=corner, frames=cfg.frames, seed=seed, grid=cfg.grid,
+                                             range_bins=cfg.range_bins, lidar_shape=cfg.lidar_shape,
+                                             camera_shape=cfg.camera_shape,
+                                             lidar_vertical_fov_deg=cfg.lidar_vertical_fov_deg,
+                                             mapping_pass=cfg.mapping_pass, mapping_scan_hz=cfg.mapping_scan_hz,
+                                             radar_output=cfg.radar_output, radar_chirps=cfg.radar_chirps),
+                                quiet=quiet)
             for sid, d, corner, seed in jobs}
 
 

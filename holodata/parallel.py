@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 from .errors import HolodataError
 
@@ -44,6 +45,25 @@ def release_free_memory() -> None:
             ctypes.CDLL("libc.so.6").malloc_trim(0)
         except (OSError, AttributeError):   # not glibc (musl has no malloc_trim)
             pass
+
+
+@contextmanager
+def kernel_threads(n: int | None) -> Iterator[None]:
+    """numba's parallel kernels (``prange``) on ``n`` threads of the calling thread within the block
+    (None: as they are). Two processes that each run a kernel on every CPU's thread oversubscribe a
+    small machine: two of the quick demo's corners synthesised side by side took 18.2 s each with two
+    threads per process and 14.4 s with one (docs/design/performance.md)."""
+    if n is None:
+        yield
+        return
+    import numba
+
+    prev = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(prev)
 
 
 # glibc's allocator settings for holodata's processes (:func:`keep_freed_memory`): blocks up to 32 MiB
@@ -187,5 +207,5 @@ def fork_call(fn: Callable, *args, label: str = "", enabled: bool = True, early:
     return Forked(label, proc, recv, recv_early)
 
 
-__all__ = ["WorkerError", "Forked", "fork_call", "cpus", "can_fork", "release_free_memory", "keep_freed_memory",
+__all__ = ["WorkerError", "Forked", "fork_call", "cpus", "can_fork", "release_free_memory", "keep_freed_memory", "kernel_threads",
            "ALLOCATOR_ENV"]

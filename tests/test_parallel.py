@@ -148,3 +148,16 @@ def test_sigkilled_worker_whose_own_fork_lives_on_is_still_an_error_within_secon
         for pid in pid_file.read_text().split() if pid_file.exists() else []:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(int(pid), signal.SIGKILL)
+
+
+def test_kernel_threads_sets_numba_threads_within_the_block_only():
+    import numba
+
+    from holodata.parallel import kernel_threads
+
+    before = numba.get_num_threads()
+    with kernel_threads(1):
+        assert numba.get_num_threads() == 1
+    assert numba.get_num_threads() == before
+    with kernel_threads(None):
+        assert numba.get_num_threads() == before

@@ -72,12 +72,10 @@ def motion_sums(X: np.ndarray, rows: np.ndarray, off: int, beams: np.ndarray, K:
     """Fill ``out`` (H, nb, S) complex64 with the sums above. ``X`` (H, L, S) complex64; ``rows``
     (G, 2) int64 row pairs (−1: none); ``off``: index in ``X`` of the rotation's chirp 0; ``beams``
     (nb,) int64; ``K`` (H, n_syn, S) complex64; ``gam`` (G, nb, S) float64 (one per row pair)."""
-    prev = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(int(threads), numba.config.NUMBA_NUM_THREADS)))
-    try:
+    from ..parallel import kernel_threads
+
+    with kernel_threads(threads):
         _sums(np.ascontiguousarray(X, np.complex64), np.ascontiguousarray(rows, np.int64), int(off),
               np.ascontiguousarray(beams, np.int64), np.ascontiguousarray(K, np.complex64),
               np.ascontiguousarray(gam, np.float64), out)
-    finally:
-        numba.set_num_threads(prev)
     return out
