@@ -9,7 +9,7 @@ import numpy as np
 from ...conventions import rotation_angle_deg, transform_points, yaw_rad
 from ...geometry.icp import STOP_TRANSLATION_M, IcpParams, centred_offset, hold_at, open3d_icp, point_to_plane_icp
 from ...geometry.planes import local_plane_projection
-from ...geometry.voxels import voxel_average
+from ...geometry.voxels import voxel_average, voxel_keys
 from .camera import UNKNOWN_SIGMA_M
 from .config import RegisterConfig, Registration
 
@@ -380,7 +380,7 @@ class _ExtrinsicFit:
         src_all, sig = src_all[keep], sig[keep]
         cell = np.floor(src_all / cfg.cam_voxel).astype(np.int64)
         order = np.argsort(sig, kind="stable")
-        _, first = np.unique(cell[order], axis=0, return_index=True)
+        _, first = np.unique(voxel_keys(cell[order]), return_index=True)   # (rows sort like their keys)
         sel = order[first]
         src, sig = src_all[sel], sig[sel]
         return src, sig, np.asarray(_pcd(src, None, 3 * cfg.cam_voxel).normals)   # same order (no thinning)

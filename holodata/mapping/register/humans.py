@@ -131,7 +131,7 @@ def static_residual(points: np.ndarray, cfg: RegisterConfig, seed: int = 0) -> n
         return keep
     rng = np.random.default_rng(seed)
     vox = np.floor(pts / cfg.cam_voxel).astype(np.int64)
-    _, first, inv = np.unique(vox, axis=0, return_index=True, return_inverse=True)
+    _, first, inv = np.unique(voxel_keys(vox), return_index=True, return_inverse=True)
     inv = inv.reshape(-1)
     sub = pts[first]
     alive = np.ones(len(sub), bool)        # not yet on a plane (RANSAC looks among these)
