@@ -9,10 +9,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
 from .conventions import ns_to_seconds, seconds_to_ns
 from .errors import InputError
+from .geometry.rotations import matrix_from_quat, quat_from_matrix, slerp
 
 
 @dataclass
@@ -21,8 +21,8 @@ class Trajectory:
 
     timestamp_ns: np.ndarray
     poses: np.ndarray
-    # SLERP over all poses, built at the first interpolate (poses are not to be edited in place after)
-    _slerp: Slerp | None = field(default=None, init=False, repr=False, compare=False)
+    # the poses' quaternions for SLERP, made at the first interpolate (poses are not to be edited in place after)
+    _quats: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.timestamp_ns)
@@ -39,11 +39,10 @@ class Trajectory:
             return out.reshape(t_ns.shape + (4, 4))
         ts = self.timestamp_ns.astype(np.float64)
         q = np.clip(flat.astype(np.float64), ts[0], ts[-1])
-        if self._slerp is None:
-            self._slerp = Slerp(ts, Rotation.from_matrix(self.poses[:, :3, :3]))
-        rot = self._slerp(q)
+        if self._quats is None:
+            self._quats = quat_from_matrix(self.poses[:, :3, :3])
         out = np.zeros((flat.size, 4, 4))
-        out[:, :3, :3] = rot.as_matrix()
+        out[:, :3, :3] = matrix_from_quat(slerp(ts, self._quats, q))
         for k in range(3):
             out[:, k, 3] = np.interp(q, ts, self.poses[:, k, 3])
         out[:, 3, 3] = 1.0
@@ -53,7 +52,7 @@ class Trajectory:
 def poses_from_tum_rows(rows: np.ndarray) -> np.ndarray:
     """(N, 7) ``tx ty tz qx qy qz qw`` to (N, 4, 4) float64."""
     poses = np.zeros((len(rows), 4, 4))
-    poses[:, :3, :3] = Rotation.from_quat(rows[:, 3:7]).as_matrix()
+    poses[:, :3, :3] = matrix_from_quat(rows[:, 3:7])
     poses[:, :3, 3] = rows[:, :3]
     poses[:, 3, 3] = 1.0
     return poses
@@ -109,7 +108,7 @@ def read_tum(path: str | Path) -> Trajectory:
 
 def write_tum(path: str | Path, traj: Trajectory) -> None:
     """Write a TUM trajectory (timestamps in seconds with ns precision)."""
-    q = Rotation.from_matrix(traj.poses[:, :3, :3]).as_quat()
+    q = quat_from_matrix(traj.poses[:, :3, :3])
     t = traj.poses[:, :3, 3]
     with open(path, "w") as f:
         f.write("# timestamp tx ty tz qx qy qz qw\n")

@@ -50,4 +50,8 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     echo "setup: .venv holds $(.venv/bin/python -m pip list --format=freeze 2>/dev/null | wc -l) packages," \
          "$(du -sh .venv 2>/dev/null | cut -f1)" >&2
 fi
+# holodata is installed editable (its modules stay here): byte-compile them once, as pip does for the
+# packages it copies, so that a process started with PYTHONDONTWRITEBYTECODE set (this machine kind
+# sets it) does not compile every module it imports again (~0.3 s a process: docs/design/performance.md)
+step "holodata's modules byte-compiled" .venv/bin/python -m compileall -q holodata
 echo "holodata is set up in .venv (activate with: source .venv/bin/activate)" >&2
