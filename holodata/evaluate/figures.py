@@ -93,9 +93,10 @@ def fig_hidden_side(path: Path, fr: dict, method: str = "model") -> None:
     else:
         person = "in sight" if len(t) else "none in the ground truth"
     f = fr.get("nlos_f_score")
-    ax.set_title(f"scene {fr['scene']}, frame {fr['frame']}: person {person}"
-                 + ("" if f is None or not math.isfinite(f) else f"; {method} NLOS F-score {f * 100:.1f} %"),
-                 fontsize=13, loc="left")
+    # two lines: on one the title ran past the axes into the legend beside them
+    ax.set_title(f"scene {fr['scene']}, frame {fr['frame']}"
+                 + ("" if f is None or not math.isfinite(f) else f": {method} NLOS F-score {f * 100:.1f} %")
+                 + f"\nperson {person}", fontsize=13, loc="left")
     fig.legend(handles, labels, loc="outside right upper", fontsize=11, frameon=False)
     _save(fig, path, plt)
 
