@@ -22,8 +22,9 @@ from holodata.cli.options import json_option, quiet_option
               help="Point estimate of each beam's range-bin distribution (soft-argmax models; auto: the one the "
                    "checkpoint was trained for).")
 @click.option("--motion-cue", is_flag=True,
-              help="Also find a moving person from the change between a corner's consecutive rotations (no training; "
-                   "the model row's human centres gain it): holodata.evaluate.motion.")
+              help="Find the person from the change between a corner's consecutive rotations (no training): the "
+                   "model row's human centres are the moving person's instead of the per-beam human head's "
+                   "clusters (holodata.evaluate.motion).")
 @click.option("--screenshot", is_flag=True, help="Also save REPORT/report.png (headless Chromium).")
 @quiet_option()
 @json_option("Print metrics.json on stdout.")

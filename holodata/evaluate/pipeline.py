@@ -376,11 +376,12 @@ class Evaluation:
         t.hidden.append(person_hidden(g_lab))
         b_rng = strongest_peaks(hm, s.rb, k=3)
         p_j, pcm, pcs = _score_model(s.run.stage2, t.accs, target, pred, g_lab)
-        if t.motion is not None:   # the moving person joins the model's human centres
+        if t.motion is not None:   # the moving person joins (or replaces) the model's human centres
             from .motion import merge_centres
 
             acc = t.accs["model"]
-            acc.pred_centres[-1] = merge_centres(acc.pred_centres[-1], t.motion.centres(i, hm, pred))
+            cue = t.motion.centres(i, hm, pred)
+            acc.pred_centres[-1] = cue if self.motion.alone else merge_centres(acc.pred_centres[-1], cue)
         pcb = score_frame(t.accs["baseline"], target, b_rng, None)
         t.gt_nlos_points.append(int(len(target.clouds["nlos"])))
         if i in t.picks:

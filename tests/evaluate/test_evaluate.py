@@ -70,14 +70,16 @@ def test_train_then_evaluate_writes_valid_report(dataset, tmp_path):
     for method in ("model", "baseline"):
         assert doc["methods"][method]["range"]["bounce_1"]["mean_cm"] is not None
     assert doc["settings"]["motion_cue"] is None
-    # the motion cue (a corner's consecutive rotations) only adds people to the model row, and says so
+    # the motion cue (a corner's consecutive rotations) gives the model row's people (at most one a frame:
+    # the strongest moving cluster) and leaves its points alone, and says so
     r = CliRunner().invoke(cli, ["evaluate", dataset, "--checkpoint", str(run), "--out", str(tmp_path / "motion"),
                                  "--motion-cue", "--quiet", "--json"])
     assert r.exit_code == 0, r.output
     moved = json.loads(r.output)
     validate_metrics(moved)
     assert moved["settings"]["motion_cue"]["min_change_db"] > 0
-    assert moved["methods"]["model"]["human"]["n_pred"] >= doc["methods"]["model"]["human"]["n_pred"]
+    assert moved["settings"]["motion_cue"]["alone"] is True
+    assert moved["methods"]["model"]["human"]["n_pred"] <= moved["n_frames"]
     assert moved["methods"]["model"]["points"] == doc["methods"]["model"]["points"]
     # a bad checkpoint is a one-line error, exit 1
     bad = tmp_path / "bad.pt"
