@@ -181,6 +181,8 @@ def beat_samples(sites: ChirpSites, points: np.ndarray, amplitudes: np.ndarray, 
     if len(points):
         ant = np.ascontiguousarray(sites.antennas, np.float64)
         extra = int(np.ceil(np.linalg.norm(ant - ant[:, :1], axis=2).max() * nu_per_m * M))
+        if extra > TAPS // 2:   # the grid's padding holds the window of an array up to TAPS/2 cells across
+            raise ValueError(f"a chirp's antennas span {extra} frequency cells (at most {TAPS // 2} supported)")
         _spread(ant, np.ascontiguousarray(sites.centres, np.float64),
                 np.ascontiguousarray(sites.facing, np.float64), np.ascontiguousarray(points, np.float64),
                 np.ascontiguousarray(amplitudes, np.complex128), float(cos_cut),
