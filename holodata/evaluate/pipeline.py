@@ -287,9 +287,10 @@ class Evaluation:
     "mode"; see :meth:`holodata.torch.model.MultiReturnUNet.predict`; None: the one the checkpoint
     was trained for). ``motion``: a :class:`holodata.evaluate.motion.MotionCue` whose moving person
     (found from the change between a corner's rotations) gives the model row's human centres (or
-    joins the human head's: ``MotionCue.alone``), or None (the human head's alone). ``oracle_row=False`` leaves out the ``oracle_stage1``
-    row (the GT range images through the run's stage two; a second stage-two pass per frame): the
-    demo scores the shipped weights beside its own model, whose run shows that row."""
+    joins the human head's: ``MotionCue.alone``), or None (the human head's alone).
+    ``oracle_row=False`` leaves out the ``oracle_stage1`` row (the GT range images through the run's
+    stage two; a second stage-two pass per frame): the demo scores the shipped weights beside its own
+    model, whose run shows that row."""
 
     dataset_url: str | Path
     checkpoint: str | Path | None

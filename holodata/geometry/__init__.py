@@ -1,8 +1,8 @@
 """holodata's geometry core, shared by slam, register, the mesh and the background model: voxel keys,
 one point per voxel and voxel means (:mod:`.voxels`), point-to-plane Gauss-Newton ICP with robust
 weights and held directions (:mod:`.icp`), plane fits (:mod:`.planes`), un-mirroring of multi-return
-range images into real points (:mod:`.unmirror`, stage two without learning). Arrays in, arrays out: no
-I/O, no dataset types."""
+range images into real points (:mod:`.unmirror`, stage two without learning), quaternions and SLERP for
+poses (:mod:`.rotations`). Arrays in, arrays out: no I/O, no dataset types."""
 from __future__ import annotations
 
 from .icp import (
