@@ -20,8 +20,8 @@ every point. Stage two: 3 ray-tracer + 2 refiner epochs on ``--stage2-frames`` t
 spread over the corners (at least one per corner), its keep threshold and stage one's confidence
 gate calibrated on them. ``--grid 64x512`` (the paper's): corpora store uint8 log-amplitude heatmaps,
 stage one and stage two train on 128-column azimuth crops (wrapping), stage one runs on whole rings
-in overlapping windows (:meth:`holodata.torch.model.MultiReturnUNet.ring_forward`), evaluate adds the
-motion cue's moving person to the model's human centres (``--motion-cue``, :mod:`holodata.evaluate.motion`),
+in overlapping windows (:meth:`holodata.torch.model.MultiReturnUNet.ring_forward`), the model's human
+centres are the motion cue's moving person (``--motion-cue``, :mod:`holodata.evaluate.motion`),
 and the floors are the paper-grid ones. Rerunning with the same --out resumes every stage (an
 evaluation newer than its run and scored the same way is read back). Measured numbers go to
 benchmarks/results/nlos.md, not here.

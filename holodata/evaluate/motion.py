@@ -16,8 +16,9 @@ corners"). Here the cue is read on stage one's own returns, so it needs no train
    change × persistence (capped at ``persist_cap_m``) is the person when that score reaches
    ``min_score`` (:func:`moving_person`).
 
-A person who stands still gives neither cue and is left to the model's human head; so is a second
-person (one per frame). The heatmap's change is not compensated for the robot's motion between
+A person who stands still gives neither cue, nor does a second person (one per frame): with
+``MotionCue.alone`` (the default) they are not found at all; without it the model's human head is
+left to find them. The heatmap's change is not compensated for the robot's motion between
 rotations (a few cm at a corner); persistence is. Plain numpy; :class:`MotionScorer` is evaluate's
 glue (reads the neighbouring rotation, runs stage one on it, caches the last frames).
 """
