@@ -17,7 +17,12 @@ analytically (:func:`holodata.geometry.unmirror.unmirror`, eq. 2-5) and each poi
 - ``3-D MLP >= t``: a small MLP over each point's 3-D neighbourhood (16 nearest: spacing, PCA
   planarity/linearity), its height, bounce, p_hum, amplitude, motion and persistence (distance to the
   neighbouring rotation's cloud in the world frame), trained on the first half of the
-  corners (label: within 0.15 m of a GT human point) and scored on the second half.
+  corners (label: within 0.15 m of a GT human point) and scored on the second half;
+- ``3-D MLP top-k`` (with ``--train-on CORPUS``): the same MLP trained on every frame of another
+  corpus (its ``--train-split``; a seed neither stage one nor DATASET came from: no half is spent on
+  training), read as a detector: the points at probability >= 0.95 clustered, the ``k`` clusters of
+  largest summed probability kept when that sum reaches ``t``; also joined with the motion cue's
+  centre (:func:`holodata.evaluate.motion.merge_centres`).
 
 Each row is scored as ``holodata evaluate`` scores human detection (clusters of >= 5 points,
 :func:`holodata.metrics.human_centroids`; matched within 0.5 m, :func:`holodata.metrics.human_detection_metrics`)
@@ -28,6 +33,7 @@ row but the oracle, which has none). A development tool: run it on a corpus you 
 never on the held-out report set.
 
     .venv/bin/python benchmarks/hidden_person_labels.py DATASET --checkpoint RUN [--split test]
+        [--train-on CORPUS --train-split train]
 
 Measured numbers go to benchmarks/results/hidden-person.md, not here.
 """
@@ -138,22 +144,33 @@ def point_features(r: dict) -> np.ndarray:
                  np.linalg.norm(P[:, :2], axis=1) / 10, r["persist"]].astype(np.float32)
 
 
-def mlp_probabilities(train: list[dict], test: list[dict], epochs: int = 8, seed: int = 0) -> list[np.ndarray]:
+def mlp_probabilities(train: list[dict], test: list[dict], epochs: int = 8, seed: int = 0,
+                      neg_keep: float = 1.0, hidden_weight: float = 1.0, pos_weight: float = 10.0) -> list[np.ndarray]:
     """The 3-D labeller trained on ``train``'s points (label: within 0.15 m of a GT human point,
-    positives weighted ×10); its human probability of every point of ``test``."""
+    positives weighted ×``pos_weight``, ×``hidden_weight`` more in frames whose person is hidden; a random
+    ``neg_keep`` share of the negatives kept); its human probability of every point of ``test``."""
     import torch
     from torch import nn
 
     torch.manual_seed(seed)
-    X = torch.from_numpy(np.concatenate([point_features(r) for r in train]))
-    Y = torch.from_numpy(np.concatenate([near_gt(r, 0.15) for r in train]).astype(np.float32))
+    rng = np.random.default_rng(seed)
+    Xs, Ys, Ws = [], [], []
+    for r in train:
+        y = near_gt(r, 0.15)
+        keep = y | (rng.random(len(y)) < neg_keep)
+        Xs.append(point_features(r)[keep])
+        Ys.append(y[keep])
+        Ws.append(np.where(y[keep], pos_weight * (hidden_weight if r["hidden"] else 1.0), 1.0))
+    X = torch.from_numpy(np.concatenate(Xs))
+    Y = torch.from_numpy(np.concatenate(Ys).astype(np.float32))
+    W = torch.from_numpy(np.concatenate(Ws).astype(np.float32))
     mu, sd = X.mean(0), X.std(0) + 1e-6
     net = nn.Sequential(nn.Linear(X.shape[1], 64), nn.SiLU(), nn.Linear(64, 64), nn.SiLU(), nn.Linear(64, 1))
     opt = torch.optim.AdamW(net.parameters(), 2e-3)
     for _ in range(epochs):
         for idx in torch.randperm(len(X)).split(4096):
-            loss = nn.functional.binary_cross_entropy_with_logits(net((X[idx] - mu) / sd)[:, 0], Y[idx],
-                                                                  pos_weight=torch.tensor(10.0))
+            loss = (nn.functional.binary_cross_entropy_with_logits(net((X[idx] - mu) / sd)[:, 0], Y[idx],
+                                                                   reduction="none") * W[idx]).mean()
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -161,11 +178,30 @@ def mlp_probabilities(train: list[dict], test: list[dict], epochs: int = 8, seed
         return [torch.sigmoid(net((torch.from_numpy(point_features(r)) - mu) / sd))[:, 0].numpy() for r in test]
 
 
+def top_clusters(r: dict, prob: np.ndarray, k: int, min_sum: float, min_prob: float = 0.95) -> np.ndarray:
+    """(<= k, 3) centres of the ``k`` clusters of ``r``'s points at ``prob`` >= ``min_prob``
+    (:func:`holodata.metrics.single_linkage` at HUMAN_CLUSTER_M, >= HUMAN_MIN_POINTS points) of largest
+    summed probability, each kept when that sum reaches ``min_sum``."""
+    from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MIN_POINTS, single_linkage
+
+    sel = prob >= min_prob
+    X, w = r["P"][sel], prob[sel]
+    if len(X) < HUMAN_MIN_POINTS:
+        return np.zeros((0, 3))
+    n, lab = single_linkage(X, HUMAN_CLUSTER_M)
+    size = np.bincount(lab, minlength=n)
+    score = np.where(size >= HUMAN_MIN_POINTS, np.bincount(lab, weights=w, minlength=n), -np.inf)
+    best = [c for c in np.argsort(-score)[:k] if score[c] >= min_sum]
+    return np.array([X[lab == c].mean(0) for c in best]).reshape(-1, 3)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("dataset")
     ap.add_argument("--checkpoint", required=True)
     ap.add_argument("--split", default="test")
+    ap.add_argument("--train-on", help="another corpus the 3-D MLP detector trains on (every frame of --train-split)")
+    ap.add_argument("--train-split", default="train")
     a = ap.parse_args(argv)
     header()
     recs = frame_records(a.dataset, a.checkpoint, a.split)
@@ -205,6 +241,18 @@ def main(argv=None) -> int:
         row(f"motion cue [{part}]", rs, None, [None], centres=cen)
     probs = mlp_probabilities(train, test)
     row("3-D MLP [2nd half]", test, lambda t: [p >= t for p in probs], (0.5, 0.8, 0.9, 0.95, 0.98))
+    if a.train_on:
+        other = frame_records(a.train_on, a.checkpoint, a.train_split)
+        probs = mlp_probabilities(other, recs, epochs=6, neg_keep=0.2, hidden_weight=3.0, pos_weight=5.0)
+        cues = [moving_person(r["P"][r["bounce"] > 0], r["motion"][r["bounce"] > 0],
+                              np.minimum(r["persist"][r["bounce"] > 0], cue.persist_cap_m), cue) for r in recs]
+        from holodata.evaluate.motion import merge_centres
+
+        for k in (1, 2):
+            for t in (10, 20, 40):
+                cen = [top_clusters(r, p, k, t) for r, p in zip(recs, probs)]
+                row(f"3-D MLP top-{k} (t={t:g}) [all]", recs, None, [None], centres=cen)
+                row("  + motion cue", recs, None, [None], centres=[merge_centres(c, q) for c, q in zip(cen, cues)])
     return 0
 
 
