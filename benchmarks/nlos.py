@@ -8,6 +8,7 @@ the corpora and the scores recorded in it.
 
     .venv/bin/python benchmarks/nlos.py [--out DIR] [--corners 4,16,64,256] [--frames 4] [--steps 2000]
         [--stage2-frames 64] [--device cpu|cuda] [--grid 32x128|64x512] [--install]
+        [--more-steps S --more-lr 0.001]
 
 Data: ``holodata synth --corners`` corpora at the quick demo's 32×128 beams and range bins
 (:mod:`holodata.synth.corpus`; corner i's draws depend only on (seed, i), so the 16-corner corpus is
@@ -18,7 +19,11 @@ set tests/torch_/test_pretrained.py rescores. Stage one: the quick demo's model 
 range pooled ×2) with the per-bin likelihood ("ce", mode estimate), ``--steps`` steps of batch 4 at
 every point. Stage two: 3 ray-tracer + 2 refiner epochs on ``--stage2-frames`` training frames
 spread over the corners (at least one per corner), its keep threshold and stage one's confidence
-gate calibrated on them. ``--grid 64x512`` (the paper's): corpora store uint8 log-amplitude heatmaps,
+gate calibrated on them. ``--more-steps S``: each point's run then trains on, as a run of its own
+(``run_..._STEPS+S``): S more stage-one steps from its weights, a second cosine cycle from
+``--more-lr`` (warm restart, Loshchilov & Hutter 2017), and stage two fine-tuned from its stage two
+for 1 + 1 epochs (``holodata train --init RUN``'s path); that run is the point's, scored and installed.
+``--grid 64x512`` (the paper's): corpora store uint8 log-amplitude heatmaps,
 stage one and stage two train on 128-column azimuth crops (wrapping), stage one runs on whole rings
 in overlapping windows (:meth:`holodata.torch.model.MultiReturnUNet.ring_forward`), the model's human
 centres are the motion cue's moving person (``--motion-cue``, :mod:`holodata.evaluate.motion`),
@@ -35,6 +40,7 @@ import shlex
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,6 +132,9 @@ def main(argv=None) -> int:
                                                    "uint8 log-amplitude corpora, stage one trained on 128-column azimuth "
                                                    "crops and run on the whole ring)")
     ap.add_argument("--install", action="store_true", help="ship the largest point's run as the pretrained weights")
+    ap.add_argument("--more-steps", type=int, default=0, help="then this many more stage-one steps from each point's "
+                                                              "run, a second cosine cycle (module docstring)")
+    ap.add_argument("--more-lr", type=float, default=1e-3, help="the second cycle's starting learning rate")
     a = ap.parse_args(argv)
     from _run import header
 
@@ -179,14 +188,25 @@ def main(argv=None) -> int:
         t2 = time.perf_counter()
         train_stage2(url, run, s2, quiet=True)
         t3 = time.perf_counter()
-        docs[n] = evaluated(out / f"eval_{n}{tag}", run, cue) or Evaluation(
-            report, run, out / f"eval_{n}{tag}", split="test", quiet=True, report=False, motion=cue).run()
+        steps, s1_s, s2_s = epochs * math.ceil(frames / cfg.batch_size), t2 - t1, t3 - t2
+        if a.more_steps:   # the second cycle: a run of its own, fine-tuned from this one (module docstring)
+            first, run = run, out / f"run_{n}x{a.frames}_{a.steps}+{a.more_steps}{tag}"
+            more = max(1, math.ceil(a.more_steps * 4 / frames))
+            cfg, s2 = replace(cfg, epochs=more, lr=a.more_lr), replace(s2, epochs_rt=1, epochs_refine=1)
+            t1 = time.perf_counter()
+            train(url, run, cfg, quiet=True, init=first)
+            t2 = time.perf_counter()
+            train_stage2(url, run, s2, quiet=True, init=first)
+            t3 = time.perf_counter()
+            steps, s1_s, s2_s = steps + more * math.ceil(frames / cfg.batch_size), s1_s + t2 - t1, s2_s + t3 - t2
+        ev = out / (f"eval_{n}+{a.more_steps}{tag}" if a.more_steps else f"eval_{n}{tag}")
+        docs[n] = evaluated(ev, run, cue) or Evaluation(report, run, ev, split="test", quiet=True, report=False,
+                                                        motion=cue).run()
         t4 = time.perf_counter()
-        timings[n] = {"stage_one_s": t2 - t1, "stage_two_s": t3 - t2, "evaluate_s": t4 - t3,
-                      "steps": epochs * math.ceil(frames / cfg.batch_size)}
+        timings[n] = {"stage_one_s": s1_s, "stage_two_s": s2_s, "evaluate_s": t4 - t3, "steps": steps}
         runs[n] = (run, train_cc, cfg, s2)
-        print(f"  N={n}: stage one {epochs} epochs ({timings[n]['steps']} steps) {t2 - t1:.0f} s, stage two "
-              f"{t3 - t2:.0f} s, evaluate {t4 - t3:.0f} s", flush=True)
+        print(f"  N={n}: stage one {steps} steps {s1_s:.0f} s, stage two {s2_s:.0f} s, evaluate {t4 - t3:.0f} s",
+              flush=True)
         print_point(n, timings[n]["steps"], docs[n])
 
     print("\ndata-scaling curve (held-out): N   b2 / b3 median cm   model LOS F / NLOS F / human F (hidden)   baseline NLOS F")
