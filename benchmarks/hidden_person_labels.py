@@ -144,6 +144,13 @@ def point_features(r: dict) -> np.ndarray:
                  np.linalg.norm(P[:, :2], axis=1) / 10, r["persist"]].astype(np.float32)
 
 
+def features(r: dict) -> np.ndarray:
+    """:func:`point_features` of record ``r``, computed once and kept in it (each MLP row reads them)."""
+    if "features" not in r:
+        r["features"] = point_features(r)
+    return r["features"]
+
+
 def mlp_probabilities(train: list[dict], test: list[dict], epochs: int = 8, seed: int = 0,
                       neg_keep: float = 1.0, hidden_weight: float = 1.0, pos_weight: float = 10.0) -> list[np.ndarray]:
     """The 3-D labeller trained on ``train``'s points (label: within 0.15 m of a GT human point,
@@ -158,7 +165,7 @@ def mlp_probabilities(train: list[dict], test: list[dict], epochs: int = 8, seed
     for r in train:
         y = near_gt(r, 0.15)
         keep = y | (rng.random(len(y)) < neg_keep)
-        Xs.append(point_features(r)[keep])
+        Xs.append(features(r)[keep])
         Ys.append(y[keep])
         Ws.append(np.where(y[keep], pos_weight * (hidden_weight if r["hidden"] else 1.0), 1.0))
     X = torch.from_numpy(np.concatenate(Xs))
@@ -175,24 +182,7 @@ def mlp_probabilities(train: list[dict], test: list[dict], epochs: int = 8, seed
             loss.backward()
             opt.step()
     with torch.no_grad():
-        return [torch.sigmoid(net((torch.from_numpy(point_features(r)) - mu) / sd))[:, 0].numpy() for r in test]
-
-
-def top_clusters(r: dict, prob: np.ndarray, k: int, min_sum: float, min_prob: float = 0.95) -> np.ndarray:
-    """(<= k, 3) centres of the ``k`` clusters of ``r``'s points at ``prob`` >= ``min_prob``
-    (:func:`holodata.metrics.single_linkage` at HUMAN_CLUSTER_M, >= HUMAN_MIN_POINTS points) of largest
-    summed probability, each kept when that sum reaches ``min_sum``."""
-    from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MIN_POINTS, single_linkage
-
-    sel = prob >= min_prob
-    X, w = r["P"][sel], prob[sel]
-    if len(X) < HUMAN_MIN_POINTS:
-        return np.zeros((0, 3))
-    n, lab = single_linkage(X, HUMAN_CLUSTER_M)
-    size = np.bincount(lab, minlength=n)
-    score = np.where(size >= HUMAN_MIN_POINTS, np.bincount(lab, weights=w, minlength=n), -np.inf)
-    best = [c for c in np.argsort(-score)[:k] if score[c] >= min_sum]
-    return np.array([X[lab == c].mean(0) for c in best]).reshape(-1, 3)
+        return [torch.sigmoid(net((torch.from_numpy(features(r)) - mu) / sd))[:, 0].numpy() for r in test]
 
 
 def main(argv=None) -> int:
@@ -235,22 +225,21 @@ def main(argv=None) -> int:
     from holodata.evaluate.motion import MotionCue, moving_person
 
     cue = MotionCue()
-    for rs, part in ((recs, "all"), (test, "2nd half")):
-        cen = [moving_person(r["P"][r["bounce"] > 0], r["motion"][r["bounce"] > 0],
-                             np.minimum(r["persist"][r["bounce"] > 0], cue.persist_cap_m), cue) for r in rs]
-        row(f"motion cue [{part}]", rs, None, [None], centres=cen)
+    cues = [moving_person(r["P"][r["bounce"] > 0], r["motion"][r["bounce"] > 0],
+                          np.minimum(r["persist"][r["bounce"] > 0], cue.persist_cap_m), cue) for r in recs]
+    row("motion cue [all]", recs, None, [None], centres=cues)
+    row("motion cue [2nd half]", test, None, [None], centres=[c for c, r in zip(cues, recs) if r["corner"] not in first])
     probs = mlp_probabilities(train, test)
     row("3-D MLP [2nd half]", test, lambda t: [p >= t for p in probs], (0.5, 0.8, 0.9, 0.95, 0.98))
     if a.train_on:
         other = frame_records(a.train_on, a.checkpoint, a.train_split)
         probs = mlp_probabilities(other, recs, epochs=6, neg_keep=0.2, hidden_weight=3.0, pos_weight=5.0)
-        cues = [moving_person(r["P"][r["bounce"] > 0], r["motion"][r["bounce"] > 0],
-                              np.minimum(r["persist"][r["bounce"] > 0], cue.persist_cap_m), cue) for r in recs]
         from holodata.evaluate.motion import merge_centres
+        from holodata.metrics import strongest_clusters
 
         for k in (1, 2):
-            for t in (10, 20, 40):
-                cen = [top_clusters(r, p, k, t) for r, p in zip(recs, probs)]
+            for t in (10, 20, 40):   # the points at probability >= 0.95, the k clusters of largest summed probability
+                cen = [strongest_clusters(r["P"][p >= 0.95], p[p >= 0.95], k, t) for r, p in zip(recs, probs)]
                 row(f"3-D MLP top-{k} (t={t:g}) [all]", recs, None, [None], centres=cen)
                 row("  + motion cue", recs, None, [None], centres=[merge_centres(c, q) for c, q in zip(cen, cues)])
     return 0

@@ -205,6 +205,25 @@ def human_centroids(points, radius: float = HUMAN_CLUSTER_M, min_points: int = H
     return sums[keep] / counts[keep, None]
 
 
+def strongest_clusters(points, weights, k: int, min_sum: float, radius: float = HUMAN_CLUSTER_M,
+                       min_points: int = HUMAN_MIN_POINTS) -> np.ndarray:
+    """(<= k, 3) centres (means) of the ``k`` clusters of ``points`` (N,3) (:func:`single_linkage`,
+    ``radius`` m; at least ``min_points`` points) with the largest summed ``weights`` (N,), strongest
+    first (ties: the cluster met first), each kept only when its sum reaches ``min_sum``: the person
+    (or persons) a per-point score singles out. Points with a non-finite coordinate are left out."""
+    X = np.asarray(points, np.float64).reshape(-1, 3)
+    w = np.asarray(weights, np.float64).reshape(-1)
+    ok = np.isfinite(X).all(1)
+    X, w = X[ok], w[ok]
+    if len(X) < max(min_points, 1):
+        return np.zeros((0, 3))
+    n, lab = single_linkage(X, radius)
+    size = np.bincount(lab, minlength=n)
+    score = np.where(size >= min_points, np.bincount(lab, weights=w, minlength=n), -np.inf)
+    best = [c for c in np.argsort(-score, kind="stable")[:k] if score[c] >= min_sum]
+    return np.array([X[lab == c].mean(0) for c in best]).reshape(-1, 3)
+
+
 def match_centres(pred, gt, max_dist: float = HUMAN_MATCH_M) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One-to-one matching (Hungarian, Euclidean) of predicted centroids (K,3) to GT centres (L,3);
     pairs farther than ``max_dist`` are not matches. Returns (pred_idx, gt_idx, distances)."""

@@ -133,3 +133,20 @@ def test_estimate_attenuation_db():
     hm[0, 5] = 1.0
     hm[0, 10] = 0.1
     assert M.estimate_attenuation_db(hm, R, L, dr=0.1) == pytest.approx(20.0)
+
+
+def test_strongest_clusters_ranks_clusters_by_summed_weight():
+    from holodata.metrics import strongest_clusters
+
+    rng = np.random.default_rng(0)
+    a = rng.normal([0, 0, 0], 0.05, (20, 3))     # 20 points of weight 1: sum 20
+    b = rng.normal([3, 0, 0], 0.05, (10, 3))     # 10 points of weight 5: sum 50
+    c = rng.normal([6, 0, 0], 0.05, (3, 3))      # too few points to be a cluster, however heavy
+    P = np.vstack([a, b, c, [[np.nan, 0, 0]]])
+    w = np.r_[np.ones(20), np.full(10, 5.0), np.full(3, 100.0), 1e9]
+    got = strongest_clusters(P, w, k=2, min_sum=0.0)
+    assert got.shape == (2, 3)
+    assert np.allclose(got[0], b.mean(0)) and np.allclose(got[1], a.mean(0))
+    assert np.allclose(strongest_clusters(P, w, k=2, min_sum=30.0), b.mean(0, keepdims=True))
+    assert strongest_clusters(P, w, k=1, min_sum=51.0).shape == (0, 3)
+    assert strongest_clusters(P[:3], w[:3], k=1, min_sum=0.0).shape == (0, 3)

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from holodata.geometry.unmirror import unmirror
-from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MATCH_M, HUMAN_MIN_POINTS, single_linkage
+from holodata.metrics import HUMAN_CLUSTER_M, HUMAN_MATCH_M, HUMAN_MIN_POINTS, strongest_clusters
 
 
 @dataclass(frozen=True)
@@ -98,17 +98,8 @@ def moving_person(points: np.ndarray, change: np.ndarray, persist: np.ndarray, c
     """(0 or 1, 3): the centre of the moving person among bounce-2/3 returns ``points`` (N,3) with
     their ``change`` (N,) dB and ``persist`` (N,) m (module docstring, step 3), or none."""
     sel = (change >= cue.min_change_db) & (persist >= cue.min_persist_m) & np.isfinite(points).all(-1)
-    X = points[sel]
-    if len(X) < cue.min_points:
-        return np.zeros((0, 3))
     w = change[sel] * np.minimum(persist[sel], cue.persist_cap_m)
-    n, lab = single_linkage(X, cue.cluster_m)
-    counts = np.bincount(lab, minlength=n)
-    score = np.where(counts >= cue.min_points, np.bincount(lab, weights=w, minlength=n), -np.inf)
-    best = int(np.argmax(score))
-    if score[best] < cue.min_score:
-        return np.zeros((0, 3))
-    return X[lab == best].mean(0, keepdims=True)
+    return strongest_clusters(points[sel], w, 1, cue.min_score, cue.cluster_m, cue.min_points)
 
 
 def merge_centres(centres: np.ndarray, extra: np.ndarray, min_dist: float = HUMAN_MATCH_M) -> np.ndarray:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..dataset.layout import HUMAN_FACES, HUMAN_POINTS, HUMAN_VERTICES
 from ..errors import InputError
-from ..geometry.voxels import voxel_keys
+from ..geometry.voxels import first_per_voxel
 from ..meshio import read_mesh
 
 MESH_EXTS = (".ply", ".obj", ".stl")
@@ -29,8 +29,7 @@ def points_to_mesh(points: np.ndarray, radius: float = HUMAN_SPLAT_RADIUS_M) -> 
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
-    _, keep = np.unique(voxel_keys(np.floor(pts / radius).astype(np.int64)), return_index=True)
-    pts = pts[np.sort(keep)]
+    pts = pts[first_per_voxel(pts, radius)]
     ov = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], float) * radius
     of = np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]])
     v = (pts[:, None, :] + ov[None]).reshape(-1, 3)

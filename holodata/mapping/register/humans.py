@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...geometry.planes import ransac_plane
-from ...geometry.voxels import voxel_keys
+from ...geometry.voxels import voxel_index, voxel_keys
 from .config import RegisterConfig
 from .extrinsic import _pcd
 
@@ -130,8 +130,7 @@ def static_residual(points: np.ndarray, cfg: RegisterConfig, seed: int = 0) -> n
     if len(pts) < 100:
         return keep
     rng = np.random.default_rng(seed)
-    vox = np.floor(pts / cfg.cam_voxel).astype(np.int64)
-    _, first, inv = np.unique(voxel_keys(vox), return_index=True, return_inverse=True)
+    _, first, inv = np.unique(voxel_keys(voxel_index(pts, cfg.cam_voxel)), return_index=True, return_inverse=True)
     inv = inv.reshape(-1)
     sub = pts[first]
     alive = np.ones(len(sub), bool)        # not yet on a plane (RANSAC looks among these)
