@@ -8,7 +8,7 @@ the corpora and the scores recorded in it.
 
     .venv/bin/python benchmarks/nlos.py [--out DIR] [--corners 4,16,64,256] [--frames 4] [--steps 2000]
         [--stage2-frames 64] [--device cpu|cuda] [--grid 32x128|64x512] [--install]
-        [--more-steps S --more-lr 0.001]
+        [--more-steps S --more-lr 0.001] [--raw-corners R --raw-epochs 12 --raw-lr 0.0005]
 
 Data: ``holodata synth --corners`` corpora at the quick demo's 32×128 beams and range bins
 (:mod:`holodata.synth.corpus`; corner i's draws depend only on (seed, i), so the 16-corner corpus is
@@ -23,6 +23,12 @@ gate calibrated on them. ``--more-steps S``: each point's run then trains on, as
 (``run_..._STEPS+S``): S more stage-one steps from its weights, a second cosine cycle from
 ``--more-lr`` (warm restart, Loshchilov & Hutter 2017), and stage two fine-tuned from its stage two
 for 1 + 1 epochs (``holodata train --init RUN``'s path); that run is the point's, scored and installed.
+``--raw-corners R``: then the point's run is scored on the report set recorded as raw samples and
+beamformed as ingest does (``synth --corners --radar-output iq``: the road a rig records, the same
+corners and ground truth) and fine-tuned as a run of its own (``..._rawR``) on R training corners
+(seed 0) recorded that way: ``--raw-epochs`` stage-one epochs from ``--raw-lr``, stage two 1 + 1 epochs;
+that run is the point's, scored on both roads (issue 51 point 5: raw-sample NLOS F within 0.8x of the
+direct heatmaps').
 ``--grid 64x512`` (the paper's): corpora store uint8 log-amplitude heatmaps,
 stage one and stage two train on 128-column azimuth crops (wrapping), stage one runs on whole rings
 in overlapping windows (:meth:`holodata.torch.model.MultiReturnUNet.ring_forward`), the model's human
@@ -135,6 +141,10 @@ def main(argv=None) -> int:
     ap.add_argument("--more-steps", type=int, default=0, help="then this many more stage-one steps from each point's "
                                                               "run, a second cosine cycle (module docstring)")
     ap.add_argument("--more-lr", type=float, default=1e-3, help="the second cycle's starting learning rate")
+    ap.add_argument("--raw-corners", type=int, default=0, help="then fine-tune each point's run on this many training "
+                    "corners recorded as raw samples and beamformed (the road a rig records; module docstring)")
+    ap.add_argument("--raw-epochs", type=int, default=12, help="stage-one epochs of that fine-tune")
+    ap.add_argument("--raw-lr", type=float, default=5e-4, help="its learning rate")
     a = ap.parse_args(argv)
     from _run import header
 
@@ -172,7 +182,9 @@ def main(argv=None) -> int:
                              **grid_kw)
     check_cc = CorpusConfig(**{**CHECK_SET, **grid_kw})
     report, check = corpus("report", report_cc), corpus("check", check_cc)
-    timings, docs, runs = {}, {}, {}
+    if a.raw_corners:   # the same held-out corners recorded as raw samples, beamformed as ingest does
+        raw_report = corpus("report_iq", replace(report_cc, radar_output="iq"))
+    timings, docs, runs, raw_docs = {}, {}, {}, {}
     for n in points:
         train_cc = CorpusConfig(corners=n, frames=a.frames, seed=TRAIN_SEED, n_test=0, **grid_kw)
         url = corpus("train", train_cc)
@@ -200,6 +212,24 @@ def main(argv=None) -> int:
             t3 = time.perf_counter()
             steps, s1_s, s2_s = steps + more * math.ceil(frames / cfg.batch_size), s1_s + t2 - t1, s2_s + t3 - t2
         ev = out / (f"eval_{n}+{a.more_steps}{tag}" if a.more_steps else f"eval_{n}{tag}")
+        if a.raw_corners:   # the direct heatmaps' run on the raw road, then fine-tuned on it: the point's run
+            raw_ev = ev.with_name(ev.name.replace("eval_", "eval_rawroad_"))
+            raw_docs[f"{n} before"] = evaluated(raw_ev, run, cue) or Evaluation(
+                raw_report, run, raw_ev, split="test", quiet=True, report=False, motion=cue).run()
+            raw_cc = CorpusConfig(corners=a.raw_corners, frames=a.frames, seed=TRAIN_SEED, n_test=0, radar_output="iq",
+                                  **grid_kw)
+            raw_url = corpus("train_iq", raw_cc)
+            first, run = run, run.with_name(f"{run.name}_raw{a.raw_corners}")
+            cfg, s2 = replace(cfg, epochs=a.raw_epochs, lr=a.raw_lr), replace(s2, epochs_rt=1, epochs_refine=1)
+            t1 = time.perf_counter()
+            train(raw_url, run, cfg, quiet=True, init=first)
+            t2 = time.perf_counter()
+            train_stage2(raw_url, run, s2, quiet=True, init=first)
+            t3 = time.perf_counter()
+            s1_s, s2_s = s1_s + t2 - t1, s2_s + t3 - t2
+            ev, raw_ev = (e.with_name(f"{e.name}_raw{a.raw_corners}") for e in (ev, raw_ev))
+            raw_docs[n] = evaluated(raw_ev, run, cue) or Evaluation(raw_report, run, raw_ev, split="test", quiet=True,
+                                                                    report=False, motion=cue).run()
         docs[n] = evaluated(ev, run, cue) or Evaluation(report, run, ev, split="test", quiet=True, report=False,
                                                         motion=cue).run()
         t4 = time.perf_counter()
@@ -208,6 +238,10 @@ def main(argv=None) -> int:
         print(f"  N={n}: stage one {steps} steps {s1_s:.0f} s, stage two {s2_s:.0f} s, evaluate {t4 - t3:.0f} s",
               flush=True)
         print_point(n, timings[n]["steps"], docs[n])
+        for key, what in ((f"{n} before", "before the raw-sample fine-tune"), (n, "the point's run")):
+            if key in raw_docs:
+                print(f"  the same held-out corners recorded as raw samples and beamformed, {what}:", end="")
+                print_point(n, timings[n]["steps"], raw_docs[key])
 
     print("\ndata-scaling curve (held-out): N   b2 / b3 median cm   model LOS F / NLOS F / human F (hidden)   baseline NLOS F")
     for n in points:
@@ -219,11 +253,16 @@ def main(argv=None) -> int:
     top = points[-1]
     print(f"\nacceptance floors at N={top} ({grid.H}x{grid.W}):")
     print("\n".join(floors(docs[top], paper)))
+    if top in raw_docs:
+        direct_f, raw_f = (d["methods"]["model"]["points"]["nlos"]["f_score"] or 0.0 for d in (docs[top], raw_docs[top]))
+        print(f"  {'PASS' if raw_f >= 0.8 * direct_f else 'FAIL'}  raw-sample NLOS F {100 * raw_f:.1f} % >= 0.8x the direct "
+              f"heatmaps' {100 * direct_f:.1f} %")
     total = time.perf_counter() - t0
     print(f"\ntotal {total:.0f} s")
     (out / "nlos_summary.json").write_text(json.dumps({"seconds": {**{str(k): v for k, v in timings.items()},
                                                                    "total": total},
-                                                       "scores": {str(n): scores(d) for n, d in docs.items()}},
+                                                       "scores": {str(n): scores(d) for n, d in docs.items()},
+                                                       "raw_road_scores": {str(n): scores(d) for n, d in raw_docs.items()}},
                                                       indent=2))
     if a.install:
         run, train_cc, cfg, s2 = runs[top]
@@ -232,14 +271,15 @@ def main(argv=None) -> int:
         # the check set (what tests/torch_/test_pretrained.py rescores) is scored with the weights as
         # shipped: float16 storage moves a score by tenths of a point
         shipped = install(run, {}, dest=out / f"shipped{tag}", half=True) if half else run
-        recorded = {"report": scores(docs[top]),
+        recorded = {"report": scores(docs[top]), **({"report_raw_samples": scores(raw_docs[top])} if raw_docs else {}),
                     "check": scores(Evaluation(check, shipped, out / f"eval_check{tag}", split="test", quiet=True,
                                                report=False, motion=cue).run()),
                     "scored_with": {"report": "the run (float32)", "check": "the weights as shipped"}}
 
         def cc_dict(cc) -> dict:
             return {"corners": cc.corners, "frames": cc.frames, "seed": cc.seed, "n_test": cc.n_test,
-                    "grid": cc.grid.to_attrs(), "range_bins": cc.range_bins.to_attrs(), "heatmap_dtype": cc.heatmap_dtype}
+                    "grid": cc.grid.to_attrs(), "range_bins": cc.range_bins.to_attrs(), "heatmap_dtype": cc.heatmap_dtype,
+                    "radar_output": cc.radar_output}
 
         commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "HEAD"], capture_output=True, text=True).stdout
         record = {"command": " ".join(shlex.quote(x) for x in ["python", *sys.argv]), "commit": commit.strip(),

@@ -9,7 +9,7 @@ from holodata.cli.options import json_option, quiet_option
 @click.command()
 @click.argument("dataset")
 @click.option("--checkpoint", type=click.Path(), help="RUN directory or RUN/checkpoint.pt, or 'pretrained' (the weights "
-              "holodata ships, trained at the quick demo's 32x128 grid); not with --oracle.")
+              "holodata ships for the dataset's grid: 32x128 or 64x512; any other grid is refused); not with --oracle.")
 @click.option("--oracle", is_flag=True,
               help="Score the ground truth itself (GT ranges, normals, labels) through the same stage-two un-mirroring: a "
                    "perfect prediction, which must score perfectly.")

@@ -49,7 +49,8 @@ def _shape(value: str, flag: str) -> tuple[int, int]:
               "0.6-1.2 m short of it, drawn from the seed).")
 @click.option("--radar-output", "radar_output", type=click.Choice(["heatmap", "iq"]), default="heatmap", show_default=True,
               help="heatmap: beamformed RadarHeatmap messages (the beamformer's point-spread function, fast); iq: every "
-                   "rotation's raw FMCW samples (RadarRawRotation on /radar/raw), which ingest beamforms like a real rig's.")
+                   "rotation's raw FMCW samples (RadarRawRotation on /radar/raw), which ingest beamforms like a real rig's; with "
+                   "--corners the corpus stores them beamformed as ingest does.")
 @click.option("--radar-chirps", "radar_chirps", type=click.IntRange(min=16), default=None,
               help="Chirp positions per rotation (default 1024, PanoRadar's; ~500 or more keep a 90° synthetic aperture free "
                    "of grating lobes).")
@@ -103,6 +104,7 @@ def synth(out, corner, width, frames, fmt, seed, grid, range_bins, lidar, lidar_
 
         cfg = CorpusConfig(corners=corners, frames=4 if frames is None else frames, grid=g,
                            range_bins=RangeBins(n=range_bins), seed=seed, n_test=n_test, heatmap_dtype=heatmap_dtype,
+                           radar_output=radar_output, radar_chirps=radar_chirps,
                            **({"hidden_person": 0.0} if no_human else {}))
         _corpus(out, cfg, processes, workers, scheduler, quiet, as_json)
         return

@@ -120,7 +120,7 @@ class RawRadarStream(RadarStream):
         from types import SimpleNamespace
 
         from ..radar.beam_geometry import Motion
-        from ..radar.beamform import beamform, beamform_attrs
+        from ..radar.beamform import beamform_attrs, beamform_recorded
         from ..readers.base import RawRotation
 
         msg = self.rec.decode(raw)
@@ -161,17 +161,14 @@ class RawRadarStream(RadarStream):
             return None
         buf = data if isinstance(data, np.ndarray) else np.frombuffer(bytes(data), np.uint8)
         cube = buf.view("<c8").reshape(nb + nr + na, V, S)
-        before, rot, after = cube[:nb], cube[nb:nb + nr], cube[nb + nr:]
         ds0, th = float(msg.travel_per_chirp), float(msg.heading)
-        period = (int(msg.cycle_end_ns) - int(msg.cycle_start_ns)) * 1e-9 / nr
-        vel = Motion(ds0, th).velocity(period)
-        if vel is not None and (nb < n_syn // 2 or na < n_syn // 2):
+        cycle_s = (int(msg.cycle_end_ns) - int(msg.cycle_start_ns)) * 1e-9
+        if Motion(ds0, th).velocity(cycle_s / nr) is not None and (nb < n_syn // 2 or na < n_syn // 2):
             raise DecodeError(f"topic {self.topic}: RadarRawRotation at {raw.log_ns} ns moves but carries {nb}/{na} "
                               f"neighbouring chirps, its beams need {n_syn // 2}")
-        hm = beamform(rot, chirp, self.params, neighbours=(before if nb else None, after if na else None),
-                      velocity=vel, chirp_period_s=period if period > 0 else None)
+        hm = beamform_recorded(cube, nb, nr, na, ds0, th, cycle_s, chirp, self.params)
         return RadarFrame(hm, (int(msg.cycle_start_ns), int(msg.cycle_end_ns)),
-                          RawRotation(before, rot, after, motion=(ds0, th)))
+                          RawRotation(cube[:nb], cube[nb:nb + nr], cube[nb + nr:], motion=(ds0, th)))
 
     def iq_shape(self) -> tuple[int, int, int]:
         return self.max_chirps, self.chirp.n_virtual, self.chirp.n_samples

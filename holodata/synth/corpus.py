@@ -15,7 +15,10 @@ through:
   in half of the corners (else the world's 0.6-1.2 m). Corner ``i``'s draws depend only on
   ``(seed, i)``: the first 16 corners of a 256-corner corpus are the 16-corner corpus.
 * **heatmaps**: the demo's radar model (:meth:`holodata.synth.scene.Sensors.radar_frame`: specular
-  multi-bounce paths, the beamformer's point-spread function, noise), direct heatmaps.
+  multi-bounce paths, the beamformer's point-spread function, noise), direct heatmaps; or, with
+  ``radar_output="iq"``, every rotation's raw FMCW samples (:meth:`~holodata.synth.scene.Sensors.radar_rotation`)
+  beamformed as ``holodata ingest`` beamforms a rig's (:func:`holodata.radar.beamform.beamform_recorded`,
+  near-field focus, the odometry's motion): the road a rig records, its ground truth the same.
 * **ground truth**: ``holodata raytrace-gt``'s own code (:func:`holodata.groundtruth.raytrace_dataset`)
   on the true mesh and the per-frame people, from the beam origins the scene states (the rotation
   centre, each column at its own time within ``radar/cycle_ns``). The radar is simulated at exactly
@@ -38,6 +41,7 @@ import numpy as np
 
 from ..conventions import Grid, LogCode, RangeBins
 from ..errors import InputError
+from .topics import RADAR_OUTPUTS
 from .worlds import CORNER_TYPES
 
 CREATED_BY = "holodata synth --corners"
@@ -51,7 +55,9 @@ class CorpusConfig:
     ``range_bins``; ``seed`` the corpus seed; ``n_test`` the last corners form the test split;
     ``hidden_person`` / ``visible_walkers`` the fractions of corners with a hidden person / people
     in the robot's corridor; ``heatmap_dtype`` float16 or float32 (linear amplitude) or uint8
-    (log-amplitude codes, :class:`holodata.conventions.LogCode`)."""
+    (log-amplitude codes, :class:`holodata.conventions.LogCode`); ``radar_output`` "heatmap" (the
+    direct heatmaps) or "iq" (raw samples of ``radar_chirps`` chirp positions per rotation, None:
+    the radar's 1024, beamformed on the way in)."""
 
     corners: int
     frames: int = 4
@@ -62,6 +68,8 @@ class CorpusConfig:
     hidden_person: float = 0.85
     visible_walkers: float = 0.35
     heatmap_dtype: str = "float16"
+    radar_output: str = "heatmap"
+    radar_chirps: int | None = None
 
     def check(self) -> None:
         if self.corners < 1:
@@ -70,6 +78,8 @@ class CorpusConfig:
             raise InputError(f"--frames must be >= 1, got {self.frames}")
         if self.heatmap_dtype not in ("float16", "float32", "uint8"):
             raise InputError(f"heatmap dtype must be float16, float32 or uint8, got {self.heatmap_dtype!r}")
+        if self.radar_output not in RADAR_OUTPUTS:
+            raise InputError(f"unknown radar output {self.radar_output!r} (choose from {', '.join(RADAR_OUTPUTS)})")
         if not 0 <= self.n_test <= self.corners:
             raise InputError(f"--test must be within 0..{self.corners} corners, got {self.n_test}")
 
@@ -118,7 +128,8 @@ def build_corner(cfg: CorpusConfig, index: int):
         try:
             sc = build_scenario(SceneSpec(corner=spec.corner, frames=cfg.frames, seed=spec.seed, human=spec.human,
                                           grid=cfg.grid, range_bins=cfg.range_bins, visible_walkers=spec.visible_walkers,
-                                          robot_stop_x=spec.robot_stop_x))
+                                          robot_stop_x=spec.robot_stop_x, radar_output=cfg.radar_output,
+                                          radar_chirps=cfg.radar_chirps))
         except InputError as e:
             err = e
             continue
@@ -154,6 +165,7 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
         TIME_TIMESTAMP_NS,
     )
     from ..groundtruth import GTConfig, raytrace_dataset
+    from ..radar.beamform import beamform_attrs
     from ..trajectory import Trajectory
     from .scene import Sensors, attenuation_db, drop_medians
 
@@ -170,7 +182,11 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
         "frame_sensor": "radar", "corner_type": world.corner, "width_m": float(world.width), "building": "synthetic",
         "source": f"{CREATED_BY} (seed {cfg.seed}, corner {index})",
         "sensors": {"radar": {"beam_origin": origin.to_attrs()}},
-        "class_names": {str(k): v for k, v in world.class_names.items()}, "synth": info},
+        "class_names": {str(k): v for k, v in world.class_names.items()}, "synth": info,
+        **({"beamform": beamform_attrs(sc.radar_cfg.imaging()[0], beamform_params(cfg), sc.radar_cfg.chirps_per_rotation,
+                                       motion_compensation="the odometry's travel over each rotation",
+                                       padding="neighbouring rotations' chirps, the first and last rotation's own")}
+           if cfg.radar_output == "iq" else {})},
         stage="synth", rerun=RERUN)
     t, cycles, poses = frame_timing(sc)
     traj = Trajectory(t, poses)
@@ -178,8 +194,11 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     heat, humans, stats = [], [], []
     code = LogCode() if cfg.heatmap_dtype == "uint8" else None
     for k in range(cfg.frames):
-        T_cols = column_poses(traj, k, cfg.grid, origin, cycles[k])   # the poses raytrace-gt will trace from
-        hm, st = sensors.radar_frame(k, T_cols)
+        if cfg.radar_output == "iq":
+            hm, st = _beamformed_rotation(sensors, cfg, k, cycles[k])
+        else:
+            T_cols = column_poses(traj, k, cfg.grid, origin, cycles[k])   # the poses raytrace-gt will trace from
+            hm, st = sensors.radar_frame(k, T_cols)
         heat.append(code.encode(hm) if code is not None else hm.astype(cfg.heatmap_dtype))
         stats.append(st)
         humans.append(sc.dynamic_mesh(int(t[k]))[0])   # None without anybody
@@ -205,6 +224,25 @@ def synth_corner(url: str, cfg: CorpusConfig, index: int) -> dict:
     # (a scene begun by an older holodata carries ingest.complete false as its mark: finished here too)
     s.finish("synth", {"ingest": {"complete": True, "by": CREATED_BY}} if "ingest" in s.attrs else None)
     return info
+
+
+def _beamformed_rotation(sensors, cfg: CorpusConfig, k: int, cycle: np.ndarray) -> tuple[np.ndarray, dict]:
+    """Rotation ``k``'s raw samples beamformed as ingest beamforms a rig's: ((n_range, H, W) float32, stats)."""
+    from ..radar.beamform import beamform_recorded
+
+    r, st = sensors.radar_rotation(k)
+    hm = beamform_recorded(r["chirps"], r["n_before"], r["n_rotation"], r["n_after"], r["travel_per_chirp"],
+                           r["heading"], (int(cycle[1]) - int(cycle[0])) * 1e-9, sensors.sc.radar_cfg.imaging()[0],
+                           beamform_params(cfg))
+    return hm, st
+
+
+def beamform_params(cfg: CorpusConfig):
+    """The beamformer's parameters of a ``radar_output="iq"`` corpus: its grid and range bins, near-field
+    focus (``holodata demo``'s, :class:`holodata.demo.DemoConfig`)."""
+    from ..radar.beam_geometry import BeamformParams
+
+    return BeamformParams(grid=cfg.grid, n_range=cfg.range_bins.n, focus="near")
 
 
 def _write_frames(arr, data) -> None:
@@ -276,7 +314,9 @@ def synth_corpus(url: str, cfg: CorpusConfig, processes: int = 0, client=None, q
         theirs = (open_dataset(url).meta.get("provenance") or {}).get("corpus")
     except DatasetError:
         theirs = None   # no dataset there yet (create_dataset names any other problem)
-    diff = [k for k in mine if k not in ("corners", "n_test") and theirs is not None and theirs.get(k) != mine[k]]
+    default = corpus_attrs(CorpusConfig(corners=1))   # a field newer than the corpus: its default then
+    diff = [k for k in mine if k not in ("corners", "n_test") and theirs is not None
+            and theirs.get(k, default.get(k)) != mine[k]]
     if diff:
         def text(k, v):
             if k == "grid" and isinstance(v, dict):

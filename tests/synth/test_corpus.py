@@ -122,3 +122,31 @@ def test_cli_writes_and_reports_the_span(tmp_path):
     assert "2 corners x 1 frames" in r.output and "hidden person in" in r.output
     assert re.search(r"\((\d+) standing still, (\d+) walking;", r.output)
     assert corpus.CREATED_BY in open_dataset(out).meta["created_by"]
+
+
+@pytest.mark.slow
+def test_raw_sample_corpus_beamforms_as_ingest_and_keeps_the_ground_truth(small, tmp_path):
+    """``--radar-output iq``: the same corners recorded as raw samples and beamformed as ingest does
+    (issue 51 point 5): the ground truth is the direct corpus's to the bit, the beamformed heatmap's
+    strongest return sits at the GT bounce-1 range as the direct one's does, the beamformer's settings
+    are recorded, and the corpus refuses to be finished as direct heatmaps."""
+    url, _ = small
+    iq = str(tmp_path / "iq.zarr")
+    cfg = CorpusConfig(corners=2, radar_output="iq", radar_chirps=128, **SMALL)
+    synth_corpus(iq, cfg, processes=1, quiet=True)
+    assert validate_dataset(iq, quiet=True)["ok"]
+    direct, raw = open_dataset(url), open_dataset(iq)
+    dr = raw.range_bins.dr
+    k0 = int(0.25 / dr)
+    for sid in raw.scenes:
+        a, b = raw.scene(sid), direct.scene(sid)
+        np.testing.assert_array_equal(np.asarray(a[GT_RANGE][...]), np.asarray(b[GT_RANGE][...]))
+        assert a.attrs["beamform"]["params"]["focus"] == "near" and "beamform" not in b.attrs
+        hm = np.asarray(a[RADAR_HEATMAP][...], np.float32)
+        peak = (hm[:, k0:].argmax(axis=1) + k0 + 0.5) * dr
+        r1 = np.asarray(a[GT_RANGE][...])[:, 0]
+        m = np.isfinite(r1)
+        assert np.mean(np.abs(peak - r1)[m] <= 2 * dr) > 0.5
+        assert not np.array_equal(hm, np.asarray(b[RADAR_HEATMAP][...], np.float32))
+    with pytest.raises(InputError, match="radar_output iq \\(asked: heatmap\\)"):
+        synth_corpus(iq, CorpusConfig(corners=2, **SMALL), processes=1, quiet=True)
