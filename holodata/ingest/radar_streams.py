@@ -166,7 +166,7 @@ class RawRadarStream(RadarStream):
         if Motion(ds0, th).velocity(cycle_s / nr) is not None and (nb < n_syn // 2 or na < n_syn // 2):
             raise DecodeError(f"topic {self.topic}: RadarRawRotation at {raw.log_ns} ns moves but carries {nb}/{na} "
                               f"neighbouring chirps, its beams need {n_syn // 2}")
-        hm = beamform_recorded(cube, nb, nr, na, ds0, th, cycle_s, chirp, self.params)
+        hm = beamform_recorded(cube, (nb, nr, na), (ds0, th), cycle_s, chirp, self.params)
         return RadarFrame(hm, (int(msg.cycle_start_ns), int(msg.cycle_end_ns)),
                           RawRotation(cube[:nb], cube[nb:nb + nr], cube[nb + nr:], motion=(ds0, th)))
 

@@ -177,20 +177,21 @@ def _padded(x: np.ndarray, neighbours: tuple | None, h: int, shape: tuple) -> tu
 beamform_rotation = beamform
 
 
-def beamform_recorded(chirps: np.ndarray, n_before: int, n_rotation: int, n_after: int, travel_per_chirp: float,
-                      heading: float, cycle_s: float, chirp: ChirpConfig, params: BeamformParams) -> np.ndarray:
+def beamform_recorded(chirps: np.ndarray, counts: tuple[int, int, int], motion: tuple[float, float], cycle_s: float,
+                      chirp: ChirpConfig, params: BeamformParams) -> np.ndarray:
     """Beamform one rotation as a rig records it (a ``RadarRawRotation`` message's fields): ``chirps``
     (n_before + n_rotation + n_after, V, S) complex, the rotation's own chirps with the neighbouring
-    rotations' last / first chirps around them (0 of either: circular padding on that side);
-    ``travel_per_chirp`` m and ``heading`` rad (counter-clockwise from beam 0) the odometry's motion
-    over the rotation (:class:`Motion`), ``cycle_s`` the rotation's duration (chirp period =
-    cycle_s / n_rotation; ≤ 0: the chirp configuration's, and no motion). Returns (n_range, H, W) float32, as
-    :func:`beamform`. What ``holodata ingest`` does with each raw rotation and what a corpus of raw
-    samples (``holodata synth --corners --radar-output iq``) stores, so both roads are one."""
-    nb, nr, na = int(n_before), int(n_rotation), int(n_after)
+    rotations' last / first chirps around them, ``counts`` = (n_before, n_rotation, n_after) (0 before
+    or after: circular padding on that side); ``motion`` = (travel_per_chirp m, heading rad
+    counter-clockwise from beam 0), the odometry's motion over the rotation (:class:`Motion`);
+    ``cycle_s`` the rotation's duration (chirp period = cycle_s / n_rotation; ≤ 0: the chirp
+    configuration's, and no motion). Returns (n_range, H, W) float32, as :func:`beamform`. What
+    ``holodata ingest`` does with each raw rotation and what a corpus of raw samples (``holodata synth
+    --corners --radar-output iq``) stores, so both roads are one."""
+    nb, nr, na = (int(c) for c in counts)
     before, rot, after = chirps[:nb], chirps[nb:nb + nr], chirps[nb + nr:nb + nr + na]
     period = cycle_s / nr
-    vel = Motion(float(travel_per_chirp), float(heading)).velocity(period)    # None at rest or without a period
+    vel = Motion(float(motion[0]), float(motion[1])).velocity(period)    # None at rest or without a period
     return beamform(rot, chirp, params, neighbours=(before if nb else None, after if na else None),
                     velocity=vel, chirp_period_s=period if period > 0 else None)
 

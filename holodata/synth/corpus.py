@@ -231,9 +231,9 @@ def _beamformed_rotation(sensors, cfg: CorpusConfig, k: int, cycle: np.ndarray) 
     from ..radar.beamform import beamform_recorded
 
     r, st = sensors.radar_rotation(k)
-    hm = beamform_recorded(r["chirps"], r["n_before"], r["n_rotation"], r["n_after"], r["travel_per_chirp"],
-                           r["heading"], (int(cycle[1]) - int(cycle[0])) * 1e-9, sensors.sc.radar_cfg.imaging()[0],
-                           beamform_params(cfg))
+    hm = beamform_recorded(r["chirps"], (r["n_before"], r["n_rotation"], r["n_after"]),
+                           (r["travel_per_chirp"], r["heading"]), (int(cycle[1]) - int(cycle[0])) * 1e-9,
+                           sensors.sc.radar_cfg.imaging()[0], beamform_params(cfg))
     return hm, st
 
 
