@@ -226,6 +226,7 @@ def main(argv=None) -> int:
             t2 = time.perf_counter()
             train_stage2(raw_url, run, s2, quiet=True, init=first)
             t3 = time.perf_counter()
+            steps += a.raw_epochs * math.ceil(a.raw_corners * a.frames / cfg.batch_size)
             s1_s, s2_s = s1_s + t2 - t1, s2_s + t3 - t2
             ev, raw_ev = (e.with_name(f"{e.name}_raw{a.raw_corners}") for e in (ev, raw_ev))
             raw_docs[n] = evaluated(raw_ev, run, cue) or Evaluation(raw_report, run, raw_ev, split="test", quiet=True,
@@ -285,6 +286,8 @@ def main(argv=None) -> int:
         record = {"command": " ".join(shlex.quote(x) for x in ["python", *sys.argv]), "commit": commit.strip(),
                   "train_corpus": cc_dict(train_cc), "heldout_report": cc_dict(report_cc),
                   "heldout_check": cc_dict(check_cc), "train_config": cfg.to_dict(), "stage2_config": s2.to_dict(),
+                  **({"raw_train_corpus": cc_dict(raw_cc), "heldout_report_raw_samples":
+                      cc_dict(replace(report_cc, radar_output="iq"))} if a.raw_corners else {}),
                   "train_seconds": round(timings[top]["stage_one_s"] + timings[top]["stage_two_s"], 1),
                   "scores": recorded, "motion_cue": cue.to_dict() if cue is not None else None}
         print(f"installed {install(run, record, dest=GRID_DIRS[key], half=half)}")   # each grid's in its own folder
